@@ -1,0 +1,33 @@
+# Every target that needs Python creates .venv and installs the project first,
+# so `make run` or `make test` alone does all set-up on a fresh machine.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test bench lint typecheck clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/capataz run
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/capataz bench all
+
+lint: $(STAMP)
+	$(BIN)/ruff check common services tests
+	$(BIN)/ruff format --check common services tests
+
+typecheck: $(STAMP)
+	$(BIN)/mypy common services
+
+clean:
+	rm -rf out .pytest_cache .mypy_cache .ruff_cache
