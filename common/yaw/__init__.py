@@ -1,0 +1,52 @@
+"""Yaw from a downward camera by cached-spectrum patch phase correlation (paper A).
+
+Two stages, so a cluster can distribute the first: ``patch_spectra`` / ``measure_patches`` per
+patch subset (workers) and ``YawTracker.conclude`` (master); ``YawTracker.track`` composes both.
+"""
+
+from common.yaw.correlation import (
+    PatchMeasurement,
+    PatchSpectra,
+    measure_patches,
+    patch_spectra,
+    patch_spectra_from_crops,
+)
+from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad, scale_of_homography
+from common.yaw.global_align import GlobalAlignment, estimate_global_alignment
+from common.yaw.grid import PatchGrid, check_frame, make_patch_grid
+from common.yaw.settings import FftBackend, FitModel, YawError, YawSettings
+from common.yaw.tracker import (
+    EstimateMethod,
+    TrackerState,
+    YawEstimate,
+    YawTracker,
+    delta_yaw_from_homography_rad,
+    estimate_pair,
+)
+
+__all__ = [
+    "EstimateMethod",
+    "FftBackend",
+    "FitModel",
+    "GlobalAlignment",
+    "ModelFit",
+    "PatchGrid",
+    "PatchMeasurement",
+    "PatchSpectra",
+    "TrackerState",
+    "YawError",
+    "YawEstimate",
+    "YawSettings",
+    "YawTracker",
+    "check_frame",
+    "delta_yaw_from_homography_rad",
+    "estimate_global_alignment",
+    "estimate_pair",
+    "fit_correspondences",
+    "make_patch_grid",
+    "measure_patches",
+    "patch_spectra",
+    "patch_spectra_from_crops",
+    "rotation_of_homography_rad",
+    "scale_of_homography",
+]

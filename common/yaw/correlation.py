@@ -1,0 +1,232 @@
+"""The distributable per-patch stage: cached patch spectra and phase correlation (paper A, Algorithm 2).
+
+A frame's patch spectra are computed once (``patch_spectra``) and reused as the "previous" of the
+next frame, which halves the forward transforms of the paper's ``cv2.phaseCorrelate`` per pair.
+Everything is batched over patches; a worker may compute any subset of patch indices.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.yaw.grid import IntArray, PatchGrid, U8Array
+from common.yaw.settings import FftBackend, YawError, YawSettings
+
+FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+ComplexArray = npt.NDArray[np.complex64]
+
+#: Peaks closer than this (level px, per axis) to the main peak do not count as a second peak.
+_SECOND_PEAK_EXCLUSION_PX = 2
+
+
+@dataclass(frozen=True, eq=False)
+class PatchSpectra:
+    """Windowed spectra of a subset of one frame's patches.
+
+    ``spectra`` is complex64 (n, s, s) for the OpenCV backend or (n, s, s // 2 + 1) for numpy;
+    ``texture_std`` (n,) is each crop's grey-level standard deviation (0..255).
+    """
+
+    indices: IntArray
+    spectra: ComplexArray
+    texture_std: Float32Array
+
+
+@dataclass(frozen=True, eq=False)
+class PatchMeasurement:
+    """Displacements of frame k against frame k-1 at the patch centres, full-resolution pixels.
+
+    ``shift_px`` (n, 2) [dx, dy]: content at centre c in frame k-1 is at c + shift in frame k.
+    ``confidence`` (n,) is the ratio of the correlation peak to the second peak; ``peak`` (n,) the
+    height of the (Gaussian-weighted) phase-correlation peak; ``valid`` (n,) rejects textureless
+    and ambiguous patches.
+    """
+
+    indices: IntArray
+    shift_px: FloatArray
+    confidence: FloatArray
+    peak: FloatArray
+    valid: npt.NDArray[np.bool_]
+
+    @property
+    def n_valid(self) -> int:
+        return int(np.count_nonzero(self.valid))
+
+
+@functools.lru_cache(maxsize=8)
+def hann_window(size_px: int) -> Float32Array:
+    """Separable Hann window (size, size), float32, the same as ``cv2.createHanningWindow``."""
+    window = np.asarray(cv2.createHanningWindow((size_px, size_px), cv2.CV_32F), dtype=np.float32)
+    window.setflags(write=False)
+    return window
+
+
+@functools.lru_cache(maxsize=16)
+def peak_weighting(size_px: int, sigma_px: float, half: bool) -> Float32Array:
+    """Gaussian weight of the cross-power spectrum: the correlation peak becomes a Gaussian of ``sigma_px``.
+
+    A Gaussian of std sigma (pixels) has the transform exp(-2 pi^2 sigma^2 nu^2), nu in cycles/pixel.
+    ``half`` gives the rfft layout (s, s // 2 + 1), else the full (s, s) layout.
+    """
+    fy = np.fft.fftfreq(size_px)
+    fx = np.fft.rfftfreq(size_px) if half else np.fft.fftfreq(size_px)
+    nu2 = fy[:, None] ** 2 + fx[None, :] ** 2
+    weight = np.exp(-2.0 * np.pi**2 * sigma_px**2 * nu2).astype(np.float32)
+    weight.setflags(write=False)
+    return weight
+
+
+def check_crops(crops: object, settings: YawSettings) -> U8Array:
+    """Crops must be uint8 (n, s, s) with s = settings.patch_size_px."""
+    if not isinstance(crops, np.ndarray) or crops.dtype != np.uint8:
+        raise InputError(f"crops must be a uint8 numpy array (n, s, s), got {type(crops)}")
+    s = settings.patch_size_px
+    if crops.ndim != 3 or crops.shape[1:] != (s, s):
+        raise InputError(f"crops must have shape (n, {s}, {s}), got {crops.shape}")
+    return crops
+
+
+def windowed_patches(crops_u8: U8Array, settings: YawSettings) -> tuple[Float32Array, Float32Array]:
+    """Zero-mean, Hann-windowed float32 patches (n, s, s) and each crop's grey std (n,)."""
+    patches = crops_u8.astype(np.float32)
+    mean = patches.mean(axis=(1, 2), keepdims=True)
+    patches -= mean
+    texture_std = np.sqrt(np.mean(patches * patches, axis=(1, 2)))
+    patches *= hann_window(settings.patch_size_px)
+    return patches, texture_std.astype(np.float32)
+
+
+def forward_transform(patches: Float32Array, backend: FftBackend) -> ComplexArray:
+    """Batched 2-D transforms of real patches (n, s, s): full spectra (OpenCV) or half spectra (numpy)."""
+    if backend is FftBackend.NUMPY:
+        return np.fft.rfft2(patches).astype(np.complex64, copy=False)
+    n, height, width = patches.shape
+    out = np.empty((n, height, width, 2), dtype=np.float32)
+    for i in range(n):
+        cv2.dft(patches[i], out[i], flags=cv2.DFT_COMPLEX_OUTPUT)
+    return out.view(np.complex64)[..., 0]
+
+
+def inverse_transform(spectra: ComplexArray, size_px: int, backend: FftBackend) -> Float32Array:
+    """Batched inverse of Hermitian spectra to real surfaces (n, s, s)."""
+    if backend is FftBackend.NUMPY:
+        return np.fft.irfft2(spectra, s=(size_px, size_px)).astype(np.float32, copy=False)
+    n = spectra.shape[0]
+    pairs = spectra[..., None].view(np.float32)  # (n, s, s, 2)
+    out = np.empty((n, size_px, size_px), dtype=np.float32)
+    flags = cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE
+    for i in range(n):
+        cv2.dft(pairs[i], out[i], flags=flags)
+    return out
+
+
+def patch_spectra_from_crops(
+    crops_u8: U8Array, indices: npt.ArrayLike, settings: YawSettings
+) -> PatchSpectra:
+    """Spectra of already-cropped patches (what a worker receives); same bits as ``patch_spectra``."""
+    crops = check_crops(crops_u8, settings)
+    idx = np.asarray(indices, dtype=np.intp)
+    if idx.shape != (crops.shape[0],):
+        raise InputError(f"indices must have shape ({crops.shape[0]},) like the crops, got {idx.shape}")
+    patches, texture_std = windowed_patches(crops, settings)
+    spectra = forward_transform(patches, settings.fft_backend)
+    return PatchSpectra(indices=idx, spectra=spectra, texture_std=texture_std)
+
+
+def patch_spectra(
+    frame_u8: U8Array, grid: PatchGrid, indices: npt.ArrayLike | None, settings: YawSettings
+) -> PatchSpectra:
+    """Spectra of the patches ``indices`` (all when None) of one full-resolution frame."""
+    idx = grid.all_indices if indices is None else grid.check_indices(indices)
+    return patch_spectra_from_crops(grid.crop(frame_u8, idx), idx, settings)
+
+
+def subpixel_peaks(surfaces: Float32Array) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Peak position (n, 2) [dx, dy] in (-s/2, s/2], peak height (n,) and peak/second-peak ratio (n,).
+
+    The surfaces are Gaussian-shaped around their peak (see ``peak_weighting``), so a 3-point
+    parabola through the log of the peak and its neighbours is the sub-pixel estimate per axis.
+    """
+    n, height, width = surfaces.shape
+    flat = surfaces.reshape(n, -1)
+    arg = np.argmax(flat, axis=1)
+    py, px = np.divmod(arg, width)
+    rows = np.arange(n)
+    c0 = flat[rows, arg].astype(np.float64)
+    tiny = 1e-12
+    log0 = np.log(np.maximum(c0, tiny))
+
+    def log_at(dy: int, dx: int) -> FloatArray:
+        value = surfaces[rows, (py + dy) % height, (px + dx) % width].astype(np.float64)
+        return np.log(np.maximum(value, tiny))
+
+    def vertex(minus: FloatArray, plus: FloatArray) -> FloatArray:
+        curvature = minus - 2.0 * log0 + plus
+        with np.errstate(divide="ignore", invalid="ignore"):
+            offset = np.where(curvature < 0.0, 0.5 * (minus - plus) / curvature, 0.0)
+        return np.clip(offset, -0.5, 0.5)
+
+    sub_x = vertex(log_at(0, -1), log_at(0, 1))
+    sub_y = vertex(log_at(-1, 0), log_at(1, 0))
+    # Wrap the integer peak to signed shifts.
+    shift_x = np.where(px > width // 2, px - width, px) + sub_x
+    shift_y = np.where(py > height // 2, py - height, py) + sub_y
+    # Second peak: the maximum outside a small square around the main peak (cyclic distances).
+    dist_y = np.abs((np.arange(height)[None, :] - py[:, None] + height // 2) % height - height // 2)
+    dist_x = np.abs((np.arange(width)[None, :] - px[:, None] + width // 2) % width - width // 2)
+    near = (dist_y[:, :, None] <= _SECOND_PEAK_EXCLUSION_PX) & (
+        dist_x[:, None, :] <= _SECOND_PEAK_EXCLUSION_PX
+    )
+    second = np.where(near, -np.inf, surfaces).reshape(n, -1).max(axis=1).astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(second > tiny, c0 / np.maximum(second, tiny), np.where(c0 > tiny, np.inf, 0.0))
+    return np.stack([shift_x, shift_y], axis=1), c0, ratio
+
+
+def measure_patches(previous: PatchSpectra, current: PatchSpectra, settings: YawSettings) -> PatchMeasurement:
+    """Phase correlation of each patch of frame k against its cached spectrum of frame k-1.
+
+    Paper A, Algorithm 2 (DISPLACEMENT), with the previous spectrum reused instead of recomputed:
+    cross-power spectrum ``C = (Ib . conj(Ia)) / |Ib . conj(Ia)|`` (paper A's C, normalised per
+    frequency), weighted by a Gaussian (``peak_weighting``), inverse transform, sub-pixel peak.
+    """
+    if previous.indices.shape != current.indices.shape or not np.array_equal(
+        previous.indices, current.indices
+    ):
+        raise YawError("previous and current spectra must cover the same patch indices in the same order")
+    if previous.spectra.shape != current.spectra.shape:
+        raise YawError(f"spectra shapes differ: {previous.spectra.shape} vs {current.spectra.shape}")
+    s = settings.patch_size_px
+    half = settings.fft_backend is FftBackend.NUMPY
+    expected = (s, s // 2 + 1) if half else (s, s)
+    if current.spectra.shape[1:] != expected:
+        raise YawError(f"spectra have shape {current.spectra.shape[1:]}, settings expect {expected}")
+    n = current.indices.size
+    if n == 0:
+        empty = np.zeros((0,), dtype=np.float64)
+        return PatchMeasurement(
+            current.indices, np.zeros((0, 2)), empty, empty, np.zeros((0,), dtype=np.bool_)
+        )
+    cross = current.spectra * np.conj(previous.spectra)
+    magnitude = np.abs(cross)
+    magnitude += np.float32(1e-6) * (magnitude.max(axis=(1, 2), keepdims=True) + np.float32(1e-30))
+    cross /= magnitude
+    cross *= peak_weighting(s, settings.peak_sigma_px, half)
+    surfaces = inverse_transform(cross, s, settings.fft_backend)
+    shift_level, peak, ratio = subpixel_peaks(surfaces)
+    textured = np.minimum(previous.texture_std, current.texture_std) >= settings.min_texture_std
+    valid = textured & (ratio >= settings.min_peak_ratio) & np.all(np.isfinite(shift_level), axis=1)
+    return PatchMeasurement(
+        indices=current.indices,
+        shift_px=shift_level * settings.scale,
+        confidence=np.where(textured, ratio, 0.0),
+        peak=peak,
+        valid=valid,
+    )

@@ -1,0 +1,140 @@
+"""Coarse global rotation + scale + translation of a whole frame pair (Fourier-Mellin / log-polar).
+
+Used to pre-align a pair whose rotation is far beyond what per-patch translations can follow
+(fast spins, dropped frames, the Oxford boat pair's -14 deg with 0.885 zoom).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from common.yaw.grid import U8Array, check_frame
+from common.yaw.settings import YawSettings
+
+FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True, eq=False)
+class GlobalAlignment:
+    """A similarity ``matrix`` (3, 3) mapping frame-a pixels to frame-b pixels, and its parameters.
+
+    ``response`` is the translation phase-correlation peak of the pre-aligned pair (0..1).
+    """
+
+    matrix: FloatArray
+    rotation_rad: float
+    scale: float
+    response: float
+
+
+@functools.lru_cache(maxsize=4)
+def _highpass(size_px: int) -> Float32Array:
+    """Reddy & Chatterji's high-pass emphasis (1 - X)(2 - X), X = cos(pi u) cos(pi v), centred spectrum."""
+    u = np.linspace(-0.5, 0.5, size_px, endpoint=False)
+    X = np.cos(np.pi * u)[:, None] * np.cos(np.pi * u)[None, :]
+    weight = ((1.0 - X) * (2.0 - X)).astype(np.float32)
+    weight.setflags(write=False)
+    return weight
+
+
+def _log_polar_magnitude(square: Float32Array, angle_bins: int) -> Float32Array:
+    """Log-polar map (angle_bins, size/2) of the high-passed, centred log-magnitude spectrum."""
+    size = square.shape[0]
+    windowed = (square - square.mean()) * cv2.createHanningWindow((size, size), cv2.CV_32F)
+    spectrum = np.fft.fftshift(np.abs(np.fft.fft2(windowed))).astype(np.float32)
+    magnitude = np.log1p(spectrum * _highpass(size))
+    radius = size / 2.0
+    return cv2.warpPolar(
+        magnitude,
+        (size // 2, angle_bins),
+        (size / 2.0, size / 2.0),
+        radius,
+        cv2.INTER_LINEAR | cv2.WARP_POLAR_LOG,
+    )
+
+
+def _similarity_about(centre_xy: tuple[float, float], rotation_rad: float, scale: float) -> FloatArray:
+    """3x3 similarity rotating by ``rotation_rad`` and scaling by ``scale`` about ``centre_xy``."""
+    cx, cy = centre_xy
+    c, s = scale * math.cos(rotation_rad), scale * math.sin(rotation_rad)
+    return np.array([[c, -s, cx - c * cx + s * cy], [s, c, cy - s * cx - c * cy], [0.0, 0.0, 1.0]])
+
+
+def warp_into(frame_b: U8Array, matrix_a_b: FloatArray, shape: tuple[int, int]) -> U8Array:
+    """Frame b resampled into frame a's pixels: out(x) = b(matrix_a_b @ x), size ``shape`` (H, W)."""
+    return np.asarray(
+        cv2.warpPerspective(
+            frame_b,
+            matrix_a_b,
+            (shape[1], shape[0]),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_REFLECT,
+        ),
+        dtype=np.uint8,
+    )
+
+
+def estimate_global_alignment(frame_a: U8Array, frame_b: U8Array, settings: YawSettings) -> GlobalAlignment:
+    """Fourier-Mellin estimate of the similarity frame a -> frame b on downsampled whole frames.
+
+    Rotation and scale come from phase correlation of the log-polar magnitude spectra of the central
+    squares (translation-invariant); the 180 deg ambiguity of a magnitude spectrum and the translation
+    come from phase correlation of frame a with frame b warped back by each candidate.
+    """
+    check_frame(frame_a, "frame_a")
+    check_frame(frame_b, "frame_b")
+    size = settings.global_size_px
+    factor = size / min(min(frame_a.shape), min(frame_b.shape))
+
+    def small(frame: U8Array) -> Float32Array:
+        h, w = frame.shape
+        resized = cv2.resize(frame, (round(w * factor), round(h * factor)), interpolation=cv2.INTER_AREA)
+        return resized.astype(np.float32)
+
+    small_a, small_b = small(frame_a), small(frame_b)
+
+    def centre_square(image: Float32Array) -> Float32Array:
+        h, w = image.shape
+        y0, x0 = (h - size) // 2, (w - size) // 2
+        return np.ascontiguousarray(image[y0 : y0 + size, x0 : x0 + size])
+
+    bins = settings.global_angle_bins
+    polar_a = _log_polar_magnitude(centre_square(small_a), bins)
+    polar_b = _log_polar_magnitude(centre_square(small_b), bins)
+    # The angle axis is periodic; only the radial axis needs a window.
+    radial_window = np.tile(np.hanning(polar_a.shape[1] + 2)[1:-1], (bins, 1))
+    (d_radial, d_angle), _ = cv2.phaseCorrelate(
+        polar_a.astype(np.float64), polar_b.astype(np.float64), radial_window
+    )
+    rotation = 2.0 * math.pi * d_angle / bins
+    log_base = math.log(size / 2.0) / (size // 2)
+    scale = math.exp(-d_radial * log_base)  # the spectrum shrinks when the image grows
+    h, w = small_a.shape
+    centre = ((w - 1) / 2.0, (h - 1) / 2.0)
+    window = cv2.createHanningWindow((w, h), cv2.CV_64F)
+    best: tuple[float, FloatArray, float] | None = None
+    for candidate in (rotation, rotation + math.pi):
+        S = _similarity_about(centre, candidate, scale)
+        aligned = cv2.warpPerspective(
+            small_b, S, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT
+        )
+        (dx, dy), response = cv2.phaseCorrelate(
+            small_a.astype(np.float64), aligned.astype(np.float64), window
+        )
+        if best is None or response > best[0]:
+            shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+            best = (float(response), S @ shift, candidate)
+    assert best is not None
+    response, matrix_small, rotation = best
+    # Small pixel x_s = f * x (pixel-centre offsets cancel in rotation and scale, shift < 1 px).
+    D = np.diag([factor, factor, 1.0])
+    matrix = np.linalg.inv(D) @ matrix_small @ D
+    wrapped = math.atan2(math.sin(rotation), math.cos(rotation))
+    return GlobalAlignment(matrix=matrix, rotation_rad=wrapped, scale=scale, response=response)

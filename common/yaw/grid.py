@@ -1,0 +1,146 @@
+"""The patch grid over a frame (paper A, Fig. 2) and the frame validation at the core's boundary."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.yaw.settings import YawSettings
+
+U8Array = npt.NDArray[np.uint8]
+IntArray = npt.NDArray[np.intp]
+FloatArray = npt.NDArray[np.float64]
+
+
+def check_frame(frame: object, name: str = "frame") -> U8Array:
+    """Return ``frame`` if it is a non-empty 2-D uint8 grey image (H, W), else raise InputError."""
+    if not isinstance(frame, np.ndarray):
+        raise InputError(f"{name} must be a numpy array of shape (H, W) and dtype uint8, got {type(frame)}")
+    if frame.dtype != np.uint8:
+        raise InputError(f"{name} must have dtype uint8 (grey 0..255), got {frame.dtype}")
+    if frame.ndim != 2:
+        raise InputError(f"{name} must have shape (H, W) (one grey channel), got {frame.shape}")
+    if frame.size == 0:
+        raise InputError(f"{name} is empty, shape {frame.shape}")
+    return frame
+
+
+def pyramid_image(frame_u8: U8Array, level: int) -> U8Array:
+    """``level`` successive ``cv2.pyrDown`` of a frame (level 0 returns the frame itself)."""
+    image = frame_u8
+    for _ in range(level):
+        image = np.asarray(cv2.pyrDown(image), dtype=np.uint8)
+    return image
+
+
+def level_shape(frame_shape: tuple[int, int], level: int) -> tuple[int, int]:
+    """Shape (H, W) of a frame after ``level`` pyrDowns (each gives ceil(n / 2))."""
+    height, width = frame_shape
+    for _ in range(level):
+        height, width = (height + 1) // 2, (width + 1) // 2
+    return height, width
+
+
+@dataclass(frozen=True, eq=False)
+class PatchGrid:
+    """Where the patches are: origins at the working pyramid level and centres at full resolution.
+
+    ``centres_px`` (P, 2) float [x, y] full-resolution pixels are the correspondence points of the fit.
+    """
+
+    frame_shape: tuple[int, int]
+    pyramid_level: int
+    patch_size_px: int
+    origins_level_px: IntArray  # (P, 2) int [x0, y0] at the working level
+    centres_px: FloatArray  # (P, 2) float [x, y] at full resolution
+
+    @property
+    def n_patches(self) -> int:
+        return int(self.origins_level_px.shape[0])
+
+    @property
+    def all_indices(self) -> IntArray:
+        return np.arange(self.n_patches, dtype=np.intp)
+
+    def slices(self, index: int) -> tuple[slice, slice]:
+        """(rows, cols) slices of patch ``index`` in the level image."""
+        x0, y0 = (int(v) for v in self.origins_level_px[index])
+        n = self.patch_size_px
+        return slice(y0, y0 + n), slice(x0, x0 + n)
+
+    def check_indices(self, indices: npt.ArrayLike) -> IntArray:
+        """Validate patch indices: 1-D integers in [0, n_patches), unique."""
+        arr = np.asarray(indices)
+        if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+            raise InputError(f"indices must be a 1-D integer array, got shape {arr.shape} dtype {arr.dtype}")
+        arr = arr.astype(np.intp)
+        if arr.size and (arr.min() < 0 or arr.max() >= self.n_patches):
+            raise InputError(f"indices must be in [0, {self.n_patches}), got {arr.min()}..{arr.max()}")
+        if np.unique(arr).size != arr.size:
+            raise InputError("indices must be unique")
+        return arr
+
+    def level_image(self, frame_u8: U8Array) -> U8Array:
+        """The frame at the grid's pyramid level (checks the frame and its shape)."""
+        check_frame(frame_u8)
+        if frame_u8.shape != self.frame_shape:
+            raise InputError(f"frame must have shape {self.frame_shape} for this grid, got {frame_u8.shape}")
+        return pyramid_image(frame_u8, self.pyramid_level)
+
+    def crop_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
+        """Crops (n, s, s) uint8 of the patches ``indices`` from an image already at the grid's level."""
+        idx = self.check_indices(indices)
+        expected = level_shape(self.frame_shape, self.pyramid_level)
+        if level_u8.shape != expected:
+            raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        n = self.patch_size_px
+        offsets = np.arange(n, dtype=np.intp)
+        rows = self.origins_level_px[idx, 1][:, None, None] + offsets[None, :, None]
+        cols = self.origins_level_px[idx, 0][:, None, None] + offsets[None, None, :]
+        return np.ascontiguousarray(level_u8[rows, cols])
+
+    def crop(self, frame_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
+        """Crops (n, s, s) uint8 at the working level of the patches ``indices`` of a full frame.
+
+        Only these pixels need to travel to a worker; ``patch_spectra_from_crops`` turns them into
+        the same spectra as ``patch_spectra`` on the whole frame, bit for bit.
+        """
+        return self.crop_level(self.level_image(frame_u8), indices)
+
+
+def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> PatchGrid:
+    """A ``grid_cols`` x ``grid_rows`` grid of square patches evenly spread over the frame.
+
+    Patches are laid out at the working pyramid level, leaving ``margin_px`` (full resolution) free
+    on each side; neighbours may overlap when the grid is denser than the frame allows.
+    """
+    if len(frame_shape) != 2 or min(frame_shape) <= 0:
+        raise InputError(f"frame_shape must be (H, W) positive, got {frame_shape}")
+    height, width = (int(v) for v in frame_shape)
+    level_h, level_w = level_shape((height, width), settings.pyramid_level)
+    n = settings.patch_size_px
+    margin = int(np.ceil(settings.margin_px / settings.scale))
+    span_w = level_w - n - 2 * margin
+    span_h = level_h - n - 2 * margin
+    if span_w < 0 or span_h < 0:
+        raise InputError(
+            f"frame {frame_shape} at pyramid level {settings.pyramid_level} ({level_h}x{level_w}) "
+            f"is too small for {n} px patches with a {settings.margin_px} px margin"
+        )
+    xs = np.rint(np.linspace(margin, margin + span_w, settings.grid_cols)).astype(np.intp)
+    ys = np.rint(np.linspace(margin, margin + span_h, settings.grid_rows)).astype(np.intp)
+    grid_x, grid_y = np.meshgrid(xs, ys)
+    origins = np.stack([grid_x.ravel(), grid_y.ravel()], axis=1)
+    # Centre of the (symmetric) window of a patch, mapped to full resolution (level pixel i ~ 2**L * i).
+    centres = (origins.astype(np.float64) + (n - 1) / 2.0) * settings.scale
+    return PatchGrid(
+        frame_shape=(height, width),
+        pyramid_level=settings.pyramid_level,
+        patch_size_px=n,
+        origins_level_px=origins,
+        centres_px=centres,
+    )

@@ -1,0 +1,86 @@
+"""Settings and errors of the yaw core (paper A): one frozen dataclass shared by every stage."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+from common.errors import CapatazError, InputError
+
+
+class YawError(CapatazError):
+    """The yaw core could not produce an estimate (e.g. inconsistent spectra of two streams)."""
+
+
+class FftBackend(Enum):
+    """Who computes the patch transforms; chosen by measurement (``capataz bench yaw`` times both)."""
+
+    OPENCV = "opencv"  # a loop of cv2.dft over the patches (full complex spectrum)
+    NUMPY = "numpy"  # one batched numpy.fft.rfft2 over all patches (half spectrum)
+
+
+class FitModel(Enum):
+    """The model fitted to the correspondences patch centre -> centre + shift."""
+
+    SIMILARITY = "similarity"  # rotation + uniform scale + translation (4 dof), the hover model
+    HOMOGRAPHY = "homography"  # full plane-induced homography (8 dof)
+
+
+@dataclass(frozen=True)
+class YawSettings:
+    """Every tunable of the yaw core; the defaults are the benchmarked configuration.
+
+    The patch grid is laid out on the frame at pyramid level ``pyramid_level`` (each level halves
+    the frame with ``cv2.pyrDown``); ``patch_size_px`` is the side of a patch at that level, so a
+    patch covers ``patch_size_px * 2**pyramid_level`` full-resolution pixels.
+    """
+
+    patch_size_px: int = 32
+    grid_cols: int = 8
+    grid_rows: int = 5
+    margin_px: int = 0  # border left free at full resolution
+    pyramid_level: int = 1
+    fft_backend: FftBackend = FftBackend.OPENCV
+    #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
+    #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
+    peak_sigma_px: float = 1.0
+    #: Patches whose grey-level standard deviation (0..255 scale) is below this are textureless.
+    min_texture_std: float = 4.0
+    #: A patch is valid when its correlation peak exceeds the second peak (outside +-2 px) by this ratio.
+    min_peak_ratio: float = 1.5
+    fit_model: FitModel = FitModel.SIMILARITY
+    ransac_threshold_px: float = 1.0  # full-resolution pixels
+    ransac_max_iters: int = 500
+    min_inliers: int = 6
+    #: The patch fit is "poor" (the global pre-alignment runs) below this inlier fraction of valid patches.
+    min_inlier_fraction: float = 0.5
+    #: Global (Fourier-Mellin) stage: side of the square log-polar input and its number of angle rows.
+    global_size_px: int = 256
+    global_angle_bins: int = 720
+    #: Pre-align when the global rotation exceeds this even if the patch fit looked fine.
+    global_min_rotation_deg: float = 3.0
+    #: Residual (full-resolution px, median over inliers) above which the estimate is low-confidence.
+    max_residual_px: float = 1.5
+
+    def __post_init__(self) -> None:
+        if self.patch_size_px < 8 or self.patch_size_px % 2:
+            raise InputError(f"patch_size_px must be an even integer >= 8, got {self.patch_size_px}")
+        if self.grid_cols < 1 or self.grid_rows < 1:
+            raise InputError(f"grid must be at least 1x1, got {self.grid_cols}x{self.grid_rows}")
+        if self.grid_cols * self.grid_rows < 4:
+            raise InputError("a grid needs at least 4 patches for a fit")
+        if not 0 <= self.pyramid_level <= 4:
+            raise InputError(f"pyramid_level must be in 0..4, got {self.pyramid_level}")
+        if self.margin_px < 0:
+            raise InputError(f"margin_px must be >= 0, got {self.margin_px}")
+        if self.peak_sigma_px <= 0.0:
+            raise InputError(f"peak_sigma_px must be > 0, got {self.peak_sigma_px}")
+        if self.min_inliers < 3:
+            raise InputError(f"min_inliers must be >= 3, got {self.min_inliers}")
+        if self.global_size_px < 64 or self.global_angle_bins < 90:
+            raise InputError("global_size_px must be >= 64 and global_angle_bins >= 90")
+
+    @property
+    def scale(self) -> int:
+        """Full-resolution pixels per pixel at the working pyramid level."""
+        return int(2**self.pyramid_level)
