@@ -1,0 +1,233 @@
+"""Projection of the model's edges into many particles' cameras at once (paper B's "render each particle").
+
+Rather than rasterising one wireframe per particle, every model edge carries a fixed number of 3D sample
+points (computed once per scene, :func:`sample_edges`). One batched matmul moves all sample points into
+every particle's camera: (particles x 3 x 3) @ (3 x points). Culling works at two levels:
+
+- per particle and edge: back-face culling (an edge is kept when one of its adjacent faces faces the
+  camera) and frustum culling of the edge's bounding sphere;
+- per particle and sample point: the near plane (``z > near_m``; this clips an edge where it crosses the
+  near plane, at sample-point resolution) and the image bounds.
+
+Edges that no particle can see are dropped before the points are projected, so the per-step cost follows
+the number of edges in view, not the size of the scene.
+
+Particle states are ``(x, y, z, alpha, beta, gamma)`` = body position in the world (m) and ZYX Euler angles
+roll, pitch, yaw (rad) of ``R_world_body``; the camera sits at the body origin, rotated by ``R_body_camera``
+(forward-looking by default).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler
+from common.localization.model import SceneModel
+
+FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+BoolArray = npt.NDArray[np.bool_]
+IntArray = npt.NDArray[np.int64]
+
+#: Default near plane of the virtual camera (m).
+NEAR_PLANE_M = 0.05
+
+
+class CameraModel(Protocol):
+    """What projection needs of a pinhole camera (OpenCV frame, pixel centres at integer coordinates)."""
+
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def fx(self) -> float: ...
+    @property
+    def fy(self) -> float: ...
+    @property
+    def cx(self) -> float: ...
+    @property
+    def cy(self) -> float: ...
+
+
+def check_states(states: npt.ArrayLike, name: str = "states") -> FloatArray:
+    """Particle states as float64 (P, 6) with finite values, or raise InputError."""
+    arr = np.asarray(states, dtype=np.float64)
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 6 or arr.shape[0] == 0:
+        raise InputError(f"{name} must have shape (P, 6) = (x, y, z, roll, pitch, yaw), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name} must be finite")
+    return arr
+
+
+@dataclass(frozen=True)
+class EdgeSamples:
+    """Fixed sample points on every model edge, in the world frame, with what culling needs.
+
+    ``points_world_m`` (E, S, 3) sit at fractions ``(i + 1/2) / S`` along each edge (never on the corners,
+    where several edges meet). ``directions_world`` (E, 3) are unit edge directions.
+    """
+
+    points_world_m: FloatArray
+    directions_world: FloatArray
+    centres_world_m: FloatArray
+    radii_m: FloatArray
+    edge_faces: IntArray
+    face_normals: FloatArray
+    face_offsets_m: FloatArray
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.points_world_m.shape[0])
+
+    @property
+    def points_per_edge(self) -> int:
+        return int(self.points_world_m.shape[1])
+
+
+def sample_edges(scene: SceneModel, points_per_edge: int = 8) -> EdgeSamples:
+    """Precompute ``points_per_edge`` 3D sample points per model edge (once per scene)."""
+    if points_per_edge < 1:
+        raise InputError(f"points_per_edge must be >= 1, got {points_per_edge}")
+    a = scene.edges_world_m[:, 0, :]
+    b = scene.edges_world_m[:, 1, :]
+    fractions = (np.arange(points_per_edge) + 0.5) / points_per_edge
+    points = a[:, None, :] + fractions[None, :, None] * (b - a)[:, None, :]
+    length = np.linalg.norm(b - a, axis=1)
+    return EdgeSamples(
+        points_world_m=points,
+        directions_world=(b - a) / length[:, None],
+        centres_world_m=0.5 * (a + b),
+        radii_m=0.5 * length,
+        edge_faces=scene.edge_faces,
+        face_normals=scene.face_normals,
+        face_offsets_m=scene.face_offsets_m,
+    )
+
+
+def camera_poses(
+    states: FloatArray, R_body_camera: FloatArray = R_BODY_CAMERA_FORWARD
+) -> tuple[FloatArray, FloatArray]:
+    """``R_camera_world`` (P, 3, 3) and camera centres ``p_world_camera_m`` (P, 3) of particle states."""
+    R_world_body = matrix_from_euler(states[:, 3], states[:, 4], states[:, 5])
+    R_world_camera = R_world_body @ R_body_camera
+    return np.swapaxes(R_world_camera, 1, 2), states[:, :3].copy()
+
+
+def front_facing_edges(samples: EdgeSamples, p_world_camera_m: FloatArray) -> BoolArray:
+    """Back-face culling (P, E): an edge is kept when one of its adjacent faces faces the camera."""
+    front = p_world_camera_m @ samples.face_normals.T - samples.face_offsets_m[None, :] > 0.0
+    first = front[:, samples.edge_faces[:, 0]]
+    second_ids = samples.edge_faces[:, 1]
+    second = front[:, np.maximum(second_ids, 0)] & (second_ids >= 0)[None, :]
+    return np.asarray(first | second)
+
+
+def frustum_edges(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    p_world_camera_m: FloatArray,
+    camera: CameraModel,
+    near_m: float = NEAR_PLANE_M,
+) -> BoolArray:
+    """Frustum culling (P, E) of each edge's bounding sphere against the near plane and the 4 image sides."""
+    centres = np.einsum(
+        "pij,pej->pei", R_camera_world, samples.centres_world_m[None] - p_world_camera_m[:, None]
+    )
+    x, y, z = centres[..., 0], centres[..., 1], centres[..., 2]
+    r = samples.radii_m[None, :]
+    # half-angle tangents of the four sides (pixel centres 0 .. width-1, half a pixel of margin)
+    t_left = (camera.cx + 0.5) / camera.fx
+    t_right = (camera.width - 0.5 - camera.cx) / camera.fx
+    t_top = (camera.cy + 0.5) / camera.fy
+    t_bottom = (camera.height - 0.5 - camera.cy) / camera.fy
+    keep = z > near_m - r
+    keep &= (t_right * z - x) / np.hypot(1.0, t_right) > -r
+    keep &= (t_left * z + x) / np.hypot(1.0, t_left) > -r
+    keep &= (t_bottom * z - y) / np.hypot(1.0, t_bottom) > -r
+    keep &= (t_top * z + y) / np.hypot(1.0, t_top) > -r
+    return np.asarray(keep)
+
+
+@dataclass(frozen=True)
+class ProjectedSamples:
+    """Sample points of the edges in view, in every particle's image.
+
+    ``u_px``, ``v_px`` (P, E', S) pixel coordinates; ``valid`` (P, E', S) marks points that survive culling
+    (edge front-facing and in the frustum, point in front of the near plane and inside the image);
+    ``edge_ids`` (E',) the scene edges kept (seen by at least one particle). ``normal_u``, ``normal_v``
+    (P, E', S) are unit image normals of the projected edge at each point (present when requested).
+    """
+
+    u_px: Float32Array
+    v_px: Float32Array
+    valid: BoolArray
+    edge_ids: IntArray
+    normal_u: Float32Array | None = None
+    normal_v: Float32Array | None = None
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.u_px.shape[0])
+
+
+def project_samples(
+    samples: EdgeSamples,
+    states: npt.ArrayLike,
+    camera: CameraModel,
+    R_body_camera: FloatArray = R_BODY_CAMERA_FORWARD,
+    near_m: float = NEAR_PLANE_M,
+    with_normals: bool = False,
+) -> ProjectedSamples:
+    """Project every edge's sample points into every particle's camera (vectorised over P x E x S)."""
+    poses = check_states(states)
+    R_camera_world, p_world_camera = camera_poses(poses, R_body_camera)
+    edge_keep = front_facing_edges(samples, p_world_camera) & frustum_edges(
+        samples, R_camera_world, p_world_camera, camera, near_m
+    )
+    edge_ids = np.flatnonzero(edge_keep.any(axis=0))
+    n_particles, n_kept, n_points = poses.shape[0], edge_ids.size, samples.points_per_edge
+    points = samples.points_world_m[edge_ids].reshape(-1, 3).T.astype(np.float32)  # (3, E' S)
+    R32 = R_camera_world.astype(np.float32)
+    t32 = -np.einsum("pij,pj->pi", R_camera_world, p_world_camera).astype(np.float32)
+    cam = np.matmul(R32, points)  # (P, 3, E' S)
+    cam += t32[:, :, None]
+    x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
+    in_front = z > np.float32(near_m)
+    inv_z = np.float32(1.0) / np.where(in_front, z, np.float32(1.0))
+    x_n = x * inv_z
+    y_n = y * inv_z
+    u = x_n * np.float32(camera.fx) + np.float32(camera.cx)
+    v = y_n * np.float32(camera.fy) + np.float32(camera.cy)
+    valid = in_front & (u >= -0.5) & (u < camera.width - 0.5) & (v >= -0.5) & (v < camera.height - 0.5)
+    shape = (n_particles, n_kept, n_points)
+    valid = valid.reshape(shape) & edge_keep[:, edge_ids, None]
+    normal_u: Float32Array | None = None
+    normal_v: Float32Array | None = None
+    if with_normals:
+        directions = np.matmul(R32, samples.directions_world[edge_ids].T.astype(np.float32))  # (P, 3, E')
+        dx = np.repeat(directions[:, 0], n_points, axis=1)
+        dy = np.repeat(directions[:, 1], n_points, axis=1)
+        dz = np.repeat(directions[:, 2], n_points, axis=1)
+        # image tangent of a 3D line at a point: d(x/z) ~ dx - x_n dz (times fx), likewise for y
+        tan_u = (dx - x_n * dz) * np.float32(camera.fx)
+        tan_v = (dy - y_n * dz) * np.float32(camera.fy)
+        norm = np.hypot(tan_u, tan_v)
+        norm = np.where(norm > 1e-9, norm, np.float32(1.0))
+        normal_u = (-tan_v / norm).reshape(shape)
+        normal_v = (tan_u / norm).reshape(shape)
+    return ProjectedSamples(
+        u_px=u.reshape(shape),
+        v_px=v.reshape(shape),
+        valid=valid,
+        edge_ids=edge_ids,
+        normal_u=normal_u,
+        normal_v=normal_v,
+    )

@@ -1,0 +1,213 @@
+"""Edge likelihoods of paper B: how well each particle's projected model edges match the camera image.
+
+The image's edges are extracted once per frame (:func:`extract_image_edges`: Canny, plus the Euclidean
+distance transform of the non-edge pixels). Each particle's projected sample points
+(:class:`~common.localization.projection.ProjectedSamples`) are then scored, all particles at once, by one of
+paper B's three methods (:class:`ScoringMethod`):
+
+1. ``KLEIN_MURRAY``: a sample point is *aligned* when an image edge lies within ``align_px`` of it
+   (a distance-transform lookup, exact for that definition); ``W ~ exp(k a / v)``.
+2. ``PER_EDGE``: the same counts per model edge; ``W ~ exp(k a / v + lambda * mean_j(a_j / v_j))``.
+3. ``NEAREST_EDGE``: from each sample point, search along the projected edge's normal (both ways, up to
+   ``max_normal_px``) for the nearest image edge pixel; ``g(d) = exp(-d^2 / 2 sigma^2)``, a normal longer
+   than the maximum is dropped (``g = 0``); per edge ``l = sum_i g(d_i) / S``;
+   ``W = alpha exp(k mean_n l_n)``.
+
+``NEAREST_EDGE_DT`` is the distance-transform fast path of method 3: ``d`` is the distance to the nearest
+image edge pixel in any direction (one lookup instead of a walk along the normal). It is never larger than
+the normal distance, and both agree whenever the nearest edge pixel lies on the normal -- the usual case near
+the true pose, where model edges lie on image edges of the same direction. Tests check that both rank
+rendered true poses above perturbed ones and rank particles alike (``tests/common/localization``).
+
+Weights are returned as logarithms (``log W``) so that the filter can normalise them stably.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.localization.projection import ProjectedSamples
+
+FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+BoolArray = npt.NDArray[np.bool_]
+UInt8Array = npt.NDArray[np.uint8]
+
+
+class ScoringMethod(enum.Enum):
+    """Paper B's three image-closeness measures, plus the distance-transform fast path of the third."""
+
+    KLEIN_MURRAY = "klein_murray"
+    PER_EDGE = "per_edge"
+    NEAREST_EDGE = "nearest_edge"
+    NEAREST_EDGE_DT = "nearest_edge_dt"
+
+
+@dataclass(frozen=True)
+class ScoringParams:
+    """Constants of the scorings (paper B's ``k``, ``lambda``, ``alpha``, ``sigma``, max normal length)."""
+
+    method: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
+    k: float = 30.0
+    lambda_per_edge: float = 10.0
+    alpha: float = 1.0
+    align_px: float = 2.0
+    sigma_px: float = 2.0
+    max_normal_px: int = 10
+
+
+@dataclass(frozen=True)
+class ImageEdges:
+    """Edges of one image: ``edge_map`` (H, W) uint8 (1 on an edge) and ``distance_px`` (H, W) float32."""
+
+    edge_map: UInt8Array
+    distance_px: Float32Array
+
+    @property
+    def width(self) -> int:
+        return int(self.edge_map.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.edge_map.shape[0])
+
+
+@dataclass(frozen=True)
+class ScoreResult:
+    """Per particle: ``log_weight`` (P,) = log W of the chosen method, ``fit`` (P,) in [0, 1] (1 = best)."""
+
+    log_weight: FloatArray
+    fit: FloatArray
+
+
+def check_gray_image(image: npt.ArrayLike, name: str = "image") -> UInt8Array:
+    """A grey uint8 image (H, W) with H, W >= 8, or raise InputError."""
+    arr = np.asarray(image)
+    if arr.ndim != 2 or arr.shape[0] < 8 or arr.shape[1] < 8:
+        raise InputError(f"{name} must be a grey image of shape (H >= 8, W >= 8), got {arr.shape}")
+    if arr.dtype != np.uint8:
+        raise InputError(f"{name} must have dtype uint8, got {arr.dtype}")
+    return arr
+
+
+def extract_image_edges(
+    image: npt.ArrayLike, canny_low: float = 40.0, canny_high: float = 100.0
+) -> ImageEdges:
+    """Canny edges of a grey uint8 image and the distance (px) of every pixel to the nearest edge pixel."""
+    gray = check_gray_image(image)
+    edges = cv2.Canny(gray, canny_low, canny_high, L2gradient=True)
+    distance = cv2.distanceTransform(
+        np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+    )
+    return ImageEdges(edge_map=(edges > 0).astype(np.uint8), distance_px=distance.astype(np.float32))
+
+
+def _pixel_index(u_px: Float32Array, v_px: Float32Array, width: int, height: int) -> npt.NDArray[np.intp]:
+    """Flat index of the pixel nearest to each point (clamped into the image)."""
+    u = np.clip(u_px, 0.0, width - 1).astype(np.float32)
+    v = np.clip(v_px, 0.0, height - 1).astype(np.float32)
+    u += np.float32(0.5)
+    v += np.float32(0.5)
+    return np.asarray(v.astype(np.intp) * width + u.astype(np.intp))
+
+
+def distance_transform_distances(projected: ProjectedSamples, edges: ImageEdges) -> Float32Array:
+    """Distance (px) from each sample point to the nearest image edge pixel (P, E', S), one lookup each."""
+    index = _pixel_index(projected.u_px, projected.v_px, edges.width, edges.height)
+    return np.asarray(np.take(edges.distance_px.ravel(), index))
+
+
+def normal_search_distances(
+    projected: ProjectedSamples, edges: ImageEdges, max_normal_px: int
+) -> Float32Array:
+    """Paper B method 3's normal search: distance (px) along each point's image normal to the nearest image
+    edge pixel, searching both ways in 1 px steps up to ``max_normal_px``; ``inf`` where none is found."""
+    if projected.normal_u is None or projected.normal_v is None:
+        raise InputError(
+            "normal search needs ProjectedSamples with normals (project_samples(with_normals=True))"
+        )
+    flat = edges.edge_map.ravel()
+    distance = np.full(projected.u_px.shape, np.inf, dtype=np.float32)
+    unresolved = projected.valid.copy()
+    for step in range(max_normal_px + 1):
+        if not unresolved.any():
+            break
+        for sign in (1.0, -1.0) if step > 0 else (1.0,):
+            offset = np.float32(sign * step)
+            u = projected.u_px + offset * projected.normal_u
+            v = projected.v_px + offset * projected.normal_v
+            inside = (u >= -0.5) & (u < edges.width - 0.5) & (v >= -0.5) & (v < edges.height - 0.5)
+            hit = unresolved & inside & (np.take(flat, _pixel_index(u, v, edges.width, edges.height)) > 0)
+            distance[hit] = np.float32(step)
+            unresolved &= ~hit
+    return distance
+
+
+def normal_weight(distance_px: Float32Array, sigma_px: float, max_normal_px: float) -> Float32Array:
+    """Weight of one normal, paper B method 3: ``g(d) = exp(-d^2 / (2 sigma^2))``; normals longer than the
+    maximum length are dropped (weight 0)."""
+    d = np.minimum(distance_px, np.float32(max_normal_px + 1.0))
+    g = np.exp(d * d * np.float32(-0.5 / sigma_px**2))
+    return np.asarray(np.where(distance_px <= max_normal_px, g, np.float32(0.0)))
+
+
+def klein_murray_log_weight(aligned: FloatArray, visible: FloatArray, k: float) -> FloatArray:
+    """Paper B method 1 (Klein & Murray): ``W = p(y|x) ~ exp(k a / v)``, a = aligned edge samples,
+    v = visible edge samples. Returns ``k a / v`` (0 where nothing is visible)."""
+    return np.asarray(k * aligned / np.maximum(visible, 1.0))
+
+
+def per_edge_log_weight(
+    aligned_per_edge: FloatArray, visible_per_edge: FloatArray, k: float, lambda_per_edge: float
+) -> FloatArray:
+    """Paper B method 2 (per edge): ``W ~ exp(k a / v + lambda * (sum_j a_j / v_j) / m)`` over the m visible
+    edges. Inputs are (P, E) counts; returns the exponent (P,)."""
+    a = aligned_per_edge.sum(axis=1)
+    v = visible_per_edge.sum(axis=1)
+    seen = visible_per_edge > 0
+    m = np.maximum(seen.sum(axis=1), 1)
+    ratios = np.where(seen, aligned_per_edge / np.maximum(visible_per_edge, 1.0), 0.0).sum(axis=1)
+    return np.asarray(k * a / np.maximum(v, 1.0) + lambda_per_edge * ratios / m)
+
+
+def nearest_edge_log_weight(
+    normal_weights: Float32Array, valid: BoolArray, k: float, alpha: float
+) -> tuple[FloatArray, FloatArray]:
+    """Paper B method 3 (nearest edge): per line ``l_n = sum_i g(d_i) / S`` over its S visible sample points,
+    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Returns (log W, mean l) per particle."""
+    s = valid.sum(axis=2, dtype=np.float32)
+    g_sum = np.where(valid, normal_weights, np.float32(0.0)).sum(axis=2, dtype=np.float32)
+    seen = s > 0
+    lines = np.where(seen, g_sum / np.maximum(s, np.float32(1.0)), np.float32(0.0))
+    m = np.maximum(seen.sum(axis=1), 1)
+    mean_l = lines.sum(axis=1, dtype=np.float64) / m
+    return np.log(alpha) + k * mean_l, mean_l
+
+
+def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: ScoringParams) -> ScoreResult:
+    """log W (P,) and fit (P,) of every particle by ``params.method``."""
+    method = params.method
+    valid = projected.valid
+    if method is ScoringMethod.NEAREST_EDGE:
+        distance = normal_search_distances(projected, edges, params.max_normal_px)
+    else:
+        distance = distance_transform_distances(projected, edges)
+    if method in (ScoringMethod.NEAREST_EDGE, ScoringMethod.NEAREST_EDGE_DT):
+        g = normal_weight(distance, params.sigma_px, params.max_normal_px)
+        log_w, mean_l = nearest_edge_log_weight(g, valid, params.k, params.alpha)
+        return ScoreResult(log_weight=log_w, fit=mean_l)
+    aligned = valid & (distance <= np.float32(params.align_px))
+    if method is ScoringMethod.KLEIN_MURRAY:
+        a = aligned.sum(axis=(1, 2), dtype=np.float64)
+        v = valid.sum(axis=(1, 2), dtype=np.float64)
+        return ScoreResult(log_weight=klein_murray_log_weight(a, v, params.k), fit=a / np.maximum(v, 1.0))
+    a_j = aligned.sum(axis=2, dtype=np.float64)
+    v_j = valid.sum(axis=2, dtype=np.float64)
+    log_w = per_edge_log_weight(a_j, v_j, params.k, params.lambda_per_edge)
+    return ScoreResult(log_weight=log_w, fit=a_j.sum(axis=1) / np.maximum(v_j.sum(axis=1), 1.0))
