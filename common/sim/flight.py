@@ -1,0 +1,212 @@
+"""Simulated flights: a trajectory seen by a downward camera (frames on demand), an IMU, a rangefinder.
+
+Rates: camera 20 fps, IMU 400 Hz, rangefinder 50 Hz, all stamped from t = 0 on exact multiples of their
+periods. Frames are never stored: :meth:`Flight.frame` renders frame ``i`` from the true pose each time
+(about 1-2 ms), deterministic for ``(seed, i)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.geometry import R_BODY_CAMERA_DOWN
+from common.sim.camera import PinholeCamera
+from common.sim.ground import GroundTexture, camera_pose_from_body, make_ground_texture, render_ground_view
+from common.sim.sensors import (
+    ImageDegradation,
+    ImuNoise,
+    ImuSeries,
+    RangeNoise,
+    RangeSeries,
+    sample_stamps,
+    simulate_imu,
+    simulate_range,
+)
+from common.sim.trajectory import (
+    NOMINAL_HOVER_DURATION_S,
+    AttitudeMode,
+    Trajectory,
+    hover_trajectory,
+    turns_trajectory,
+)
+
+FloatArray = npt.NDArray[np.float64]
+ImageU8 = npt.NDArray[np.uint8]
+
+CAMERA_RATE_HZ = 20.0
+IMU_RATE_HZ = 400.0
+RANGE_RATE_HZ = 50.0
+#: Paper A's dataset length.
+HOVER_FRAMES = 2041
+
+
+@dataclass(frozen=True, eq=False)
+class Flight:
+    """One simulated flight: truth at the frame stamps, IMU and rangefinder series, frames on demand."""
+
+    name: str
+    seed: int
+    trajectory: Trajectory
+    camera: PinholeCamera
+    R_body_camera: FloatArray  # (3, 3)
+    texture: GroundTexture
+    degradation: ImageDegradation
+    frame_stamps_s: FloatArray  # (N,)
+    p_world_body_m: FloatArray  # (N, 3)
+    q_world_body: FloatArray  # (N, 4)
+    euler_rad: FloatArray  # (N, 3) roll, pitch, yaw (yaw unwrapped)
+    R_world_body: FloatArray  # (N, 3, 3)
+    imu: ImuSeries
+    range: RangeSeries
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.frame_stamps_s.shape[0])
+
+    @property
+    def yaw_rad(self) -> FloatArray:
+        """Unwrapped ZYX yaw of ``q_world_body`` at the frame stamps (N,)."""
+        return np.asarray(self.euler_rad[:, 2], dtype=np.float64)
+
+    def _check_index(self, i: int) -> int:
+        index = int(i)
+        if index != i or not 0 <= index < self.n_frames:
+            raise InputError(f"frame index must be an integer in [0, {self.n_frames}), got {i}")
+        return index
+
+    def camera_pose(self, i: int) -> tuple[FloatArray, FloatArray]:
+        """True ``(R_world_camera, p_world_camera_m)`` of frame ``i``."""
+        index = self._check_index(i)
+        return camera_pose_from_body(self.R_world_body[index], self.p_world_body_m[index], self.R_body_camera)
+
+    def clean_frame(self, i: int) -> ImageU8:
+        """Noise-free render of frame ``i`` (no degradation)."""
+        R_world_camera, p_world_camera = self.camera_pose(i)
+        return render_ground_view(self.texture, self.camera, R_world_camera, p_world_camera)
+
+    def frame(self, i: int) -> ImageU8:
+        """Frame ``i`` ``(H, W) uint8``, rendered now with the flight's degradation (deterministic)."""
+        index = self._check_index(i)
+        clean = self.clean_frame(index)
+        return self.degradation.apply(clean, float(self.frame_stamps_s[index]), self.seed, index)
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[ImageU8]:
+        """Frames ``start .. stop - 1`` rendered one at a time."""
+        end = self.n_frames if stop is None else min(int(stop), self.n_frames)
+        for i in range(int(start), end):
+            yield self.frame(i)
+
+
+def simulate_flight(
+    trajectory: Trajectory,
+    seed: int = 0,
+    n_frames: int | None = None,
+    camera: PinholeCamera | None = None,
+    R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN,
+    texture: GroundTexture | None = None,
+    degradation: ImageDegradation | None = None,
+    imu_noise: ImuNoise | None = None,
+    range_noise: RangeNoise | None = None,
+    camera_rate_hz: float = CAMERA_RATE_HZ,
+    imu_rate_hz: float = IMU_RATE_HZ,
+    range_rate_hz: float = RANGE_RATE_HZ,
+) -> Flight:
+    """Sample a trajectory into a :class:`Flight` (frames at ``k / camera_rate_hz``, ``n_frames`` of them,
+    default: the whole trajectory). IMU and rangefinder cover the same time span at their own rates.
+    The texture defaults to ``make_ground_texture(seed)``; pass one to share it between flights.
+    """
+    if camera_rate_hz <= 0.0:
+        raise InputError(f"camera_rate_hz must be positive, got {camera_rate_hz}")
+    if n_frames is None:
+        n_frames = int(np.floor(trajectory.duration_s * camera_rate_hz + 1e-9)) + 1
+    if int(n_frames) != n_frames or n_frames < 2:
+        raise InputError(f"n_frames must be an integer >= 2, got {n_frames}")
+    R_bc = np.asarray(R_body_camera, dtype=np.float64)
+    if R_bc.shape != (3, 3):
+        raise InputError(f"R_body_camera must have shape (3, 3), got {R_bc.shape}")
+    frame_stamps = np.arange(int(n_frames), dtype=np.float64) / camera_rate_hz
+    span_s = float(frame_stamps[-1])
+    truth = trajectory.sample(frame_stamps)
+    imu = simulate_imu(trajectory, sample_stamps(span_s, imu_rate_hz), imu_noise or ImuNoise(), seed)
+    rng_range = simulate_range(
+        trajectory, sample_stamps(span_s, range_rate_hz), range_noise or RangeNoise(), seed
+    )
+    return Flight(
+        name=trajectory.name,
+        seed=int(seed),
+        trajectory=trajectory,
+        camera=camera or PinholeCamera.default(),
+        R_body_camera=R_bc,
+        texture=texture if texture is not None else make_ground_texture(seed),
+        degradation=degradation if degradation is not None else ImageDegradation(),
+        frame_stamps_s=frame_stamps,
+        p_world_body_m=truth.p_world_body_m,
+        q_world_body=truth.q_world_body,
+        euler_rad=truth.euler_rad,
+        R_world_body=truth.R_world_body,
+        imu=imu,
+        range=rng_range,
+    )
+
+
+def hover_flight(
+    seed: int = 0,
+    n_frames: int = HOVER_FRAMES,
+    altitude_m: float = 1.5,
+    camera: PinholeCamera | None = None,
+    texture: GroundTexture | None = None,
+    degradation: ImageDegradation | None = None,
+    imu_noise: ImuNoise | None = None,
+    range_noise: RangeNoise | None = None,
+    mode: AttitudeMode = AttitudeMode.PRESCRIBED,
+) -> Flight:
+    """Paper A's hover: 2041 frames at 20 fps (102 s) at 1.5 m, yaw rates up to +-45 deg/s.
+
+    A shorter ``n_frames`` gives exactly the first frames of the full flight (same trajectory shape).
+    See :func:`common.sim.trajectory.hover_trajectory` for the motion.
+    """
+    if int(n_frames) != n_frames or n_frames < 2:
+        raise InputError(f"n_frames must be an integer >= 2, got {n_frames}")
+    duration_s = max((n_frames - 1) / CAMERA_RATE_HZ, NOMINAL_HOVER_DURATION_S)
+    trajectory = hover_trajectory(seed=seed, duration_s=duration_s, altitude_m=altitude_m, mode=mode)
+    return simulate_flight(
+        trajectory,
+        seed=seed,
+        n_frames=n_frames,
+        camera=camera,
+        texture=texture,
+        degradation=degradation,
+        imu_noise=imu_noise,
+        range_noise=range_noise,
+    )
+
+
+def turns_flight(
+    seed: int = 0,
+    camera: PinholeCamera | None = None,
+    texture: GroundTexture | None = None,
+    degradation: ImageDegradation | None = None,
+    imu_noise: ImuNoise | None = None,
+    range_noise: RangeNoise | None = None,
+    heading_follows_path: bool = True,
+) -> Flight:
+    """Paper C's flight: 5 s hover at 3.5 m, two climbing turns of radius 1.1 m in 40 s to 4.0 m, 5 s hover.
+
+    1001 frames (50 s) at 20 fps; path length 13.832 m; coordinated tilt into the turns.
+    See :func:`common.sim.trajectory.turns_trajectory`.
+    """
+    trajectory = turns_trajectory(seed=seed, heading_follows_path=heading_follows_path)
+    return simulate_flight(
+        trajectory,
+        seed=seed,
+        camera=camera,
+        texture=texture,
+        degradation=degradation,
+        imu_noise=imu_noise,
+        range_noise=range_noise,
+    )
