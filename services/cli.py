@@ -20,6 +20,11 @@ logger = logging.getLogger("capataz")
 COMMAND_MODULES: tuple[str, ...] = (
     "services.run",
     "services.bench",
+    "services.router",
+    "services.camera",
+    "services.master",
+    "services.foreman",
+    "services.worker",
 )
 
 

@@ -1,0 +1,317 @@
+"""The one dispatcher: which member computes which patches of a frame (pure, no I/O).
+
+Used twice: the master splits a frame among foremen (or workers, for the master-worker baseline) and
+each foreman splits its block among its workers. The zenoh I/O lives in the services; this class only
+decides:
+
+- membership (:meth:`Dispatcher.join` / :meth:`Dispatcher.leave`, from liveliness) and suspension of a
+  member that missed a deadline (:meth:`Dispatcher.record_failure`, exponential back-off);
+- shares: ``balance=none`` -> proportional to each member's declared capacity (e.g. its worker count, so
+  every compute unit gets the same number of patches); ``balance=time`` -> proportional to an exponential
+  moving average of each member's measured patches per second (a joiner starts at the mean speed);
+- sticky assignment: a member keeps the patch indices it had (so its cached spectra stay valid); only the
+  difference to the new targets moves, and :attr:`Plan.moved` tells which indices a member does not hold
+  for the previous frame (it must be sent the previous patches too);
+- re-dispatch of a failed member's indices among the others, within the same frame
+  (:meth:`Dispatcher.redistribute`), falling back to the dispatcher itself (``SELF``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import CapatazError, InputError
+
+IndexArray = npt.NDArray[np.int32]
+#: Name of the dispatcher itself as a member (the master or foreman computing a share).
+SELF = "self"
+
+
+class DispatchError(CapatazError):
+    """A dispatch decision is impossible (unknown member, bad indices)."""
+
+
+class Balance(StrEnum):
+    """How shares are chosen."""
+
+    NONE = "none"
+    TIME = "time"
+
+
+@dataclass(frozen=True)
+class DispatchSettings:
+    """Balancing and fault-handling parameters of a :class:`Dispatcher`."""
+
+    balance: Balance = Balance.TIME
+    #: weight of the newest speed measurement in the moving average.
+    ema_alpha: float = 0.3
+    #: the dispatcher computes a share itself (the paper's configuration) even when members exist.
+    self_compute: bool = False
+    #: capacity of the dispatcher itself (weight under ``balance=none``).
+    self_capacity: float = 1.0
+    #: first suspension after a missed deadline; doubles per consecutive failure up to ``max_suspend_s``.
+    suspend_s: float = 1.0
+    max_suspend_s: float = 8.0
+    #: per-request deadline = max(min_deadline_s, deadline_factor * expected time at the member's speed).
+    min_deadline_s: float = 0.3
+    deadline_factor: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.ema_alpha <= 1.0:
+            raise InputError(f"ema_alpha must be in (0, 1], got {self.ema_alpha}")
+        if self.self_capacity <= 0 or self.suspend_s <= 0 or self.min_deadline_s <= 0:
+            raise InputError("self_capacity, suspend_s and min_deadline_s must be positive")
+
+
+@dataclass
+class _Member:
+    capacity: float = 1.0
+    speed_ema: float | None = None
+    failures: int = 0
+    suspended_until_s: float = -math.inf
+    held_seq: int = -2
+    held: frozenset[int] = field(default_factory=frozenset)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Assignment of one frame: member -> sorted patch indices, and the indices it lacks history for."""
+
+    seq: int
+    prev_seq: int
+    assignment: dict[str, IndexArray]
+    moved: dict[str, IndexArray]
+
+    def shares(self) -> dict[str, float]:
+        total = sum(len(v) for v in self.assignment.values())
+        return {m: len(v) / total for m, v in self.assignment.items()} if total else {}
+
+
+def largest_remainder(weights: npt.ArrayLike, total: int) -> npt.NDArray[np.int64]:
+    """Integer counts proportional to ``weights`` summing to ``total`` (Hamilton's method)."""
+    w = np.asarray(weights, dtype=np.float64)
+    if w.ndim != 1 or w.size == 0 or np.any(w < 0) or not np.all(np.isfinite(w)) or w.sum() <= 0:
+        raise InputError(f"weights must be a non-empty 1-D array of finite non-negative values, got {w}")
+    if total < 0:
+        raise InputError(f"total must be >= 0, got {total}")
+    exact = w / w.sum() * total
+    counts = np.floor(exact).astype(np.int64)
+    remainder = total - int(counts.sum())
+    order = np.lexsort((np.arange(w.size), -(exact - counts)))
+    counts[order[:remainder]] += 1
+    return counts
+
+
+class Dispatcher:
+    """Membership, shares, sticky assignment and re-dispatch decisions for ``n_patches`` patches."""
+
+    def __init__(self, settings: DispatchSettings, n_patches: int) -> None:
+        if n_patches < 1:
+            raise InputError(f"n_patches must be >= 1, got {n_patches}")
+        self.settings = settings
+        self.n_patches = n_patches
+        self._members: dict[str, _Member] = {SELF: _Member(capacity=settings.self_capacity)}
+        self._owner: dict[int, str] = {}
+        self.last_plan: Plan | None = None
+
+    # -- membership -------------------------------------------------------------------------------------
+    def join(self, member: str, capacity: float = 1.0) -> None:
+        """Add a member (idempotent; a re-join resets its failures but keeps its speed)."""
+        if member == SELF:
+            raise DispatchError(f"{SELF!r} is reserved for the dispatcher itself")
+        if capacity <= 0 or not math.isfinite(capacity):
+            raise InputError(f"capacity must be positive, got {capacity}")
+        state = self._members.get(member)
+        if state is None:
+            self._members[member] = _Member(capacity=capacity)
+        else:
+            state.capacity = capacity
+            state.failures = 0
+            state.suspended_until_s = -math.inf
+
+    def set_capacity(self, member: str, capacity: float) -> None:
+        """Change a member's declared capacity (its weight under ``balance=none``)."""
+        if capacity <= 0 or not math.isfinite(capacity):
+            raise InputError(f"capacity must be positive, got {capacity}")
+        if member in self._members:
+            self._members[member].capacity = capacity
+
+    def leave(self, member: str) -> None:
+        """Remove a member; its indices become free (assigned to others in the next plan)."""
+        if member == SELF:
+            return
+        self._members.pop(member, None)
+        self._owner = {i: o for i, o in self._owner.items() if o != member}
+
+    @property
+    def members(self) -> tuple[str, ...]:
+        """Remote members (without ``SELF``), sorted."""
+        return tuple(sorted(m for m in self._members if m != SELF))
+
+    def active(self, now_s: float) -> list[str]:
+        """Members that get work now: remote members not suspended, plus ``SELF`` when configured or alone."""
+        remote = [m for m in self.members if self._members[m].suspended_until_s <= now_s]
+        if self.settings.self_compute or not remote:
+            return [*remote, SELF]
+        return remote
+
+    def speed(self, member: str) -> float | None:
+        state = self._members.get(member)
+        return None if state is None else state.speed_ema
+
+    def speeds(self) -> dict[str, float]:
+        return {m: s.speed_ema for m, s in self._members.items() if s.speed_ema is not None}
+
+    # -- shares -----------------------------------------------------------------------------------------
+    def weights(self, members: list[str]) -> npt.NDArray[np.float64]:
+        """Balancing weight of each member (capacity, or measured speed under ``balance=time``)."""
+        capacity = np.array([self._members[m].capacity for m in members], dtype=np.float64)
+        if self.settings.balance is Balance.NONE:
+            return capacity
+        speeds = [self._members[m].speed_ema for m in members]
+        known = [s for s in speeds if s is not None and s > 0]
+        if not known:
+            return capacity
+        # a member without measurement starts at the mean speed per unit of capacity of the measured ones
+        per_capacity = float(
+            np.mean([s / self._members[m].capacity for m, s in zip(members, speeds, strict=True) if s])
+        )
+        return np.array(
+            [
+                s if s is not None and s > 0 else per_capacity * c
+                for s, c in zip(speeds, capacity, strict=True)
+            ]
+        )
+
+    def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
+        """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
+        todo = self._check_indices(np.arange(self.n_patches) if indices is None else indices)
+        members = self.active(now_s)
+        targets = dict(
+            zip(members, largest_remainder(self.weights(members), len(todo)).tolist(), strict=True)
+        )
+        keep: dict[str, list[int]] = {m: [] for m in members}
+        pool: list[int] = []
+        for index in todo:
+            owner = self._owner.get(index)
+            if owner in keep and len(keep[owner]) < targets[owner]:
+                keep[owner].append(index)
+            else:
+                pool.append(index)
+        pool.sort()
+        cursor = 0
+        for m in members:
+            need = targets[m] - len(keep[m])
+            keep[m].extend(pool[cursor : cursor + need])
+            cursor += need
+        assignment: dict[str, IndexArray] = {}
+        moved: dict[str, IndexArray] = {}
+        for m in members:
+            indices = np.array(sorted(keep[m]), dtype=np.int32)
+            if indices.size == 0:
+                continue
+            for i in indices:
+                self._owner[int(i)] = m
+            assignment[m] = indices
+            moved[m] = self._missing(m, indices, prev_seq)
+        plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
+        self.last_plan = plan
+        return plan
+
+    def _check_indices(self, indices: npt.ArrayLike) -> list[int]:
+        arr = np.asarray(indices)
+        if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+            raise DispatchError(
+                f"indices must be a 1-D integer array, got shape {arr.shape} dtype {arr.dtype}"
+            )
+        values = sorted(int(i) for i in arr)
+        if values and (values[0] < 0 or values[-1] >= self.n_patches):
+            raise DispatchError(f"indices out of range 0..{self.n_patches - 1}")
+        if len(set(values)) != len(values):
+            raise DispatchError("indices must be distinct")
+        return values
+
+    def _missing(self, member: str, indices: IndexArray, prev_seq: int) -> IndexArray:
+        state = self._members[member]
+        if state.held_seq != prev_seq:
+            return indices.copy()
+        return np.array([i for i in indices if int(i) not in state.held], dtype=np.int32)
+
+    def redistribute(self, indices: npt.ArrayLike, exclude: set[str], now_s: float, prev_seq: int) -> Plan:
+        """Split a failed share among the active members not in ``exclude`` (else ``SELF``), same frame.
+
+        The receivers become the owners of those indices (sticky from the next frame on).
+        """
+        idx = np.array(self._check_indices(indices), dtype=np.int32)
+        members = [m for m in self.active(now_s) if m not in exclude] or [SELF]
+        counts = largest_remainder(self.weights(members), int(idx.size))
+        assignment: dict[str, IndexArray] = {}
+        moved: dict[str, IndexArray] = {}
+        start = 0
+        for m, n in zip(members, counts.tolist(), strict=True):
+            if n == 0:
+                continue
+            part = idx[start : start + n]
+            start += n
+            for i in part:
+                self._owner[int(i)] = m
+            assignment[m] = part
+            moved[m] = self._missing(m, part, prev_seq)
+        seq = self.last_plan.seq if self.last_plan else 0
+        return Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
+
+    # -- outcomes ---------------------------------------------------------------------------------------
+    def record_success(
+        self, member: str, seq: int, indices: npt.ArrayLike, elapsed_s: float, speed: float | None = None
+    ) -> None:
+        """A member computed ``indices`` of frame ``seq`` in ``elapsed_s``: update its speed and history.
+
+        ``speed`` (patches/s) is the member's own measure of its compute speed when it reports one (a
+        worker's compute time, a foreman's sum of its workers' speeds); otherwise ``len/elapsed_s``. The
+        member's own measure is preferred: a round-trip rate includes a fixed per-request overhead, which
+        makes rate-proportional shares drift towards members that already have large shares.
+        """
+        state = self._members.get(member)
+        if state is None:
+            return  # left meanwhile
+        idx = frozenset(int(i) for i in np.asarray(indices).ravel())
+        if state.held_seq == seq:
+            state.held = state.held | idx  # a second share in the same frame (re-dispatch)
+        else:
+            state.held_seq, state.held = seq, idx
+        state.failures = 0
+        state.suspended_until_s = -math.inf
+        if speed is None and idx and elapsed_s > 0:
+            speed = len(idx) / elapsed_s
+        if speed is not None and speed > 0 and math.isfinite(speed):
+            a = self.settings.ema_alpha
+            state.speed_ema = speed if state.speed_ema is None else a * speed + (1 - a) * state.speed_ema
+
+    def record_failure(self, member: str, now_s: float) -> float:
+        """A member missed its deadline or answered with an error: suspend it; returns the suspension (s)."""
+        state = self._members.get(member)
+        if state is None or member == SELF:
+            return 0.0
+        state.failures += 1
+        state.held_seq, state.held = -2, frozenset()
+        pause = min(self.settings.max_suspend_s, self.settings.suspend_s * 2 ** (state.failures - 1))
+        state.suspended_until_s = now_s + pause
+        self._owner = {i: o for i, o in self._owner.items() if o != member}
+        return pause
+
+    def forget_history(self, member: str) -> None:
+        """The member lost its cache (e.g. it restarted): send it previous patches again."""
+        state = self._members.get(member)
+        if state is not None:
+            state.held_seq, state.held = -2, frozenset()
+
+    def deadline_s(self, member: str, n_patches: int) -> float:
+        """Per-request deadline for ``n_patches`` at the member's measured speed."""
+        speed = self.speed(member)
+        expected = n_patches / speed if speed else 0.0
+        return max(self.settings.min_deadline_s, self.settings.deadline_factor * expected)

@@ -1,0 +1,155 @@
+"""Every Zenoh key expression of capataz, in one place.
+
+| key expression                          | kind       | payload                       |
+| --------------------------------------- | ---------- | ----------------------------- |
+| ``capataz/uav/{uav}/camera``            | pub/sub    | Frame                         |
+| ``capataz/uav/{uav}/imu``               | pub/sub    | ImuSample                     |
+| ``capataz/uav/{uav}/range``             | pub/sub    | RangeSample                   |
+| ``capataz/uav/{uav}/yaw``               | pub/sub    | YawEstimate                   |
+| ``capataz/uav/{uav}/attitude``          | pub/sub    | AttitudeEstimate              |
+| ``capataz/uav/{uav}/pose/vo``, ``/pf``  | pub/sub    | PoseEstimate                  |
+| ``capataz/node/{node}/foreman``         | queryable  | BlockJob -> BlockResult       |
+| ``capataz/node/{node}/worker/{i}``      | queryable  | PatchJob -> PatchResult       |
+| ``capataz/alive/{role}/{node}/{i}``     | liveliness | membership                    |
+| ``capataz/stats/{role}/{node}/{i}``     | pub/sub    | Stats                         |
+| ``capataz/health/{role}/{node}/{i}``    | queryable  | (none) -> Health              |
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from enum import StrEnum
+
+from common.errors import InputError
+
+ROOT = "capataz"
+_NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+class Role(StrEnum):
+    """Roles of services (the ``{role}`` part of liveliness, stats and health keys)."""
+
+    CAMERA = "camera"
+    MASTER = "master"
+    FOREMAN = "foreman"
+    WORKER = "worker"
+    ROUTER = "router"
+    ESTIMATOR = "estimator"
+    LOCALIZER = "localizer"
+
+
+def check_name(value: str, what: str = "name") -> str:
+    """A key chunk: letters, digits, ``_ . -`` only (no ``/``, ``*``, ``$``, ``?``, ``#``)."""
+    if not isinstance(value, str) or not _NAME.match(value):
+        raise InputError(f"{what} must match [A-Za-z0-9_.-]+, got {value!r}")
+    return value
+
+
+def _index(i: int) -> int:
+    if isinstance(i, bool) or not isinstance(i, int) or i < 0:
+        raise InputError(f"index must be a non-negative int, got {i!r}")
+    return i
+
+
+def uav_key(uav: str, topic: str) -> str:
+    return f"{ROOT}/uav/{check_name(uav, 'uav')}/{topic}"
+
+
+def camera_key(uav: str) -> str:
+    return uav_key(uav, "camera")
+
+
+def imu_key(uav: str) -> str:
+    return uav_key(uav, "imu")
+
+
+def range_key(uav: str) -> str:
+    return uav_key(uav, "range")
+
+
+def yaw_key(uav: str) -> str:
+    return uav_key(uav, "yaw")
+
+
+def attitude_key(uav: str) -> str:
+    return uav_key(uav, "attitude")
+
+
+def pose_vo_key(uav: str) -> str:
+    return uav_key(uav, "pose/vo")
+
+
+def pose_pf_key(uav: str) -> str:
+    return uav_key(uav, "pose/pf")
+
+
+def foreman_key(node: str) -> str:
+    return f"{ROOT}/node/{check_name(node, 'node')}/foreman"
+
+
+def worker_key(node: str, i: int) -> str:
+    return f"{ROOT}/node/{check_name(node, 'node')}/worker/{_index(i)}"
+
+
+def alive_key(role: str | Role, node: str, i: int) -> str:
+    return f"{ROOT}/alive/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+
+
+def stats_key(role: str | Role, node: str, i: int) -> str:
+    return f"{ROOT}/stats/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+
+
+def health_key(role: str | Role, node: str, i: int) -> str:
+    return f"{ROOT}/health/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+
+
+#: every liveliness token / every stats publication / every health queryable
+ALIVE_ALL = f"{ROOT}/alive/**"
+STATS_ALL = f"{ROOT}/stats/**"
+HEALTH_ALL = f"{ROOT}/health/**"
+
+
+def alive_role(role: str | Role) -> str:
+    """All liveliness tokens of one role, e.g. ``capataz/alive/worker/**``."""
+    return f"{ROOT}/alive/{Role(role).value}/**"
+
+
+def alive_node_workers(node: str) -> str:
+    """Liveliness tokens of the workers of one node."""
+    return f"{ROOT}/alive/{Role.WORKER.value}/{check_name(node, 'node')}/*"
+
+
+@dataclass(frozen=True, order=True)
+class MemberId:
+    """A service instance: ``role/node/i``; its name is used in shares and reports."""
+
+    role: Role
+    node: str
+    index: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.role.value}/{self.node}/{self.index}"
+
+    @property
+    def work_key(self) -> str:
+        """Where a dispatcher sends this member work (foreman or worker queryable)."""
+        if self.role is Role.FOREMAN:
+            return foreman_key(self.node)
+        if self.role is Role.WORKER:
+            return worker_key(self.node, self.index)
+        raise InputError(f"{self.name} takes no work")
+
+
+def parse_alive_key(key: str) -> MemberId:
+    """``capataz/alive/{role}/{node}/{i}`` -> :class:`MemberId`; InputError otherwise."""
+    parts = str(key).split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[1] != "alive":
+        raise InputError(f"not a liveliness key: {key!r}")
+    try:
+        role = Role(parts[2])
+        index = int(parts[4])
+    except ValueError as exc:
+        raise InputError(f"bad liveliness key {key!r}: {exc}") from None
+    return MemberId(role, check_name(parts[3], "node"), _index(index))

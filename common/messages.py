@@ -1,0 +1,481 @@
+"""Every message on the wire, and the ONE codec that carries them.
+
+Encoding (schema version :data:`SCHEMA_VERSION`): a message becomes two byte strings,
+
+- ``attachment`` = a msgpack map ``{"v": version, "t": type, "f": {scalar fields}, "a": [[name, dtype,
+  shape, nbytes], ...]}`` (the header), and
+- ``payload`` = the raw bytes of the message's arrays, concatenated in header order (pixels, crops).
+
+Zenoh carries the header as the sample/query attachment and the raw bytes as the payload, so images
+never pass through msgpack. A message without arrays may also travel as the header alone in the payload
+(``attachment=None``), which is how error replies travel (``reply_err`` has no attachment).
+
+:func:`decode` validates everything once, at the boundary, and raises :class:`WireError` naming what is
+wrong: not msgpack, wrong version, unknown type, unknown or missing field, truncated or oversized payload,
+dtype or shape mismatch, NaN/inf.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal, TypeVar
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from common.errors import CapatazError
+
+#: Bump when a field changes meaning; decoders reject other versions.
+SCHEMA_VERSION = 1
+#: Array dtypes allowed on the wire (little-endian, fixed size).
+WIRE_DTYPES: frozenset[str] = frozenset(
+    {"|u1", "|b1", "<i4", "<i8", "<u4", "<f4", "<f8", "<c8", "<c16"},
+)
+#: Largest header accepted (bytes); arrays travel in the payload, so headers are small.
+MAX_HEADER_BYTES = 1 << 20
+
+
+class WireError(CapatazError):
+    """A message could not be encoded or decoded (the text names what is wrong)."""
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """What an array field must look like: dtype and shape (``None`` = any length on that axis)."""
+
+    dtype: str
+    shape: tuple[int | None, ...]
+    finite: bool = True
+
+    def check(self, name: str, value: Any) -> np.ndarray:
+        if not isinstance(value, np.ndarray):
+            try:
+                value = np.asarray(value, dtype=np.dtype(self.dtype))
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"{name}: cannot convert to {self.dtype} array: {exc}") from exc
+        if value.dtype != np.dtype(self.dtype):
+            if value.dtype.kind in "fciub" and np.can_cast(value.dtype, self.dtype, casting="same_kind"):
+                value = value.astype(self.dtype)
+            else:
+                raise ValueError(f"{name}: expected dtype {self.dtype}, got {value.dtype.str}")
+        if value.ndim != len(self.shape) or any(
+            want is not None and got != want for want, got in zip(self.shape, value.shape, strict=True)
+        ):
+            pattern = tuple("n" if s is None else s for s in self.shape)
+            raise ValueError(f"{name}: expected shape {pattern}, got {value.shape}")
+        if self.finite and value.dtype.kind in "fc" and not np.all(np.isfinite(value)):
+            raise ValueError(f"{name}: contains NaN or inf")
+        return value
+
+
+class WireModel(BaseModel):
+    """Base of every message: frozen, no unknown fields, numpy arrays for :attr:`ARRAYS`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True)
+    #: field name -> spec; these fields travel as raw bytes in the payload.
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _check_arrays(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            data = dict(data)
+            for name, spec in cls.ARRAYS.items():
+                if name in data:
+                    try:
+                        data[name] = spec.check(name, data[name])
+                    except ValueError as exc:
+                        raise ValueError(str(exc)) from None
+        return data
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _finite_floats(cls, value: Any) -> Any:
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError("must be finite (NaN or inf given)")
+        if isinstance(value, dict):
+            for key, item in value.items():
+                if isinstance(item, float) and not math.isfinite(item):
+                    raise ValueError(f"entry {key!r} must be finite (NaN or inf given)")
+        return value
+
+
+FloatArray = npt.NDArray[np.float64]
+Uav = str
+
+
+# ----------------------------------------------------------------------------------------------- sensors
+class Frame(WireModel):
+    """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``)."""
+
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
+    uav: Uav
+    seq: int = Field(ge=0)
+    stamp_s: float
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    encoding: Literal["mono8"] = "mono8"
+    pixels: np.ndarray
+
+    @model_validator(mode="after")
+    def _shape_matches(self) -> Frame:
+        if self.pixels.shape != (self.height, self.width):
+            raise ValueError(
+                f"pixels: shape {self.pixels.shape} != (height, width) = ({self.height}, {self.width})"
+            )
+        return self
+
+
+class ImuSample(WireModel):
+    """One IMU reading in the body frame (FLU): angular rate and specific force."""
+
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "gyro_rad_s": ArraySpec("<f8", (3,)),
+        "accel_m_s2": ArraySpec("<f8", (3,)),
+    }
+    uav: Uav
+    seq: int = Field(ge=0, default=0)
+    stamp_s: float
+    gyro_rad_s: np.ndarray
+    accel_m_s2: np.ndarray
+
+
+class RangeSample(WireModel):
+    """One rangefinder reading along body -z."""
+
+    uav: Uav
+    seq: int = Field(ge=0, default=0)
+    stamp_s: float
+    range_m: float = Field(gt=0.0)
+
+
+# ----------------------------------------------------------------------------------------------- estimates
+class YawEstimate(WireModel):
+    """The yaw of one frame, as published by the master on ``capataz/uav/{uav}/yaw``."""
+
+    uav: Uav
+    seq: int = Field(ge=0)
+    stamp_s: float
+    delta_yaw_rad: float
+    yaw_rad: float
+    inlier_count: int = Field(ge=0)
+    patch_count: int = Field(ge=0)
+    confidence: float
+    low_confidence: bool
+    method: str
+    #: stage timings of this frame in milliseconds (``total``, ``dispatch``, ``conclude``, ...).
+    timings_ms: dict[str, float] = Field(default_factory=dict)
+    #: patches computed by each member for this frame (member name -> count; ``self`` = the master).
+    members: dict[str, int] = Field(default_factory=dict)
+    #: frames of this stream dropped so far by latest-frame-wins.
+    dropped_frames: int = Field(ge=0, default=0)
+    #: shares re-dispatched in this frame because a member failed.
+    redispatched: int = Field(ge=0, default=0)
+
+
+class AttitudeEstimate(WireModel):
+    """Attitude of the body in the world (Hamilton, scalar first) with its 3x3 error-angle covariance."""
+
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "q_world_body": ArraySpec("<f8", (4,)),
+        "covariance": ArraySpec("<f8", (3, 3)),
+    }
+    uav: Uav
+    seq: int = Field(ge=0, default=0)
+    stamp_s: float
+    q_world_body: np.ndarray
+    covariance: np.ndarray
+
+
+class PoseEstimate(WireModel):
+    """Position and attitude of the body in the world with a 6x6 covariance [position, error angles]."""
+
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "p_world_body_m": ArraySpec("<f8", (3,)),
+        "q_world_body": ArraySpec("<f8", (4,)),
+        "covariance": ArraySpec("<f8", (6, 6)),
+    }
+    uav: Uav
+    seq: int = Field(ge=0, default=0)
+    stamp_s: float
+    p_world_body_m: np.ndarray
+    q_world_body: np.ndarray
+    covariance: np.ndarray
+    #: which estimator produced it, e.g. ``"vo"`` or ``"pf"``.
+    source: str
+
+
+# ----------------------------------------------------------------------------------------------- work
+class PatchJob(WireModel):
+    """Measure the shifts of patches ``indices`` of frame ``seq`` against frame ``prev_seq``.
+
+    ``crops`` are the patches of the new frame; ``prev_crops`` are previous-frame patches for indices the
+    member does not hold yet (moved assignment, new member); the member keeps the others' spectra.
+    ``settings`` are the yaw settings (a flat dict), so every member measures with the same settings.
+    """
+
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "indices": ArraySpec("<i4", (None,)),
+        "crops": ArraySpec("|u1", (None, None, None)),
+        "prev_indices": ArraySpec("<i4", (None,)),
+        "prev_crops": ArraySpec("|u1", (None, None, None)),
+    }
+    stream: str
+    seq: int = Field(ge=0)
+    prev_seq: int = Field(ge=-1)
+    settings: dict[str, Any]
+    indices: np.ndarray
+    crops: np.ndarray
+    prev_indices: np.ndarray
+    prev_crops: np.ndarray
+    #: time budget of the request in seconds (a foreman gives its workers part of it).
+    budget_s: float = Field(gt=0.0, default=1.0)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PatchJob:
+        if self.crops.shape[0] != self.indices.shape[0]:
+            raise ValueError(f"crops: {self.crops.shape[0]} crops for {self.indices.shape[0]} indices")
+        if self.prev_crops.shape[0] != self.prev_indices.shape[0]:
+            raise ValueError(
+                f"prev_crops: {self.prev_crops.shape[0]} crops for {self.prev_indices.shape[0]} prev_indices"
+            )
+        if self.prev_indices.size and self.prev_crops.shape[1:] != self.crops.shape[1:]:
+            raise ValueError(f"prev_crops: crop shape {self.prev_crops.shape[1:]} != {self.crops.shape[1:]}")
+        for name in ("indices", "prev_indices"):
+            arr = getattr(self, name)
+            if arr.size and (arr.min() < 0 or np.unique(arr).size != arr.size):
+                raise ValueError(f"{name}: must be distinct non-negative patch indices")
+        if self.prev_indices.size and not np.isin(self.prev_indices, self.indices).all():
+            raise ValueError("prev_indices: must be a subset of indices")
+        return self
+
+
+class BlockJob(PatchJob):
+    """A master's block of a frame for one foreman (same fields as :class:`PatchJob`)."""
+
+
+class PatchResult(WireModel):
+    """Shifts of frame ``seq`` vs ``prev_seq`` at the patches ``indices`` (order of the job)."""
+
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "indices": ArraySpec("<i4", (None,)),
+        "shift_px": ArraySpec("<f8", (None, 2), finite=False),
+        "confidence": ArraySpec("<f8", (None,), finite=False),
+        "peak": ArraySpec("<f8", (None,), finite=False),
+        "valid": ArraySpec("|b1", (None,)),
+    }
+    stream: str
+    seq: int = Field(ge=0)
+    prev_seq: int = Field(ge=-1)
+    member: str
+    indices: np.ndarray
+    shift_px: np.ndarray
+    confidence: np.ndarray
+    peak: np.ndarray
+    valid: np.ndarray
+    #: seconds spent computing (without transport).
+    compute_s: float = Field(ge=0.0)
+    #: patches computed by each (sub-)member, for reports (a worker: itself; a foreman: its workers).
+    members: dict[str, int] = Field(default_factory=dict)
+    #: measured speed of each (sub-)member in patches per second.
+    speeds: dict[str, float] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PatchResult:
+        n = self.indices.shape[0]
+        for name in ("shift_px", "confidence", "peak", "valid"):
+            if getattr(self, name).shape[0] != n:
+                raise ValueError(f"{name}: {getattr(self, name).shape[0]} rows for {n} indices")
+        ok = self.valid
+        if not np.all(np.isfinite(self.shift_px[ok])):
+            raise ValueError("shift_px: NaN or inf at a valid patch")
+        if np.isnan(self.confidence[ok]).any() or np.isnan(self.peak[ok]).any():
+            raise ValueError("confidence/peak: NaN at a valid patch")
+        return self
+
+
+class BlockResult(PatchResult):
+    """A foreman's answer to a :class:`BlockJob` (same fields as :class:`PatchResult`)."""
+
+
+# ----------------------------------------------------------------------------------------------- service
+class Stats(WireModel):
+    """Periodic statistics of a service (``capataz/stats/{role}/{node}/{i}``)."""
+
+    role: str
+    node: str
+    index: int = Field(ge=0)
+    stamp_s: float
+    uptime_s: float = Field(ge=0.0)
+    counters: dict[str, int] = Field(default_factory=dict)
+    timings_ms: dict[str, float] = Field(default_factory=dict)
+    queue_depths: dict[str, int] = Field(default_factory=dict)
+    shares: dict[str, float] = Field(default_factory=dict)
+
+
+class Health(WireModel):
+    """Answer of a service's health queryable."""
+
+    role: str
+    node: str
+    index: int = Field(ge=0)
+    ok: bool
+    uptime_s: float = Field(ge=0.0)
+    detail: str = ""
+    counters: dict[str, int] = Field(default_factory=dict)
+
+
+class ErrorReply(WireModel):
+    """Body of an error reply to a query (travels as the header alone)."""
+
+    kind: str
+    error: str
+
+
+MESSAGE_TYPES: dict[str, type[WireModel]] = {
+    cls.__name__: cls
+    for cls in (
+        Frame,
+        ImuSample,
+        RangeSample,
+        YawEstimate,
+        AttitudeEstimate,
+        PoseEstimate,
+        PatchJob,
+        BlockJob,
+        PatchResult,
+        BlockResult,
+        Stats,
+        Health,
+        ErrorReply,
+    )
+}
+
+M = TypeVar("M", bound=WireModel)
+
+
+# ----------------------------------------------------------------------------------------------- codec
+def encode(message: WireModel) -> tuple[bytes, bytes]:
+    """Return ``(payload, attachment)``: raw array bytes and the msgpack header."""
+    name = type(message).__name__
+    if MESSAGE_TYPES.get(name) is not type(message):
+        raise WireError(f"cannot encode {name}: not a registered message type")
+    fields: dict[str, Any] = {}
+    for key in type(message).model_fields:
+        if key not in message.ARRAYS:
+            fields[key] = getattr(message, key)
+    descriptors = []
+    chunks = []
+    for key in message.ARRAYS:
+        arr = np.ascontiguousarray(getattr(message, key))
+        descriptors.append([key, arr.dtype.str, list(arr.shape), arr.nbytes])
+        chunks.append(arr.tobytes())
+    try:
+        header = msgpack.packb(
+            {"v": SCHEMA_VERSION, "t": name, "f": fields, "a": descriptors}, use_bin_type=True
+        )
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise WireError(f"cannot encode {name}: {exc}") from exc
+    return b"".join(chunks), header
+
+
+def encode_header_only(message: WireModel) -> bytes:
+    """Encode an array-free message as one byte string (for ``reply_err`` and plain puts)."""
+    payload, header = encode(message)
+    if payload:
+        raise WireError(f"{type(message).__name__} has arrays; it needs payload and attachment")
+    return header
+
+
+def _unpack_header(attachment: bytes) -> dict[str, Any]:
+    if len(attachment) > MAX_HEADER_BYTES:
+        raise WireError(f"header too large: {len(attachment)} bytes > {MAX_HEADER_BYTES}")
+    try:
+        header = msgpack.unpackb(attachment, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types for garbage
+        raise WireError(f"header is not valid msgpack ({type(exc).__name__}: {exc})") from None
+    if not isinstance(header, dict):
+        raise WireError(f"header must be a map, got {type(header).__name__}")
+    unknown = set(header) - {"v", "t", "f", "a"}
+    if unknown:
+        raise WireError(f"header has unknown keys {sorted(map(str, unknown))}")
+    if header.get("v") != SCHEMA_VERSION:
+        raise WireError(f"wrong schema version {header.get('v')!r}, expected {SCHEMA_VERSION}")
+    return header
+
+
+def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | None = None) -> M:
+    """Decode and validate one message; raise :class:`WireError` naming the problem.
+
+    ``attachment=None`` means the payload is the header alone (array-free messages).
+    ``expected`` restricts the type (a subclass such as :class:`BlockJob` is not a :class:`PatchJob`).
+    """
+    if attachment is None:
+        if payload is None:
+            raise WireError("empty message: no payload and no attachment")
+        attachment, payload = payload, b""
+    payload = payload or b""
+    header = _unpack_header(attachment)
+    name = header.get("t")
+    cls = MESSAGE_TYPES.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise WireError(f"unknown message type {name!r}")
+    if expected is not None and cls is not expected:
+        raise WireError(f"expected {expected.__name__}, got {name}")
+    fields = header.get("f")
+    descriptors = header.get("a")
+    if not isinstance(fields, dict) or not isinstance(descriptors, list):
+        raise WireError(f"{name}: header fields must be a map and arrays a list")
+    values: dict[str, Any] = dict(fields)
+    offset = 0
+    view = memoryview(payload)
+    for item in descriptors:
+        if not (isinstance(item, list) and len(item) == 4):
+            raise WireError(f"{name}: array descriptor must be [name, dtype, shape, nbytes], got {item!r}")
+        key, dtype, shape, nbytes = item
+        if key not in cls.ARRAYS:
+            raise WireError(f"{name}: unknown array field {key!r}")
+        if key in values:
+            raise WireError(f"{name}: field {key!r} given twice")
+        if dtype not in WIRE_DTYPES:
+            raise WireError(f"{name}.{key}: dtype {dtype!r} not allowed on the wire")
+        if not (
+            isinstance(shape, list)
+            and len(shape) <= 8
+            and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape)
+        ):
+            raise WireError(f"{name}.{key}: bad shape {shape!r}")
+        if not isinstance(nbytes, int) or nbytes != math.prod(shape) * np.dtype(dtype).itemsize:
+            raise WireError(f"{name}.{key}: shape {shape} of {dtype} does not match nbytes {nbytes!r}")
+        if offset + nbytes > len(view):
+            raise WireError(
+                f"{name}.{key}: truncated payload ({len(view)} bytes, arrays need at least {offset + nbytes})"
+            )
+        values[key] = np.frombuffer(view[offset : offset + nbytes], dtype=dtype).reshape(shape)
+        offset += nbytes
+    if offset != len(view):
+        raise WireError(f"{name}: payload has {len(view) - offset} bytes more than its arrays declare")
+    try:
+        return cls.model_validate(values)  # type: ignore[return-value]
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(map(str, err['loc'])) or 'message'}: {err['msg']}" for err in exc.errors()[:5]
+        )
+        raise WireError(f"{name}: {problems}") from None
+
+
+def error_reply(kind: str, error: str) -> bytes:
+    """The one-string body of an error reply."""
+    return encode_header_only(ErrorReply(kind=kind, error=error[:2000]))
+
+
+def read_error_reply(payload: bytes) -> str:
+    """Text of an error reply body (also when it is not a well-formed :class:`ErrorReply`)."""
+    try:
+        reply = decode(payload, None, ErrorReply)
+    except WireError:
+        return payload[:200].decode("utf-8", "replace")
+    return f"{reply.kind}: {reply.error}"

@@ -1,0 +1,5 @@
+"""``capataz camera``: publishes a simulated flight (frames, IMU, rangefinder) or a folder of images."""
+
+from services.camera.service import CameraService, CameraSettings, register, simulated_flight
+
+__all__ = ["CameraService", "CameraSettings", "register", "simulated_flight"]

@@ -1,0 +1,275 @@
+"""The camera (replayer): one or more UAV streams at a given rate, once or looped.
+
+A simulated flight publishes, in time order, every IMU and rangefinder sample up to a frame's stamp,
+then the frame. ``--fps 0`` publishes as fast as possible. ``--in-flight K`` is flow control for
+measurements: the camera keeps at most K frames of a stream without a published yaw (so a run can
+check that every frame yields a yaw); 0 (the default) is a free-running camera whose frames the master
+takes latest-wins.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from common import keys
+from common.errors import CapatazError
+from common.messages import Frame, ImuSample, RangeSample, YawEstimate, encode
+from common.sim.camera import PinholeCamera
+from common.sim.flight import Flight, hover_flight, turns_flight
+from common.transport import ServiceRuntime, TransportSettings, add_transport_arguments, transport_from_args
+
+DEFAULT_HFOV_DEG = 90.0
+
+
+class CameraSettings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    uavs: tuple[str, ...] = ("uav0",)
+    flight: Literal["hover", "turns"] = "hover"
+    frames: int = Field(default=2041, ge=2)
+    seed: int = 0
+    fps: float = Field(default=20.0, ge=0.0)
+    loop: bool = False
+    images: Path | None = None
+    width: int = 752
+    height: int = 480
+    sensors: bool = True
+    in_flight: int = Field(default=0, ge=0)
+    #: wait this long for a master before the first frame (0 = do not wait)
+    wait_master_s: float = Field(default=10.0, ge=0.0)
+    #: give up waiting for a yaw after this long (flow control only)
+    yaw_timeout_s: float = Field(default=5.0, gt=0.0)
+
+
+def simulated_flight(settings: CameraSettings) -> Flight:
+    """The flight the camera replays (the in-process reference builds the same one)."""
+    camera = (
+        None
+        if (settings.width, settings.height) == (752, 480)
+        else PinholeCamera.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
+    )
+    if settings.flight == "turns":
+        return turns_flight(seed=settings.seed, camera=camera)
+    return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
+
+
+def _image_files(folder: Path) -> list[Path]:
+    files = sorted(
+        p for p in folder.iterdir() if p.suffix.lower() in {".png", ".jpg", ".jpeg", ".pgm", ".bmp"}
+    )
+    if not files:
+        raise CapatazError(f"no images in {folder}")
+    return files
+
+
+class CameraService(ServiceRuntime):
+    role = keys.Role.CAMERA
+
+    def __init__(
+        self,
+        node: str,
+        index: int,
+        transport: TransportSettings,
+        settings: CameraSettings,
+        stats_period_s: float = 1.0,
+    ) -> None:
+        super().__init__(node, index, transport, stats_period_s)
+        self.settings = settings
+        self.flight: Flight | None = None if settings.images else simulated_flight(settings)
+        self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
+        self._ack = threading.Condition()
+        self.finished = threading.Event()
+        self._entities: list[Any] = []
+        self._masters = threading.Event()
+
+    def start(self, session: zenoh.Session) -> None:
+        self._pub: dict[str, dict[str, Any]] = {}
+        for uav in self.settings.uavs:
+            self._pub[uav] = {
+                "camera": session.declare_publisher(keys.camera_key(uav)),
+                "imu": session.declare_publisher(keys.imu_key(uav)),
+                "range": session.declare_publisher(keys.range_key(uav)),
+            }
+            self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
+        self._entities.append(
+            session.liveliness().declare_subscriber(
+                keys.alive_role(keys.Role.MASTER), self._on_master, history=True
+            )
+        )
+        self.spawn(self._publish_all, "publish")
+
+    def _on_master(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._masters.set()
+
+    def _on_yaw(self, sample: zenoh.Sample) -> None:
+        estimate = self.decode_sample(sample, YawEstimate)
+        if estimate is None:
+            return
+        with self._ack:
+            self._acked[estimate.uav] = max(self._acked.get(estimate.uav, -1), estimate.seq)
+            self._ack.notify_all()
+
+    def frames(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        if self.flight is not None:
+            for i in range(self.flight.n_frames):
+                yield i, float(self.flight.frame_stamps_s[i]), self.flight.frame(i)
+            return
+        assert self.settings.images is not None
+        period = 1.0 / self.settings.fps if self.settings.fps else 0.05
+        for i, path in enumerate(_image_files(self.settings.images)):
+            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            if image is None:
+                self.count_error("bad_images", "cannot read image", str(path))
+                continue
+            yield i, i * period, image
+
+    def _put(self, uav: str, topic: str, message: Any) -> None:
+        payload, attachment = encode(message)
+        self._pub[uav][topic].put(payload, attachment=attachment)
+
+    def _wait_yaw(self, uav: str, seq: int) -> None:
+        """Flow control: at most ``in_flight`` frames without a yaw."""
+        if not self.settings.in_flight:
+            return
+        deadline = time.monotonic() + self.settings.yaw_timeout_s
+        with self._ack:
+            while self._acked[uav] < seq - self.settings.in_flight + 1 and not self.stop_event.is_set():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    self.counters.inc("yaw_timeouts")
+                    return
+                self._ack.wait(min(left, 0.1))
+
+    def _sensor_samples(self, uav: str, start_s: float, stop_s: float, offset_s: float) -> None:
+        """Publish the IMU and rangefinder samples with stamps in ``(start_s, stop_s]``."""
+        if self.flight is None or not self.settings.sensors:
+            return
+        imu, rng = self.flight.imu, self.flight.range
+        a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
+        for k in range(int(a), int(b)):
+            self._put(
+                uav,
+                "imu",
+                ImuSample(
+                    uav=uav,
+                    seq=k,
+                    stamp_s=float(imu.stamps_s[k]) + offset_s,
+                    gyro_rad_s=imu.gyro_rad_s[k],
+                    accel_m_s2=imu.accel_m_s2[k],
+                ),
+            )
+        a, b = np.searchsorted(rng.stamps_s, [start_s, stop_s], side="right")
+        for k in range(int(a), int(b)):
+            self._put(
+                uav,
+                "range",
+                RangeSample(
+                    uav=uav,
+                    seq=k,
+                    stamp_s=float(rng.stamps_s[k]) + offset_s,
+                    range_m=float(rng.range_m[k]),
+                ),
+            )
+
+    def _publish_all(self) -> None:
+        if self.settings.wait_master_s and not self._masters.wait(self.settings.wait_master_s):
+            self.count_error("no_master", "no master alive; publishing anyway", "timeout")
+        t_start = time.monotonic()
+        published = 0
+        rounds = 0
+        last_seq = -1
+        while not self.stop_event.is_set():
+            previous_stamp = -np.inf
+            span = 0.0
+            for _i, stamp_s, image in self.frames():
+                if self.stop_event.is_set():
+                    break
+                if self.settings.fps:
+                    delay = t_start + published / self.settings.fps - time.monotonic()
+                    if delay > 0 and self.stop_event.wait(delay):
+                        break
+                seq = last_seq + 1
+                offset = rounds * span
+                for uav in self.settings.uavs:
+                    self._sensor_samples(uav, previous_stamp, stamp_s, offset)
+                    self._wait_yaw(uav, seq - 1)
+                    self._put(
+                        uav,
+                        "camera",
+                        Frame(
+                            uav=uav,
+                            seq=seq,
+                            stamp_s=stamp_s + offset,
+                            width=image.shape[1],
+                            height=image.shape[0],
+                            pixels=image,
+                        ),
+                    )
+                previous_stamp, span = stamp_s, stamp_s + 0.05
+                last_seq = seq
+                published += 1
+                self.counters.inc("frames_out")
+            if not self.settings.loop:
+                break
+            rounds += 1
+        for uav in self.settings.uavs:
+            self._wait_yaw(uav, last_seq)
+        self.finished.set()
+        self.stop_event.set()
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser("camera", help="publish a simulated flight (or images) for UAV streams")
+    add_transport_arguments(parser, node_default="camera")
+    parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
+    parser.add_argument("--flight", choices=["hover", "turns"], default="hover", help="simulated flight")
+    parser.add_argument("--frames", type=int, default=2041, help="frames of the hover flight (default 2041)")
+    parser.add_argument("--seed", type=int, default=0, help="simulation seed")
+    parser.add_argument("--fps", type=float, default=20.0, help="frames per second (0 = as fast as possible)")
+    parser.add_argument("--loop", action="store_true", help="replay forever")
+    parser.add_argument("--images", type=Path, help="publish a folder of images instead of a simulation")
+    parser.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
+    parser.add_argument("--no-sensors", action="store_true", help="frames only (no IMU / rangefinder)")
+    parser.add_argument(
+        "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
+    )
+    parser.add_argument("--wait-master", type=float, default=10.0, help="seconds to wait for a master")
+    parser.set_defaults(handler=run)
+
+
+def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
+    try:
+        width, height = (int(v) for v in args.resolution.lower().split("x"))
+    except ValueError:
+        raise CapatazError(f"--resolution must look like 752x480, got {args.resolution!r}") from None
+    return CameraSettings(
+        uavs=tuple(args.uav or ["uav0"]),
+        flight=args.flight,
+        frames=args.frames,
+        seed=args.seed,
+        fps=args.fps,
+        loop=args.loop,
+        images=args.images,
+        width=width,
+        height=height,
+        sensors=not args.no_sensors,
+        in_flight=args.in_flight,
+        wait_master_s=args.wait_master,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    return CameraService(
+        args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
+    ).run()

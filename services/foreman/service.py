@@ -1,0 +1,253 @@
+"""The foreman: one per node; splits each block among its node's workers with the one Dispatcher.
+
+It follows its workers' liveliness (``capataz/alive/worker/{node}/*``), keeps the crops of the last
+block so that a share moved to another worker (or re-dispatched after a failure) can carry the
+previous patches, and may compute a share itself (``--compute``). Blocks are served one at a time;
+a block that arrives while one is in flight waits in a bounded queue (full -> "busy" error reply).
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common import keys
+from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings
+from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, merge_measurements
+from common.errors import CapatazError
+from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
+from common.transport import (
+    ServiceRuntime,
+    TransportSettings,
+    WorkQueue,
+    add_transport_arguments,
+    transport_from_args,
+)
+from services.master.scatter import FrameWork, Scatter, result_from_measurement
+from services.worker.service import WorkerService
+
+#: Upper bound of patch indices a foreman accepts.
+MAX_PATCHES = 1 << 16
+
+
+class CropStore:
+    """Crops of the newest frame of each stream, by patch index (for moved or re-dispatched shares)."""
+
+    def __init__(self) -> None:
+        self._frames: dict[str, tuple[int, dict[int, np.ndarray]]] = {}
+
+    def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
+        current = self._frames.get(stream)
+        if current is None or current[0] < seq:
+            current = (seq, {})
+            self._frames[stream] = current
+        elif current[0] > seq:
+            return
+        for row, index in enumerate(indices.tolist()):
+            current[1][int(index)] = crops[row]
+
+    def get(self, stream: str, seq: int, indices: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        if indices.size == 0:
+            return np.zeros((0, *shape), dtype=np.uint8)
+        entry = self._frames.get(stream)
+        if entry is None or entry[0] != seq:
+            raise PatchWorkError(f"no crops of frame {seq} of {stream}")
+        try:
+            return np.stack([entry[1][int(i)] for i in indices])
+        except KeyError as exc:
+            raise PatchWorkError(f"no crop of patch {exc} in frame {seq} of {stream}") from None
+
+
+class ForemanService(ServiceRuntime):
+    role = keys.Role.FOREMAN
+
+    def __init__(
+        self,
+        node: str,
+        transport: TransportSettings,
+        dispatch: DispatchSettings,
+        stats_period_s: float = 1.0,
+        queue_capacity: int = 2,
+    ) -> None:
+        super().__init__(node, 0, transport, stats_period_s)
+        self.dispatch_settings = dispatch
+        self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
+        self.queue: WorkQueue[tuple[zenoh.Query, BlockJob]] = WorkQueue(queue_capacity)
+        self.cache = SpectrumCache()
+        self.crops_prev = CropStore()
+        self._membership: list[tuple[bool, str]] = []
+        self._membership_lock = threading.Lock()
+        self._worker = WorkerService(node, 0, transport)  # only for its settings cache
+        self.scatter: Scatter | None = None
+        self._last_shares: dict[str, float] = {}
+        self._entities: list[Any] = []
+
+    def start(self, session: zenoh.Session) -> None:
+        self.scatter = Scatter(
+            session, self.dispatcher, self._worker_key, PatchJob, PatchResult, self.counters
+        )
+        self._entities.append(
+            session.liveliness().declare_subscriber(
+                keys.alive_node_workers(self.node), self._on_alive, history=True
+            )
+        )
+        self._entities.append(
+            session.declare_queryable(keys.foreman_key(self.node), self._on_query, complete=True)
+        )
+        self.spawn(self._serve, "blocks")
+
+    def stop(self) -> None:
+        for query, _job in self.queue.drain():
+            self.reply_error(query, "shutdown", f"{self.name} is shutting down")
+
+    @staticmethod
+    def _worker_key(member: str) -> str:
+        _role, node, index = member.split("/")
+        return keys.worker_key(node, int(index))
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            member = keys.parse_alive_key(str(sample.key_expr))
+        except CapatazError as exc:
+            self.count_error("bad_liveliness", "ignoring liveliness key", exc)
+            return
+        joined = sample.kind == zenoh.SampleKind.PUT
+        with self._membership_lock:
+            self._membership.append((joined, member.name))
+        if not joined and self.scatter is not None:
+            self.scatter.member_left(member.name)
+        self.counters.inc("members_joined" if joined else "members_left")
+
+    def _apply_membership(self) -> None:
+        with self._membership_lock:
+            changes, self._membership = self._membership, []
+        for joined, name in changes:
+            if joined:
+                self.dispatcher.join(name)
+            else:
+                self.dispatcher.leave(name)
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        self.counters.inc("queries")
+        job = self.decode_query(query, BlockJob)
+        if job is None:
+            return
+        if not self.queue.offer((query, job)):
+            self.counters.inc("busy")
+            self.reply_error(query, "busy", f"{self.name}: block queue full")
+
+    def shares(self) -> dict[str, float]:
+        return dict(self._last_shares)
+
+    def queue_depths(self) -> dict[str, int]:
+        return {"blocks": self.queue.depth()}
+
+    def _serve(self) -> None:
+        while not self.stop_event.is_set():
+            item = self.queue.take(0.1)
+            if item is None:
+                continue
+            query, job = item
+            try:
+                result = self._compute_block(job)
+            except (CapatazError, ValueError) as exc:
+                self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
+                self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
+                continue
+            self.reply(query, result)
+
+    def _compute_block(self, job: BlockJob) -> BlockResult:
+        assert self.scatter is not None
+        t0 = time.perf_counter()
+        settings = self._worker.settings_for(job.settings)
+        self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
+        crop_shape = tuple(job.crops.shape[1:])
+        rows = {int(i): r for r, i in enumerate(job.indices.tolist())}
+
+        def crops(indices: np.ndarray) -> np.ndarray:
+            return job.crops[[rows[int(i)] for i in indices]] if indices.size else job.crops[:0]
+
+        def prev_crops(indices: np.ndarray) -> np.ndarray:
+            return self.crops_prev.get(job.stream, job.prev_seq, indices, crop_shape)
+
+        def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
+            return measure_share(
+                self.cache,
+                settings,
+                job.stream,
+                job.seq,
+                job.prev_seq,
+                indices,
+                crops(indices),
+                moved,
+                prev_crops(moved),
+            )
+
+        self._apply_membership()
+        # workers get most of the budget; the rest is for re-dispatching a failed share here
+        work = FrameWork(
+            stream=job.stream,
+            seq=job.seq,
+            prev_seq=job.prev_seq,
+            settings=job.settings,
+            budget_s=max(0.05, 0.5 * job.budget_s),
+            crops=crops,
+            prev_crops=prev_crops,
+            compute_self=compute_self,
+        )
+        plan = self.dispatcher.plan(job.seq, job.prev_seq, time.monotonic(), job.indices)
+        report = self.scatter.run(work, plan)
+        self.crops_prev.add(job.stream, job.seq, job.indices, job.crops)
+        measurement = merge_measurements(report.parts, job.indices)
+        elapsed = time.perf_counter() - t0
+        self._last_shares = plan.shares()
+        self.counters.inc("blocks")
+        self.counters.inc("patches", int(job.indices.size))
+        self.counters.time_ms("block", elapsed * 1e3)
+        active = set(self.dispatcher.active(time.monotonic()))
+        speeds = {m: s for m, s in self.dispatcher.speeds().items() if m in active}
+        result = result_from_measurement(
+            BlockResult, job, self.name, measurement, elapsed, report.members, speeds
+        )
+        assert isinstance(result, BlockResult)
+        return result
+
+
+def add_dispatch_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
+    )
+    parser.add_argument(
+        "--compute",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="compute a share itself besides its members (the paper's configuration)",
+    )
+    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+
+
+def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
+    return DispatchSettings(
+        balance=Balance(args.balance), self_compute=args.compute, min_deadline_s=args.min_deadline_ms / 1e3
+    )
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser("foreman", help="a foreman: splits blocks among its node's workers")
+    add_transport_arguments(parser)
+    add_dispatch_arguments(parser)
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    return ForemanService(
+        args.node, transport_from_args(args), dispatch_from_args(args), args.stats_period
+    ).run()
+
+
+__all__ = ["SELF", "ForemanService", "register"]

@@ -1,0 +1,308 @@
+"""The zenoh side of the one dispatcher: send each member its share of a frame, gather, re-dispatch.
+
+Used by the master (members = foremen or workers) and by each foreman (members = its workers). The
+decisions (who gets which patches, deadlines, suspensions) are the pure :class:`Dispatcher`'s; this
+module only sends the queries, waits for replies or deadlines or liveliness losses, and asks the
+dispatcher where a failed share goes, within the same frame. The dispatcher itself (``SELF``) computes
+its share in the calling thread while the others work, and takes every share nobody else can.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common.dispatch import SELF, Dispatcher, Plan
+from common.dispatch.patchwork import PatchWorkError
+from common.messages import BlockJob, PatchJob, PatchResult, WireError, decode, encode, read_error_reply
+from common.transport import Counters, zbytes
+from common.yaw.correlation import PatchMeasurement
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class FrameWork:
+    """What a scatter round needs about the frame: crops by index, and how to compute a share locally."""
+
+    stream: str
+    seq: int
+    prev_seq: int
+    settings: dict[str, Any]
+    budget_s: float
+    #: level crops (n, s, s) of the new frame for indices
+    crops: Callable[[np.ndarray], np.ndarray]
+    #: level crops of the previous frame for indices
+    prev_crops: Callable[[np.ndarray], np.ndarray]
+    #: compute a share in-process: (indices, moved indices) -> measurement
+    compute_self: Callable[[np.ndarray, np.ndarray], PatchMeasurement]
+
+
+@dataclass
+class RoundReport:
+    """Outcome of one frame: the measured parts and who computed what."""
+
+    parts: list[PatchMeasurement] = field(default_factory=list)
+    members: dict[str, int] = field(default_factory=dict)
+    speeds: dict[str, float] = field(default_factory=dict)
+    redispatched: int = 0
+    failures: list[str] = field(default_factory=list)
+    self_s: float = 0.0
+
+
+@dataclass
+class _Request:
+    member: str
+    indices: np.ndarray
+    sent_s: float
+    deadline_s: float
+    result: PatchResult | None = None
+    error: str | None = None
+
+
+class Scatter:
+    """Runs one frame's round of requests for a :class:`Dispatcher` over a zenoh session."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        dispatcher: Dispatcher,
+        member_key: Callable[[str], str],
+        job_type: type[PatchJob],
+        result_type: type[PatchResult],
+        counters: Counters,
+    ) -> None:
+        self.session = session
+        self.dispatcher = dispatcher
+        self.member_key = member_key
+        self.job_type = job_type
+        self.result_type = result_type
+        self.counters = counters
+        self._events: queue.Queue[tuple[str, int, Any]] = queue.Queue()
+        self._lock = threading.Lock()
+        self._next_id = 0
+        self._epoch = 0
+
+    # called from liveliness callbacks (any thread): never blocks
+    def member_left(self, member: str) -> None:
+        self._events.put(("left", -1, member))
+
+    def _send(
+        self, work: FrameWork, member: str, indices: np.ndarray, moved: np.ndarray, budget_s: float
+    ) -> int:
+        with self._lock:
+            rid = self._next_id
+            self._next_id += 1
+        job = self.job_type(
+            stream=work.stream,
+            seq=work.seq,
+            prev_seq=work.prev_seq,
+            settings=work.settings,
+            indices=indices.astype(np.int32),
+            crops=work.crops(indices),
+            prev_indices=moved.astype(np.int32),
+            prev_crops=work.prev_crops(moved),
+            budget_s=budget_s,
+        )
+        payload, attachment = encode(job)
+        events = self._events
+        epoch = self._epoch
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            events.put(("reply", rid, (epoch, reply)))
+
+        def on_done() -> None:
+            events.put(("done", rid, epoch))
+
+        self.session.get(
+            self.member_key(member),
+            zenoh.handlers.Callback(on_reply, on_done),
+            payload=payload,
+            attachment=attachment,
+            timeout=budget_s + 0.5,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
+        self.counters.inc("requests_sent")
+        self.counters.inc("patches_sent", int(indices.size))
+        self.counters.inc("prev_patches_sent", int(moved.size))
+        return rid
+
+    def run(self, work: FrameWork, plan: Plan) -> RoundReport:
+        """Send ``plan``'s shares, compute ``SELF``'s, re-dispatch failures; every index gets measured."""
+        self._epoch += 1
+        report = RoundReport()
+        pending: dict[int, _Request] = {}
+        self_queue: list[tuple[np.ndarray, np.ndarray]] = []
+        failed: set[str] = set()
+
+        def dispatch(p: Plan) -> None:
+            for member, indices in p.assignment.items():
+                moved = p.moved[member]
+                if member == SELF:
+                    self_queue.append((indices, moved))
+                    continue
+                deadline = min(work.budget_s, self.dispatcher.deadline_s(member, int(indices.size)))
+                try:
+                    rid = self._send(work, member, indices, moved, deadline)
+                except Exception as exc:  # session closing, encode failure: compute it here instead
+                    self.counters.inc("send_failures")
+                    logger.warning("cannot send share to %s: %s", member, exc)
+                    self_queue.append((indices, indices))
+                    continue
+                now = time.monotonic()
+                pending[rid] = _Request(member, indices, now, now + deadline)
+
+        def fail(rid: int, why: str) -> None:
+            request = pending.pop(rid)
+            failed.add(request.member)
+            report.failures.append(f"{request.member}: {why}")
+            report.redispatched += 1
+            self.counters.inc("redispatched")
+            self.counters.inc("redispatched_patches", int(request.indices.size))
+            pause = self.dispatcher.record_failure(request.member, time.monotonic())
+            logger.warning(
+                "frame %d: %s failed (%s); re-dispatching %d patches, member paused %.1f s",
+                work.seq,
+                request.member,
+                why,
+                request.indices.size,
+                pause,
+            )
+            dispatch(self.dispatcher.redistribute(request.indices, failed, time.monotonic(), work.prev_seq))
+
+        dispatch(plan)
+        while pending or self_queue:
+            while self_queue:
+                indices, moved = self_queue.pop(0)
+                t0 = time.perf_counter()
+                measurement = work.compute_self(indices, moved)
+                elapsed = time.perf_counter() - t0
+                report.self_s += elapsed
+                report.parts.append(measurement)
+                report.members[SELF] = report.members.get(SELF, 0) + int(indices.size)
+                self.dispatcher.record_success(SELF, work.seq, indices, elapsed)
+            if not pending:
+                break
+            timeout = max(0.0, min(r.deadline_s for r in pending.values()) - time.monotonic())
+            try:
+                kind, rid, value = self._events.get(timeout=timeout)
+            except queue.Empty:
+                now = time.monotonic()
+                for late in [r for r, q in pending.items() if q.deadline_s <= now]:
+                    self.counters.inc("deadline_misses")
+                    fail(late, "deadline missed")
+                continue
+            if kind == "left":
+                for gone in [r for r, q in pending.items() if q.member == value]:
+                    fail(gone, "left (liveliness lost)")
+                continue
+            if rid not in pending:
+                continue  # late answer of a request already re-dispatched, or of an older frame
+            if kind == "reply":
+                epoch, reply = value
+                if epoch != self._epoch:
+                    continue
+                self._accept(pending[rid], reply, work)
+                request = pending[rid]
+                if request.result is not None:
+                    del pending[rid]
+                    elapsed = time.monotonic() - request.sent_s
+                    result = request.result
+                    reported = sum(result.speeds.values()) if result.speeds else None
+                    self.dispatcher.record_success(
+                        request.member, work.seq, request.indices, elapsed, reported
+                    )
+                    report.parts.append(_measurement(result))
+                    n = int(request.indices.size)
+                    report.members[request.member] = report.members.get(request.member, 0) + n
+                    for sub, count in result.members.items():
+                        if sub != request.member:
+                            key = f"{request.member}>{sub}"
+                            report.members[key] = report.members.get(key, 0) + count
+                    for sub, value in result.speeds.items():
+                        if sub != request.member:
+                            report.speeds[f"{request.member}>{sub}"] = value
+                    speed = self.dispatcher.speed(request.member)
+                    if speed is not None:
+                        report.speeds[request.member] = speed
+                elif request.error is not None:
+                    fail(rid, request.error)
+            elif kind == "done" and value == self._epoch:
+                request = pending[rid]
+                fail(rid, request.error or "no reply")
+        return report
+
+    def _accept(self, request: _Request, reply: zenoh.Reply, work: FrameWork) -> None:
+        if reply.err is not None:
+            request.error = "error reply: " + read_error_reply(reply.err.payload.to_bytes())
+            self.counters.inc("error_replies")
+            return
+        sample = reply.ok
+        if sample is None:
+            request.error = "empty reply"
+            return
+        try:
+            result = decode(zbytes(sample.payload), zbytes(sample.attachment), self.result_type)
+        except WireError as exc:
+            self.counters.inc("malformed_replies")
+            request.error = f"malformed reply: {exc}"
+            return
+        if (
+            result.seq != work.seq
+            or result.stream != work.stream
+            or not np.array_equal(
+                np.asarray(result.indices, dtype=np.int64), request.indices.astype(np.int64)
+            )
+        ):
+            request.error = f"reply for frame {result.seq}/{result.stream} does not match the request"
+            self.counters.inc("mismatched_replies")
+            return
+        request.result = result
+
+
+def _measurement(result: PatchResult) -> PatchMeasurement:
+    return PatchMeasurement(
+        indices=np.asarray(result.indices, dtype=np.intp),
+        shift_px=np.asarray(result.shift_px, dtype=np.float64),
+        confidence=np.asarray(result.confidence, dtype=np.float64),
+        peak=np.asarray(result.peak, dtype=np.float64),
+        valid=np.asarray(result.valid, dtype=np.bool_),
+    )
+
+
+def result_from_measurement(
+    result_type: type[PatchResult],
+    job: PatchJob | BlockJob,
+    member: str,
+    measurement: PatchMeasurement,
+    compute_s: float,
+    members: dict[str, int],
+    speeds: dict[str, float],
+) -> PatchResult:
+    """The reply message for a job from its measurement (shared by workers and foremen)."""
+    return result_type(
+        stream=job.stream,
+        seq=job.seq,
+        prev_seq=job.prev_seq,
+        member=member,
+        indices=np.asarray(measurement.indices, dtype=np.int32),
+        shift_px=np.asarray(measurement.shift_px, dtype=np.float64).reshape(-1, 2),
+        confidence=np.asarray(measurement.confidence, dtype=np.float64),
+        peak=np.asarray(measurement.peak, dtype=np.float64),
+        valid=np.asarray(measurement.valid, dtype=np.bool_),
+        compute_s=compute_s,
+        members=members,
+        speeds=speeds,
+    )
+
+
+__all__ = ["FrameWork", "PatchWorkError", "RoundReport", "Scatter", "result_from_measurement"]

@@ -1,0 +1,134 @@
+"""The worker: measures the patches it is sent, keeping each patch's previous spectrum (sticky cache)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import zenoh
+
+from common import keys
+from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, settings_from_wire
+from common.errors import CapatazError
+from common.messages import PatchJob, PatchResult
+from common.transport import (
+    ServiceRuntime,
+    TransportSettings,
+    WorkQueue,
+    add_transport_arguments,
+    transport_from_args,
+)
+from common.yaw.settings import YawSettings
+from services.master.scatter import result_from_measurement
+
+
+class WorkerService(ServiceRuntime):
+    """One worker process: a queryable, a bounded job queue, one compute thread."""
+
+    role = keys.Role.WORKER
+
+    def __init__(
+        self,
+        node: str,
+        index: int,
+        transport: TransportSettings,
+        queue_capacity: int = 8,
+        stats_period_s: float = 1.0,
+    ) -> None:
+        super().__init__(node, index, transport, stats_period_s)
+        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
+        self.cache = SpectrumCache()
+        self._settings: dict[tuple[tuple[str, Any], ...], YawSettings] = {}
+        self._queryable: Any = None
+
+    def start(self, session: zenoh.Session) -> None:
+        self._queryable = session.declare_queryable(
+            keys.worker_key(self.node, self.index), self._on_query, complete=True
+        )
+        self.spawn(self._serve, "compute")
+
+    def stop(self) -> None:
+        for query, _job, _t in self.queue.drain():
+            self.reply_error(query, "shutdown", f"{self.name} is shutting down")
+
+    def queue_depths(self) -> dict[str, int]:
+        return {"jobs": self.queue.depth()}
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        # decode here (cheap, counts malformed input at once), compute in the worker thread
+        self.counters.inc("queries")
+        job = self.decode_query(query, PatchJob)
+        if job is None:
+            return
+        if not self.queue.offer((query, job, time.monotonic())):
+            self.counters.inc("busy")
+            self.reply_error(query, "busy", f"{self.name}: job queue full")
+
+    def settings_for(self, values: dict[str, Any]) -> YawSettings:
+        key = tuple(sorted(values.items()))
+        settings = self._settings.get(key)
+        if settings is None:
+            settings = settings_from_wire(values)
+            if len(self._settings) > 8:
+                self._settings.clear()
+            self._settings[key] = settings
+        return settings
+
+    def _serve(self) -> None:
+        while not self.stop_event.is_set():
+            item = self.queue.take(0.1)
+            if item is None:
+                continue
+            query, job, received = item
+            if time.monotonic() - received > job.budget_s:
+                self.counters.inc("expired")
+                self.reply_error(query, "expired", f"{self.name}: job waited longer than its budget")
+                continue
+            t0 = time.perf_counter()
+            try:
+                settings = self.settings_for(job.settings)
+                measurement = measure_share(
+                    self.cache,
+                    settings,
+                    job.stream,
+                    job.seq,
+                    job.prev_seq,
+                    job.indices,
+                    job.crops,
+                    job.prev_indices,
+                    job.prev_crops,
+                )
+            except (PatchWorkError, CapatazError, ValueError) as exc:
+                self.count_error("rejected", f"job {job.stream}/{job.seq} rejected", exc)
+                self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
+                continue
+            elapsed = time.perf_counter() - t0
+            self.counters.inc("jobs")
+            self.counters.inc("patches", int(job.indices.size))
+            self.counters.time_ms("compute", elapsed * 1e3)
+            speed = job.indices.size / elapsed if elapsed > 0 else 0.0
+            self.reply(
+                query,
+                result_from_measurement(
+                    PatchResult,
+                    job,
+                    self.name,
+                    measurement,
+                    elapsed,
+                    {self.name: int(job.indices.size)},
+                    {self.name: speed},
+                ),
+            )
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser("worker", help="a worker: measures patch shifts for a master or foreman")
+    add_transport_arguments(parser)
+    parser.add_argument("--queue", type=int, default=8, help="bounded job queue capacity")
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    service = WorkerService(args.node, args.index, transport_from_args(args), args.queue, args.stats_period)
+    return service.run()
