@@ -19,7 +19,7 @@ roll, pitch, yaw (rad) of ``R_world_body``; the camera sits at the body origin, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -138,21 +138,27 @@ def frustum_edges(
     near_m: float = NEAR_PLANE_M,
 ) -> BoolArray:
     """Frustum culling (P, E) of each edge's bounding sphere against the near plane and the 4 image sides."""
-    centres = np.einsum(
-        "pij,pej->pei", R_camera_world, samples.centres_world_m[None] - p_world_camera_m[:, None]
-    )
-    x, y, z = centres[..., 0], centres[..., 1], centres[..., 2]
-    r = samples.radii_m[None, :]
-    # half-angle tangents of the four sides (pixel centres 0 .. width-1, half a pixel of margin)
+    R32 = R_camera_world.astype(np.float32)
+    n_particles = R32.shape[0]
+    centres = (R32.reshape(-1, 3) @ samples.centres_world_m.T.astype(np.float32)).reshape(n_particles, 3, -1)
+    centres -= np.matmul(R32, p_world_camera_m.astype(np.float32)[:, :, None])
+    x, y, z = centres[:, 0], centres[:, 1], centres[:, 2]
+    r = samples.radii_m.astype(np.float32)[None, :]
+    # half-angle tangents of the four sides (pixel centres 0 .. width-1, half a pixel of margin); a sphere is
+    # outside when its centre lies more than r beyond one side plane
     t_left = (camera.cx + 0.5) / camera.fx
     t_right = (camera.width - 0.5 - camera.cx) / camera.fx
     t_top = (camera.cy + 0.5) / camera.fy
     t_bottom = (camera.height - 0.5 - camera.cy) / camera.fy
-    keep = z > near_m - r
-    keep &= (t_right * z - x) / np.hypot(1.0, t_right) > -r
-    keep &= (t_left * z + x) / np.hypot(1.0, t_left) > -r
-    keep &= (t_bottom * z - y) / np.hypot(1.0, t_bottom) > -r
-    keep &= (t_top * z + y) / np.hypot(1.0, t_top) > -r
+    keep = z > np.float32(near_m) - r
+    for tangent, lateral, sign in (
+        (t_right, x, -1.0),
+        (t_left, x, 1.0),
+        (t_bottom, y, -1.0),
+        (t_top, y, 1.0),
+    ):
+        scale = np.float32(1.0 / np.hypot(1.0, tangent))
+        keep &= (np.float32(tangent) * z + np.float32(sign) * lateral) * scale > -r
     return np.asarray(keep)
 
 
@@ -162,13 +168,17 @@ class ProjectedSamples:
 
     ``u_px``, ``v_px`` (P, E', S) pixel coordinates; ``valid`` (P, E', S) marks points that survive culling
     (edge front-facing and in the frustum, point in front of the near plane and inside the image);
-    ``edge_ids`` (E',) the scene edges kept (seen by at least one particle). ``normal_u``, ``normal_v``
-    (P, E', S) are unit image normals of the projected edge at each point (present when requested).
+    ``pixel_index`` (P, E', S) is the flat index ``row * width + column`` of each point's pixel, and
+    ``width * height`` (one past the image) for invalid points, so that a lookup table with one extra entry
+    needs no mask; ``edge_ids`` (E',) are the scene edges kept (seen by at least one particle).
+    ``normal_u``, ``normal_v`` (P, E', S) are unit image normals of the projected edge at each point
+    (present when requested).
     """
 
     u_px: Float32Array
     v_px: Float32Array
     valid: BoolArray
+    pixel_index: npt.NDArray[np.int32]
     edge_ids: IntArray
     normal_u: Float32Array | None = None
     normal_v: Float32Array | None = None
@@ -176,6 +186,18 @@ class ProjectedSamples:
     @property
     def n_particles(self) -> int:
         return int(self.u_px.shape[0])
+
+
+def _subset(samples: EdgeSamples, edge_ids: IntArray) -> EdgeSamples:
+    """The same samples restricted to some edges (faces unchanged)."""
+    return replace(
+        samples,
+        points_world_m=samples.points_world_m[edge_ids],
+        directions_world=samples.directions_world[edge_ids],
+        centres_world_m=samples.centres_world_m[edge_ids],
+        radii_m=samples.radii_m[edge_ids],
+        edge_faces=samples.edge_faces[edge_ids],
+    )
 
 
 def project_samples(
@@ -189,33 +211,49 @@ def project_samples(
     """Project every edge's sample points into every particle's camera (vectorised over P x E x S)."""
     poses = check_states(states)
     R_camera_world, p_world_camera = camera_poses(poses, R_body_camera)
-    edge_keep = front_facing_edges(samples, p_world_camera) & frustum_edges(
-        samples, R_camera_world, p_world_camera, camera, near_m
+    front = front_facing_edges(samples, p_world_camera)
+    candidates = np.flatnonzero(front.any(axis=0))
+    keep_candidates = front[:, candidates] & frustum_edges(
+        _subset(samples, candidates), R_camera_world, p_world_camera, camera, near_m
     )
-    edge_ids = np.flatnonzero(edge_keep.any(axis=0))
+    seen = keep_candidates.any(axis=0)
+    edge_ids = candidates[seen]
+    edge_keep = keep_candidates[:, seen]
     n_particles, n_kept, n_points = poses.shape[0], edge_ids.size, samples.points_per_edge
+    width, height = int(camera.width), int(camera.height)
     points = samples.points_world_m[edge_ids].reshape(-1, 3).T.astype(np.float32)  # (3, E' S)
-    R32 = R_camera_world.astype(np.float32)
-    t32 = -np.einsum("pij,pj->pi", R_camera_world, p_world_camera).astype(np.float32)
-    cam = np.matmul(R32, points)  # (P, 3, E' S)
-    cam += t32[:, :, None]
-    x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
+    # K folded into the rotation: one matmul gives (u z, v z, z) of every point in every particle's camera
+    K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
+    KR = (K @ R_camera_world).astype(np.float32)
+    Kt = -(KR.astype(np.float64) @ p_world_camera[:, :, None]).astype(np.float32)  # (P, 3, 1)
+    # one GEMM (3P x 3) @ (3 x E'S) instead of P small ones
+    homogeneous = (KR.reshape(-1, 3) @ points).reshape(n_particles, 3, -1)  # (P, 3, E' S)
+    homogeneous += Kt
+    z = homogeneous[:, 2]
     in_front = z > np.float32(near_m)
-    inv_z = np.float32(1.0) / np.where(in_front, z, np.float32(1.0))
-    x_n = x * inv_z
-    y_n = y * inv_z
-    u = x_n * np.float32(camera.fx) + np.float32(camera.cx)
-    v = y_n * np.float32(camera.fy) + np.float32(camera.cy)
-    valid = in_front & (u >= -0.5) & (u < camera.width - 0.5) & (v >= -0.5) & (v < camera.height - 0.5)
-    shape = (n_particles, n_kept, n_points)
-    valid = valid.reshape(shape) & edge_keep[:, edge_ids, None]
+    with np.errstate(all="ignore"):  # points behind the camera give inf/nan here; they are masked below
+        inv_z = np.float32(1.0) / z
+        u = homogeneous[:, 0] * inv_z
+        v = homogeneous[:, 1] * inv_z
+        valid = in_front & (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
+        shape = (n_particles, n_kept, n_points)
+        valid = valid.reshape(shape)
+        valid &= edge_keep[:, :, None]
+        column = (u + np.float32(0.5)).astype(np.int32).reshape(shape)
+        row = (v + np.float32(0.5)).astype(np.int32).reshape(shape)
+    row *= np.int32(width)
+    row += column
+    pixel_index = np.where(valid, row, np.int32(width * height))
     normal_u: Float32Array | None = None
     normal_v: Float32Array | None = None
     if with_normals:
+        R32 = R_camera_world.astype(np.float32)
         directions = np.matmul(R32, samples.directions_world[edge_ids].T.astype(np.float32))  # (P, 3, E')
         dx = np.repeat(directions[:, 0], n_points, axis=1)
         dy = np.repeat(directions[:, 1], n_points, axis=1)
         dz = np.repeat(directions[:, 2], n_points, axis=1)
+        x_n = (u - np.float32(camera.cx)) / np.float32(camera.fx)
+        y_n = (v - np.float32(camera.cy)) / np.float32(camera.fy)
         # image tangent of a 3D line at a point: d(x/z) ~ dx - x_n dz (times fx), likewise for y
         tan_u = (dx - x_n * dz) * np.float32(camera.fx)
         tan_v = (dy - y_n * dz) * np.float32(camera.fy)
@@ -227,6 +265,7 @@ def project_samples(
         u_px=u.reshape(shape),
         v_px=v.reshape(shape),
         valid=valid,
+        pixel_index=pixel_index,
         edge_ids=edge_ids,
         normal_u=normal_u,
         normal_v=normal_v,

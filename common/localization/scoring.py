@@ -64,10 +64,16 @@ class ScoringParams:
 
 @dataclass(frozen=True)
 class ImageEdges:
-    """Edges of one image: ``edge_map`` (H, W) uint8 (1 on an edge) and ``distance_px`` (H, W) float32."""
+    """Edges of one image: ``edge_map`` (H, W) uint8 (1 on an edge) and ``distance_px`` (H, W) float32.
+
+    ``distance_lookup`` and ``edge_lookup`` are the flattened maps with one extra entry (``inf`` and 0) at
+    index ``H * W``, where :class:`ProjectedSamples` points its invalid sample points.
+    """
 
     edge_map: UInt8Array
     distance_px: Float32Array
+    distance_lookup: Float32Array
+    edge_lookup: UInt8Array
 
     @property
     def width(self) -> int:
@@ -105,22 +111,29 @@ def extract_image_edges(
     distance = cv2.distanceTransform(
         np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
     )
-    return ImageEdges(edge_map=(edges > 0).astype(np.uint8), distance_px=distance.astype(np.float32))
+    edge_map = (edges > 0).astype(np.uint8)
+    distance = distance.astype(np.float32)
+    return ImageEdges(
+        edge_map=edge_map,
+        distance_px=distance,
+        distance_lookup=np.append(distance.ravel(), np.float32(np.inf)),
+        edge_lookup=np.append(edge_map.ravel(), np.uint8(0)),
+    )
 
 
-def _pixel_index(u_px: Float32Array, v_px: Float32Array, width: int, height: int) -> npt.NDArray[np.intp]:
-    """Flat index of the pixel nearest to each point (clamped into the image)."""
-    u = np.clip(u_px, 0.0, width - 1).astype(np.float32)
-    v = np.clip(v_px, 0.0, height - 1).astype(np.float32)
-    u += np.float32(0.5)
-    v += np.float32(0.5)
-    return np.asarray(v.astype(np.intp) * width + u.astype(np.intp))
+def _pixel_index(u_px: Float32Array, v_px: Float32Array, width: int) -> npt.NDArray[np.int32]:
+    """Flat index of the pixel nearest to each point (points must lie inside the image)."""
+    column = (u_px + np.float32(0.5)).astype(np.int32)
+    row = (v_px + np.float32(0.5)).astype(np.int32)
+    return np.asarray(row * np.int32(width) + column)
 
 
 def distance_transform_distances(projected: ProjectedSamples, edges: ImageEdges) -> Float32Array:
-    """Distance (px) from each sample point to the nearest image edge pixel (P, E', S), one lookup each."""
-    index = _pixel_index(projected.u_px, projected.v_px, edges.width, edges.height)
-    return np.asarray(np.take(edges.distance_px.ravel(), index))
+    """Distance (px) from each sample point to the nearest image edge pixel (P, E', S), one lookup each;
+    ``inf`` for invalid points."""
+    if edges.width * edges.height != int(edges.distance_lookup.size) - 1:
+        raise InputError("ImageEdges lookup tables do not match the edge map")
+    return np.asarray(np.take(edges.distance_lookup, projected.pixel_index, mode="clip"))
 
 
 def normal_search_distances(
@@ -132,7 +145,7 @@ def normal_search_distances(
         raise InputError(
             "normal search needs ProjectedSamples with normals (project_samples(with_normals=True))"
         )
-    flat = edges.edge_map.ravel()
+    flat = edges.edge_lookup
     distance = np.full(projected.u_px.shape, np.inf, dtype=np.float32)
     unresolved = projected.valid.copy()
     for step in range(max_normal_px + 1):
@@ -143,7 +156,8 @@ def normal_search_distances(
             u = projected.u_px + offset * projected.normal_u
             v = projected.v_px + offset * projected.normal_v
             inside = (u >= -0.5) & (u < edges.width - 0.5) & (v >= -0.5) & (v < edges.height - 0.5)
-            hit = unresolved & inside & (np.take(flat, _pixel_index(u, v, edges.width, edges.height)) > 0)
+            index = np.where(inside, _pixel_index(u, v, edges.width), np.int32(edges.width * edges.height))
+            hit = unresolved & (np.take(flat, index, mode="clip") > 0)
             distance[hit] = np.float32(step)
             unresolved &= ~hit
     return distance
@@ -180,9 +194,10 @@ def nearest_edge_log_weight(
     normal_weights: Float32Array, valid: BoolArray, k: float, alpha: float
 ) -> tuple[FloatArray, FloatArray]:
     """Paper B method 3 (nearest edge): per line ``l_n = sum_i g(d_i) / S`` over its S visible sample points,
-    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Returns (log W, mean l) per particle."""
+    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Returns (log W, mean l) per particle.
+    ``normal_weights`` must be 0 at invalid points."""
     s = valid.sum(axis=2, dtype=np.float32)
-    g_sum = np.where(valid, normal_weights, np.float32(0.0)).sum(axis=2, dtype=np.float32)
+    g_sum = normal_weights.sum(axis=2, dtype=np.float32)
     seen = s > 0
     lines = np.where(seen, g_sum / np.maximum(s, np.float32(1.0)), np.float32(0.0))
     m = np.maximum(seen.sum(axis=1), 1)
@@ -202,7 +217,7 @@ def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: Scor
         g = normal_weight(distance, params.sigma_px, params.max_normal_px)
         log_w, mean_l = nearest_edge_log_weight(g, valid, params.k, params.alpha)
         return ScoreResult(log_weight=log_w, fit=mean_l)
-    aligned = valid & (distance <= np.float32(params.align_px))
+    aligned = distance <= np.float32(params.align_px)  # invalid points have distance inf
     if method is ScoringMethod.KLEIN_MURRAY:
         a = aligned.sum(axis=(1, 2), dtype=np.float64)
         v = valid.sum(axis=(1, 2), dtype=np.float64)
