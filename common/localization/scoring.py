@@ -108,11 +108,13 @@ def extract_image_edges(
     """Canny edges of a grey uint8 image and the distance (px) of every pixel to the nearest edge pixel."""
     gray = check_gray_image(image)
     edges = cv2.Canny(gray, canny_low, canny_high, L2gradient=True)
-    distance = cv2.distanceTransform(
-        np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+    distance: Float32Array = np.asarray(
+        cv2.distanceTransform(
+            np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+        ),
+        dtype=np.float32,
     )
     edge_map = (edges > 0).astype(np.uint8)
-    distance = distance.astype(np.float32)
     return ImageEdges(
         edge_map=edge_map,
         distance_px=distance,
