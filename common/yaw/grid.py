@@ -98,10 +98,8 @@ class PatchGrid:
         if level_u8.shape != expected:
             raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
         n = self.patch_size_px
-        offsets = np.arange(n, dtype=np.intp)
-        rows = self.origins_level_px[idx, 1][:, None, None] + offsets[None, :, None]
-        cols = self.origins_level_px[idx, 0][:, None, None] + offsets[None, None, :]
-        return np.ascontiguousarray(level_u8[rows, cols])
+        windows = np.lib.stride_tricks.sliding_window_view(level_u8, (n, n))  # a view, no copy
+        return np.ascontiguousarray(windows[self.origins_level_px[idx, 1], self.origins_level_px[idx, 0]])
 
     def crop(self, frame_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
         """Crops (n, s, s) uint8 at the working level of the patches ``indices`` of a full frame.

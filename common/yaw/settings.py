@@ -44,6 +44,12 @@ class YawSettings:
     #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
     #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
     peak_sigma_px: float = 1.0
+    #: Tukey window taper of each patch (1 = Hann, 0 = none).
+    window_taper: float = 1.0
+    #: Exponent of the window-overlap division before the sub-pixel fit (0 = off, 1 = full).
+    overlap_correction: float = 2.0
+    #: High-pass of the cross-power spectrum (frequency bins): removes the window's bias towards zero shift.
+    lowcut_bins: float = 0.0
     #: Patches whose grey-level standard deviation (0..255 scale) is below this are textureless.
     min_texture_std: float = 4.0
     #: A patch is valid when its correlation peak exceeds the second peak (outside +-2 px) by this ratio.
