@@ -1,0 +1,290 @@
+"""Homography-based visual odometry of a downward camera, paper C section II-B (Algorithms 1-2, eqs. 9-10).
+
+Per pair of frames (k-1, k): Shi-Tomasi features on k-1, pyramidal Lucas-Kanade to k with a
+forward-backward check, a RANSAC homography, its decomposition (``cv2.decomposeHomographyMat``, Malis &
+Vargas) keeping the physically valid solution (all points in front of both views, plane normal closest to
+the expected ground normal), the metric translation from the altitude, and the composition of eqs. 9-10.
+
+Frame convention of a decomposition: ``X_k = R_k_km1 X_km1 + t``, ``t = T/d * d`` with ``d`` the distance of
+camera k-1 to the ground plane and ``n`` the plane normal in camera k-1 (pointing from the camera to the
+ground, ``n^T X = d`` on the plane). ``t`` is then the position of camera k-1 seen from camera k, the
+paper's ``t_{k,k-1}^k``.
+
+Frames are prepared once (:func:`prepare_frame`: features and mask): each prepared frame is "k" for one
+pair and "k-1" for the next. (OpenCV 5's Python binding no longer accepts prebuilt LK pyramids.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import CapatazError, InputError
+from common.estimation.rectify import check_image_u8
+
+FloatArray = npt.NDArray[np.float64]
+ImageU8 = npt.NDArray[np.uint8]
+
+
+class VoError(CapatazError):
+    """A pair of frames gave no usable motion (too few features, tracks or inliers, no valid solution)."""
+
+
+@dataclass(frozen=True)
+class VoSettings:
+    """Feature, flow and homography parameters (pixels unless named otherwise)."""
+
+    max_features: int = 200
+    quality_level: float = 0.01
+    min_distance_px: float = 15.0
+    block_size_px: int = 7
+    lk_window_px: int = 15
+    lk_levels: int = 2
+    lk_iterations: int = 20
+    lk_epsilon_px: float = 0.01
+    #: Forward-backward check: a track is kept if tracking back lands within this of its start.
+    fb_max_error_px: float = 0.3
+    ransac_threshold_px: float = 1.0
+    min_inliers: int = 12
+    #: Features closer than this to a mask edge (or the image edge) are not used.
+    mask_margin_px: int = 8
+
+    def __post_init__(self) -> None:
+        if self.max_features < 8 or self.min_inliers < 4 or self.lk_levels < 0:
+            raise InputError("VoSettings: max_features >= 8, min_inliers >= 4 and lk_levels >= 0 are required")
+        if self.lk_window_px < 5 or self.lk_window_px % 2 == 0:
+            raise InputError(f"VoSettings.lk_window_px must be odd and >= 5, got {self.lk_window_px}")
+        for name in ("quality_level", "min_distance_px", "fb_max_error_px", "ransac_threshold_px"):
+            if not getattr(self, name) > 0.0:
+                raise InputError(f"VoSettings.{name} must be > 0")
+
+
+@dataclass(frozen=True)
+class PreparedFrame:
+    """A frame ready for the pair step: its Shi-Tomasi features and (eroded) valid mask."""
+
+    image: ImageU8
+    features_px: npt.NDArray[np.float32]
+    inner_mask: ImageU8 | None
+
+
+@dataclass(frozen=True)
+class RelativeMotion:
+    """Motion between frames k-1 and k from one homography (Algorithm 2)."""
+
+    R_k_km1: FloatArray
+    t_over_d: FloatArray
+    normal_km1: FloatArray
+    H_k_km1: FloatArray
+    n_features: int
+    n_tracked: int
+    n_inliers: int
+
+
+@dataclass(frozen=True)
+class VoPose:
+    """Pose of the (possibly rectified) camera in the navigation frame n (= world, ENU)."""
+
+    R_n_camera: FloatArray
+    p_n_camera_m: FloatArray
+
+
+def _inner_mask(mask: ImageU8 | None, shape: tuple[int, int], margin_px: int) -> ImageU8:
+    """The mask (or the whole image) eroded by ``margin_px``."""
+    full = np.full(shape, 255, dtype=np.uint8) if mask is None else np.asarray(mask, dtype=np.uint8)
+    if full.shape != shape:
+        raise InputError(f"mask must have the image shape {shape}, got {full.shape}")
+    if margin_px <= 0:
+        return full
+    if mask is None:
+        out = np.zeros(shape, dtype=np.uint8)
+        out[margin_px:-margin_px, margin_px:-margin_px] = 255
+        return out
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * margin_px + 1, 2 * margin_px + 1))
+    eroded = cv2.erode(full, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.asarray(eroded, dtype=np.uint8)
+
+
+def prepare_frame(image: npt.ArrayLike, mask: npt.ArrayLike | None, settings: VoSettings) -> PreparedFrame:
+    """Shi-Tomasi features (inside ``mask`` shrunk by the margin)."""
+    img = check_image_u8(image)
+    inner = _inner_mask(None if mask is None else np.asarray(mask), img.shape, settings.mask_margin_px)
+    corners = cv2.goodFeaturesToTrack(
+        img,
+        maxCorners=settings.max_features,
+        qualityLevel=settings.quality_level,
+        minDistance=settings.min_distance_px,
+        mask=inner,
+        blockSize=settings.block_size_px,
+    )
+    features = (
+        np.zeros((0, 1, 2), dtype=np.float32) if corners is None else np.asarray(corners, dtype=np.float32)
+    )
+    return PreparedFrame(image=img, features_px=features, inner_mask=inner)
+
+
+def track_features(
+    prev: PreparedFrame, curr: PreparedFrame, settings: VoSettings
+) -> tuple[FloatArray, FloatArray]:
+    """Pyramidal LK from k-1 to k and back; keeps tracks whose round trip closes within ``fb_max_error_px``
+    and that land inside frame k's (eroded) valid mask. Returns matched ``(N, 2)`` pixel arrays."""
+    pts0 = prev.features_px
+    if len(pts0) == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    window = (settings.lk_window_px, settings.lk_window_px)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, settings.lk_iterations, settings.lk_epsilon_px)
+    pts1, st1, _ = cv2.calcOpticalFlowPyrLK(
+        prev.image, curr.image, pts0, None,
+        winSize=window, maxLevel=settings.lk_levels, criteria=criteria,
+    )  # fmt: skip
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(
+        curr.image, prev.image, pts1, pts0.copy(),
+        winSize=window, maxLevel=settings.lk_levels, criteria=criteria,
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )  # fmt: skip
+    p0 = pts0.reshape(-1, 2).astype(np.float64)
+    p1 = pts1.reshape(-1, 2).astype(np.float64)
+    fb = np.linalg.norm(back.reshape(-1, 2) - p0, axis=1)
+    ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < settings.fb_max_error_px)
+    h_px, w_px = curr.image.shape
+    xi = np.round(p1[:, 0]).astype(np.int64)
+    yi = np.round(p1[:, 1]).astype(np.int64)
+    inside = (xi >= 0) & (xi < w_px) & (yi >= 0) & (yi < h_px)
+    ok &= inside
+    if curr.inner_mask is not None:
+        ok[ok] &= curr.inner_mask[yi[ok], xi[ok]] > 0
+    return p0[ok], p1[ok]
+
+
+def choose_decomposition(
+    rotations: list[FloatArray] | tuple[FloatArray, ...],
+    translations: list[FloatArray] | tuple[FloatArray, ...],
+    normals: list[FloatArray] | tuple[FloatArray, ...],
+    K: FloatArray,
+    points_km1_px: FloatArray,
+    points_k_px: FloatArray,
+    expected_normal: FloatArray,
+) -> int:
+    """Index of the physically valid solution of ``cv2.decomposeHomographyMat``.
+
+    Keeps the solutions for which every reference point is in front of both cameras
+    (``cv2.filterHomographyDecompByVisibleRefpoints`` on normalised coordinates), then the one whose plane normal is closest to
+    ``expected_normal`` (the camera's down axis for a downward camera). When the translation is too small
+    for the normal to be observable, the solution with the smallest translation.
+    """
+    candidates = list(range(len(rotations)))
+    K_inv = np.linalg.inv(K)
+    m0 = (points_km1_px @ K_inv[:2, :2].T + K_inv[:2, 2]).astype(np.float32).reshape(-1, 1, 2)
+    m1 = (points_k_px @ K_inv[:2, :2].T + K_inv[:2, 2]).astype(np.float32).reshape(-1, 1, 2)
+    visible = cv2.filterHomographyDecompByVisibleRefpoints(list(rotations), list(normals), m0, m1)
+    if visible is not None and len(visible) > 0:
+        candidates = [int(i) for i in np.asarray(visible).ravel()]
+    scores = [float(np.asarray(normals[i]).ravel() @ expected_normal) for i in candidates]
+    best = int(np.argmax(scores))
+    if scores[best] > 0.0:
+        return candidates[best]
+    # Without translation the plane normal is unobservable (H is a pure rotation): every solution has the
+    # same R and t ~ 0, so the one with the smallest translation is as good as any.
+    norms = [float(np.linalg.norm(translations[i])) for i in candidates]
+    smallest = int(np.argmin(norms))
+    if norms[smallest] > 1e-3:
+        raise VoError("no homography decomposition has its plane normal towards the ground")
+    return candidates[smallest]
+
+
+def calibrated_homography(H_px: npt.ArrayLike, K: npt.ArrayLike) -> FloatArray:
+    """``K^-1 H K`` scaled so that its middle singular value is 1 and its determinant positive (the
+    normalisation under which ``H = R + t n^T / d``)."""
+    Km = np.asarray(K, dtype=np.float64)
+    Hc = np.linalg.inv(Km) @ np.asarray(H_px, dtype=np.float64) @ Km
+    sigma = np.linalg.svd(Hc, compute_uv=False)
+    Hc = Hc / sigma[1]
+    if np.linalg.det(Hc) < 0.0:
+        Hc = -Hc
+    return np.asarray(Hc, dtype=np.float64)
+
+
+def decompose_with_known_normal(Hc: npt.ArrayLike, normal: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """``R, T/d`` of a calibrated homography ``Hc = R + (T/d) n^T`` whose plane normal ``n`` is known.
+
+    ``Hc (I - n n^T) = R (I - n n^T)`` fixes ``R`` (orthogonal Procrustes on the plane directions), then
+    ``T/d = (Hc - R) n``. Used for the near-pure rotations that ``cv2.decomposeHomographyMat`` does not split.
+    """
+    H = np.asarray(Hc, dtype=np.float64)
+    n = np.asarray(normal, dtype=np.float64).reshape(3)
+    n = n / np.linalg.norm(n)
+    P = np.eye(3) - np.outer(n, n)
+    # R = argmin |R P - H P| over rotations = U diag(1, 1, det(U V^T)) V^T with U S V^T = H P (rank 2)
+    U, _, Vt = np.linalg.svd(H @ P)
+    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    return np.asarray(R, dtype=np.float64), np.asarray((H - R) @ n, dtype=np.float64)
+
+
+def estimate_relative_motion(
+    prev: PreparedFrame,
+    curr: PreparedFrame,
+    K: npt.ArrayLike,
+    settings: VoSettings,
+    expected_normal: npt.ArrayLike = (0.0, 0.0, 1.0),
+) -> RelativeMotion:
+    """Rotation, ``T/d`` and plane normal between frames k-1 and k (paper C Algorithm 2)."""
+    Km = np.asarray(K, dtype=np.float64)
+    p0, p1 = track_features(prev, curr, settings)
+    if len(p0) < settings.min_inliers:
+        raise VoError(f"only {len(p0)} tracks survived (need {settings.min_inliers})")
+    H, inliers = cv2.findHomography(p0, p1, cv2.RANSAC, settings.ransac_threshold_px)
+    if H is None or inliers is None:
+        raise VoError("homography estimation failed")
+    keep = inliers.ravel().astype(bool)
+    n_inliers = int(keep.sum())
+    if n_inliers < settings.min_inliers:
+        raise VoError(f"only {n_inliers} homography inliers (need {settings.min_inliers})")
+    # least-squares refinement on the inliers only
+    H_ls, _ = cv2.findHomography(p0[keep], p1[keep], 0)
+    if H_ls is not None and np.all(np.isfinite(H_ls)):
+        H = H_ls
+    n_solutions, rotations, translations, normals = cv2.decomposeHomographyMat(H, Km)
+    normal_ref = np.asarray(expected_normal, dtype=np.float64).reshape(3)
+    normal_ref = normal_ref / np.linalg.norm(normal_ref)
+    if n_solutions == 1:
+        # OpenCV reports a pure rotation when |H^T H - I| < 1e-3, i.e. for translations below about
+        # 0.05 % of the altitude (2 mm per frame at 4 m); keep them with the expected normal.
+        R, t_over_d = decompose_with_known_normal(calibrated_homography(H, Km), normal_ref)
+        normal = normal_ref
+    else:
+        best = choose_decomposition(rotations, translations, normals, Km, p0[keep], p1[keep], normal_ref)
+        R = np.asarray(rotations[best], dtype=np.float64)
+        t_over_d = np.asarray(translations[best], dtype=np.float64).reshape(3)
+        normal = np.asarray(normals[best], dtype=np.float64).reshape(3)
+    return RelativeMotion(
+        R_k_km1=R,
+        t_over_d=t_over_d,
+        normal_km1=normal,
+        H_k_km1=np.asarray(H / H[2, 2], dtype=np.float64),
+        n_features=len(prev.features_px),
+        n_tracked=len(p0),
+        n_inliers=n_inliers,
+    )
+
+
+def metric_translation(t_over_d: npt.ArrayLike, distance_m: float) -> FloatArray:
+    """``t_{k,k-1}^k = T/d * h``: the metric translation from the plane distance (paper C Algorithm 1).
+
+    ``cv2.decomposeHomographyMat`` already works in normalised coordinates (the ``P^-1`` of the paper).
+    """
+    if not (math.isfinite(distance_m) and distance_m > 0.0):
+        raise InputError(f"distance_m must be finite and > 0, got {distance_m}")
+    return np.asarray(t_over_d, dtype=np.float64).reshape(3) * float(distance_m)
+
+
+def compose_pose(pose_km1: VoPose, R_k_km1: npt.ArrayLike, t_k_km1_m: npt.ArrayLike) -> VoPose:
+    """Visual-odometry composition, paper C eqs. 9-10:
+    ``R_k^n = R_{k-1}^n (R_{k-1}^k)^T`` and ``t_{n,k}^n = t_{n,k-1}^n - R_k^n t_{k,k-1}^k``."""
+    R_n_k = pose_km1.R_n_camera @ np.asarray(R_k_km1, dtype=np.float64).T
+    p_n_k = pose_km1.p_n_camera_m - R_n_k @ np.asarray(t_k_km1_m, dtype=np.float64).reshape(3)
+    return VoPose(R_n_camera=R_n_k, p_n_camera_m=p_n_k)
