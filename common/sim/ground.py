@@ -301,8 +301,9 @@ def nadir_camera_pose(
     """Pose ``(R_world_camera, p_world_camera_m)`` of a camera looking straight down from a level body.
 
     The body has the given yaw (ZYX, CCW from above) and the camera is mounted as ``R_BODY_CAMERA_DOWN``.
-    Handy for yaw tests: two nadir views differing by ``dyaw`` differ by a rotation of ``dyaw`` about the
-    image centre.
+    Handy for yaw tests: two nadir views at the same place whose yaws differ by ``dyaw`` are related by the
+    pixel homography ``H_b_a`` = a rotation about the principal point by ``+dyaw`` in (u right, v down)
+    coordinates, i.e. ``dyaw = atan2(H_b_a[1, 0], H_b_a[0, 0])``.
     """
     R_world_body = matrix_from_euler(0.0, 0.0, yaw_rad)
     return R_world_body @ R_BODY_CAMERA_DOWN, np.array([x_m, y_m, altitude_m], dtype=np.float64)

@@ -213,8 +213,8 @@ def simulate_imu(trajectory: Trajectory, stamps_s: FloatArray, noise: ImuNoise, 
 
 
 def ray_ground_distance(
-    R_world_body: FloatArray,
-    p_world_body_m: FloatArray,
+    R_world_body: npt.ArrayLike,
+    p_world_body_m: npt.ArrayLike,
     direction_body: npt.ArrayLike = (0.0, 0.0, -1.0),
     p_body_sensor_m: npt.ArrayLike = (0.0, 0.0, 0.0),
 ) -> FloatArray:

@@ -404,10 +404,14 @@ def hover_trajectory(
     - Yaw: a random initial heading, smooth swings both ways every 5-9 s (steps of 14-40 deg before
       scaling) plus a slow wander; the whole yaw motion is scaled so that the peak |yaw rate| over
       ``[0, duration_s]`` is exactly ``max_yaw_rate_deg_s``; the net yaw wanders over tens of degrees.
-    - Position: altitude ``altitude_m`` +- 5 cm slow breathing; horizontal drift of about ``drift_m``
-      (slow sines, periods 30-120 s) plus a 1-2 cm wobble at 0.3-0.7 Hz.
-    - Roll/pitch (PRESCRIBED mode, the default): three sines each (0.1-0.8 Hz), peak about ``max_tilt_deg``.
-      COORDINATED mode derives them from the acceleration instead (then well below a degree).
+    - Position: altitude ``altitude_m`` +- 5 cm slow breathing (periods 7 and 40 s); horizontal drift of
+      about ``drift_m`` (slow sines, periods 45 and 120 s).
+    - Roll/pitch, PRESCRIBED mode (the default): three sines each (periods 1.2-9 s), peak about
+      ``max_tilt_deg``, kinematically independent of the (quasi-static) position, so the accelerometer reads
+      gravity in the tilted body (the hover assumption of paper C's accelerometer model).
+    - COORDINATED mode: roll/pitch are what the thrust needs; a 1-4 cm position wobble (periods 1.4 and
+      2.2 s) supplies accelerations for a tilt of about ``max_tilt_deg``, and the accelerometer reads pure
+      thrust along body z.
     """
     if not (np.isfinite(duration_s) and duration_s > 0.0):
         raise InputError(f"duration_s must be positive, got {duration_s}")
@@ -429,9 +433,13 @@ def hover_trajectory(
     )
     yaw = FunctionSum((steps, wander))
 
+    # COORDINATED: a position wobble whose accelerations (about g tan(max_tilt)) produce the tilt.
+    # PRESCRIBED: no wobble, so the accelerometer reads gravity in the tilted body (+ < 0.01 m/s^2).
+    wobble_m = 0.0 if mode is AttitudeMode.PRESCRIBED else max_tilt_deg / 3.0
+
     def horizontal() -> FunctionSum:
         drift = _random_sines(rng, (0.6 * drift_m, 0.4 * drift_m), (120.0, 45.0))
-        wobble = _random_sines(rng, (0.012, 0.008), (2.2, 1.4))
+        wobble = _random_sines(rng, (0.03 * wobble_m, 0.01 * wobble_m), (2.2, 1.4))
         return FunctionSum((drift, wobble))
 
     x = horizontal()
