@@ -1,0 +1,183 @@
+"""The one dispatcher: shares, stickiness, joins, failures and re-dispatch (pure decisions)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from common.dispatch import SELF, Balance, Dispatcher, DispatchError, DispatchSettings, largest_remainder
+from common.errors import InputError
+
+
+def covered(plan_assignment: dict[str, np.ndarray], n: int) -> bool:
+    all_indices = np.sort(np.concatenate(list(plan_assignment.values())))
+    return bool(np.array_equal(all_indices, np.arange(n)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.floats(0.0, 100.0), min_size=1, max_size=12).filter(lambda w: sum(w) > 0), st.integers(0, 500)
+)
+def test_largest_remainder_sums_and_stays_within_one_of_exact(weights: list[float], total: int) -> None:
+    counts = largest_remainder(weights, total)
+    assert counts.sum() == total
+    exact = np.asarray(weights) / sum(weights) * total
+    assert np.all(np.abs(counts - exact) < 1.0 + 1e-9)
+
+
+def test_largest_remainder_rejects_bad_weights() -> None:
+    with pytest.raises(InputError):
+        largest_remainder([0.0, 0.0], 3)
+    with pytest.raises(InputError):
+        largest_remainder([1.0, -1.0], 3)
+
+
+def test_no_members_means_the_dispatcher_computes_alone() -> None:
+    d = Dispatcher(DispatchSettings(), 40)
+    plan = d.plan(1, 0, now_s=0.0)
+    assert list(plan.assignment) == [SELF]
+    assert covered(plan.assignment, 40)
+
+
+def test_balance_none_splits_by_capacity_and_time_by_measured_speed() -> None:
+    d = Dispatcher(DispatchSettings(balance=Balance.NONE), 100)
+    d.join("a", capacity=1)
+    d.join("b", capacity=4)
+    plan = d.plan(1, 0, 0.0)
+    assert (len(plan.assignment["a"]), len(plan.assignment["b"])) == (20, 80)
+
+    t = Dispatcher(DispatchSettings(balance=Balance.TIME, ema_alpha=1.0), 100)
+    t.join("fast")
+    t.join("slow")
+    first = t.plan(1, 0, 0.0)
+    assert len(first.assignment["fast"]) == len(first.assignment["slow"]) == 50
+    t.record_success("fast", 1, first.assignment["fast"], 0.05, speed=3000.0)
+    t.record_success("slow", 1, first.assignment["slow"], 0.05, speed=1000.0)
+    second = t.plan(2, 1, 0.0)
+    assert (len(second.assignment["fast"]), len(second.assignment["slow"])) == (75, 25)
+
+
+def test_assignment_is_sticky_and_moved_lists_only_new_indices() -> None:
+    d = Dispatcher(DispatchSettings(balance=Balance.TIME, ema_alpha=1.0), 60)
+    for name in ("a", "b", "c"):
+        d.join(name)
+    first = d.plan(1, 0, 0.0)
+    for name, idx in first.assignment.items():
+        assert np.array_equal(first.moved[name], idx)  # nobody holds frame 0
+        d.record_success(name, 1, idx, 0.01, speed=1000.0)
+    second = d.plan(2, 1, 0.0)
+    for name in first.assignment:
+        assert np.array_equal(second.assignment[name], first.assignment[name])
+        assert second.moved[name].size == 0
+        d.record_success(name, 2, second.assignment[name], 0.01, speed=2000.0 if name == "a" else 1000.0)
+    third = d.plan(3, 2, 0.0)
+    assert len(third.assignment["a"]) == 30
+    # b and c each give 5 patches to a; they keep the rest, and only a's new ones need previous patches
+    for name in ("b", "c"):
+        assert set(third.assignment[name]) <= set(second.assignment[name])
+        assert third.moved[name].size == 0
+    assert set(third.moved["a"]) == set(third.assignment["a"]) - set(second.assignment["a"])
+    assert third.moved["a"].size == 10
+    assert covered(third.assignment, 60)
+
+
+def test_a_joiner_gets_a_share_in_the_next_plan_at_the_mean_speed() -> None:
+    d = Dispatcher(DispatchSettings(ema_alpha=1.0), 90)
+    d.join("a")
+    d.join("b")
+    plan = d.plan(1, 0, 0.0)
+    for name, idx in plan.assignment.items():
+        d.record_success(name, 1, idx, 0.01, speed=1000.0)
+    d.join("c")
+    plan = d.plan(2, 1, 0.0)
+    assert {k: len(v) for k, v in plan.assignment.items()} == {"a": 30, "b": 30, "c": 30}
+    assert plan.moved["c"].size == 30 and plan.moved["a"].size == 0
+
+
+def test_failure_redistributes_within_the_frame_and_suspends_the_member() -> None:
+    d = Dispatcher(DispatchSettings(suspend_s=1.0), 40)
+    for name in ("a", "b", "c"):
+        d.join(name)
+    plan = d.plan(5, 4, now_s=10.0)
+    lost = plan.assignment["b"]
+    assert d.record_failure("b", now_s=10.0) == 1.0
+    again = d.redistribute(lost, {"b"}, now_s=10.0, prev_seq=4)
+    assert set(again.assignment) == {"a", "c"}
+    assert np.array_equal(np.sort(np.concatenate(list(again.assignment.values()))), lost)
+    for name, idx in again.assignment.items():
+        assert np.array_equal(again.moved[name], idx)  # they never held b's patches
+    assert "b" not in d.active(now_s=10.5)
+    assert "b" in d.active(now_s=11.1)
+    assert d.record_failure("b", now_s=11.1) == 2.0  # exponential back-off
+
+
+def test_everyone_failing_leaves_the_share_to_self() -> None:
+    d = Dispatcher(DispatchSettings(), 10)
+    d.join("a")
+    plan = d.plan(1, 0, 0.0)
+    d.record_failure("a", 0.0)
+    again = d.redistribute(plan.assignment["a"], {"a"}, 0.0, 0)
+    assert list(again.assignment) == [SELF]
+    assert d.active(0.1) == [SELF]
+
+
+def test_leave_frees_the_indices_and_self_compute_keeps_a_share() -> None:
+    d = Dispatcher(DispatchSettings(self_compute=True, self_capacity=1.0, balance=Balance.NONE), 30)
+    d.join("a")
+    d.join("b")
+    plan = d.plan(1, 0, 0.0)
+    assert set(plan.assignment) == {"a", "b", SELF}
+    d.leave("a")
+    plan = d.plan(2, 1, 0.0)
+    assert set(plan.assignment) == {"b", SELF} and covered(plan.assignment, 30)
+
+
+def test_subset_plans_and_bad_indices() -> None:
+    d = Dispatcher(DispatchSettings(), 100)
+    d.join("w")
+    plan = d.plan(1, 0, 0.0, indices=np.array([7, 3, 50]))
+    assert np.array_equal(plan.assignment["w"], [3, 7, 50])
+    with pytest.raises(DispatchError):
+        d.plan(1, 0, 0.0, indices=np.array([100]))
+    with pytest.raises(DispatchError):
+        d.plan(1, 0, 0.0, indices=np.array([1, 1]))
+    with pytest.raises(DispatchError):
+        d.join(SELF)
+
+
+def test_deadline_scales_with_expected_time() -> None:
+    d = Dispatcher(DispatchSettings(min_deadline_s=0.2, deadline_factor=4.0, ema_alpha=1.0), 100)
+    d.join("w")
+    assert d.deadline_s("w", 50) == 0.2
+    d.record_success("w", 1, np.arange(10), 1.0, speed=10.0)
+    assert d.deadline_s("w", 50) == pytest.approx(20.0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["join", "leave", "fail", "ok"]), st.sampled_from("abcd"), st.floats(10.0, 1e4)
+        ),
+        max_size=25,
+    ),  # fmt: skip
+    st.integers(1, 80),
+)
+def test_every_plan_covers_every_index_exactly_once(events: list[tuple[str, str, float]], n: int) -> None:
+    d = Dispatcher(DispatchSettings(ema_alpha=0.5), n)
+    now = 0.0
+    for seq, (kind, name, speed) in enumerate(events, start=1):
+        now += 0.3
+        if kind == "join":
+            d.join(name)
+        elif kind == "leave":
+            d.leave(name)
+        elif kind == "fail":
+            d.record_failure(name, now)
+        plan = d.plan(seq, seq - 1, now)
+        assert covered(plan.assignment, n)
+        if kind == "ok":
+            for member, idx in plan.assignment.items():
+                d.record_success(member, seq, idx, 0.01, speed=speed)

@@ -1,0 +1,105 @@
+"""A member's share (cached spectra, subsets, previous crops only where needed) equals the in-process core."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.dispatch import Dispatcher, DispatchSettings
+from common.dispatch.patchwork import (
+    PatchWorkError,
+    SpectrumCache,
+    measure_share,
+    merge_measurements,
+    settings_from_wire,
+    settings_to_wire,
+)
+from common.sim.flight import hover_flight
+from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[np.ndarray]:
+    flight = hover_flight(seed=3, n_frames=8)
+    return [flight.frame(i) for i in range(8)]
+
+
+def test_settings_round_trip_and_rejects_unknown_or_wrong_types() -> None:
+    settings = YawSettings(grid_cols=10, fft_backend=FftBackend.NUMPY, peak_sigma_px=1.5)
+    assert settings_from_wire(settings_to_wire(settings)) == settings
+    with pytest.raises(PatchWorkError, match="unknown"):
+        settings_from_wire({"colour": 1})
+    with pytest.raises(PatchWorkError, match="grid_cols"):
+        settings_from_wire({"grid_cols": "ten"})
+    with pytest.raises(PatchWorkError, match="fft_backend"):
+        settings_from_wire({"fft_backend": "cuda"})
+
+
+@pytest.mark.parametrize("backend", [FftBackend.OPENCV, FftBackend.NUMPY])
+def test_sticky_shares_through_members_equal_the_in_process_tracker_bit_for_bit(
+    frames: list[np.ndarray], backend: FftBackend
+) -> None:
+    settings = YawSettings(fft_backend=backend)
+    grid = make_patch_grid(frames[0].shape, settings)
+    tracker = YawTracker(settings, grid)
+    reference = tracker.initial_state(frames[0])
+    cluster = tracker.initial_state(frames[0], with_spectra=False)
+    dispatcher = Dispatcher(DispatchSettings(ema_alpha=1.0), grid.n_patches)
+    caches = {name: SpectrumCache() for name in ("a", "b", "c", "self")}
+    for name in ("a", "b", "c"):
+        dispatcher.join(name)
+    for k in range(1, len(frames)):
+        if k == 4:
+            dispatcher.leave("b")  # its patches move: the receivers get previous crops
+        plan = dispatcher.plan(k, k - 1, 0.0)
+        level, prev_level = grid.level_image(frames[k]), grid.level_image(frames[k - 1])
+        parts = []
+        for member, idx in plan.assignment.items():
+            moved = plan.moved[member]
+            parts.append(measure_share(
+                caches[member], settings, "uav", k, k - 1, idx, grid.crop_level(level, idx),
+                moved, grid.crop_level(prev_level, moved),
+            ))  # fmt: skip
+            dispatcher.record_success(member, k, idx, 0.01, speed=1000.0 * (1 + len(member) + k % 2))
+        measurement = merge_measurements(parts, grid.all_indices)
+        reference, expected = tracker.track(reference, frames[k])
+        cluster, got = tracker.conclude(cluster, frames[k], measurement)
+        assert got.yaw_rad == expected.yaw_rad
+        assert got.delta_yaw_rad == expected.delta_yaw_rad
+        assert got.inlier_count == expected.inlier_count
+
+
+def test_missing_previous_spectra_is_an_error_naming_the_patches(frames: list[np.ndarray]) -> None:
+    settings = YawSettings()
+    grid = make_patch_grid(frames[0].shape, settings)
+    idx = np.array([0, 1, 2])
+    crops = grid.crop(frames[1], idx)
+    with pytest.raises(PatchWorkError, match=r"patches \[0, 1, 2\]"):
+        measure_share(SpectrumCache(), settings, "s", 1, 0, idx, crops, idx[:0], crops[:0])
+
+
+def test_merge_rejects_gaps_and_overlaps(frames: list[np.ndarray]) -> None:
+    settings = YawSettings()
+    grid = make_patch_grid(frames[0].shape, settings)
+    cache = SpectrumCache()
+    idx = np.array([0, 1])
+    part = measure_share(
+        cache, settings, "s", 1, 0, idx, grid.crop(frames[1], idx), idx, grid.crop(frames[0], idx)
+    )
+    with pytest.raises(PatchWorkError):
+        merge_measurements([part], np.arange(3))
+    with pytest.raises(PatchWorkError):
+        merge_measurements([part, part], np.arange(2))
+
+
+def test_cache_keeps_only_the_newest_frame_and_bounded_streams() -> None:
+    settings = YawSettings()
+    cache = SpectrumCache(max_streams=2)
+    grid = make_patch_grid((480, 752), settings)
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 255, (480, 752), dtype=np.uint8)
+    idx = np.array([4, 5])
+    for stream in ("x", "y", "z"):
+        measure_share(cache, settings, stream, 1, 0, idx, grid.crop(frame, idx), idx, grid.crop(frame, idx))
+    assert cache.held("x") == (-2, frozenset())
+    assert cache.held("z") == (1, frozenset({4, 5}))

@@ -1,0 +1,301 @@
+"""The wire codec: round trips of every message, and every malformed case named by a WireError."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from common import messages as m
+from common.messages import WireError, decode, encode
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+names = st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789_-", min_size=1, max_size=12)
+
+
+def vec(n: int) -> st.SearchStrategy[np.ndarray]:
+    return hnp.arrays(np.float64, (n,), elements=finite)
+
+
+def frames() -> st.SearchStrategy[m.Frame]:
+    return st.tuples(st.integers(1, 40), st.integers(1, 40)).flatmap(
+        lambda hw: st.builds(
+            m.Frame,
+            uav=names,
+            seq=st.integers(0, 2**40),
+            stamp_s=finite,
+            width=st.just(hw[1]),
+            height=st.just(hw[0]),
+            pixels=hnp.arrays(np.uint8, hw),
+        )
+    )
+
+
+def jobs(cls: type[m.PatchJob]) -> st.SearchStrategy[m.PatchJob]:
+    def build(n: int, k: int, s: int, data: st.DataObject) -> m.PatchJob:
+        indices = np.array(
+            data.draw(st.lists(st.integers(0, 500), min_size=n, max_size=n, unique=True)), np.int32
+        )
+        prev = indices[:k]
+        return cls(
+            stream=data.draw(names),
+            seq=data.draw(st.integers(0, 10**6)),
+            prev_seq=data.draw(st.integers(-1, 10**6)),
+            settings={"patch_size_px": 32, "fft_backend": "opencv", "peak_sigma_px": 1.0},
+            indices=indices,
+            crops=data.draw(hnp.arrays(np.uint8, (n, s, s))),
+            prev_indices=prev,
+            prev_crops=data.draw(hnp.arrays(np.uint8, (k, s, s))),
+            budget_s=data.draw(st.floats(0.001, 10.0)),
+        )
+
+    return st.integers(0, 6).flatmap(
+        lambda n: st.integers(0, n).flatmap(
+            lambda k: st.builds(build, st.just(n), st.just(k), st.integers(1, 8), st.data())
+        )
+    )
+
+
+def results(cls: type[m.PatchResult]) -> st.SearchStrategy[m.PatchResult]:
+    return st.integers(0, 6).flatmap(
+        lambda n: st.builds(
+            cls,
+            stream=names,
+            seq=st.integers(0, 10**6),
+            prev_seq=st.integers(-1, 10**6),
+            member=names,
+            indices=st.just(np.arange(n, dtype=np.int32)),
+            shift_px=hnp.arrays(np.float64, (n, 2), elements=finite),
+            confidence=hnp.arrays(np.float64, (n,), elements=st.floats(0, 1e6)),
+            peak=hnp.arrays(np.float64, (n,), elements=st.floats(0, 1)),
+            valid=hnp.arrays(np.bool_, (n,)),
+            compute_s=st.floats(0, 10),
+            members=st.dictionaries(names, st.integers(0, 100), max_size=3),
+            speeds=st.dictionaries(names, st.floats(0, 1e6), max_size=3),
+        )
+    )
+
+
+MESSAGES = st.one_of(
+    frames(),
+    st.builds(
+        m.ImuSample,
+        uav=names,
+        seq=st.integers(0, 10**9),
+        stamp_s=finite,
+        gyro_rad_s=vec(3),
+        accel_m_s2=vec(3),
+    ),
+    st.builds(m.RangeSample, uav=names, stamp_s=finite, range_m=st.floats(1e-3, 1e3)),
+    st.builds(
+        m.YawEstimate,
+        uav=names,
+        seq=st.integers(0, 10**9),
+        stamp_s=finite,
+        delta_yaw_rad=finite,
+        yaw_rad=finite,
+        inlier_count=st.integers(0, 500),
+        patch_count=st.integers(0, 500),
+        confidence=finite,
+        low_confidence=st.booleans(),
+        method=names,
+        timings_ms=st.dictionaries(names, finite, max_size=4),
+        members=st.dictionaries(names, st.integers(0, 500), max_size=4),
+    ),
+    st.builds(
+        m.AttitudeEstimate,
+        uav=names,
+        stamp_s=finite,
+        q_world_body=vec(4),
+        covariance=hnp.arrays(np.float64, (3, 3), elements=finite),
+    ),
+    st.builds(
+        m.PoseEstimate,
+        uav=names,
+        stamp_s=finite,
+        p_world_body_m=vec(3),
+        q_world_body=vec(4),
+        covariance=hnp.arrays(np.float64, (6, 6), elements=finite),
+        source=st.sampled_from(["vo", "pf"]),
+    ),
+    jobs(m.PatchJob),
+    jobs(m.BlockJob),
+    results(m.PatchResult),
+    results(m.BlockResult),
+    st.builds(
+        m.Stats,
+        role=names,
+        node=names,
+        index=st.integers(0, 100),
+        stamp_s=finite,
+        uptime_s=st.floats(0, 1e6),
+        counters=st.dictionaries(names, st.integers(0, 10**9), max_size=4),
+        shares=st.dictionaries(names, st.floats(0, 1), max_size=4),
+    ),
+    st.builds(
+        m.Health,
+        role=names,
+        node=names,
+        index=st.integers(0, 9),
+        ok=st.booleans(),
+        uptime_s=st.floats(0, 1e6),
+    ),
+    st.builds(m.ErrorReply, kind=names, error=st.text(max_size=50)),
+)
+
+
+def assert_same(a: m.WireModel, b: m.WireModel) -> None:
+    assert type(a) is type(b)
+    for name in type(a).model_fields:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape
+            assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f")
+        else:
+            assert x == y, name
+
+
+@settings(max_examples=150, deadline=None)
+@given(MESSAGES)
+def test_every_message_round_trips_exactly(message: m.WireModel) -> None:
+    payload, attachment = encode(message)
+    assert_same(decode(payload, attachment), message)
+    assert_same(decode(payload, attachment, type(message)), message)
+
+
+def test_every_message_type_of_the_key_table_is_registered() -> None:
+    wanted = {
+        "Frame", "ImuSample", "RangeSample", "YawEstimate", "AttitudeEstimate", "PoseEstimate",
+        "BlockJob", "BlockResult", "PatchJob", "PatchResult", "Stats", "Health",
+    }  # fmt: skip
+    assert wanted <= set(m.MESSAGE_TYPES)
+
+
+def test_pixels_travel_raw_in_the_payload_not_in_the_header() -> None:
+    pixels = np.arange(480 * 752, dtype=np.uint32).astype(np.uint8).reshape(480, 752)
+    payload, header = encode(m.Frame(uav="a", seq=3, stamp_s=0.15, width=752, height=480, pixels=pixels))
+    assert payload == pixels.tobytes()
+    assert len(header) < 200
+    decoded = decode(payload, header, m.Frame)
+    assert (
+        np.shares_memory(decoded.pixels, np.frombuffer(payload, np.uint8)) or decoded.pixels.base is not None
+    )
+
+
+def test_header_only_messages_decode_without_attachment() -> None:
+    body = m.error_reply("busy", "queue full")
+    assert m.read_error_reply(body) == "busy: queue full"
+    assert m.read_error_reply(b"\xff\x00garbage").startswith("\ufffd")
+
+
+def _frame() -> tuple[bytes, bytes]:
+    return encode(m.Frame(uav="a", seq=1, stamp_s=0.0, width=4, height=3, pixels=np.zeros((3, 4), np.uint8)))
+
+
+def _header(attachment: bytes) -> dict:
+    return msgpack.unpackb(attachment)
+
+
+def _pack(header: dict) -> bytes:
+    return msgpack.packb(header, use_bin_type=True)
+
+
+def _with(change) -> tuple[bytes, bytes]:  # type: ignore[no-untyped-def]
+    payload, attachment = _frame()
+    header = _header(attachment)
+    change(header)
+    return payload, _pack(header)
+
+
+MALFORMED = {
+    "truncated payload": lambda: (_frame()[0][:-1], _frame()[1]),
+    "extra payload": lambda: (_frame()[0] + b"x", _frame()[1]),
+    "truncated header": lambda: (_frame()[0], _frame()[1][:-3]),
+    "garbage header": lambda: (b"", b"\xc1\xc1\xc1"),
+    "header not a map": lambda: (b"", _pack([1, 2, 3])),
+    "wrong version": lambda: _with(lambda h: h.update(v=99)),
+    "unknown type": lambda: _with(lambda h: h.update(t="Nope")),
+    "unknown field": lambda: _with(lambda h: h["f"].update(colour="red")),
+    "unknown header key": lambda: _with(lambda h: h.update(x=1)),
+    "missing field": lambda: _with(lambda h: h["f"].pop("seq")),
+    "NaN stamp": lambda: _with(lambda h: h["f"].update(stamp_s=math.nan)),
+    "negative seq": lambda: _with(lambda h: h["f"].update(seq=-4)),
+    "shape mismatch": lambda: _with(lambda h: h["f"].update(width=5)),
+    "nbytes mismatch": lambda: _with(lambda h: h["a"][0].__setitem__(3, 11)),
+    "bad dtype": lambda: _with(lambda h: h["a"][0].__setitem__(1, "<f2")),
+    "object dtype": lambda: _with(lambda h: h["a"][0].__setitem__(1, "|O")),
+    "bad shape": lambda: _with(lambda h: h["a"][0].__setitem__(2, [-1, 4])),
+    "unknown array": lambda: _with(lambda h: h["a"][0].__setitem__(0, "colour")),
+    "array twice": lambda: _with(lambda h: h["f"].update(pixels=1)),
+    "wrong type of field": lambda: _with(lambda h: h["f"].update(seq="one")),
+    "no payload no attachment": lambda: (None, None),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MALFORMED))
+def test_malformed_messages_raise_a_wire_error_naming_the_problem(case: str) -> None:
+    payload, attachment = MALFORMED[case]()
+    with pytest.raises(WireError) as info:
+        decode(payload, attachment)
+    assert str(info.value)
+
+
+def test_nan_in_an_array_is_rejected() -> None:
+    sample = m.ImuSample(uav="a", stamp_s=0.0, gyro_rad_s=np.zeros(3), accel_m_s2=np.zeros(3))
+    payload, attachment = encode(sample)
+    bad = np.frombuffer(payload, np.float64).copy()
+    bad[1] = np.nan
+    with pytest.raises(WireError, match="NaN"):
+        decode(bad.tobytes(), attachment)
+
+
+def test_expected_type_is_enforced_and_subclasses_are_distinct() -> None:
+    payload, attachment = _frame()
+    with pytest.raises(WireError, match="expected ImuSample"):
+        decode(payload, attachment, m.ImuSample)
+    job = m.BlockJob(
+        stream="a", seq=1, prev_seq=0, settings={}, indices=np.zeros(0, np.int32),
+        crops=np.zeros((0, 8, 8), np.uint8), prev_indices=np.zeros(0, np.int32),
+        prev_crops=np.zeros((0, 8, 8), np.uint8),
+    )  # fmt: skip
+    with pytest.raises(WireError, match="expected PatchJob"):
+        decode(*encode(job), m.PatchJob)
+
+
+def test_job_consistency_is_checked() -> None:
+    crops = np.zeros((2, 8, 8), np.uint8)
+    with pytest.raises(ValueError, match="subset"):
+        m.PatchJob(stream="a", seq=1, prev_seq=0, settings={}, indices=np.array([1, 2]), crops=crops,
+                   prev_indices=np.array([5]), prev_crops=crops[:1])  # fmt: skip
+    with pytest.raises(ValueError, match="distinct"):
+        m.PatchJob(stream="a", seq=1, prev_seq=0, settings={}, indices=np.array([1, 1]), crops=crops,
+                   prev_indices=np.array([], np.int32), prev_crops=crops[:0])  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=64), st.binary(max_size=64))
+def test_random_bytes_never_escape_as_anything_but_wire_error(payload: bytes, attachment: bytes) -> None:
+    try:
+        decode(payload, attachment)
+    except WireError:
+        pass
+
+
+@settings(max_examples=200, deadline=None)
+@given(MESSAGES, st.data())
+def test_every_truncation_of_a_valid_message_is_a_wire_error(
+    message: m.WireModel, data: st.DataObject
+) -> None:
+    payload, attachment = encode(message)
+    cut_header = data.draw(st.integers(0, len(attachment) - 1))
+    with pytest.raises(WireError):
+        decode(payload, attachment[:cut_header])
+    if payload:
+        cut = data.draw(st.integers(0, len(payload) - 1))
+        with pytest.raises(WireError):
+            decode(payload[:cut], attachment)
