@@ -162,7 +162,7 @@ def test_deadline_scales_with_expected_time() -> None:
             st.sampled_from(["join", "leave", "fail", "ok"]), st.sampled_from("abcd"), st.floats(10.0, 1e4)
         ),
         max_size=25,
-    ),  # fmt: skip
+    ),
     st.integers(1, 80),
 )
 def test_every_plan_covers_every_index_exactly_once(events: list[tuple[str, str, float]], n: int) -> None:
