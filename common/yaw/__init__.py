@@ -8,6 +8,7 @@ from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
     measure_patches,
+    merge_measurements,
     patch_spectra,
     patch_spectra_from_crops,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "fit_correspondences",
     "make_patch_grid",
     "measure_patches",
+    "merge_measurements",
     "patch_spectra",
     "patch_spectra_from_crops",
     "rotation_of_homography_rad",

@@ -60,6 +60,29 @@ class PatchMeasurement:
         return int(np.count_nonzero(self.valid))
 
 
+def merge_measurements(parts: list[PatchMeasurement]) -> PatchMeasurement:
+    """One measurement from per-worker parts, in ascending patch index (the order ``conclude`` uses)."""
+    if not parts:
+        return PatchMeasurement(
+            np.zeros((0,), dtype=np.intp),
+            np.zeros((0, 2)),
+            np.zeros((0,)),
+            np.zeros((0,)),
+            np.zeros((0,), dtype=np.bool_),
+        )
+    indices = np.concatenate([p.indices for p in parts]).astype(np.intp)
+    if np.unique(indices).size != indices.size:
+        raise YawError("measurement parts overlap (a patch index appears twice)")
+    order = np.argsort(indices, kind="stable")
+    return PatchMeasurement(
+        indices=indices[order],
+        shift_px=np.concatenate([p.shift_px for p in parts])[order],
+        confidence=np.concatenate([p.confidence for p in parts])[order],
+        peak=np.concatenate([p.peak for p in parts])[order],
+        valid=np.concatenate([p.valid for p in parts])[order],
+    )
+
+
 @functools.lru_cache(maxsize=8)
 def patch_window(size_px: int, taper: float) -> Float32Array:
     """Separable Tukey window (size, size) float32: a flat top with cosine tapers of ``taper`` of the width.

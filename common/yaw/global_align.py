@@ -44,20 +44,39 @@ def _highpass(size_px: int) -> Float32Array:
     return weight
 
 
+@functools.lru_cache(maxsize=4)
+def _circular_window(size_px: int) -> Float32Array:
+    """Radially symmetric Hann window: no axis-aligned leakage that would pin the rotation at 0 deg."""
+    u = np.arange(size_px) - (size_px - 1) / 2.0
+    r = np.hypot(u[:, None], u[None, :]) / (size_px / 2.0)
+    window = np.where(r < 1.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(r, 1.0))), 0.0).astype(np.float32)
+    window.setflags(write=False)
+    return window
+
+
+#: Radial band of the log-polar spectrum used (fraction of the Nyquist radius): the lowest radii carry the
+#: window's leakage, the highest the pixel lattice's aliasing; both are fixed in orientation.
+_RADIAL_BAND = (0.04, 0.7)
+
+
 def _log_polar_magnitude(square: Float32Array, angle_bins: int) -> Float32Array:
-    """Log-polar map (angle_bins, size/2) of the high-passed, centred log-magnitude spectrum."""
+    """Log-polar map (angle_bins, radial band) of the high-passed, centred log-magnitude spectrum."""
     size = square.shape[0]
-    windowed = (square - square.mean()) * cv2.createHanningWindow((size, size), cv2.CV_32F)
+    windowed = (square - square.mean()) * _circular_window(size)
     spectrum = np.fft.fftshift(np.abs(np.fft.fft2(windowed))).astype(np.float32)
     magnitude = np.log1p(spectrum * _highpass(size))
     radius = size / 2.0
-    return cv2.warpPolar(
+    cols = size // 2
+    polar = cv2.warpPolar(
         magnitude,
-        (size // 2, angle_bins),
+        (cols, angle_bins),
         (size / 2.0, size / 2.0),
         radius,
         cv2.INTER_LINEAR | cv2.WARP_POLAR_LOG,
     )
+    # Column j holds radius exp(j * log(radius) / cols).
+    lo, hi = (round(math.log(f * radius) / math.log(radius) * cols) for f in _RADIAL_BAND)
+    return np.ascontiguousarray(polar[:, lo:hi])
 
 
 def _similarity_about(centre_xy: tuple[float, float], rotation_rad: float, scale: float) -> FloatArray:
@@ -114,7 +133,7 @@ def estimate_global_alignment(frame_a: U8Array, frame_b: U8Array, settings: YawS
         polar_a.astype(np.float64), polar_b.astype(np.float64), radial_window
     )
     rotation = 2.0 * math.pi * d_angle / bins
-    log_base = math.log(size / 2.0) / (size // 2)
+    log_base = math.log(size / 2.0) / (size // 2)  # log-radius per column
     scale = math.exp(-d_radial * log_base)  # the spectrum shrinks when the image grows
     h, w = small_a.shape
     centre = ((w - 1) / 2.0, (h - 1) / 2.0)

@@ -8,7 +8,6 @@ workers and the second on the master produces the same yaw.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -16,7 +15,13 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-from common.yaw.correlation import PatchMeasurement, PatchSpectra, measure_patches, patch_spectra
+from common.yaw.correlation import (
+    PatchMeasurement,
+    PatchSpectra,
+    measure_patches,
+    merge_measurements,
+    patch_spectra,
+)
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
 from common.yaw.global_align import GlobalAlignment, estimate_global_alignment, warp_into
 from common.yaw.grid import PatchGrid, U8Array, check_frame, make_patch_grid
@@ -99,8 +104,9 @@ def _fit_measurement(grid: PatchGrid, measurement: PatchMeasurement, settings: Y
 
 
 def _fit_is_good(fit: ModelFit, measurement: PatchMeasurement, settings: YawSettings) -> bool:
-    n_valid = measurement.n_valid
-    return bool(fit.ok and n_valid > 0 and fit.inlier_count >= settings.min_inlier_fraction * n_valid)
+    """Enough of the measured patches agree (few valid patches = the rotation outran the patches)."""
+    n_patches = measurement.indices.size
+    return bool(fit.ok and fit.inlier_count >= settings.min_inlier_fraction * n_patches)
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,19 +169,30 @@ def _conclude_pair(
         low = fit.residual_px > settings.max_residual_px
         return _PairResult(fit.homography, EstimateMethod.PATCHES, fit, measurement, low)
     alignment = estimate_global_alignment(previous_frame, frame_u8, settings)
-    if good:
-        patch_rotation = delta_yaw_from_homography_rad(fit.homography, grid)
-        global_rotation = delta_yaw_from_homography_rad(alignment.matrix, grid)
-        close = abs(math.remainder(patch_rotation - global_rotation, 2 * math.pi)) < math.radians(
-            settings.global_min_rotation_deg
+    if good and alignment.response < _MIN_GLOBAL_RESPONSE:
+        return _PairResult(
+            fit.homography,
+            EstimateMethod.PATCHES,
+            fit,
+            measurement,
+            fit.residual_px > settings.max_residual_px,
         )
-        if close or alignment.response < _MIN_GLOBAL_RESPONSE:
-            low = fit.residual_px > settings.max_residual_px
-            return _PairResult(fit.homography, EstimateMethod.PATCHES, fit, measurement, low)
     logger.debug(
-        "patch fit poor (%d/%d inliers): global pre-alignment", fit.inlier_count, measurement.n_valid
+        "patch fit %s (%d/%d inliers): global pre-alignment",
+        "checked" if good else "poor",
+        fit.inlier_count,
+        measurement.indices.size,
     )
-    return _prealigned(previous_frame, frame_u8, grid, settings, alignment, previous_spectra)
+    prealigned = _prealigned(previous_frame, frame_u8, grid, settings, alignment, previous_spectra)
+    if good and prealigned.method is not EstimateMethod.GLOBAL_PREALIGNED:
+        return _PairResult(
+            fit.homography,
+            EstimateMethod.PATCHES,
+            fit,
+            measurement,
+            fit.residual_px > settings.max_residual_px,
+        )
+    return prealigned
 
 
 class YawTracker:
@@ -204,10 +221,15 @@ class YawTracker:
     ) -> tuple[TrackerState, YawEstimate]:
         """Central stage: fit the measured shifts of frame k, fall back to the global alignment, integrate.
 
-        ``measurement`` may cover any subset of the grid's patches (e.g. when a worker is missing).
+        ``measurement`` may cover any subset of the grid's patches (e.g. when a worker is missing), in
+        any order (it is put in ascending index order first, so the fit does not depend on the order).
         The returned state has no spectra; ``track`` adds them.
         """
         frame = self._check(frame_u8, "frame_u8")
+        if measurement.indices.size and np.any(np.diff(measurement.indices) <= 0):
+            measurement = merge_measurements([measurement])
+        if measurement.indices.size and measurement.indices.max() >= self.grid.n_patches:
+            raise InputError(f"measurement indices exceed the grid's {self.grid.n_patches} patches")
         result = _conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.settings, state.previous_spectra, False
         )
