@@ -247,20 +247,21 @@ def project_samples(
     normal_u: Float32Array | None = None
     normal_v: Float32Array | None = None
     if with_normals:
-        R32 = R_camera_world.astype(np.float32)
-        directions = np.matmul(R32, samples.directions_world[edge_ids].T.astype(np.float32))  # (P, 3, E')
-        dx = np.repeat(directions[:, 0], n_points, axis=1)
-        dy = np.repeat(directions[:, 1], n_points, axis=1)
-        dz = np.repeat(directions[:, 2], n_points, axis=1)
-        x_n = (u - np.float32(camera.cx)) / np.float32(camera.fx)
-        y_n = (v - np.float32(camera.cy)) / np.float32(camera.fy)
-        # image tangent of a 3D line at a point: d(x/z) ~ dx - x_n dz (times fx), likewise for y
-        tan_u = (dx - x_n * dz) * np.float32(camera.fx)
-        tan_v = (dy - y_n * dz) * np.float32(camera.fy)
-        norm = np.hypot(tan_u, tan_v)
-        norm = np.where(norm > 1e-9, norm, np.float32(1.0))
-        normal_u = (-tan_v / norm).reshape(shape)
-        normal_v = (tan_u / norm).reshape(shape)
+        with np.errstate(all="ignore"):  # points behind the camera (masked) give nan normals
+            R32 = R_camera_world.astype(np.float32)
+            directions = np.matmul(R32, samples.directions_world[edge_ids].T.astype(np.float32))  # (P, 3, E')
+            dx = np.repeat(directions[:, 0], n_points, axis=1)
+            dy = np.repeat(directions[:, 1], n_points, axis=1)
+            dz = np.repeat(directions[:, 2], n_points, axis=1)
+            x_n = (u - np.float32(camera.cx)) / np.float32(camera.fx)
+            y_n = (v - np.float32(camera.cy)) / np.float32(camera.fy)
+            # image tangent of a 3D line at a point: d(x/z) ~ dx - x_n dz (times fx), likewise for y
+            tan_u = (dx - x_n * dz) * np.float32(camera.fx)
+            tan_v = (dy - y_n * dz) * np.float32(camera.fy)
+            norm = np.hypot(tan_u, tan_v)
+            norm = np.where(norm > 1e-9, norm, np.float32(1.0))
+            normal_u = (-tan_v / norm).reshape(shape)
+            normal_v = (tan_u / norm).reshape(shape)
     return ProjectedSamples(
         u_px=u.reshape(shape),
         v_px=v.reshape(shape),

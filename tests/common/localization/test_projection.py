@@ -1,0 +1,126 @@
+"""Projection of model edges into particles' cameras: hand-computed cameras, culling, batching."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from common.errors import InputError
+from common.localization.model import SceneModel, build_scene
+from common.localization.projection import project_samples, sample_edges
+from common.sim.camera import PinholeCamera
+
+CAMERA = PinholeCamera(width=320, height=240, fx=200.0, fy=210.0, cx=159.5, cy=119.5)
+
+
+def _quad_scene(corners: list[list[float]], towards: list[float]) -> SceneModel:
+    corners_arr = np.asarray(corners, dtype=float)
+    normal = np.cross(corners_arr[1] - corners_arr[0], corners_arr[2] - corners_arr[0])
+    if normal @ np.asarray(towards) < 0:
+        corners_arr = corners_arr[::-1]
+    return build_scene(corners_arr, [[0, 1, 2, 3]], [0.5])
+
+
+def _hand_pixels(points_world: np.ndarray, origin: np.ndarray, yaw_rad: float) -> np.ndarray:
+    """Forward camera of a level body: optical axis = heading, image right = heading rotated -90 deg."""
+    forward = np.array([np.cos(yaw_rad), np.sin(yaw_rad), 0.0])
+    right = np.array([np.sin(yaw_rad), -np.cos(yaw_rad), 0.0])
+    d = points_world - origin
+    depth = d @ forward
+    u = CAMERA.cx + CAMERA.fx * (d @ right) / depth
+    v = CAMERA.cy - CAMERA.fy * d[:, 2] / depth
+    return np.stack([u, v], axis=1)
+
+
+@pytest.mark.parametrize(
+    ("origin", "yaw_deg", "corners", "towards"),
+    [
+        ([0.0, 0.0, 0.0], 0.0, [[4, -1, -0.5], [4, 1, -0.5], [4, 1, 0.5], [4, -1, 0.5]], [-1, 0, 0]),
+        ([1.0, 2.0, 0.5], 90.0, [[0, 6, 0], [2, 6, 0], [2, 6, 1.2], [0, 6, 1.2]], [0, -1, 0]),
+    ],
+)
+def test_projection_matches_a_hand_computed_camera(
+    origin: list[float], yaw_deg: float, corners: list[list[float]], towards: list[float]
+) -> None:
+    scene = _quad_scene(corners, towards)
+    samples = sample_edges(scene, points_per_edge=4)
+    state = np.array([*origin, 0.0, 0.0, np.radians(yaw_deg)])
+    projected = project_samples(samples, state, CAMERA)
+    assert projected.edge_ids.tolist() == [0, 1, 2, 3]
+    assert projected.valid.all()
+    expected = _hand_pixels(samples.points_world_m.reshape(-1, 3), np.asarray(origin), np.radians(yaw_deg))
+    got = np.stack([projected.u_px[0].ravel(), projected.v_px[0].ravel()], axis=1)
+    assert np.allclose(got, expected, atol=1e-3)
+    # the flat pixel index points at the nearest pixel
+    row, column = np.divmod(projected.pixel_index[0].ravel(), CAMERA.width)
+    assert np.all(np.abs(column - expected[:, 0]) <= 0.5 + 1e-3)
+    assert np.all(np.abs(row - expected[:, 1]) <= 0.5 + 1e-3)
+
+
+def test_culling_drops_edges_behind_the_camera() -> None:
+    behind = _quad_scene([[-4, -1, -0.5], [-4, 1, -0.5], [-4, 1, 0.5], [-4, -1, 0.5]], [1, 0, 0])
+    projected = project_samples(sample_edges(behind), np.zeros(6), CAMERA)
+    assert projected.edge_ids.size == 0
+    assert not projected.valid.any()
+
+
+def test_back_faces_are_culled() -> None:
+    away = _quad_scene([[4, -1, -0.5], [4, 1, -0.5], [4, 1, 0.5], [4, -1, 0.5]], [1, 0, 0])
+    projected = project_samples(sample_edges(away), np.zeros(6), CAMERA)
+    assert projected.edge_ids.size == 0
+
+
+def test_edges_crossing_the_near_plane_keep_only_their_points_in_front() -> None:
+    floor = _quad_scene([[-5, -0.5, -1], [5, -0.5, -1], [5, 0.5, -1], [-5, 0.5, -1]], [0, 0, 1])
+    samples = sample_edges(floor, points_per_edge=20)
+    projected = project_samples(samples, np.zeros(6), CAMERA)
+    lengthwise = [i for i, e in enumerate(projected.edge_ids) if abs(samples.directions_world[e, 0]) > 0.9]
+    assert len(lengthwise) == 2
+    for i in lengthwise:
+        x = samples.points_world_m[projected.edge_ids[i], :, 0]
+        valid = projected.valid[0, i]
+        assert valid.any() and not valid.all()
+        assert np.all(x[valid] > 0.05)
+        assert np.all(~valid[x < 0.05])
+
+
+def test_states_are_validated() -> None:
+    samples = sample_edges(_quad_scene([[4, -1, -0.5], [4, 1, -0.5], [4, 1, 0.5], [4, -1, 0.5]], [-1, 0, 0]))
+    with pytest.raises(InputError, match=r"\(P, 6\)"):
+        project_samples(samples, np.zeros((3, 5)), CAMERA)
+    with pytest.raises(InputError, match="finite"):
+        project_samples(samples, np.full(6, np.nan), CAMERA)
+
+
+coordinate = st.floats(-1.0, 1.0, allow_nan=False)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(
+        st.tuples(coordinate, coordinate, coordinate, coordinate, coordinate, coordinate),
+        min_size=2,
+        max_size=6,
+    )
+)
+def test_batched_projection_equals_one_particle_at_a_time(
+    office: SceneModel, offsets: list[tuple[float, ...]]
+) -> None:
+    samples = sample_edges(office, points_per_edge=5)
+    states = np.array([5.0, 4.0, 1.5, 0.0, 0.0, 0.0]) + np.asarray(offsets) * [2.0, 2.0, 0.5, 0.3, 0.3, 3.1]
+    batch = project_samples(samples, states, CAMERA, with_normals=True)
+    for p in range(states.shape[0]):
+        single = project_samples(samples, states[p], CAMERA, with_normals=True)
+        rows = np.searchsorted(batch.edge_ids, single.edge_ids)
+        assert np.array_equal(batch.edge_ids[rows], single.edge_ids)
+        # edges kept only for other particles have no valid points for this one
+        others = np.setdiff1d(np.arange(batch.edge_ids.size), rows)
+        assert not batch.valid[p, others].any()
+        assert np.array_equal(batch.valid[p, rows], single.valid[0])
+        ok = single.valid[0]
+        assert np.allclose(batch.u_px[p, rows][ok], single.u_px[0][ok], atol=1e-3)
+        assert np.allclose(batch.v_px[p, rows][ok], single.v_px[0][ok], atol=1e-3)
+        assert batch.normal_u is not None and single.normal_u is not None
+        assert np.allclose(batch.normal_u[p, rows][ok], single.normal_u[0][ok], atol=1e-4)
