@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.master",
     "services.foreman",
     "services.worker",
+    "services.up",
 )
 
 

@@ -217,7 +217,8 @@ class Scatter:
                     del pending[rid]
                     elapsed = time.monotonic() - request.sent_s
                     result = request.result
-                    reported = sum(result.speeds.values()) if result.speeds else None
+                    # the member's own time (worker: compute; foreman: its whole block) excludes transport
+                    reported = request.indices.size / result.compute_s if result.compute_s > 0 else None
                     self.dispatcher.record_success(
                         request.member, work.seq, request.indices, elapsed, reported
                     )

@@ -1,0 +1,368 @@
+"""``capataz up --cluster deploy/clusters/2h8n.yml``: start a described cluster locally as processes.
+
+A cluster file describes hosts in the paper's notation (``2h8n`` = 2 hosts, 8 worker nodes): per host a
+foreman, its workers and a CPU limit (a ``taskset`` CPU list; several workers pinned to one core make a
+slow host real). :class:`LocalCluster` starts the router, the workers, the foremen and the master (and a
+camera when asked) on 127.0.0.1 with explicit endpoints and multicast scouting off, and stops them with
+SIGTERM (SIGKILL after a grace period). Tests, the demo and the benchmark use it too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from common import keys
+from common.errors import CapatazError
+from common.messages import WireError, YawEstimate, decode
+from common.transport import TransportSettings, open_session, zbytes
+
+logger = logging.getLogger(__name__)
+
+
+class ClusterError(CapatazError):
+    """A cluster file is invalid or a cluster did not come up."""
+
+
+class HostSpec(BaseModel):
+    """One host: a foreman and its workers, optionally pinned to CPUs."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    workers: int = Field(ge=0)
+    #: taskset CPU list for the host's processes, e.g. "1" or "0-1"; None = no pinning
+    cpus: str | None = None
+    #: the foreman computes a share too
+    foreman_computes: bool = False
+
+
+class ClusterSpec(BaseModel):
+    """A cluster description (``deploy/clusters/*.yml``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    description: str = ""
+    topology: Literal["master-worker", "master-foreman-worker"] = "master-foreman-worker"
+    balance: Literal["none", "time"] = "time"
+    master_computes: bool = False
+    master_cpus: str | None = None
+    uav: str = "uav0"
+    hosts: tuple[HostSpec, ...]
+
+    @property
+    def n_workers(self) -> int:
+        return sum(h.workers for h in self.hosts)
+
+
+def load_cluster(path: Path) -> ClusterSpec:
+    try:
+        raw = yaml.safe_load(Path(path).read_text())
+        return ClusterSpec.model_validate(raw)
+    except (OSError, yaml.YAMLError, ValidationError) as exc:
+        raise ClusterError(f"{path}: {exc}") from None
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def capataz_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "services.cli", *args]
+
+
+class LocalCluster:
+    """Processes of one cluster on 127.0.0.1; a context manager that always stops what it started."""
+
+    def __init__(
+        self,
+        spec: ClusterSpec,
+        log_dir: Path,
+        port: int | None = None,
+        shared_memory: bool = False,
+        master_args: Sequence[str] = (),
+        lease_ms: int = 2000,
+    ) -> None:
+        self.spec = spec
+        self.log_dir = Path(log_dir)
+        self.port = port or free_port()
+        self.router = f"tcp/127.0.0.1:{self.port}"
+        self.shared_memory = shared_memory
+        self.master_args = tuple(master_args)
+        self.lease_ms = lease_ms
+        self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        self._stopped: set[str] = set()
+        self._taskset = shutil.which("taskset")
+
+    # -- processes --------------------------------------------------------------------------------------
+    def transport_args(self) -> list[str]:
+        return [
+            "--connect", self.router, "--listen", "tcp/127.0.0.1:0", "--no-multicast",
+            "--shm" if self.shared_memory else "--no-shm", "--lease-ms", str(self.lease_ms),
+        ]  # fmt: skip
+
+    def observer_transport(self) -> TransportSettings:
+        return TransportSettings(
+            connect=(self.router,), shared_memory=self.shared_memory, lease_ms=self.lease_ms
+        )
+
+    def spawn(self, name: str, args: Sequence[str], cpus: str | None = None) -> subprocess.Popen[bytes]:
+        if name in self.processes and self.processes[name].poll() is None:
+            raise ClusterError(f"{name} is already running")
+        command = capataz_command(*args)
+        if cpus is not None and self._taskset:
+            command = [self._taskset, "-c", cpus, *command]
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log = (self.log_dir / f"{name.replace('/', '_')}.log").open("ab")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        process = subprocess.Popen(
+            command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+        )
+        log.close()
+        self.processes[name] = process
+        return process
+
+    def start_router(self) -> None:
+        self.spawn("router", ["router", "--listen", self.router, "--no-multicast", "--no-shm",
+                              "--lease-ms", str(self.lease_ms)])  # fmt: skip
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline:
+            with socket.socket() as sock:
+                if sock.connect_ex(("127.0.0.1", self.port)) == 0:
+                    return
+            if self.processes["router"].poll() is not None:
+                raise ClusterError(
+                    f"router exited with {self.processes['router'].returncode}; see {self.log_dir}"
+                )
+            time.sleep(0.05)
+        raise ClusterError("router did not start listening within 15 s")
+
+    def start_worker(self, host: HostSpec, index: int) -> str:
+        name = f"worker/{host.name}/{index}"
+        self.spawn(
+            name, ["worker", *self.transport_args(), "--node", host.name, "--index", str(index)], host.cpus
+        )
+        return name
+
+    def start_foreman(self, host: HostSpec, extra: Sequence[str] = ()) -> str:
+        name = f"foreman/{host.name}/0"
+        args = ["foreman", *self.transport_args(), "--node", host.name, "--balance", self.spec.balance,
+                "--compute" if host.foreman_computes else "--no-compute", *extra]  # fmt: skip
+        self.spawn(name, args, host.cpus)
+        return name
+
+    def start_master(self, extra: Sequence[str] = ()) -> str:
+        name = "master/master/0"
+        args = ["master", *self.transport_args(), "--node", "master", "--uav", self.spec.uav,
+                "--topology", self.spec.topology, "--balance", self.spec.balance,
+                "--compute" if self.spec.master_computes else "--no-compute", *self.master_args, *extra]  # fmt: skip
+        self.spawn(name, args, self.spec.master_cpus)
+        return name
+
+    def start_camera(self, extra: Sequence[str] = ()) -> str:
+        name = "camera/camera/0"
+        self.spawn(name, ["camera", *self.transport_args(), "--uav", self.spec.uav, *extra])
+        return name
+
+    def expected_members(self) -> set[str]:
+        names = {"master/master/0"}
+        for host in self.spec.hosts:
+            names |= {f"worker/{host.name}/{i}" for i in range(host.workers)}
+            if self.spec.topology == "master-foreman-worker":
+                names.add(f"foreman/{host.name}/0")
+        return names
+
+    def start(self, with_master: bool = True) -> None:
+        """Router, then workers, foremen (for that topology) and the master, all in parallel."""
+        self.start_router()
+        for host in self.spec.hosts:
+            for i in range(host.workers):
+                self.start_worker(host, i)
+            if self.spec.topology == "master-foreman-worker":
+                self.start_foreman(host)
+        if with_master:
+            self.start_master()
+
+    def wait_alive(self, names: set[str], timeout_s: float = 60.0) -> None:
+        """Wait until every name has a liveliness token (observed from a session of our own)."""
+        seen: set[str] = set()
+        lock = threading.Condition()
+
+        def on_alive(sample: zenoh.Sample) -> None:
+            try:
+                member = keys.parse_alive_key(str(sample.key_expr)).name
+            except CapatazError:
+                return
+            with lock:
+                if sample.kind == zenoh.SampleKind.PUT:
+                    seen.add(member)
+                else:
+                    seen.discard(member)
+                lock.notify_all()
+
+        with open_session(self.observer_transport()) as session:
+            sub = session.liveliness().declare_subscriber(keys.ALIVE_ALL, on_alive, history=True)
+            deadline = time.monotonic() + timeout_s
+            with lock:
+                while not names <= seen:
+                    dead = [
+                        n
+                        for n, p in self.processes.items()
+                        if p.poll() is not None and n not in self._stopped
+                    ]
+                    if dead:
+                        raise ClusterError(f"{dead} exited during start-up; see logs in {self.log_dir}")
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        raise ClusterError(f"not alive after {timeout_s:.0f} s: {sorted(names - seen)}")
+                    lock.wait(min(left, 0.2))
+            sub.undeclare()
+
+    def signal(self, name: str, sig: int) -> None:
+        process = self.processes[name]
+        if process.poll() is None:
+            os.kill(process.pid, sig)
+        if sig in (signal.SIGKILL, signal.SIGTERM):
+            self._stopped.add(name)
+
+    def stop(self, grace_s: float = 3.0) -> dict[str, int | None]:
+        """SIGCONT + SIGTERM everything, SIGKILL what is still running after ``grace_s``; exit codes."""
+        order = sorted(self.processes, key=lambda n: n.startswith("router"))  # router last
+        for name in order:
+            process = self.processes[name]
+            if process.poll() is None:
+                try:
+                    os.kill(process.pid, signal.SIGCONT)
+                    os.kill(process.pid, signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace_s
+        codes: dict[str, int | None] = {}
+        for name in order:
+            process = self.processes[name]
+            try:
+                process.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                logger.warning("%s did not stop within %.1f s: SIGKILL", name, grace_s)
+                process.kill()
+                process.wait()
+            codes[name] = process.returncode
+        return codes
+
+    def __enter__(self) -> LocalCluster:
+        return self
+
+    def __exit__(self, *_exc: Any) -> None:
+        self.stop()
+
+
+class YawCollector:
+    """Subscribes to a UAV's yaw and keeps every estimate by frame seq (for tests, the demo, benches)."""
+
+    def __init__(self, session: zenoh.Session, uav: str) -> None:
+        self.estimates: dict[int, YawEstimate] = {}
+        self.arrival_s: dict[int, float] = {}
+        self.malformed = 0
+        self._cond = threading.Condition()
+        self._sub = session.declare_subscriber(keys.yaw_key(uav), self._on_yaw)
+
+    def _on_yaw(self, sample: zenoh.Sample) -> None:
+        try:
+            estimate = decode(zbytes(sample.payload), zbytes(sample.attachment), YawEstimate)
+        except WireError:
+            self.malformed += 1
+            return
+        with self._cond:
+            self.estimates[estimate.seq] = estimate
+            self.arrival_s[estimate.seq] = time.monotonic()
+            self._cond.notify_all()
+
+    def wait_for(self, count: int, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while len(self.estimates) < count:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.2))
+            return True
+
+    def newest(self) -> int:
+        with self._cond:
+            return max(self.estimates, default=-1)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser("up", help="start a described cluster locally as processes")
+    parser.add_argument(
+        "--cluster", type=Path, required=True, help="cluster file, e.g. deploy/clusters/2h8n.yml"
+    )
+    parser.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1 (0 = any free port)")
+    parser.add_argument(
+        "--frames", type=int, default=0, help="also run a camera with this many frames (0 = none)"
+    )
+    parser.add_argument("--fps", type=float, default=20.0, help="camera frames per second")
+    parser.add_argument(
+        "--duration", type=float, default=0.0, help="stop after this many seconds (0 = until ^C)"
+    )
+    parser.add_argument("--logs", type=Path, default=Path("out/up"), help="log folder")
+    parser.add_argument("--shm", action="store_true", help="zenoh shared memory on")
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = load_cluster(args.cluster)
+    stop = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        with LocalCluster(spec, args.logs, port=args.port or None, shared_memory=args.shm) as cluster:
+            t0 = time.monotonic()
+            cluster.start()
+            cluster.wait_alive(cluster.expected_members())
+            print(f"cluster {spec.name} up in {time.monotonic() - t0:.1f} s: router {cluster.router}, "
+                  f"{len(spec.hosts)} hosts, {spec.n_workers} workers, logs in {args.logs}")  # fmt: skip
+            with open_session(cluster.observer_transport()) as session:
+                collector = YawCollector(session, spec.uav)
+                if args.frames:
+                    cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps)])
+                last = -1
+                while not stop.wait(1.0):
+                    newest = collector.newest()
+                    if newest != last:
+                        estimate = collector.estimates[newest]
+                        print(f"yaw frame {newest}: {estimate.yaw_rad:+.4f} rad, "
+                              f"{estimate.timings_ms.get('total', 0.0):.1f} ms, members {estimate.members}")  # fmt: skip
+                        last = newest
+                    if args.duration and time.monotonic() - t0 > args.duration:
+                        break
+                    camera = cluster.processes.get("camera/camera/0")
+                    if args.frames and camera is not None and camera.poll() is not None:
+                        time.sleep(0.5)
+                        break
+                print(f"received {len(collector.estimates)} yaw estimates")
+                collector.close()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return 0

@@ -1,0 +1,36 @@
+"""Shared pieces of the cluster integration tests: the in-process reference and a small cluster spec."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from common.sim.flight import hover_flight
+from common.yaw import YawSettings, YawTracker, make_patch_grid
+from services.up import ClusterSpec, HostSpec
+
+#: Frames of the fault run in CI (the issue's 2041-frame figure: CAPATAZ_CLUSTER_FRAMES=2041).
+FAULT_FRAMES = int(os.environ.get("CAPATAZ_CLUSTER_FRAMES", "240"))
+
+
+def reference_yaw_rad(n_frames: int, seed: int = 0) -> np.ndarray:
+    """In-process yaw of every frame of the camera's default hover flight (frame 0 = 0)."""
+    flight = hover_flight(seed=seed, n_frames=n_frames)
+    settings = YawSettings()
+    tracker = YawTracker(settings, make_patch_grid((flight.camera.height, flight.camera.width), settings))
+    state = tracker.initial_state(flight.frame(0))
+    yaw = np.zeros(n_frames)
+    for k in range(1, n_frames):
+        state, estimate = tracker.track(state, flight.frame(k))
+        yaw[k] = estimate.yaw_rad
+    return yaw
+
+
+def two_by_two(topology: str = "master-foreman-worker", workers: int = 2) -> ClusterSpec:
+    return ClusterSpec(
+        name="test",
+        topology=topology,  # type: ignore[arg-type]
+        balance="time",
+        hosts=(HostSpec(name="h1", workers=workers), HostSpec(name="h2", workers=workers)),
+    )

@@ -1,0 +1,65 @@
+"""A simulated run through a local cluster of real processes: a yaw for every frame, equal to in-process,
+also when a foreman is SIGKILLed and a worker SIGSTOPped mid-run (the issue's "Done when")."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.transport import open_session
+from services.up import LocalCluster, YawCollector
+from tests.integration.cluster_helpers import FAULT_FRAMES, reference_yaw_rad, two_by_two
+
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
+
+
+def test_every_frame_yields_the_in_process_yaw_despite_a_killed_foreman_and_a_frozen_worker(
+    tmp_path: Path,
+) -> None:
+    n = FAULT_FRAMES
+    kill_at, freeze_at = int(0.35 * n), int(0.7 * n)
+    reference: dict[str, np.ndarray] = {}
+    worker = threading.Thread(target=lambda: reference.update(yaw=reference_yaw_rad(n)), daemon=True)
+    worker.start()
+    with LocalCluster(two_by_two(), tmp_path / "logs") as cluster:
+        cluster.start()
+        cluster.wait_alive(cluster.expected_members())
+        with open_session(cluster.observer_transport()) as session:
+            collector = YawCollector(session, "uav0")
+            cluster.start_camera(["--frames", str(n), "--fps", "0", "--in-flight", "1"])
+            events: dict[str, int] = {}
+            deadline = time.monotonic() + 30.0 + 0.25 * n
+            while len(collector.estimates) < n and time.monotonic() < deadline:
+                newest = collector.newest()
+                if "kill" not in events and newest >= kill_at:
+                    cluster.signal("foreman/h1/0", signal.SIGKILL)
+                    events["kill"] = newest
+                if "freeze" not in events and newest >= freeze_at:
+                    cluster.signal("worker/h2/1", signal.SIGSTOP)
+                    events["freeze"] = newest
+                time.sleep(0.005)
+            collector.wait_for(n, 5.0)
+            estimates = dict(collector.estimates)
+            collector.close()
+        codes = cluster.stop()
+    worker.join(300.0)
+    assert set(events) == {"kill", "freeze"}, events
+    assert sorted(estimates) == list(range(n)), (
+        f"missing frames {sorted(set(range(n)) - set(estimates))[:20]}"
+    )
+    yaw = np.array([estimates[k].yaw_rad for k in range(n)])
+    error_deg = np.degrees(np.abs(yaw - reference["yaw"]))
+    assert error_deg.max() <= 1e-9, (
+        f"max |cluster - in-process| = {error_deg.max():.3g} deg at {error_deg.argmax()}"
+    )
+    assert max(e.dropped_frames for e in estimates.values()) == 0
+    # the faults really happened and were absorbed: shares were re-dispatched after the kill
+    after_kill = [estimates[k] for k in range(events["kill"] + 1, n)]
+    assert all("foreman/h1/0" not in e.members for e in after_kill[5:])
+    assert sum(e.redispatched for e in estimates.values()) >= 1
+    assert codes["master/master/0"] == 0 and codes["foreman/h2/0"] == 0
