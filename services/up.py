@@ -115,9 +115,15 @@ class LocalCluster:
     # -- processes --------------------------------------------------------------------------------------
     def transport_args(self) -> list[str]:
         return [
-            "--connect", self.router, "--listen", "tcp/127.0.0.1:0", "--no-multicast",
-            "--shm" if self.shared_memory else "--no-shm", "--lease-ms", str(self.lease_ms),
-        ]  # fmt: skip
+            "--connect",
+            self.router,
+            "--listen",
+            "tcp/127.0.0.1:0",
+            "--no-multicast",
+            "--shm" if self.shared_memory else "--no-shm",
+            "--lease-ms",
+            str(self.lease_ms),
+        ]
 
     def observer_transport(self) -> TransportSettings:
         return TransportSettings(
@@ -141,8 +147,18 @@ class LocalCluster:
         return process
 
     def start_router(self) -> None:
-        self.spawn("router", ["router", "--listen", self.router, "--no-multicast", "--no-shm",
-                              "--lease-ms", str(self.lease_ms)])  # fmt: skip
+        self.spawn(
+            "router",
+            [
+                "router",
+                "--listen",
+                self.router,
+                "--no-multicast",
+                "--no-shm",
+                "--lease-ms",
+                str(self.lease_ms),
+            ],
+        )
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline:
             with socket.socket() as sock:
@@ -164,16 +180,36 @@ class LocalCluster:
 
     def start_foreman(self, host: HostSpec, extra: Sequence[str] = ()) -> str:
         name = f"foreman/{host.name}/0"
-        args = ["foreman", *self.transport_args(), "--node", host.name, "--balance", self.spec.balance,
-                "--compute" if host.foreman_computes else "--no-compute", *extra]  # fmt: skip
+        args = [
+            "foreman",
+            *self.transport_args(),
+            "--node",
+            host.name,
+            "--balance",
+            self.spec.balance,
+            "--compute" if host.foreman_computes else "--no-compute",
+            *extra,
+        ]
         self.spawn(name, args, host.cpus)
         return name
 
     def start_master(self, extra: Sequence[str] = ()) -> str:
         name = "master/master/0"
-        args = ["master", *self.transport_args(), "--node", "master", "--uav", self.spec.uav,
-                "--topology", self.spec.topology, "--balance", self.spec.balance,
-                "--compute" if self.spec.master_computes else "--no-compute", *self.master_args, *extra]  # fmt: skip
+        args = [
+            "master",
+            *self.transport_args(),
+            "--node",
+            "master",
+            "--uav",
+            self.spec.uav,
+            "--topology",
+            self.spec.topology,
+            "--balance",
+            self.spec.balance,
+            "--compute" if self.spec.master_computes else "--no-compute",
+            *self.master_args,
+            *extra,
+        ]
         self.spawn(name, args, self.spec.master_cpus)
         return name
 
@@ -340,8 +376,10 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.monotonic()
             cluster.start()
             cluster.wait_alive(cluster.expected_members())
-            print(f"cluster {spec.name} up in {time.monotonic() - t0:.1f} s: router {cluster.router}, "
-                  f"{len(spec.hosts)} hosts, {spec.n_workers} workers, logs in {args.logs}")  # fmt: skip
+            print(
+                f"cluster {spec.name} up in {time.monotonic() - t0:.1f} s: router {cluster.router}, "
+                f"{len(spec.hosts)} hosts, {spec.n_workers} workers, logs in {args.logs}"
+            )
             with open_session(cluster.observer_transport()) as session:
                 collector = YawCollector(session, spec.uav)
                 if args.frames:
@@ -351,8 +389,10 @@ def run(args: argparse.Namespace) -> int:
                     newest = collector.newest()
                     if newest != last:
                         estimate = collector.estimates[newest]
-                        print(f"yaw frame {newest}: {estimate.yaw_rad:+.4f} rad, "
-                              f"{estimate.timings_ms.get('total', 0.0):.1f} ms, members {estimate.members}")  # fmt: skip
+                        print(
+                            f"yaw frame {newest}: {estimate.yaw_rad:+.4f} rad, "
+                            f"{estimate.timings_ms.get('total', 0.0):.1f} ms, members {estimate.members}"
+                        )
                         last = newest
                     if args.duration and time.monotonic() - t0 > args.duration:
                         break
