@@ -39,6 +39,10 @@ ImageU8 = npt.NDArray[np.uint8]
 
 #: Stream label mixed into the seed so the texture's random numbers differ from the flight's noise.
 TEXTURE_STREAM = 0x7E7
+#: Bilinear footprint margin around the crop a view is warped from (texels).
+CROP_MARGIN_PX = 2
+#: Above this many texels the footprint is not cropped (grazing views).
+MAX_CROP_TEXELS = 16 * 1024 * 1024
 #: Smallest pyramid level kept (px per side).
 MIN_LEVEL_SIZE_PX = 32
 
@@ -137,6 +141,16 @@ def _pyr_down_periodic(image: ImageU8) -> ImageU8:
     small = cv2.pyrDown(padded)
     h, w = image.shape[0] // 2, image.shape[1] // 2
     return np.ascontiguousarray(small[pad // 2 : pad // 2 + h, pad // 2 : pad // 2 + w])
+
+
+def _crop_periodic(image: ImageU8, x0: int, y0: int, width: int, height: int) -> ImageU8:
+    """Contiguous ``(height, width)`` window of a periodic image starting at column ``x0``, row ``y0``."""
+    n_rows, n_cols = image.shape
+    if x0 >= 0 and x0 + width <= n_cols and y0 >= 0 and y0 + height <= n_rows:
+        return np.ascontiguousarray(image[y0 : y0 + height, x0 : x0 + width])
+    rows = np.arange(y0, y0 + height) % n_rows
+    cols = np.arange(x0, x0 + width) % n_cols
+    return np.ascontiguousarray(image[np.ix_(rows, cols)])
 
 
 def check_camera_pose(
@@ -242,19 +256,29 @@ def render_ground_view(
     centre_ground = H_ground_pixel @ np.array([camera.cx, camera.cy, 1.0])
     centre_ground = centre_ground / centre_ground[2]
 
+    corners_px = np.column_stack([camera.corners_px(), np.ones(4)])
+
     def warp(level: int) -> ImageU8:
         H_texel_pixel = texture.texel_from_world(level) @ H_ground_pixel
-        # Shift by whole tiles so texel coordinates stay small (warpPerspective uses 16-bit integer parts).
-        period = texture.levels[level].shape[0]
-        centre_texel = texture.texel_from_world(level) @ centre_ground
-        shift = np.floor(centre_texel[:2] / period) * period
-        T = np.array([[1.0, 0.0, -shift[0]], [0.0, 1.0, -shift[1]], [0.0, 0.0, 1.0]])
+        corners = corners_px @ H_texel_pixel.T
+        corners = corners[:, :2] / corners[:, 2:]
+        x0, y0 = np.floor(corners.min(axis=0)).astype(np.int64) - CROP_MARGIN_PX
+        x1, y1 = np.ceil(corners.max(axis=0)).astype(np.int64) + CROP_MARGIN_PX + 1
+        if (x1 - x0) * (y1 - y0) <= MAX_CROP_TEXELS:
+            # Warp from a contiguous crop of the footprint: cache-friendly whatever the yaw (5-10x faster
+            # than sampling the whole tile along its columns) and small 16-bit coordinates for cv2.
+            source = _crop_periodic(texture.levels[level], int(x0), int(y0), int(x1 - x0), int(y1 - y0))
+            T = np.array([[1.0, 0.0, -float(x0)], [0.0, 1.0, -float(y0)], [0.0, 0.0, 1.0]])
+            border = cv2.BORDER_REPLICATE
+        else:  # huge footprint (grazing view): sample the periodic tile directly, shifted by whole tiles
+            source = texture.levels[level]
+            period = source.shape[0]
+            centre = texture.texel_from_world(level) @ centre_ground
+            shift = np.floor(centre[:2] / period) * period
+            T = np.array([[1.0, 0.0, -shift[0]], [0.0, 1.0, -shift[1]], [0.0, 0.0, 1.0]])
+            border = cv2.BORDER_WRAP
         warped = cv2.warpPerspective(
-            texture.levels[level],
-            T @ H_texel_pixel,
-            size,
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_WRAP,
+            source, T @ H_texel_pixel, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=border
         )
         return np.asarray(warped, dtype=np.uint8)
 
