@@ -1,0 +1,59 @@
+"""Membership through real processes: a joiner gets a share within 5 frames; with every worker gone the
+master keeps publishing yaw alone (master-worker topology, the paper's baseline)."""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from common.dispatch import SELF
+from common.transport import open_session
+from services.up import LocalCluster, YawCollector
+from tests.integration.cluster_helpers import two_by_two
+
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
+
+
+def wait_until(condition, timeout_s: float) -> bool:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_joiner_gets_a_share_within_five_frames_and_master_computes_alone_without_workers(
+    tmp_path: Path,
+) -> None:
+    spec = two_by_two(topology="master-worker", workers=1)
+    with LocalCluster(spec, tmp_path / "logs") as cluster:
+        cluster.start_router()
+        cluster.start_worker(spec.hosts[0], 0)
+        cluster.start_master()
+        cluster.wait_alive({"master/master/0", "worker/h1/0"})
+        with open_session(cluster.observer_transport()) as session:
+            collector = YawCollector(session, spec.uav)
+            cluster.start_camera(["--frames", "400", "--fps", "25", "--in-flight", "1", "--no-sensors"])
+            assert wait_until(lambda: collector.newest() >= 20, 60.0)
+            assert all(set(e.members) == {"worker/h1/0"} for s, e in collector.estimates.items() if s >= 3)
+
+            cluster.start_worker(spec.hosts[1], 0)  # the joiner
+            cluster.wait_alive({"worker/h2/0"})
+            joined_at = collector.newest()
+            assert wait_until(lambda: collector.newest() >= joined_at + 6, 30.0)
+            first = min(s for s, e in collector.estimates.items() if "worker/h2/0" in e.members)
+            assert first - joined_at <= 5, f"joiner got work {first - joined_at} frames after it joined"
+
+            for name in ("worker/h1/0", "worker/h2/0"):
+                cluster.signal(name, signal.SIGKILL)
+            gone_at = collector.newest()
+            assert wait_until(lambda: collector.newest() >= gone_at + 20, 30.0), "master stopped publishing"
+            alone = [collector.estimates[s] for s in range(gone_at + 5, gone_at + 20)]
+            assert all(set(e.members) == {SELF} and e.members[SELF] == e.patch_count for e in alone)
+            seqs = sorted(collector.estimates)
+            assert seqs == list(range(seqs[0], seqs[-1] + 1)), "a frame without yaw"
+            collector.close()
