@@ -8,6 +8,7 @@ Everything is batched over patches; a worker may compute any subset of patch ind
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -167,6 +168,27 @@ def inverse_transform(spectra: ComplexArray, size_px: int, backend: FftBackend) 
     return out
 
 
+def normalised_cross_power(previous: ComplexArray, current: ComplexArray) -> Float32Array:
+    """``current . conj(previous) / |current . conj(previous)|`` as float32 (n, s, w, 2) [re, im] pairs.
+
+    Written as separate real ufuncs (each correctly rounded) rather than complex64 arithmetic, whose
+    SIMD and scalar paths (fused multiply-adds) differ in the last bit depending on the batch length
+    and alignment: a worker's subset of patches must give exactly the bits of the whole batch.
+    """
+    a_re, a_im = previous.real, previous.imag
+    b_re, b_im = current.real, current.imag
+    out = np.empty((*current.shape, 2), dtype=np.float32)
+    re, im = out[..., 0], out[..., 1]
+    np.multiply(b_re, a_re, out=re)
+    re += b_im * a_im
+    np.multiply(b_im, a_re, out=im)
+    im -= b_re * a_im
+    magnitude = np.sqrt(re * re + im * im)
+    magnitude += np.float32(1e-6) * (magnitude.max(axis=(1, 2), keepdims=True) + np.float32(1e-30))
+    out /= magnitude[..., None]
+    return out
+
+
 def patch_spectra_from_crops(
     crops_u8: U8Array, indices: npt.ArrayLike, settings: YawSettings
 ) -> PatchSpectra:
@@ -222,14 +244,29 @@ def subpixel_peaks(
     rows = np.arange(n)
     c0 = flat[rows, arg].astype(np.float64)
     tiny = 1e-12
-    log0 = np.log(np.maximum(c0, tiny))
-
-    def log_at(dy: int, dx: int) -> FloatArray:
-        y, x = (py + dy) % height, (px + dx) % width
-        value = np.log(np.maximum(surfaces[rows, y, x].astype(np.float64), tiny))
-        if overlap_log is not None:
-            value -= overlap_log[x] if dx else overlap_log[y]
-        return value
+    # The peak and its 4 neighbours (n, 5): centre, x-1, x+1, y-1, y+1.
+    ys = np.stack([py, py, py, (py - 1) % height, (py + 1) % height], axis=1)
+    xs = np.stack([px, (px - 1) % width, (px + 1) % width, px, px], axis=1)
+    samples = np.maximum(surfaces[rows[:, None], ys, xs].astype(np.float64), tiny)
+    # math.log per value, not np.log: numpy's SIMD and scalar log paths differ in the last bit, and which
+    # path a patch takes depends on the batch length. A worker's subset must give the same bits.
+    logs = np.array([math.log(v) for v in samples.ravel().tolist()]).reshape(n, 5)
+    if overlap_log is not None:
+        logs -= np.stack(
+            [
+                overlap_log[px] + overlap_log[py],
+                overlap_log[xs[:, 1]],
+                overlap_log[xs[:, 2]],
+                overlap_log[ys[:, 3]],
+                overlap_log[ys[:, 4]],
+            ],
+            axis=1,
+        )
+        # Each 3-point parabola sees one axis: remove the other axis' (common) overlap factor of the centre.
+        centre_x = logs[:, 0] + overlap_log[py]
+        centre_y = logs[:, 0] + overlap_log[px]
+    else:
+        centre_x = centre_y = logs[:, 0]
 
     def vertex(minus: FloatArray, plus: FloatArray, centre: FloatArray) -> FloatArray:
         curvature = minus - 2.0 * centre + plus
@@ -237,12 +274,8 @@ def subpixel_peaks(
             offset = np.where(curvature < 0.0, 0.5 * (minus - plus) / curvature, 0.0)
         return np.clip(offset, -0.5, 0.5)
 
-    if overlap_log is None:
-        sub_x = vertex(log_at(0, -1), log_at(0, 1), log0)
-        sub_y = vertex(log_at(-1, 0), log_at(1, 0), log0)
-    else:
-        sub_x = vertex(log_at(0, -1), log_at(0, 1), log0 - overlap_log[px])
-        sub_y = vertex(log_at(-1, 0), log_at(1, 0), log0 - overlap_log[py])
+    sub_x = vertex(logs[:, 1], logs[:, 2], centre_x)
+    sub_y = vertex(logs[:, 3], logs[:, 4], centre_y)
     # Wrap the integer peak to signed shifts.
     shift_x = np.where(px > width // 2, px - width, px) + sub_x
     shift_y = np.where(py > height // 2, py - height, py) + sub_y
@@ -282,12 +315,9 @@ def measure_patches(previous: PatchSpectra, current: PatchSpectra, settings: Yaw
         return PatchMeasurement(
             current.indices, np.zeros((0, 2)), empty, empty, np.zeros((0,), dtype=np.bool_)
         )
-    cross = current.spectra * np.conj(previous.spectra)
-    magnitude = np.abs(cross)
-    magnitude += np.float32(1e-6) * (magnitude.max(axis=(1, 2), keepdims=True) + np.float32(1e-30))
-    cross /= magnitude
-    cross *= peak_weighting(s, settings.peak_sigma_px, settings.lowcut_bins, half)
-    surfaces = inverse_transform(cross, s, settings.fft_backend)
+    cross = normalised_cross_power(previous.spectra, current.spectra)
+    cross *= peak_weighting(s, settings.peak_sigma_px, settings.lowcut_bins, half)[..., None]
+    surfaces = inverse_transform(cross.view(np.complex64)[..., 0], s, settings.fft_backend)
     overlap = window_overlap_log(s, settings.window_taper) * settings.overlap_correction
     shift_level, peak, ratio = subpixel_peaks(surfaces, overlap if settings.overlap_correction else None)
     textured = np.minimum(previous.texture_std, current.texture_std) >= settings.min_texture_std

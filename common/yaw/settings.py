@@ -40,7 +40,7 @@ class YawSettings:
     grid_rows: int = 5
     margin_px: int = 0  # border left free at full resolution
     pyramid_level: int = 1
-    fft_backend: FftBackend = FftBackend.OPENCV
+    fft_backend: FftBackend = FftBackend.NUMPY
     #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
     #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
     peak_sigma_px: float = 1.0
