@@ -217,8 +217,9 @@ class Scatter:
                     del pending[rid]
                     elapsed = time.monotonic() - request.sent_s
                     result = request.result
-                    # the member's own time (worker: compute; foreman: its whole block) excludes transport
-                    reported = request.indices.size / result.compute_s if result.compute_s > 0 else None
+                    # the member's own speed measure (a worker: its compute time; a foreman: the sum of its
+                    # workers' speeds) is independent of transport and of the share's size
+                    reported = sum(result.speeds.values()) if result.speeds else None
                     self.dispatcher.record_success(
                         request.member, work.seq, request.indices, elapsed, reported
                     )
