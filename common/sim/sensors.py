@@ -67,16 +67,12 @@ def _normal_quantiles(n: int) -> npt.NDArray[np.float32]:
     return x.astype(np.float32)
 
 
-#: Quantiles of the standard normal at (k + 0.5) / 65536: uniform 16-bit integers -> Gaussian in one lookup
-#: (about 4x faster than numpy's normal generator for a frame).
-_NORMAL_QUANTILES_16BIT = _normal_quantiles(65536)
-_NORMAL_QUANTILES_16BIT.setflags(write=False)
-
-
-def fast_standard_normal(rng: np.random.Generator, shape: tuple[int, ...]) -> npt.NDArray[np.float32]:
-    """Standard normal float32 samples (16-bit quantised inverse CDF, tails to +-4.3 sigma)."""
-    index = rng.integers(0, 65536, size=shape, dtype=np.uint16)
-    return np.take(_NORMAL_QUANTILES_16BIT, index)
+#: Standard normal quantiles at (k + 0.5) / 256, rescaled to unit variance (tails at +-2.9 sigma): a
+#: uniform random byte -> a Gaussian sample in one lookup. Plenty for image noise of a few DN, which is
+#: rounded to whole DN anyway.
+NORMAL_QUANTILES_8BIT = _normal_quantiles(256).astype(np.float64)
+NORMAL_QUANTILES_8BIT /= NORMAL_QUANTILES_8BIT.std()
+NORMAL_QUANTILES_8BIT.setflags(write=False)
 
 
 class SensorError(CapatazError):
@@ -264,7 +260,7 @@ class ImageDegradation:
       ``offset(t) = offset_amplitude_dn sin(2 pi t / offset_period_s + phase)`` (slow drift;
       phases from the seed).
     - noise: Gaussian with ``sigma(I) = sqrt(read_noise_dn^2 + shot_noise_dn2_per_dn * I)`` (I in DN),
-      fresh for every frame, then rounded and clipped to uint8.
+      fresh for every frame (256-level quantised normal), then rounded and clipped to uint8.
     """
 
     read_noise_dn: float = 1.5
@@ -321,11 +317,17 @@ class ImageDegradation:
         if self.blur_sigma_px > 0.0:
             out = np.asarray(cv2.GaussianBlur(out, (0, 0), self.blur_sigma_px), dtype=np.uint8)
         gain, offset = self.exposure(t_s, seed)
-        signal = out.astype(np.float32) * np.float32(gain) + np.float32(offset)
-        if self.read_noise_dn > 0.0 or self.shot_noise_dn2_per_dn > 0.0:
-            rng = np.random.default_rng([IMAGE_STREAM, int(seed), 1, int(frame_index)])
-            variance = np.float32(self.read_noise_dn**2) + np.float32(
-                self.shot_noise_dn2_per_dn
-            ) * np.maximum(signal, np.float32(0.0))
-            signal += np.sqrt(variance) * fast_standard_normal(rng, signal.shape)
-        return np.asarray(np.clip(np.rint(signal), 0.0, 255.0).astype(np.uint8), dtype=np.uint8)
+        signal_lut = np.arange(256, dtype=np.float64) * gain + offset
+        if self.read_noise_dn == 0.0 and self.shot_noise_dn2_per_dn == 0.0:
+            lut = np.clip(np.rint(signal_lut), 0.0, 255.0).astype(np.uint8)
+            return np.asarray(cv2.LUT(out, lut), dtype=np.uint8)
+        # The output pixel is a function of (clean grey level, uniform random byte) only: one 256 x 256
+        # table per frame holds exposure + level-dependent Gaussian noise + rounding + clipping, and the
+        # frame is a single lookup (about 5x faster than float arithmetic on the whole frame).
+        sigma_lut = np.sqrt(self.read_noise_dn**2 + self.shot_noise_dn2_per_dn * np.maximum(signal_lut, 0.0))
+        table = signal_lut[:, None] + sigma_lut[:, None] * NORMAL_QUANTILES_8BIT[None, :]
+        table_u8 = np.clip(np.rint(table), 0.0, 255.0).astype(np.uint8).ravel()
+        rng = np.random.default_rng([IMAGE_STREAM, int(seed), 1, int(frame_index)])
+        uniform = np.frombuffer(rng.bytes(out.size), dtype=np.uint8).reshape(out.shape)
+        index = (out.astype(np.uint16) << 8) | uniform
+        return np.asarray(np.take(table_u8, index), dtype=np.uint8)

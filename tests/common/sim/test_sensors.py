@@ -10,11 +10,11 @@ from hypothesis import strategies as st
 from common.errors import InputError
 from common.geometry import matrix_from_euler
 from common.sim.sensors import (
+    NORMAL_QUANTILES_8BIT,
     ImageDegradation,
     ImuNoise,
     RangeNoise,
     SensorError,
-    fast_standard_normal,
     ray_ground_distance,
     sample_stamps,
     simulate_imu,
@@ -124,11 +124,24 @@ def test_blur_removes_fine_detail() -> None:
     )
 
 
-def test_fast_standard_normal_is_standard() -> None:
-    x = fast_standard_normal(np.random.default_rng(0), (1000, 1000)).astype(np.float64)
-    assert x.mean() == pytest.approx(0.0, abs=3e-3)
-    assert x.std() == pytest.approx(1.0, abs=3e-3)
-    assert np.mean(np.abs(x) > 2.0) == pytest.approx(0.0455, abs=2e-3)
+def test_quantised_normal_is_standard() -> None:
+    q = NORMAL_QUANTILES_8BIT
+    assert q.shape == (256,)
+    assert q.mean() == pytest.approx(0.0, abs=1e-12)
+    assert q.std() == pytest.approx(1.0)
+    assert np.all(np.diff(q) > 0.0)
+    assert np.mean(np.abs(q) > 2.0) == pytest.approx(0.0455, abs=3e-3)
+    assert np.mean(np.abs(q) > 1.0) == pytest.approx(0.3173, abs=1e-2)
+
+
+def test_noise_is_fresh_each_frame_and_uncorrelated() -> None:
+    flat = np.full((200, 300), 128, np.uint8)
+    mild = ImageDegradation(gain_amplitude=0.0, offset_amplitude_dn=0.0)
+    a = mild.apply(flat, 0.0, 0, 1).astype(float) - 128.0
+    b = mild.apply(flat, 0.0, 0, 2).astype(float) - 128.0
+    assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.02
+    # and spatially white
+    assert abs(np.corrcoef(a[:, 1:].ravel(), a[:, :-1].ravel())[0, 1]) < 0.02
 
 
 def test_settings_are_validated() -> None:
