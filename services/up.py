@@ -349,6 +349,59 @@ class YawCollector:
         self._sub.undeclare()
 
 
+def compose_from_cluster(spec: ClusterSpec, image: str = "capataz:0.1.0") -> dict[str, Any]:
+    """A docker-compose document for a described cluster (router, camera, master, foremen, workers).
+
+    A host's ``cpus`` list becomes the containers' ``cpuset`` (the compose twin of ``taskset``).
+    """
+    env = {
+        "CAPATAZ_ZENOH_MODE": "peer",
+        "CAPATAZ_ZENOH_CONNECT": "tcp/router:7447",
+        "CAPATAZ_ZENOH_LISTEN": "tcp/0.0.0.0:0",
+        "CAPATAZ_ZENOH_MULTICAST": "false",
+        "CAPATAZ_ZENOH_SHM": "false",
+    }
+
+    def base() -> dict[str, Any]:
+        return {
+            "image": image,
+            "init": True,
+            "restart": "unless-stopped",
+            "depends_on": ["router"],
+            "environment": dict(env),
+        }
+
+    services: dict[str, Any] = {
+        "router": {
+            "image": image,
+            "init": True,
+            "command": ["router", "--listen", "tcp/0.0.0.0:7447", "--no-multicast", "--no-shm"],
+            "ports": ["7447:7447"],
+        },
+        "camera": {**base(), "command": ["camera", "--node", "camera", "--uav", spec.uav, "--loop"]},
+        "master": {
+            **base(),
+            "command": ["master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology,
+                        "--balance", spec.balance, "--compute" if spec.master_computes else "--no-compute"],
+        },
+    }  # fmt: skip
+    if spec.master_cpus:
+        services["master"]["cpuset"] = spec.master_cpus
+    for host in spec.hosts:
+        pin = {"cpuset": host.cpus} if host.cpus else {}
+        if spec.topology == "master-foreman-worker":
+            services[f"foreman-{host.name}"] = {
+                **base(), **pin,
+                "command": ["foreman", "--node", host.name, "--balance", spec.balance,
+                            "--compute" if host.foreman_computes else "--no-compute"],
+            }  # fmt: skip
+        for i in range(host.workers):
+            services[f"worker-{host.name}-{i}"] = {
+                **base(), **pin, "command": ["worker", "--node", host.name, "--index", str(i)],
+            }  # fmt: skip
+    return {"name": f"capataz-{spec.name}", "services": services}
+
+
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("up", help="start a described cluster locally as processes")
     parser.add_argument(
@@ -364,11 +417,17 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--logs", type=Path, default=Path("out/up"), help="log folder")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on")
+    parser.add_argument("--compose", type=Path, help="write the cluster as a docker-compose file and exit")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     spec = load_cluster(args.cluster)
+    if args.compose:
+        args.compose.parent.mkdir(parents=True, exist_ok=True)
+        args.compose.write_text(yaml.safe_dump(compose_from_cluster(spec), sort_keys=False))
+        print(f"wrote {args.compose}")
+        return 0
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
