@@ -5,7 +5,8 @@
 optionally an external yaw such as the yaw cluster's), reorders them in a :class:`TimeOrderedBuffer` with a
 bounded lag and applies them in stamp order:
 
-- IMU: EKF predict with the gyro over the sample's true ``dt`` (eqs. 12-15), then accelerometer update (eq. 16);
+- IMU: EKF predict with the gyro over the sample's true ``dt`` (eqs. 12-15), then the accelerometer
+  update (eq. 16);
 - range: rangefinder update (eq. 21);
 - external yaw: yaw update (eq. 19);
 - frame: (optionally) rectify with the EKF's roll and pitch (section III-C), visual odometry against the
@@ -24,7 +25,6 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Union
 
 import numpy as np
 import numpy.typing as npt
@@ -34,6 +34,7 @@ from common.estimation.buffer import Refusal, TimeOrderedBuffer
 from common.estimation.ekf import AttitudeAltitudeEkf, EkfError, EkfSettings, EkfState
 from common.estimation.rectify import RectificationError, check_image_u8, rectify_frame
 from common.estimation.vo import (
+    MotionModel,
     PreparedFrame,
     VoError,
     VoPose,
@@ -101,7 +102,7 @@ class FrameMeasurement:
     image: ImageU8
 
 
-Measurement = Union[ImuMeasurement, RangeMeasurement, YawMeasurement, FrameMeasurement]
+Measurement = ImuMeasurement | RangeMeasurement | YawMeasurement | FrameMeasurement
 
 
 def check_imu(stamp_s: float, gyro_rad_s: npt.ArrayLike, accel_m_s2: npt.ArrayLike) -> ImuMeasurement:
@@ -143,8 +144,12 @@ def check_frame(stamp_s: float, image: npt.ArrayLike, shape: tuple[int, int]) ->
 class CouplingSettings:
     """How the two layers are coupled."""
 
-    #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's "traditional" VO).
+    #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's
+    #: "traditional" VO).
     rectify: bool = True
+    #: For rectified pairs, fit the level motion (yaw + translation, n = e3) instead of the free
+    #: decomposition.
+    level_model: bool = False
     #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
     visual_yaw: bool = True
     #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
@@ -210,7 +215,7 @@ class PoseOutput:
     ok: bool
 
 
-Output = Union[AttitudeOutput, PoseOutput]
+Output = AttitudeOutput | PoseOutput
 
 
 def motion_acceleration(stamps_s: npt.ArrayLike, positions_m: npt.ArrayLike) -> FloatArray:
@@ -286,9 +291,7 @@ class DoubleCouplingEstimator:
 
     def _apply(self, items: list[Measurement]) -> list[Output]:
         outputs: list[Output] = []
-        latest_frame = max(
-            (m.stamp_s for m in items if isinstance(m, FrameMeasurement)), default=-math.inf
-        )
+        latest_frame = max((m.stamp_s for m in items if isinstance(m, FrameMeasurement)), default=-math.inf)
         for m in items:
             if isinstance(m, ImuMeasurement):
                 out = self._on_imu(m)
@@ -418,7 +421,14 @@ class DoubleCouplingEstimator:
             ok = True
         else:
             try:
-                motion = estimate_relative_motion(self._prev_frame, frame, cam.K, self.vo_settings)
+                model = (
+                    MotionModel.LEVEL
+                    if self.settings.rectify and self.settings.level_model
+                    else MotionModel.FREE
+                )
+                motion = estimate_relative_motion(
+                    self._prev_frame, frame, cam.K, self.vo_settings, model=model
+                )
                 t_m = metric_translation(motion.t_over_d, self._prev_altitude_m)
                 self.pose = compose_pose(self.pose, motion.R_k_km1, t_m)
                 n_inliers = motion.n_inliers
@@ -459,7 +469,7 @@ class DoubleCouplingEstimator:
         self._motion_accel = (float(ax), float(ay), 0.0)
 
     def _vo_camera_mount(self) -> FloatArray:
-        """Mounting of the camera whose poses the VO composes (the rectified camera is level, pointing down)."""
+        """Mounting of the camera whose poses the VO composes (the rectified one is level, looking down)."""
         return R_BODY_CAMERA_DOWN if self.settings.rectify else self.camera.R_body_camera
 
     def _initial_pose(self, roll: float, pitch: float, yaw: float, altitude_m: float) -> VoPose:

@@ -125,15 +125,14 @@ def quaternion_rate_matrix(gyro_rad_s: npt.ArrayLike) -> FloatArray:
 
 
 def state_transition(gyro_rad_s: npt.ArrayLike, dt_s: float) -> FloatArray:
-    """5x5 transition ``F = blockdiag(F_q, F_s)``, ``F_q = 1/2 Omega(w) dt + I``, ``F_s = 1``: paper C eqs. 13, 15."""
+    """5x5 transition ``F = blockdiag(F_q, F_s)``, ``F_q = 1/2 Omega(w) dt + I``, ``F_s = 1``:
+    paper C eqs. 13, 15."""
     F = np.eye(5)
     F[:4, :4] += 0.5 * dt_s * quaternion_rate_matrix(gyro_rad_s)
     return F
 
 
-def _transition_floats(
-    wx: float, wy: float, wz: float, dt_s: float
-) -> tuple[float, float, float]:
+def _transition_floats(wx: float, wy: float, wz: float, dt_s: float) -> tuple[float, float, float]:
     """The three distinct entries ``dt/2 * w`` of ``F_q - I`` (eq. 13), for the expanded hot path."""
     half_dt = 0.5 * dt_s
     return half_dt * wx, half_dt * wy, half_dt * wz
@@ -281,9 +280,7 @@ def _three_floats(v: npt.ArrayLike) -> tuple[float, float, float]:
     return float(x), float(y), float(z)
 
 
-def _normalized(
-    q0: float, q1: float, q2: float, q3: float
-) -> tuple[tuple[float, float, float, float], bool]:
+def _normalized(q0: float, q1: float, q2: float, q3: float) -> tuple[tuple[float, float, float, float], bool]:
     """Unit quaternion with q0 >= 0, and whether the sign was flipped."""
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     if not (n > 1e-9 and math.isfinite(n)):
@@ -345,9 +342,34 @@ class AttitudeAltitudeEkf:
         q0, q1, q2, q3 = propagate_quaternion((q_prev[0], q_prev[1], q_prev[2], q_prev[3]), a, b, c)
         # F = blockdiag(I + dt/2 Omega, 1), eq. 15, written out for speed (same entries as state_transition)
         F = np.array(
-            [1.0, -a, -b, -c, 0.0, a, 1.0, c, -b, 0.0, b, -c, 1.0, a, 0.0, c, b, -a, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+            [
+                1.0,
+                -a,
+                -b,
+                -c,
+                0.0,
+                a,
+                1.0,
+                c,
+                -b,
+                0.0,
+                b,
+                -c,
+                1.0,
+                a,
+                0.0,
+                c,
+                b,
+                -a,
+                1.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                1.0,
+            ]
         ).reshape(5, 5)
-        s = self.settings
         qk = 0.25 * (dt_s * dt_s * self._gyro_var + dt_s * self._attitude_rw_var)
         qn, flipped = _normalized(q0, q1, q2, q3)
         n0, n1, n2, n3 = qn
@@ -379,7 +401,7 @@ class AttitudeAltitudeEkf:
         """Accelerometer update with the model of paper C eq. 16 (eqs. 4-8).
 
         ``motion_accel_world_m_s2`` is the vehicle's known acceleration (zero: the paper's hover model).
-        Skipped (``accepted=False``, ``nis=nan``) when the specific force is far from the expected one in norm.
+        Skipped (``accepted=False``, ``nis=nan``) when the specific force is far from the expected norm.
         """
         ax, ay, az = _three_floats(accel_m_s2)
         s = self.settings
@@ -394,7 +416,9 @@ class AttitudeAltitudeEkf:
         q = state.q_world_body.tolist()
         h, Hq = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)
         (h00, h01, h02, h03), (h10, h11, h12, h13), (h20, h21, h22, h23) = Hq
-        H = np.array([h00, h01, h02, h03, 0.0, h10, h11, h12, h13, 0.0, h20, h21, h22, h23, 0.0]).reshape(3, 5)
+        H = np.array([h00, h01, h02, h03, 0.0, h10, h11, h12, h13, 0.0, h20, h21, h22, h23, 0.0]).reshape(
+            3, 5
+        )
         return self._update(state, (ax - h[0], ay - h[1], az - h[2]), H, self._accel_var)
 
     def update_yaw(self, state: EkfState, yaw_rad: float, yaw_noise_rad: float | None = None) -> UpdateResult:
@@ -466,7 +490,11 @@ class AttitudeAltitudeEkf:
             c01 *= inv
             c02 *= inv
             Sinv = [[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]
-            Sy = [c00 * y0 + c01 * y1 + c02 * y2, c01 * y0 + c11 * y1 + c12 * y2, c02 * y0 + c12 * y1 + c22 * y2]
+            Sy = [
+                c00 * y0 + c01 * y1 + c02 * y2,
+                c01 * y0 + c11 * y1 + c12 * y2,
+                c02 * y0 + c12 * y1 + c22 * y2,
+            ]
             nis = y0 * Sy[0] + y1 * Sy[1] + y2 * Sy[2]
         if not math.isfinite(nis):
             raise InputError("innovation is not finite")

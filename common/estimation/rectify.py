@@ -62,7 +62,7 @@ def rectifying_rotation(roll_rad: float, pitch_rad: float, R_body_camera: npt.Ar
 
 
 def rectifying_homography(K: npt.ArrayLike, R_rcam_cam: npt.ArrayLike) -> FloatArray:
-    """Pixel map original -> rectified for a common camera centre: ``H = K R_rcam_cam K^-1`` (paper C III-C)."""
+    """Pixel map original -> rectified for a common centre: ``H = K R_rcam_cam K^-1`` (paper C III-C)."""
     Km = np.asarray(K, dtype=np.float64)
     H = Km @ np.asarray(R_rcam_cam, dtype=np.float64) @ np.linalg.inv(Km)
     return np.asarray(H / H[2, 2], dtype=np.float64)
@@ -91,18 +91,22 @@ def rectify_frame(
     )  # fmt: skip
     mapped = np.c_[corners, np.ones(4)] @ H.T
     if np.any(mapped[:, 2] <= 1e-9):
-        raise RectificationError(f"tilt too large to rectify (roll {roll_rad:.3f}, pitch {pitch_rad:.3f} rad)")
+        raise RectificationError(
+            f"tilt too large to rectify (roll {roll_rad:.3f}, pitch {pitch_rad:.3f} rad)"
+        )
     polygon = mapped[:, :2] / mapped[:, 2:3]
     rectified = cv2.warpPerspective(img, H, (w_px, h_px), flags=cv2.INTER_LINEAR, borderValue=0)
     mask = np.zeros((h_px, w_px), dtype=np.uint8)
     cv2.fillConvexPoly(mask, np.round(polygon * 16.0).astype(np.int32), 255, lineType=cv2.LINE_8, shift=4)
-    return RectifiedFrame(image=rectified, valid_mask=mask, H_rect_orig=H, R_rcam_cam=R_rcam_cam)
+    return RectifiedFrame(
+        image=np.asarray(rectified, dtype=np.uint8), valid_mask=mask, H_rect_orig=H, R_rcam_cam=R_rcam_cam
+    )
 
 
 def ground_corners(
     K: npt.ArrayLike, R_world_camera: npt.ArrayLike, altitude_m: float, corners_px: npt.ArrayLike
 ) -> FloatArray:
-    """Ground points ``(N, 2)`` seen at ``corners_px`` from a camera at ``[0 0 altitude]`` (Fig. 5 trapezoid)."""
+    """Ground points ``(N, 2)`` seen at ``corners_px`` from a camera at ``[0 0 altitude]`` (Fig. 5)."""
     Km = np.asarray(K, dtype=np.float64)
     R = np.asarray(R_world_camera, dtype=np.float64)
     px = np.asarray(corners_px, dtype=np.float64)

@@ -16,7 +16,9 @@ pair and "k-1" for the next. (OpenCV 5's Python binding no longer accepts prebui
 
 from __future__ import annotations
 
+import enum
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -28,6 +30,16 @@ from common.estimation.rectify import check_image_u8
 
 FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
+
+
+class MotionModel(enum.Enum):
+    """How a pair's homography is turned into a motion."""
+
+    #: ``cv2.decomposeHomographyMat``, physically valid solution (any pair; the paper's traditional VO).
+    FREE = "free"
+    #: Both views level (rectified): rotation about the optical axis and ``n = e3``, least squares on the
+    #: homography's inliers (no tilt/translation ambiguity left).
+    LEVEL = "level"
 
 
 class VoError(CapatazError):
@@ -55,7 +67,9 @@ class VoSettings:
 
     def __post_init__(self) -> None:
         if self.max_features < 8 or self.min_inliers < 4 or self.lk_levels < 0:
-            raise InputError("VoSettings: max_features >= 8, min_inliers >= 4 and lk_levels >= 0 are required")
+            raise InputError(
+                "VoSettings: max_features >= 8, min_inliers >= 4 and lk_levels >= 0 are required"
+            )
         if self.lk_window_px < 5 or self.lk_window_px % 2 == 0:
             raise InputError(f"VoSettings.lk_window_px must be odd and >= 5, got {self.lk_window_px}")
         for name in ("quality_level", "min_distance_px", "fb_max_error_px", "ransac_threshold_px"):
@@ -136,8 +150,12 @@ def track_features(
     if len(pts0) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
     window = (settings.lk_window_px, settings.lk_window_px)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, settings.lk_iterations, settings.lk_epsilon_px)
-    pts1, st1, _ = cv2.calcOpticalFlowPyrLK(
+    criteria = (
+        cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
+        settings.lk_iterations,
+        settings.lk_epsilon_px,
+    )
+    pts1, st1, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
         prev.image, curr.image, pts0, None,
         winSize=window, maxLevel=settings.lk_levels, criteria=criteria,
     )  # fmt: skip
@@ -161,9 +179,9 @@ def track_features(
 
 
 def choose_decomposition(
-    rotations: list[FloatArray] | tuple[FloatArray, ...],
-    translations: list[FloatArray] | tuple[FloatArray, ...],
-    normals: list[FloatArray] | tuple[FloatArray, ...],
+    rotations: Sequence[npt.ArrayLike],
+    translations: Sequence[npt.ArrayLike],
+    normals: Sequence[npt.ArrayLike],
     K: FloatArray,
     points_km1_px: FloatArray,
     points_k_px: FloatArray,
@@ -172,15 +190,20 @@ def choose_decomposition(
     """Index of the physically valid solution of ``cv2.decomposeHomographyMat``.
 
     Keeps the solutions for which every reference point is in front of both cameras
-    (``cv2.filterHomographyDecompByVisibleRefpoints`` on normalised coordinates), then the one whose plane normal is closest to
-    ``expected_normal`` (the camera's down axis for a downward camera). When the translation is too small
-    for the normal to be observable, the solution with the smallest translation.
+    (``cv2.filterHomographyDecompByVisibleRefpoints`` on normalised coordinates), then the one whose
+    plane normal is closest to ``expected_normal`` (the camera's down axis for a downward camera).
+    When the translation is too small for the normal to be observable, the one with the smallest translation.
     """
     candidates = list(range(len(rotations)))
     K_inv = np.linalg.inv(K)
     m0 = (points_km1_px @ K_inv[:2, :2].T + K_inv[:2, 2]).astype(np.float32).reshape(-1, 1, 2)
     m1 = (points_k_px @ K_inv[:2, :2].T + K_inv[:2, 2]).astype(np.float32).reshape(-1, 1, 2)
-    visible = cv2.filterHomographyDecompByVisibleRefpoints(list(rotations), list(normals), m0, m1)
+    visible = cv2.filterHomographyDecompByVisibleRefpoints(
+        [np.asarray(r, dtype=np.float64) for r in rotations],
+        [np.asarray(n, dtype=np.float64) for n in normals],
+        m0,
+        m1,
+    )
     if visible is not None and len(visible) > 0:
         candidates = [int(i) for i in np.asarray(visible).ravel()]
     scores = [float(np.asarray(normals[i]).ravel() @ expected_normal) for i in candidates]
@@ -225,14 +248,55 @@ def decompose_with_known_normal(Hc: npt.ArrayLike, normal: npt.ArrayLike) -> tup
     return np.asarray(R, dtype=np.float64), np.asarray((H - R) @ n, dtype=np.float64)
 
 
+def level_motion_from_matches(
+    points_km1_px: npt.ArrayLike, points_k_px: npt.ArrayLike, K: npt.ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """``R_k_km1 = Rz(dpsi)`` and ``T/d`` between two level (rectified) views of the ground, by least squares.
+
+    For level cameras the plane normal is the optical axis ``e3`` and the rotation is about it, so the
+    calibrated homography ``R + (T/d) e3^T`` maps normalised points ``m -> (R2 m + t_xy) / (1 + t_z)``: a 2-D
+    similarity with scale ``s = 1 / (1 + t_z)`` and shift ``b = t_xy / (1 + t_z)``. Closed-form
+    (Umeyama) fit on the matches; ``t_z = 1/s - 1``, ``t_xy = b / s``.
+    """
+    Km = np.asarray(K, dtype=np.float64)
+    K_inv = np.linalg.inv(Km)
+    a = np.asarray(points_km1_px, dtype=np.float64) @ K_inv[:2, :2].T + K_inv[:2, 2]
+    b = np.asarray(points_k_px, dtype=np.float64) @ K_inv[:2, :2].T + K_inv[:2, 2]
+    if len(a) < 2:
+        raise VoError("a level-motion fit needs at least two matches")
+    mean_a = a.mean(axis=0)
+    mean_b = b.mean(axis=0)
+    a0 = a - mean_a
+    b0 = b - mean_b
+    var_a = float(np.sum(a0 * a0))
+    if var_a <= 1e-18:
+        raise VoError("matches are degenerate (all at one point)")
+    cross = b0.T @ a0  # sum b0 a0^T
+    # rotation angle maximising trace(R^T cross), scale = |.| / var_a
+    c = cross[0, 0] + cross[1, 1]
+    s_ = cross[1, 0] - cross[0, 1]
+    angle = math.atan2(s_, c)
+    scale = math.hypot(c, s_) / var_a
+    ca, sa = math.cos(angle), math.sin(angle)
+    R2 = np.array([[ca, -sa], [sa, ca]])
+    shift = mean_b - scale * (R2 @ mean_a)
+    t_over_d = np.array([shift[0] / scale, shift[1] / scale, 1.0 / scale - 1.0])
+    R = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
+    return R, t_over_d
+
+
 def estimate_relative_motion(
     prev: PreparedFrame,
     curr: PreparedFrame,
     K: npt.ArrayLike,
     settings: VoSettings,
     expected_normal: npt.ArrayLike = (0.0, 0.0, 1.0),
+    model: MotionModel = MotionModel.FREE,
 ) -> RelativeMotion:
-    """Rotation, ``T/d`` and plane normal between frames k-1 and k (paper C Algorithm 2)."""
+    """Rotation, ``T/d`` and plane normal between frames k-1 and k (paper C Algorithm 2).
+
+    ``model`` selects the free decomposition (any pair) or the level one (rectified pairs).
+    """
     Km = np.asarray(K, dtype=np.float64)
     p0, p1 = track_features(prev, curr, settings)
     if len(p0) < settings.min_inliers:
@@ -248,10 +312,15 @@ def estimate_relative_motion(
     H_ls, _ = cv2.findHomography(p0[keep], p1[keep], 0)
     if H_ls is not None and np.all(np.isfinite(H_ls)):
         H = H_ls
-    n_solutions, rotations, translations, normals = cv2.decomposeHomographyMat(H, Km)
     normal_ref = np.asarray(expected_normal, dtype=np.float64).reshape(3)
     normal_ref = normal_ref / np.linalg.norm(normal_ref)
-    if n_solutions == 1:
+    n_solutions, rotations, translations, normals = (
+        (0, (), (), ()) if model is MotionModel.LEVEL else cv2.decomposeHomographyMat(H, Km)
+    )
+    if model is MotionModel.LEVEL:
+        R, t_over_d = level_motion_from_matches(p0[keep], p1[keep], Km)
+        normal = np.array([0.0, 0.0, 1.0])
+    elif n_solutions == 1:
         # OpenCV reports a pure rotation when |H^T H - I| < 1e-3, i.e. for translations below about
         # 0.05 % of the altitude (2 mm per frame at 4 m); keep them with the expected normal.
         R, t_over_d = decompose_with_known_normal(calibrated_homography(H, Km), normal_ref)
