@@ -117,13 +117,24 @@ def camera_poses(
 ) -> tuple[FloatArray, FloatArray]:
     """``R_camera_world`` (P, 3, 3) and camera centres ``p_world_camera_m`` (P, 3) of particle states."""
     R_world_body = matrix_from_euler(states[:, 3], states[:, 4], states[:, 5])
-    R_world_camera = R_world_body @ R_body_camera
+    R_world_camera = np.einsum("pij,jk->pik", R_world_body, R_body_camera)
     return np.swapaxes(R_world_camera, 1, 2), states[:, :3].copy()
+
+
+def _rotate(matrices: Float32Array, columns: Float32Array) -> Float32Array:
+    """``matrices (P, 3, 3) @ columns (3, N)`` or ``(P, 3, N)`` -> (P, 3, N), on one thread.
+
+    ``einsum`` runs numpy's own loops; a BLAS matmul here would wake the BLAS thread pool, which on a busy
+    machine costs more CPU than the product itself (measured: 1.4 ms vs 0.4 ms for 1000 particles).
+    """
+    if columns.ndim == 2:
+        return np.asarray(np.einsum("pij,jn->pin", matrices, columns), dtype=np.float32)
+    return np.asarray(np.einsum("pij,pjn->pin", matrices, columns), dtype=np.float32)
 
 
 def front_facing_edges(samples: EdgeSamples, p_world_camera_m: FloatArray) -> BoolArray:
     """Back-face culling (P, E): an edge is kept when one of its adjacent faces faces the camera."""
-    front = p_world_camera_m @ samples.face_normals.T - samples.face_offsets_m[None, :] > 0.0
+    front = np.einsum("pi,fi->pf", p_world_camera_m, samples.face_normals) - samples.face_offsets_m > 0.0
     first = front[:, samples.edge_faces[:, 0]]
     second_ids = samples.edge_faces[:, 1]
     second = front[:, np.maximum(second_ids, 0)] & (second_ids >= 0)[None, :]
@@ -139,9 +150,8 @@ def frustum_edges(
 ) -> BoolArray:
     """Frustum culling (P, E) of each edge's bounding sphere against the near plane and the 4 image sides."""
     R32 = R_camera_world.astype(np.float32)
-    n_particles = R32.shape[0]
-    centres = (R32.reshape(-1, 3) @ samples.centres_world_m.T.astype(np.float32)).reshape(n_particles, 3, -1)
-    centres -= np.matmul(R32, p_world_camera_m.astype(np.float32)[:, :, None])
+    centres = _rotate(R32, samples.centres_world_m.T.astype(np.float32))  # (P, 3, E)
+    centres -= _rotate(R32, p_world_camera_m.astype(np.float32)[:, :, None])
     x, y, z = centres[:, 0], centres[:, 1], centres[:, 2]
     r = samples.radii_m.astype(np.float32)[None, :]
     # half-angle tangents of the four sides (pixel centres 0 .. width-1, half a pixel of margin); a sphere is
@@ -224,10 +234,10 @@ def project_samples(
     points = samples.points_world_m[edge_ids].reshape(-1, 3).T.astype(np.float32)  # (3, E' S)
     # K folded into the rotation: one matmul gives (u z, v z, z) of every point in every particle's camera
     K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
-    KR = (K @ R_camera_world).astype(np.float32)
-    Kt = -(KR.astype(np.float64) @ p_world_camera[:, :, None]).astype(np.float32)  # (P, 3, 1)
-    # one GEMM (3P x 3) @ (3 x E'S) instead of P small ones
-    homogeneous = (KR.reshape(-1, 3) @ points).reshape(n_particles, 3, -1)  # (P, 3, E' S)
+    KR64 = np.einsum("ij,pjk->pik", K, R_camera_world)
+    KR = KR64.astype(np.float32)
+    Kt = -np.einsum("pij,pj->pi", KR64, p_world_camera).astype(np.float32)[:, :, None]  # (P, 3, 1)
+    homogeneous = _rotate(KR, points)  # (P, 3, E' S)
     homogeneous += Kt
     z = homogeneous[:, 2]
     in_front = z > np.float32(near_m)
@@ -249,7 +259,7 @@ def project_samples(
     if with_normals:
         with np.errstate(all="ignore"):  # points behind the camera (masked) give nan normals
             R32 = R_camera_world.astype(np.float32)
-            directions = np.matmul(R32, samples.directions_world[edge_ids].T.astype(np.float32))  # (P, 3, E')
+            directions = _rotate(R32, samples.directions_world[edge_ids].T.astype(np.float32))  # (P, 3, E')
             dx = np.repeat(directions[:, 0], n_points, axis=1)
             dy = np.repeat(directions[:, 1], n_points, axis=1)
             dz = np.repeat(directions[:, 2], n_points, axis=1)
@@ -260,8 +270,8 @@ def project_samples(
             tan_v = (dy - y_n * dz) * np.float32(camera.fy)
             norm = np.hypot(tan_u, tan_v)
             norm = np.where(norm > 1e-9, norm, np.float32(1.0))
-            normal_u = (-tan_v / norm).reshape(shape)
-            normal_v = (tan_u / norm).reshape(shape)
+            normal_u = np.asarray((-tan_v / norm).reshape(shape), dtype=np.float32)
+            normal_v = np.asarray((tan_u / norm).reshape(shape), dtype=np.float32)
     return ProjectedSamples(
         u_px=u.reshape(shape),
         v_px=v.reshape(shape),

@@ -15,7 +15,7 @@ from typing import Any
 from services.report import print_table, write_json
 
 #: One line per benchmark.
-BENCH_MODULES: tuple[str, ...] = ()
+BENCH_MODULES: tuple[str, ...] = ("services.bench.localizer",)
 
 
 def _modules() -> list[ModuleType]:
