@@ -17,7 +17,7 @@ from services.report import write_json
 logger = logging.getLogger(__name__)
 
 #: One line per demo, in the order they run.
-DEMO_MODULES: tuple[str, ...] = ("services.demo_cluster", "services.demo_localizer")
+DEMO_MODULES: tuple[str, ...] = ("services.demo_cluster", "services.demo_localizer", "services.demo_yaw")
 
 
 def register(subparsers: Any) -> None:
