@@ -4,11 +4,14 @@ The texture is the paper's "large noise image, like a carpet": Gaussian noise wi
 spectrum (equal variance in every octave, so there is detail at every scale from the texel up to the
 texture size), synthesised in the Fourier domain from a seed, hence exactly periodic: the ground is an
 endless tiling of it and never runs out. Default: 4096 x 4096 texels of 2.5 mm (a 10.24 m tile), finer than
-the 2.66 mm a pixel of the default camera covers at 1 m.
+the 2.66 mm a pixel of the default camera covers at 1 m. The default camera's footprint (2 x 1.28 m per m of
+altitude) spans at most 9.5 m along a tile axis at 4 m, so no view up to 4.3 m altitude contains the same
+ground twice; above that the far edges of some views repeat.
 
 Rendering maps every pixel to the ground by the exact homography ``H_pixel_ground = K [r1 r2 t]``
 (``r1, r2`` the first two columns of ``R_camera_world``, ``t = -R_camera_world p_world_camera``) and samples
-the texture with ``cv2.warpPerspective`` (bilinear, wrapped). Anti-aliasing: a mip-map pyramid
+the texture with ``cv2.warpPerspective`` (bilinear) from a contiguous (wrapped) crop of the footprint,
+which keeps memory access local whatever the yaw. Anti-aliasing: a mip-map pyramid
 (``cv2.pyrDown`` on the periodic texture) and trilinear filtering: the level of detail is ``log2`` of the
 texels a pixel covers (largest singular value of the homography's Jacobian, the worst of the image centre
 and corners), the two bracketing levels are warped and blended. So the image stays band-limited at every
@@ -143,14 +146,36 @@ def _pyr_down_periodic(image: ImageU8) -> ImageU8:
     return np.ascontiguousarray(small[pad // 2 : pad // 2 + h, pad // 2 : pad // 2 + w])
 
 
+def _periodic_segments(start: int, length: int, period: int) -> list[tuple[int, int]]:
+    """Split ``[start, start + length)`` into contiguous ``(begin, end)`` pieces of ``[0, period)`` (mod period)."""
+    pieces = []
+    position = start % period
+    left = length
+    while left > 0:
+        take = min(left, period - position)
+        pieces.append((position, position + take))
+        left -= take
+        position = 0
+    return pieces
+
+
 def _crop_periodic(image: ImageU8, x0: int, y0: int, width: int, height: int) -> ImageU8:
     """Contiguous ``(height, width)`` window of a periodic image starting at column ``x0``, row ``y0``."""
     n_rows, n_cols = image.shape
-    if x0 >= 0 and x0 + width <= n_cols and y0 >= 0 and y0 + height <= n_rows:
-        return np.ascontiguousarray(image[y0 : y0 + height, x0 : x0 + width])
-    rows = np.arange(y0, y0 + height) % n_rows
-    cols = np.arange(x0, x0 + width) % n_cols
-    return np.ascontiguousarray(image[np.ix_(rows, cols)])
+    row_pieces = _periodic_segments(y0, height, n_rows)
+    col_pieces = _periodic_segments(x0, width, n_cols)
+    if len(row_pieces) == 1 and len(col_pieces) == 1:
+        (r0, r1), (c0, c1) = row_pieces[0], col_pieces[0]
+        return np.ascontiguousarray(image[r0:r1, c0:c1])
+    out = np.empty((height, width), dtype=image.dtype)
+    row = 0
+    for r0, r1 in row_pieces:
+        col = 0
+        for c0, c1 in col_pieces:
+            out[row : row + r1 - r0, col : col + c1 - c0] = image[r0:r1, c0:c1]
+            col += c1 - c0
+        row += r1 - r0
+    return out
 
 
 def check_camera_pose(

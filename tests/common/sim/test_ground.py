@@ -192,3 +192,12 @@ def test_bad_views_raise() -> None:
         make_ground_texture(size_px=1000)
     with pytest.raises(InputError):
         ground_texture_from_image(np.zeros((100, 100), np.uint8), 0.01)
+
+
+@given(st.integers(-3000, 3000), st.integers(-3000, 3000), st.integers(1, 300), st.integers(1, 300))
+def test_periodic_crop_matches_modular_indexing(x0: int, y0: int, width: int, height: int) -> None:
+    from common.sim.ground import _crop_periodic
+
+    image = (np.arange(64)[:, None] * 7 + np.arange(128)[None, :] * 3).astype(np.uint8)
+    expected = image[np.ix_(np.arange(y0, y0 + height) % 64, np.arange(x0, x0 + width) % 128)]
+    assert np.array_equal(_crop_periodic(image, x0, y0, width, height), expected)
