@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -131,12 +132,13 @@ def test_garbage_frames_raise_clear_errors(nadir_pair: PairMaker) -> None:
     settings = YawSettings()
     tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
     state = tracker.initial_state(a)
-    for bad, message in [
+    cases: list[tuple[Any, str]] = [
         (np.zeros((0, 0), dtype=np.uint8), "empty"),
         (b.astype(np.float32), "uint8"),
         (np.stack([b, b, b], axis=-1), r"\(H, W\)"),
         (b[:, :700], "shape"),
-    ]:
+    ]
+    for bad, message in cases:
         with pytest.raises(InputError, match=message):
             tracker.track(state, bad)
     with pytest.raises(InputError, match="same shape"):
