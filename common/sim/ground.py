@@ -147,7 +147,7 @@ def _pyr_down_periodic(image: ImageU8) -> ImageU8:
 
 
 def _periodic_segments(start: int, length: int, period: int) -> list[tuple[int, int]]:
-    """Split ``[start, start + length)`` into contiguous ``(begin, end)`` pieces of ``[0, period)`` (mod period)."""
+    """Split ``[start, start + length)`` (mod ``period``) into contiguous ``(begin, end)`` pieces."""
     pieces = []
     position = start % period
     left = length
