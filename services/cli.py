@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.foreman",
     "services.worker",
     "services.up",
+    "services.localizer",
 )
 
 

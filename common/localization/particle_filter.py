@@ -138,6 +138,24 @@ def pose_statistics(particles: FloatArray, weights: FloatArray) -> tuple[FloatAr
     return mean, 0.5 * (covariance + covariance.T)
 
 
+def euler_rate_matrix(euler_rad: FloatArray) -> FloatArray:
+    """``E`` (3, 3) with ``dtheta_world = E @ d(roll, pitch, yaw)``: how small changes of the ZYX Euler angles
+    of ``R_world_body`` rotate the body, as a world-frame rotation vector (columns: the roll axis
+    ``Rz Ry e_x``, the pitch axis ``Rz e_y``, the yaw axis ``e_z``)."""
+    _, pitch, yaw = euler_rad
+    cp, sp, cy, sy = np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+
+
+def covariance_with_world_error_angles(mean: FloatArray, covariance: FloatArray) -> FloatArray:
+    """6x6 covariance of ``(position, roll, pitch, yaw)`` mapped to ``(position, world-frame error angles)``
+    (``R_true = Exp(dtheta) R_estimate``), the convention of the ``PoseEstimate`` message."""
+    J = np.eye(6)
+    J[3:, 3:] = euler_rate_matrix(mean[3:])
+    mapped = J @ covariance @ J.T
+    return np.asarray(0.5 * (mapped + mapped.T))
+
+
 class ParticleFilter:
     """Particle filter against a known scene; holds only immutable precomputed data (no filter state)."""
 

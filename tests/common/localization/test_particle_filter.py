@@ -10,12 +10,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from common.errors import InputError
+from common.geometry import matrix_from_euler, quaternion_from_matrix, rotation_vector_from_quaternion
 from common.localization.baseline import weigh_per_particle
 from common.localization.model import SceneModel
 from common.localization.particle_filter import (
     ParticleFilter,
     ParticleFilterConfig,
     ParticleState,
+    covariance_with_world_error_angles,
+    euler_rate_matrix,
     low_variance_resample,
     normalise_log_weights,
     pose_statistics,
@@ -148,3 +151,22 @@ def test_short_flight_converges_from_the_initial_uncertainty(
     assert result.covariances.shape == (100, 6, 6)
     # the reported covariance shrinks as the filter converges
     assert np.trace(result.covariances[-1][:3, :3]) < 0.1 * np.trace(result.covariances[0][:3, :3])
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.tuples(st.floats(-1.0, 1.0), st.floats(-1.2, 1.2), st.floats(-3.1, 3.1)),
+    st.tuples(*(st.floats(-1.0, 1.0) for _ in range(3))),
+)
+def test_euler_rate_matrix_maps_small_euler_changes_to_world_rotation_vectors(
+    euler: tuple[float, float, float], direction: tuple[float, float, float]
+) -> None:
+    e = np.asarray(euler)
+    delta = 1e-6 * np.asarray(direction)
+    R0 = matrix_from_euler(*e)
+    R1 = matrix_from_euler(*(e + delta))
+    dtheta = rotation_vector_from_quaternion(quaternion_from_matrix(R1 @ R0.T))
+    assert np.allclose(dtheta, euler_rate_matrix(e) @ delta, atol=1e-11)
+    cov = covariance_with_world_error_angles(np.r_[0, 0, 0, e], np.diag([1.0, 2.0, 3.0, 1e-4, 2e-4, 3e-4]))
+    assert np.allclose(cov[:3, :3], np.diag([1.0, 2.0, 3.0]))
+    assert np.all(np.linalg.eigvalsh(cov) > 0.0)
