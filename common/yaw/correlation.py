@@ -279,13 +279,13 @@ def subpixel_peaks(
     # Wrap the integer peak to signed shifts.
     shift_x = np.where(px > width // 2, px - width, px) + sub_x
     shift_y = np.where(py > height // 2, py - height, py) + sub_y
-    # Second peak: the maximum outside a small square around the main peak (cyclic distances).
-    dist_y = np.abs((np.arange(height)[None, :] - py[:, None] + height // 2) % height - height // 2)
-    dist_x = np.abs((np.arange(width)[None, :] - px[:, None] + width // 2) % width - width // 2)
-    near = (dist_y[:, :, None] <= _SECOND_PEAK_EXCLUSION_PX) & (
-        dist_x[:, None, :] <= _SECOND_PEAK_EXCLUSION_PX
-    )
-    second = np.where(near, -np.inf, surfaces).reshape(n, -1).max(axis=1).astype(np.float64)
+    # Second peak: the maximum outside a small square around the main peak (cyclic).
+    masked = surfaces.copy()
+    offsets = np.arange(-_SECOND_PEAK_EXCLUSION_PX, _SECOND_PEAK_EXCLUSION_PX + 1)
+    near_y = ((py[:, None] + offsets[None, :]) % height)[:, :, None]
+    near_x = ((px[:, None] + offsets[None, :]) % width)[:, None, :]
+    masked[rows[:, None, None], near_y, near_x] = -np.inf
+    second = masked.reshape(n, -1).max(axis=1).astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(second > tiny, c0 / np.maximum(second, tiny), np.where(c0 > tiny, np.inf, 0.0))
     return np.stack([shift_x, shift_y], axis=1), c0, ratio

@@ -154,20 +154,14 @@ def _conclude_pair(
     previous_spectra: PatchSpectra | None,
     check_global: bool,
 ) -> _PairResult:
-    if _frame_is_flat(previous_frame) or _frame_is_flat(frame_u8):
-        logger.debug("flat frame: no yaw")
-        return _PairResult(
-            np.eye(3),
-            EstimateMethod.NONE,
-            fit_correspondences(np.zeros((0, 2)), np.zeros((0, 2)), settings),
-            measurement,
-            True,
-        )
     fit = _fit_measurement(grid, measurement, settings)
     good = _fit_is_good(fit, measurement, settings)
     if good and not check_global:
         low = fit.residual_px > settings.max_residual_px
         return _PairResult(fit.homography, EstimateMethod.PATCHES, fit, measurement, low)
+    if _frame_is_flat(previous_frame) or _frame_is_flat(frame_u8):
+        logger.debug("flat frame: no yaw")
+        return _PairResult(np.eye(3), EstimateMethod.NONE, fit, measurement, True)
     alignment = estimate_global_alignment(previous_frame, frame_u8, settings)
     if good and alignment.response < _MIN_GLOBAL_RESPONSE:
         return _PairResult(
