@@ -65,6 +65,7 @@ class ParticleFilterConfig:
     init_position_spread_m: float = 0.5
     init_angle_spread_rad: float = float(np.radians(10.0))
     near_m: float = NEAR_PLANE_M
+    chunk_particles: int = 256
     R_body_camera: FloatArray = field(default_factory=lambda: R_BODY_CAMERA_FORWARD.copy())
 
     def __post_init__(self) -> None:
@@ -233,17 +234,34 @@ class ParticleFilter:
     def score(
         self, particles: FloatArray, edges: ImageEdges, scoring: ScoringParams | None = None
     ) -> ScoreResult:
-        """Project and score every particle at once (the vectorised weighting step without the update)."""
+        """Project and score every particle at once (the vectorised weighting step without the update).
+
+        Particles go through in blocks of ``chunk_particles`` so that the (particles x points) temporaries
+        stay in the CPU cache; the scores do not depend on the blocking.
+        """
         params = scoring or self.config.scoring
-        projected = project_samples(
-            self.samples,
-            particles,
-            self.camera,
-            self.config.R_body_camera,
-            self.config.near_m,
-            with_normals=params.method is ScoringMethod.NEAREST_EDGE,
+        chunk = max(1, self.config.chunk_particles)
+        results = [
+            score_particles(
+                project_samples(
+                    self.samples,
+                    particles[start : start + chunk],
+                    self.camera,
+                    self.config.R_body_camera,
+                    self.config.near_m,
+                    with_normals=params.method is ScoringMethod.NEAREST_EDGE,
+                ),
+                edges,
+                params,
+            )
+            for start in range(0, particles.shape[0], chunk)
+        ]
+        if len(results) == 1:
+            return results[0]
+        return ScoreResult(
+            log_weight=np.concatenate([r.log_weight for r in results]),
+            fit=np.concatenate([r.fit for r in results]),
         )
-        return score_particles(projected, edges, params)
 
     def weigh(self, state: ParticleState, edges: ImageEdges) -> tuple[ParticleState, ScoreResult]:
         """One full weighting step: project, score, multiply into the weights (log domain), normalise."""

@@ -165,6 +165,17 @@ def normal_search_distances(
     return distance
 
 
+def per_edge_sum(values: npt.NDArray[np.bool_] | Float32Array) -> Float32Array:
+    """Sum over each edge's sample points (last axis): (P, E, S) -> (P, E) float32.
+
+    ``einsum`` is about 5x faster than ``sum(axis=2)`` over such a short last axis; booleans are summed
+    through a uint8 view (exact while S < 256).
+    """
+    if values.dtype == np.bool_ and values.shape[-1] < 256:
+        return np.einsum("pes->pe", values.view(np.uint8)).astype(np.float32)
+    return np.asarray(np.einsum("pes->pe", values.astype(np.float32, copy=False)), dtype=np.float32)
+
+
 def normal_weight(distance_px: Float32Array, sigma_px: float, max_normal_px: float) -> Float32Array:
     """Weight of one normal, paper B method 3: ``g(d) = exp(-d^2 / (2 sigma^2))``; normals longer than the
     maximum length are dropped (weight 0)."""
@@ -198,8 +209,8 @@ def nearest_edge_log_weight(
     """Paper B method 3 (nearest edge): per line ``l_n = sum_i g(d_i) / S`` over its S visible sample points,
     ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Returns (log W, mean l) per particle.
     ``normal_weights`` must be 0 at invalid points."""
-    s = valid.sum(axis=2, dtype=np.float32)
-    g_sum = normal_weights.sum(axis=2, dtype=np.float32)
+    s = per_edge_sum(valid)
+    g_sum = per_edge_sum(normal_weights)
     seen = s > 0
     lines = np.where(seen, g_sum / np.maximum(s, np.float32(1.0)), np.float32(0.0))
     m = np.maximum(seen.sum(axis=1), 1)
@@ -221,10 +232,10 @@ def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: Scor
         return ScoreResult(log_weight=log_w, fit=mean_l)
     aligned = distance <= np.float32(params.align_px)  # invalid points have distance inf
     if method is ScoringMethod.KLEIN_MURRAY:
-        a = aligned.sum(axis=(1, 2), dtype=np.float64)
-        v = valid.sum(axis=(1, 2), dtype=np.float64)
+        a = per_edge_sum(aligned).sum(axis=1, dtype=np.float64)
+        v = per_edge_sum(valid).sum(axis=1, dtype=np.float64)
         return ScoreResult(log_weight=klein_murray_log_weight(a, v, params.k), fit=a / np.maximum(v, 1.0))
-    a_j = aligned.sum(axis=2, dtype=np.float64)
-    v_j = valid.sum(axis=2, dtype=np.float64)
+    a_j = per_edge_sum(aligned).astype(np.float64)
+    v_j = per_edge_sum(valid).astype(np.float64)
     log_w = per_edge_log_weight(a_j, v_j, params.k, params.lambda_per_edge)
     return ScoreResult(log_weight=log_w, fit=a_j.sum(axis=1) / np.maximum(v_j.sum(axis=1), 1.0))
