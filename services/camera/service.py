@@ -45,6 +45,8 @@ class CameraSettings(BaseModel):
     height: int = 480
     sensors: bool = True
     in_flight: int = Field(default=0, ge=0)
+    #: read every image of ``images`` before publishing
+    preload: bool = False
     #: wait this long for a master before the first frame (0 = do not wait)
     wait_master_s: float = Field(default=10.0, ge=0.0)
     #: give up waiting for a yaw after this long (flow control only)
@@ -91,6 +93,9 @@ class CameraService(ServiceRuntime):
         self.finished = threading.Event()
         self._entities: list[Any] = []
         self._masters = threading.Event()
+        self._preloaded: list[np.ndarray] | None = None
+        if settings.images is not None and settings.preload:
+            self._preloaded = list(self._images())
 
     def start(self, session: zenoh.Session) -> None:
         self._pub: dict[str, dict[str, Any]] = {}
@@ -125,14 +130,22 @@ class CameraService(ServiceRuntime):
             for i in range(self.flight.n_frames):
                 yield i, float(self.flight.frame_stamps_s[i]), self.flight.frame(i)
             return
-        assert self.settings.images is not None
         period = 1.0 / self.settings.fps if self.settings.fps else 0.05
-        for i, path in enumerate(_image_files(self.settings.images)):
+        for i, image in enumerate(self._images()):
+            yield i, i * period, image
+
+    def _images(self) -> Iterator[np.ndarray]:
+        """Images of the folder, read lazily, or all at once (``preload``) so reading costs no frame time."""
+        if self._preloaded is not None:
+            yield from self._preloaded
+            return
+        assert self.settings.images is not None
+        for path in _image_files(self.settings.images):
             image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
             if image is None:
                 self.count_error("bad_images", "cannot read image", str(path))
                 continue
-            yield i, i * period, image
+            yield image
 
     def _put(self, uav: str, topic: str, message: Any) -> None:
         payload, attachment = encode(message)
@@ -239,6 +252,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--fps", type=float, default=20.0, help="frames per second (0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="replay forever")
     parser.add_argument("--images", type=Path, help="publish a folder of images instead of a simulation")
+    parser.add_argument("--preload", action="store_true", help="read all --images before publishing")
     parser.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
     parser.add_argument("--no-sensors", action="store_true", help="frames only (no IMU / rangefinder)")
     parser.add_argument(
@@ -266,6 +280,7 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
         sensors=not args.no_sensors,
         in_flight=args.in_flight,
         wait_master_s=args.wait_master,
+        preload=args.preload,
     )
 
 

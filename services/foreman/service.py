@@ -201,7 +201,10 @@ class ForemanService(ServiceRuntime):
             compute_self=compute_self,
         )
         plan = self.dispatcher.plan(job.seq, job.prev_seq, time.monotonic(), job.indices)
+        t_plan = time.perf_counter()
         report = self.scatter.run(work, plan)
+        self.counters.time_ms("prepare", (t_plan - t0) * 1e3)
+        self.counters.time_ms("round", (time.perf_counter() - t_plan) * 1e3)
         self.crops_prev.add(job.stream, job.seq, job.indices, job.crops)
         measurement = merge_measurements(report.parts, job.indices)
         elapsed = time.perf_counter() - t0

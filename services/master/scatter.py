@@ -101,7 +101,8 @@ class Scatter:
         with self._lock:
             rid = self._next_id
             self._next_id += 1
-        job = self.job_type(
+        # built from our own validated data: skip re-validation here, the receiver validates at its boundary
+        job = self.job_type.model_construct(
             stream=work.stream,
             seq=work.seq,
             prev_seq=work.prev_seq,
@@ -179,7 +180,9 @@ class Scatter:
             )
             dispatch(self.dispatcher.redistribute(request.indices, failed, time.monotonic(), work.prev_seq))
 
+        t_send = time.perf_counter()
         dispatch(plan)
+        self.counters.time_ms("send", (time.perf_counter() - t_send) * 1e3)
         while pending or self_queue:
             while self_queue:
                 indices, moved = self_queue.pop(0)
@@ -290,8 +293,12 @@ def result_from_measurement(
     members: dict[str, int],
     speeds: dict[str, float],
 ) -> PatchResult:
-    """The reply message for a job from its measurement (shared by workers and foremen)."""
-    return result_type(
+    """The reply message for a job from its measurement (shared by workers and foremen).
+
+    Built without re-validation (the arrays come from the core with the wire dtypes); the receiver
+    validates at its boundary.
+    """
+    return result_type.model_construct(
         stream=job.stream,
         seq=job.seq,
         prev_seq=job.prev_seq,

@@ -1,0 +1,307 @@
+"""Paper A's comparison on a local heterogeneous cluster: in-process vs master-worker vs master-foreman-worker.
+
+Workload: simulated hover frames at 1920x1080 with a 12x9 grid of 64 px patches (108 patches) at pyramid
+level 1, pre-rendered once and replayed by the camera (``--images --preload``) in lock-step (one frame in
+flight), so every configuration sees the same frames and none is dropped. Heterogeneous cluster: host
+``a`` = one worker pinned to core 0, host ``b`` = four workers sharing core 1 (``taskset``). Shared memory
+is off by default so the numbers stand for separate hosts. Per frame the master's own time (frame in ->
+yaw out) is measured; the in-process baseline is ``YawTracker.track`` on the same frames.
+
+A second, small measurement gives the transport overhead at 752x480 (40 patches): the median master time
+of the local master-foreman-worker path (2 foremen x 2 workers) minus the in-process median.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from common.yaw import YawSettings, YawTracker, make_patch_grid
+from services.camera import CameraSettings, simulated_flight
+from services.demo_cluster import run_cluster_flight
+from services.up import ClusterSpec, HostSpec
+
+NAME = "cluster"
+logger = logging.getLogger(__name__)
+
+BIG_GRID = ("12x9", 64, 1)  # grid, patch size, pyramid level -> 108 patches of 64 px at 960x540
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=int, default=60, help="frames per configuration (after warm-up)")
+    parser.add_argument("--warmup", type=int, default=10, help="frames excluded from the statistics")
+    parser.add_argument("--resolution", default="1920x1080", help="frame size WIDTHxHEIGHT")
+    parser.add_argument("--shm", action="store_true", help="zenoh shared memory on (same-host numbers)")
+    parser.add_argument("--overhead-frames", type=int, default=200, help="frames of the 752x480 overhead run")
+
+
+def heterogeneous(topology: str, balance: str) -> ClusterSpec:
+    return ClusterSpec(
+        name=f"{topology}-{balance}",
+        topology=topology,  # type: ignore[arg-type]
+        balance=balance,  # type: ignore[arg-type]
+        hosts=(HostSpec(name="a", workers=1, cpus="0"), HostSpec(name="b", workers=4, cpus="1")),
+    )
+
+
+def _yaw_settings(grid: str, patch: int, level: int) -> YawSettings:
+    cols, rows = (int(v) for v in grid.split("x"))
+    return YawSettings(grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level)
+
+
+def in_process_ms(
+    frames: list[np.ndarray], settings: YawSettings, warmup: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame ms of the in-process tracker and its yaw (frame 0 = 0)."""
+    tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
+    state = tracker.initial_state(frames[0])
+    times, yaw = [], [0.0]
+    for frame in frames[1:]:
+        t0 = time.perf_counter()
+        state, estimate = tracker.track(state, frame)
+        times.append((time.perf_counter() - t0) * 1e3)
+        yaw.append(estimate.yaw_rad)
+    return np.array(times[warmup:]), np.array(yaw)
+
+
+def _stats(ms: np.ndarray) -> dict[str, float]:
+    return {
+        "median_ms": float(np.median(ms)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "mean_ms": float(np.mean(ms)),
+    }
+
+
+def shares_and_speeds(estimates: dict[int, Any], last: int = 20) -> dict[str, dict[str, float]]:
+    """Mean share of the top-level members over the last frames, and their mean measured speed (patches/s)."""
+    seqs = sorted(s for s, e in estimates.items() if e.patch_count)[-last:]
+    members = sorted({m for s in seqs for m in estimates[s].members if ">" not in m})
+    out: dict[str, dict[str, float]] = {}
+    for member in members:
+        share = np.mean([estimates[s].members.get(member, 0) / estimates[s].patch_count for s in seqs])
+        speeds = [
+            estimates[s].timings_ms[f"speed:{member}"]
+            for s in seqs
+            if f"speed:{member}" in estimates[s].timings_ms
+        ]
+        out[member] = {
+            "share": float(share),
+            "speed_patches_s": float(np.mean(speeds)) if speeds else float("nan"),
+        }
+    return out
+
+
+def _rounded(members: dict[str, dict[str, float]]) -> dict[str, float]:
+    return {m: round(v["share"], 3) for m, v in members.items()}
+
+
+def share_speed_error(members: dict[str, dict[str, float]]) -> float:
+    """max over members of |share - speed / sum(speeds)| / (speed / sum(speeds))."""
+    speeds = np.array([m["speed_patches_s"] for m in members.values()])
+    shares = np.array([m["share"] for m in members.values()])
+    if not np.all(np.isfinite(speeds)) or speeds.sum() <= 0:
+        return float("nan")
+    ideal = speeds / speeds.sum()
+    return float(np.max(np.abs(shares - ideal) / ideal))
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    out_dir = Path(args.out)
+    width, height = (int(v) for v in args.resolution.lower().split("x"))
+    n = args.frames + args.warmup + 1
+    frame_dir = out_dir / "cluster_frames"
+    frame_dir.mkdir(parents=True, exist_ok=True)
+    flight = simulated_flight(CameraSettings(width=width, height=height, frames=max(n, 2)))
+    frames = [flight.frame(i) for i in range(n)]
+    for old in frame_dir.glob("*.pgm"):
+        old.unlink()
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
+    grid, patch, level = BIG_GRID
+    settings = _yaw_settings(grid, patch, level)
+    seq_ms, seq_yaw = in_process_ms(frames, settings, args.warmup)
+    sequential = _stats(seq_ms)
+    print(f"in-process sequential: median {sequential['median_ms']:.1f} ms/frame", flush=True)
+    master_args = ("--grid", grid, "--patch-size", str(patch), "--pyramid-level", str(level))
+    camera_args = ("--images", str(frame_dir), "--preload", "--no-sensors")
+    configs: list[dict[str, Any]] = [
+        {
+            "name": "in-process sequential",
+            "topology": "sequential",
+            "balance": "-",
+            **sequential,
+            "fps": 1e3 / sequential["mean_ms"],
+            "speedup": 1.0,
+            "frames_lost": 0,
+            "shares": {},
+            "max_yaw_diff_deg": 0.0,
+        },
+    ]
+    frames_lost = 0
+    for topology in ("master-worker", "master-foreman-worker"):
+        for balance in ("none", "time"):
+            spec = heterogeneous(topology, balance)
+            estimates, wall_s, _codes = run_cluster_flight(
+                spec,
+                n,
+                out_dir / "cluster_logs" / spec.name,
+                fps=0.0,
+                in_flight=1,
+                master_args=master_args,
+                camera_args=camera_args,
+                progress=False,
+                shared_memory=args.shm,
+            )
+            lost = n - len(estimates)
+            frames_lost += lost
+            ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > args.warmup])
+            stats = (
+                _stats(ms)
+                if ms.size
+                else {"median_ms": float("nan"), "p99_ms": float("nan"), "mean_ms": float("nan")}
+            )
+            members = shares_and_speeds(estimates)
+            yaw = np.array([estimates[s].yaw_rad if s in estimates else np.nan for s in range(n)])
+            row = {
+                "name": f"{topology} / {balance}",
+                "topology": topology,
+                "balance": balance,
+                **stats,
+                "fps": len(estimates) / wall_s if wall_s > 0 else float("nan"),
+                "speedup": sequential["median_ms"] / stats["median_ms"],
+                "frames_lost": lost,
+                "shares": members,
+                "share_speed_error": share_speed_error(members),
+                "max_yaw_diff_deg": float(np.nanmax(np.degrees(np.abs(yaw - seq_yaw)))),
+            }
+            configs.append(row)
+            print(
+                f"{row['name']}: median {row['median_ms']:.1f} ms, p99 {row['p99_ms']:.1f} ms, "
+                f"speedup {row['speedup']:.2f}, shares {_rounded(members)}",
+                flush=True,
+            )
+
+    by = {(c["topology"], c["balance"]): c for c in configs}
+    gain_mfw = (
+        by[("master-foreman-worker", "none")]["median_ms"]
+        / by[("master-foreman-worker", "time")]["median_ms"]
+    )
+    gain_mw = by[("master-worker", "none")]["median_ms"] / by[("master-worker", "time")]["median_ms"]
+    overhead = overhead_752x480(out_dir, args.overhead_frames, args.shm)
+    result = {
+        "workload": {
+            "resolution": f"{width}x{height}",
+            "patches": settings.grid_cols * settings.grid_rows,
+            "patch_size_px": patch,
+            "pyramid_level": level,
+            "frames": args.frames,
+            "warmup": args.warmup,
+            "shared_memory": bool(args.shm),
+            "hosts": "a: 1 worker on core 0; b: 4 workers sharing core 1",
+        },
+        "configs": configs,
+        "frames_lost": frames_lost,
+        "balance_gain": gain_mfw,
+        "balance_gain_master_worker": gain_mw,
+        "overhead_752x480": overhead,
+    }
+    result["table"] = [
+        {
+            "config": c["name"],
+            "median_ms": c["median_ms"],
+            "p99_ms": c["p99_ms"],
+            "fps": c["fps"],
+            "speedup": c["speedup"],
+            "lost": c["frames_lost"],
+            "share_err": c.get("share_speed_error", float("nan")),
+            "max_dyaw_deg": c["max_yaw_diff_deg"],
+        }
+        for c in configs
+    ]
+    result["table"].append({"config": "balance gain (MFW none/time)", "median_ms": gain_mfw})
+    result["table"].append({"config": "balance gain (MW none/time)", "median_ms": gain_mw})
+    result["table"].append(
+        {"config": "752x480 overhead ms (MFW - in-process)", "median_ms": overhead["overhead_ms"]}
+    )
+    result["plot"] = str(plot(out_dir / "cluster.png", configs, gain_mfw))
+    return result
+
+
+def overhead_752x480(out_dir: Path, n_frames: int, shm: bool) -> dict[str, float]:
+    """Median master time of the local 2x2 master-foreman-worker path minus the in-process median."""
+    settings = YawSettings()
+    flight = simulated_flight(CameraSettings(frames=n_frames))
+    frames = [flight.frame(i) for i in range(n_frames)]
+    frame_dir = out_dir / "cluster_frames_752"
+    frame_dir.mkdir(parents=True, exist_ok=True)
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
+    warmup = 10
+    seq_ms, _ = in_process_ms(frames, settings, warmup)
+    spec = ClusterSpec(
+        name="local2x2", hosts=(HostSpec(name="h1", workers=2), HostSpec(name="h2", workers=2))
+    )
+    estimates, _wall, _codes = run_cluster_flight(
+        spec,
+        n_frames,
+        out_dir / "cluster_logs" / "overhead",
+        fps=0.0,
+        in_flight=1,
+        camera_args=("--images", str(frame_dir), "--preload", "--no-sensors"),
+        progress=False,
+        shared_memory=shm,
+    )
+    ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > warmup])
+    in_process = float(np.median(seq_ms))
+    cluster = float(np.median(ms)) if ms.size else float("nan")
+    print(f"752x480: in-process {in_process:.2f} ms, cluster (MFW 2x2) {cluster:.2f} ms", flush=True)
+    return {
+        "in_process_median_ms": in_process,
+        "cluster_median_ms": cluster,
+        "overhead_ms": cluster - in_process,
+        "frames": n_frames,
+        "frames_lost": n_frames - len(estimates),
+    }
+
+
+def plot(path: Path, configs: list[dict[str, Any]], gain: float) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_time, ax_share) = plt.subplots(1, 2, figsize=(13, 4.8))
+    names = [c["name"].replace(" / ", "\n") for c in configs]
+    x = np.arange(len(configs))
+    ax_time.bar(x - 0.2, [c["median_ms"] for c in configs], 0.4, label="median")
+    ax_time.bar(x + 0.2, [c["p99_ms"] for c in configs], 0.4, label="p99")
+    for xi, c in zip(x, configs, strict=True):
+        ax_time.text(xi, c["p99_ms"], f"x{c['speedup']:.2f}", ha="center", va="bottom", fontsize=8)
+    ax_time.set_xticks(x, names, fontsize=7)
+    ax_time.set_ylabel("ms per frame")
+    ax_time.set_title(f"time per frame (speedup vs sequential); balance gain MFW {gain:.2f}x")
+    ax_time.legend()
+    cluster = [c for c in configs if c["shares"]]
+    bottom = np.zeros(len(cluster))
+    members = sorted({m for c in cluster for m in c["shares"]})
+    for member in members:
+        values = np.array([c["shares"].get(member, {}).get("share", 0.0) for c in cluster])
+        ax_share.bar(np.arange(len(cluster)), values, bottom=bottom, label=member)
+        bottom += values
+    ax_share.set_xticks(
+        np.arange(len(cluster)), [c["name"].replace(" / ", "\n") for c in cluster], fontsize=7
+    )
+    ax_share.set_ylabel("share of patches")
+    ax_share.set_title("shares per member (mean of the last 20 frames)")
+    ax_share.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
