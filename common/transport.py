@@ -37,7 +37,7 @@ from common.messages import Health, Stats, WireError, WireModel, decode, encode,
 logger = logging.getLogger(__name__)
 
 ENV_PREFIX = "CAPATAZ_ZENOH_"
-#: GIL switch interval of service processes (ZENOH.md: 10.7 ms -> 1.2 ms request latency next to a busy thread)
+#: GIL switch interval of services (ZENOH.md: 10.7 ms -> 1.2 ms request latency next to a busy thread)
 SWITCH_INTERVAL_S = 0.0005
 T = TypeVar("T")
 M = TypeVar("M", bound=WireModel)

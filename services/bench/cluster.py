@@ -1,4 +1,5 @@
-"""Paper A's comparison on a local heterogeneous cluster: in-process vs master-worker vs master-foreman-worker.
+"""Paper A's comparison on a heterogeneous local cluster:
+in-process vs master-worker vs master-foreman-worker.
 
 Workload: simulated hover frames at 1920x1080 with a 12x9 grid of 64 px patches (108 patches) at pyramid
 level 1, pre-rendered once and replayed by the camera (``--images --preload``) in lock-step (one frame in
