@@ -47,7 +47,7 @@ class TimeOrderedBuffer(Generic[T]):
             raise InputError(f"max_items must be >= 1, got {max_items}")
         self.max_lag_s = float(max_lag_s)
         self.max_items = int(max_items)
-        self._heap: list[tuple[float, int, str, T]] = []
+        self._heap: list[tuple[float, int, int, str, T]] = []
         self._pending: set[tuple[str, float]] = set()
         self._order = itertools.count()
         self._released_until_s = -math.inf
@@ -62,8 +62,11 @@ class TimeOrderedBuffer(Generic[T]):
         """Stamp of the last released sample (``-inf`` before the first)."""
         return self._released_until_s
 
-    def push(self, stamp_s: float, sensor: str, item: T) -> Refusal | None:
-        """Queue a sample; returns ``None`` when accepted, else why it was refused."""
+    def push(self, stamp_s: float, sensor: str, item: T, rank: int = 0) -> Refusal | None:
+        """Queue a sample; returns ``None`` when accepted, else why it was refused.
+
+        Samples with equal stamps are released by ``rank`` (lower first), then in arrival order.
+        """
         if not math.isfinite(stamp_s):
             raise InputError(f"stamp_s must be finite, got {stamp_s}")
         if stamp_s < self._released_until_s:
@@ -73,7 +76,7 @@ class TimeOrderedBuffer(Generic[T]):
             return Refusal.DUPLICATE
         if len(self._heap) >= self.max_items:
             return Refusal.OVERFLOW
-        heapq.heappush(self._heap, (stamp_s, next(self._order), sensor, item))
+        heapq.heappush(self._heap, (stamp_s, int(rank), next(self._order), sensor, item))
         self._pending.add(key)
         self._newest_s = max(self._newest_s, stamp_s)
         return None
@@ -89,7 +92,7 @@ class TimeOrderedBuffer(Generic[T]):
     def _release(self, until_s: float) -> list[Timed[T]]:
         out: list[Timed[T]] = []
         while self._heap and self._heap[0][0] <= until_s:
-            stamp_s, _, sensor, item = heapq.heappop(self._heap)
+            stamp_s, _, _, sensor, item = heapq.heappop(self._heap)
             self._pending.discard((sensor, stamp_s))
             self._released_until_s = stamp_s
             self._last_released[sensor] = stamp_s

@@ -170,6 +170,8 @@ class CouplingSettings:
     #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
     initial_yaw_rad: float = 0.0
     initial_position_m: tuple[float, float] = (0.0, 0.0)
+    #: Known initial attitude ``q_world_body`` (else roll and pitch from the first accelerometer sample).
+    initial_q_world_body: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -276,7 +278,7 @@ class DoubleCouplingEstimator:
                 self.counters["refused_camera_stale"] += 1
                 return Refusal.STALE
             self._latest_frame_stamp_s = measurement.stamp_s
-        refusal = self.buffer.push(measurement.stamp_s, sensor.value, measurement)
+        refusal = self.buffer.push(measurement.stamp_s, sensor.value, measurement, _RANK[sensor])
         if refusal is not None:
             self.counters[f"refused_{sensor.value}_{refusal.value}"] += 1
         return refusal
@@ -316,9 +318,15 @@ class DoubleCouplingEstimator:
         roll = math.atan2(ay, az)
         pitch = math.atan2(-ax, math.hypot(ay, az))
         q = quaternion_from_euler(roll, pitch, self.settings.initial_yaw_rad)
+        if self.settings.initial_q_world_body is not None:
+            q = np.asarray(self.settings.initial_q_world_body, dtype=np.float64)
         if self._last_range_m is not None:
-            pz = self._last_range_m * math.cos(roll) * math.cos(pitch)
-            state = self.ekf.initial_state(q, pz, m.stamp_s)
+            R33 = float(matrix_from_quaternion(q)[2, 2])
+            state = self.ekf.initial_state(q, self._last_range_m * R33, m.stamp_s)
+            P = state.covariance.copy()
+            P[4, 4] = self.ekf.settings.range_noise_m**2
+            state = EkfState(state.q_world_body, state.pz_m, P, state.stamp_s)
+            self._altitude_from_range = True
         else:
             state = self.ekf.initial_state(q, self.settings.default_altitude_m, m.stamp_s)
             P = state.covariance.copy()
@@ -487,6 +495,10 @@ class DoubleCouplingEstimator:
 
     def attitude_matrix(self) -> FloatArray | None:
         return None if self.state is None else matrix_from_quaternion(self.state.q_world_body)
+
+
+#: Application order of samples with equal stamps: the range first (it initialises the altitude).
+_RANK = {Sensor.RANGE: 0, Sensor.IMU: 1, Sensor.YAW: 2, Sensor.CAMERA: 3}
 
 
 def _sensor_of(measurement: Measurement) -> Sensor:

@@ -1,0 +1,156 @@
+"""Replay a simulated flight through the estimator: its sensor series as one stamp-ordered stream.
+
+Shared by the tests, ``capataz bench estimator``, the demo and the service's simulated publisher. Frames
+are rendered lazily, one at a time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from common.estimation.coupling import (
+    AttitudeOutput,
+    CameraModel,
+    DoubleCouplingEstimator,
+    FrameMeasurement,
+    ImuMeasurement,
+    Measurement,
+    PoseOutput,
+    RangeMeasurement,
+)
+from common.geometry import euler_from_quaternion, wrap_angle_rad
+from common.sim.flight import Flight
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Order of sensors that share a stamp: range first (it initialises the altitude), then IMU, then camera.
+_RANGE, _IMU, _CAMERA = 0, 1, 2
+
+
+def camera_model_of(flight: Flight) -> CameraModel:
+    """The estimator's camera model for a simulated flight."""
+    cam = flight.camera
+    return CameraModel(K=cam.K, width=cam.width, height=cam.height, R_body_camera=flight.R_body_camera)
+
+
+def flight_measurements(
+    flight: Flight, start_frame: int = 0, stop_frame: int | None = None
+) -> Iterator[Measurement]:
+    """IMU, range and camera samples of frames ``[start_frame, stop_frame)`` and between, in stamp order."""
+    stop = flight.n_frames if stop_frame is None else min(int(stop_frame), flight.n_frames)
+    t0 = float(flight.frame_stamps_s[start_frame])
+    t1 = float(flight.frame_stamps_s[stop - 1])
+    events: list[tuple[float, int, int]] = []
+    imu, rng = flight.imu, flight.range
+    for i in np.flatnonzero((imu.stamps_s >= t0 - 1e-9) & (imu.stamps_s <= t1 + 1e-9)).tolist():
+        events.append((float(imu.stamps_s[i]), _IMU, i))
+    for i in np.flatnonzero((rng.stamps_s >= t0 - 1e-9) & (rng.stamps_s <= t1 + 1e-9)).tolist():
+        events.append((float(rng.stamps_s[i]), _RANGE, i))
+    for i in range(start_frame, stop):
+        events.append((float(flight.frame_stamps_s[i]), _CAMERA, i))
+    events.sort()
+    for stamp, kind, i in events:
+        if kind == _IMU:
+            yield ImuMeasurement(stamp, imu.gyro_rad_s[i], imu.accel_m_s2[i])
+        elif kind == _RANGE:
+            yield RangeMeasurement(stamp, float(rng.range_m[i]))
+        else:
+            yield FrameMeasurement(stamp, flight.frame(i))
+
+
+@dataclass(frozen=True)
+class EstimatorRun:
+    """Outputs of one run, as arrays."""
+
+    attitude_stamps_s: FloatArray
+    q_world_body: FloatArray  # (M, 4)
+    pz_m: FloatArray
+    pose_stamps_s: FloatArray
+    p_world_body_m: FloatArray  # (N, 3)
+    vo_yaw_rad: FloatArray
+    vo_ms: FloatArray
+
+
+def collect(outputs: list[AttitudeOutput | PoseOutput]) -> EstimatorRun:
+    """Stack the outputs of an estimator into arrays."""
+    att = [o for o in outputs if isinstance(o, AttitudeOutput)]
+    pos = [o for o in outputs if isinstance(o, PoseOutput)]
+    return EstimatorRun(
+        attitude_stamps_s=np.array([o.stamp_s for o in att]),
+        q_world_body=np.array([o.q_world_body for o in att]).reshape(-1, 4),
+        pz_m=np.array([o.pz_m for o in att]),
+        pose_stamps_s=np.array([o.stamp_s for o in pos]),
+        p_world_body_m=np.array([o.p_world_body_m for o in pos]).reshape(-1, 3),
+        vo_yaw_rad=np.array([o.vo_yaw_rad for o in pos]),
+        vo_ms=np.array([o.vo_ms for o in pos]),
+    )
+
+
+def run_estimators(
+    estimators: dict[str, DoubleCouplingEstimator], measurements: Iterator[Measurement]
+) -> dict[str, EstimatorRun]:
+    """Feed the same stream to several estimators (frames are rendered once) and collect their outputs."""
+    outputs: dict[str, list[AttitudeOutput | PoseOutput]] = {name: [] for name in estimators}
+    for m in measurements:
+        for name, estimator in estimators.items():
+            estimator.push(m)
+            outputs[name].extend(estimator.process_due())
+    for name, estimator in estimators.items():
+        outputs[name].extend(estimator.drain())
+    return {name: collect(out) for name, out in outputs.items()}
+
+
+@dataclass(frozen=True)
+class RunErrors:
+    """Errors of one run against the flight's truth."""
+
+    att_rmse_deg: FloatArray  # (3,) roll, pitch, yaw
+    att_max_deg: FloatArray  # (3,)
+    alt_rmse_m: float
+    vo_final_error_m: float
+    vo_max_error_m: float
+    path_length_m: float
+    yaw_error_deg: FloatArray  # (M,) over the attitude stamps
+    vo_error_m: FloatArray  # (N,) horizontal VO error over the frames
+
+    @property
+    def vo_error_pct(self) -> float:
+        return 100.0 * self.vo_final_error_m / self.path_length_m
+
+
+def path_length_m(flight: Flight, start_frame: int = 0, stop_frame: int | None = None) -> float:
+    """Length of the true path over the frames (sum of the 3-D steps)."""
+    p = flight.p_world_body_m[start_frame:stop_frame]
+    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
+
+def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: float = 0.0) -> RunErrors:
+    """Attitude, altitude and VO errors of ``run`` against ``flight`` (outputs at the sensors' stamps).
+
+    Attitude and altitude errors skip the first ``settle_s`` (for runs started mid-manoeuvre).
+    """
+    imu = flight.imu
+    keep = run.attitude_stamps_s >= run.attitude_stamps_s[0] + settle_s
+    idx = np.searchsorted(imu.stamps_s, run.attitude_stamps_s[keep] - 1e-9)
+    err = wrap_angle_rad(
+        euler_from_quaternion(run.q_world_body[keep]) - euler_from_quaternion(imu.true_q_world_body[idx])
+    )
+    err_deg = np.degrees(err)
+    alt_err = run.pz_m[keep] - imu.true_p_world_body_m[idx, 2]
+    frames = np.searchsorted(flight.frame_stamps_s, run.pose_stamps_s - 1e-9)
+    vo_err = np.linalg.norm(run.p_world_body_m[:, :2] - flight.p_world_body_m[frames, :2], axis=1)
+    stop = int(frames[-1]) + 1 if len(frames) else start_frame + 1
+    return RunErrors(
+        att_rmse_deg=np.sqrt(np.mean(err_deg**2, axis=0)),
+        att_max_deg=np.max(np.abs(err_deg), axis=0),
+        alt_rmse_m=float(np.sqrt(np.mean(alt_err**2))),
+        vo_final_error_m=float(vo_err[-1]) if len(vo_err) else float("nan"),
+        vo_max_error_m=float(vo_err.max()) if len(vo_err) else float("nan"),
+        path_length_m=path_length_m(flight, start_frame, stop),
+        yaw_error_deg=err_deg[:, 2],
+        vo_error_m=vo_err,
+    )

@@ -1,0 +1,152 @@
+"""Visual odometry (paper C Algorithms 1-2, eqs. 9-10) on rendered views of the simulator's ground."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from common.errors import InputError
+from common.estimation.vo import (
+    MotionModel,
+    VoError,
+    VoPose,
+    VoSettings,
+    calibrated_homography,
+    choose_decomposition,
+    compose_pose,
+    decompose_with_known_normal,
+    estimate_relative_motion,
+    metric_translation,
+    prepare_frame,
+)
+from common.geometry import (
+    R_BODY_CAMERA_DOWN,
+    matrix_from_euler,
+    matrix_from_quaternion,
+    quaternion_from_rotation_vector,
+)
+from common.sim.camera import PinholeCamera
+from common.sim.ground import GroundTexture, camera_pose_from_body, render_ground_view
+
+CAMERA = PinholeCamera.default()
+SETTINGS = VoSettings()
+
+
+def _view(texture: GroundTexture, euler: tuple[float, float, float], p: tuple[float, float, float]):
+    pose = camera_pose_from_body(matrix_from_euler(*euler), np.array(p), R_BODY_CAMERA_DOWN)
+    return render_ground_view(texture, CAMERA, *pose), pose
+
+
+def test_recovers_a_tilted_pair_and_composes_eqs_9_10(texture: GroundTexture) -> None:
+    img0, (R0, c0) = _view(texture, (0.03, -0.02, 0.3), (0.0, 0.0, 3.5))
+    img1, (R1, c1) = _view(texture, (0.035, -0.015, 0.32), (0.03, 0.012, 3.51))
+    f0 = prepare_frame(img0, None, SETTINGS)
+    f1 = prepare_frame(img1, None, SETTINGS)
+    motion = estimate_relative_motion(f0, f1, CAMERA.K, SETTINGS)
+    R_true = R1.T @ R0
+    t_true = R1.T @ (c0 - c1)
+    angle_err = np.linalg.norm(cv2.Rodrigues(motion.R_k_km1 @ R_true.T)[0])
+    assert angle_err < math.radians(0.01)
+    t = metric_translation(motion.t_over_d, 3.5)
+    assert np.linalg.norm(t - t_true) < 5e-4  # half a millimetre on a 3 cm move
+    assert motion.normal_km1 @ (R0.T @ [0.0, 0.0, -1.0]) > 0.999
+    pose = compose_pose(VoPose(R0, c0), motion.R_k_km1, t)
+    assert np.linalg.norm(pose.p_n_camera_m - c1) < 5e-4
+    assert motion.n_inliers >= 0.9 * motion.n_tracked
+
+
+def test_level_model_on_level_views(texture: GroundTexture) -> None:
+    img0, (R0, c0) = _view(texture, (0.0, 0.0, 1.0), (0.5, 0.5, 4.0))
+    img1, (R1, c1) = _view(texture, (0.0, 0.0, 1.015), (0.52, 0.49, 4.01))
+    motion = estimate_relative_motion(
+        prepare_frame(img0, None, SETTINGS), prepare_frame(img1, None, SETTINGS), CAMERA.K, SETTINGS,
+        model=MotionModel.LEVEL,
+    )  # fmt: skip
+    dyaw = math.atan2(motion.R_k_km1[1, 0], motion.R_k_km1[0, 0])
+    R_true = R1.T @ R0
+    assert dyaw == pytest.approx(math.atan2(R_true[1, 0], R_true[0, 0]), abs=1e-4)
+    assert np.linalg.norm(metric_translation(motion.t_over_d, 4.0) - R1.T @ (c0 - c1)) < 5e-4
+
+
+def test_tiny_translation_is_not_lost(texture: GroundTexture) -> None:
+    """OpenCV calls |t/d| < ~5e-4 a pure rotation; the known-normal fallback keeps the 1 mm move."""
+    img0, (_, c0) = _view(texture, (0.0, 0.0, 0.0), (0.0, 0.0, 3.5))
+    img1, (R1, c1) = _view(texture, (0.0, 0.0, 0.0), (0.001, 0.0, 3.5))
+    motion = estimate_relative_motion(
+        prepare_frame(img0, None, SETTINGS), prepare_frame(img1, None, SETTINGS), CAMERA.K, SETTINGS
+    )
+    t = metric_translation(motion.t_over_d, 3.5)
+    assert np.linalg.norm(t - R1.T @ (c0 - c1)) < 2e-4
+
+
+rot = st.floats(-0.05, 0.05)
+
+
+@given(
+    rot,
+    rot,
+    rot,
+    st.floats(-0.05, 0.05),
+    st.floats(-0.05, 0.05),
+    st.floats(-0.02, 0.02),
+    st.floats(0.5, 20.0),
+)
+def test_known_normal_decomposition_is_exact(
+    rx: float, ry: float, rz: float, tx: float, ty: float, tz: float, scale: float
+) -> None:
+    R = matrix_from_quaternion(quaternion_from_rotation_vector([rx, ry, rz]))
+    n = np.array([0.05, -0.03, 1.0])
+    n /= np.linalg.norm(n)
+    t = np.array([tx, ty, tz])
+    H_px = scale * CAMERA.K @ (R + np.outer(t, n)) @ np.linalg.inv(CAMERA.K)
+    R_est, t_est = decompose_with_known_normal(calibrated_homography(H_px, CAMERA.K), n)
+    assert np.allclose(R_est, R, atol=1e-9)
+    assert np.allclose(t_est, t, atol=1e-9)
+
+
+def test_choose_decomposition_prefers_the_ground_normal() -> None:
+    R = matrix_from_euler(0.01, 0.0, 0.02)
+    t = np.array([0.01, 0.004, 0.001])
+    n = np.array([0.0, 0.0, 1.0])
+    H = CAMERA.K @ (R + np.outer(t, n)) @ np.linalg.inv(CAMERA.K)
+    _, Rs, ts, ns = cv2.decomposeHomographyMat(H, CAMERA.K)
+    pts0 = np.array([[100.0, 100.0], [600.0, 120.0], [400.0, 400.0], [200.0, 300.0]])
+    p = np.c_[pts0, np.ones(4)] @ H.T
+    pts1 = p[:, :2] / p[:, 2:]
+    best = choose_decomposition(Rs, ts, ns, CAMERA.K, pts0, pts1, n)
+    assert np.allclose(np.ravel(ns[best]), n, atol=1e-6)
+    assert np.allclose(np.ravel(ts[best]), t, atol=1e-6)
+
+
+@given(
+    st.lists(
+        st.tuples(rot, rot, rot, st.floats(-0.05, 0.05), st.floats(-0.05, 0.05)), min_size=1, max_size=10
+    )
+)
+def test_composition_of_true_relative_motions_reproduces_the_path(steps: list[tuple[float, ...]]) -> None:
+    R = matrix_from_euler(0.0, 0.0, 0.3) @ R_BODY_CAMERA_DOWN
+    c = np.array([1.0, 2.0, 3.0])
+    pose = VoPose(R, c)
+    for rx, ry, rz, dx, dy in steps:
+        R_next = R @ matrix_from_quaternion(quaternion_from_rotation_vector([rx, ry, rz]))
+        c_next = c + np.array([dx, dy, 0.0])
+        pose = compose_pose(pose, R_next.T @ R, R_next.T @ (c - c_next))
+        R, c = R_next, c_next
+        assert np.allclose(pose.R_n_camera, R, atol=1e-9)
+        assert np.allclose(pose.p_n_camera_m, c, atol=1e-9)
+
+
+def test_featureless_frames_fail_cleanly() -> None:
+    blank = np.full((480, 752), 128, dtype=np.uint8)
+    f = prepare_frame(blank, None, SETTINGS)
+    with pytest.raises(VoError):
+        estimate_relative_motion(f, f, CAMERA.K, SETTINGS)
+    with pytest.raises(InputError):
+        metric_translation([0.0, 0.0, 0.0], 0.0)
+    with pytest.raises(InputError):
+        VoSettings(lk_window_px=4)
