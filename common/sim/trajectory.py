@@ -19,6 +19,13 @@ The two flights of the papers:
   up to 4.0 m, heading along the path, coordinated tilt, then hover; septic smooth-step speed profile so
   velocity, acceleration and jerk (hence body rates) are continuous. Path length
   ``sqrt((2 turns 2 pi r)^2 + dz^2)`` = 13.832 m for the defaults.
+
+Hover altitude 1.5 m (a choice: indoor hover height; the default camera then sees 3.0 x 1.9 m of ground at
+4.0 mm per pixel, so a 2.25 deg inter-frame yaw at 45 deg/s moves the image corners by about 17 px).
+
+Note for estimators: in COORDINATED flight the accelerometer reads pure thrust along body z (x and y are 0
+plus noise and bias), as on a drag-free quadrotor. Paper C's gravity observation assumes no acceleration,
+so during the turns it sees the vehicle level (up to 3 deg off). The PRESCRIBED hover satisfies it.
 """
 
 from __future__ import annotations
@@ -476,7 +483,8 @@ def turns_trajectory(
     The start point is on the circle at a seed-dependent angle. The heading follows the path tangent (the
     vehicle turns with the path, 720 deg in total) unless ``heading_follows_path`` is False (constant yaw).
     Path length ``sqrt((2 pi turns radius)^2 + (z_end - z_start)^2)``: 13.832 m for the defaults. The septic
-    speed profile peaks at 35/16 * length / manoeuvre_s = 0.76 m/s; the tilt peaks at about 3.6 deg.
+    speed profile peaks at 35/16 * length / manoeuvre_s = 0.76 m/s; the tilt peaks at 3.0 deg (roll into
+    the turn) and the yaw rate at 39 deg/s.
     """
     for name, value in (("radius_m", radius_m), ("manoeuvre_s", manoeuvre_s), ("z_start_m", z_start_m)):
         if not (np.isfinite(value) and value > 0.0):
