@@ -15,6 +15,7 @@ import numpy.typing as npt
 from common.estimation.coupling import (
     AttitudeOutput,
     CameraModel,
+    CouplingSettings,
     DoubleCouplingEstimator,
     FrameMeasurement,
     ImuMeasurement,
@@ -154,3 +155,32 @@ def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: 
         yaw_error_deg=err_deg[:, 2],
         vo_error_m=vo_err,
     )
+
+
+#: The three configurations compared on flight (b): the paper's proposal, its "traditional" VO, and the
+#: EKF without visual yaw (the gyro alone integrates the yaw).
+CONFIGURATIONS: dict[str, dict[str, bool]] = {
+    "rectified": {"rectify": True, "visual_yaw": True},
+    "traditional": {"rectify": False, "visual_yaw": True},
+    "gyro_yaw": {"rectify": True, "visual_yaw": False},
+}
+
+
+def standard_estimators(
+    flight: Flight, start_frame: int = 0, names: tuple[str, ...] = tuple(CONFIGURATIONS)
+) -> dict[str, DoubleCouplingEstimator]:
+    """Estimators of :data:`CONFIGURATIONS`, started at ``start_frame`` with the true initial yaw and
+    position (the navigation frame n is the world frame) and the attitude from the first accelerometer
+    sample (or the true attitude when starting mid-flight)."""
+    p0 = flight.p_world_body_m[start_frame]
+    q0 = flight.q_world_body[start_frame]
+    out = {}
+    for name in names:
+        settings = CouplingSettings(
+            initial_yaw_rad=float(flight.yaw_rad[start_frame]),
+            initial_position_m=(float(p0[0]), float(p0[1])),
+            initial_q_world_body=None if start_frame == 0 else (float(q0[0]), float(q0[1]), float(q0[2]), float(q0[3])),
+            **CONFIGURATIONS[name],
+        )
+        out[name] = DoubleCouplingEstimator(camera_model_of(flight), settings=settings)
+    return out

@@ -15,7 +15,12 @@ from typing import Any
 from services.report import print_table, write_json
 
 #: One line per benchmark.
-BENCH_MODULES: tuple[str, ...] = ("services.bench.localizer", "services.bench.cluster", "services.bench.yaw")
+BENCH_MODULES: tuple[str, ...] = (
+    "services.bench.localizer",
+    "services.bench.cluster",
+    "services.bench.yaw",
+    "services.bench.estimator",
+)
 
 
 def _modules() -> list[ModuleType]:
