@@ -104,22 +104,17 @@ def patch_window(size_px: int, taper: float) -> Float32Array:
 
 
 @functools.lru_cache(maxsize=16)
-def peak_weighting(size_px: int, sigma_px: float, lowcut_bins: float, half: bool) -> Float32Array:
-    """Band-pass weight of the cross-power spectrum.
+def peak_weighting(size_px: int, sigma_px: float, half: bool) -> Float32Array:
+    """Gaussian weight of the cross-power spectrum: the correlation peak becomes a Gaussian of ``sigma_px``.
 
-    Gaussian low-pass: the correlation peak becomes a Gaussian of ``sigma_px`` (a Gaussian of std sigma
-    pixels has the transform exp(-2 pi^2 sigma^2 nu^2), nu in cycles/pixel). High-pass
-    1 - exp(-k^2 / (2 lowcut^2)) (k in frequency bins): the lowest bins carry the patch window's own
-    spectrum, which pulls the peak towards zero shift. ``half`` gives the rfft layout (s, s // 2 + 1),
-    else the full (s, s) layout.
+    A Gaussian of std sigma (pixels) has the transform exp(-2 pi^2 sigma^2 nu^2), nu in cycles/pixel; it
+    also damps the noisiest (highest) frequencies. ``half`` gives the rfft layout (s, s // 2 + 1), else
+    the full (s, s) layout.
     """
     fy = np.fft.fftfreq(size_px)
     fx = np.fft.rfftfreq(size_px) if half else np.fft.fftfreq(size_px)
     nu2 = fy[:, None] ** 2 + fx[None, :] ** 2
-    weight = np.exp(-2.0 * np.pi**2 * sigma_px**2 * nu2)
-    if lowcut_bins > 0.0:
-        weight *= 1.0 - np.exp(-nu2 * size_px**2 / (2.0 * lowcut_bins**2))
-    weight = weight.astype(np.float32)
+    weight = np.exp(-2.0 * np.pi**2 * sigma_px**2 * nu2).astype(np.float32)
     weight.setflags(write=False)
     return weight
 
@@ -316,7 +311,7 @@ def measure_patches(previous: PatchSpectra, current: PatchSpectra, settings: Yaw
             current.indices, np.zeros((0, 2)), empty, empty, np.zeros((0,), dtype=np.bool_)
         )
     cross = normalised_cross_power(previous.spectra, current.spectra)
-    cross *= peak_weighting(s, settings.peak_sigma_px, settings.lowcut_bins, half)[..., None]
+    cross *= peak_weighting(s, settings.peak_sigma_px, half)[..., None]
     surfaces = inverse_transform(cross.view(np.complex64)[..., 0], s, settings.fft_backend)
     overlap = window_overlap_log(s, settings.window_taper) * settings.overlap_correction
     shift_level, peak, ratio = subpixel_peaks(surfaces, overlap if settings.overlap_correction else None)

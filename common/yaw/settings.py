@@ -48,8 +48,6 @@ class YawSettings:
     window_taper: float = 1.0
     #: Exponent of the window-overlap division before the sub-pixel fit (0 = off, 1 = full).
     overlap_correction: float = 2.0
-    #: High-pass of the cross-power spectrum (frequency bins): removes the window's bias towards zero shift.
-    lowcut_bins: float = 0.0
     #: Patches whose grey-level standard deviation (0..255 scale) is below this are textureless.
     min_texture_std: float = 4.0
     #: A patch is valid when its correlation peak exceeds the second peak (outside +-2 px) by this ratio.
@@ -63,8 +61,6 @@ class YawSettings:
     #: Global (Fourier-Mellin) stage: side of the square log-polar input and its number of angle rows.
     global_size_px: int = 256
     global_angle_bins: int = 720
-    #: Pre-align when the global rotation exceeds this even if the patch fit looked fine.
-    global_min_rotation_deg: float = 3.0
     #: Residual (full-resolution px, median over inliers) above which the estimate is low-confidence.
     max_residual_px: float = 1.5
 
