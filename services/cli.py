@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.worker",
     "services.up",
     "services.localizer",
+    "services.estimator",
 )
 
 

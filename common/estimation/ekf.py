@@ -232,6 +232,15 @@ def rangefinder_model(
     return pz_m * inv, (k * q0, -k * q1, -k * q2, k * q3, inv)
 
 
+def error_angle_covariance_world(q_world_body: npt.ArrayLike, covariance_q: npt.ArrayLike) -> FloatArray:
+    """3x3 covariance of world-frame error angles ``dtheta`` (``q_true = [1, dtheta/2] * q``) from the 4x4
+    covariance of a unit quaternion: ``dtheta = 2 Psi(q)^T dq``, ``Psi`` the left-product matrix."""
+    q0, q1, q2, q3 = (float(v) for v in np.asarray(q_world_body, dtype=np.float64).reshape(4))
+    Psi = np.array([[-q1, -q2, -q3], [q0, q3, -q2], [-q3, q0, q1], [q2, -q1, q0]])
+    C = 4.0 * Psi.T @ np.asarray(covariance_q, dtype=np.float64).reshape(4, 4) @ Psi
+    return np.asarray(0.5 * (C + C.T), dtype=np.float64)
+
+
 # --------------------------------------------------------------------------------------------------
 # Chi-square gate thresholds (no scipy): inverse CDF by bisection of the closed forms for 1..3 dof.
 # --------------------------------------------------------------------------------------------------
