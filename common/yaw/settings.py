@@ -53,6 +53,8 @@ class YawSettings:
     #: A patch is valid when its correlation peak exceeds the second peak (outside +-2 px) by this ratio.
     min_peak_ratio: float = 1.5
     fit_model: FitModel = FitModel.SIMILARITY
+    #: Model of the patch fit after a global pre-alignment (long gaps: the tilt change's perspective shows).
+    prealigned_fit_model: FitModel = FitModel.HOMOGRAPHY
     ransac_threshold_px: float = 1.0  # full-resolution pixels
     ransac_max_iters: int = 500
     min_inliers: int = 6

@@ -134,7 +134,8 @@ def _prealigned(
         else patch_spectra(previous_frame, grid, None, settings)
     )
     measurement = measure_patches(before, patch_spectra(aligned, grid, before.indices, settings), settings)
-    fit = _fit_measurement(grid, measurement, settings)
+    # After a long gap the residual holds the perspective of the tilt change: fit a homography.
+    fit = _fit_measurement(grid, measurement, replace(settings, fit_model=settings.prealigned_fit_model))
     if _fit_is_good(fit, measurement, settings):
         low = fit.residual_px > settings.max_residual_px
         return _PairResult(

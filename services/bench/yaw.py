@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=2041, help="hover frames (default: all 2041)")
     parser.add_argument("--seed", type=int, default=0, help="hover flight seed")
     parser.add_argument("--quick", action="store_true", help="only the baseline on the core's grid")
+    parser.add_argument(
+        "--drop-step", type=int, default=4, help="also run on every N-th frame (dropped frames); 0 = skip"
+    )
 
 
 def _median_us(func: Callable[[], object], repeats: int = 300) -> float:
@@ -141,6 +144,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     for row in rows:
         row["speedup"] = on_core_grid["ms_median"] / row["ms_median"]
 
+    step = int(args.drop_step)
+    if step > 1:
+        kept = frames[::step]
+        kept_truth = truth[::step]
+        logger.info("dropped frames: every %d-th frame (%d frames)", step, len(kept))
+        dropped = track_frames(kept, settings)
+        grid_label = f"{core_grid}, every {step}th frame"
+        rows.append(
+            _row("core, dropped frames", grid_label, dropped.ms_per_frame, dropped.yaw_rad, kept_truth)
+        )
+        rows[-1]["speedup"] = float("nan")
+        yaw, ms = _run_baseline(kept, reference_settings(*BASELINE_GRIDS[0]))
+        rows.append(_row("baseline, dropped frames", grid_label, ms, yaw, kept_truth))
+        rows[-1]["speedup"] = float("nan")
+
     core_row = rows[0]
     micro = fft_microbench(frames[0], settings)
     result: dict[str, Any] = {
@@ -161,6 +179,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "core_low_confidence_frames": int(np.count_nonzero(core.low_confidence)),
         "core_methods": core.methods,
         "fft_microbench_us": micro,
+        "dropped_frames_step": step if step > 1 else None,
+        "core_dropped_max_ame_deg": next(
+            (r["max_ame_deg"] for r in rows if r["method"] == "core, dropped frames"), None
+        ),
+        "baseline_dropped_max_ame_deg": next(
+            (r["max_ame_deg"] for r in rows if r["method"] == "baseline, dropped frames"), None
+        ),
         "table": rows,
     }
     print(

@@ -8,7 +8,7 @@ from services.bench import yaw
 def test_bench_yaw_reports_the_required_fields_on_a_short_run() -> None:
     parser = argparse.ArgumentParser()
     yaw.add_arguments(parser)
-    args = parser.parse_args(["--frames", "40", "--quick"])
+    args = parser.parse_args(["--frames", "40", "--quick", "--drop-step", "4"])
     result = yaw.run(args)
     for field in (
         "frames",
@@ -28,3 +28,4 @@ def test_bench_yaw_reports_the_required_fields_on_a_short_run() -> None:
     methods = [row["method"] for row in result["table"]]
     assert methods[0].startswith("core") and "baseline on the core's grid" in methods
     assert {"numpy_forward_us", "opencv_forward_us"} <= set(result["fft_microbench_us"])
+    assert "core, dropped frames" in methods and result["dropped_frames_step"] == 4

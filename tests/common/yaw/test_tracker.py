@@ -179,3 +179,22 @@ def test_tracker_rejects_a_grid_of_other_settings() -> None:
     grid = make_patch_grid((480, 752), YawSettings(patch_size_px=48))
     with pytest.raises(InputError):
         YawTracker(YawSettings(), grid)
+
+
+def test_dropped_frames_hover_stays_accurate_through_the_fallback() -> None:
+    """Every 4th frame of the hover (up to ~8 deg and a tilt change between frames): pre-aligned patches."""
+    flight = hover_flight(seed=0, n_frames=481)
+    kept = list(range(0, 481, 4))
+    frames = [flight.frame(i) for i in kept]
+    true_yaw = flight.yaw_rad[kept]
+    settings = YawSettings()
+    tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
+    state = tracker.initial_state(frames[0])
+    methods = set()
+    for k, frame in enumerate(frames[1:], start=1):
+        state, estimate = tracker.track(state, frame)
+        methods.add(estimate.method)
+        assert not estimate.low_confidence
+        assert abs(math.degrees(estimate.delta_yaw_rad - (true_yaw[k] - true_yaw[k - 1]))) < 0.25
+    assert EstimateMethod.GLOBAL_PREALIGNED in methods
+    assert abs(math.degrees(state.yaw_rad - (true_yaw[-1] - true_yaw[0]))) < 0.5
