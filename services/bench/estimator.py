@@ -1,4 +1,4 @@
-"""Estimator (paper C) on flight (b): VO accuracy with and without rectification, EKF attitude/altitude, timings.
+"""Estimator (paper C) on flight (b): VO with and without rectification, EKF attitude/altitude, timings.
 
 Runs the whole simulated flight (b) (about 13.8 m, 1001 frames, 400 Hz IMU, 50 Hz rangefinder) through three
 estimators fed the same stream: rectified VO with visual yaw (the paper's double coupling), the
