@@ -17,7 +17,12 @@ from services.report import write_json
 logger = logging.getLogger(__name__)
 
 #: One line per demo, in the order they run.
-DEMO_MODULES: tuple[str, ...] = ("services.demo_cluster", "services.demo_localizer", "services.demo_yaw")
+DEMO_MODULES: tuple[str, ...] = (
+    "services.demo_cluster",
+    "services.demo_localizer",
+    "services.demo_yaw",
+    "services.demo_estimator",
+)
 
 
 def register(subparsers: Any) -> None:
