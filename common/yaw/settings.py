@@ -79,6 +79,14 @@ class YawSettings:
             raise InputError(f"margin_px must be >= 0, got {self.margin_px}")
         if self.peak_sigma_px <= 0.0:
             raise InputError(f"peak_sigma_px must be > 0, got {self.peak_sigma_px}")
+        if not 0.0 <= self.window_taper <= 1.0:
+            raise InputError(f"window_taper must be in [0, 1], got {self.window_taper}")
+        if self.overlap_correction < 0.0 or self.min_texture_std < 0.0 or self.min_peak_ratio < 0.0:
+            raise InputError("overlap_correction, min_texture_std and min_peak_ratio must be >= 0")
+        if not 0.0 <= self.min_inlier_fraction <= 1.0:
+            raise InputError(f"min_inlier_fraction must be in [0, 1], got {self.min_inlier_fraction}")
+        if self.ransac_threshold_px <= 0.0 or self.ransac_max_iters < 1 or self.max_residual_px <= 0.0:
+            raise InputError("ransac_threshold_px, ransac_max_iters and max_residual_px must be positive")
         if self.min_inliers < 3:
             raise InputError(f"min_inliers must be >= 3, got {self.min_inliers}")
         if self.global_size_px < 64 or self.global_angle_bins < 90:

@@ -198,3 +198,16 @@ def test_dropped_frames_hover_stays_accurate_through_the_fallback() -> None:
         assert abs(math.degrees(estimate.delta_yaw_rad - (true_yaw[k] - true_yaw[k - 1]))) < 0.25
     assert EstimateMethod.GLOBAL_PREALIGNED in methods
     assert abs(math.degrees(state.yaw_rad - (true_yaw[-1] - true_yaw[0]))) < 0.5
+
+
+def test_master_alone_concludes_from_an_empty_measurement(nadir_pair: PairMaker) -> None:
+    """No worker answered: the central stage still estimates from the two frames (flagged by its method)."""
+    a, b = nadir_pair(3.0, (5.0, 2.0))
+    settings = YawSettings()
+    grid = make_patch_grid(a.shape, settings)
+    tracker = YawTracker(settings, grid)
+    empty = merge_measurements([])
+    state, estimate = tracker.conclude(tracker.initial_state(a, with_spectra=False), b, empty)
+    assert estimate.method is EstimateMethod.GLOBAL_PREALIGNED
+    assert abs(math.degrees(estimate.delta_yaw_rad) - 3.0) < 0.05
+    assert state.seq == 1 and state.previous_spectra is None
