@@ -50,16 +50,20 @@ class ParticleFilterConfig:
     Noise is a random walk added at every prediction: standard deviation ``noise * sqrt(dt_s)`` per
     component (position m/sqrt(s); roll, pitch, yaw rad/sqrt(s)). While the best particle's fit is below
     ``good_fit`` the noise grows by up to ``search_gain`` (a wider search until the edges line up).
+    On the first frame after (re-)initialisation ``init_candidates`` poses from the prior box are scored
+    and ``n_particles`` of them kept (0 disables this). Particles are scored in blocks of
+    ``chunk_particles`` (cache-sized temporaries).
     """
 
     n_particles: int = 200
     points_per_edge: int = 8
     scoring: ScoringParams = field(default_factory=ScoringParams)
-    position_noise_m: float = 0.06
+    position_noise_m: float = 0.04
     angle_noise_rad: tuple[float, float, float] = (0.015, 0.015, 0.02)
-    good_fit: float = 0.6
+    good_fit: float = 0.75
     search_gain: float = 3.0
     resample_ess_fraction: float = 0.5
+    init_candidates: int = 4000
     collapse_fit: float = 0.15
     collapse_frames: int = 5
     init_position_spread_m: float = 0.5
@@ -79,13 +83,20 @@ class ParticleFilterConfig:
 
 @dataclass(frozen=True)
 class ParticleState:
-    """Particles (P, 6), their normalised log weights (P,), the last best fit and collapse bookkeeping."""
+    """Particles (P, 6), their normalised log weights (P,), the last best fit and collapse bookkeeping.
+
+    A freshly initialised state keeps its prior box (``prior_centre +- prior_spread``) until its first frame
+    (``frames == 0``), when :meth:`ParticleFilter.update` draws its particles afresh from many candidates.
+    """
 
     particles: FloatArray
     log_weights: FloatArray
     best_fit: float = 1.0
     low_fit_frames: int = 0
     reinitialisations: int = 0
+    frames: int = 0
+    prior_centre: FloatArray | None = None
+    prior_spread: FloatArray | None = None
 
     @property
     def weights(self) -> FloatArray:
@@ -118,13 +129,15 @@ def normalise_log_weights(log_weights: FloatArray) -> FloatArray:
     return np.asarray(np.where(finite, log_weights - total, -np.inf))
 
 
-def low_variance_resample(weights: FloatArray, rng: np.random.Generator) -> npt.NDArray[np.intp]:
-    """Low-variance (systematic) resampling: indices of N draws with one uniform offset."""
-    n = weights.size
+def low_variance_resample(
+    weights: FloatArray, rng: np.random.Generator, n_draws: int | None = None
+) -> npt.NDArray[np.intp]:
+    """Low-variance (systematic) resampling: indices of ``n_draws`` (default N) draws, one uniform offset."""
+    n = weights.size if n_draws is None else n_draws
     positions = (rng.uniform(0.0, 1.0 / n) + np.arange(n) / n).clip(0.0, 1.0)
     cumulative = np.cumsum(weights)
     cumulative[-1] = 1.0
-    return np.asarray(np.searchsorted(cumulative, positions, side="left").clip(0, n - 1))
+    return np.asarray(np.searchsorted(cumulative, positions, side="left").clip(0, weights.size - 1))
 
 
 def pose_statistics(particles: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -184,7 +197,36 @@ class ParticleFilter:
         spread = np.array([pos, pos, pos, ang, ang, ang])
         particles = centre + rng.uniform(-1.0, 1.0, size=(n, 6)) * spread
         particles[:, 3:] = wrap_angle_rad(particles[:, 3:])
-        return ParticleState(particles=particles, log_weights=np.full(n, -np.log(n)))
+        return ParticleState(
+            particles=particles, log_weights=np.full(n, -np.log(n)), prior_centre=centre, prior_spread=spread
+        )
+
+    def initialize_on_frame(
+        self, state: ParticleState, edges: ImageEdges, rng: np.random.Generator
+    ) -> tuple[ParticleState, ScoreResult]:
+        """First frame after (re-)initialisation: score ``init_candidates`` poses drawn from the prior box and
+        keep ``n_particles`` of them by low-variance resampling of their weights (importance sampling of the
+        prior with the first frame's likelihood; 200 particles alone cover a 6D box too thinly)."""
+        if state.prior_centre is None or state.prior_spread is None:
+            raise ParticleFilterError("initialize_on_frame needs a state made by initialize()")
+        n = state.particles.shape[0]
+        extra = max(self.config.init_candidates - n, 0)
+        drawn = state.prior_centre + rng.uniform(-1.0, 1.0, size=(extra, 6)) * state.prior_spread
+        candidates = np.vstack([state.particles, drawn])
+        candidates[:, 3:] = wrap_angle_rad(candidates[:, 3:])
+        result = self.score(candidates, edges)
+        weights = np.exp(normalise_log_weights(result.log_weight))
+        chosen = low_variance_resample(weights, rng, n)
+        seeded = replace(
+            state,
+            particles=candidates[chosen],
+            log_weights=np.full(n, -np.log(n)),
+            best_fit=float(np.max(result.fit)),
+            frames=1,
+            prior_centre=None,
+            prior_spread=None,
+        )
+        return seeded, result
 
     # -- prediction -------------------------------------------------------------------------------
     def motion_model(
@@ -228,7 +270,10 @@ class ParticleFilter:
         sigma = widen * np.sqrt(dt_s) * np.array([cfg.position_noise_m] * 3 + list(cfg.angle_noise_rad))
         moved += rng.normal(size=moved.shape) * sigma
         moved[:, 3:] = wrap_angle_rad(moved[:, 3:])
-        return replace(state, particles=moved)
+        prior = state.prior_centre
+        if prior is not None:
+            prior = self.motion_model(prior[None, :], dt_s, velocity_world_m_s, euler_rates_rad_s)[0]
+        return replace(state, particles=moved, prior_centre=prior)
 
     # -- measurement ------------------------------------------------------------------------------
     def score(
@@ -285,7 +330,12 @@ class ParticleFilter:
     def update(self, state: ParticleState, edges: ImageEdges, rng: np.random.Generator) -> ParticleState:
         """Weigh against a frame; re-initialise around the estimate when the likelihood collapsed for
         ``collapse_frames`` frames in a row; resample when degenerate."""
+        if state.frames == 0 and state.prior_centre is not None and self.config.init_candidates > 0:
+            seeded, _ = self.initialize_on_frame(state, edges, rng)
+            low = 1 if seeded.best_fit < self.config.collapse_fit else 0
+            return replace(seeded, low_fit_frames=state.low_fit_frames + low if low else 0)
         weighed, _ = self.weigh(state, edges)
+        weighed = replace(weighed, frames=weighed.frames + 1)
         low = weighed.low_fit_frames + 1 if weighed.best_fit < self.config.collapse_fit else 0
         if low >= self.config.collapse_frames:
             estimate = self.estimate(weighed)

@@ -7,8 +7,9 @@ spread over the flight with a converged cloud (particles within +-5 cm and +-1 d
 ``ms_*`` are medians of the process CPU time (the work done on the one core, robust on a shared machine);
 the wall-clock medians are reported next to them as ``wall_*``. The baseline (paper B's CPU shape, one
 particle at a time) is interleaved with the vectorised steps on the same frames and clouds. Accuracy: the
-filter flies the whole default flight from a guess within +-0.5 m and +-10 deg; RMSE over the frames after
-convergence (from ``--settle`` on).
+filter flies the whole default flight ``--runs`` times, each from its own guess within +-0.5 m and +-10 deg
+and its own seed; RMSE over the frames after convergence (from ``--settle`` on), pooled over the runs, and
+the worst run's; a scoring meets the goal when its worst run does.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import argparse
 import logging
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -26,7 +27,13 @@ import numpy as np
 from common.localization.baseline import weigh_per_particle
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig, ParticleState
 from common.localization.scoring import ImageEdges, ScoringMethod, ScoringParams, extract_image_edges
-from common.localization.simulation import SimulatedRun, simulate_run, track_run
+from common.localization.simulation import (
+    INITIAL_ANGLE_ERROR_RAD,
+    INITIAL_POSITION_ERROR_M,
+    SimulatedRun,
+    simulate_run,
+    track_run,
+)
 from common.localization.tracking import track_accuracy
 
 logger = logging.getLogger(__name__)
@@ -45,6 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="simulation seed")
     parser.add_argument("--repeats", type=int, default=5, help="timed repetitions per frame (default 5)")
     parser.add_argument("--timing-frames", type=int, default=10, help="frames used for timing (default 10)")
+    parser.add_argument(
+        "--runs",
+        type=int,
+        default=3,
+        help="filter runs per scoring (own seeds and initial guesses; default 3)",
+    )
 
 
 def _pin_one_core() -> str:
@@ -128,20 +141,36 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         timing, _ = _time_steps(pf, clouds_200, args.repeats)
         ms_200 = timing.cpu_ms
         t0 = time.perf_counter()
-        track = track_run(sim, config, seed=args.seed + 1)
-        track_s = time.perf_counter() - t0
-        accuracy = track_accuracy(
-            track.means, sim.flight.states, first_frame=min(args.settle, args.frames - 1)
-        )
-        position_cm = accuracy.position_rmse_m * 100.0
-        yaw_deg = float(np.degrees(accuracy.yaw_rmse_rad))
+        rmse_cm, yaw_deg_runs, reinit = [], [], 0
+        for r in range(args.runs):
+            guess_rng = np.random.default_rng(1000 * args.seed + r)
+            error = guess_rng.uniform(-1.0, 1.0, 6) * np.array(
+                [INITIAL_POSITION_ERROR_M] * 3 + [INITIAL_ANGLE_ERROR_RAD] * 3
+            )
+            run_sim = replace(sim, guess=sim.flight.states[0] + error)
+            track = track_run(run_sim, config, seed=1000 * args.seed + r + 1)
+            accuracy = track_accuracy(
+                track.means, sim.flight.states, first_frame=min(args.settle, args.frames - 1)
+            )
+            rmse_cm.append(accuracy.position_rmse_m * 100.0)
+            yaw_deg_runs.append(float(np.degrees(accuracy.yaw_rmse_rad)))
+            reinit += track.reinitialisations
+        track_s = (time.perf_counter() - t0) / args.runs
+        # RMSE over all runs' converged frames (equal counts: root of the mean square), and the worst run
+        position_cm = float(np.sqrt(np.mean(np.square(rmse_cm))))
+        yaw_deg = float(np.sqrt(np.mean(np.square(yaw_deg_runs))))
+        worst_cm, worst_deg = max(rmse_cm), max(yaw_deg_runs)
         per_method[method.value] = {
             "ms_per_step_200": ms_200,
             "wall_ms_per_step_200": timing.wall_ms,
             "position_rmse_cm": position_cm,
             "yaw_rmse_deg": yaw_deg,
-            "meets_accuracy_goal": position_cm <= GOAL_POSITION_RMSE_CM and yaw_deg <= GOAL_YAW_RMSE_DEG,
-            "reinitialisations": track.reinitialisations,
+            "worst_run_position_rmse_cm": worst_cm,
+            "worst_run_yaw_rmse_deg": worst_deg,
+            "runs_position_rmse_cm": rmse_cm,
+            "runs_yaw_rmse_deg": yaw_deg_runs,
+            "meets_accuracy_goal": worst_cm <= GOAL_POSITION_RMSE_CM and worst_deg <= GOAL_YAW_RMSE_DEG,
+            "reinitialisations": reinit,
             "flight_ms_per_frame": track_s / args.frames * 1e3,
         }
         logger.info("%s: %.2f ms/step, %.2f cm, %.3f deg", method.value, ms_200, position_cm, yaw_deg)
@@ -165,6 +194,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "ms_per_step": row["ms_per_step_200"],
             "position_rmse_cm": row["position_rmse_cm"],
             "yaw_rmse_deg": row["yaw_rmse_deg"],
+            "worst_run_cm": row["worst_run_position_rmse_cm"],
+            "worst_run_deg": row["worst_run_yaw_rmse_deg"],
             "meets_goal": "yes" if row["meets_accuracy_goal"] else "no",
             "reinit": row["reinitialisations"],
         }
@@ -177,6 +208,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "ms_per_step": ms_1000,
             "position_rmse_cm": float("nan"),
             "yaw_rmse_deg": float("nan"),
+            "worst_run_cm": float("nan"),
+            "worst_run_deg": float("nan"),
             "meets_goal": "-",
             "reinit": "-",
         }
@@ -188,6 +221,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "ms_per_step": baseline_ms,
             "position_rmse_cm": per_method[best]["position_rmse_cm"],
             "yaw_rmse_deg": per_method[best]["yaw_rmse_deg"],
+            "worst_run_cm": per_method[best]["worst_run_position_rmse_cm"],
+            "worst_run_deg": per_method[best]["worst_run_yaw_rmse_deg"],
             "meets_goal": "-",
             "reinit": "-",
         }
@@ -209,6 +244,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "yaw_rmse_deg": per_method[best]["yaw_rmse_deg"],
         "goal": {"position_rmse_cm": GOAL_POSITION_RMSE_CM, "yaw_rmse_deg": GOAL_YAW_RMSE_DEG},
         "frames": args.frames,
+        "runs_per_scoring": args.runs,
         "settle_frames": args.settle,
         "image_size": [sim.camera.width, sim.camera.height],
         "scene_edges": sim.scene.n_edges,
