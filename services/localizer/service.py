@@ -105,6 +105,16 @@ def pose_message(uav: str, seq: int, stamp_s: float, estimate: PoseStatistics) -
     )
 
 
+def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.ndarray, np.ndarray] | None:
+    """World velocity (m/s) and Euler-angle rates (rad/s) between two VO poses; None unless time advanced."""
+    dt = current.stamp_s - previous.stamp_s
+    if dt <= 0.0:
+        return None
+    velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
+    change = euler_from_quaternion(current.q_world_body) - euler_from_quaternion(previous.q_world_body)
+    return velocity, np.angle(np.exp(1j * change)) / dt
+
+
 class LocalizerService(ServiceRuntime):
     role = keys.Role.LOCALIZER
 
@@ -190,13 +200,15 @@ class LocalizerService(ServiceRuntime):
             return
         with self._vo_lock:
             previous, self._vo_previous = self._vo_previous, pose
-            if previous is None or pose.stamp_s <= previous.stamp_s:
+            if previous is None:
                 return
-            dt = pose.stamp_s - previous.stamp_s
-            self._vo_velocity = (pose.p_world_body_m - previous.p_world_body_m) / dt
-            euler_now = euler_from_quaternion(pose.q_world_body)
-            euler_before = euler_from_quaternion(previous.q_world_body)
-            self._vo_rates = np.angle(np.exp(1j * (euler_now - euler_before))) / dt
+            rates = odometry_between(previous, pose)
+            if rates is None:
+                self.count_error(
+                    "stale_vo", "VO pose refused", f"stamp {pose.stamp_s} not after {previous.stamp_s}"
+                )
+                return
+            self._vo_velocity, self._vo_rates = rates
 
     # -- the filter thread ------------------------------------------------------------------------------
     def _localize(self) -> None:
