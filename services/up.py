@@ -50,6 +50,8 @@ class HostSpec(BaseModel):
     cpus: str | None = None
     #: the foreman computes a share too
     foreman_computes: bool = False
+    #: emulated CPU slowdown of the host's workers (``capataz worker --cpu-factor``)
+    cpu_factor: int = Field(default=1, ge=1)
 
 
 class ClusterSpec(BaseModel):
@@ -63,6 +65,8 @@ class ClusterSpec(BaseModel):
     balance: Literal["none", "time"] = "time"
     master_computes: bool = False
     master_cpus: str | None = None
+    #: taskset CPU list of the router and the camera
+    aux_cpus: str | None = None
     uav: str = "uav0"
     hosts: tuple[HostSpec, ...]
 
@@ -158,6 +162,7 @@ class LocalCluster:
                 "--lease-ms",
                 str(self.lease_ms),
             ],
+            self.spec.aux_cpus,
         )
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline:
@@ -173,9 +178,10 @@ class LocalCluster:
 
     def start_worker(self, host: HostSpec, index: int) -> str:
         name = f"worker/{host.name}/{index}"
-        self.spawn(
-            name, ["worker", *self.transport_args(), "--node", host.name, "--index", str(index)], host.cpus
-        )
+        args = ["worker", *self.transport_args(), "--node", host.name, "--index", str(index)]
+        if host.cpu_factor != 1:
+            args += ["--cpu-factor", str(host.cpu_factor)]
+        self.spawn(name, args, host.cpus)
         return name
 
     def start_foreman(self, host: HostSpec, extra: Sequence[str] = ()) -> str:
@@ -215,7 +221,9 @@ class LocalCluster:
 
     def start_camera(self, extra: Sequence[str] = ()) -> str:
         name = "camera/camera/0"
-        self.spawn(name, ["camera", *self.transport_args(), "--uav", self.spec.uav, *extra])
+        self.spawn(
+            name, ["camera", *self.transport_args(), "--uav", self.spec.uav, *extra], self.spec.aux_cpus
+        )
         return name
 
     def expected_members(self) -> set[str]:
@@ -396,9 +404,10 @@ def compose_from_cluster(spec: ClusterSpec, image: str = "capataz:0.1.0") -> dic
                             "--compute" if host.foreman_computes else "--no-compute"],
             }  # fmt: skip
         for i in range(host.workers):
-            services[f"worker-{host.name}-{i}"] = {
-                **base(), **pin, "command": ["worker", "--node", host.name, "--index", str(i)],
-            }  # fmt: skip
+            command = ["worker", "--node", host.name, "--index", str(i)]
+            if host.cpu_factor != 1:
+                command += ["--cpu-factor", str(host.cpu_factor)]
+            services[f"worker-{host.name}-{i}"] = {**base(), **pin, "command": command}
     return {"name": f"capataz-{spec.name}", "services": services}
 
 

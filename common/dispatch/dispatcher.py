@@ -292,13 +292,23 @@ class Dispatcher:
             a = self.settings.ema_alpha
             state.speed_ema = speed if state.speed_ema is None else a * speed + (1 - a) * state.speed_ema
 
-    def record_failure(self, member: str, now_s: float) -> float:
-        """A member missed its deadline or answered with an error: suspend it; returns the suspension (s)."""
+    def record_failure(
+        self, member: str, now_s: float, n_patches: int = 0, waited_s: float | None = None
+    ) -> float:
+        """A member missed its deadline or answered with an error: suspend it; returns the suspension (s).
+
+        When it missed a deadline of ``waited_s`` for ``n_patches``, its speed is at most
+        ``n_patches / waited_s``: the moving average is capped there, so that it comes back with a
+        smaller share and a longer deadline instead of failing the same way again.
+        """
         state = self._members.get(member)
         if state is None or member == SELF:
             return 0.0
         state.failures += 1
         state.held_seq, state.held = -2, frozenset()
+        if n_patches > 0 and waited_s is not None and waited_s > 0:
+            bound = n_patches / waited_s
+            state.speed_ema = bound if state.speed_ema is None else min(state.speed_ema, bound)
         pause = min(self.settings.max_suspend_s, self.settings.suspend_s * 2 ** (state.failures - 1))
         state.suspended_until_s = now_s + pause
         self._owner = {i: o for i, o in self._owner.items() if o != member}
@@ -310,8 +320,11 @@ class Dispatcher:
         if state is not None:
             state.held_seq, state.held = -2, frozenset()
 
-    def deadline_s(self, member: str, n_patches: int) -> float:
-        """Per-request deadline for ``n_patches`` at the member's measured speed."""
+    def deadline_s(self, member: str, n_patches: int, budget_s: float) -> float:
+        """Per-request deadline for ``n_patches``: the whole budget while the member's speed is unknown,
+        else ``deadline_factor`` times the expected time (at least ``min_deadline_s``, at most the budget)."""
         speed = self.speed(member)
-        expected = n_patches / speed if speed else 0.0
-        return max(self.settings.min_deadline_s, self.settings.deadline_factor * expected)
+        if not speed:
+            return budget_s
+        expected = n_patches / speed
+        return min(budget_s, max(self.settings.min_deadline_s, self.settings.deadline_factor * expected))

@@ -1,8 +1,8 @@
 """Paper A's comparison on a heterogeneous local cluster:
 in-process vs master-worker vs master-foreman-worker.
 
-Workload: simulated hover frames at 1920x1080 with a 12x9 grid of 64 px patches (108 patches) at pyramid
-level 1, pre-rendered once and replayed by the camera (``--images --preload``) in lock-step (one frame in
+Workload: simulated hover frames at 1920x1080 with a 16x12 grid of 128 px patches (192 patches) at pyramid
+level 0, pre-rendered once and replayed by the camera (``--images --preload``) in lock-step (one frame in
 flight), so every configuration sees the same frames and none is dropped. Heterogeneous cluster: host
 ``a`` = one worker pinned to core 0, host ``b`` = four workers sharing core 1 (``taskset``). Shared memory
 is off by default so the numbers stand for separate hosts. Per frame the master's own time (frame in ->
@@ -31,7 +31,7 @@ from services.up import ClusterSpec, HostSpec
 NAME = "cluster"
 logger = logging.getLogger(__name__)
 
-BIG_GRID = ("12x9", 64, 1)  # grid, patch size, pyramid level -> 108 patches of 64 px at 960x540
+BIG_GRID = ("16x12", 128, 0)  # grid, patch size, pyramid level -> 192 patches of 128 px at full resolution
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,14 +40,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolution", default="1920x1080", help="frame size WIDTHxHEIGHT")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on (same-host numbers)")
     parser.add_argument("--overhead-frames", type=int, default=200, help="frames of the 752x480 overhead run")
+    parser.add_argument(
+        "--slow-factor",
+        type=int,
+        default=4,
+        help="host b's workers also repeat each computation this many times (taskset alone does not slow a "
+        "host down on a machine whose cores are shared with other processes; 1 = taskset only)",
+    )
 
 
-def heterogeneous(topology: str, balance: str) -> ClusterSpec:
+def heterogeneous(topology: str, balance: str, slow_factor: int = 1) -> ClusterSpec:
     return ClusterSpec(
         name=f"{topology}-{balance}",
         topology=topology,  # type: ignore[arg-type]
         balance=balance,  # type: ignore[arg-type]
-        hosts=(HostSpec(name="a", workers=1, cpus="0"), HostSpec(name="b", workers=4, cpus="1")),
+        hosts=(
+            HostSpec(name="a", workers=1, cpus="0"),
+            HostSpec(name="b", workers=4, cpus="1", cpu_factor=slow_factor),
+        ),
+        # master, camera and router run on host b's core, so host a (worker + foreman) has core 0 to itself
+        master_cpus="1",
+        aux_cpus="1",
     )
 
 
@@ -129,7 +142,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     seq_ms, seq_yaw = in_process_ms(frames, settings, args.warmup)
     sequential = _stats(seq_ms)
     print(f"in-process sequential: median {sequential['median_ms']:.1f} ms/frame", flush=True)
-    master_args = ("--grid", grid, "--patch-size", str(patch), "--pyramid-level", str(level))
+    master_args = (
+        "--grid",
+        grid,
+        "--patch-size",
+        str(patch),
+        "--pyramid-level",
+        str(level),
+        "--budget-ms",
+        "5000",
+    )
     camera_args = ("--images", str(frame_dir), "--preload", "--no-sensors")
     configs: list[dict[str, Any]] = [
         {
@@ -147,7 +169,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     frames_lost = 0
     for topology in ("master-worker", "master-foreman-worker"):
         for balance in ("none", "time"):
-            spec = heterogeneous(topology, balance)
+            spec = heterogeneous(topology, balance, args.slow_factor)
             estimates, wall_s, _codes = run_cluster_flight(
                 spec,
                 n,
@@ -205,6 +227,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "warmup": args.warmup,
             "shared_memory": bool(args.shm),
             "hosts": "a: 1 worker on core 0; b: 4 workers sharing core 1",
+            "slow_factor": args.slow_factor,
         },
         "configs": configs,
         "frames_lost": frames_lost,

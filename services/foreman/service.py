@@ -36,29 +36,35 @@ MAX_PATCHES = 1 << 16
 
 
 class CropStore:
-    """Crops of the newest frame of each stream, by patch index (for moved or re-dispatched shares)."""
+    """Crops of the two newest frames of each stream, by patch index.
 
-    def __init__(self) -> None:
-        self._frames: dict[str, tuple[int, dict[int, np.ndarray]]] = {}
+    A share moved to another worker, or re-dispatched after a failure, needs the previous frame's crops;
+    two frames are kept because a second block of frame k (re-dispatched by the master) still refers to
+    frame k-1 after the first block of frame k was stored.
+    """
+
+    def __init__(self, frames: int = 2) -> None:
+        self._frames: dict[str, dict[int, dict[int, np.ndarray]]] = {}
+        self._keep = frames
 
     def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
-        current = self._frames.get(stream)
-        if current is None or current[0] < seq:
-            current = (seq, {})
-            self._frames[stream] = current
-        elif current[0] > seq:
-            return
+        frames = self._frames.setdefault(stream, {})
+        if frames and seq < min(frames) and len(frames) >= self._keep:
+            return  # older than everything kept
+        entry = frames.setdefault(seq, {})
         for row, index in enumerate(indices.tolist()):
-            current[1][int(index)] = crops[row]
+            entry[int(index)] = crops[row]
+        for old in sorted(frames)[: -self._keep]:
+            del frames[old]
 
     def get(self, stream: str, seq: int, indices: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
         if indices.size == 0:
             return np.zeros((0, *shape), dtype=np.uint8)
-        entry = self._frames.get(stream)
-        if entry is None or entry[0] != seq:
+        entry = self._frames.get(stream, {}).get(seq)
+        if entry is None:
             raise PatchWorkError(f"no crops of frame {seq} of {stream}")
         try:
-            return np.stack([entry[1][int(i)] for i in indices])
+            return np.stack([entry[int(i)] for i in indices])
         except KeyError as exc:
             raise PatchWorkError(f"no crop of patch {exc} in frame {seq} of {stream}") from None
 

@@ -151,7 +151,7 @@ class Scatter:
                 if member == SELF:
                     self_queue.append((indices, moved))
                     continue
-                deadline = min(work.budget_s, self.dispatcher.deadline_s(member, int(indices.size)))
+                deadline = self.dispatcher.deadline_s(member, int(indices.size), work.budget_s)
                 try:
                     rid = self._send(work, member, indices, moved, deadline)
                 except Exception as exc:  # session closing, encode failure: compute it here instead
@@ -169,7 +169,9 @@ class Scatter:
             report.redispatched += 1
             self.counters.inc("redispatched")
             self.counters.inc("redispatched_patches", int(request.indices.size))
-            pause = self.dispatcher.record_failure(request.member, time.monotonic())
+            now = time.monotonic()
+            waited = now - request.sent_s if why == "deadline missed" else None
+            pause = self.dispatcher.record_failure(request.member, now, int(request.indices.size), waited)
             logger.warning(
                 "frame %d: %s failed (%s); re-dispatching %d patches, member paused %.1f s",
                 work.seq,

@@ -35,8 +35,13 @@ class WorkerService(ServiceRuntime):
         transport: TransportSettings,
         queue_capacity: int = 8,
         stats_period_s: float = 1.0,
+        cpu_factor: int = 1,
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
+        if cpu_factor < 1:
+            raise CapatazError(f"cpu_factor must be >= 1, got {cpu_factor}")
+        #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
+        self.cpu_factor = cpu_factor
         self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
         self.cache = SpectrumCache()
         self._settings: dict[tuple[tuple[str, Any], ...], YawSettings] = {}
@@ -88,6 +93,11 @@ class WorkerService(ServiceRuntime):
             t0 = time.perf_counter()
             try:
                 settings = self.settings_for(job.settings)
+                for _ in range(self.cpu_factor - 1):
+                    measure_share(
+                        SpectrumCache(), settings, job.stream, job.seq, job.seq,
+                        job.indices, job.crops, job.indices, job.crops,
+                    )  # fmt: skip
                 measurement = measure_share(
                     self.cache,
                     settings,
@@ -126,9 +136,17 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("worker", help="a worker: measures patch shifts for a master or foreman")
     add_transport_arguments(parser)
     parser.add_argument("--queue", type=int, default=8, help="bounded job queue capacity")
+    parser.add_argument(
+        "--cpu-factor",
+        type=int,
+        default=1,
+        help="emulate a CPU this many times slower (repeat every computation); for benchmarks",
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    service = WorkerService(args.node, args.index, transport_from_args(args), args.queue, args.stats_period)
+    service = WorkerService(
+        args.node, args.index, transport_from_args(args), args.queue, args.stats_period, args.cpu_factor
+    )
     return service.run()

@@ -147,12 +147,17 @@ def test_subset_plans_and_bad_indices() -> None:
         d.join(SELF)
 
 
-def test_deadline_scales_with_expected_time() -> None:
+def test_deadline_scales_with_expected_time_and_a_miss_caps_the_speed() -> None:
     d = Dispatcher(DispatchSettings(min_deadline_s=0.2, deadline_factor=4.0, ema_alpha=1.0), 100)
     d.join("w")
-    assert d.deadline_s("w", 50) == 0.2
-    d.record_success("w", 1, np.arange(10), 1.0, speed=10.0)
-    assert d.deadline_s("w", 50) == pytest.approx(20.0)
+    assert d.deadline_s("w", 50, budget_s=5.0) == 5.0  # unknown speed: the whole budget
+    d.record_success("w", 1, np.arange(10), 1.0, speed=1000.0)
+    assert d.deadline_s("w", 50, budget_s=5.0) == 0.2
+    d.record_success("w", 2, np.arange(10), 1.0, speed=10.0)
+    assert d.deadline_s("w", 50, budget_s=30.0) == pytest.approx(20.0)
+    assert d.deadline_s("w", 50, budget_s=5.0) == 5.0
+    d.record_failure("w", now_s=0.0, n_patches=20, waited_s=4.0)
+    assert d.speed("w") == pytest.approx(5.0)
 
 
 @settings(max_examples=100, deadline=None)
