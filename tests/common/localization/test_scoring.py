@@ -48,7 +48,12 @@ direction = st.tuples(*(st.floats(-1.0, 1.0, allow_nan=False) for _ in range(3))
 )
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=12,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 @given(
     pose_unit=st.lists(unit, min_size=6, max_size=6),
     directions=st.lists(direction, min_size=6, max_size=6),
