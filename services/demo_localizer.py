@@ -79,7 +79,9 @@ def run_demo(
         "scoring": method.value,
         "position_rmse_cm": accuracy.position_rmse_m * 100.0,
         "yaw_rmse_deg": float(np.degrees(accuracy.yaw_rmse_rad)),
-        "initial_position_error_cm": float(accuracy.position_errors_m[0] * 100.0),
+        "guess_position_error_cm": float(np.linalg.norm(sim.guess[:3] - truth[0, :3]) * 100.0),
+        "guess_yaw_error_deg": float(np.degrees(abs(sim.guess[5] - truth[0, 5]))),
+        "first_estimate_position_error_cm": float(accuracy.position_errors_m[0] * 100.0),
         "settle_frames": settle,
         "reinitialisations": track.reinitialisations,
         "plot": str(path),
@@ -88,6 +90,7 @@ def run_demo(
         f"localizer: {n_frames} frames through '{sim.scene.name}' ({sim.scene.n_edges} edges), "
         f"{n_particles} particles, {method.value}: after {settle} frames position RMSE "
         f"{summary['position_rmse_cm']:.2f} cm, yaw RMSE {summary['yaw_rmse_deg']:.3f} deg "
-        f"(initial error {summary['initial_position_error_cm']:.0f} cm); wrote {path}"
+        f"(initial guess off by {summary['guess_position_error_cm']:.0f} cm and "
+        f"{summary['guess_yaw_error_deg']:.1f} deg yaw); wrote {path}"
     )
     return summary
