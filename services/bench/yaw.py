@@ -1,7 +1,8 @@
 """Yaw core vs the paper's cv2.phaseCorrelate per patch pair: ms/frame on one core and accuracy, same frames.
 
 Both run single-threaded: ``cv2.setNumThreads(1)``; numpy's FFT (pocketfft) never spawns threads. The
-frames of the simulated hover are rendered once beforehand; only the per-frame yaw work is timed. The
+frames of the simulated hover are rendered once beforehand; only the per-frame yaw work is timed, with all
+methods interleaved frame by frame so that they share the (shared, noisy) machine's load alike. The
 baseline runs on the core's grid (same 8x5 patch centres, 64 px full-resolution patches, which the core
 covers with 32 px patches at pyramid level 1) and on candidate grids of its own, the most accurate of
 which is reported too. A micro-benchmark of the patch transforms (numpy batched rfft2 vs a loop of
@@ -11,6 +12,7 @@ cv2.dft) shows which FFT backend is faster; the core's default is the measured w
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -23,10 +25,9 @@ import numpy.typing as npt
 
 from common.metrics import yaw_error_stats
 from common.sim.flight import hover_flight
-from common.yaw import FftBackend, YawSettings, make_patch_grid
+from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
 from common.yaw.correlation import forward_transform, inverse_transform, windowed_patches
 from common.yaw.reference import reference_pair, reference_settings
-from services.demo_yaw import track_frames
 
 logger = logging.getLogger(__name__)
 
@@ -80,15 +81,51 @@ def fft_microbench(frame: npt.NDArray[np.uint8], settings: YawSettings) -> dict[
     return result
 
 
-def _run_baseline(frames: U8Frames, settings: YawSettings) -> tuple[npt.NDArray[np.float64], list[float]]:
-    grid = make_patch_grid(frames[0].shape, settings)
-    yaw = np.zeros(len(frames))
-    ms: list[float] = []
+class _CoreRunner:
+    """The core as a per-frame step (``YawTracker.track``) with its own explicit state."""
+
+    def __init__(self, first: npt.NDArray[np.uint8], settings: YawSettings) -> None:
+        self.tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
+        self.state = self.tracker.initial_state(first)
+
+    def step(self, frame: npt.NDArray[np.uint8]) -> float:
+        self.state, estimate = self.tracker.track(self.state, frame)
+        return estimate.delta_yaw_rad
+
+
+class _BaselineRunner:
+    """The paper's method as a per-frame step: cv2.phaseCorrelate of every patch pair (both spectra)."""
+
+    def __init__(self, first: npt.NDArray[np.uint8], settings: YawSettings) -> None:
+        self.settings = settings
+        self.grid = make_patch_grid(first.shape, settings)
+        self.previous = first
+
+    def step(self, frame: npt.NDArray[np.uint8]) -> float:
+        delta = reference_pair(self.previous, frame, self.grid, self.settings).delta_yaw_rad
+        self.previous = frame
+        return delta
+
+
+Runner = _CoreRunner | _BaselineRunner
+
+
+def _interleaved(
+    frames: U8Frames, makers: list[Callable[[npt.NDArray[np.uint8]], Runner]]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Every method steps on frame k before any steps on k + 1, so all see the same machine load.
+
+    Returns the integrated yaw (methods, N) and the ms per step (methods, N - 1).
+    """
+    runners = [make(frames[0]) for make in makers]
+    yaw = np.zeros((len(runners), len(frames)))
+    ms = np.zeros((len(runners), len(frames) - 1))
     for k in range(1, len(frames)):
-        start = time.perf_counter()
-        delta = reference_pair(frames[k - 1], frames[k], grid, settings).delta_yaw_rad
-        ms.append((time.perf_counter() - start) * 1e3)
-        yaw[k] = yaw[k - 1] + delta
+        for m, runner in enumerate(runners):
+            start = time.perf_counter()
+            delta = runner.step(frames[k])
+            ms[m, k - 1] = (time.perf_counter() - start) * 1e3
+            yaw[m, k] = yaw[m, k - 1] + delta
     return yaw, ms
 
 
@@ -119,45 +156,53 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     core_grid = f"{layout} x {settings.patch_size_px}px @ level {settings.pyramid_level}"
     rows: list[dict[str, Any]] = []
 
-    logger.info("core (%s, %s FFT)", core_grid, settings.fft_backend.value)
-    core = track_frames(frames, settings)
-    rows.append(
-        _row(f"core ({settings.fft_backend.value} fft)", core_grid, core.ms_per_frame, core.yaw_rad, truth)
-    )
     other_backend = next(b for b in FftBackend if b is not settings.fft_backend)
-    other = track_frames(frames, replace(settings, fft_backend=other_backend))
-    rows.append(
-        _row(f"core ({other_backend.value} fft)", core_grid, other.ms_per_frame, other.yaw_rad, truth)
-    )
-
     grids = BASELINE_GRIDS[:1] if args.quick else BASELINE_GRIDS
-    baseline_rows = []
+    labels = [f"core ({settings.fft_backend.value} fft)", f"core ({other_backend.value} fft)"]
+    makers: list[Callable[[npt.NDArray[np.uint8]], Runner]] = [
+        lambda f: _CoreRunner(f, settings),
+        lambda f: _CoreRunner(f, replace(settings, fft_backend=other_backend)),
+    ]
+    grid_labels = [core_grid, core_grid]
     for patch_px, cols, rows_n in grids:
-        label = f"{cols}x{rows_n} x {patch_px}px @ level 0"
-        logger.info("baseline cv2.phaseCorrelate (%s)", label)
-        yaw, ms = _run_baseline(frames, reference_settings(patch_px, cols, rows_n))
-        baseline_rows.append(_row("baseline cv2.phaseCorrelate", label, ms, yaw, truth))
-    on_core_grid = baseline_rows[0]
-    on_core_grid["method"] = "baseline on the core's grid"
-    best = min(baseline_rows, key=lambda r: r["max_ame_deg"])
-    rows.extend(baseline_rows)
+        labels.append("baseline cv2.phaseCorrelate")
+        grid_labels.append(f"{cols}x{rows_n} x {patch_px}px @ level 0")
+        makers.append(functools.partial(_BaselineRunner, settings=reference_settings(patch_px, cols, rows_n)))
+    logger.info("core and baseline, interleaved frame by frame: %s", ", ".join(grid_labels))
+    yaw, ms = _interleaved(frames, makers)
+    for m in range(len(makers)):
+        rows.append(_row(labels[m], grid_labels[m], ms[m], yaw[m], truth))
+    core_index, baseline_index = 0, 2
+    rows[baseline_index]["method"] = "baseline on the core's grid"
+    on_core_grid = rows[baseline_index]
+    best = min(rows[baseline_index:], key=lambda r: r["max_ame_deg"])
     for row in rows:
         row["speedup"] = on_core_grid["ms_median"] / row["ms_median"]
+    per_frame_ratio = float(np.median(ms[baseline_index] / ms[core_index]))
 
     step = int(args.drop_step)
     if step > 1:
         kept = frames[::step]
         kept_truth = truth[::step]
         logger.info("dropped frames: every %d-th frame (%d frames)", step, len(kept))
-        dropped = track_frames(kept, settings)
-        grid_label = f"{core_grid}, every {step}th frame"
-        rows.append(
-            _row("core, dropped frames", grid_label, dropped.ms_per_frame, dropped.yaw_rad, kept_truth)
+        yaw_d, ms_d = _interleaved(
+            kept,
+            [lambda f: _CoreRunner(f, settings), lambda f: _BaselineRunner(f, reference_settings(*grids[0]))],
         )
-        rows[-1]["speedup"] = float("nan")
-        yaw, ms = _run_baseline(kept, reference_settings(*BASELINE_GRIDS[0]))
-        rows.append(_row("baseline, dropped frames", grid_label, ms, yaw, kept_truth))
-        rows[-1]["speedup"] = float("nan")
+        rows.append(
+            _row("core, dropped frames", f"{core_grid}, every {step}th frame", ms_d[0], yaw_d[0], kept_truth)
+        )
+        rows.append(
+            _row(
+                "baseline, dropped frames",
+                f"{grid_labels[2]}, every {step}th frame",
+                ms_d[1],
+                yaw_d[1],
+                kept_truth,
+            )
+        )
+        for row in rows[-2:]:
+            row["speedup"] = float("nan")
 
     core_row = rows[0]
     micro = fft_microbench(frames[0], settings)
@@ -168,6 +213,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "core_ms_median": core_row["ms_median"],
         "baseline_ms_median": on_core_grid["ms_median"],
         "speedup": on_core_grid["ms_median"] / core_row["ms_median"],
+        "speedup_per_frame_median": per_frame_ratio,
         "core_max_ame_deg": core_row["max_ame_deg"],
         "baseline_max_ame_deg": on_core_grid["max_ame_deg"],
         "core_final_yaw_error_deg": core_row["final_err_deg"],
@@ -176,8 +222,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "baseline_best_ms_median": best["ms_median"],
         "baseline_best_max_ame_deg": best["max_ame_deg"],
         "speedup_vs_best_baseline": best["ms_median"] / core_row["ms_median"],
-        "core_low_confidence_frames": int(np.count_nonzero(core.low_confidence)),
-        "core_methods": core.methods,
         "fft_microbench_us": micro,
         "dropped_frames_step": step if step > 1 else None,
         "core_dropped_max_ame_deg": next(
