@@ -18,6 +18,8 @@ import argparse
 import logging
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -60,13 +62,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _pin_one_core() -> str:
+@contextmanager
+def _one_core() -> Iterator[str]:
+    """OpenCV single-threaded and this process pinned to one CPU; both restored afterwards (``bench all``
+    runs other benchmarks, which may start processes, in the same process)."""
+    threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    if hasattr(os, "sched_setaffinity") and hasattr(os, "sched_getaffinity"):
-        cpus = sorted(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpus[-1]})
-        return f"cpu {cpus[-1]}"
-    return "cv2 single-threaded (no CPU affinity on this OS)"
+    affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    try:
+        if affinity is not None and hasattr(os, "sched_setaffinity"):
+            cpu = max(affinity)
+            os.sched_setaffinity(0, {cpu})
+            yield f"cpu {cpu}"
+        else:
+            yield "cv2 single-threaded (no CPU affinity on this OS)"
+    finally:
+        cv2.setNumThreads(threads)
+        if affinity is not None and hasattr(os, "sched_setaffinity"):
+            os.sched_setaffinity(0, affinity)
 
 
 def _clouds(
@@ -122,7 +135,11 @@ def _time_steps(
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    core = _pin_one_core()
+    with _one_core() as core:
+        return _measure(args, core)
+
+
+def _measure(args: argparse.Namespace, core: str) -> dict[str, Any]:
     t0 = time.perf_counter()
     sim = simulate_run(n_frames=args.frames, seed=args.seed)
     render_s = time.perf_counter() - t0
