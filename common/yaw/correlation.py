@@ -164,7 +164,10 @@ def inverse_transform(spectra: ComplexArray, size_px: int, backend: FftBackend) 
 
 
 def normalised_cross_power(previous: ComplexArray, current: ComplexArray) -> Float32Array:
-    """``current . conj(previous) / |current . conj(previous)|`` as float32 (n, s, w, 2) [re, im] pairs.
+    """Cross-power spectrum, paper A's ``C = (Ia . conj(Ib)) / (|Ia| |Ib|)`` with Ia = current, Ib = previous.
+
+    Returned as float32 (n, s, w, 2) [re, im] pairs (the inverse gives a peak at the shift of current
+    vs previous); normalised by ``|Ia . conj(Ib)|`` plus a tiny floor so textureless patches give zeros.
 
     Written as separate real ufuncs (each correctly rounded) rather than complex64 arithmetic, whose
     SIMD and scalar paths (fused multiply-adds) differ in the last bit depending on the batch length
@@ -290,8 +293,8 @@ def measure_patches(previous: PatchSpectra, current: PatchSpectra, settings: Yaw
     """Phase correlation of each patch of frame k against its cached spectrum of frame k-1.
 
     Paper A, Algorithm 2 (DISPLACEMENT), with the previous spectrum reused instead of recomputed:
-    cross-power spectrum ``C = (Ib . conj(Ia)) / |Ib . conj(Ia)|`` (paper A's C, normalised per
-    frequency), weighted by a Gaussian (``peak_weighting``), inverse transform, sub-pixel peak.
+    cross-power spectrum (``normalised_cross_power``), weighted by a Gaussian (``peak_weighting``),
+    inverse transform, sub-pixel peak corrected for the window (``subpixel_peaks``).
     """
     if previous.indices.shape != current.indices.shape or not np.array_equal(
         previous.indices, current.indices

@@ -82,7 +82,7 @@ class TrackerState:
 
 
 def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> float:
-    """Vehicle yaw change from the image homography of a downward camera (paper A: psi from Rz).
+    """Vehicle yaw change from the image homography of a downward camera (``rotation_of_homography_rad``).
 
     With ``R_BODY_CAMERA_DOWN`` (image x = body -y, image y = body -x, optical axis = body -z) a yaw of
     +psi (CCW from above) turns the image content by +psi in the image's (x right, y down) axes.
