@@ -163,11 +163,14 @@ def inverse_transform(spectra: ComplexArray, size_px: int, backend: FftBackend) 
     return out
 
 
-def normalised_cross_power(previous: ComplexArray, current: ComplexArray) -> Float32Array:
+def normalised_cross_power(
+    previous: ComplexArray, current: ComplexArray, weight: Float32Array | None = None
+) -> Float32Array:
     """Cross-power spectrum, paper A's ``C = (Ia . conj(Ib)) / (|Ia| |Ib|)`` with Ia = current, Ib = previous.
 
     Returned as float32 (n, s, w, 2) [re, im] pairs (the inverse gives a peak at the shift of current
-    vs previous); normalised by ``|Ia . conj(Ib)|`` plus a tiny floor so textureless patches give zeros.
+    vs previous); normalised by ``|Ia . conj(Ib)|`` plus a tiny floor so textureless patches give zeros,
+    and multiplied by ``weight`` (s, w) when given (in the same pass).
 
     Written as separate real ufuncs (each correctly rounded) rather than complex64 arithmetic, whose
     SIMD and scalar paths (fused multiply-adds) differ in the last bit depending on the batch length
@@ -183,7 +186,8 @@ def normalised_cross_power(previous: ComplexArray, current: ComplexArray) -> Flo
     im -= b_re * a_im
     magnitude = np.sqrt(re * re + im * im)
     magnitude += np.float32(1e-6) * (magnitude.max(axis=(1, 2), keepdims=True) + np.float32(1e-30))
-    out /= magnitude[..., None]
+    factor = np.divide(weight, magnitude) if weight is not None else np.reciprocal(magnitude)
+    out *= factor[..., None]
     return out
 
 
@@ -313,8 +317,9 @@ def measure_patches(previous: PatchSpectra, current: PatchSpectra, settings: Yaw
         return PatchMeasurement(
             current.indices, np.zeros((0, 2)), empty, empty, np.zeros((0,), dtype=np.bool_)
         )
-    cross = normalised_cross_power(previous.spectra, current.spectra)
-    cross *= peak_weighting(s, settings.peak_sigma_px, half)[..., None]
+    cross = normalised_cross_power(
+        previous.spectra, current.spectra, peak_weighting(s, settings.peak_sigma_px, half)
+    )
     surfaces = inverse_transform(cross.view(np.complex64)[..., 0], s, settings.fft_backend)
     overlap = window_overlap_log(s, settings.window_taper) * settings.overlap_correction
     shift_level, peak, ratio = subpixel_peaks(surfaces, overlap if settings.overlap_correction else None)

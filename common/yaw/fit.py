@@ -91,11 +91,12 @@ def fit_correspondences(src_px: npt.ArrayLike, dst_px: npt.ArrayLike, settings: 
             refined, _ = cv2.findHomography(src[inl], dst[inl], 0)
             if refined is not None:
                 homography = refined
-    inliers = transfer_error_px(homography, src, dst) <= settings.ransac_threshold_px
+    errors = transfer_error_px(homography, src, dst)
+    inliers = errors <= settings.ransac_threshold_px
     count = int(np.count_nonzero(inliers))
     if count < needed:
         return ModelFit(ok=False, homography=np.eye(3), inliers=inliers, residual_px=math.inf)
-    residual = float(np.median(transfer_error_px(homography, src[inliers], dst[inliers])))
+    residual = float(np.median(errors[inliers]))
     return ModelFit(
         ok=True, homography=np.asarray(homography, dtype=np.float64), inliers=inliers, residual_px=residual
     )
