@@ -101,7 +101,15 @@ class CameraService(ServiceRuntime):
         self._pub: dict[str, dict[str, Any]] = {}
         for uav in self.settings.uavs:
             self._pub[uav] = {
-                "camera": session.declare_publisher(keys.camera_key(uav)),
+                # free-running: DROP (real time, latest wins); flow-controlled replay: BLOCK (every frame)
+                "camera": session.declare_publisher(
+                    keys.camera_key(uav),
+                    congestion_control=(
+                        zenoh.CongestionControl.BLOCK
+                        if self.settings.in_flight
+                        else zenoh.CongestionControl.DROP
+                    ),
+                ),
                 "imu": session.declare_publisher(keys.imu_key(uav)),
                 "range": session.declare_publisher(keys.range_key(uav)),
             }

@@ -33,8 +33,11 @@ def test_every_frame_yields_the_in_process_yaw_despite_a_killed_foreman_and_a_fr
             collector = YawCollector(session, "uav0")
             cluster.start_camera(["--frames", str(n), "--fps", "0", "--in-flight", "1"])
             events: dict[str, int] = {}
-            deadline = time.monotonic() + 30.0 + 0.25 * n
+            deadline = time.monotonic() + min(240.0, 30.0 + 0.1 * n)
+            camera = cluster.processes["camera/camera/0"]
             while len(collector.estimates) < n and time.monotonic() < deadline:
+                if camera.poll() is not None and not collector.wait_for(n, 3.0):
+                    break  # the camera is done: whatever is missing now is lost
                 newest = collector.newest()
                 if "kill" not in events and newest >= kill_at:
                     cluster.signal("foreman/h1/0", signal.SIGKILL)
@@ -56,6 +59,16 @@ def test_every_frame_yields_the_in_process_yaw_despite_a_killed_foreman_and_a_fr
     error_deg = np.degrees(np.abs(yaw - reference["yaw"]))
     assert error_deg.max() <= 1e-9, (
         f"max |cluster - in-process| = {error_deg.max():.3g} deg at {error_deg.argmax()}"
+    )
+    redispatched = sum(e.redispatched for e in estimates.values())
+    total_ms = np.array([estimates[k].timings_ms["total"] for k in range(1, n)])
+    print(
+        f"\nfault run: {n} frames, yaw for {len(estimates)}, "
+        f"max |cluster - in-process| {error_deg.max():.2e} deg, "
+        f"foreman/h1 SIGKILLed at frame {events['kill']}, "
+        f"worker/h2/1 SIGSTOPped at frame {events['freeze']}, "
+        f"{redispatched} shares re-dispatched, dropped {max(e.dropped_frames for e in estimates.values())}, "
+        f"master ms/frame median {np.median(total_ms):.1f} max {total_ms.max():.1f}"
     )
     assert max(e.dropped_frames for e in estimates.values()) == 0
     # the faults really happened and were absorbed: shares were re-dispatched after the kill
