@@ -19,10 +19,16 @@ from services.report import write_json
 
 logger = logging.getLogger(__name__)
 
-COLOURS = {"rectified": "tab:red", "traditional": "tab:blue", "gyro_yaw": "tab:green"}
+COLOURS = {
+    "rectified": "tab:red",
+    "traditional": "tab:blue",
+    "raw_ekf_scale": "tab:purple",
+    "gyro_yaw": "tab:green",
+}
 LABELS = {
     "rectified": "VO on rectified frames (double coupling)",
-    "traditional": "VO on raw frames (traditional)",
+    "traditional": "VO on raw frames, rangefinder scale (traditional)",
+    "raw_ekf_scale": "VO on raw frames, EKF altitude scale",
     "gyro_yaw": "EKF without visual yaw (gyro only)",
 }
 
@@ -36,6 +42,7 @@ def summarize(flight: Flight, runs: dict[str, EstimatorRun], errors: dict[str, R
         "vo_error_pct": rect.vo_error_pct,
         "vo_final_error_cm_unrectified": 100.0 * trad.vo_final_error_m,
         "vo_error_pct_unrectified": trad.vo_error_pct,
+        "vo_final_error_cm_raw_frames_ekf_scale": 100.0 * errors["raw_ekf_scale"].vo_final_error_m,
         "att_rmse_deg_roll_pitch_yaw": rect.att_rmse_deg.tolist(),
         "alt_rmse_cm": 100.0 * rect.alt_rmse_m,
         "yaw_final_error_deg": float(abs(rect.yaw_error_deg[-1])),
@@ -81,7 +88,7 @@ def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict
     ax.plot(runs["rectified"].attitude_stamps_s, runs["rectified"].pz_m, color="tab:red", lw=1.0, label="EKF")
     ax.set_ylabel("altitude (m)")
     ax = axes[4]
-    for name in ("traditional", "rectified"):
+    for name in ("traditional", "raw_ekf_scale", "rectified"):
         e = errors[name]
         ax.plot(runs[name].pose_stamps_s, 100.0 * e.vo_error_m, color=COLOURS[name], lw=1.0,
                 label=f"{LABELS[name]}: final {100 * e.vo_final_error_m:.2f} cm ({e.vo_error_pct:.3f} % of "

@@ -31,7 +31,7 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.estimation.buffer import Refusal, TimeOrderedBuffer
-from common.estimation.ekf import AttitudeAltitudeEkf, EkfError, EkfSettings, EkfState
+from common.estimation.ekf import AttitudeAltitudeEkf, EkfError, EkfSettings, EkfState, UpdateResult
 from common.estimation.rectify import RectificationError, check_image_u8, rectify_frame
 from common.estimation.vo import (
     MotionModel,
@@ -52,6 +52,7 @@ from common.geometry import (
     matrix_from_euler,
     matrix_from_quaternion,
     quaternion_from_euler,
+    quaternion_multiply,
 )
 
 logger = logging.getLogger(__name__)
@@ -67,6 +68,13 @@ class Sensor(enum.Enum):
     RANGE = "range"
     CAMERA = "camera"
     YAW = "yaw"
+
+
+class ScaleSource(enum.Enum):
+    """Where the visual odometry takes its metric scale (the camera's height) from."""
+
+    EKF = "ekf"
+    RANGE = "range"
 
 
 @dataclass(frozen=True)
@@ -147,6 +155,12 @@ class CouplingSettings:
     #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's
     #: "traditional" VO).
     rectify: bool = True
+    #: Time constant (s) pulling the rectification attitude (gyro-propagated between frames) towards the
+    #: EKF's; 0 rectifies with the EKF attitude of each frame as it is.
+    rectification_smoothing_s: float = 0.0
+    #: Metric scale of the VO: the EKF altitude (coupled) or the last rangefinder reading as it is
+    #: (the uncoupled, traditional VO: longer than the height when tilted, and noisy).
+    scale_from: ScaleSource = ScaleSource.EKF
     #: For rectified pairs, fit the level motion (yaw + translation, n = e3) instead of the free
     #: decomposition.
     level_model: bool = False
@@ -167,6 +181,9 @@ class CouplingSettings:
     accel_compensation: bool = True
     #: Time span of the VO positions fitted (cubic in time) for that acceleration.
     accel_window_s: float = 0.6
+    #: After the start, skip the accelerometer for up to this long until the VO acceleration is available
+    #: (0: use the hover model meanwhile, right for a start at rest; > 0 for a start in mid-manoeuvre).
+    accel_wait_for_vo_s: float = 0.0
     #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
     initial_yaw_rad: float = 0.0
     initial_position_m: tuple[float, float] = (0.0, 0.0)
@@ -267,6 +284,9 @@ class DoubleCouplingEstimator:
         self._altitude_from_range = False
         self._vo_track: deque[tuple[float, float, float]] = deque()
         self._motion_accel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._first_imu_s: float | None = None
+        self._rect_q: FloatArray | None = None
+        self._accel_position = np.zeros(3)
 
     # ---- input ------------------------------------------------------------------------------------
 
@@ -337,15 +357,21 @@ class DoubleCouplingEstimator:
     def _on_imu(self, m: ImuMeasurement) -> AttitudeOutput | None:
         if self.state is None:
             self.state = self._initial_state(m)
+            self._first_imu_s = m.stamp_s
         dt_s = m.stamp_s - self.state.stamp_s
         try:
             state = self.ekf.predict(self.state, m.gyro_rad_s, dt_s)
-            result = self.ekf.update_accelerometer(state, m.accel_m_s2, self._motion_accel)
+            if self._accel_waits_for_vo(m.stamp_s):
+                self.counters["accel_waiting_for_vo"] += 1
+                result = UpdateResult(state=state, accepted=True, nis=math.nan)
+            else:
+                result = self.ekf.update_accelerometer(state, m.accel_m_s2, self._motion_accel)
         except EkfError as exc:
             self.counters["ekf_errors"] += 1
             logger.warning("IMU sample at %.4f s not applied: %s", m.stamp_s, exc)
             return None
         self.counters["imu_applied"] += 1
+        self._propagate_rectification_attitude(m, dt_s, result.state)
         if not result.accepted:
             self.counters["accel_gated"] += 1
         self.state = result.state
@@ -407,7 +433,11 @@ class DoubleCouplingEstimator:
             return None
         t0 = time.perf_counter()
         roll, pitch, yaw_ekf = (float(v) for v in euler_from_quaternion(self.state.q_world_body))
+        if self._rect_q is not None and self.settings.rectification_smoothing_s > 0.0:
+            roll, pitch, _ = (float(v) for v in euler_from_quaternion(self._rect_q))
         altitude_m = self.state.pz_m
+        if self.settings.scale_from is ScaleSource.RANGE and self._last_range_m is not None:
+            altitude_m = self._last_range_m
         cam = self.camera
         try:
             if self.settings.rectify:
@@ -425,6 +455,7 @@ class DoubleCouplingEstimator:
         n_inliers = 0
         if self.pose is None or self._prev_frame is None:
             self.pose = self._initial_pose(roll, pitch, yaw_ekf, altitude_m)
+            self._accel_position = self.pose.p_n_camera_m.copy()
             self._vo_yaw_unwrapped = yaw_of_camera(self.pose.R_n_camera, self._vo_camera_mount())
             ok = True
         else:
@@ -439,6 +470,10 @@ class DoubleCouplingEstimator:
                 )
                 t_m = metric_translation(motion.t_over_d, self._prev_altitude_m)
                 self.pose = compose_pose(self.pose, motion.R_k_km1, t_m)
+                # the accelerometer compensation follows the free decomposition: with the level model a
+                # tilt error of the EKF would leak into the translation and back into the EKF (a loop)
+                t_free = metric_translation(motion.t_over_d_free, self._prev_altitude_m)
+                self._accel_position = self._accel_position - self.pose.R_n_camera @ t_free
                 n_inliers = motion.n_inliers
                 ok = True
                 self.counters["vo_pairs"] += 1
@@ -466,9 +501,34 @@ class DoubleCouplingEstimator:
             ok=ok,
         )
 
+    def _propagate_rectification_attitude(self, m: ImuMeasurement, dt_s: float, state: EkfState) -> None:
+        """Attitude used to rectify: the gyro's rotation between frames, pulled towards the EKF with the
+        time constant ``rectification_smoothing_s`` (consecutive frames are rectified consistently; the
+        EKF's accelerometer corrections would otherwise make them jitter against each other)."""
+        tau = self.settings.rectification_smoothing_s
+        if self._rect_q is None or tau <= 0.0:
+            self._rect_q = state.q_world_body
+            return
+        half = 0.5 * dt_s
+        w = m.gyro_rad_s
+        q = quaternion_multiply(self._rect_q, [1.0, half * w[0], half * w[1], half * w[2]])
+        ekf_q = state.q_world_body if float(np.dot(q, state.q_world_body)) >= 0.0 else -state.q_world_body
+        alpha = min(1.0, dt_s / tau)
+        q = (1.0 - alpha) * q + alpha * ekf_q
+        self._rect_q = q / np.linalg.norm(q)
+
+    def _accel_waits_for_vo(self, stamp_s: float) -> bool:
+        """At a start in mid-manoeuvre the hover model is wrong until the VO gives the acceleration."""
+        s = self.settings
+        return (
+            s.accel_compensation
+            and len(self._vo_track) < 5
+            and self._first_imu_s is not None
+            and stamp_s - self._first_imu_s < s.accel_wait_for_vo_s
+        )
+
     def _update_motion_accel(self, stamp_s: float) -> None:
-        assert self.pose is not None
-        p = self.pose.p_n_camera_m
+        p = self._accel_position
         self._vo_track.append((stamp_s, float(p[0]), float(p[1])))
         while self._vo_track and self._vo_track[0][0] < stamp_s - self.settings.accel_window_s:
             self._vo_track.popleft()

@@ -62,6 +62,9 @@ class VoSettings:
     fb_max_error_px: float = 0.3
     ransac_threshold_px: float = 1.0
     min_inliers: int = 12
+    #: Gaussian pre-smoothing (sigma, px) of each frame before features and flow; it reduces the
+    #: "pixel locking" bias of Lucas-Kanade's interpolation on sub-pixel motions (0 = none).
+    presmooth_sigma_px: float = 0.0
     #: Features closer than this to a mask edge (or the image edge) are not used.
     mask_margin_px: int = 8
 
@@ -92,6 +95,8 @@ class RelativeMotion:
 
     R_k_km1: FloatArray
     t_over_d: FloatArray
+    #: ``T/d`` of the free decomposition (equal to ``t_over_d`` for :attr:`MotionModel.FREE`).
+    t_over_d_free: FloatArray
     normal_km1: FloatArray
     H_k_km1: FloatArray
     n_features: int
@@ -126,6 +131,8 @@ def _inner_mask(mask: ImageU8 | None, shape: tuple[int, int], margin_px: int) ->
 def prepare_frame(image: npt.ArrayLike, mask: npt.ArrayLike | None, settings: VoSettings) -> PreparedFrame:
     """Shi-Tomasi features (inside ``mask`` shrunk by the margin)."""
     img = check_image_u8(image)
+    if settings.presmooth_sigma_px > 0.0:
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), settings.presmooth_sigma_px), dtype=np.uint8)
     inner = _inner_mask(None if mask is None else np.asarray(mask), img.shape, settings.mask_margin_px)
     corners = cv2.goodFeaturesToTrack(
         img,
@@ -314,13 +321,8 @@ def estimate_relative_motion(
         H = H_ls
     normal_ref = np.asarray(expected_normal, dtype=np.float64).reshape(3)
     normal_ref = normal_ref / np.linalg.norm(normal_ref)
-    n_solutions, rotations, translations, normals = (
-        (0, (), (), ()) if model is MotionModel.LEVEL else cv2.decomposeHomographyMat(H, Km)
-    )
-    if model is MotionModel.LEVEL:
-        R, t_over_d = level_motion_from_matches(p0[keep], p1[keep], Km)
-        normal = np.array([0.0, 0.0, 1.0])
-    elif n_solutions == 1:
+    n_solutions, rotations, translations, normals = cv2.decomposeHomographyMat(H, Km)
+    if n_solutions == 1:
         # OpenCV reports a pure rotation when |H^T H - I| < 1e-3, i.e. for translations below about
         # 0.05 % of the altitude (2 mm per frame at 4 m); keep them with the expected normal.
         R, t_over_d = decompose_with_known_normal(calibrated_homography(H, Km), normal_ref)
@@ -330,9 +332,14 @@ def estimate_relative_motion(
         R = np.asarray(rotations[best], dtype=np.float64)
         t_over_d = np.asarray(translations[best], dtype=np.float64).reshape(3)
         normal = np.asarray(normals[best], dtype=np.float64).reshape(3)
+    t_over_d_free = t_over_d
+    if model is MotionModel.LEVEL:
+        R, t_over_d = level_motion_from_matches(p0[keep], p1[keep], Km)
+        normal = np.array([0.0, 0.0, 1.0])
     return RelativeMotion(
         R_k_km1=R,
         t_over_d=t_over_d,
+        t_over_d_free=t_over_d_free,
         normal_km1=normal,
         H_k_km1=np.asarray(H / H[2, 2], dtype=np.float64),
         n_features=len(prev.features_px),

@@ -1,10 +1,11 @@
 """Estimator (paper C) on flight (b): VO with and without rectification, EKF attitude/altitude, timings.
 
-Runs the whole simulated flight (b) (about 13.8 m, 1001 frames, 400 Hz IMU, 50 Hz rangefinder) through three
-estimators fed the same stream: rectified VO with visual yaw (the paper's double coupling), the
-"traditional" VO on raw frames (visual yaw on), and the EKF with the gyro alone for yaw. Single-threaded
-OpenCV (``cv2.setNumThreads(1)``): every timing is one core's. The EKF step time is measured separately on
-the flight's IMU samples (one predict + one accelerometer update).
+Runs the whole simulated flight (b) (about 13.8 m, 1001 frames, 400 Hz IMU, 50 Hz rangefinder) through
+four estimators fed the same stream (``common.estimation.replay.CONFIGURATIONS``): rectified VO scaled by
+the EKF altitude with visual yaw (the paper's double coupling), the "traditional" VO (raw frames, scaled
+by the raw rangefinder reading), raw frames scaled by the EKF altitude, and the EKF with the gyro alone
+for yaw. Single-threaded OpenCV (``cv2.setNumThreads(1)``): every timing is one core's. The EKF step time
+is measured separately on the flight's IMU samples (one predict + one accelerometer update).
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ NAME = "estimator"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="flight (b) seed")
-    parser.add_argument("--frames", type=int, default=None, help="only the first N frames (default: all)")
+    parser.add_argument("--start-frame", type=int, default=0, help="first frame (default 0)")
+    parser.add_argument("--frames", type=int, default=None, help="only N frames (default: to the end)")
     parser.add_argument("--ekf-steps", type=int, default=20000, help="EKF steps timed")
     parser.add_argument("--cpu", type=int, default=None, help="pin the process to this CPU (Linux)")
 
@@ -57,11 +59,16 @@ def time_ekf_steps(flight: Flight, n_steps: int) -> np.ndarray:
     return out
 
 
-def compare_on_flight_b(seed: int = 0, frames: int | None = None) -> tuple[Flight, dict[str, EstimatorRun]]:
+def compare_on_flight_b(
+    seed: int = 0, frames: int | None = None, start_frame: int = 0
+) -> tuple[Flight, dict[str, EstimatorRun]]:
     """Flight (b) through the three standard estimators (frames rendered once)."""
     cv2.setNumThreads(1)
     flight = turns_flight(seed=seed)
-    runs = run_estimators(standard_estimators(flight), flight_measurements(flight, 0, frames))
+    stop = None if frames is None else start_frame + frames
+    runs = run_estimators(
+        standard_estimators(flight, start_frame), flight_measurements(flight, start_frame, stop)
+    )
     return flight, runs
 
 
@@ -84,8 +91,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.cpu is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {int(args.cpu)})
     t0 = time.perf_counter()
-    flight, runs = compare_on_flight_b(args.seed, args.frames)
-    errors = {name: evaluate(r, flight) for name, r in runs.items()}
+    flight, runs = compare_on_flight_b(args.seed, args.frames, args.start_frame)
+    errors = {name: evaluate(r, flight, args.start_frame) for name, r in runs.items()}
     ekf_us = time_ekf_steps(flight, args.ekf_steps)
     rect, trad, gyro = errors["rectified"], errors["traditional"], errors["gyro_yaw"]
     vo_ms = runs["rectified"].vo_ms[1:]  # the first frame has no pair
@@ -94,6 +101,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                  "alt_rmse_cm": float("nan"), "yaw_rmse_deg": float(np.median(ekf_us))})  # fmt: skip
     return {
         "seed": args.seed,
+        "start_frame": args.start_frame,
         "frames": len(runs["rectified"].pose_stamps_s),
         "path_length_m": rect.path_length_m,
         "vo_ms_median": float(np.median(vo_ms)),
@@ -107,6 +115,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "vo_final_error_cm_unrectified": 100.0 * trad.vo_final_error_m,
         "vo_error_pct_unrectified": trad.vo_error_pct,
         "vo_max_error_cm_unrectified": 100.0 * trad.vo_max_error_m,
+        "vo_final_error_cm_raw_frames_ekf_scale": 100.0 * errors["raw_ekf_scale"].vo_final_error_m,
+        "vo_error_pct_raw_frames_ekf_scale": errors["raw_ekf_scale"].vo_error_pct,
         "att_rmse_deg": float(np.max(rect.att_rmse_deg)),
         "att_rmse_deg_roll_pitch_yaw": rect.att_rmse_deg.tolist(),
         "alt_rmse_cm": 100.0 * rect.alt_rmse_m,

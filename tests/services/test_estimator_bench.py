@@ -30,4 +30,10 @@ def test_bench_reports_every_field_on_a_short_flight() -> None:
     assert result["vo_ms_median"] > 0.0 and result["ekf_us_per_step_median"] > 0.0
     assert result["att_rmse_deg"] < 1.0
     assert result["alt_rmse_cm"] < 3.0
-    assert {row["run"] for row in result["table"]} == {"rectified", "traditional", "gyro_yaw", "ekf_step_us"}
+    assert {row["run"] for row in result["table"]} == {
+        "rectified",
+        "traditional",
+        "raw_ekf_scale",
+        "gyro_yaw",
+        "ekf_step_us",
+    }
