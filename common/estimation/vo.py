@@ -65,6 +65,9 @@ class VoSettings:
     #: Gaussian pre-smoothing (sigma, px) of each frame before features and flow; it reduces the
     #: "pixel locking" bias of Lucas-Kanade's interpolation on sub-pixel motions (0 = none).
     presmooth_sigma_px: float = 0.0
+    #: Detect the Shi-Tomasi features on the image downsampled by 2**detect_level (0: full resolution);
+    #: level 1 costs a quarter and the flow still tracks them at full resolution.
+    detect_level: int = 1
     #: Features closer than this to a mask edge (or the image edge) are not used.
     mask_margin_px: int = 8
 
@@ -134,14 +137,24 @@ def prepare_frame(image: npt.ArrayLike, mask: npt.ArrayLike | None, settings: Vo
     if settings.presmooth_sigma_px > 0.0:
         img = np.asarray(cv2.GaussianBlur(img, (0, 0), settings.presmooth_sigma_px), dtype=np.uint8)
     inner = _inner_mask(None if mask is None else np.asarray(mask), img.shape, settings.mask_margin_px)
+    detect_img, detect_mask = img, inner
+    for _ in range(settings.detect_level):
+        detect_img = np.asarray(cv2.pyrDown(detect_img), dtype=np.uint8)
+        detect_mask = np.asarray(detect_mask[::2, ::2], dtype=np.uint8)[
+            : detect_img.shape[0], : detect_img.shape[1]
+        ]
+    scale = float(2**settings.detect_level)
     corners = cv2.goodFeaturesToTrack(
-        img,
+        detect_img,
         maxCorners=settings.max_features,
         qualityLevel=settings.quality_level,
-        minDistance=settings.min_distance_px,
-        mask=inner,
+        minDistance=settings.min_distance_px / scale,
+        mask=detect_mask,
         blockSize=settings.block_size_px,
     )
+    if corners is not None and scale != 1.0:
+        # pyrDown pixel i covers full-resolution pixels 2i and 2i + 1: centre 2i + 0.5
+        corners = corners * scale + (scale - 1.0) / 2.0
     features = (
         np.zeros((0, 1, 2), dtype=np.float32) if corners is None else np.asarray(corners, dtype=np.float32)
     )
