@@ -8,8 +8,8 @@ flight), so every configuration sees the same frames and none is dropped. Hetero
 is off by default so the numbers stand for separate hosts. Per frame the master's own time (frame in ->
 yaw out) is measured; the in-process baseline is ``YawTracker.track`` on the same frames.
 
-A second, small measurement gives the transport overhead at 752x480 (40 patches): the median master time
-of the local master-foreman-worker path (2 foremen x 2 workers) minus the in-process median.
+A second, small measurement gives the overhead at 752x480 (40 patches): the median master time per frame of
+local paths (master-worker with 1 worker; master-foreman-worker 1x1 and 2x2) minus the in-process median.
 """
 
 from __future__ import annotations
@@ -248,15 +248,25 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ]
     result["table"].append({"config": "balance gain (MFW none/time)", "median_ms": gain_mfw})
     result["table"].append({"config": "balance gain (MW none/time)", "median_ms": gain_mw})
-    result["table"].append(
-        {"config": "752x480 overhead ms (MFW - in-process)", "median_ms": overhead["overhead_ms"]}
-    )
+    for label, row in overhead["paths"].items():
+        result["table"].append({"config": f"752x480 +ms/frame {label}", "median_ms": row["overhead_ms"]})
     result["plot"] = str(plot(out_dir / "cluster.png", configs, gain_mfw))
     return result
 
 
-def overhead_752x480(out_dir: Path, n_frames: int, shm: bool) -> dict[str, float]:
-    """Median master time of the local 2x2 master-foreman-worker path minus the in-process median."""
+OVERHEAD_PATHS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
+    ("master-worker 1", "master-worker", (1,)),
+    ("master-foreman-worker 1x1", "master-foreman-worker", (1,)),
+    ("master-foreman-worker 2x2", "master-foreman-worker", (2, 2)),
+)
+
+
+def overhead_752x480(out_dir: Path, n_frames: int, shm: bool) -> dict[str, Any]:
+    """Median master time per frame of local cluster paths minus the in-process median, at 752x480.
+
+    The in-process median is measured before and after the cluster runs (the machine is shared), and
+    their mean is the baseline.
+    """
     settings = YawSettings()
     flight = simulated_flight(CameraSettings(frames=n_frames))
     frames = [flight.frame(i) for i in range(n_frames)]
@@ -265,31 +275,44 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool) -> dict[str, float
     for i, frame in enumerate(frames):
         cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
     warmup = 10
-    seq_ms, _ = in_process_ms(frames, settings, warmup)
-    spec = ClusterSpec(
-        name="local2x2", hosts=(HostSpec(name="h1", workers=2), HostSpec(name="h2", workers=2))
-    )
-    estimates, _wall, _codes = run_cluster_flight(
-        spec,
-        n_frames,
-        out_dir / "cluster_logs" / "overhead",
-        fps=0.0,
-        in_flight=1,
-        camera_args=("--images", str(frame_dir), "--preload", "--no-sensors"),
-        progress=False,
-        shared_memory=shm,
-    )
-    ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > warmup])
-    in_process = float(np.median(seq_ms))
-    cluster = float(np.median(ms)) if ms.size else float("nan")
-    print(f"752x480: in-process {in_process:.2f} ms, cluster (MFW 2x2) {cluster:.2f} ms", flush=True)
+    before = float(np.median(in_process_ms(frames, settings, warmup)[0]))
+    paths: dict[str, dict[str, float]] = {}
+    for label, topology, workers in OVERHEAD_PATHS:
+        spec = ClusterSpec(
+            name=label.replace(" ", "-"),
+            topology=topology,  # type: ignore[arg-type]
+            hosts=tuple(HostSpec(name=f"h{i + 1}", workers=w) for i, w in enumerate(workers)),
+        )
+        estimates, _wall, _codes = run_cluster_flight(
+            spec, n_frames, out_dir / "cluster_logs" / spec.name, fps=0.0, in_flight=1,
+            camera_args=("--images", str(frame_dir), "--preload", "--no-sensors"), progress=False,
+            shared_memory=shm,
+        )  # fmt: skip
+        ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > warmup])
+        paths[label] = {
+            "cluster_median_ms": float(np.median(ms)) if ms.size else float("nan"),
+            "frames_lost": float(n_frames - len(estimates)),
+        }
+    after = float(np.median(in_process_ms(frames, settings, warmup)[0]))
+    in_process = 0.5 * (before + after)
+    for label, row in paths.items():
+        row["overhead_ms"] = row["cluster_median_ms"] - in_process
+        print(f"752x480 {label}: {row['cluster_median_ms']:.2f} ms vs in-process {in_process:.2f} ms "
+              f"(+{row['overhead_ms']:.2f} ms)", flush=True)  # fmt: skip
     return {
         "in_process_median_ms": in_process,
-        "cluster_median_ms": cluster,
-        "overhead_ms": cluster - in_process,
+        "in_process_before_after_ms": [before, after],
+        "paths": paths,
+        "overhead_ms": paths["master-foreman-worker 1x1"]["overhead_ms"],
         "frames": n_frames,
-        "frames_lost": n_frames - len(estimates),
     }
+
+
+def _short(name: str) -> str:
+    for long, short in (("master-foreman-worker", "MFW"), ("master-worker", "MW"), (" / ", "\nbalance "),
+                        ("in-process sequential", "in-process\nsequential")):  # fmt: skip
+        name = name.replace(long, short)
+    return name
 
 
 def plot(path: Path, configs: list[dict[str, Any]], gain: float) -> Path:
@@ -299,7 +322,7 @@ def plot(path: Path, configs: list[dict[str, Any]], gain: float) -> Path:
     import matplotlib.pyplot as plt
 
     fig, (ax_time, ax_share) = plt.subplots(1, 2, figsize=(13, 4.8))
-    names = [c["name"].replace(" / ", "\n") for c in configs]
+    names = [_short(c["name"]) for c in configs]
     x = np.arange(len(configs))
     ax_time.bar(x - 0.2, [c["median_ms"] for c in configs], 0.4, label="median")
     ax_time.bar(x + 0.2, [c["p99_ms"] for c in configs], 0.4, label="p99")
@@ -316,9 +339,7 @@ def plot(path: Path, configs: list[dict[str, Any]], gain: float) -> Path:
         values = np.array([c["shares"].get(member, {}).get("share", 0.0) for c in cluster])
         ax_share.bar(np.arange(len(cluster)), values, bottom=bottom, label=member)
         bottom += values
-    ax_share.set_xticks(
-        np.arange(len(cluster)), [c["name"].replace(" / ", "\n") for c in cluster], fontsize=7
-    )
+    ax_share.set_xticks(np.arange(len(cluster)), [_short(c["name"]) for c in cluster], fontsize=8)
     ax_share.set_ylabel("share of patches")
     ax_share.set_title("shares per member (mean of the last 20 frames)")
     ax_share.legend(fontsize=7, loc="upper right")
