@@ -125,11 +125,43 @@ def quaternion_rate_matrix(gyro_rad_s: npt.ArrayLike) -> FloatArray:
 
 
 def state_transition(gyro_rad_s: npt.ArrayLike, dt_s: float) -> FloatArray:
-    """5x5 transition ``F = blockdiag(F_q, F_s)``, ``F_q = 1/2 Omega(w) dt + I``, ``F_s = 1``:
-    paper C eqs. 13, 15."""
-    F = np.eye(5)
-    F[:4, :4] += 0.5 * dt_s * quaternion_rate_matrix(gyro_rad_s)
-    return F
+    """5x5 transition ``F = blockdiag(F_q, F_s)``, ``F_q = 1/2 Omega(w) dt + I`` (Omega of eq. 14),
+    ``F_s = 1``: paper C eqs. 13, 15."""
+    wx, wy, wz = _three_floats(np.asarray(gyro_rad_s, dtype=np.float64))
+    return _transition_matrix(*_transition_floats(wx, wy, wz, dt_s))
+
+
+def _transition_matrix(a: float, b: float, c: float) -> FloatArray:
+    """``F`` of :func:`state_transition` from ``a, b, c = dt/2 * (wx, wy, wz)`` (the hot path's form)."""
+    return np.array(
+        [
+            1.0,
+            -a,
+            -b,
+            -c,
+            0.0,
+            a,
+            1.0,
+            c,
+            -b,
+            0.0,
+            b,
+            -c,
+            1.0,
+            a,
+            0.0,
+            c,
+            b,
+            -a,
+            1.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+        ]
+    ).reshape(5, 5)
 
 
 def _transition_floats(wx: float, wy: float, wz: float, dt_s: float) -> tuple[float, float, float]:
@@ -349,36 +381,7 @@ class AttitudeAltitudeEkf:
         a, b, c = _transition_floats(wx, wy, wz, dt_s)
         q_prev = state.q_world_body.tolist()
         q0, q1, q2, q3 = propagate_quaternion((q_prev[0], q_prev[1], q_prev[2], q_prev[3]), a, b, c)
-        # F = blockdiag(I + dt/2 Omega, 1), eq. 15, written out for speed (same entries as state_transition)
-        F = np.array(
-            [
-                1.0,
-                -a,
-                -b,
-                -c,
-                0.0,
-                a,
-                1.0,
-                c,
-                -b,
-                0.0,
-                b,
-                -c,
-                1.0,
-                a,
-                0.0,
-                c,
-                b,
-                -a,
-                1.0,
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-                1.0,
-            ]
-        ).reshape(5, 5)
+        F = _transition_matrix(a, b, c)
         qk = 0.25 * (dt_s * dt_s * self._gyro_var + dt_s * self._attitude_rw_var)
         qn, flipped = _normalized(q0, q1, q2, q3)
         n0, n1, n2, n3 = qn

@@ -83,6 +83,7 @@ def test_state_transition_is_the_jacobian_of_the_propagation(
     J = _numeric_jacobian(lambda v: propagate_quaternion(tuple(v), a, b, c), q)
     F = state_transition([wx, wy, wz], dt)
     assert np.allclose(J, F[:4, :4], atol=1e-8)
+    assert np.allclose(F[:4, :4], np.eye(4) + 0.5 * dt * quaternion_rate_matrix([wx, wy, wz]), atol=1e-15)
     assert F[4, 4] == 1.0 and np.all(F[4, :4] == 0.0) and np.all(F[:4, 4] == 0.0)
 
 
