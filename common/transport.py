@@ -394,13 +394,15 @@ class ServiceRuntime:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         with self._signals(), open_session(self.transport) as session:
             self.session = session
-            token = session.liveliness().declare_token(keys.alive_key(self.role, self.node, self.index))
             health = session.declare_queryable(
                 keys.health_key(self.role, self.node, self.index), self._on_health, complete=True
             )
             stats_pub = session.declare_publisher(keys.stats_key(self.role, self.node, self.index))
+            token = None
             try:
                 self.start(session)
+                # liveliness last: a member that is seen alive already answers its work and health keys
+                token = session.liveliness().declare_token(keys.alive_key(self.role, self.node, self.index))
                 self.started.set()
                 logger.info("%s: up (%s)", self.name, self.transport.mode)
                 while not self.stop_event.wait(self.stats_period_s):
@@ -412,7 +414,9 @@ class ServiceRuntime:
                 deadline = time.monotonic() + 0.5
                 for thread in self._threads:
                     thread.join(max(0.0, deadline - time.monotonic()))
-                for entity in (stats_pub, health, token):
+                for entity in (token, stats_pub, health):
+                    if entity is None:
+                        continue
                     try:
                         entity.undeclare()
                     except Exception as exc:
