@@ -1,23 +1,26 @@
 """The embedded default through a local cluster: router, camera, master, 2 foremen x 2 workers (127.0.0.1).
 
-``run_demo(out_dir)`` starts the processes, replays the simulated hover flight through them, prints live
-progress, then writes ``out/cluster/summary.json`` and plots: yaw vs truth, per-member shares per frame
-and frame timings. Member shares and timings come from the published YawEstimates themselves.
+``run_demo(out_dir)`` starts the processes, replays the simulated hover flight through them (one frame in
+flight, so no frame is dropped) while the in-process core tracks the same frames, prints live progress,
+then reports with the yaw demo's ``report_yaw`` (``out/cluster/yaw_cluster.{png,json}``) plus per-member
+shares, speeds and frame timings (``cluster_yaw_shares.png``, ``cluster_timings.png``, ``summary.json``).
+Member shares and timings come from the published YawEstimates themselves.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from common.metrics import yaw_error_stats
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.transport import open_session
+from common.yaw import YawSettings
+from services.demo_yaw import report_yaw, track_frames
 from services.report import write_json
 from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
 
@@ -158,43 +161,59 @@ def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict
 
 
 def run_demo(out_dir: Path, n_frames: int = HOVER_FRAMES) -> dict[str, Any]:
-    out = Path(out_dir) / "cluster"
-    out.mkdir(parents=True, exist_ok=True)
-    print(f"cluster demo: router, camera, master, 2 foremen x 2 workers on 127.0.0.1; {n_frames} frames")
-    estimates, wall_s, codes = run_cluster_flight(DEMO_CLUSTER, n_frames, out / "logs")
+    """The hover flight through the local cluster; the in-process core runs alongside for comparison."""
+    out = Path(out_dir)
+    cluster_dir = out / "cluster"
+    cluster_dir.mkdir(parents=True, exist_ok=True)
     flight = hover_flight(seed=0, n_frames=n_frames)
+    print(f"cluster demo: router, camera, master, 2 foremen x 2 workers on 127.0.0.1; {n_frames} frames")
+    reference: dict[str, Any] = {}
+    in_process = threading.Thread(
+        target=lambda: reference.update(run=track_frames(flight.frames(), YawSettings())), daemon=True
+    )
+    in_process.start()
+    estimates, wall_s, codes = run_cluster_flight(DEMO_CLUSTER, n_frames, cluster_dir / "logs")
+    in_process.join()
     seqs = np.array(sorted(estimates))
     yaw = np.array([estimates[s].yaw_rad for s in seqs])
-    stats = yaw_error_stats(yaw, flight.yaw_rad[seqs] - flight.yaw_rad[0])
-    total_ms = np.array([estimates[s].timings_ms.get("total", np.nan) for s in seqs[1:]])
+    total_ms = np.array([estimates[s].timings_ms.get("total", np.nan) for s in seqs])
     rows = member_table(estimates)
-    plots = _plot(out, flight, estimates, rows)
-    summary: dict[str, Any] = {
-        "frames": n_frames,
+    max_diff_deg = (
+        float(np.max(np.degrees(np.abs(yaw - reference["run"].yaw_rad[seqs])))) if seqs.size else None
+    )
+    extra: dict[str, Any] = {
         "frames_with_yaw": len(estimates),
         "frames_lost": n_frames - len(estimates),
         "dropped_frames": max((e.dropped_frames for e in estimates.values()), default=0),
         "redispatched": sum(e.redispatched for e in estimates.values()),
-        "wall_s": wall_s,
         "fps": len(estimates) / wall_s if wall_s > 0 else float("nan"),
-        "median_frame_ms": float(np.nanmedian(total_ms)) if total_ms.size else float("nan"),
-        "p99_frame_ms": float(np.nanpercentile(total_ms, 99)) if total_ms.size else float("nan"),
-        "yaw_error": asdict(stats),
-        "members": rows,
+        "p99_frame_ms": float(np.nanpercentile(total_ms[1:], 99)) if total_ms.size > 1 else float("nan"),
+        "max_abs_diff_vs_in_process_deg": max_diff_deg,
+        "in_process_ms_per_frame_median": float(np.median(reference["run"].ms_per_frame)),
         "exit_codes": codes,
-        "plots": [str(p) for p in plots],
     }
-    write_json(out / "summary.json", summary)
+    summary = report_yaw(
+        cluster_dir,
+        flight.frame_stamps_s[seqs],
+        yaw,
+        flight.yaw_rad[seqs],
+        ms_per_frame=total_ms[1:] if total_ms.size > 1 else None,
+        label="yaw through the local cluster (2 foremen x 2 workers)",
+        extra=extra,
+        stem="yaw_cluster",
+    )
+    plots = _plot(cluster_dir, flight, estimates, rows)
+    summary["members"] = rows
+    summary["plots"] = [str(p) for p in plots]
+    write_json(cluster_dir / "summary.json", summary)
     print(
-        f"cluster: {len(estimates)}/{n_frames} frames with yaw, {summary['fps']:.1f} fps, "
-        f"median {summary['median_frame_ms']:.1f} ms/frame (p99 {summary['p99_frame_ms']:.1f}), "
-        f"yaw rms error {stats.rms_deg:.2f} deg, final {stats.final_deg:+.2f} deg"
+        f"cluster: {len(estimates)}/{n_frames} frames with yaw, {extra['fps']:.1f} fps, "
+        f"max |cluster - in-process| {max_diff_deg:.2e} deg, {extra['redispatched']} shares re-dispatched"
     )
     for row in rows:
-        if ">" not in row["member"]:
-            print(
-                f"  {row['member']:>16}: share {row['share']:.2f}, "
-                f"{row['patches_per_frame']:.1f} patches/frame"
-            )
+        name = row["member"]
+        speed = row["speed_patches_s"]
+        share = f"share {row['share']:.2f}, " if ">" not in name else ""
+        print(f"  {name:>34}: {share}{row['patches_per_frame']:.1f} patches/frame, {speed:.0f} patches/s")
     print(f"plots: {', '.join(str(p) for p in plots)}")
     return summary

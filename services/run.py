@@ -20,7 +20,6 @@ logger = logging.getLogger(__name__)
 DEMO_MODULES: tuple[str, ...] = (
     "services.demo_cluster",
     "services.demo_localizer",
-    "services.demo_yaw",
     "services.demo_estimator",
 )
 

@@ -11,7 +11,7 @@ from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.up import ClusterSpec, HostSpec
 
 #: Frames of the fault run in CI (the issue's 2041-frame figure: CAPATAZ_CLUSTER_FRAMES=2041).
-FAULT_FRAMES = int(os.environ.get("CAPATAZ_CLUSTER_FRAMES", "240"))
+FAULT_FRAMES = int(os.environ.get("CAPATAZ_CLUSTER_FRAMES", "600"))
 
 
 def reference_yaw_rad(n_frames: int, seed: int = 0) -> np.ndarray:
