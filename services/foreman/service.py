@@ -2,8 +2,9 @@
 
 It follows its workers' liveliness (``capataz/alive/worker/{node}/*``), keeps the crops of the last
 block so that a share moved to another worker (or re-dispatched after a failure) can carry the
-previous patches, and may compute a share itself (``--compute``). Blocks are served one at a time;
-a block that arrives while one is in flight waits in a bounded queue (full -> "busy" error reply).
+previous patches, and may compute a share itself (``--compute``). Blocks are served one at a time by
+one thread that drains the queryable's bounded zenoh FIFO channel (decoding there: a malformed block gets
+an error reply and is counted).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.transport import (
     ServiceRuntime,
     TransportSettings,
-    WorkQueue,
     add_transport_arguments,
     transport_from_args,
 )
@@ -83,7 +83,8 @@ class ForemanService(ServiceRuntime):
         super().__init__(node, 0, transport, stats_period_s)
         self.dispatch_settings = dispatch
         self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
-        self.queue: WorkQueue[tuple[zenoh.Query, BlockJob]] = WorkQueue(queue_capacity)
+        self.queue_capacity = queue_capacity
+        self._queryable: Any = None
         self.cache = SpectrumCache()
         self.crops_prev = CropStore()
         self._membership: list[tuple[bool, str]] = []
@@ -102,14 +103,16 @@ class ForemanService(ServiceRuntime):
                 keys.alive_node_workers(self.node), self._on_alive, history=True
             )
         )
-        self._entities.append(
-            session.declare_queryable(keys.foreman_key(self.node), self._on_query, complete=True)
+        # blocks reach the block thread through zenoh's own bounded FIFO (no Python callback thread between)
+        self._queryable = session.declare_queryable(
+            keys.foreman_key(self.node), zenoh.handlers.FifoChannel(self.queue_capacity), complete=True
         )
         self.spawn(self._serve, "blocks")
 
     def stop(self) -> None:
-        for query, _job in self.queue.drain():
-            self.reply_error(query, "shutdown", f"{self.name} is shutting down")
+        if self._queryable is not None:
+            self._queryable.undeclare()  # the block thread's recv() then raises and it exits
+            self._queryable = None
 
     @staticmethod
     def _worker_key(member: str) -> str:
@@ -138,27 +141,20 @@ class ForemanService(ServiceRuntime):
             else:
                 self.dispatcher.leave(name)
 
-    def _on_query(self, query: zenoh.Query) -> None:
-        self.counters.inc("queries")
-        job = self.decode_query(query, BlockJob)
-        if job is None:
-            return
-        if not self.queue.offer((query, job)):
-            self.counters.inc("busy")
-            self.reply_error(query, "busy", f"{self.name}: block queue full")
-
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
 
-    def queue_depths(self) -> dict[str, int]:
-        return {"blocks": self.queue.depth()}
-
     def _serve(self) -> None:
+        handler = self._queryable.handler
         while not self.stop_event.is_set():
-            item = self.queue.take(0.1)
-            if item is None:
+            try:
+                query = handler.recv()
+            except zenoh.ZError:
+                return  # queryable undeclared: shutting down
+            self.counters.inc("queries")
+            job = self.decode_query(query, BlockJob)
+            if job is None:
                 continue
-            query, job = item
             try:
                 result = self._compute_block(job)
             except (CapatazError, ValueError) as exc:

@@ -36,8 +36,15 @@ class WorkerService(ServiceRuntime):
         queue_capacity: int = 8,
         stats_period_s: float = 1.0,
         cpu_factor: int = 1,
+        handoff: str = "channel",
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
+        if handoff not in ("channel", "callback"):
+            raise CapatazError(f"handoff must be 'channel' or 'callback', got {handoff!r}")
+        #: "channel": a zenoh FifoChannel drained by the compute thread; "callback": a Python callback that
+        #: decodes and hands off to a bounded queue (busy -> error reply)
+        self.handoff = handoff
+        self.queue_capacity = queue_capacity
         if cpu_factor < 1:
             raise CapatazError(f"cpu_factor must be >= 1, got {cpu_factor}")
         #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
@@ -48,14 +55,35 @@ class WorkerService(ServiceRuntime):
         self._queryable: Any = None
 
     def start(self, session: zenoh.Session) -> None:
-        self._queryable = session.declare_queryable(
-            keys.worker_key(self.node, self.index), self._on_query, complete=True
-        )
-        self.spawn(self._serve, "compute")
+        key = keys.worker_key(self.node, self.index)
+        if self.handoff == "channel":
+            # zenoh's own bounded FIFO, drained by the compute thread: no Python callback thread in between
+            self._queryable = session.declare_queryable(
+                key, zenoh.handlers.FifoChannel(self.queue_capacity), complete=True
+            )
+            self.spawn(self._serve_channel, "compute")
+        else:
+            self._queryable = session.declare_queryable(key, self._on_query, complete=True)
+            self.spawn(self._serve, "compute")
 
     def stop(self) -> None:
+        if self.handoff == "channel" and self._queryable is not None:
+            self._queryable.undeclare()  # the compute thread's recv() then raises and it exits
+            self._queryable = None
         for query, _job, _t in self.queue.drain():
             self.reply_error(query, "shutdown", f"{self.name} is shutting down")
+
+    def _serve_channel(self) -> None:
+        handler = self._queryable.handler
+        while not self.stop_event.is_set():
+            try:
+                query = handler.recv()
+            except zenoh.ZError:
+                return  # queryable undeclared: shutting down
+            self.counters.inc("queries")
+            job = self.decode_query(query, PatchJob)
+            if job is not None:
+                self._handle(query, job, time.monotonic())
 
     def queue_depths(self) -> dict[str, int]:
         return {"jobs": self.queue.depth()}
@@ -83,53 +111,54 @@ class WorkerService(ServiceRuntime):
     def _serve(self) -> None:
         while not self.stop_event.is_set():
             item = self.queue.take(0.1)
-            if item is None:
-                continue
-            query, job, received = item
-            if time.monotonic() - received > job.budget_s:
-                self.counters.inc("expired")
-                self.reply_error(query, "expired", f"{self.name}: job waited longer than its budget")
-                continue
-            t0 = time.perf_counter()
-            try:
-                settings = self.settings_for(job.settings)
-                for _ in range(self.cpu_factor - 1):
-                    measure_share(
-                        SpectrumCache(), settings, job.stream, job.seq, job.seq,
-                        job.indices, job.crops, job.indices, job.crops,
-                    )  # fmt: skip
-                measurement = measure_share(
-                    self.cache,
-                    settings,
-                    job.stream,
-                    job.seq,
-                    job.prev_seq,
-                    job.indices,
-                    job.crops,
-                    job.prev_indices,
-                    job.prev_crops,
-                )
-            except (PatchWorkError, CapatazError, ValueError) as exc:
-                self.count_error("rejected", f"job {job.stream}/{job.seq} rejected", exc)
-                self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
-                continue
-            elapsed = time.perf_counter() - t0
-            self.counters.inc("jobs")
-            self.counters.inc("patches", int(job.indices.size))
-            self.counters.time_ms("compute", elapsed * 1e3)
-            speed = job.indices.size / elapsed if elapsed > 0 else 0.0
-            self.reply(
-                query,
-                result_from_measurement(
-                    PatchResult,
-                    job,
-                    self.name,
-                    measurement,
-                    elapsed,
-                    {self.name: int(job.indices.size)},
-                    {self.name: speed},
-                ),
+            if item is not None:
+                self._handle(*item)
+
+    def _handle(self, query: zenoh.Query, job: PatchJob, received: float) -> None:
+        if time.monotonic() - received > job.budget_s:
+            self.counters.inc("expired")
+            self.reply_error(query, "expired", f"{self.name}: job waited longer than its budget")
+            return
+        t0 = time.perf_counter()
+        try:
+            settings = self.settings_for(job.settings)
+            for _ in range(self.cpu_factor - 1):
+                measure_share(
+                    SpectrumCache(), settings, job.stream, job.seq, job.seq,
+                    job.indices, job.crops, job.indices, job.crops,
+                )  # fmt: skip
+            measurement = measure_share(
+                self.cache,
+                settings,
+                job.stream,
+                job.seq,
+                job.prev_seq,
+                job.indices,
+                job.crops,
+                job.prev_indices,
+                job.prev_crops,
             )
+        except (PatchWorkError, CapatazError, ValueError) as exc:
+            self.count_error("rejected", f"job {job.stream}/{job.seq} rejected", exc)
+            self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
+            return
+        elapsed = time.perf_counter() - t0
+        self.counters.inc("jobs")
+        self.counters.inc("patches", int(job.indices.size))
+        self.counters.time_ms("compute", elapsed * 1e3)
+        speed = job.indices.size / elapsed if elapsed > 0 else 0.0
+        self.reply(
+            query,
+            result_from_measurement(
+                PatchResult,
+                job,
+                self.name,
+                measurement,
+                elapsed,
+                {self.name: int(job.indices.size)},
+                {self.name: speed},
+            ),
+        )
 
 
 def register(subparsers: Any) -> None:
@@ -142,11 +171,23 @@ def register(subparsers: Any) -> None:
         default=1,
         help="emulate a CPU this many times slower (repeat every computation); for benchmarks",
     )
+    parser.add_argument(
+        "--handoff",
+        choices=["channel", "callback"],
+        default="channel",
+        help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue",
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     service = WorkerService(
-        args.node, args.index, transport_from_args(args), args.queue, args.stats_period, args.cpu_factor
+        args.node,
+        args.index,
+        transport_from_args(args),
+        args.queue,
+        args.stats_period,
+        args.cpu_factor,
+        args.handoff,
     )
     return service.run()
