@@ -1,0 +1,79 @@
+"""Transport settings (environment and overrides), zenoh config, and the non-blocking hand-off primitives."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from common.transport import Counters, LatestSlot, TransportError, TransportSettings, WorkQueue
+
+
+def test_settings_from_environment_and_overrides() -> None:
+    env = {
+        "CAPATAZ_ZENOH_MODE": "client",
+        "CAPATAZ_ZENOH_CONNECT": "tcp/router:7447, tcp/other:7447",
+        "CAPATAZ_ZENOH_MULTICAST": "false",
+        "CAPATAZ_ZENOH_SHM": "1",
+        "CAPATAZ_ZENOH_LEASE_MS": "1500",
+    }
+    settings = TransportSettings.from_env(env)
+    assert settings.mode == "client" and settings.connect == ("tcp/router:7447", "tcp/other:7447")
+    assert settings.shared_memory and not settings.multicast_scouting and settings.lease_ms == 1500
+    overridden = TransportSettings.from_env(env, mode="peer", shared_memory=False, lease_ms=None)
+    assert overridden.mode == "peer" and not overridden.shared_memory and overridden.lease_ms == 1500
+    defaults = TransportSettings.from_env({})
+    assert defaults.listen == ("tcp/127.0.0.1:0",) and not defaults.multicast_scouting
+
+
+@pytest.mark.parametrize(
+    "env",
+    [
+        {"CAPATAZ_ZENOH_MODE": "boss"},
+        {"CAPATAZ_ZENOH_SHM": "maybe"},
+        {"CAPATAZ_ZENOH_LEASE_MS": "soon"},
+        {"CAPATAZ_ZENOH_LEASE_MS": "5"},
+    ],
+)
+def test_bad_environment_is_a_transport_error(env: dict[str, str]) -> None:
+    with pytest.raises(TransportError):
+        TransportSettings.from_env(env)
+
+
+def test_settings_become_a_zenoh_config() -> None:
+    config = TransportSettings(mode="peer", connect=("tcp/127.0.0.1:7447",), lease_ms=2000).to_config()
+    assert '"tcp/127.0.0.1:7447"' in config.get_json("connect/endpoints")
+    assert config.get_json("scouting/multicast/enabled") == "false"
+    assert config.get_json("transport/shared_memory/enabled") == "false"
+    with pytest.raises(TransportError):
+        TransportSettings(listen=("not an endpoint",)).to_config()
+
+
+def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
+    slot: LatestSlot[int] = LatestSlot()
+    assert not slot.put(1) and slot.put(2) and slot.put(3)
+    assert slot.dropped == 2 and slot.depth() == 1
+    assert slot.take(0.0) == 3 and slot.take(0.0) is None
+    got: list[int | None] = []
+    reader = threading.Thread(target=lambda: got.append(slot.take(5.0)))
+    reader.start()
+    slot.put(9)
+    reader.join()
+    assert got == [9]
+
+
+def test_work_queue_refuses_when_full_and_never_blocks() -> None:
+    queue: WorkQueue[str] = WorkQueue(2)
+    assert queue.offer("a") and queue.offer("b") and not queue.offer("c")
+    assert queue.take(0.0) == "a" and queue.depth() == 1
+    assert queue.drain() == ["b"] and queue.take(0.0) is None
+    with pytest.raises(TransportError):
+        WorkQueue(0)
+
+
+def test_counters_and_timings() -> None:
+    counters = Counters(window=3)
+    assert counters.inc("x") == 1 and counters.inc("x", 4) == 5 and counters.get("y") == 0
+    for value in (1.0, 100.0, 2.0, 3.0):
+        counters.time_ms("t", value)
+    assert counters.counts() == {"x": 5} and counters.median_timings_ms() == {"t": 3.0}
