@@ -120,3 +120,22 @@ def test_motion_acceleration_of_a_parabola() -> None:
     a = motion_acceleration(t, p)
     assert a == pytest.approx([0.3, -0.2 + 0.6], abs=1e-9)
     assert np.all(motion_acceleration(t[:3], p[:3]) == 0.0)
+
+
+def test_external_yaw_is_a_second_yaw_source(flight_b: Flight) -> None:
+    """With ``external_yaw`` on, yaw samples (e.g. the yaw cluster's) correct the EKF's yaw."""
+    estimator = DoubleCouplingEstimator(
+        camera_model_of(flight_b), settings=_settings(flight_b, external_yaw=True, visual_yaw=False)
+    )
+    yaw0 = float(flight_b.yaw_rad[START])
+    estimator.push(RangeMeasurement(0.0, 3.5))
+    for k in range(40):
+        estimator.push(ImuMeasurement(0.0025 * k, np.zeros(3), np.array([0.0, 0.0, 9.80665])))
+    estimator.push(YawMeasurement(0.05, yaw0 + 0.05))
+    estimator.drain()
+    assert estimator.counters["external_yaw_applied"] == 1
+    assert estimator.state is not None
+    from common.geometry import euler_from_quaternion, wrap_angle_rad
+
+    yaw = float(euler_from_quaternion(estimator.state.q_world_body)[2])
+    assert 0.01 < float(wrap_angle_rad(yaw - yaw0)) <= 0.05
