@@ -23,6 +23,7 @@ from common.estimation.coupling import (
     motion_acceleration,
 )
 from common.estimation.replay import camera_model_of, collect, evaluate, flight_measurements, run_estimators
+from common.geometry import euler_from_quaternion, wrap_angle_rad
 from common.sim.flight import Flight
 
 START, STOP = 400, 480  # 4 s in the middle of the manoeuvre: ~3 m at up to 0.76 m/s, tilted ~3 deg
@@ -135,7 +136,5 @@ def test_external_yaw_is_a_second_yaw_source(flight_b: Flight) -> None:
     estimator.drain()
     assert estimator.counters["external_yaw_applied"] == 1
     assert estimator.state is not None
-    from common.geometry import euler_from_quaternion, wrap_angle_rad
-
     yaw = float(euler_from_quaternion(estimator.state.q_world_body)[2])
     assert 0.01 < float(wrap_angle_rad(yaw - yaw0)) <= 0.05
