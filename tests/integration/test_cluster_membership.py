@@ -57,3 +57,55 @@ def test_joiner_gets_a_share_within_five_frames_and_master_computes_alone_withou
             seqs = sorted(collector.estimates)
             assert seqs == list(range(seqs[0], seqs[-1] + 1)), "a frame without yaw"
             collector.close()
+
+
+def test_two_uav_streams_share_the_workers(tmp_path: Path) -> None:
+    spec = two_by_two(topology="master-worker", workers=2)
+    with LocalCluster(spec, tmp_path / "logs") as cluster:
+        cluster.start_router()
+        for i in range(2):
+            cluster.start_worker(spec.hosts[0], i)
+        for i, uav in enumerate(("uav0", "uav1")):
+            cluster.spawn(
+                f"master/m/{i}",
+                [
+                    "master",
+                    *cluster.transport_args(),
+                    "--node",
+                    "m",
+                    "--index",
+                    str(i),
+                    "--uav",
+                    uav,
+                    "--topology",
+                    "master-worker",
+                ],
+            )
+        cluster.wait_alive({"master/m/0", "master/m/1", "worker/h1/0", "worker/h1/1"})
+        with open_session(cluster.observer_transport()) as session:
+            collectors = [YawCollector(session, uav) for uav in ("uav0", "uav1")]
+            cluster.spawn(
+                "camera/camera/0",
+                [
+                    "camera",
+                    *cluster.transport_args(),
+                    "--uav",
+                    "uav0",
+                    "--uav",
+                    "uav1",
+                    "--frames",
+                    "60",
+                    "--fps",
+                    "0",
+                    "--in-flight",
+                    "1",
+                    "--no-sensors",
+                ],
+            )
+            assert all(c.wait_for(60, 60.0) for c in collectors)
+            first, second = (c.estimates for c in collectors)
+            # the same frames on both streams: the same yaw, each stream computed by both workers
+            assert all(first[k].yaw_rad == second[k].yaw_rad for k in range(60))
+            assert set(first[30].members) == set(second[30].members) == {"worker/h1/0", "worker/h1/1"}
+            for collector in collectors:
+                collector.close()
