@@ -46,6 +46,7 @@ def test_joiner_gets_a_share_within_five_frames_and_master_computes_alone_withou
             joined_at = collector.newest()
             assert wait_until(lambda: collector.newest() >= joined_at + 6, 30.0)
             first = min(s for s, e in collector.estimates.items() if "worker/h2/0" in e.members)
+            print(f"\njoiner: first share {first - joined_at} frame(s) after its liveliness token was seen")
             assert first - joined_at <= 5, f"joiner got work {first - joined_at} frames after it joined"
 
             for name in ("worker/h1/0", "worker/h2/0"):
@@ -53,6 +54,9 @@ def test_joiner_gets_a_share_within_five_frames_and_master_computes_alone_withou
             gone_at = collector.newest()
             assert wait_until(lambda: collector.newest() >= gone_at + 20, 30.0), "master stopped publishing"
             alone = [collector.estimates[s] for s in range(gone_at + 5, gone_at + 20)]
+            print(
+                f"no workers: {collector.newest() - gone_at} more frames with yaw, computed by the master alone"
+            )
             assert all(set(e.members) == {SELF} and e.members[SELF] == e.patch_count for e in alone)
             seqs = sorted(collector.estimates)
             assert seqs == list(range(seqs[0], seqs[-1] + 1)), "a frame without yaw"
