@@ -204,8 +204,15 @@ class CameraService(ServiceRuntime):
             )
 
     def _publish_all(self) -> None:
-        if self.settings.wait_master_s and not self._masters.wait(self.settings.wait_master_s):
-            self.count_error("no_master", "no master alive; publishing anyway", "timeout")
+        if self.settings.wait_master_s:
+            deadline = time.monotonic() + self.settings.wait_master_s
+            if not self._masters.wait(self.settings.wait_master_s):
+                self.count_error("no_master", "no master alive; publishing anyway", "timeout")
+            # a master is alive: also wait until its frame subscription is routed to us
+            while not self.stop_event.is_set() and time.monotonic() < deadline:
+                if all(p["camera"].matching_status.matching for p in self._pub.values()):
+                    break
+                time.sleep(0.01)
         t_start = time.monotonic()
         published = 0
         rounds = 0

@@ -195,6 +195,9 @@ class Scatter:
                 report.parts.append(measurement)
                 report.members[SELF] = report.members.get(SELF, 0) + int(indices.size)
                 self.dispatcher.record_success(SELF, work.seq, indices, elapsed)
+                self_speed = self.dispatcher.speed(SELF)
+                if self_speed is not None:
+                    report.speeds[SELF] = self_speed
             if not pending:
                 break
             timeout = max(0.0, min(r.deadline_s for r in pending.values()) - time.monotonic())

@@ -57,7 +57,10 @@ def malformed(i: int, rng: np.random.Generator) -> tuple[bytes, bytes | None]:
 
 
 def health(session: zenoh.Session, role: str, node: str) -> Health:
-    replies = list(session.get(keys.health_key(role, node, 0), timeout=5.0))
+    replies: list = []
+    deadline = time.monotonic() + 10.0
+    while not replies and time.monotonic() < deadline:  # a new session first learns where queryables are
+        replies = list(session.get(keys.health_key(role, node, 0), timeout=5.0))
     assert replies and replies[0].ok is not None, f"{role}/{node} did not answer its health query"
     sample = replies[0].ok
     return decode(zbytes(sample.payload), zbytes(sample.attachment), Health)
@@ -70,6 +73,8 @@ def test_ten_thousand_malformed_messages_are_counted_answered_and_survived(tmp_p
         cluster.start()
         cluster.wait_alive(cluster.expected_members())
         with open_session(cluster.observer_transport()) as session:
+            for role, node in (("worker", "h1"), ("foreman", "h2"), ("master", "master")):
+                assert health(session, role, node).ok  # routes to every target are known before the flood
             errors: list[str] = []
             oks = 0
             outstanding = threading.Semaphore(64)

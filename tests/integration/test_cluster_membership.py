@@ -54,9 +54,7 @@ def test_joiner_gets_a_share_within_five_frames_and_master_computes_alone_withou
             gone_at = collector.newest()
             assert wait_until(lambda: collector.newest() >= gone_at + 20, 30.0), "master stopped publishing"
             alone = [collector.estimates[s] for s in range(gone_at + 5, gone_at + 20)]
-            print(
-                f"no workers: {collector.newest() - gone_at} more frames with yaw, computed by the master alone"
-            )
+            print(f"no workers: {collector.newest() - gone_at} more frames with yaw, by the master alone")
             assert all(set(e.members) == {SELF} and e.members[SELF] == e.patch_count for e in alone)
             seqs = sorted(collector.estimates)
             assert seqs == list(range(seqs[0], seqs[-1] + 1)), "a frame without yaw"
