@@ -380,12 +380,11 @@ class ServiceRuntime:
         if threading.current_thread() is not threading.main_thread():
             yield
             return
-        previous = {sig: signal.signal(sig, self.request_stop) for sig in (signal.SIGTERM, signal.SIGINT)}
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, self.request_stop)
+        # The handlers stay installed after run() returns: a SIGTERM that arrives while the process is
+        # already exiting (a camera that finished its flight) must not turn a clean exit into -SIGTERM.
+        yield
 
     def run(self) -> int:
         """Run until SIGTERM/SIGINT or :meth:`request_stop`; returns an exit code."""

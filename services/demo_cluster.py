@@ -10,6 +10,7 @@ Member shares and timings come from the published YawEstimates themselves.
 from __future__ import annotations
 
 import logging
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -73,6 +74,10 @@ def run_cluster_flight(
             wall_s = time.monotonic() - t0
             estimates = dict(collector.estimates)
             collector.close()
+        try:  # the camera ends by itself after its last frame; let it, rather than signal it mid-exit
+            cluster.processes["camera/camera/0"].wait(5.0)
+        except subprocess.TimeoutExpired:
+            logger.warning("camera still running after its flight; stopping it")
         codes = cluster.stop()
     return estimates, wall_s, codes
 

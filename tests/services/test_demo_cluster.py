@@ -24,4 +24,4 @@ def test_cluster_demo_reports_every_frame_equal_to_in_process(tmp_path: Path) ->
         assert Path(path).stat().st_size > 0
     assert (tmp_path / "cluster" / "yaw_cluster.json").is_file()
     assert (tmp_path / "cluster" / "yaw_cluster.png").is_file()
-    assert all(code == 0 for code in summary["exit_codes"].values())
+    assert all(code == 0 for code in summary["exit_codes"].values()), summary["exit_codes"]
