@@ -34,9 +34,13 @@ def message_of(uav: str, seq: int, measurement: Measurement) -> tuple[str, WireM
 
 
 def publish_measurements(
-    session: zenoh.Session, uav: str, measurements: list[Measurement], speed: float = 1.0
+    session: zenoh.Session, uav: str, measurements: list[Measurement], speed: float = 1.0, block: bool = False
 ) -> int:
-    """Publish the samples (stamp order) on ``uav``'s keys; returns how many were sent."""
+    """Publish the samples (stamp order) on ``uav``'s keys; returns how many were sent.
+
+    ``block`` uses ``CongestionControl.BLOCK`` (nothing dropped on the way: for tests that compare every
+    estimate); the default drops like a live sensor stream.
+    """
     publishers: dict[str, zenoh.Publisher] = {}
     t_wall0 = time.monotonic()
     t_sim0 = measurements[0].stamp_s if measurements else 0.0
@@ -49,7 +53,12 @@ def publish_measurements(
                     time.sleep(delay)
             key, message = message_of(uav, seq, m)
             if key not in publishers:
-                publishers[key] = session.declare_publisher(key)
+                publishers[key] = session.declare_publisher(
+                    key,
+                    congestion_control=zenoh.CongestionControl.BLOCK
+                    if block
+                    else zenoh.CongestionControl.DROP,
+                )
             payload, attachment = encode(message)
             publishers[key].put(payload, attachment=attachment)
             sent += 1

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 
 from common import keys
 from common.estimation.coupling import AttitudeOutput, PoseOutput
@@ -86,13 +87,15 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
                     lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
                 ),
             ]
-            probe = session.declare_publisher(keys.imu_key("uav0"))
+            probe = session.declare_publisher(
+                keys.imu_key("uav0"), congestion_control=zenoh.CongestionControl.BLOCK
+            )
             deadline = time.monotonic() + 10.0
             while not _matching(probe) and time.monotonic() < deadline:
                 time.sleep(0.02)
             assert _matching(probe)
             time.sleep(0.3)  # the other subscribers of the service are declared together with this one
-            assert publish_measurements(session, "uav0", stream, speed=0.5) == len(stream)
+            assert publish_measurements(session, "uav0", stream, speed=0.5, block=True) == len(stream)
 
             # the end of the stream is held back by the reordering lag: push it out with later IMU samples
             t_end = stream[-1].stamp_s
@@ -111,7 +114,14 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
 
             for t, g, a in tail[:20]:
                 put_imu(t, g, a)
-            received_att = [attitudes.get(timeout=20.0) for _ in range(len(expected_att))]
+            received_att = []
+            try:
+                for _ in range(len(expected_att)):
+                    received_att.append(attitudes.get(timeout=20.0))
+            except queue.Empty:
+                raise AssertionError(
+                    f"{len(received_att)} of {len(expected_att)} attitudes; {service.counters.counts()}"
+                ) from None
             received_pose = [poses.get(timeout=20.0) for _ in range(len(expected_pose))]
 
             # a burst of bad samples: garbage, NaN, another UAV's, wrong frame size, stale stamps
