@@ -100,3 +100,19 @@ def test_capataz_up_brings_each_described_cluster_up(path: Path, tmp_path: Path)
     assert received >= 8, done.stdout[-1000:]
     logs = {p.name for p in tmp_path.glob("*.log")}
     assert len([n for n in logs if n.startswith("worker_")]) == spec.n_workers
+
+
+@pytest.mark.parametrize("name", ["router", "peer"])
+def test_zenoh_config_files_load_and_match_the_transport_settings(name: str) -> None:
+    import zenoh
+
+    from common.transport import TransportSettings
+
+    config = zenoh.Config.from_file(str(ROOT / "deploy" / "zenoh" / f"{name}.json5"))
+    assert config.get_json("mode") == f'"{name}"'
+    defaults = TransportSettings()
+    assert (
+        config.get_json("scouting/multicast/enabled") == "false" == str(defaults.multicast_scouting).lower()
+    )
+    assert config.get_json("transport/shared_memory/enabled") == "false"
+    assert int(config.get_json("transport/link/tx/lease")) == defaults.lease_ms
