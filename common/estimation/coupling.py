@@ -161,9 +161,10 @@ class CouplingSettings:
     #: Metric scale of the VO: the EKF altitude (coupled) or the last rangefinder reading as it is
     #: (the uncoupled, traditional VO: longer than the height when tilted, and noisy).
     scale_from: ScaleSource = ScaleSource.EKF
-    #: For rectified pairs, fit the level motion (yaw + translation, n = e3) instead of the free
-    #: decomposition.
-    level_model: bool = False
+    #: How rectified pairs are decomposed: freely (``cv2.decomposeHomographyMat``, physically valid
+    #: solution; the default), with the known plane normal (the vertical optical axis) or with the level
+    #: model (yaw + translation). On flight (b) seeds 0-2 neither alternative was better overall.
+    rectified_motion_model: MotionModel = MotionModel.FREE
     #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
     visual_yaw: bool = True
     #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
@@ -460,11 +461,7 @@ class DoubleCouplingEstimator:
             ok = True
         else:
             try:
-                model = (
-                    MotionModel.LEVEL
-                    if self.settings.rectify and self.settings.level_model
-                    else MotionModel.FREE
-                )
+                model = self.settings.rectified_motion_model if self.settings.rectify else MotionModel.FREE
                 motion = estimate_relative_motion(
                     self._prev_frame, frame, cam.K, self.vo_settings, model=model
                 )

@@ -75,6 +75,7 @@ def rectify_frame(
     pitch_rad: float,
     R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN,
     border_px: int = 2,
+    interpolation: int = cv2.INTER_LINEAR,
 ) -> RectifiedFrame:
     """Warp ``image`` to the rectified camera (same size and intrinsics) and mask its valid region.
 
@@ -95,7 +96,7 @@ def rectify_frame(
             f"tilt too large to rectify (roll {roll_rad:.3f}, pitch {pitch_rad:.3f} rad)"
         )
     polygon = mapped[:, :2] / mapped[:, 2:3]
-    rectified = cv2.warpPerspective(img, H, (w_px, h_px), flags=cv2.INTER_LINEAR, borderValue=0)
+    rectified = cv2.warpPerspective(img, H, (w_px, h_px), flags=interpolation, borderValue=0)
     mask = np.zeros((h_px, w_px), dtype=np.uint8)
     cv2.fillConvexPoly(mask, np.round(polygon * 16.0).astype(np.int32), 255, lineType=cv2.LINE_8, shift=4)
     return RectifiedFrame(

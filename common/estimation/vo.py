@@ -37,6 +37,10 @@ class MotionModel(enum.Enum):
 
     #: ``cv2.decomposeHomographyMat``, physically valid solution (any pair; the paper's traditional VO).
     FREE = "free"
+    #: The plane normal is known (``expected_normal``; the optical axis for rectified pairs): R from the
+    #: homography's plane directions, ``T/d`` linear (:func:`decompose_with_known_normal`). The free
+    #: decomposition is ill-conditioned when the translation is along the normal (climbs and descents).
+    KNOWN_NORMAL = "known_normal"
     #: Both views level (rectified): rotation about the optical axis and ``n = e3``, least squares on the
     #: homography's inliers (no tilt/translation ambiguity left).
     LEVEL = "level"
@@ -346,7 +350,10 @@ def estimate_relative_motion(
         t_over_d = np.asarray(translations[best], dtype=np.float64).reshape(3)
         normal = np.asarray(normals[best], dtype=np.float64).reshape(3)
     t_over_d_free = t_over_d
-    if model is MotionModel.LEVEL:
+    if model is MotionModel.KNOWN_NORMAL:
+        R, t_over_d = decompose_with_known_normal(calibrated_homography(H, Km), normal_ref)
+        normal = normal_ref
+    elif model is MotionModel.LEVEL:
         R, t_over_d = level_motion_from_matches(p0[keep], p1[keep], Km)
         normal = np.array([0.0, 0.0, 1.0])
     return RelativeMotion(
