@@ -1,7 +1,10 @@
 """The camera (replayer): one or more UAV streams at a given rate, once or looped.
 
 A simulated flight publishes, in time order, every IMU and rangefinder sample up to a frame's stamp,
-then the frame. ``--fps 0`` publishes as fast as possible. ``--in-flight K`` is flow control for
+then the frame. ``--flight office`` publishes the localizer's default flight through the built-in office
+instead, from the localizer's forward-looking camera, with the flight's simulated odometry on
+``pose/vo`` (truth plus noise, source ``sim-odometry``): no estimator can run on that flight, and paper B's
+prediction needs a velocity. ``--fps 0`` publishes as fast as possible. ``--in-flight K`` is flow control for
 measurements: the camera keeps at most K frames of a stream without a published yaw (so a run can
 check that every frame yields a yaw); 0 (the default) is a free-running camera whose frames the master
 takes latest-wins.
@@ -23,9 +26,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.errors import CapatazError
-from common.messages import Frame, ImuSample, RangeSample, YawEstimate, encode
+from common.geometry import quaternion_from_euler
+from common.localization.model import default_scene
+from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
+from common.localization.tracking import noisy_odometry
+from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from common.sim.camera import PinholeCamera
 from common.sim.flight import Flight, hover_flight, turns_flight
+from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from common.transport import ServiceRuntime, TransportSettings, add_transport_arguments, transport_from_args
 
 DEFAULT_HFOV_DEG = 90.0
@@ -35,14 +43,15 @@ class CameraSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     uavs: tuple[str, ...] = ("uav0",)
-    flight: Literal["hover", "turns"] = "hover"
+    flight: Literal["hover", "turns", "office"] = "hover"
     frames: int = Field(default=2041, ge=2)
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
     loop: bool = False
     images: Path | None = None
-    width: int = 752
-    height: int = 480
+    #: image size; None = the flight's own camera (752x480 over the ground, 320x240 in the office)
+    width: int | None = None
+    height: int | None = None
     sensors: bool = True
     in_flight: int = Field(default=0, ge=0)
     #: read every image of ``images`` before publishing
@@ -54,15 +63,40 @@ class CameraSettings(BaseModel):
 
 
 def simulated_flight(settings: CameraSettings) -> Flight:
-    """The flight the camera replays (the in-process reference builds the same one)."""
+    """The ground flight the camera replays (the in-process reference builds the same one)."""
     camera = (
         None
-        if (settings.width, settings.height) == (752, 480)
+        if settings.width is None or settings.height is None
         else PinholeCamera.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
     )
     if settings.flight == "turns":
         return turns_flight(seed=settings.seed, camera=camera)
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
+
+
+def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
+    """The localizer's default flight through the built-in office: the same frames as
+    ``common.localization.simulation.simulate_run(settings.frames, settings.seed)``."""
+    camera = PinholeCamera.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
+    flight = default_flight(n_frames=settings.frames)
+    rng = np.random.default_rng(settings.seed)
+    images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
+    for i, image in enumerate(images):
+        yield i, float(flight.times_s[i]), image
+
+
+def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stamps (T,), positions (T, 3) and Euler angles (T, 3) whose frame-to-frame differences are the office
+    flight's noisy odometry (the localizer's in-process stand-in for VO), starting at the true first pose."""
+    flight = default_flight(n_frames=settings.frames)
+    odometry = noisy_odometry(
+        flight.velocities_world_m_s, flight.euler_rates_rad_s, np.random.default_rng(settings.seed + 1)
+    )
+    dt_s = np.diff(flight.times_s, prepend=flight.times_s[0])[:, None]
+    start = flight.states[0]
+    positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
+    angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
+    return flight.times_s, positions, angles
 
 
 def _image_files(folder: Path) -> list[Path]:
@@ -87,13 +121,18 @@ class CameraService(ServiceRuntime):
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
-        self.flight: Flight | None = None if settings.images else simulated_flight(settings)
+        self.flight: Flight | None = (
+            None if settings.images or settings.flight == "office" else simulated_flight(settings)
+        )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
         self.finished = threading.Event()
         self._entities: list[Any] = []
         self._masters = threading.Event()
         self._preloaded: list[np.ndarray] | None = None
+        self._odometry = (
+            office_odometry_poses(settings) if settings.flight == "office" and not settings.images else None
+        )
         if settings.images is not None and settings.preload:
             self._preloaded = list(self._images())
 
@@ -112,6 +151,7 @@ class CameraService(ServiceRuntime):
                 ),
                 "imu": session.declare_publisher(keys.imu_key(uav)),
                 "range": session.declare_publisher(keys.range_key(uav)),
+                "pose_vo": session.declare_publisher(keys.pose_vo_key(uav)),
             }
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
@@ -137,6 +177,9 @@ class CameraService(ServiceRuntime):
         if self.flight is not None:
             for i in range(self.flight.n_frames):
                 yield i, float(self.flight.frame_stamps_s[i]), self.flight.frame(i)
+            return
+        if self.settings.images is None:
+            yield from office_frames(self.settings)
             return
         period = 1.0 / self.settings.fps if self.settings.fps else 0.05
         for i, image in enumerate(self._images()):
@@ -173,8 +216,27 @@ class CameraService(ServiceRuntime):
                 self._ack.wait(min(left, 0.1))
 
     def _sensor_samples(self, uav: str, start_s: float, stop_s: float, offset_s: float) -> None:
-        """Publish the IMU and rangefinder samples with stamps in ``(start_s, stop_s]``."""
-        if self.flight is None or not self.settings.sensors:
+        """Publish the IMU and rangefinder samples (office: odometry) with stamps in ``(start_s, stop_s]``."""
+        if not self.settings.sensors:
+            return
+        if self._odometry is not None:
+            stamps, positions, angles = self._odometry
+            a, b = np.searchsorted(stamps, [start_s, stop_s], side="right")
+            for k in range(int(a), int(b)):
+                self._put(
+                    uav,
+                    "pose_vo",
+                    PoseEstimate(
+                        uav=uav,
+                        seq=k,
+                        stamp_s=float(stamps[k]) + offset_s,
+                        p_world_body_m=positions[k],
+                        q_world_body=quaternion_from_euler(*angles[k]),
+                        covariance=np.eye(6) * 1e-4,
+                        source="sim-odometry",
+                    ),
+                )
+        if self.flight is None:
             return
         imu, rng = self.flight.imu, self.flight.range
         a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
@@ -261,14 +323,23 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("camera", help="publish a simulated flight (or images) for UAV streams")
     add_transport_arguments(parser, node_default="camera")
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
-    parser.add_argument("--flight", choices=["hover", "turns"], default="hover", help="simulated flight")
-    parser.add_argument("--frames", type=int, default=2041, help="frames of the hover flight (default 2041)")
+    parser.add_argument(
+        "--flight",
+        choices=["hover", "turns", "office"],
+        default="hover",
+        help="simulated flight: paper A's hover, paper C's turns (ground camera), or the localizer's office",
+    )
+    parser.add_argument(
+        "--frames", type=int, default=2041, help="frames of the hover or office flight (default 2041)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="simulation seed")
     parser.add_argument("--fps", type=float, default=20.0, help="frames per second (0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="replay forever")
     parser.add_argument("--images", type=Path, help="publish a folder of images instead of a simulation")
     parser.add_argument("--preload", action="store_true", help="read all --images before publishing")
-    parser.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
+    parser.add_argument(
+        "--resolution", help="simulated camera WIDTHxHEIGHT (default: 752x480 ground, 320x240 office)"
+    )
     parser.add_argument("--no-sensors", action="store_true", help="frames only (no IMU / rangefinder)")
     parser.add_argument(
         "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
@@ -278,10 +349,13 @@ def register(subparsers: Any) -> None:
 
 
 def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
-    try:
-        width, height = (int(v) for v in args.resolution.lower().split("x"))
-    except ValueError:
-        raise CapatazError(f"--resolution must look like 752x480, got {args.resolution!r}") from None
+    width: int | None = None
+    height: int | None = None
+    if args.resolution is not None:
+        try:
+            width, height = (int(v) for v in args.resolution.lower().split("x"))
+        except ValueError:
+            raise CapatazError(f"--resolution must look like 752x480, got {args.resolution!r}") from None
     return CameraSettings(
         uavs=tuple(args.uav or ["uav0"]),
         flight=args.flight,
