@@ -158,7 +158,12 @@ def normal_search_distances(
             u = projected.u_px + offset * projected.normal_u
             v = projected.v_px + offset * projected.normal_v
             inside = (u >= -0.5) & (u < edges.width - 0.5) & (v >= -0.5) & (v < edges.height - 0.5)
-            index = np.where(inside, _pixel_index(u, v, edges.width), np.int32(edges.width * edges.height))
+            # culled points carry nan coordinates: index only the points inside (casting nan is undefined)
+            u_in = np.where(inside, u, np.float32(0.0))
+            v_in = np.where(inside, v, np.float32(0.0))
+            index = np.where(
+                inside, _pixel_index(u_in, v_in, edges.width), np.int32(edges.width * edges.height)
+            )
             hit = unresolved & (np.take(flat, index, mode="clip") > 0)
             distance[hit] = np.float32(step)
             unresolved &= ~hit

@@ -151,6 +151,26 @@ def test_normal_search_walks_along_the_normal_up_to_its_maximum_length() -> None
     assert np.isinf(normal_search_distances(_one_point(nearest - 5, 24, (1.0, 0.0)), edges, 4)[0, 0, 0])
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_normal_search_ignores_culled_points_with_nan_coordinates() -> None:
+    """Regression: culled points (nan pixel coordinates) were cast to int before being masked out."""
+    edges = _vertical_line_edges(40)
+    # one valid point 5 px left of the edge along +u, one culled point with nan coordinates
+    u_px = np.array([[[35.0, np.nan]]], dtype=np.float32)
+    v_px = np.array([[[24.0, np.nan]]], dtype=np.float32)
+    samples = ProjectedSamples(
+        u_px=u_px,
+        v_px=v_px,
+        valid=np.array([[[True, False]]]),
+        pixel_index=np.array([[[24 * 64 + 35, edges.width * edges.height]]], dtype=np.int32),
+        edge_ids=np.zeros(1, dtype=np.int64),
+        normal_u=np.array([[[1.0, np.nan]]], dtype=np.float32),
+        normal_v=np.array([[[0.0, np.nan]]], dtype=np.float32),
+    )
+    distance = normal_search_distances(samples, edges, max_normal_px=10)[0, 0]
+    assert np.isfinite(distance[0]) and np.isinf(distance[1])
+
+
 def test_scoring_formulas_on_hand_made_counts() -> None:
     # Klein & Murray: k a / v
     assert klein_murray_log_weight(np.array([3.0]), np.array([4.0]), k=8.0)[0] == pytest.approx(6.0)
