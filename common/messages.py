@@ -50,23 +50,30 @@ class ArraySpec:
     shape: tuple[int | None, ...]
     finite: bool = True
 
+    def __post_init__(self) -> None:
+        # resolved once: this check runs for every array of every decoded message
+        object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
+        fixed = tuple((axis, n) for axis, n in enumerate(self.shape) if n is not None)
+        object.__setattr__(self, "_fixed", fixed)
+        object.__setattr__(self, "_check_finite", self.finite and np.dtype(self.dtype).kind in "fc")
+
     def check(self, name: str, value: Any) -> np.ndarray:
+        want: np.dtype[Any] = self._np_dtype  # type: ignore[attr-defined]
         if not isinstance(value, np.ndarray):
             try:
-                value = np.asarray(value, dtype=np.dtype(self.dtype))
+                value = np.asarray(value, dtype=want)
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"{name}: cannot convert to {self.dtype} array: {exc}") from exc
-        if value.dtype != np.dtype(self.dtype):
-            if value.dtype.kind in "fciub" and np.can_cast(value.dtype, self.dtype, casting="same_kind"):
-                value = value.astype(self.dtype)
+        if value.dtype != want:
+            if value.dtype.kind in "fciub" and np.can_cast(value.dtype, want, casting="same_kind"):
+                value = value.astype(want)
             else:
                 raise ValueError(f"{name}: expected dtype {self.dtype}, got {value.dtype.str}")
-        if value.ndim != len(self.shape) or any(
-            want is not None and got != want for want, got in zip(self.shape, value.shape, strict=True)
-        ):
+        shape = value.shape
+        if len(shape) != len(self.shape) or any(shape[axis] != n for axis, n in self._fixed):  # type: ignore[attr-defined]
             pattern = tuple("n" if s is None else s for s in self.shape)
             raise ValueError(f"{name}: expected shape {pattern}, got {value.shape}")
-        if self.finite and value.dtype.kind in "fc" and not np.all(np.isfinite(value)):
+        if self._check_finite and value.size and not np.isfinite(value).all():  # type: ignore[attr-defined]
             raise ValueError(f"{name}: contains NaN or inf")
         return value
 
@@ -74,7 +81,8 @@ class ArraySpec:
 class WireModel(BaseModel):
     """Base of every message: frozen, no unknown fields, numpy arrays for :attr:`ARRAYS`."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True)
+    # allow_inf_nan=False: pydantic-core rejects NaN/inf in float fields and dict[str, float] values itself
+    model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True, allow_inf_nan=False)
     #: field name -> spec; these fields travel as raw bytes in the payload.
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {}
 
@@ -91,11 +99,10 @@ class WireModel(BaseModel):
                         raise ValueError(str(exc)) from None
         return data
 
-    @field_validator("*", mode="after")
+    @field_validator("settings", mode="after", check_fields=False)
     @classmethod
-    def _finite_floats(cls, value: Any) -> Any:
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ValueError("must be finite (NaN or inf given)")
+    def _finite_settings(cls, value: Any) -> Any:
+        # dict[str, Any] fields are not covered by allow_inf_nan
         if isinstance(value, dict):
             for key, item in value.items():
                 if isinstance(item, float) and not math.isfinite(item):
@@ -246,11 +253,20 @@ class PatchJob(WireModel):
             raise ValueError(f"prev_crops: crop shape {self.prev_crops.shape[1:]} != {self.crops.shape[1:]}")
         for name in ("indices", "prev_indices"):
             arr = getattr(self, name)
-            if arr.size and (arr.min() < 0 or np.unique(arr).size != arr.size):
+            if arr.size and not _distinct_non_negative(arr):
                 raise ValueError(f"{name}: must be distinct non-negative patch indices")
         if self.prev_indices.size and not np.isin(self.prev_indices, self.indices).all():
             raise ValueError("prev_indices: must be a subset of indices")
         return self
+
+
+def _distinct_non_negative(indices: np.ndarray) -> bool:
+    """True when the 1-D integer ``indices`` are distinct and >= 0 (fast path: strictly ascending)."""
+    if indices[0] < 0:
+        return False
+    if indices.size == 1 or bool((indices[1:] > indices[:-1]).all()):
+        return True  # ascending (how dispatchers send them): distinct, and the first is the minimum
+    return bool(indices.min() >= 0) and np.unique(indices).size == indices.size
 
 
 class BlockJob(PatchJob):

@@ -212,11 +212,11 @@ class Dispatcher:
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}
         for m in members:
-            indices = np.array(sorted(keep[m]), dtype=np.int32)
-            if indices.size == 0:
+            owned = sorted(keep[m])
+            if not owned:
                 continue
-            for i in indices:
-                self._owner[int(i)] = m
+            self._owner.update(dict.fromkeys(owned, m))
+            indices = np.array(owned, dtype=np.int32)
             assignment[m] = indices
             moved[m] = self._missing(m, indices, prev_seq)
         plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
@@ -229,7 +229,7 @@ class Dispatcher:
             raise DispatchError(
                 f"indices must be a 1-D integer array, got shape {arr.shape} dtype {arr.dtype}"
             )
-        values = sorted(int(i) for i in arr)
+        values = sorted(arr.tolist())
         if values and (values[0] < 0 or values[-1] >= self.n_patches):
             raise DispatchError(f"indices out of range 0..{self.n_patches - 1}")
         if len(set(values)) != len(values):
@@ -240,7 +240,8 @@ class Dispatcher:
         state = self._members[member]
         if state.held_seq != prev_seq:
             return indices.copy()
-        return np.array([i for i in indices if int(i) not in state.held], dtype=np.int32)
+        held = state.held
+        return np.array([i for i in indices.tolist() if i not in held], dtype=np.int32)
 
     def redistribute(self, indices: npt.ArrayLike, exclude: set[str], now_s: float, prev_seq: int) -> Plan:
         """Split a failed share among the active members not in ``exclude`` (else ``SELF``), same frame.
@@ -279,7 +280,7 @@ class Dispatcher:
         state = self._members.get(member)
         if state is None:
             return  # left meanwhile
-        idx = frozenset(int(i) for i in np.asarray(indices).ravel())
+        idx = frozenset(np.asarray(indices).ravel().tolist())
         if state.held_seq == seq:
             state.held = state.held | idx  # a second share in the same frame (re-dispatch)
         else:

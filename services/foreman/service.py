@@ -52,8 +52,7 @@ class CropStore:
         if frames and seq < min(frames) and len(frames) >= self._keep:
             return  # older than everything kept
         entry = frames.setdefault(seq, {})
-        for row, index in enumerate(indices.tolist()):
-            entry[int(index)] = crops[row]
+        entry.update(zip(indices.tolist(), crops, strict=True))
         for old in sorted(frames)[: -self._keep]:
             del frames[old]
 
@@ -151,17 +150,22 @@ class ForemanService(ServiceRuntime):
                 query = handler.recv()
             except zenoh.ZError:
                 return  # queryable undeclared: shutting down
+            t_recv = time.perf_counter()
             self.counters.inc("queries")
             job = self.decode_query(query, BlockJob)
+            self.counters.time_ms("decode", (time.perf_counter() - t_recv) * 1e3)
             if job is None:
                 continue
             try:
                 result = self._compute_block(job)
+                t_rep = time.perf_counter()
             except (CapatazError, ValueError) as exc:
                 self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
                 self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
                 continue
             self.reply(query, result)
+            self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
+            self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
 
     def _compute_block(self, job: BlockJob) -> BlockResult:
         assert self.scatter is not None
@@ -169,10 +173,13 @@ class ForemanService(ServiceRuntime):
         settings = self._worker.settings_for(job.settings)
         self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
         crop_shape = tuple(job.crops.shape[1:])
-        rows = {int(i): r for r, i in enumerate(job.indices.tolist())}
+        block_indices = job.indices
+        rows = {i: r for r, i in enumerate(block_indices.tolist())}
 
         def crops(indices: np.ndarray) -> np.ndarray:
-            return job.crops[[rows[int(i)] for i in indices]] if indices.size else job.crops[:0]
+            if indices.size == block_indices.size and np.array_equal(indices, block_indices):
+                return job.crops  # the whole block to one member: forward it as it came
+            return job.crops[[rows[i] for i in indices.tolist()]] if indices.size else job.crops[:0]
 
         def prev_crops(indices: np.ndarray) -> np.ndarray:
             return self.crops_prev.get(job.stream, job.prev_seq, indices, crop_shape)

@@ -86,7 +86,9 @@ class Scatter:
         self.job_type = job_type
         self.result_type = result_type
         self.counters = counters
-        self._events: queue.Queue[tuple[str, int, Any]] = queue.Queue()
+        # SimpleQueue: unbounded but fed only by our own requests (<= 2 events each) and liveliness changes;
+        # its put/get are C calls, cheaper than Queue's Condition on the reply path
+        self._events: queue.SimpleQueue[tuple[str, int, Any]] = queue.SimpleQueue()
         self._lock = threading.Lock()
         self._next_id = 0
         self._epoch = 0
@@ -101,6 +103,9 @@ class Scatter:
         with self._lock:
             rid = self._next_id
             self._next_id += 1
+        crops = work.crops(indices)
+        # nothing moved (the usual, sticky case): no previous crops to cut
+        prev_crops = work.prev_crops(moved) if moved.size else crops[:0]
         # built from our own validated data: skip re-validation here, the receiver validates at its boundary
         job = self.job_type.model_construct(
             stream=work.stream,
@@ -108,9 +113,9 @@ class Scatter:
             prev_seq=work.prev_seq,
             settings=work.settings,
             indices=indices.astype(np.int32),
-            crops=work.crops(indices),
+            crops=crops,
             prev_indices=moved.astype(np.int32),
-            prev_crops=work.prev_crops(moved),
+            prev_crops=prev_crops,
             budget_s=budget_s,
         )
         payload, attachment = encode(job)
@@ -118,7 +123,7 @@ class Scatter:
         epoch = self._epoch
 
         def on_reply(reply: zenoh.Reply) -> None:
-            events.put(("reply", rid, (epoch, reply)))
+            events.put(("reply", rid, (epoch, reply, time.perf_counter())))
 
         def on_done() -> None:
             events.put(("done", rid, epoch))
@@ -219,10 +224,13 @@ class Scatter:
             if rid not in pending:
                 continue  # late answer of a request already re-dispatched, or of an older frame
             if kind == "reply":
-                epoch, reply = value
+                epoch, reply, t_reply = value
                 if epoch != self._epoch:
                     continue
+                t_woke = time.perf_counter()
                 self._accept(pending[rid], reply, work)
+                self.counters.time_ms("wake", (t_woke - t_reply) * 1e3)
+                self.counters.time_ms("accept", (time.perf_counter() - t_woke) * 1e3)
                 request = pending[rid]
                 if request.result is not None:
                     del pending[rid]

@@ -80,10 +80,12 @@ class WorkerService(ServiceRuntime):
                 query = handler.recv()
             except zenoh.ZError:
                 return  # queryable undeclared: shutting down
+            t_recv = time.perf_counter()
             self.counters.inc("queries")
             job = self.decode_query(query, PatchJob)
             if job is not None:
                 self._handle(query, job, time.monotonic())
+                self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
 
     def queue_depths(self) -> dict[str, int]:
         return {"jobs": self.queue.depth()}
