@@ -63,6 +63,8 @@ class ClusterSpec(BaseModel):
     description: str = ""
     topology: Literal["master-worker", "master-foreman-worker"] = "master-foreman-worker"
     balance: Literal["none", "time"] = "time"
+    #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
+    speed: Literal["reported", "round-trip"] = "reported"
     master_computes: bool = False
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera
@@ -194,6 +196,8 @@ class LocalCluster:
             "--balance",
             self.spec.balance,
             "--compute" if host.foreman_computes else "--no-compute",
+            "--speed",
+            self.spec.speed,
             *extra,
         ]
         self.spawn(name, args, host.cpus)
@@ -213,6 +217,8 @@ class LocalCluster:
             "--balance",
             self.spec.balance,
             "--compute" if self.spec.master_computes else "--no-compute",
+            "--speed",
+            self.spec.speed,
             *self.master_args,
             *extra,
         ]

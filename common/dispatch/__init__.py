@@ -7,7 +7,17 @@ from common.dispatch.dispatcher import (
     DispatchError,
     DispatchSettings,
     Plan,
+    SpeedSource,
     largest_remainder,
 )
 
-__all__ = ["SELF", "Balance", "DispatchError", "DispatchSettings", "Dispatcher", "Plan", "largest_remainder"]
+__all__ = [
+    "SELF",
+    "Balance",
+    "DispatchError",
+    "DispatchSettings",
+    "Dispatcher",
+    "Plan",
+    "SpeedSource",
+    "largest_remainder",
+]

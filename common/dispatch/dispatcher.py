@@ -43,6 +43,20 @@ class Balance(StrEnum):
     TIME = "time"
 
 
+class SpeedSource(StrEnum):
+    """Which measurement of a member's speed feeds ``balance=time``.
+
+    ``reported``: the member's own figure (a worker's patches per second of compute time; a foreman's sum
+    of its workers'). ``round-trip``: patches / time from the start of the round to the member's reply, as
+    seen by the dispatcher; equalizing it equalizes the members' completion times, transfers and
+    co-located members included (workers sharing one core overlap only partly, so the sum of their own
+    figures overstates what their host delivers).
+    """
+
+    REPORTED = "reported"
+    ROUND_TRIP = "round-trip"
+
+
 @dataclass(frozen=True)
 class DispatchSettings:
     """Balancing and fault-handling parameters of a :class:`Dispatcher`."""
@@ -60,6 +74,8 @@ class DispatchSettings:
     #: per-request deadline = max(min_deadline_s, deadline_factor * expected time at the member's speed).
     min_deadline_s: float = 0.3
     deadline_factor: float = 4.0
+    #: which speed measurement balances (see :class:`SpeedSource`).
+    speed_source: SpeedSource = SpeedSource.REPORTED
 
     def __post_init__(self) -> None:
         if not 0.0 < self.ema_alpha <= 1.0:

@@ -35,25 +35,42 @@ BIG_GRID = ("16x12", 128, 0)  # grid, patch size, pyramid level -> 192 patches o
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frames", type=int, default=60, help="frames per configuration (after warm-up)")
-    parser.add_argument("--warmup", type=int, default=10, help="frames excluded from the statistics")
+    parser.add_argument("--frames", type=int, default=100, help="frames per configuration (after warm-up)")
+    parser.add_argument(
+        "--warmup", type=int, default=20, help="frames excluded from the statistics (shares converge)"
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=2, help="runs of every configuration, alternating none/time"
+    )
+    parser.add_argument(
+        "--speed",
+        choices=["reported", "round-trip"],
+        default="reported",
+        help="speed measure of time balancing (capataz master/foreman --speed)",
+    )
     parser.add_argument("--resolution", default="1920x1080", help="frame size WIDTHxHEIGHT")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on (same-host numbers)")
     parser.add_argument("--overhead-frames", type=int, default=200, help="frames of the 752x480 overhead run")
     parser.add_argument(
         "--slow-factor",
         type=int,
-        default=4,
-        help="host b's workers also repeat each computation this many times (taskset alone does not slow a "
-        "host down on a machine whose cores are shared with other processes; 1 = taskset only)",
+        default=1,
+        help="EMULATION, off by default: host b's workers also repeat each computation this many times "
+        "(1 = the issue's cluster, made real by taskset only)",
     )
 
 
-def heterogeneous(topology: str, balance: str, slow_factor: int = 1) -> ClusterSpec:
+def _fmt(values: list[float]) -> str:
+    return ", ".join(f"{v:.2f}" for v in values)
+
+
+def heterogeneous(topology: str, balance: str, slow_factor: int = 1, speed: str = "reported") -> ClusterSpec:
+    """The issue's cluster: host a = 1 worker pinned to core 0, host b = 4 workers sharing core 1."""
     return ClusterSpec(
         name=f"{topology}-{balance}",
         topology=topology,  # type: ignore[arg-type]
         balance=balance,  # type: ignore[arg-type]
+        speed=speed,  # type: ignore[arg-type]
         hosts=(
             HostSpec(name="a", workers=1, cpus="0"),
             HostSpec(name="b", workers=4, cpus="1", cpu_factor=slow_factor),
@@ -165,48 +182,82 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         },
     ]
     frames_lost = 0
-    for topology in ("master-worker", "master-foreman-worker"):
-        for balance in ("none", "time"):
-            spec = heterogeneous(topology, balance, args.slow_factor)
-            estimates, wall_s, _codes = run_cluster_flight(
-                spec,
-                n,
-                out_dir / "cluster_logs" / spec.name,
-                fps=0.0,
-                in_flight=1,
-                master_args=master_args,
-                camera_args=camera_args,
-                progress=False,
-                shared_memory=args.shm,
-            )
-            lost = n - len(estimates)
-            frames_lost += lost
-            ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > args.warmup])
-            stats = (
-                _stats(ms)
-                if ms.size
-                else {"median_ms": float("nan"), "p99_ms": float("nan"), "mean_ms": float("nan")}
-            )
-            members = shares_and_speeds(estimates)
-            yaw = np.array([estimates[s].yaw_rad if s in estimates else np.nan for s in range(n)])
-            row = {
-                "name": f"{topology} / {balance}",
-                "topology": topology,
-                "balance": balance,
-                **stats,
-                "fps": len(estimates) / wall_s if wall_s > 0 else float("nan"),
-                "speedup": sequential["median_ms"] / stats["median_ms"],
-                "frames_lost": lost,
-                "shares": members,
-                "share_speed_error": share_speed_error(members),
-                "max_yaw_diff_deg": float(np.nanmax(np.degrees(np.abs(yaw - seq_yaw)))),
-            }
-            configs.append(row)
-            print(
-                f"{row['name']}: median {row['median_ms']:.1f} ms, p99 {row['p99_ms']:.1f} ms, "
-                f"speedup {row['speedup']:.2f}, shares {_rounded(members)}",
-                flush=True,
-            )
+    runs: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    # repeats alternate none/time so that a change of the (shared) machine's load hits both alike
+    for repeat in range(args.repeats):
+        for topology in ("master-worker", "master-foreman-worker"):
+            for balance in ("none", "time"):
+                spec = heterogeneous(topology, balance, args.slow_factor, args.speed)
+                estimates, wall_s, _codes = run_cluster_flight(
+                    spec,
+                    n,
+                    out_dir / "cluster_logs" / f"{spec.name}-{repeat}",
+                    fps=0.0,
+                    in_flight=1,
+                    master_args=master_args,
+                    camera_args=camera_args,
+                    progress=False,
+                    shared_memory=args.shm,
+                )
+                lost = n - len(estimates)
+                frames_lost += lost
+                # warm-up excluded: shares have converged (EMA) and caches are warm after it
+                ms = np.array(
+                    [estimates[s].timings_ms["total"] for s in sorted(estimates) if s > args.warmup]
+                )
+                members = shares_and_speeds(estimates)
+                yaw = np.array([estimates[s].yaw_rad if s in estimates else np.nan for s in range(n)])
+                run_row = {
+                    "ms": ms,
+                    "median_ms": float(np.median(ms)) if ms.size else float("nan"),
+                    "fps": len(estimates) / wall_s if wall_s > 0 else float("nan"),
+                    "lost": lost,
+                    "shares": members,
+                    "share_speed_error": share_speed_error(members),
+                    "max_yaw_diff_deg": float(np.nanmax(np.degrees(np.abs(yaw - seq_yaw)))),
+                }
+                runs.setdefault((topology, balance), []).append(run_row)
+                print(
+                    f"[{repeat + 1}/{args.repeats}] {topology} / {balance}: "
+                    f"median {run_row['median_ms']:.1f} ms, "
+                    f"shares {_rounded(members)}, share error {run_row['share_speed_error']:.3f}",
+                    flush=True,
+                )
+    for (topology, balance), rows in runs.items():
+        pooled = np.concatenate([r["ms"] for r in rows])
+        stats = (
+            _stats(pooled)
+            if pooled.size
+            else {"median_ms": float("nan"), "p99_ms": float("nan"), "mean_ms": float("nan")}
+        )
+        members = rows[-1]["shares"]
+        row = {
+            "name": f"{topology} / {balance}",
+            "topology": topology,
+            "balance": balance,
+            **stats,
+            "run_medians_ms": [r["median_ms"] for r in rows],
+            "fps": float(np.median([r["fps"] for r in rows])),
+            "speedup": sequential["median_ms"] / stats["median_ms"],
+            "frames_lost": sum(r["lost"] for r in rows),
+            "shares": members,
+            "share_speed_error": rows[-1]["share_speed_error"],
+            "run_share_speed_errors": [r["share_speed_error"] for r in rows],
+            "max_yaw_diff_deg": max(r["max_yaw_diff_deg"] for r in rows),
+        }
+        configs.append(row)
+        print(
+            f"{row['name']}: median {row['median_ms']:.1f} ms (runs {_fmt(row['run_medians_ms'])}), "
+            f"p99 {row['p99_ms']:.1f} ms, speedup {row['speedup']:.2f}, shares {_rounded(members)}",
+            flush=True,
+        )
+    run_gains = {
+        topology: [
+            none["median_ms"] / time_["median_ms"]
+            for none, time_ in zip(runs[(topology, "none")], runs[(topology, "time")], strict=True)
+        ]
+        for topology in ("master-worker", "master-foreman-worker")
+    }
 
     by = {(c["topology"], c["balance"]): c for c in configs}
     gain_mfw = (
@@ -214,6 +265,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         / by[("master-foreman-worker", "time")]["median_ms"]
     )
     gain_mw = by[("master-worker", "none")]["median_ms"] / by[("master-worker", "time")]["median_ms"]
+    emulation = args.slow_factor != 1
+    label = (
+        f"EMULATION: host b's workers repeat each computation {args.slow_factor}x in software"
+        if emulation
+        else "taskset only (no software slow-down)"
+    )
+    print(
+        f"balance gain ({label}): MFW {gain_mfw:.2f}x (runs {_fmt(run_gains['master-foreman-worker'])}), "
+        f"MW {gain_mw:.2f}x (runs {_fmt(run_gains['master-worker'])})",
+        flush=True,
+    )
     overhead = overhead_752x480(out_dir, args.overhead_frames, args.shm)
     result = {
         "workload": {
@@ -224,13 +286,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "frames": args.frames,
             "warmup": args.warmup,
             "shared_memory": bool(args.shm),
-            "hosts": "a: 1 worker on core 0; b: 4 workers sharing core 1",
+            "hosts": "a: 1 worker (+ its foreman) on core 0; b: 4 workers (+ their foreman) sharing core 1",
+            "unpinned": "router, camera, master (idle while the workers compute: one frame in flight)",
             "slow_factor": args.slow_factor,
+            "slowdown": label,
+            "speed_source": args.speed,
+            "repeats": args.repeats,
         },
         "configs": configs,
         "frames_lost": frames_lost,
         "balance_gain": gain_mfw,
+        "balance_gain_runs": run_gains["master-foreman-worker"],
         "balance_gain_master_worker": gain_mw,
+        "balance_gain_master_worker_runs": run_gains["master-worker"],
         "overhead_752x480": overhead,
     }
     result["table"] = [
@@ -246,8 +314,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         }
         for c in configs
     ]
-    result["table"].append({"config": "balance gain (MFW none/time)", "median_ms": gain_mfw})
-    result["table"].append({"config": "balance gain (MW none/time)", "median_ms": gain_mw})
+    tag = "emulated" if emulation else "taskset only"
+    result["table"].append({"config": f"balance gain MFW none/time ({tag})", "median_ms": gain_mfw})
+    result["table"].append({"config": f"balance gain MW none/time ({tag})", "median_ms": gain_mw})
     for label, row in overhead["paths"].items():
         result["table"].append({"config": f"752x480 +ms/frame {label}", "median_ms": row["overhead_ms"]})
     result["plot"] = str(plot(out_dir / "cluster.png", configs, gain_mfw))

@@ -18,7 +18,7 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings
+from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
 from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, merge_measurements
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
@@ -241,11 +241,20 @@ def add_dispatch_arguments(parser: argparse.ArgumentParser) -> None:
         help="compute a share itself besides its members (the paper's configuration)",
     )
     parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+    parser.add_argument(
+        "--speed",
+        choices=[v.value for v in SpeedSource],
+        default=SpeedSource.REPORTED.value,
+        help="speed measure for time balancing: workers' own figures, or round-trip patches/s",
+    )
 
 
 def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
     return DispatchSettings(
-        balance=Balance(args.balance), self_compute=args.compute, min_deadline_s=args.min_deadline_ms / 1e3
+        balance=Balance(args.balance),
+        self_compute=args.compute,
+        min_deadline_s=args.min_deadline_ms / 1e3,
+        speed_source=SpeedSource(args.speed),
     )
 
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.dispatch import SELF, Dispatcher, Plan
+from common.dispatch import SELF, Dispatcher, Plan, SpeedSource
 from common.dispatch.patchwork import PatchWorkError
 from common.messages import BlockJob, PatchJob, PatchResult, WireError, decode, encode, read_error_reply
 from common.transport import Counters, zbytes
@@ -64,6 +64,8 @@ class _Request:
     indices: np.ndarray
     sent_s: float
     deadline_s: float
+    #: start of the round for the first plan's shares, the send time for re-dispatched ones
+    start_s: float = 0.0
     result: PatchResult | None = None
     error: str | None = None
 
@@ -153,7 +155,9 @@ class Scatter:
         self_queue: list[tuple[np.ndarray, np.ndarray]] = []
         failed: set[str] = set()
 
-        def dispatch(p: Plan) -> None:
+        round_start = time.monotonic()
+
+        def dispatch(p: Plan, start_s: float | None = None) -> None:
             for member, indices in p.assignment.items():
                 moved = p.moved[member]
                 if member == SELF:
@@ -168,7 +172,7 @@ class Scatter:
                     self_queue.append((indices, indices))
                     continue
                 now = time.monotonic()
-                pending[rid] = _Request(member, indices, now, now + deadline)
+                pending[rid] = _Request(member, indices, now, now + deadline, start_s or now)
 
         def fail(rid: int, why: str) -> None:
             request = pending.pop(rid)
@@ -191,7 +195,7 @@ class Scatter:
             dispatch(self.dispatcher.redistribute(request.indices, failed, time.monotonic(), work.prev_seq))
 
         t_send = time.perf_counter()
-        dispatch(plan)
+        dispatch(plan, round_start)
         self.counters.time_ms("send", (time.perf_counter() - t_send) * 1e3)
         while pending or self_queue:
             while self_queue:
@@ -234,11 +238,15 @@ class Scatter:
                 request = pending[rid]
                 if request.result is not None:
                     del pending[rid]
-                    elapsed = time.monotonic() - request.sent_s
+                    elapsed = time.monotonic() - request.start_s
                     result = request.result
-                    # the member's own speed measure (a worker: its compute time; a foreman: the sum of its
-                    # workers' speeds) is independent of transport and of the share's size
-                    reported = sum(result.speeds.values()) if result.speeds else None
+                    # reported: the member's own speed measure (a worker: its compute time; a foreman: the sum
+                    # of its workers' speeds), independent of transport; round-trip: patches / elapsed
+                    reported = (
+                        sum(result.speeds.values())
+                        if result.speeds and self.dispatcher.settings.speed_source is SpeedSource.REPORTED
+                        else None
+                    )
                     self.dispatcher.record_success(
                         request.member, work.seq, request.indices, elapsed, reported
                     )

@@ -21,7 +21,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings
+from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
 from common.dispatch.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
@@ -49,6 +49,7 @@ class MasterSettings(BaseModel):
     topology: Topology = Topology.MASTER_FOREMAN_WORKER
     balance: Balance = Balance.TIME
     self_compute: bool = False
+    speed_source: SpeedSource = SpeedSource.REPORTED
     #: time budget of one frame's round (s); shares that miss it are re-dispatched
     budget_s: float = 1.0
     min_deadline_s: float = 0.3
@@ -67,7 +68,10 @@ class MasterSettings(BaseModel):
 
     def dispatch_settings(self) -> DispatchSettings:
         return DispatchSettings(
-            balance=self.balance, self_compute=self.self_compute, min_deadline_s=self.min_deadline_s
+            balance=self.balance,
+            self_compute=self.self_compute,
+            min_deadline_s=self.min_deadline_s,
+            speed_source=self.speed_source,
         )
 
 
@@ -336,6 +340,12 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
         default=False,
         help="the master computes a share itself besides its members",
     )
+    parser.add_argument(
+        "--speed",
+        choices=[v.value for v in SpeedSource],
+        default=SpeedSource.REPORTED.value,
+        help="speed measure for time balancing: members' own figures, or round-trip patches/s",
+    )
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
     parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
@@ -353,6 +363,7 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
         topology=Topology(args.topology),
         balance=Balance(args.balance),
         self_compute=args.compute,
+        speed_source=SpeedSource(args.speed),
         budget_s=args.budget_ms / 1e3,
         min_deadline_s=args.min_deadline_ms / 1e3,
         grid_cols=cols,

@@ -298,3 +298,42 @@ def test_every_truncation_of_a_valid_message_is_a_wire_error(
         cut = data.draw(st.integers(0, len(payload) - 1))
         with pytest.raises(WireError):
             decode(payload[:cut], attachment)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(-3, 40), min_size=1, max_size=12))
+def test_job_indices_are_accepted_iff_distinct_and_non_negative_in_any_order(values: list[int]) -> None:
+    indices = np.array(values, np.int32)
+    crops = np.zeros((indices.size, 4, 4), np.uint8)
+    good = len(set(values)) == len(values) and min(values) >= 0
+    job = {"stream": "a", "seq": 1, "prev_seq": 0, "settings": {}, "indices": indices, "crops": crops,
+           "prev_indices": np.zeros(0, np.int32), "prev_crops": crops[:0]}  # fmt: skip
+    payload, attachment = encode(m.PatchJob.model_construct(**job))
+    if good:
+        assert np.array_equal(decode(payload, attachment, m.PatchJob).indices, indices)
+    else:
+        with pytest.raises(WireError, match="distinct non-negative"):
+            decode(payload, attachment, m.PatchJob)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("yaw_rad", math.nan), ("confidence", math.inf), ("timings_ms", {"total": -math.inf})],
+)
+def test_nan_or_inf_in_scalar_and_dict_fields_is_a_wire_error(field: str, value: object) -> None:
+    fields = {"uav": "a", "seq": 1, "stamp_s": 0.0, "delta_yaw_rad": 0.0, "yaw_rad": 0.0,
+              "inlier_count": 0, "patch_count": 0, "confidence": 0.0, "low_confidence": True,
+              "method": "none", field: value}  # fmt: skip
+    header = msgpack.packb({"v": m.SCHEMA_VERSION, "t": "YawEstimate", "f": fields, "a": []})
+    with pytest.raises(WireError, match=field):
+        decode(b"", header, m.YawEstimate)
+
+
+def test_nan_in_job_settings_is_a_wire_error() -> None:
+    crops = np.zeros((1, 4, 4), np.uint8)
+    job = m.PatchJob.model_construct(
+        stream="a", seq=1, prev_seq=0, settings={"peak_sigma_px": math.nan}, indices=np.array([0], np.int32),
+        crops=crops, prev_indices=np.zeros(0, np.int32), prev_crops=crops[:0],
+    )  # fmt: skip
+    with pytest.raises(WireError, match="finite"):
+        decode(*encode(job), m.PatchJob)

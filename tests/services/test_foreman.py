@@ -1,12 +1,20 @@
-"""The foreman's crop store: previous-frame crops stay available for a second block of the same frame."""
+"""The foreman's crop store (previous-frame crops stay available for a second block of the same frame) and
+the speed measure its time balancing uses."""
 
 from __future__ import annotations
+
+import time
+from typing import Any
 
 import numpy as np
 import pytest
 
+from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.dispatch.patchwork import PatchWorkError
+from common.messages import PatchJob, PatchResult, decode, encode
+from common.transport import Counters
 from services.foreman.service import CropStore
+from services.master.scatter import FrameWork, Scatter
 
 
 def crops(value: int, n: int) -> np.ndarray:
@@ -26,3 +34,59 @@ def test_a_second_block_of_a_frame_still_finds_the_previous_frame() -> None:
     with pytest.raises(PatchWorkError, match="patch 3"):
         store.get("s", 5, np.array([3]), (4, 4))
     assert store.get("s", 6, np.array([], dtype=np.int64), (4, 4)).shape == (0, 4, 4)
+
+
+class _Bytes:
+    def __init__(self, data: bytes) -> None:
+        self._data = data
+
+    def to_bytes(self) -> bytes:
+        return self._data
+
+
+class _Reply:
+    def __init__(self, payload: bytes, attachment: bytes) -> None:
+        self.err = None
+        self.ok = type("Sample", (), {"payload": _Bytes(payload), "attachment": _Bytes(attachment)})()
+
+
+class _Workers:
+    """A stand-in session: each get is answered at once by a worker that reports ``reported`` patches/s."""
+
+    def __init__(self, reported: float, delay_s: float) -> None:
+        self.reported = reported
+        self.delay_s = delay_s
+
+    def get(self, key: str, handler: Any, payload: bytes, attachment: bytes, **_kw: Any) -> None:
+        job = decode(payload, attachment, PatchJob)
+        time.sleep(self.delay_s)
+        n = job.indices.size
+        result = PatchResult(
+            stream=job.stream, seq=job.seq, prev_seq=job.prev_seq, member=key, indices=job.indices,
+            shift_px=np.zeros((n, 2)), confidence=np.ones(n), peak=np.ones(n), valid=np.ones(n, bool),
+            compute_s=0.001, members={key: int(n)}, speeds={key: self.reported},
+        )  # fmt: skip
+        handler.callback(_Reply(*encode(result)))
+
+
+@pytest.mark.parametrize("source", list(SpeedSource))
+def test_time_balancing_uses_the_chosen_speed_measure(source: SpeedSource) -> None:
+    dispatcher = Dispatcher(DispatchSettings(speed_source=source, ema_alpha=1.0), 8)
+    dispatcher.join("worker/a/0")
+    scatter = Scatter(
+        _Workers(reported=1e6, delay_s=0.02), dispatcher, str, PatchJob, PatchResult, Counters()
+    )  # type: ignore[arg-type]
+    work = FrameWork(
+        stream="s", seq=1, prev_seq=0, settings={}, budget_s=1.0,
+        crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
+        prev_crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
+        compute_self=lambda idx, moved: pytest.fail("nothing is computed locally"),
+    )  # fmt: skip
+    report = scatter.run(work, dispatcher.plan(1, 0, time.monotonic()))
+    assert report.members == {"worker/a/0": 8}
+    speed = dispatcher.speed("worker/a/0")
+    assert speed is not None
+    if source is SpeedSource.REPORTED:
+        assert speed == 1e6
+    else:  # 8 patches in at least the 20 ms the reply took
+        assert 0 < speed <= 8 / 0.02
