@@ -94,7 +94,7 @@ def matrix_from_quaternion(q: npt.ArrayLike) -> FloatArray:
     arr = np.asarray(q, dtype=np.float64)
     arr = arr / np.linalg.norm(arr, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(arr, -1, 0)
-    R = np.empty(arr.shape[:-1] + (3, 3))
+    R = np.empty((*arr.shape[:-1], 3, 3))
     R[..., 0, 0] = w * w + x * x - y * y - z * z
     R[..., 0, 1] = 2.0 * (x * y - w * z)
     R[..., 0, 2] = 2.0 * (x * z + w * y)
@@ -136,7 +136,7 @@ def matrix_from_euler(roll: npt.ArrayLike, pitch: npt.ArrayLike, yaw: npt.ArrayL
         np.asarray(yaw, dtype=np.float64),
     )
     cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    R = np.empty(r.shape + (3, 3))
+    R = np.empty((*r.shape, 3, 3))
     R[..., 0, 0] = cy * cp
     R[..., 0, 1] = cy * sp * sr - sy * cr
     R[..., 0, 2] = cy * sp * cr + sy * sr

@@ -72,7 +72,9 @@ def test_rotation_vector_round_trip(v: tuple[float, float, float]) -> None:
     rotvec = np.array(v) * 3.0
     if np.linalg.norm(rotvec) >= np.pi:
         rotvec *= (np.pi - 1e-3) / np.linalg.norm(rotvec)
-    assert np.allclose(rotation_vector_from_quaternion(quaternion_from_rotation_vector(rotvec)), rotvec, atol=1e-9)
+    assert np.allclose(
+        rotation_vector_from_quaternion(quaternion_from_rotation_vector(rotvec)), rotvec, atol=1e-9
+    )
 
 
 def test_yaw_is_counter_clockwise_about_up() -> None:
