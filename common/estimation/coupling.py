@@ -161,10 +161,27 @@ class CouplingSettings:
     #: Metric scale of the VO: the EKF altitude (coupled) or the last rangefinder reading as it is
     #: (the uncoupled, traditional VO: longer than the height when tilted, and noisy).
     scale_from: ScaleSource = ScaleSource.EKF
-    #: How rectified pairs are decomposed: freely (``cv2.decomposeHomographyMat``, physically valid
-    #: solution; the default), with the known plane normal (the vertical optical axis) or with the level
-    #: model (yaw + translation). On flight (b) seeds 0-2 neither alternative was better overall.
-    rectified_motion_model: MotionModel = MotionModel.FREE
+    #: How rectified pairs are turned into a motion: the similarity of two level views for the
+    #: translation and the free decomposition's rotation about the optical axis for the yaw (the
+    #: default, :attr:`MotionModel.LEVEL_FREE_YAW`), or freely (``cv2.decomposeHomographyMat``), with the
+    #: known plane normal, or the similarity alone (:attr:`MotionModel.LEVEL`).
+    rectified_motion_model: MotionModel = MotionModel.LEVEL_FREE_YAW
+    #: The VO's position origin (``initial_position_m``) is the first frame at least this long after the
+    #: first IMU sample (frames before it already give the VO yaw). A rectified VO position is off by
+    #: ``h * d`` (``d``: the EKF's tilt error when the frame was rectified); these offsets telescope
+    #: along the chain, so the error is ``h_k d_k - h_0 d_0`` with ``0`` the origin frame. An origin
+    #: before the EKF's tilt has settled from the first accelerometer sample leaves that transient in
+    #: ``d_0`` for the whole flight.
+    vo_origin_delay_s: float = 0.0
+    #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
+    #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
+    #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
+    #: it was rectified with the known initial attitude, else the first reliable estimate.
+    vision_tilt_correction: bool = True
+    #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
+    #: pairs) it needs before it is used.
+    vision_tilt_window_s: float = 5.0
+    vision_tilt_min_information: float = 1e-3
     #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
     visual_yaw: bool = True
     #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
@@ -252,6 +269,16 @@ def motion_acceleration(stamps_s: npt.ArrayLike, positions_m: npt.ArrayLike) -> 
     return np.asarray(2.0 * coeffs[2] / (scale * scale), dtype=np.float64)
 
 
+def residual_tilt_offset(R_n_camera: FloatArray, altitude_m: float, normal_xy: FloatArray) -> FloatArray:
+    """Horizontal offset ``(2,)`` (navigation frame) of the ground point on a rectified camera's optical axis
+    from the point below it, when the rectified view is in fact tilted so that the ground normal is
+    ``(nx, ny, ~1)`` in its frame: ``R_n_camera (-h nx, -h ny, 0)``. A VO chain of such views tracks
+    that ground point instead of the camera."""
+    n = np.asarray(normal_xy, dtype=np.float64)
+    offset_cam = np.array([-altitude_m * n[0], -altitude_m * n[1], 0.0])
+    return np.asarray((R_n_camera @ offset_cam)[:2], dtype=np.float64)
+
+
 def yaw_of_camera(R_world_camera: FloatArray, R_body_camera: FloatArray) -> float:
     """ZYX yaw of the body carrying a camera with orientation ``R_world_camera``."""
     return float(euler_from_matrix(R_world_camera @ R_body_camera.T)[2])
@@ -288,6 +315,14 @@ class DoubleCouplingEstimator:
         self._first_imu_s: float | None = None
         self._rect_q: FloatArray | None = None
         self._accel_position = np.zeros(3)
+        self._tilt_sum = np.zeros(2)
+        self._tilt_information = 0.0
+        self._tilt_stamp_s = math.nan
+        self._tilt_informed = False
+        self._origin_set = False
+        self._origin_at_known_attitude = False
+        self._anchor: tuple[FloatArray, float] | None = None
+        self._anchor_offset: FloatArray | None = None
 
     # ---- input ------------------------------------------------------------------------------------
 
@@ -456,6 +491,8 @@ class DoubleCouplingEstimator:
         n_inliers = 0
         if self.pose is None or self._prev_frame is None:
             self.pose = self._initial_pose(roll, pitch, yaw_ekf, altitude_m)
+            self._anchor = (self.pose.R_n_camera.copy(), altitude_m)
+            self._maybe_set_origin(m.stamp_s, altitude_m)
             self._accel_position = self.pose.p_n_camera_m.copy()
             self._vo_yaw_unwrapped = yaw_of_camera(self.pose.R_n_camera, self._vo_camera_mount())
             ok = True
@@ -472,6 +509,9 @@ class DoubleCouplingEstimator:
                 t_free = metric_translation(motion.t_over_d_free, self._prev_altitude_m)
                 self._accel_position = self._accel_position - self.pose.R_n_camera @ t_free
                 n_inliers = motion.n_inliers
+                self._maybe_set_origin(m.stamp_s, altitude_m)
+                if self.settings.rectify and self.settings.vision_tilt_correction:
+                    self._update_vision_tilt(m.stamp_s, motion.t_over_d_free, motion.normal_km1_free)
                 ok = True
                 self.counters["vo_pairs"] += 1
             except VoError as exc:
@@ -487,7 +527,22 @@ class DoubleCouplingEstimator:
         self._vo_yaw_unwrapped += math.remainder(yaw_wrapped - self._vo_yaw_unwrapped, 2.0 * math.pi)
         if ok and self.settings.visual_yaw:
             self._apply_yaw(self._vo_yaw_unwrapped, self.settings.vo_yaw_noise_rad, "vo_yaw")
-        p = self.pose.p_n_camera_m
+        if not self._origin_set:
+            self.counters["frames_before_vo_origin"] += 1
+            return None
+        p = self.pose.p_n_camera_m.copy()
+        tilt = self.vision_tilt()
+        if tilt is not None and self._anchor is not None:
+            # the chain follows the ground point on the axis of the (tilted) rectified views: remove the
+            # current frame's offset; the origin frame's, not known when it was taken, is taken from the
+            # first reliable estimate (the EKF's tilt error is mostly a slowly varying, body-fixed bias)
+            if self._anchor_offset is None:
+                self._anchor_offset = (
+                    np.zeros(2)  # the origin frame was rectified with the known initial attitude
+                    if self._origin_at_known_attitude
+                    else residual_tilt_offset(self._anchor[0], self._anchor[1], tilt)
+                )
+            p[:2] += self._anchor_offset - residual_tilt_offset(self.pose.R_n_camera, altitude_m, tilt)
         return PoseOutput(
             stamp_s=m.stamp_s,
             p_world_body_m=np.array([p[0], p[1], self.state.pz_m]),
@@ -513,6 +568,46 @@ class DoubleCouplingEstimator:
         alpha = min(1.0, dt_s / tau)
         q = (1.0 - alpha) * q + alpha * ekf_q
         self._rect_q = q / np.linalg.norm(q)
+
+    def _maybe_set_origin(self, stamp_s: float, altitude_m: float) -> None:
+        """Move the VO position to ``initial_position_m`` at the first frame after ``vo_origin_delay_s``."""
+        if self._origin_set or self.pose is None or self._first_imu_s is None:
+            return
+        if stamp_s < self._first_imu_s + self.settings.vo_origin_delay_s - 1e-9:
+            return
+        x0, y0 = self.settings.initial_position_m
+        p = np.array([x0, y0, self.pose.p_n_camera_m[2]])
+        self.pose = VoPose(R_n_camera=self.pose.R_n_camera, p_n_camera_m=p)
+        self._anchor = (self.pose.R_n_camera.copy(), altitude_m)
+        self._origin_set = True
+        self._origin_at_known_attitude = (
+            self.settings.initial_q_world_body is not None and stamp_s <= self._first_imu_s + 1e-9
+        )
+
+    def _update_vision_tilt(self, stamp_s: float, t_over_d_free: FloatArray, normal_free: FloatArray) -> None:
+        """Information-weighted, exponentially forgetting mean of the free normals' tilt (a pair says more
+        about the normal the more it translates: weight ``|T/d|^2``)."""
+        n = np.asarray(normal_free, dtype=np.float64).reshape(3)
+        n = n / n[2]
+        weight = float(np.sum(np.asarray(t_over_d_free, dtype=np.float64)[:2] ** 2))
+        if math.isfinite(self._tilt_stamp_s):
+            forget = math.exp(-(stamp_s - self._tilt_stamp_s) / self.settings.vision_tilt_window_s)
+            self._tilt_sum *= forget
+            self._tilt_information *= forget
+        self._tilt_stamp_s = stamp_s
+        self._tilt_sum += weight * n[:2]
+        self._tilt_information += weight
+
+    def vision_tilt(self) -> FloatArray | None:
+        """Estimated ground normal ``(nx, ny)`` in the rectified camera (None until informed enough)."""
+        s = self.settings
+        if not (s.rectify and s.vision_tilt_correction and s.rectified_motion_model in _LEVEL_MODELS):
+            return None
+        if self._tilt_information >= self.settings.vision_tilt_min_information:
+            self._tilt_informed = True
+        if not self._tilt_informed or self._tilt_information <= 0.0:
+            return None
+        return np.asarray(self._tilt_sum / self._tilt_information, dtype=np.float64)
 
     def _accel_waits_for_vo(self, stamp_s: float) -> bool:
         """At a start in mid-manoeuvre the hover model is wrong until the VO gives the acceleration."""
@@ -553,6 +648,9 @@ class DoubleCouplingEstimator:
     def attitude_matrix(self) -> FloatArray | None:
         return None if self.state is None else matrix_from_quaternion(self.state.q_world_body)
 
+
+#: Rectified-pair models that follow the ground point on the optical axis (a similarity of level views).
+_LEVEL_MODELS = (MotionModel.LEVEL, MotionModel.LEVEL_FREE_YAW)
 
 #: Application order of samples with equal stamps: the range first (it initialises the altitude).
 _RANK = {Sensor.RANGE: 0, Sensor.IMU: 1, Sensor.YAW: 2, Sensor.CAMERA: 3}

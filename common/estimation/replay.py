@@ -25,7 +25,17 @@ from common.estimation.coupling import (
     RangeMeasurement,
     ScaleSource,
 )
-from common.geometry import euler_from_quaternion, wrap_angle_rad
+from common.estimation.rectify import rectify_frame
+from common.estimation.vo import (
+    MotionModel,
+    VoPose,
+    VoSettings,
+    compose_pose,
+    estimate_relative_motion,
+    metric_translation,
+    prepare_frame,
+)
+from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
 from common.sim.flight import Flight
 
 FloatArray = npt.NDArray[np.float64]
@@ -107,6 +117,52 @@ def run_estimators(
     return {name: collect(out) for name, out in outputs.items()}
 
 
+def vo_with_true_attitude(
+    flight: Flight,
+    start_frame: int,
+    stop_frame: int,
+    rectify: bool = True,
+    model: MotionModel = MotionModel.LEVEL_FREE_YAW,
+    settings: VoSettings | None = None,
+    roll_pitch_error_rad: tuple[float, float] = (0.0, 0.0),
+) -> FloatArray:
+    """VO alone on frames ``[start_frame, stop_frame)`` with the TRUE roll, pitch (plus an optional constant
+    error) and altitude for rectification and scale, from the true initial pose: its camera positions
+    ``(N, 3)``. The diagnosis of the VO itself, free of any EKF error (rectify=False: raw frames and
+    the free decomposition)."""
+    vo_settings = settings or VoSettings()
+    K = flight.camera.K
+    euler = flight.euler_rad
+    pose: VoPose | None = None
+    prev = None
+    h_prev = float("nan")
+    out = []
+    for i in range(start_frame, stop_frame):
+        image = flight.frame(i)
+        if rectify:
+            roll = float(euler[i, 0]) + roll_pitch_error_rad[0]
+            pitch = float(euler[i, 1]) + roll_pitch_error_rad[1]
+            rect = rectify_frame(
+                image, K, roll, pitch, flight.R_body_camera, border_px=vo_settings.mask_margin_px
+            )
+            frame = prepare_frame(rect.image, rect.valid_mask, vo_settings)
+        else:
+            frame = prepare_frame(image, None, vo_settings)
+        h = float(flight.p_world_body_m[i, 2])
+        if pose is None or prev is None:
+            R_world_body = flight.R_world_body[i] if not rectify else matrix_from_euler(0.0, 0.0, euler[i, 2])
+            mount = R_BODY_CAMERA_DOWN if rectify else flight.R_body_camera
+            pose = VoPose(R_n_camera=R_world_body @ mount, p_n_camera_m=flight.p_world_body_m[i].copy())
+        else:
+            motion = estimate_relative_motion(
+                prev, frame, K, vo_settings, model=model if rectify else MotionModel.FREE
+            )
+            pose = compose_pose(pose, motion.R_k_km1, metric_translation(motion.t_over_d, h_prev))
+        prev, h_prev = frame, h
+        out.append(pose.p_n_camera_m.copy())
+    return np.asarray(out, dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class RunErrors:
     """Errors of one run against the flight's truth."""
@@ -148,6 +204,7 @@ def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: 
     alt_err = run.pz_m[keep] - imu.true_p_world_body_m[idx, 2]
     frames = np.searchsorted(flight.frame_stamps_s, run.pose_stamps_s - 1e-9)
     vo_err = np.linalg.norm(run.p_world_body_m[:, :2] - flight.p_world_body_m[frames, :2], axis=1)
+    first = int(frames[0]) if len(frames) else start_frame
     stop = int(frames[-1]) + 1 if len(frames) else start_frame + 1
     return RunErrors(
         att_rmse_deg=np.sqrt(np.mean(err_deg**2, axis=0)),
@@ -155,33 +212,43 @@ def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: 
         alt_rmse_m=float(np.sqrt(np.mean(alt_err**2))),
         vo_final_error_m=float(vo_err[-1]) if len(vo_err) else float("nan"),
         vo_max_error_m=float(vo_err.max()) if len(vo_err) else float("nan"),
-        path_length_m=path_length_m(flight, start_frame, stop),
+        path_length_m=path_length_m(flight, first, stop),
         yaw_error_deg=err_deg[:, 2],
         vo_error_m=vo_err,
     )
 
 
+#: Seconds after the start at which the rectified runs set their VO origin (the EKF's tilt has settled
+#: from the first accelerometer sample; flight (b) hovers for its first 5 s).
+RECTIFIED_ORIGIN_DELAY_S = 4.0
+
 #: The configurations compared on flight (b): the paper's proposal (rectified frames, EKF altitude as
 #: scale), its "traditional" VO (raw frames, the rangefinder reading as scale: no inertial information),
 #: raw frames with the EKF altitude (only the rectification missing), and the EKF without visual yaw.
 CONFIGURATIONS: dict[str, dict[str, Any]] = {
-    "rectified": {"rectify": True, "visual_yaw": True},
+    "rectified": {"rectify": True, "visual_yaw": True, "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S},
     "traditional": {"rectify": False, "visual_yaw": True, "scale_from": ScaleSource.RANGE},
     "raw_ekf_scale": {"rectify": False, "visual_yaw": True},
-    "gyro_yaw": {"rectify": True, "visual_yaw": False},
+    "gyro_yaw": {"rectify": True, "visual_yaw": False, "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S},
 }
 
 
 def standard_estimators(
     flight: Flight, start_frame: int = 0, names: tuple[str, ...] = tuple(CONFIGURATIONS)
 ) -> dict[str, DoubleCouplingEstimator]:
-    """Estimators of :data:`CONFIGURATIONS`, started at ``start_frame`` with the true initial yaw and
-    position (the navigation frame n is the world frame) and the attitude from the first accelerometer
-    sample (or the true attitude when starting mid-flight)."""
-    p0 = flight.p_world_body_m[start_frame]
+    """Estimators of :data:`CONFIGURATIONS`, started at ``start_frame`` with the true initial yaw and the
+    true position at their VO origin (the navigation frame n is the world frame), and the attitude from
+    the first accelerometer sample (or the true attitude when starting mid-flight)."""
     q0 = flight.q_world_body[start_frame]
     out = {}
     for name in names:
+        config = dict(CONFIGURATIONS[name])
+        # started mid-flight with the true attitude, the EKF has no tilt transient to wait for
+        delay_s = float(config.pop("vo_origin_delay_s", 0.0))
+        delay_s = delay_s if start_frame == 0 else 0.0
+        t_origin = float(flight.frame_stamps_s[start_frame]) + delay_s
+        origin = min(int(np.searchsorted(flight.frame_stamps_s, t_origin - 1e-9)), flight.n_frames - 1)
+        p0 = flight.p_world_body_m[origin]
         settings = CouplingSettings(
             initial_yaw_rad=float(flight.yaw_rad[start_frame]),
             initial_position_m=(float(p0[0]), float(p0[1])),
@@ -189,7 +256,8 @@ def standard_estimators(
             if start_frame == 0
             else (float(q0[0]), float(q0[1]), float(q0[2]), float(q0[3])),
             accel_wait_for_vo_s=0.0 if start_frame == 0 else 1.0,
-            **CONFIGURATIONS[name],
+            vo_origin_delay_s=delay_s,
+            **config,
         )
         out[name] = DoubleCouplingEstimator(camera_model_of(flight), settings=settings)
     return out

@@ -44,6 +44,11 @@ class MotionModel(enum.Enum):
     #: Both views level (rectified): rotation about the optical axis and ``n = e3``, least squares on the
     #: homography's inliers (no tilt/translation ambiguity left).
     LEVEL = "level"
+    #: :attr:`LEVEL`'s similarity for the translation, the rotation about the optical axis of the free
+    #: decomposition for the yaw. A residual tilt ``d`` of the rectified views (the EKF's tilt error)
+    #: shears the flow by ``|t|/h * d`` and biases the similarity's rotation by half of it on every pair
+    #: (a yaw drift that builds up); the free decomposition models the plane normal and has no such bias.
+    LEVEL_FREE_YAW = "level_free_yaw"
 
 
 class VoError(CapatazError):
@@ -105,6 +110,8 @@ class RelativeMotion:
     #: ``T/d`` of the free decomposition (equal to ``t_over_d`` for :attr:`MotionModel.FREE`).
     t_over_d_free: FloatArray
     normal_km1: FloatArray
+    #: Plane normal of the free decomposition (in camera k-1; equal to ``normal_km1`` for FREE).
+    normal_km1_free: FloatArray
     H_k_km1: FloatArray
     n_features: int
     n_tracked: int
@@ -157,8 +164,8 @@ def prepare_frame(image: npt.ArrayLike, mask: npt.ArrayLike | None, settings: Vo
         blockSize=settings.block_size_px,
     )
     if corners is not None and scale != 1.0:
-        # pyrDown pixel i covers full-resolution pixels 2i and 2i + 1: centre 2i + 0.5
-        corners = corners * scale + (scale - 1.0) / 2.0
+        # pyrDown's 5-tap kernel is centred: level pixel i is full-resolution pixel 2i (not 2i + 0.5)
+        corners = corners * scale
     features = (
         np.zeros((0, 1, 2), dtype=np.float32) if corners is None else np.asarray(corners, dtype=np.float32)
     )
@@ -309,6 +316,14 @@ def level_motion_from_matches(
     return R, t_over_d
 
 
+def rotation_about_optical_axis(R_k_km1: npt.ArrayLike) -> FloatArray:
+    """``Rz(angle)``: the in-plane (about the optical axis, the yaw of a level camera) part of a rotation."""
+    R = np.asarray(R_k_km1, dtype=np.float64)
+    angle = math.atan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1])
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def estimate_relative_motion(
     prev: PreparedFrame,
     curr: PreparedFrame,
@@ -319,7 +334,7 @@ def estimate_relative_motion(
 ) -> RelativeMotion:
     """Rotation, ``T/d`` and plane normal between frames k-1 and k (paper C Algorithm 2).
 
-    ``model`` selects the free decomposition (any pair) or the level one (rectified pairs).
+    ``model`` selects the free decomposition (any pair) or the level ones (rectified pairs).
     """
     Km = np.asarray(K, dtype=np.float64)
     p0, p1 = track_features(prev, curr, settings)
@@ -350,17 +365,20 @@ def estimate_relative_motion(
         t_over_d = np.asarray(translations[best], dtype=np.float64).reshape(3)
         normal = np.asarray(normals[best], dtype=np.float64).reshape(3)
     t_over_d_free = t_over_d
+    normal_free = normal
     if model is MotionModel.KNOWN_NORMAL:
         R, t_over_d = decompose_with_known_normal(calibrated_homography(H, Km), normal_ref)
         normal = normal_ref
-    elif model is MotionModel.LEVEL:
-        R, t_over_d = level_motion_from_matches(p0[keep], p1[keep], Km)
+    elif model in (MotionModel.LEVEL, MotionModel.LEVEL_FREE_YAW):
+        R_level_fit, t_over_d = level_motion_from_matches(p0[keep], p1[keep], Km)
+        R = R_level_fit if model is MotionModel.LEVEL else rotation_about_optical_axis(R)
         normal = np.array([0.0, 0.0, 1.0])
     return RelativeMotion(
         R_k_km1=R,
         t_over_d=t_over_d,
         t_over_d_free=t_over_d_free,
         normal_km1=normal,
+        normal_km1_free=normal_free,
         H_k_km1=np.asarray(H / H[2, 2], dtype=np.float64),
         n_features=len(prev.features_px),
         n_tracked=len(p0),

@@ -21,9 +21,17 @@ from common.estimation.coupling import (
     check_imu,
     check_range,
     motion_acceleration,
+    residual_tilt_offset,
 )
-from common.estimation.replay import camera_model_of, collect, evaluate, flight_measurements, run_estimators
-from common.geometry import euler_from_quaternion, wrap_angle_rad
+from common.estimation.replay import (
+    camera_model_of,
+    collect,
+    evaluate,
+    flight_measurements,
+    run_estimators,
+    vo_with_true_attitude,
+)
+from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
 from common.sim.flight import Flight
 
 START, STOP = 400, 480  # 4 s in the middle of the manoeuvre: ~3 m at up to 0.76 m/s, tilted ~3 deg
@@ -57,7 +65,12 @@ def test_coupled_estimate_follows_the_truth(runs, flight_b: Flight) -> None:
         assert np.all(errors.att_rmse_deg < 0.5), (name, errors.att_rmse_deg)
         assert errors.alt_rmse_m < 0.02
         assert errors.path_length_m > 1.0
-        assert errors.vo_max_error_m < 0.01, (name, errors.vo_max_error_m)
+        assert errors.vo_final_error_m < 0.01, (name, errors.vo_final_error_m)
+        # Restarted mid-turn, the EKF's tilt swings by ~1 deg in its first second; the rectified (level)
+        # VO follows the ground point on the rectified axis, h * 1.3 deg = 8 cm off, until the vision
+        # tilt estimate (0.5 s of motion) takes that offset out. The raw frames' free decomposition does
+        # not depend on the EKF's tilt.
+        assert errors.vo_max_error_m < (0.1 if name == "rectified" else 0.01), (name, errors.vo_max_error_m)
         counters = estimators[name].counters
         assert counters["vo_pairs"] == STOP - START - 1
         assert counters["vo_yaw_applied"] >= STOP - START - 2
@@ -138,3 +151,32 @@ def test_external_yaw_is_a_second_yaw_source(flight_b: Flight) -> None:
     assert estimator.state is not None
     yaw = float(euler_from_quaternion(estimator.state.q_world_body)[2])
     assert 0.01 < float(wrap_angle_rad(yaw - yaw0)) <= 0.05
+
+
+def test_vo_on_truth_rectified_frames_is_submillimetre_and_beats_raw_frames(flight_b: Flight) -> None:
+    """With the true attitude and altitude, the rectified VO (similarity translation, free yaw) over 2 s of
+    the turn (1.2 m, tilted ~3 deg) ends within a millimetre; the raw frames' free decomposition is worse."""
+    start, stop = 400, 440
+    truth = flight_b.p_world_body_m[start:stop, :2]
+    rectified = vo_with_true_attitude(flight_b, start, stop, rectify=True)
+    raw = vo_with_true_attitude(flight_b, start, stop, rectify=False)
+    err_rect = float(np.linalg.norm(rectified[-1, :2] - truth[-1]))
+    err_raw = float(np.linalg.norm(raw[-1, :2] - truth[-1]))
+    assert err_rect < 1e-3, err_rect
+    assert err_rect < err_raw, (err_rect, err_raw)
+
+
+def test_residual_tilt_offset_is_the_axis_ground_point() -> None:
+    """A rectified camera tilted so that the ground normal is (nx, ny, 1) in its frame sees the ground
+    point on its axis at h * (-nx, -ny) from the point below it (camera frame), rotated to the world."""
+    R_n_camera = matrix_from_euler(0.0, 0.0, 0.7) @ R_BODY_CAMERA_DOWN
+    n_xy = np.array([0.01, -0.004])
+    h = 3.5
+    # exact: the axis ray of a camera rotated so that the world down is n in its frame
+    n = np.array([n_xy[0], n_xy[1], 1.0]) / np.linalg.norm([n_xy[0], n_xy[1], 1.0])
+    axis_world = R_n_camera @ (R_BODY_CAMERA_DOWN.T @ [0.0, 0.0, -1.0])  # level axis: straight down
+    assert np.allclose(axis_world, [0.0, 0.0, -1.0])
+    point_on_axis_cam = np.array([0.0, 0.0, h / n[2]])
+    below_cam = h * n
+    expected = (R_n_camera @ (point_on_axis_cam - below_cam))[:2]
+    assert np.allclose(residual_tilt_offset(R_n_camera, h, n_xy), expected, atol=1e-5)
