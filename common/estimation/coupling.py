@@ -13,6 +13,15 @@ bounded lag and applies them in stamp order:
   previous frame with the EKF altitude as scale (Algorithms 1-2, eqs. 9-10), then the VO yaw as a yaw
   update (eq. 19).
 
+Rectified pairs are, by default, two level views of the ground: their motion is a 4-DOF similarity
+(translation and scale from :func:`~common.estimation.vo.level_motion_from_matches`, the rotation about
+the optical axis from the free decomposition, :attr:`MotionModel.LEVEL_FREE_YAW`). Such a chain follows
+the ground point on the rectified optical axis: when the EKF's tilt is off by ``d`` that point is
+``h * d`` from the point below the camera, and the VO error is ``h_k d_k - h_0 d_0`` (the offsets
+telescope). Two things keep it small: the VO origin is set once the EKF's tilt has settled
+(``vo_origin_delay_s``), and the residual tilt of the rectified views is estimated from the free
+decompositions' plane normals and its offset removed (``vision_tilt_correction``).
+
 It returns :class:`AttitudeOutput` (one per IMU sample) and :class:`PoseOutput` (one per frame). Frames are
 latest-wins: a frame still pending when a newer one arrives is dropped and counted.
 """
