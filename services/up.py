@@ -64,7 +64,7 @@ class ClusterSpec(BaseModel):
     topology: Literal["master-worker", "master-foreman-worker"] = "master-foreman-worker"
     balance: Literal["none", "time"] = "time"
     #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
-    speed: Literal["reported", "round-trip"] = "reported"
+    speed: Literal["reported", "round-trip"] = "round-trip"
     master_computes: bool = False
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera

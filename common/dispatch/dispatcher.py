@@ -47,10 +47,12 @@ class SpeedSource(StrEnum):
     """Which measurement of a member's speed feeds ``balance=time``.
 
     ``reported``: the member's own figure (a worker's patches per second of compute time; a foreman's sum
-    of its workers'). ``round-trip``: patches / time from the start of the round to the member's reply, as
-    seen by the dispatcher; equalizing it equalizes the members' completion times, transfers and
-    co-located members included (workers sharing one core overlap only partly, so the sum of their own
-    figures overstates what their host delivers).
+    of its workers'). ``round-trip`` (default): patches / time from the start of the round to the member's
+    reply, as seen by the dispatcher; shares proportional to it converge to equal completion times (the
+    fixed point of ``n_i ~ n_i / T_i`` is ``T_i = T``), transfers and co-located members included. Workers
+    sharing one core overlap only partly, so the sum of their own figures overstates what their host
+    delivers: on the bench's heterogeneous cluster (two equal cores) ``reported`` settled at 41/59 %,
+    ``round-trip`` at 51/49 %.
     """
 
     REPORTED = "reported"
@@ -75,7 +77,7 @@ class DispatchSettings:
     min_deadline_s: float = 0.3
     deadline_factor: float = 4.0
     #: which speed measurement balances (see :class:`SpeedSource`).
-    speed_source: SpeedSource = SpeedSource.REPORTED
+    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
 
     def __post_init__(self) -> None:
         if not 0.0 < self.ema_alpha <= 1.0:

@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed",
         choices=["reported", "round-trip"],
-        default="reported",
+        default="round-trip",
         help="speed measure of time balancing (capataz master/foreman --speed)",
     )
     parser.add_argument("--resolution", default="1920x1080", help="frame size WIDTHxHEIGHT")
@@ -64,7 +64,9 @@ def _fmt(values: list[float]) -> str:
     return ", ".join(f"{v:.2f}" for v in values)
 
 
-def heterogeneous(topology: str, balance: str, slow_factor: int = 1, speed: str = "reported") -> ClusterSpec:
+def heterogeneous(
+    topology: str, balance: str, slow_factor: int = 1, speed: str = "round-trip"
+) -> ClusterSpec:
     """The issue's cluster: host a = 1 worker pinned to core 0, host b = 4 workers sharing core 1."""
     return ClusterSpec(
         name=f"{topology}-{balance}",

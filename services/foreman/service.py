@@ -244,7 +244,7 @@ def add_dispatch_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed",
         choices=[v.value for v in SpeedSource],
-        default=SpeedSource.REPORTED.value,
+        default=SpeedSource.ROUND_TRIP.value,
         help="speed measure for time balancing: workers' own figures, or round-trip patches/s",
     )
 

@@ -49,7 +49,7 @@ class MasterSettings(BaseModel):
     topology: Topology = Topology.MASTER_FOREMAN_WORKER
     balance: Balance = Balance.TIME
     self_compute: bool = False
-    speed_source: SpeedSource = SpeedSource.REPORTED
+    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
     #: time budget of one frame's round (s); shares that miss it are re-dispatched
     budget_s: float = 1.0
     min_deadline_s: float = 0.3
@@ -343,7 +343,7 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed",
         choices=[v.value for v in SpeedSource],
-        default=SpeedSource.REPORTED.value,
+        default=SpeedSource.ROUND_TRIP.value,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
