@@ -185,7 +185,7 @@ class CouplingSettings:
     #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
     #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
     #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
-    #: it was rectified with the known initial attitude, else the first reliable estimate.
+    #: it was rectified with the known initial attitude, else from the latest estimate.
     vision_tilt_correction: bool = True
     #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
     #: pairs) it needs before it is used.
@@ -331,7 +331,6 @@ class DoubleCouplingEstimator:
         self._origin_set = False
         self._origin_at_known_attitude = False
         self._anchor: tuple[FloatArray, float] | None = None
-        self._anchor_offset: FloatArray | None = None
 
     # ---- input ------------------------------------------------------------------------------------
 
@@ -543,15 +542,15 @@ class DoubleCouplingEstimator:
         tilt = self.vision_tilt()
         if tilt is not None and self._anchor is not None:
             # the chain follows the ground point on the axis of the (tilted) rectified views: remove the
-            # current frame's offset; the origin frame's, not known when it was taken, is taken from the
-            # first reliable estimate (the EKF's tilt error is mostly a slowly varying, body-fixed bias)
-            if self._anchor_offset is None:
-                self._anchor_offset = (
-                    np.zeros(2)  # the origin frame was rectified with the known initial attitude
-                    if self._origin_at_known_attitude
-                    else residual_tilt_offset(self._anchor[0], self._anchor[1], tilt)
-                )
-            p[:2] += self._anchor_offset - residual_tilt_offset(self.pose.R_n_camera, altitude_m, tilt)
+            # current frame's offset and add the origin frame's. The origin's tilt error was not
+            # measurable then (hovering): the EKF's tilt error being mostly a body-fixed bias, the latest
+            # (best-informed) estimate stands for it; zero when the origin had the known initial attitude.
+            anchor_offset = (
+                np.zeros(2)
+                if self._origin_at_known_attitude
+                else residual_tilt_offset(self._anchor[0], self._anchor[1], tilt)
+            )
+            p[:2] += anchor_offset - residual_tilt_offset(self.pose.R_n_camera, altitude_m, tilt)
         return PoseOutput(
             stamp_s=m.stamp_s,
             p_world_body_m=np.array([p[0], p[1], self.state.pz_m]),
