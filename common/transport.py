@@ -37,8 +37,11 @@ from common.messages import Health, Stats, WireError, WireModel, decode, encode,
 logger = logging.getLogger(__name__)
 
 ENV_PREFIX = "CAPATAZ_ZENOH_"
-#: GIL switch interval of services (ZENOH.md: 10.7 ms -> 1.2 ms request latency next to a busy thread)
-SWITCH_INTERVAL_S = 0.0005
+#: GIL switch interval of services (ZENOH.md: 10.7 ms -> 1.2 ms request latency next to a busy thread at
+#: 0.5 ms). A zenoh thread that runs a reply/done callback while the service's thread works waits up to this
+#: long for the GIL; 0.1 ms took 0.2-0.4 ms off a 752x480 master-foreman-worker frame (bench cluster),
+#: 0.03 ms was no better.
+SWITCH_INTERVAL_S = 0.0001
 T = TypeVar("T")
 M = TypeVar("M", bound=WireModel)
 

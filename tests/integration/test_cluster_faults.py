@@ -74,5 +74,10 @@ def test_every_frame_yields_the_in_process_yaw_despite_a_killed_foreman_and_a_fr
     # the faults really happened and were absorbed: shares were re-dispatched after the kill
     after_kill = [estimates[k] for k in range(events["kill"] + 1, n)]
     assert all("foreman/h1/0" not in e.members for e in after_kill[5:])
-    assert sum(e.redispatched for e in estimates.values()) >= 1
+    # the frozen worker's share went elsewhere: re-dispatched by its foreman within the block, or (when the
+    # master's deadline fired first) by the master; which one wins is a race of two 0.3 s deadlines
+    frozen = "foreman/h2/0>worker/h2/1"
+    assert frozen in estimates[events["freeze"] - 1].members
+    after_freeze = [estimates[k] for k in range(events["freeze"] + 1, min(n, events["freeze"] + 50))]
+    assert any(frozen not in e.members for e in after_freeze)
     assert codes["master/master/0"] == 0 and codes["foreman/h2/0"] == 0
