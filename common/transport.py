@@ -22,7 +22,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, Generic, Literal, TypeVar
 
@@ -295,6 +295,16 @@ class ServiceRuntime:
         return True, "ok"
 
     # -- helpers for subclasses -----------------------------------------------------------------------
+    def undeclare_all(self, entities: Iterable[Any]) -> None:
+        """Undeclare subscribers, publishers and queryables (``None`` skipped); failures are counted."""
+        for entity in entities:
+            if entity is None:
+                continue
+            try:
+                entity.undeclare()
+            except Exception as exc:
+                self.count_error("undeclare_failures", "undeclare", exc)
+
     def spawn(self, target: Callable[[], None], name: str) -> threading.Thread:
         thread = threading.Thread(target=self._guard(target), name=f"{self.name}:{name}", daemon=True)
         self._threads.append(thread)

@@ -160,17 +160,9 @@ class EstimatorService(ServiceRuntime):
         self.spawn(self._estimate, "estimate")
 
     def stop(self) -> None:
-        for entity in [
-            *self._entities,
-            getattr(self, "_attitude_pub", None),
-            getattr(self, "_pose_pub", None),
-        ]:
-            if entity is None:
-                continue
-            try:
-                entity.undeclare()
-            except Exception as exc:
-                self.count_error("undeclare_failures", "undeclare", exc)
+        self.undeclare_all(
+            [*self._entities, getattr(self, "_attitude_pub", None), getattr(self, "_pose_pub", None)]
+        )
 
     def queue_depths(self) -> dict[str, int]:
         return {

@@ -156,13 +156,7 @@ class LocalizerService(ServiceRuntime):
         self.spawn(self._localize, "localize")
 
     def stop(self) -> None:
-        for entity in [*self._entities, getattr(self, "_publisher", None)]:
-            if entity is None:
-                continue
-            try:
-                entity.undeclare()
-            except Exception as exc:
-                self.count_error("undeclare_failures", "undeclare", exc)
+        self.undeclare_all([*self._entities, getattr(self, "_publisher", None)])
 
     def queue_depths(self) -> dict[str, int]:
         return {"frames": self._slot.depth()}
