@@ -116,3 +116,4 @@ def test_zenoh_config_files_load_and_match_the_transport_settings(name: str) -> 
     )
     assert config.get_json("transport/shared_memory/enabled") == "false"
     assert int(config.get_json("transport/link/tx/lease")) == defaults.lease_ms
+    assert int(config.get_json("transport/link/tx/queue/size/data")) == defaults.tx_queue_batches
