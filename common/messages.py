@@ -423,42 +423,6 @@ def _unpack_header(attachment: bytes) -> dict[str, Any]:
     return header
 
 
-def _read_arrays(
-    name: str, cls: type[WireModel], descriptors: list[Any], payload: bytes
-) -> dict[str, np.ndarray]:
-    """The arrays of a payload as read-only views, checked against their descriptors (not their values)."""
-    arrays: dict[str, np.ndarray] = {}
-    offset = 0
-    view = memoryview(payload)
-    for item in descriptors:
-        if not (isinstance(item, list) and len(item) == 4):
-            raise WireError(f"{name}: array descriptor must be [name, dtype, shape, nbytes], got {item!r}")
-        key, dtype, shape, nbytes = item
-        if key not in cls.ARRAYS:
-            raise WireError(f"{name}: unknown array field {key!r}")
-        if key in arrays:
-            raise WireError(f"{name}: field {key!r} given twice")
-        if dtype not in WIRE_DTYPES:
-            raise WireError(f"{name}.{key}: dtype {dtype!r} not allowed on the wire")
-        if not (
-            isinstance(shape, list)
-            and len(shape) <= 8
-            and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape)
-        ):
-            raise WireError(f"{name}.{key}: bad shape {shape!r}")
-        if not isinstance(nbytes, int) or nbytes != math.prod(shape) * np.dtype(dtype).itemsize:
-            raise WireError(f"{name}.{key}: shape {shape} of {dtype} does not match nbytes {nbytes!r}")
-        if offset + nbytes > len(view):
-            raise WireError(
-                f"{name}.{key}: truncated payload ({len(view)} bytes, arrays need at least {offset + nbytes})"
-            )
-        arrays[key] = np.frombuffer(view[offset : offset + nbytes], dtype=dtype).reshape(shape)
-        offset += nbytes
-    if offset != len(view):
-        raise WireError(f"{name}: payload has {len(view) - offset} bytes more than its arrays declare")
-    return arrays
-
-
 def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | None = None) -> M:
     """Decode and validate one message; raise :class:`WireError` naming the problem.
 
@@ -482,10 +446,34 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
     if not isinstance(fields, dict) or not isinstance(descriptors, list):
         raise WireError(f"{name}: header fields must be a map and arrays a list")
     values: dict[str, Any] = dict(fields)
-    for key, array in _read_arrays(cls.__name__, cls, descriptors, payload).items():
+    offset = 0
+    view = memoryview(payload)
+    for item in descriptors:
+        if not (isinstance(item, list) and len(item) == 4):
+            raise WireError(f"{name}: array descriptor must be [name, dtype, shape, nbytes], got {item!r}")
+        key, dtype, shape, nbytes = item
+        if key not in cls.ARRAYS:
+            raise WireError(f"{name}: unknown array field {key!r}")
         if key in values:
             raise WireError(f"{name}: field {key!r} given twice")
-        values[key] = array
+        if dtype not in WIRE_DTYPES:
+            raise WireError(f"{name}.{key}: dtype {dtype!r} not allowed on the wire")
+        if not (
+            isinstance(shape, list)
+            and len(shape) <= 8
+            and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape)
+        ):
+            raise WireError(f"{name}.{key}: bad shape {shape!r}")
+        if not isinstance(nbytes, int) or nbytes != math.prod(shape) * np.dtype(dtype).itemsize:
+            raise WireError(f"{name}.{key}: shape {shape} of {dtype} does not match nbytes {nbytes!r}")
+        if offset + nbytes > len(view):
+            raise WireError(
+                f"{name}.{key}: truncated payload ({len(view)} bytes, arrays need at least {offset + nbytes})"
+            )
+        values[key] = np.frombuffer(view[offset : offset + nbytes], dtype=dtype).reshape(shape)
+        offset += nbytes
+    if offset != len(view):
+        raise WireError(f"{name}: payload has {len(view) - offset} bytes more than its arrays declare")
     try:
         return cls.model_validate(values)  # type: ignore[return-value]
     except ValidationError as exc:
@@ -493,79 +481,6 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
             f"{'.'.join(map(str, err['loc'])) or 'message'}: {err['msg']}" for err in exc.errors()[:5]
         )
         raise WireError(f"{name}: {problems}") from None
-
-
-@dataclass(frozen=True)
-class RawMessage:
-    """A message checked at the header level only (see :func:`read_raw`), kept with its payload bytes."""
-
-    #: the message type named in the header
-    type_name: str
-    #: the scalar fields as they came (types not validated)
-    fields: dict[str, Any]
-    #: the arrays as read-only views into :attr:`payload`, in header order (values not validated)
-    arrays: dict[str, np.ndarray]
-    #: the array descriptors ``[name, dtype, shape, nbytes]`` as they came (consistent with the payload)
-    descriptors: list[list[Any]]
-    payload: bytes
-
-
-def read_raw(payload: bytes | None, attachment: bytes | None, expected: type[WireModel]) -> RawMessage:
-    """Check a message's header without validating its values, for forwarding its payload unchanged.
-
-    Checked: msgpack header, version, type ``expected``, every array of ``expected`` present once with
-    its spec's dtype and shape pattern, descriptors consistent with the payload length. NOT checked:
-    scalar field types, array values, cross-field rules; whoever finally receives the message validates
-    them with :func:`decode`. Raises :class:`WireError`.
-    """
-    if attachment is None:
-        raise WireError(f"{expected.__name__}: no attachment (header) to forward")
-    payload = payload or b""
-    header = _unpack_header(attachment)
-    name = header.get("t")
-    if name != expected.__name__:
-        raise WireError(f"expected {expected.__name__}, got {name!r}")
-    fields = header.get("f")
-    descriptors = header.get("a")
-    if not isinstance(fields, dict) or not isinstance(descriptors, list):
-        raise WireError(f"{name}: header fields must be a map and arrays a list")
-    arrays = _read_arrays(name, expected, descriptors, payload)
-    if list(arrays) != list(expected.ARRAYS):
-        raise WireError(f"{name}: arrays {list(arrays)} != {list(expected.ARRAYS)}")
-    for key, spec in expected.ARRAYS.items():
-        array = arrays[key]
-        if array.dtype != spec._np_dtype:  # type: ignore[attr-defined]
-            raise WireError(f"{name}.{key}: expected dtype {spec.dtype}, got {array.dtype.str}")
-        if array.ndim != len(spec.shape) or any(array.shape[a] != n for a, n in spec._fixed):  # type: ignore[attr-defined]
-            pattern = tuple("n" if s is None else s for s in spec.shape)
-            raise WireError(f"{name}.{key}: expected shape {pattern}, got {array.shape}")
-        if key in fields:
-            raise WireError(f"{name}: field {key!r} given twice")
-    return RawMessage(name, fields, arrays, descriptors, payload)
-
-
-def reheader(raw: RawMessage, as_type: type[WireModel], fields: dict[str, Any]) -> bytes:
-    """A new header (attachment) for ``raw``'s unchanged payload: type ``as_type``, scalar ``fields``.
-
-    ``as_type`` must carry the same arrays as ``raw`` (e.g. a :class:`PatchResult` forwarded as a
-    :class:`BlockResult`); the fields must be ``as_type``'s scalar fields. Raises :class:`WireError`.
-    """
-    name = as_type.__name__
-    if MESSAGE_TYPES.get(name) is not as_type:
-        raise WireError(f"cannot encode {name}: not a registered message type")
-    source = MESSAGE_TYPES.get(raw.type_name)
-    if source is None or source.ARRAYS != as_type.ARRAYS:
-        raise WireError(f"cannot re-header {raw.type_name} as {name}: their arrays differ")
-    scalar = set(as_type.model_fields) - set(as_type.ARRAYS)
-    unknown = set(fields) - scalar
-    if unknown:
-        raise WireError(f"cannot re-header as {name}: unknown fields {sorted(unknown)}")
-    try:
-        return msgpack.packb(
-            {"v": SCHEMA_VERSION, "t": name, "f": fields, "a": raw.descriptors}, use_bin_type=True
-        )
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise WireError(f"cannot encode {name}: {exc}") from exc
 
 
 def error_reply(kind: str, error: str) -> bytes:

@@ -10,7 +10,6 @@ an error reply and is counted).
 from __future__ import annotations
 
 import argparse
-import math
 import threading
 import time
 from typing import Any
@@ -22,23 +21,12 @@ from common import keys
 from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
 from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, merge_measurements
 from common.errors import CapatazError
-from common.messages import (
-    BlockJob,
-    BlockResult,
-    PatchJob,
-    PatchResult,
-    RawMessage,
-    WireError,
-    encode,
-    read_raw,
-    reheader,
-)
+from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.transport import (
     ServiceRuntime,
     TransportSettings,
     add_transport_arguments,
     transport_from_args,
-    zbytes,
 )
 from services.master.scatter import FrameWork, Scatter, result_from_measurement
 from services.worker.service import WorkerService
@@ -80,79 +68,6 @@ class CropStore:
             raise PatchWorkError(f"no crop of patch {exc} in frame {seq} of {stream}") from None
 
 
-def forwardable_result(raw: RawMessage, stream: str, seq: int, indices: np.ndarray) -> PatchResult:
-    """A worker's whole-block reply, checked at the header level only, as a :class:`PatchResult`.
-
-    The arrays stay unvalidated views of the worker's payload, which the foreman forwards unchanged to
-    the master (who decodes and validates it fully); here only what the foreman itself relies on is
-    checked: the frame, the indices (equal to the job's, so no merge is needed), a row per index in every
-    array, and the types of the fields the scatter reads. Raises :class:`WireError`.
-    """
-    fields = raw.fields
-    n = int(indices.size)
-    if fields.get("stream") != stream or fields.get("seq") != seq:
-        raise WireError(f"reply for frame {fields.get('seq')!r}/{fields.get('stream')!r} does not match")
-    for key, array in raw.arrays.items():
-        if array.shape[0] != n:
-            raise WireError(f"{raw.type_name}.{key}: {array.shape[0]} rows for {n} indices")
-    if not np.array_equal(raw.arrays["indices"], indices):
-        raise WireError(f"{raw.type_name}.indices: not the indices of the request")
-    members = fields.get("members", {})
-    speeds = fields.get("speeds", {})
-    if not (
-        isinstance(members, dict)
-        and all(isinstance(k, str) and type(v) is int and v >= 0 for k, v in members.items())
-    ):
-        raise WireError(f"{raw.type_name}.members: must map member names to patch counts")
-    if not (
-        isinstance(speeds, dict)
-        and all(
-            isinstance(k, str) and type(v) in (int, float) and math.isfinite(v) for k, v in speeds.items()
-        )
-    ):
-        raise WireError(f"{raw.type_name}.speeds: must map member names to finite speeds")
-    values = {k: v for k, v in fields.items() if k in PatchResult.model_fields}
-    values.update(raw.arrays, members=members, speeds=speeds)
-    return PatchResult.model_construct(**values)
-
-
-class ForwardingScatter(Scatter):
-    """The foreman's scatter: a worker's reply to the WHOLE block is kept raw, to be forwarded unchanged.
-
-    Set :attr:`block_indices` before each round; after it, :attr:`forward` holds the raw reply when one
-    worker measured the whole block (checked at the header level by :func:`forwardable_result`), else
-    None. Replies to parts of a block are decoded and validated as usual (they get merged here).
-    """
-
-    block_indices: np.ndarray | None = None
-    forward: RawMessage | None = None
-
-    def run(self, work: FrameWork, plan: Any) -> Any:
-        self.forward = None
-        return super().run(work, plan)
-
-    def _accept(self, request: Any, reply: zenoh.Reply, work: FrameWork) -> None:
-        block = self.block_indices
-        sample = reply.ok if reply.err is None else None
-        if (
-            sample is None
-            or block is None
-            or request.indices.size != block.size
-            or not np.array_equal(request.indices, block)
-        ):
-            super()._accept(request, reply, work)
-            return
-        try:
-            raw = read_raw(zbytes(sample.payload), zbytes(sample.attachment), self.result_type)
-            result = forwardable_result(raw, work.stream, work.seq, request.indices)
-        except WireError as exc:
-            self.counters.inc("malformed_replies")
-            request.error = f"malformed reply: {exc}"
-            return
-        request.result = result
-        self.forward = raw
-
-
 class ForemanService(ServiceRuntime):
     role = keys.Role.FOREMAN
 
@@ -174,12 +89,12 @@ class ForemanService(ServiceRuntime):
         self._membership: list[tuple[bool, str]] = []
         self._membership_lock = threading.Lock()
         self._worker = WorkerService(node, 0, transport)  # only for its settings cache
-        self.scatter: ForwardingScatter | None = None
+        self.scatter: Scatter | None = None
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
 
     def start(self, session: zenoh.Session) -> None:
-        self.scatter = ForwardingScatter(
+        self.scatter = Scatter(
             session, self.dispatcher, self._worker_key, PatchJob, PatchResult, self.counters
         )
         self._entities.append(
@@ -242,27 +157,17 @@ class ForemanService(ServiceRuntime):
             if job is None:
                 continue
             try:
-                payload, attachment = self._compute_block(job)
+                result = self._compute_block(job)
                 t_rep = time.perf_counter()
             except (CapatazError, ValueError) as exc:
                 self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
                 self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
                 continue
-            try:
-                query.reply(query.key_expr, payload, attachment=attachment)
-            except Exception as exc:
-                self.count_error("reply_failures", "cannot send reply", exc)
-            finally:
-                query.drop()
+            self.reply(query, result)
             self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
             self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
 
-    def _compute_block(self, job: BlockJob) -> tuple[bytes, bytes]:
-        """Measure a block with the node's workers; return the encoded :class:`BlockResult`.
-
-        When one worker measured the whole block, its reply's payload is forwarded unchanged under a new
-        header (see :func:`forward_block_result`); otherwise the parts are merged and encoded.
-        """
+    def _compute_block(self, job: BlockJob) -> BlockResult:
         assert self.scatter is not None
         t0 = time.perf_counter()
         settings = self._worker.settings_for(job.settings)
@@ -306,15 +211,11 @@ class ForemanService(ServiceRuntime):
         )
         plan = self.dispatcher.plan(job.seq, job.prev_seq, time.monotonic(), job.indices)
         t_plan = time.perf_counter()
-        # forwarding needs the worker's rows in the merged (ascending) order: the job's, when ascending
-        ascending = job.indices.size < 2 or bool((job.indices[1:] > job.indices[:-1]).all())
-        self.scatter.block_indices = job.indices if ascending else None
         report = self.scatter.run(work, plan)
-        forward = self.scatter.forward if len(report.parts) == 1 else None
         self.counters.time_ms("prepare", (t_plan - t0) * 1e3)
         self.counters.time_ms("round", (time.perf_counter() - t_plan) * 1e3)
         self.crops_prev.add(job.stream, job.seq, job.indices, job.crops)
-        measurement = merge_measurements(report.parts, job.indices) if forward is None else None
+        measurement = merge_measurements(report.parts, job.indices)
         elapsed = time.perf_counter() - t0
         self._last_shares = plan.shares()
         self.counters.inc("blocks")
@@ -322,39 +223,11 @@ class ForemanService(ServiceRuntime):
         self.counters.time_ms("block", elapsed * 1e3)
         active = set(self.dispatcher.active(time.monotonic()))
         speeds = {m: s for m, s in self.dispatcher.speeds().items() if m in active}
-        if forward is not None:
-            self.counters.inc("forwarded")
-            return forward_block_result(forward, job, self.name, elapsed, report.members, speeds)
-        assert measurement is not None
         result = result_from_measurement(
             BlockResult, job, self.name, measurement, elapsed, report.members, speeds
         )
-        return encode(result)
-
-
-def forward_block_result(
-    raw: RawMessage,
-    job: BlockJob,
-    member: str,
-    compute_s: float,
-    members: dict[str, int],
-    speeds: dict[str, float],
-) -> tuple[bytes, bytes]:
-    """``(payload, attachment)`` of the :class:`BlockResult` of a block one worker measured whole.
-
-    The worker's payload (the result arrays) travels on unchanged; only the header is rebuilt with the
-    foreman's fields, as :func:`result_from_measurement` would set them.
-    """
-    fields = {
-        "stream": job.stream,
-        "seq": job.seq,
-        "prev_seq": job.prev_seq,
-        "member": member,
-        "compute_s": compute_s,
-        "members": members,
-        "speeds": speeds,
-    }
-    return raw.payload, reheader(raw, BlockResult, fields)
+        assert isinstance(result, BlockResult)
+        return result
 
 
 def add_dispatch_arguments(parser: argparse.ArgumentParser) -> None:

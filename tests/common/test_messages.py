@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-from typing import Any
 
 import msgpack
 import numpy as np
@@ -338,68 +337,3 @@ def test_nan_in_job_settings_is_a_wire_error() -> None:
     )  # fmt: skip
     with pytest.raises(WireError, match="finite"):
         decode(*encode(job), m.PatchJob)
-
-
-def _patch_result(n: int = 5) -> m.PatchResult:
-    rng = np.random.default_rng(n)
-    valid = rng.random(n) > 0.3
-    shift = rng.normal(size=(n, 2))
-    shift[~valid] = np.nan  # NaN is allowed at invalid patches
-    return m.PatchResult(
-        stream="s", seq=7, prev_seq=6, member="worker/a/0", indices=np.arange(3, 3 + n, dtype=np.int32),
-        shift_px=shift, confidence=rng.random(n), peak=rng.random(n), valid=valid,
-        compute_s=0.004, members={"worker/a/0": n}, speeds={"worker/a/0": 1234.5},
-    )  # fmt: skip
-
-
-def test_a_reheadered_payload_decodes_to_the_new_type_with_the_same_arrays() -> None:
-    result = _patch_result()
-    payload, attachment = encode(result)
-    raw = m.read_raw(payload, attachment, m.PatchResult)
-    assert raw.payload is payload and list(raw.arrays) == list(m.PatchResult.ARRAYS)
-    fields = {"stream": "s", "seq": 7, "prev_seq": 6, "member": "foreman/a/0", "compute_s": 0.01,
-              "members": {"foreman/a/0>worker/a/0": 5}, "speeds": {}}  # fmt: skip
-    block = decode(raw.payload, m.reheader(raw, m.BlockResult, fields), m.BlockResult)
-    expected = m.BlockResult(**{**{k: getattr(result, k) for k in m.PatchResult.ARRAYS}, **fields})
-    assert encode(block) == encode(expected)
-
-
-@pytest.mark.parametrize(
-    "descriptor, match",
-    [
-        (["indices", "<i8", [5], 40], "expected dtype <i4"),
-        (["indices", "<i4", [5, 1], 20], r"expected shape \('n',\)"),
-    ],
-)
-def test_read_raw_checks_dtype_and_shape_of_each_array(descriptor: list[Any], match: str) -> None:
-    payload, attachment = encode(_patch_result())
-    header = msgpack.unpackb(attachment)
-    old = header["a"][0]
-    header["a"][0] = descriptor
-    payload = b"\0" * descriptor[3] + payload[old[3] :]
-    with pytest.raises(WireError, match=match):
-        m.read_raw(payload, msgpack.packb(header), m.PatchResult)
-
-
-def test_read_raw_rejects_other_types_missing_arrays_and_wrong_lengths() -> None:
-    payload, attachment = encode(_patch_result())
-    with pytest.raises(WireError, match="expected BlockResult"):
-        m.read_raw(payload, attachment, m.BlockResult)
-    with pytest.raises(WireError, match="more than its arrays declare"):
-        m.read_raw(payload + b"x", attachment, m.PatchResult)
-    with pytest.raises(WireError, match="truncated"):
-        m.read_raw(payload[:-1], attachment, m.PatchResult)
-    header = msgpack.unpackb(attachment)
-    last = header["a"].pop()
-    with pytest.raises(WireError, match="arrays"):
-        m.read_raw(payload[: -last[3]], msgpack.packb(header), m.PatchResult)
-    with pytest.raises(WireError, match="no attachment"):
-        m.read_raw(payload, None, m.PatchResult)
-
-
-def test_reheader_refuses_unknown_fields_and_other_arrays() -> None:
-    raw = m.read_raw(*encode(_patch_result()), m.PatchResult)
-    with pytest.raises(WireError, match="unknown fields"):
-        m.reheader(raw, m.BlockResult, {"stream": "s", "shift": 1})
-    with pytest.raises(WireError, match="arrays differ"):
-        m.reheader(raw, m.PatchJob, {"stream": "s"})
