@@ -28,7 +28,7 @@ from common.transport import (
     add_transport_arguments,
     transport_from_args,
 )
-from services.master.scatter import FrameWork, Scatter, result_from_measurement
+from services.master.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 from services.worker.service import WorkerService
 
 #: Upper bound of patch indices a foreman accepts.
@@ -230,25 +230,6 @@ class ForemanService(ServiceRuntime):
         return result
 
 
-def add_dispatch_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
-    )
-    parser.add_argument(
-        "--compute",
-        action=argparse.BooleanOptionalAction,
-        default=False,
-        help="compute a share itself besides its members (the paper's configuration)",
-    )
-    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
-    parser.add_argument(
-        "--speed",
-        choices=[v.value for v in SpeedSource],
-        default=SpeedSource.ROUND_TRIP.value,
-        help="speed measure for time balancing: workers' own figures, or round-trip patches/s",
-    )
-
-
 def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
     return DispatchSettings(
         balance=Balance(args.balance),
@@ -261,7 +242,9 @@ def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("foreman", help="a foreman: splits blocks among its node's workers")
     add_transport_arguments(parser)
-    add_dispatch_arguments(parser)
+    add_dispatch_arguments(
+        parser, compute_help="compute a share itself besides its members (the paper's configuration)"
+    )
     parser.set_defaults(handler=run)
 
 

@@ -9,6 +9,7 @@ its share in the calling thread while the others work, and takes every share nob
 
 from __future__ import annotations
 
+import argparse
 import logging
 import queue
 import threading
@@ -20,7 +21,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.dispatch import SELF, Dispatcher, Plan, SpeedSource
+from common.dispatch import SELF, Balance, Dispatcher, Plan, SpeedSource
 from common.dispatch.patchwork import PatchWorkError
 from common.messages import BlockJob, PatchJob, PatchResult, WireError, decode, encode, read_error_reply
 from common.transport import Counters, zbytes
@@ -339,3 +340,18 @@ def result_from_measurement(
 
 
 __all__ = ["FrameWork", "PatchWorkError", "RoundReport", "Scatter", "result_from_measurement"]
+
+
+def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
+    """The dispatcher's options, shared by the master and the foreman."""
+    parser.add_argument(
+        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
+    )
+    parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
+    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+    parser.add_argument(
+        "--speed",
+        choices=[v.value for v in SpeedSource],
+        default=SpeedSource.ROUND_TRIP.value,
+        help="speed measure for time balancing: members' own figures, or round-trip patches/s",
+    )

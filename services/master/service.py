@@ -34,7 +34,7 @@ from common.transport import (
 )
 from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
 from common.yaw.grid import U8Array
-from services.master.scatter import FrameWork, Scatter
+from services.master.scatter import FrameWork, Scatter, add_dispatch_arguments
 
 
 class Topology(StrEnum):
@@ -331,23 +331,8 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--topology", choices=[t.value for t in Topology], default=Topology.MASTER_FOREMAN_WORKER.value
     )
-    parser.add_argument(
-        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
-    )
-    parser.add_argument(
-        "--compute",
-        action=argparse.BooleanOptionalAction,
-        default=False,
-        help="the master computes a share itself besides its members",
-    )
-    parser.add_argument(
-        "--speed",
-        choices=[v.value for v in SpeedSource],
-        default=SpeedSource.ROUND_TRIP.value,
-        help="speed measure for time balancing: members' own figures, or round-trip patches/s",
-    )
+    add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
-    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
     parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
     parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
