@@ -5,7 +5,6 @@ stale) with its counters showing them."""
 from __future__ import annotations
 
 import queue
-import socket
 import threading
 import time
 from typing import Any
@@ -22,6 +21,7 @@ from common.sim.flight import Flight, turns_flight
 from common.transport import TransportSettings, open_session, zbytes
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import publish_measurements
+from services.up import free_port
 
 pytestmark = pytest.mark.zenoh
 
@@ -30,12 +30,6 @@ N_FRAMES = 24
 
 def _matching(publisher: Any) -> bool:
     return bool(publisher.matching_status.matching)
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +53,7 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
     expected_att = [o for o in expected if isinstance(o, AttitudeOutput)]
     expected_pose = [o for o in expected if isinstance(o, PoseOutput)]
 
-    port = _free_port()
+    port = free_port()
     service = EstimatorService(
         "test",
         0,

@@ -4,7 +4,6 @@ malformed, foreign, wrong-size and stale frames (refused and counted)."""
 from __future__ import annotations
 
 import queue
-import socket
 import threading
 import time
 
@@ -20,18 +19,13 @@ from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, decode, encode
 from common.transport import TransportSettings, open_session, zbytes
 from services.localizer import LocalizerService, LocalizerSettings
+from services.up import free_port
 
 pytestmark = pytest.mark.zenoh
 
 N_FRAMES = 12
 PARTICLES = 60
 SEED = 5
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _frame(seq: int, stamp_s: float, pixels: np.ndarray, uav: str = "uav0") -> Frame:
@@ -62,7 +56,7 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
         state, estimate = localizer_step(pf, state, image, dt, rng)
         expected.append(estimate)
 
-    port = _free_port()
+    port = free_port()
     service = LocalizerService(
         "test",
         0,

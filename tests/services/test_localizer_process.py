@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -14,18 +13,13 @@ import zenoh
 
 from common import keys
 from common.transport import TransportSettings, open_session
+from services.up import free_port
 
 pytestmark = pytest.mark.zenoh
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def test_localizer_process_stops_cleanly_on_sigterm() -> None:
-    port = _free_port()
+    port = free_port()
     env = dict(os.environ, CAPATAZ_ZENOH_MULTICAST="0")
     process = subprocess.Popen(
         [
