@@ -142,18 +142,23 @@ def share_speed_error(members: dict[str, dict[str, float]]) -> float:
     return float(np.max(np.abs(shares - ideal) / ideal))
 
 
+def write_frame_folder(frame_dir: Path, frames: list[np.ndarray]) -> None:
+    """The frames the camera replays (``--images``): exactly these, stale frames of a longer run removed."""
+    frame_dir.mkdir(parents=True, exist_ok=True)
+    for old in frame_dir.glob("*.pgm"):
+        old.unlink()
+    for i, frame in enumerate(frames):
+        cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     out_dir = Path(args.out)
     width, height = (int(v) for v in args.resolution.lower().split("x"))
     n = args.frames + args.warmup + 1
     frame_dir = out_dir / "cluster_frames"
-    frame_dir.mkdir(parents=True, exist_ok=True)
     flight = simulated_flight(CameraSettings(width=width, height=height, frames=max(n, 2)))
     frames = [flight.frame(i) for i in range(n)]
-    for old in frame_dir.glob("*.pgm"):
-        old.unlink()
-    for i, frame in enumerate(frames):
-        cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
+    write_frame_folder(frame_dir, frames)
     grid, patch, level = BIG_GRID
     settings = _yaw_settings(grid, patch, level)
     seq_ms, seq_yaw = in_process_ms(frames, settings, args.warmup)
@@ -348,9 +353,7 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
     flight = simulated_flight(CameraSettings(frames=n_frames))
     frames = [flight.frame(i) for i in range(n_frames)]
     frame_dir = out_dir / "cluster_frames_752"
-    frame_dir.mkdir(parents=True, exist_ok=True)
-    for i, frame in enumerate(frames):
-        cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
+    write_frame_folder(frame_dir, frames)
     warmup = 10
     runs: dict[str, list[dict[str, float]]] = {label: [] for label, _t, _w in OVERHEAD_PATHS}
     baselines: list[list[float]] = []
