@@ -348,6 +348,36 @@ class ServiceRuntime:
             self.reply_error(query, "malformed", str(exc))
             return None
 
+    def serve_queries(
+        self, queryable: Any, expected: type[M], handle: Callable[[zenoh.Query, M, float], None]
+    ) -> None:
+        """Drain a queryable declared with a FIFO channel until it is undeclared or the service stops.
+
+        Each query is counted and decoded (a bad one is answered with an error and counted), then handed to
+        ``handle(query, message, t_recv)`` with ``t_recv`` its ``time.perf_counter()`` arrival.
+        """
+        channel = queryable.handler
+        while not self.stop_event.is_set():
+            try:
+                query = channel.recv()
+            except zenoh.ZError:
+                return  # queryable undeclared: shutting down
+            t_recv = time.perf_counter()
+            self.counters.inc("queries")
+            message = self.decode_query(query, expected)
+            self.counters.time_ms("decode", (time.perf_counter() - t_recv) * 1e3)
+            if message is not None:
+                handle(query, message, t_recv)
+
+    def member_event(self, sample: zenoh.Sample) -> tuple[keys.MemberId, bool] | None:
+        """The member of a liveliness sample and whether it joined (PUT) or left; a bad key is counted."""
+        try:
+            member = keys.parse_alive_key(str(sample.key_expr))
+        except CapatazError as exc:
+            self.count_error("bad_liveliness", "ignoring liveliness key", exc)
+            return None
+        return member, sample.kind == zenoh.SampleKind.PUT
+
     def reply_error(self, query: zenoh.Query, kind: str, text: str) -> None:
         try:
             query.reply_err(error_reply(kind, text))

@@ -106,7 +106,7 @@ class ForemanService(ServiceRuntime):
         self._queryable = session.declare_queryable(
             keys.foreman_key(self.node), zenoh.handlers.FifoChannel(self.queue_capacity), complete=True
         )
-        self.spawn(self._serve, "blocks")
+        self.spawn(lambda: self.serve_queries(self._queryable, BlockJob, self._answer_block), "blocks")
 
     def stop(self) -> None:
         if self._queryable is not None:
@@ -119,12 +119,10 @@ class ForemanService(ServiceRuntime):
         return keys.worker_key(node, int(index))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        try:
-            member = keys.parse_alive_key(str(sample.key_expr))
-        except CapatazError as exc:
-            self.count_error("bad_liveliness", "ignoring liveliness key", exc)
+        event = self.member_event(sample)
+        if event is None:
             return
-        joined = sample.kind == zenoh.SampleKind.PUT
+        member, joined = event
         with self._membership_lock:
             self._membership.append((joined, member.name))
         if not joined and self.scatter is not None:
@@ -143,29 +141,17 @@ class ForemanService(ServiceRuntime):
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
 
-    def _serve(self) -> None:
-        handler = self._queryable.handler
-        while not self.stop_event.is_set():
-            try:
-                query = handler.recv()
-            except zenoh.ZError:
-                return  # queryable undeclared: shutting down
-            t_recv = time.perf_counter()
-            self.counters.inc("queries")
-            job = self.decode_query(query, BlockJob)
-            self.counters.time_ms("decode", (time.perf_counter() - t_recv) * 1e3)
-            if job is None:
-                continue
-            try:
-                result = self._compute_block(job)
-                t_rep = time.perf_counter()
-            except (CapatazError, ValueError) as exc:
-                self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
-                self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
-                continue
-            self.reply(query, result)
-            self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
-            self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
+    def _answer_block(self, query: zenoh.Query, job: BlockJob, t_recv: float) -> None:
+        try:
+            result = self._compute_block(job)
+            t_rep = time.perf_counter()
+        except (CapatazError, ValueError) as exc:
+            self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
+            self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
+            return
+        self.reply(query, result)
+        self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
+        self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
 
     def _compute_block(self, job: BlockJob) -> BlockResult:
         assert self.scatter is not None

@@ -127,12 +127,10 @@ class MasterService(ServiceRuntime):
         return keys.Role.WORKER if self.settings.topology is Topology.MASTER_WORKER else keys.Role.FOREMAN
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        try:
-            member = keys.parse_alive_key(str(sample.key_expr))
-        except CapatazError as exc:
-            self.count_error("bad_liveliness", "ignoring liveliness key", exc)
+        event = self.member_event(sample)
+        if event is None:
             return
-        joined = sample.kind == zenoh.SampleKind.PUT
+        member, joined = event
         with self._membership_lock:
             if joined:
                 self._members[member.name] = member

@@ -61,7 +61,7 @@ class WorkerService(ServiceRuntime):
             self._queryable = session.declare_queryable(
                 key, zenoh.handlers.FifoChannel(self.queue_capacity), complete=True
             )
-            self.spawn(self._serve_channel, "compute")
+            self.spawn(lambda: self.serve_queries(self._queryable, PatchJob, self._answer_job), "compute")
         else:
             self._queryable = session.declare_queryable(key, self._on_query, complete=True)
             self.spawn(self._serve, "compute")
@@ -73,19 +73,9 @@ class WorkerService(ServiceRuntime):
         for query, _job, _t in self.queue.drain():
             self.reply_error(query, "shutdown", f"{self.name} is shutting down")
 
-    def _serve_channel(self) -> None:
-        handler = self._queryable.handler
-        while not self.stop_event.is_set():
-            try:
-                query = handler.recv()
-            except zenoh.ZError:
-                return  # queryable undeclared: shutting down
-            t_recv = time.perf_counter()
-            self.counters.inc("queries")
-            job = self.decode_query(query, PatchJob)
-            if job is not None:
-                self._handle(query, job, time.monotonic())
-                self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
+    def _answer_job(self, query: zenoh.Query, job: PatchJob, t_recv: float) -> None:
+        self._handle(query, job, time.monotonic())
+        self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
 
     def queue_depths(self) -> dict[str, int]:
         return {"jobs": self.queue.depth()}
