@@ -34,6 +34,8 @@ SCHEMA_VERSION = 1
 WIRE_DTYPES: frozenset[str] = frozenset(
     {"|u1", "|b1", "<i4", "<i8", "<u4", "<f4", "<f8", "<c8", "<c16"},
 )
+#: Parsed wire dtypes (a dtype string parsed for every array of every message costs more than the check).
+_WIRE_NP_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in WIRE_DTYPES}
 #: Largest header accepted (bytes); arrays travel in the payload, so headers are small.
 MAX_HEADER_BYTES = 1 << 20
 
@@ -305,6 +307,8 @@ class PatchResult(WireModel):
         for name in ("shift_px", "confidence", "peak", "valid"):
             if getattr(self, name).shape[0] != n:
                 raise ValueError(f"{name}: {getattr(self, name).shape[0]} rows for {n} indices")
+        if np.isfinite(self.shift_px).all() and not np.isnan(self.confidence + self.peak).any():
+            return self  # nothing non-finite anywhere (the usual case): no masks to build
         ok = self.valid
         if not np.all(np.isfinite(self.shift_px[ok])):
             raise ValueError("shift_px: NaN or inf at a valid patch")
@@ -456,7 +460,8 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
             raise WireError(f"{name}: unknown array field {key!r}")
         if key in values:
             raise WireError(f"{name}: field {key!r} given twice")
-        if dtype not in WIRE_DTYPES:
+        np_dtype = _WIRE_NP_DTYPES.get(dtype) if isinstance(dtype, str) else None
+        if np_dtype is None:
             raise WireError(f"{name}.{key}: dtype {dtype!r} not allowed on the wire")
         if not (
             isinstance(shape, list)
@@ -464,13 +469,13 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
             and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape)
         ):
             raise WireError(f"{name}.{key}: bad shape {shape!r}")
-        if not isinstance(nbytes, int) or nbytes != math.prod(shape) * np.dtype(dtype).itemsize:
+        if not isinstance(nbytes, int) or nbytes != math.prod(shape) * np_dtype.itemsize:
             raise WireError(f"{name}.{key}: shape {shape} of {dtype} does not match nbytes {nbytes!r}")
         if offset + nbytes > len(view):
             raise WireError(
                 f"{name}.{key}: truncated payload ({len(view)} bytes, arrays need at least {offset + nbytes})"
             )
-        values[key] = np.frombuffer(view[offset : offset + nbytes], dtype=dtype).reshape(shape)
+        values[key] = np.frombuffer(view[offset : offset + nbytes], dtype=np_dtype).reshape(shape)
         offset += nbytes
     if offset != len(view):
         raise WireError(f"{name}: payload has {len(view) - offset} bytes more than its arrays declare")

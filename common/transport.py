@@ -470,7 +470,8 @@ class ServiceRuntime:
                         entity.undeclare()
                     except Exception as exc:
                         logger.debug("%s: undeclare: %s", self.name, exc)
-                logger.info("%s: stopped %s", self.name, self.counters.counts())
+                timings = {k: round(v, 3) for k, v in self.counters.median_timings_ms().items()}
+                logger.info("%s: stopped %s, median ms %s", self.name, self.counters.counts(), timings)
         return 1 if self.counters.get("thread_crashes") else 0
 
 

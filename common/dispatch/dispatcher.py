@@ -112,16 +112,33 @@ class Plan:
 
 def largest_remainder(weights: npt.ArrayLike, total: int) -> npt.NDArray[np.int64]:
     """Integer counts proportional to ``weights`` summing to ``total`` (Hamilton's method)."""
-    w = np.asarray(weights, dtype=np.float64)
-    if w.ndim != 1 or w.size == 0 or np.any(w < 0) or not np.all(np.isfinite(w)) or w.sum() <= 0:
-        raise InputError(f"weights must be a non-empty 1-D array of finite non-negative values, got {w}")
+    return np.array(_largest_remainder(np.asarray(weights, dtype=np.float64).tolist(), total), dtype=np.int64)
+
+
+def _largest_remainder(weights: list[float], total: int) -> list[int]:
+    """:func:`largest_remainder` on a plain list: a plan has a handful of members, where Python floats
+    are several times cheaper than numpy's per-call overhead (this runs for every frame, twice per path).
+    Ties go to the earlier member."""
+    if (
+        not isinstance(weights, list)
+        or not weights
+        or any(not (isinstance(w, float) and math.isfinite(w) and w >= 0) for w in weights)
+        or sum(weights) <= 0
+    ):
+        raise InputError(
+            f"weights must be a non-empty 1-D array of finite non-negative values, got {weights}"
+        )
     if total < 0:
         raise InputError(f"total must be >= 0, got {total}")
-    exact = w / w.sum() * total
-    counts = np.floor(exact).astype(np.int64)
-    remainder = total - int(counts.sum())
-    order = np.lexsort((np.arange(w.size), -(exact - counts)))
-    counts[order[:remainder]] += 1
+    if len(weights) == 1:
+        return [total]
+    weight_sum = sum(weights)
+    exact = [w / weight_sum * total for w in weights]
+    counts = [math.floor(e) for e in exact]
+    remainder = total - sum(counts)
+    order = sorted(range(len(weights)), key=lambda i: (-(exact[i] - counts[i]), i))
+    for i in order[:remainder]:
+        counts[i] += 1
     return counts
 
 
@@ -135,6 +152,7 @@ class Dispatcher:
         self.n_patches = n_patches
         self._members: dict[str, _Member] = {SELF: _Member(capacity=settings.self_capacity)}
         self._owner: dict[int, str] = {}
+        self._all = list(range(n_patches))
         self.last_plan: Plan | None = None
 
     # -- membership -------------------------------------------------------------------------------------
@@ -186,33 +204,27 @@ class Dispatcher:
         return {m: s.speed_ema for m, s in self._members.items() if s.speed_ema is not None}
 
     # -- shares -----------------------------------------------------------------------------------------
-    def weights(self, members: list[str]) -> npt.NDArray[np.float64]:
+    def weights(self, members: list[str]) -> list[float]:
         """Balancing weight of each member (capacity, or measured speed under ``balance=time``)."""
-        capacity = np.array([self._members[m].capacity for m in members], dtype=np.float64)
+        states = [self._members[m] for m in members]
+        capacity = [float(s.capacity) for s in states]
         if self.settings.balance is Balance.NONE:
             return capacity
-        speeds = [self._members[m].speed_ema for m in members]
-        known = [s for s in speeds if s is not None and s > 0]
+        speeds = [s.speed_ema if s.speed_ema is not None and s.speed_ema > 0 else None for s in states]
+        known = [v / c for v, c in zip(speeds, capacity, strict=True) if v is not None]
         if not known:
             return capacity
         # a member without measurement starts at the mean speed per unit of capacity of the measured ones
-        per_capacity = float(
-            np.mean([s / self._members[m].capacity for m, s in zip(members, speeds, strict=True) if s])
-        )
-        return np.array(
-            [
-                s if s is not None and s > 0 else per_capacity * c
-                for s, c in zip(speeds, capacity, strict=True)
-            ]
-        )
+        per_capacity = sum(known) / len(known)
+        return [
+            float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)
+        ]
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
-        todo = self._check_indices(np.arange(self.n_patches) if indices is None else indices)
+        todo = self._all if indices is None else self._check_indices(indices)
         members = self.active(now_s)
-        targets = dict(
-            zip(members, largest_remainder(self.weights(members), len(todo)).tolist(), strict=True)
-        )
+        targets = dict(zip(members, _largest_remainder(self.weights(members), len(todo)), strict=True))
         keep: dict[str, list[int]] = {m: [] for m in members}
         pool: list[int] = []
         for index in todo:
@@ -259,7 +271,10 @@ class Dispatcher:
         if state.held_seq != prev_seq:
             return indices.copy()
         held = state.held
-        return np.array([i for i in indices.tolist() if i not in held], dtype=np.int32)
+        wanted = indices.tolist()
+        if held.issuperset(wanted):
+            return indices[:0]  # the sticky steady state: it holds them all
+        return np.array([i for i in wanted if i not in held], dtype=np.int32)
 
     def redistribute(self, indices: npt.ArrayLike, exclude: set[str], now_s: float, prev_seq: int) -> Plan:
         """Split a failed share among the active members not in ``exclude`` (else ``SELF``), same frame.
@@ -268,11 +283,11 @@ class Dispatcher:
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
         members = [m for m in self.active(now_s) if m not in exclude] or [SELF]
-        counts = largest_remainder(self.weights(members), int(idx.size))
+        counts = _largest_remainder(self.weights(members), int(idx.size))
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}
         start = 0
-        for m, n in zip(members, counts.tolist(), strict=True):
+        for m, n in zip(members, counts, strict=True):
             if n == 0:
                 continue
             part = idx[start : start + n]

@@ -72,6 +72,8 @@ def settings_from_wire(values: dict[str, Any]) -> YawSettings:
 class _StreamCache:
     seq: int
     spectra: dict[int, tuple[np.ndarray, np.floating[Any]]]
+    #: the last share stored whole: a lookup of exactly its indices returns it without re-stacking
+    last: PatchSpectra | None = None
 
 
 class SpectrumCache:
@@ -93,6 +95,9 @@ class SpectrumCache:
             entry = self._streams.get(stream)
             if entry is None or entry.seq != seq:
                 return None, list(indices)
+            last = entry.last
+            if last is not None and last.indices.tolist() == list(indices):
+                return last, []  # the sticky steady state: the same share as the previous frame
             missing = [i for i in indices if i not in entry.spectra]
             if missing:
                 return None, missing
@@ -116,6 +121,7 @@ class SpectrumCache:
             elif entry.seq > seq:
                 return
             self._streams.move_to_end(stream)
+            entry.last = spectra if not entry.spectra else None
             for row, index in enumerate(spectra.indices.tolist()):
                 entry.spectra[int(index)] = (spectra.spectra[row], spectra.texture_std[row])
             while len(self._streams) > self._max_streams:
@@ -151,6 +157,8 @@ def measure_share(
     cache.store(stream, seq, current)
     if idx.size == 0:
         return measure_patches(current, current, settings)
+    if cached is not None and not prev_idx.size and np.array_equal(cached.indices, idx):
+        return measure_patches(cached, current, settings)  # all previous spectra held, in order
     sent = patch_spectra_from_crops(prev_crops_u8, prev_idx, settings) if prev_idx.size else None
     rows: dict[int, tuple[np.ndarray, np.floating[Any]]] = {}
     for part in (cached, sent):
@@ -167,13 +175,22 @@ def measure_share(
 
 def merge_measurements(parts: Sequence[PatchMeasurement], expected: npt.ArrayLike) -> PatchMeasurement:
     """One measurement in ascending index order from disjoint parts that cover ``expected`` exactly."""
+    want = np.sort(np.asarray(expected, dtype=np.intp))
+    if len(parts) == 1 and np.array_equal(np.asarray(parts[0].indices, dtype=np.intp), want):
+        only = parts[0]  # one member computed everything, in order (the usual case): no concatenation
+        return PatchMeasurement(
+            indices=want,
+            shift_px=np.asarray(only.shift_px, dtype=np.float64).reshape(-1, 2),
+            confidence=np.asarray(only.confidence, dtype=np.float64),
+            peak=np.asarray(only.peak, dtype=np.float64),
+            valid=np.asarray(only.valid, dtype=np.bool_),
+        )
     indices = (
         np.concatenate([np.asarray(p.indices, dtype=np.intp) for p in parts])
         if parts
         else np.zeros(0, np.intp)
     )
     order = np.argsort(indices, kind="stable")
-    want = np.sort(np.asarray(expected, dtype=np.intp))
     if not np.array_equal(indices[order], want):
         raise PatchWorkError(f"parts cover {indices.size} indices, expected each of {want.size} exactly once")
     return PatchMeasurement(

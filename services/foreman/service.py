@@ -18,7 +18,7 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
+from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, Plan, SpeedSource
 from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, merge_measurements
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
@@ -143,28 +143,37 @@ class ForemanService(ServiceRuntime):
 
     def _answer_block(self, query: zenoh.Query, job: BlockJob, t_recv: float) -> None:
         try:
-            result = self._compute_block(job)
+            result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
         except (CapatazError, ValueError) as exc:
             self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
             self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
             return
         self.reply(query, result)
+        # bookkeeping after the reply is on its way: none of it is needed to answer this block
+        self.crops_prev.add(job.stream, job.seq, job.indices, job.crops)
+        self._last_shares = plan.shares()
+        self.counters.inc("blocks")
+        self.counters.inc("patches", int(job.indices.size))
+        self.counters.time_ms("block", result.compute_s * 1e3)
         self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
         self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
 
-    def _compute_block(self, job: BlockJob) -> BlockResult:
+    def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
+        """Split the block among the workers (and itself), gather; only what the reply needs."""
         assert self.scatter is not None
         t0 = time.perf_counter()
-        settings = self._worker.settings_for(job.settings)
-        self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
+        if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)
+            self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
         crop_shape = tuple(job.crops.shape[1:])
         block_indices = job.indices
-        rows = {i: r for r, i in enumerate(block_indices.tolist())}
+        rows: dict[int, int] = {}
 
         def crops(indices: np.ndarray) -> np.ndarray:
             if indices.size == block_indices.size and np.array_equal(indices, block_indices):
                 return job.crops  # the whole block to one member: forward it as it came
+            if not rows:
+                rows.update((i, r) for r, i in enumerate(block_indices.tolist()))
             return job.crops[[rows[i] for i in indices.tolist()]] if indices.size else job.crops[:0]
 
         def prev_crops(indices: np.ndarray) -> np.ndarray:
@@ -173,7 +182,7 @@ class ForemanService(ServiceRuntime):
         def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
             return measure_share(
                 self.cache,
-                settings,
+                self._worker.settings_for(job.settings),
                 job.stream,
                 job.seq,
                 job.prev_seq,
@@ -200,20 +209,15 @@ class ForemanService(ServiceRuntime):
         report = self.scatter.run(work, plan)
         self.counters.time_ms("prepare", (t_plan - t0) * 1e3)
         self.counters.time_ms("round", (time.perf_counter() - t_plan) * 1e3)
-        self.crops_prev.add(job.stream, job.seq, job.indices, job.crops)
         measurement = merge_measurements(report.parts, job.indices)
         elapsed = time.perf_counter() - t0
-        self._last_shares = plan.shares()
-        self.counters.inc("blocks")
-        self.counters.inc("patches", int(job.indices.size))
-        self.counters.time_ms("block", elapsed * 1e3)
         active = set(self.dispatcher.active(time.monotonic()))
         speeds = {m: s for m, s in self.dispatcher.speeds().items() if m in active}
         result = result_from_measurement(
             BlockResult, job, self.name, measurement, elapsed, report.members, speeds
         )
         assert isinstance(result, BlockResult)
-        return result
+        return result, plan
 
 
 def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:

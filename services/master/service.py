@@ -106,6 +106,9 @@ class MasterService(ServiceRuntime):
         self.scatter: Scatter | None = None
         self._members: dict[str, keys.MemberId] = {}
         self._membership_lock = threading.Lock()
+        #: bumped on every liveliness change; a dispatcher that saw the current version needs no update
+        self._membership_version = 0
+        self._applied: tuple[Dispatcher | None, int] = (None, -1)
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_seq = -1
@@ -136,6 +139,7 @@ class MasterService(ServiceRuntime):
                 self._members[member.name] = member
             else:
                 self._members.pop(member.name, None)
+            self._membership_version += 1
         if member.role is self.member_role:
             self.counters.inc("members_joined" if joined else "members_left")
             if not joined and self.scatter is not None:
@@ -151,6 +155,9 @@ class MasterService(ServiceRuntime):
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
         with self._membership_lock:
+            if self._applied == (dispatcher, self._membership_version):
+                return  # nothing changed since this dispatcher was last brought up to date
+            self._applied = (dispatcher, self._membership_version)
             members = dict(self._members)
         wanted = {name for name, m in members.items() if m.role is self.member_role}
         workers_per_node: dict[str, int] = {}

@@ -135,22 +135,17 @@ class WorkerService(ServiceRuntime):
             self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
             return
         elapsed = time.perf_counter() - t0
-        self.counters.inc("jobs")
-        self.counters.inc("patches", int(job.indices.size))
-        self.counters.time_ms("compute", elapsed * 1e3)
-        speed = job.indices.size / elapsed if elapsed > 0 else 0.0
+        n = int(job.indices.size)
+        speed = n / elapsed if elapsed > 0 else 0.0
         self.reply(
             query,
             result_from_measurement(
-                PatchResult,
-                job,
-                self.name,
-                measurement,
-                elapsed,
-                {self.name: int(job.indices.size)},
-                {self.name: speed},
+                PatchResult, job, self.name, measurement, elapsed, {self.name: n}, {self.name: speed}
             ),
         )
+        self.counters.inc("jobs")  # after the reply: not on the requester's path
+        self.counters.inc("patches", n)
+        self.counters.time_ms("compute", elapsed * 1e3)
 
 
 def register(subparsers: Any) -> None:

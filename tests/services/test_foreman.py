@@ -57,7 +57,8 @@ class _Workers:
         self.reported = reported
         self.delay_s = delay_s
 
-    def get(self, key: str, handler: Any, payload: bytes, attachment: bytes, **_kw: Any) -> None:
+    def get(self, key_expr: Any, handler: Any, payload: bytes, attachment: bytes, **_kw: Any) -> None:
+        key = str(key_expr)  # a zenoh.KeyExpr, as the scatter sends
         job = decode(payload, attachment, PatchJob)
         time.sleep(self.delay_s)
         n = job.indices.size

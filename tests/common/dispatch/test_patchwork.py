@@ -103,3 +103,44 @@ def test_cache_keeps_only_the_newest_frame_and_bounded_streams() -> None:
         measure_share(cache, settings, stream, 1, 0, idx, grid.crop(frame, idx), idx, grid.crop(frame, idx))
     assert cache.held("x") == (-2, frozenset())
     assert cache.held("z") == (1, frozenset({4, 5}))
+
+
+def test_cache_hands_back_the_previous_share_whole_only_for_the_same_indices(
+    frames: list[np.ndarray],
+) -> None:
+    settings = YawSettings()
+    grid = make_patch_grid(frames[0].shape, settings)
+    cache = SpectrumCache()
+    share = np.array([3, 4, 5])
+    crops = grid.crop(frames[0], share)
+    measure_share(cache, settings, "s", 0, -1, share, crops, share, crops)
+    whole, missing = cache.lookup("s", 0, [3, 4, 5])
+    assert missing == [] and whole is not None
+    subset, _ = cache.lookup("s", 0, [5, 3])  # another order or subset: rows stacked anew
+    assert subset is not None and subset.indices.tolist() == [5, 3]
+    assert np.array_equal(subset.spectra[0], whole.spectra[2]) and np.array_equal(
+        subset.spectra[1], whole.spectra[0]
+    )
+    # a second share of the same frame (a re-dispatch) joins the cache; the three still come back right
+    extra = np.array([6])
+    measure_share(
+        cache, settings, "s", 0, -1, extra, grid.crop(frames[0], extra), extra, grid.crop(frames[0], extra)
+    )
+    again, _ = cache.lookup("s", 0, [3, 4, 5])
+    assert again is not None and np.array_equal(again.spectra, whole.spectra)
+    four, missing = cache.lookup("s", 0, [3, 4, 5, 6])
+    assert missing == [] and four is not None and four.indices.tolist() == [3, 4, 5, 6]
+
+
+def test_single_part_merge_is_sorted_and_checked(frames: list[np.ndarray]) -> None:
+    settings = YawSettings()
+    grid = make_patch_grid(frames[0].shape, settings)
+    idx = np.array([2, 0, 1])
+    part = measure_share(
+        SpectrumCache(), settings, "s", 1, 0, idx, grid.crop(frames[1], idx), idx, grid.crop(frames[0], idx)
+    )
+    merged = merge_measurements([part], np.arange(3))
+    assert merged.indices.tolist() == [0, 1, 2]
+    assert np.array_equal(merged.shift_px, part.shift_px[[1, 2, 0]])
+    in_order = merge_measurements([merged], np.arange(3))
+    assert np.array_equal(in_order.shift_px, merged.shift_px) and in_order.indices.tolist() == [0, 1, 2]

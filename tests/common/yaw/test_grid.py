@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from common.errors import InputError
 from common.yaw import YawSettings, check_frame, make_patch_grid
@@ -74,3 +76,23 @@ def test_settings_reject_nonsense() -> None:
         YawSettings(grid_cols=1, grid_rows=2)
     with pytest.raises(InputError):
         YawSettings(pyramid_level=-1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(0, 39), min_size=0, max_size=40, unique=True), st.booleans())
+def test_crop_level_equals_slicing_for_any_distinct_indices(indices: list[int], ascending: bool) -> None:
+    grid = make_patch_grid((480, 752), YawSettings())
+    level = np.random.default_rng(len(indices)).integers(0, 256, level_shape((480, 752), 1), dtype=np.uint8)
+    idx = np.array(sorted(indices) if ascending else indices, dtype=np.int64)
+    crops = grid.crop_level(level, idx)
+    assert crops.shape == (len(indices), 32, 32) and crops.flags.c_contiguous and crops.flags.writeable
+    for crop, i in zip(crops, idx.tolist(), strict=True):
+        rows, cols = grid.slices(i)
+        assert np.array_equal(crop, level[rows, cols])
+
+
+@pytest.mark.parametrize("indices", [[2, 1, 1], [0, 0], [-1, 3], [5, 40], [39, 40]])
+def test_check_indices_rejects_duplicates_and_out_of_range_in_any_order(indices: list[int]) -> None:
+    grid = make_patch_grid((480, 752), YawSettings())
+    with pytest.raises(InputError):
+        grid.check_indices(np.array(indices))
