@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.dispatch.patchwork import PatchWorkError
@@ -57,7 +58,7 @@ class _Workers:
         self.reported = reported
         self.delay_s = delay_s
 
-    def get(self, key_expr: Any, handler: Any, payload: bytes, attachment: bytes, **_kw: Any) -> None:
+    def get(self, key_expr: Any, handler: Any, payload: bytes, attachment: bytes, **_kw: Any) -> Any:
         key = str(key_expr)  # a zenoh.KeyExpr, as the scatter sends
         job = decode(payload, attachment, PatchJob)
         time.sleep(self.delay_s)
@@ -67,7 +68,23 @@ class _Workers:
             shift_px=np.zeros((n, 2)), confidence=np.ones(n), peak=np.ones(n), valid=np.ones(n, bool),
             compute_s=0.001, members={key: int(n)}, speeds={key: self.reported},
         )  # fmt: skip
-        handler.callback(_Reply(*encode(result)))
+        reply = _Reply(*encode(result))
+        if isinstance(handler, zenoh.handlers.FifoChannel):  # a solo request blocks on its own channel
+            return _Channel([reply])
+        handler.callback(reply)
+        return None
+
+
+class _Channel:
+    """A reply channel: hands out its replies, then raises like a closed zenoh channel."""
+
+    def __init__(self, replies: list[Any]) -> None:
+        self._replies = list(replies)
+
+    def recv(self) -> Any:
+        if not self._replies:
+            raise zenoh.ZError("channel is empty and closed")
+        return self._replies.pop(0)
 
 
 @pytest.mark.parametrize("source", list(SpeedSource))

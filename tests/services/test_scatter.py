@@ -1,0 +1,143 @@
+"""The scatter's solo path over real zenoh sessions: one member in flight, blocking on its own reply channel.
+
+Every way a solo request can end is covered: a reply, a member that never answers (zenoh's timeout is the
+deadline), a member that leaves while the round waits (its query is cancelled), and nobody listening. In each
+failure the share is re-dispatched within the round and every patch is still measured.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+
+from common.dispatch import SELF, Dispatcher, DispatchSettings
+from common.dispatch.patchwork import PatchMeasurement
+from common.messages import PatchJob, PatchResult, decode, encode
+from common.transport import Counters, TransportSettings, open_session, zbytes
+from services.master.scatter import FrameWork, RoundReport, Scatter
+from services.up import free_port
+
+N_PATCHES = 6
+KEY = "capataz/test/scatter/{member}"
+
+
+@pytest.fixture()
+def sessions() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    port = free_port()
+    listen = TransportSettings(listen=(f"tcp/127.0.0.1:{port}",))
+    connect = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
+    with open_session(listen) as member_side, open_session(connect) as dispatcher_side:
+        time.sleep(0.3)  # let the two peers connect
+        yield member_side, dispatcher_side
+
+
+def answer(query: zenoh.Query) -> None:
+    """A worker that measures nothing: zero shifts for the requested patches."""
+    job = decode(zbytes(query.payload), zbytes(query.attachment), PatchJob)
+    n = int(job.indices.size)
+    result = PatchResult(
+        stream=job.stream, seq=job.seq, prev_seq=job.prev_seq, member="worker", indices=job.indices,
+        shift_px=np.zeros((n, 2)), confidence=np.ones(n), peak=np.ones(n), valid=np.ones(n, bool),
+        compute_s=0.001, members={"worker": n}, speeds={"worker": 1000.0},
+    )  # fmt: skip
+    payload, attachment = encode(result)
+    query.reply(query.key_expr, payload, attachment=attachment)
+    query.drop()
+
+
+def run_round(session: zenoh.Session, member: str, budget_s: float = 0.4) -> tuple[Scatter, RoundReport]:
+    dispatcher = Dispatcher(DispatchSettings(), N_PATCHES)
+    dispatcher.join(member)
+    scatter = Scatter(
+        session,
+        dispatcher,
+        lambda m: KEY.format(member=m.replace("/", "_")),
+        PatchJob,
+        PatchResult,
+        Counters(),
+    )
+
+    def compute_self(indices: np.ndarray, moved: np.ndarray) -> PatchMeasurement:
+        n = indices.size
+        return PatchMeasurement(indices, np.full((n, 2), 7.0), np.ones(n), np.ones(n), np.ones(n, bool))
+
+    work = FrameWork(
+        stream="s", seq=1, prev_seq=0, settings={}, budget_s=budget_s,
+        crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
+        prev_crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
+        compute_self=compute_self,
+    )  # fmt: skip
+    return scatter, scatter.run(work, dispatcher.plan(1, 0, time.monotonic()))
+
+
+def covered_by(report: RoundReport) -> dict[str, Any]:
+    indices = np.sort(np.concatenate([p.indices for p in report.parts]))
+    assert indices.tolist() == list(range(N_PATCHES)), "every patch measured exactly once"
+    return report.members
+
+
+def test_a_solo_reply_completes_the_round(sessions: tuple[zenoh.Session, zenoh.Session]) -> None:
+    member_side, dispatcher_side = sessions
+    queryable = member_side.declare_queryable(KEY.format(member="w_0"), answer, complete=True)
+    time.sleep(0.2)
+    scatter, report = run_round(dispatcher_side, "w/0")
+    assert covered_by(report) == {"w/0": N_PATCHES, "w/0>worker": N_PATCHES}
+    assert np.all(report.parts[0].shift_px == 0.0)  # the member's answer, not the dispatcher's own
+    assert report.redispatched == 0 and scatter.counters.counts()["requests_sent"] == 1
+    assert "wake" not in scatter.counters.median_timings_ms()  # no callback hand-off: its own reply channel
+    queryable.undeclare()
+
+
+def test_a_frozen_solo_member_misses_its_deadline_and_self_takes_the_share(
+    sessions: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    member_side, dispatcher_side = sessions
+    held: list[zenoh.Query] = []  # a member that takes the query and never answers (a frozen process)
+    queryable = member_side.declare_queryable(KEY.format(member="w_0"), held.append, complete=True)
+    time.sleep(0.2)
+    scatter, report = run_round(dispatcher_side, "w/0")  # deadline: the whole budget (speed unknown)
+    assert covered_by(report) == {SELF: N_PATCHES}
+    assert report.failures == ["w/0: deadline missed"]  # zenoh's timeout reply, read as the deadline
+    assert scatter.counters.counts()["deadline_misses"] == 1
+    queryable.undeclare()
+
+
+def test_a_solo_member_that_leaves_is_cancelled_at_once(
+    sessions: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    member_side, dispatcher_side = sessions
+    held: list[zenoh.Query] = []
+    queryable = member_side.declare_queryable(KEY.format(member="w_0"), held.append, complete=True)
+    time.sleep(0.2)
+    scatters: list[Scatter] = []
+    original = Scatter.run
+
+    def run_and_leave(self: Scatter, work: FrameWork, plan: Any) -> RoundReport:
+        scatters.append(self)
+        threading.Timer(0.05, self.member_left, args=("w/0",)).start()  # liveliness lost mid-round
+        return original(self, work, plan)
+
+    Scatter.run = run_and_leave  # type: ignore[method-assign]
+    try:
+        _scatter, report = run_round(dispatcher_side, "w/0", budget_s=5.0)
+    finally:
+        Scatter.run = original  # type: ignore[method-assign]
+    assert covered_by(report) == {SELF: N_PATCHES}
+    # cancelled, not timed out: without the cancellation this would read "deadline missed" after 5 s
+    assert report.failures == ["w/0: left (liveliness lost)"]
+    queryable.undeclare()
+
+
+def test_a_solo_request_nobody_answers_fails_without_waiting(
+    sessions: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    _member_side, dispatcher_side = sessions
+    _scatter, report = run_round(dispatcher_side, "w/9", budget_s=5.0)  # no queryable on its key
+    assert covered_by(report) == {SELF: N_PATCHES}
+    assert report.failures == ["w/9: no reply"]  # not "deadline missed": zenoh closed the channel at once
