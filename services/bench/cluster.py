@@ -16,17 +16,23 @@ from __future__ import annotations
 
 import argparse
 import logging
+import queue
 import time
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+import zenoh
 
+from common import keys
+from common.dispatch.patchwork import settings_to_wire
+from common.messages import PatchJob, PatchResult, decode, encode
+from common.transport import open_session, zbytes
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
-from services.up import ClusterSpec, HostSpec
+from services.up import ClusterSpec, HostSpec, LocalCluster
 
 NAME = "cluster"
 logger = logging.getLogger(__name__)
@@ -284,6 +290,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         flush=True,
     )
     overhead = overhead_752x480(out_dir, args.overhead_frames, args.shm, args.repeats)
+    handoff = reply_handoff(out_dir, args.shm)
     result = {
         "workload": {
             "resolution": f"{width}x{height}",
@@ -307,6 +314,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "balance_gain_master_worker": gain_mw,
         "balance_gain_master_worker_runs": run_gains["master-worker"],
         "overhead_752x480": overhead,
+        "reply_handoff": handoff,
     }
     result["table"] = [
         {
@@ -330,6 +338,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 "config": f"752x480 +ms/frame {label} (median of {args.repeats})",
                 "median_ms": row["overhead_ms"],
             }
+        )
+    for mode in ("callback", "channel"):
+        result["table"].append(
+            {"config": f"752x480 job round trip, reply via {mode}", "median_ms": handoff[f"{mode}_ms"]}
         )
     result["plot"] = str(plot(out_dir / "cluster.png", configs, gain_mfw))
     return result
@@ -398,6 +410,69 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
         "overhead_ms": paths["master-foreman-worker 1x1"]["overhead_ms"],
         "frames": n_frames,
         "repeats": repeats,
+    }
+
+
+def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6) -> dict[str, Any]:
+    """What decided the scatter's solo path: the round trip of one 752x480 job (40 patches) to a real worker
+    process, its reply handed over by a callback on zenoh's thread and a queue (how replies arrive when
+    several requests are in flight) or received from the query's own FIFO channel (a request alone in
+    flight). Alternating blocks of each; the requester pauses 2 ms between requests, as between frames."""
+    settings = YawSettings()
+    flight = simulated_flight(CameraSettings(frames=3))
+    grid = make_patch_grid(flight.frame(0).shape, settings)
+    idx = grid.all_indices.astype(np.int32)
+    crops = [grid.crop(flight.frame(i), idx) for i in range(3)]
+    wire = settings_to_wire(settings)
+    spec = ClusterSpec(name="handoff", topology="master-worker", hosts=(HostSpec(name="handoff", workers=1),))
+    times: dict[str, list[float]] = {"callback": [], "channel": []}
+    seq = 0
+    with LocalCluster(spec, out_dir / "cluster_logs" / "handoff", shared_memory=shm) as cluster:
+        cluster.start()
+        cluster.wait_alive(cluster.expected_members())
+        with open_session(cluster.observer_transport()) as session:
+            key = zenoh.KeyExpr(keys.worker_key("handoff", 0))
+            events: queue.SimpleQueue[Any] = queue.SimpleQueue()
+            options: dict[str, Any] = {
+                "timeout": 5.0,
+                "consolidation": zenoh.ConsolidationMode.NONE,
+                "congestion_control": zenoh.CongestionControl.BLOCK,
+            }
+            for block in range(2 * blocks):
+                mode = ("callback", "channel")[block % 2]
+                for _ in range(requests // blocks):
+                    seq += 1
+                    job = PatchJob(
+                        stream="handoff", seq=seq, prev_seq=seq - 1, settings=wire, indices=idx,
+                        crops=crops[seq % 3], prev_indices=idx, prev_crops=crops[(seq - 1) % 3], budget_s=5.0,
+                    )  # fmt: skip
+                    payload, attachment = encode(job)
+                    time.sleep(0.002)
+                    t0 = time.perf_counter()
+                    if mode == "callback":
+                        on_done = lambda: events.put(None)  # noqa: E731
+                        handler = zenoh.handlers.Callback(events.put, on_done, indirect=False)
+                        session.get(key, handler, payload=payload, attachment=attachment, **options)
+                        reply = events.get(timeout=10.0)
+                    else:
+                        channel = session.get(key, zenoh.handlers.FifoChannel(2), payload=payload,
+                                              attachment=attachment, **options)  # fmt: skip
+                        reply = channel.recv()
+                    times[mode].append((time.perf_counter() - t0) * 1e3)
+                    if mode == "callback":
+                        events.get(timeout=10.0)  # the query's end
+                    if reply is None or reply.ok is None:
+                        raise RuntimeError(f"the hand-off benchmark's worker did not answer job {seq}")
+                    decode(zbytes(reply.ok.payload), zbytes(reply.ok.attachment), PatchResult)
+    callback_ms = float(np.median(times["callback"]))
+    channel_ms = float(np.median(times["channel"]))
+    print(f"752x480 job round trip to a worker: reply via callback + queue {callback_ms:.3f} ms, "
+          f"via its own channel {channel_ms:.3f} ms", flush=True)  # fmt: skip
+    return {
+        "callback_ms": callback_ms,
+        "channel_ms": channel_ms,
+        "saved_ms": callback_ms - channel_ms,
+        "requests_per_mode": len(times["channel"]),
     }
 
 

@@ -161,9 +161,9 @@ class Scatter:
         if solo is not None:
             # Alone in flight: the round thread blocks on this query's own FIFO channel, zenoh's timeout is
             # the deadline (a "Timeout" error reply) and a member that leaves cancels it. No Python runs on
-            # zenoh's thread: one GIL hand-off less per reply (0.34 -> 0.28 ms per round trip, out/tmp-free
-            # A/B in the bench notes). Several requests need the callbacks: they stamp each reply's arrival,
-            # which round-trip balancing measures.
+            # zenoh's thread and one hand-off is saved: 0.03-0.04 ms per 752x480 job round trip to a worker
+            # (capataz bench cluster, "reply_handoff"). Several requests need the callbacks: they stamp each
+            # reply's arrival, which round-trip balancing measures.
             solo.cancel = zenoh.CancellationToken()
             with self._lock:
                 self._solo = (member, solo.cancel)

@@ -1,4 +1,4 @@
-"""The cluster benchmark's frame folders."""
+"""The cluster benchmark's frame folders and its reply hand-off measurement."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from services.bench.cluster import write_frame_folder
+from services.bench.cluster import reply_handoff, write_frame_folder
 
 
 def test_frame_folder_holds_only_this_runs_frames(tmp_path: Path) -> None:
@@ -21,3 +21,10 @@ def test_frame_folder_holds_only_this_runs_frames(tmp_path: Path) -> None:
     assert [f.name for f in files] == ["00000.pgm", "00001.pgm", "00002.pgm"]
     for path, frame in zip(files, frames, strict=True):
         assert np.array_equal(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE), frame)
+
+
+def test_reply_handoff_times_both_ways_of_receiving_a_workers_reply(tmp_path: Path) -> None:
+    result = reply_handoff(tmp_path, shm=False, requests=8, blocks=2)
+    assert result["requests_per_mode"] == 8
+    assert result["callback_ms"] > 0 and result["channel_ms"] > 0
+    assert result["saved_ms"] == result["callback_ms"] - result["channel_ms"]
