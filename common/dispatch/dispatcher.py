@@ -152,6 +152,9 @@ class Dispatcher:
         self.n_patches = n_patches
         self._members: dict[str, _Member] = {SELF: _Member(capacity=settings.self_capacity)}
         self._owner: dict[int, str] = {}
+        #: the last plan's (members, targets, indices) and assignment: the steady state repeats it exactly
+        #: (sticky owners, same shares), so it is reused until ownership changes otherwise
+        self._memo: tuple[tuple[object, ...], dict[str, IndexArray]] | None = None
         self._all = list(range(n_patches))
         self.last_plan: Plan | None = None
 
@@ -183,6 +186,7 @@ class Dispatcher:
             return
         self._members.pop(member, None)
         self._owner = {i: o for i, o in self._owner.items() if o != member}
+        self._memo = None
 
     @property
     def members(self) -> tuple[str, ...]:
@@ -224,7 +228,14 @@ class Dispatcher:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
         todo = self._all if indices is None else self._check_indices(indices)
         members = self.active(now_s)
-        targets = dict(zip(members, _largest_remainder(self.weights(members), len(todo)), strict=True))
+        counts = _largest_remainder(self.weights(members), len(todo))
+        key = (tuple(members), tuple(counts), tuple(todo))
+        if self._memo is not None and self._memo[0] == key:
+            assignment = dict(self._memo[1])
+            moved = {m: self._missing(m, owned, prev_seq) for m, owned in assignment.items()}
+            self.last_plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
+            return self.last_plan
+        targets = dict(zip(members, counts, strict=True))
         keep: dict[str, list[int]] = {m: [] for m in members}
         pool: list[int] = []
         for index in todo:
@@ -247,8 +258,10 @@ class Dispatcher:
                 continue
             self._owner.update(dict.fromkeys(owned, m))
             indices = np.array(owned, dtype=np.int32)
+            indices.setflags(write=False)  # shared by the plans that repeat this one
             assignment[m] = indices
             moved[m] = self._missing(m, indices, prev_seq)
+        self._memo = (key, assignment)
         plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
         self.last_plan = plan
         return plan
@@ -294,6 +307,7 @@ class Dispatcher:
             start += n
             for i in part:
                 self._owner[int(i)] = m
+            self._memo = None
             assignment[m] = part
             moved[m] = self._missing(m, part, prev_seq)
         seq = self.last_plan.seq if self.last_plan else 0
@@ -346,6 +360,7 @@ class Dispatcher:
         pause = min(self.settings.max_suspend_s, self.settings.suspend_s * 2 ** (state.failures - 1))
         state.suspended_until_s = now_s + pause
         self._owner = {i: o for i, o in self._owner.items() if o != member}
+        self._memo = None
         return pause
 
     def forget_history(self, member: str) -> None:

@@ -186,3 +186,47 @@ def test_every_plan_covers_every_index_exactly_once(events: list[tuple[str, str,
         if kind == "ok":
             for member, idx in plan.assignment.items():
                 d.record_success(member, seq, idx, 0.01, speed=speed)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["join", "leave", "fail", "ok", "ok", "redo"]),
+            st.sampled_from("abc"),
+            st.sampled_from([100.0, 200.0, 400.0]),
+        ),
+        max_size=30,
+    ),
+    st.integers(1, 40),
+)
+def test_a_repeated_plan_equals_one_computed_from_scratch(
+    events: list[tuple[str, str, float]], n: int
+) -> None:
+    """The steady state reuses the last assignment; it must be exactly what the full computation gives."""
+    memo, fresh = (
+        Dispatcher(DispatchSettings(ema_alpha=0.5), n),
+        Dispatcher(DispatchSettings(ema_alpha=0.5), n),
+    )
+    now = 0.0
+    for seq, (kind, name, speed) in enumerate(events, start=1):
+        now += 0.3
+        for d in (memo, fresh):
+            if kind == "join":
+                d.join(name)
+            elif kind == "leave":
+                d.leave(name)
+            elif kind == "fail":
+                d.record_failure(name, now)
+            elif kind == "redo" and d.last_plan is not None and name in d.last_plan.assignment:
+                d.redistribute(d.last_plan.assignment[name], {name}, now, seq - 1)
+        fresh._memo = None  # always the full computation
+        got, want = memo.plan(seq, seq - 1, now), fresh.plan(seq, seq - 1, now)
+        assert got.assignment.keys() == want.assignment.keys()
+        for member, idx in want.assignment.items():
+            assert np.array_equal(got.assignment[member], idx)
+            assert np.array_equal(got.moved[member], want.moved[member])
+        if kind.startswith("ok"):
+            for d, plan in ((memo, got), (fresh, want)):
+                for member, idx in plan.assignment.items():
+                    d.record_success(member, seq, idx, 0.01, speed=speed * (1 + len(member)))
