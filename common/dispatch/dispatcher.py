@@ -231,9 +231,9 @@ class Dispatcher:
         counts = _largest_remainder(self.weights(members), len(todo))
         key = (tuple(members), tuple(counts), tuple(todo))
         if self._memo is not None and self._memo[0] == key:
-            assignment = dict(self._memo[1])
-            moved = {m: self._missing(m, owned, prev_seq) for m, owned in assignment.items()}
-            self.last_plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
+            repeated = dict(self._memo[1])
+            missing = {m: self._missing(m, owned, prev_seq) for m, owned in repeated.items()}
+            self.last_plan = Plan(seq=seq, prev_seq=prev_seq, assignment=repeated, moved=missing)
             return self.last_plan
         targets = dict(zip(members, counts, strict=True))
         keep: dict[str, list[int]] = {m: [] for m in members}
