@@ -8,10 +8,11 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
 - ``capataz/uav/{uav}/pose/vo``: a :class:`PoseEstimate` after every frame (x, y from the visual odometry,
   z and attitude from the EKF), ``source = "vo"``.
 
-Callbacks only decode, validate and hand off: IMU, range and yaw samples to a bounded FIFO (refusals
-counted as ``queue_full``), frames to a one-item slot (latest frame wins, ``dropped_frames``). One thread
-feeds them to :class:`~common.estimation.coupling.DoubleCouplingEstimator`, which applies them in stamp
-order within a bounded lag. Bad samples are refused with a log line and a counter, never a crash:
+Callbacks only decode, validate and hand off, on zenoh's receiving thread in arrival order: IMU, range and
+yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a one-item slot (latest frame
+wins, ``dropped_frames``). One thread feeds them to
+:class:`~common.estimation.coupling.DoubleCouplingEstimator`, which applies them in stamp order within a
+bounded lag. Bad samples are refused with a log line and a counter, never a crash:
 undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong shape (``bad_samples``,
 ``bad_frames``), stale or duplicate stamps (``refused_<sensor>_<stale|duplicate|overflow>``).
 """
@@ -152,11 +153,17 @@ class EstimatorService(ServiceRuntime):
         uav = self.settings.uav
         self._attitude_pub = session.declare_publisher(keys.attitude_key(uav))
         self._pose_pub = session.declare_publisher(keys.pose_vo_key(uav))
-        self._entities.append(session.declare_subscriber(keys.imu_key(uav), self._on_imu))
-        self._entities.append(session.declare_subscriber(keys.range_key(uav), self._on_range))
-        self._entities.append(session.declare_subscriber(keys.camera_key(uav), self._on_frame))
+        # indirect=False: the callbacks run on zenoh's receiving thread, in the order the samples arrived.
+        # With zenoh's default (a Python thread per subscriber) a frame decoded on its own thread could reach
+        # the time-ordered buffer after IMU samples more than the lag newer, and be refused as stale, when
+        # the machine is loaded (seen in the service test under CPU load: a pose missing).
+        wanted = [(keys.imu_key(uav), self._on_imu), (keys.range_key(uav), self._on_range)]
+        wanted.append((keys.camera_key(uav), self._on_frame))
         if self.settings.external_yaw:
-            self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
+            wanted.append((keys.yaw_key(uav), self._on_yaw))
+        for key, on_sample in wanted:
+            handler = zenoh.handlers.Callback(on_sample, indirect=False)
+            self._entities.append(session.declare_subscriber(key, handler))
         self.spawn(self._estimate, "estimate")
 
     def stop(self) -> None:

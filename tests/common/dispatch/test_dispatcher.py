@@ -11,6 +11,18 @@ from common.dispatch import SELF, Balance, Dispatcher, DispatchError, DispatchSe
 from common.errors import InputError
 
 
+def apply_event(d: Dispatcher, kind: str, name: str, now: float, seq: int) -> None:
+    """A membership or outcome event of the property tests (``ok`` is recorded after the plan)."""
+    if kind == "join":
+        d.join(name)
+    elif kind == "leave":
+        d.leave(name)
+    elif kind == "fail":
+        d.record_failure(name, now)
+    elif kind == "redo" and d.last_plan is not None and name in d.last_plan.assignment:
+        d.redistribute(d.last_plan.assignment[name], {name}, now, seq - 1)
+
+
 def covered(plan_assignment: dict[str, np.ndarray], n: int) -> bool:
     all_indices = np.sort(np.concatenate(list(plan_assignment.values())))
     return bool(np.array_equal(all_indices, np.arange(n)))
@@ -175,12 +187,7 @@ def test_every_plan_covers_every_index_exactly_once(events: list[tuple[str, str,
     now = 0.0
     for seq, (kind, name, speed) in enumerate(events, start=1):
         now += 0.3
-        if kind == "join":
-            d.join(name)
-        elif kind == "leave":
-            d.leave(name)
-        elif kind == "fail":
-            d.record_failure(name, now)
+        apply_event(d, kind, name, now, seq)
         plan = d.plan(seq, seq - 1, now)
         assert covered(plan.assignment, n)
         if kind == "ok":
@@ -212,14 +219,7 @@ def test_a_repeated_plan_equals_one_computed_from_scratch(
     for seq, (kind, name, speed) in enumerate(events, start=1):
         now += 0.3
         for d in (memo, fresh):
-            if kind == "join":
-                d.join(name)
-            elif kind == "leave":
-                d.leave(name)
-            elif kind == "fail":
-                d.record_failure(name, now)
-            elif kind == "redo" and d.last_plan is not None and name in d.last_plan.assignment:
-                d.redistribute(d.last_plan.assignment[name], {name}, now, seq - 1)
+            apply_event(d, kind, name, now, seq)
         fresh._memo = None  # always the full computation
         got, want = memo.plan(seq, seq - 1, now), fresh.plan(seq, seq - 1, now)
         assert got.assignment.keys() == want.assignment.keys()
