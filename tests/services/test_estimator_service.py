@@ -179,3 +179,60 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
     assert counts.get("dropped_frames", 0) == 0
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
+
+
+class _RecordingEstimator(EstimatorService):
+    """Records the stamps of the samples its callbacks see, in the order they see them."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.seen: list[float] = []
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        self.seen.append(decode(zbytes(sample.payload), zbytes(sample.attachment), ImuSample).stamp_s)
+        super()._on_imu(sample)
+
+    def _on_range(self, sample: zenoh.Sample) -> None:
+        self.seen.append(decode(zbytes(sample.payload), zbytes(sample.attachment), RangeSample).stamp_s)
+        super()._on_range(sample)
+
+    def _on_frame(self, sample: zenoh.Sample) -> None:
+        self.seen.append(decode(zbytes(sample.payload), zbytes(sample.attachment), Frame).stamp_s)
+        super()._on_frame(sample)
+
+
+def test_sensor_samples_are_handed_off_in_the_order_they_were_published(flight: Flight) -> None:
+    """Regression: each subscriber had its own Python thread, so a frame (360 KB to decode) could reach the
+    time-ordered buffer after IMU samples published after it, more than the lag newer, and be refused as stale
+    (the service test above failed so under CPU load). The callbacks now run in arrival order."""
+    settings = EstimatorSettings(
+        initial_yaw_rad=float(flight.yaw_rad[0]),
+        initial_x_m=float(flight.p_world_body_m[0, 0]),
+        initial_y_m=float(flight.p_world_body_m[0, 1]),
+    )
+    burst = list(flight_measurements(flight, 0, 8))
+    port = free_port()
+    service = _RecordingEstimator(
+        "burst", 0, TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000), settings
+    )
+    runner = threading.Thread(target=service.run, daemon=True)
+    runner.start()
+    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
+    try:
+        assert service.started.wait(20.0), "service did not start"
+        with open_session(client) as session:
+            probe = session.declare_publisher(keys.imu_key("uav0"))
+            deadline = time.monotonic() + 10.0
+            while not _matching(probe) and time.monotonic() < deadline:
+                time.sleep(0.02)
+            probe.undeclare()
+            time.sleep(0.3)  # the camera and range subscribers are declared with the IMU's
+            assert publish_measurements(session, "uav0", burst, speed=0.0, block=True) == len(burst)
+            deadline = time.monotonic() + 20.0
+            while len(service.seen) < len(burst) and time.monotonic() < deadline:
+                time.sleep(0.05)
+    finally:
+        service.request_stop()
+        runner.join(5.0)
+    assert service.seen == [m.stamp_s for m in burst]
+    assert service.counters.get("refused_frame_stale") == 0
