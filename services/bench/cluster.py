@@ -293,6 +293,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         flush=True,
     )
     overhead = overhead_752x480(out_dir, args.overhead_frames, args.shm, args.overhead_repeats)
+    for label, row in overhead["paths"].items():
+        if row["frames_computed_by_master"]:
+            logger.warning("752x480 %s: the master computed %d frames itself: not a measurement of the path",
+                           label, row["frames_computed_by_master"])  # fmt: skip
     handoff = reply_handoff(out_dir, args.shm)
     result = {
         "workload": {
@@ -362,7 +366,9 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
 
     The machine is shared, so each repeat measures the in-process median before and after its cluster runs
     and takes their mean as that repeat's baseline; the reported overhead of a path is the median over
-    repeats of (its median ms per frame - the repeat's baseline).
+    repeats of (its median ms per frame - the repeat's baseline). Each run also records the share of CPU
+    time the hypervisor stole (a busy host shows there) and the frames the master computed itself (a path
+    that lost its members measures nothing but the master).
     """
     settings = YawSettings()
     flight = simulated_flight(CameraSettings(frames=n_frames))
@@ -371,6 +377,7 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
     write_frame_folder(frame_dir, frames)
     warmup = 10
     runs: dict[str, list[dict[str, float]]] = {label: [] for label, _t, _w in OVERHEAD_PATHS}
+    extras: dict[str, dict[str, float]] = {}
     baselines: list[list[float]] = []
     for repeat in range(repeats):
         before = float(np.median(in_process_ms(frames, settings, warmup)[0]))
@@ -381,6 +388,7 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
                 topology=topology,  # type: ignore[arg-type]
                 hosts=tuple(HostSpec(name=f"h{i + 1}", workers=w) for i, w in enumerate(workers)),
             )
+            steal_before = cpu_steal_ticks()
             estimates, _wall, _codes = run_cluster_flight(
                 spec, n_frames, out_dir / "cluster_logs" / f"{spec.name}-{repeat}", fps=0.0, in_flight=1,
                 camera_args=("--images", str(frame_dir), "--preload", "--no-sensors"), progress=False,
@@ -388,21 +396,32 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
             )  # fmt: skip
             ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > warmup])
             medians[label] = (float(np.median(ms)) if ms.size else float("nan"), n_frames - len(estimates))
+            extras[label] = {
+                "host_steal_pct": steal_percent(steal_before, cpu_steal_ticks()),
+                "frames_computed_by_master": float(
+                    sum(1 for s, e in estimates.items() if s > warmup and "self" in e.members)
+                ),
+            }
         after = float(np.median(in_process_ms(frames, settings, warmup)[0]))
         baseline = 0.5 * (before + after)
         baselines.append([before, after])
         for label, (median, lost) in medians.items():
             runs[label].append(
-                {"cluster_median_ms": median, "overhead_ms": median - baseline, "frames_lost": float(lost)}
-            )
+                {"cluster_median_ms": median, "overhead_ms": median - baseline, "frames_lost": float(lost),
+                 **extras[label]}
+            )  # fmt: skip
             print(f"752x480 [{repeat + 1}/{repeats}] {label}: {median:.2f} ms vs in-process "
-                  f"{baseline:.2f} ms (+{median - baseline:.2f} ms)", flush=True)  # fmt: skip
+                  f"{baseline:.2f} ms (+{median - baseline:.2f} ms); host steal "
+                  f"{extras[label]['host_steal_pct']:.1f} %, frames computed by the master "
+                  f"{extras[label]['frames_computed_by_master']:.0f}", flush=True)  # fmt: skip
     paths: dict[str, dict[str, Any]] = {
         label: {
             "overhead_ms": float(np.median([r["overhead_ms"] for r in rows])),
             "cluster_median_ms": float(np.median([r["cluster_median_ms"] for r in rows])),
             "run_overheads_ms": [r["overhead_ms"] for r in rows],
+            "run_host_steal_pct": [r["host_steal_pct"] for r in rows],
             "frames_lost": float(sum(r["frames_lost"] for r in rows)),
+            "frames_computed_by_master": float(sum(r["frames_computed_by_master"] for r in rows)),
         }
         for label, rows in runs.items()
     }
@@ -414,6 +433,23 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
         "frames": n_frames,
         "repeats": repeats,
     }
+
+
+def cpu_steal_ticks() -> tuple[int, int] | None:
+    """(steal, total) jiffies of all CPUs from ``/proc/stat``; None where there is no such file."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:
+        return None
+    values = [int(v) for v in fields]
+    return (values[7] if len(values) > 7 else 0), sum(values)
+
+
+def steal_percent(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float:
+    """Share of CPU time stolen by the hypervisor between two readings (NaN when unknown)."""
+    if before is None or after is None or after[1] <= before[1]:
+        return float("nan")
+    return 100.0 * (after[0] - before[0]) / (after[1] - before[1])
 
 
 def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6) -> dict[str, Any]:

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from services.bench.cluster import reply_handoff, write_frame_folder
+from services.bench.cluster import cpu_steal_ticks, reply_handoff, steal_percent, write_frame_folder
 
 
 def test_frame_folder_holds_only_this_runs_frames(tmp_path: Path) -> None:
@@ -28,3 +28,13 @@ def test_reply_handoff_times_both_ways_of_receiving_a_workers_reply(tmp_path: Pa
     assert result["requests_per_mode"] == 8
     assert result["callback_ms"] > 0 and result["channel_ms"] > 0
     assert result["saved_ms"] == result["callback_ms"] - result["channel_ms"]
+
+
+def test_steal_percent_is_the_stolen_share_of_cpu_time_between_two_readings() -> None:
+    assert steal_percent((10, 1000), (30, 1400)) == 5.0
+    assert np.isnan(steal_percent(None, (30, 1400)))
+    assert np.isnan(steal_percent((10, 1000), (10, 1000)))  # no time passed
+    reading = cpu_steal_ticks()  # Linux, where the services run
+    assert reading is not None
+    steal, total = reading
+    assert 0 <= steal <= total
