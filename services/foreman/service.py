@@ -163,6 +163,8 @@ class ForemanService(ServiceRuntime):
         """Split the block among the workers (and itself), gather; only what the reply needs."""
         assert self.scatter is not None
         t0 = time.perf_counter()
+        # settings first: a block with invalid ones is rejected here, before any worker sees it (and fails)
+        settings = self._worker.settings_for(job.settings)
         if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)
             self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
         crop_shape = tuple(job.crops.shape[1:])
@@ -182,7 +184,7 @@ class ForemanService(ServiceRuntime):
         def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
             return measure_share(
                 self.cache,
-                self._worker.settings_for(job.settings),
+                settings,
                 job.stream,
                 job.seq,
                 job.prev_seq,

@@ -1,8 +1,9 @@
-"""The foreman's crop store (previous-frame crops stay available for a second block of the same frame) and
-the speed measure its time balancing uses."""
+"""The foreman's crop store (previous-frame crops stay available for a second block of the same frame), the
+speed measure its time balancing uses, and its own check of a block's settings."""
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -10,12 +11,15 @@ import numpy as np
 import pytest
 import zenoh
 
+from common import keys
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.dispatch.patchwork import PatchWorkError
-from common.messages import PatchJob, PatchResult, decode, encode
-from common.transport import Counters
-from services.foreman.service import CropStore
+from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
+from common.transport import Counters, TransportSettings, open_session, zbytes
+from services.foreman.service import CropStore, ForemanService
 from services.master.scatter import FrameWork, Scatter
+from services.up import free_port
+from services.worker.service import WorkerService
 
 
 def crops(value: int, n: int) -> np.ndarray:
@@ -108,3 +112,43 @@ def test_time_balancing_uses_the_chosen_speed_measure(source: SpeedSource) -> No
         assert speed == 1e6
     else:  # 8 patches in at least the 20 ms the reply took
         assert 0 < speed <= 8 / 0.02
+
+
+def test_a_block_with_invalid_settings_is_rejected_before_any_worker_sees_it() -> None:
+    """A block whose yaw settings do not parse is answered with an error by the foreman itself: its worker
+    gets no query, so it is not blamed (suspended) for the master's mistake."""
+    port = free_port()
+    transport = TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000)
+    peer = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",), lease_ms=1000)
+    foreman = ForemanService("h", transport, DispatchSettings())
+    worker = WorkerService("h", 0, peer)
+    threads = [threading.Thread(target=s.run, daemon=True) for s in (foreman, worker)]
+    for thread in threads:
+        thread.start()
+    try:
+        assert foreman.started.wait(20.0) and worker.started.wait(20.0)
+        deadline = time.monotonic() + 10.0
+        while foreman.counters.get("members_joined") < 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert foreman.counters.get("members_joined") == 1
+        block = BlockJob(
+            stream="s", seq=1, prev_seq=0, settings={"colour": 1}, indices=np.arange(4, dtype=np.int32),
+            crops=np.zeros((4, 32, 32), np.uint8), prev_indices=np.arange(4, dtype=np.int32),
+            prev_crops=np.zeros((4, 32, 32), np.uint8),
+        )  # fmt: skip
+        payload, attachment = encode(block)
+        with open_session(peer) as session:
+            time.sleep(0.3)
+            reply = session.get(
+                keys.foreman_key("h"), payload=payload, attachment=attachment, timeout=5.0
+            ).recv()
+        assert reply.err is not None
+        assert "unknown yaw settings" in read_error_reply(zbytes(reply.err.payload))
+        assert foreman.counters.get("rejected") == 1
+        assert worker.counters.get("queries") == 0  # never asked
+        assert foreman.counters.get("redispatched") == 0
+    finally:
+        for service in (foreman, worker):
+            service.request_stop()
+        for thread in threads:
+            thread.join(5.0)
