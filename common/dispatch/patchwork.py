@@ -68,6 +68,26 @@ def settings_from_wire(values: dict[str, Any]) -> YawSettings:
         raise PatchWorkError(f"invalid yaw settings: {exc}") from None
 
 
+class SettingsCache:
+    """Parsed yaw settings by their wire form: every job carries them, and parsing each time costs more than
+    a lookup. Bounded: a handful of distinct settings at most are in use at once."""
+
+    def __init__(self, max_entries: int = 8) -> None:
+        self._parsed: dict[tuple[tuple[str, Any], ...], YawSettings] = {}
+        self._max_entries = max_entries
+
+    def parsed(self, values: dict[str, Any]) -> YawSettings:
+        """``settings_from_wire(values)``, cached; invalid settings raise :class:`PatchWorkError`."""
+        key = tuple(sorted(values.items()))
+        settings = self._parsed.get(key)
+        if settings is None:
+            settings = settings_from_wire(values)
+            if len(self._parsed) > self._max_entries:
+                self._parsed.clear()
+            self._parsed[key] = settings
+        return settings
+
+
 @dataclasses.dataclass
 class _StreamCache:
     seq: int

@@ -19,7 +19,13 @@ import zenoh
 
 from common import keys
 from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, Plan, SpeedSource
-from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, merge_measurements
+from common.dispatch.patchwork import (
+    PatchWorkError,
+    SettingsCache,
+    SpectrumCache,
+    measure_share,
+    merge_measurements,
+)
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.transport import (
@@ -29,7 +35,6 @@ from common.transport import (
     transport_from_args,
 )
 from services.master.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
-from services.worker.service import WorkerService
 
 #: Upper bound of patch indices a foreman accepts.
 MAX_PATCHES = 1 << 16
@@ -88,7 +93,7 @@ class ForemanService(ServiceRuntime):
         self.crops_prev = CropStore()
         self._membership: list[tuple[bool, str]] = []
         self._membership_lock = threading.Lock()
-        self._worker = WorkerService(node, 0, transport)  # only for its settings cache
+        self.settings_cache = SettingsCache()
         self.scatter: Scatter | None = None
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
@@ -164,7 +169,7 @@ class ForemanService(ServiceRuntime):
         assert self.scatter is not None
         t0 = time.perf_counter()
         # settings first: a block with invalid ones is rejected here, before any worker sees it (and fails)
-        settings = self._worker.settings_for(job.settings)
+        settings = self.settings_cache.parsed(job.settings)
         if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)
             self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
         crop_shape = tuple(job.crops.shape[1:])

@@ -9,7 +9,7 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.dispatch.patchwork import PatchWorkError, SpectrumCache, measure_share, settings_from_wire
+from common.dispatch.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
 from common.transport import (
@@ -19,7 +19,6 @@ from common.transport import (
     add_transport_arguments,
     transport_from_args,
 )
-from common.yaw.settings import YawSettings
 from services.master.scatter import result_from_measurement
 
 
@@ -51,7 +50,7 @@ class WorkerService(ServiceRuntime):
         self.cpu_factor = cpu_factor
         self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
         self.cache = SpectrumCache()
-        self._settings: dict[tuple[tuple[str, Any], ...], YawSettings] = {}
+        self.settings_cache = SettingsCache()
         self._queryable: Any = None
 
     def start(self, session: zenoh.Session) -> None:
@@ -90,16 +89,6 @@ class WorkerService(ServiceRuntime):
             self.counters.inc("busy")
             self.reply_error(query, "busy", f"{self.name}: job queue full")
 
-    def settings_for(self, values: dict[str, Any]) -> YawSettings:
-        key = tuple(sorted(values.items()))
-        settings = self._settings.get(key)
-        if settings is None:
-            settings = settings_from_wire(values)
-            if len(self._settings) > 8:
-                self._settings.clear()
-            self._settings[key] = settings
-        return settings
-
     def _serve(self) -> None:
         while not self.stop_event.is_set():
             item = self.queue.take(0.1)
@@ -113,7 +102,7 @@ class WorkerService(ServiceRuntime):
             return
         t0 = time.perf_counter()
         try:
-            settings = self.settings_for(job.settings)
+            settings = self.settings_cache.parsed(job.settings)
             for _ in range(self.cpu_factor - 1):
                 measure_share(
                     SpectrumCache(), settings, job.stream, job.seq, job.seq,
