@@ -132,6 +132,18 @@ class MemberId:
     def name(self) -> str:
         return f"{self.role.value}/{self.node}/{self.index}"
 
+    @classmethod
+    def from_name(cls, name: str) -> MemberId:
+        """Inverse of :attr:`name` (``role/node/i``); InputError otherwise."""
+        parts = str(name).split("/")
+        if len(parts) != 3:
+            raise InputError(f"not a member name (role/node/i): {name!r}")
+        try:
+            role, index = Role(parts[0]), int(parts[2])
+        except ValueError as exc:
+            raise InputError(f"bad member name {name!r}: {exc}") from None
+        return cls(role, check_name(parts[1], "node"), _index(index))
+
     @property
     def work_key(self) -> str:
         """Where a dispatcher sends this member work (foreman or worker queryable)."""
@@ -140,6 +152,11 @@ class MemberId:
         if self.role is Role.WORKER:
             return worker_key(self.node, self.index)
         raise InputError(f"{self.name} takes no work")
+
+
+def work_key_of(member: str) -> str:
+    """The work queryable of the member named ``role/node/i`` (what dispatchers address)."""
+    return MemberId.from_name(member).work_key
 
 
 def parse_alive_key(key: str) -> MemberId:

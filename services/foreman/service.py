@@ -100,7 +100,7 @@ class ForemanService(ServiceRuntime):
 
     def start(self, session: zenoh.Session) -> None:
         self.scatter = Scatter(
-            session, self.dispatcher, self._worker_key, PatchJob, PatchResult, self.counters
+            session, self.dispatcher, keys.work_key_of, PatchJob, PatchResult, self.counters
         )
         self._entities.append(
             session.liveliness().declare_subscriber(
@@ -117,11 +117,6 @@ class ForemanService(ServiceRuntime):
         if self._queryable is not None:
             self._queryable.undeclare()  # the block thread's recv() then raises and it exits
             self._queryable = None
-
-    @staticmethod
-    def _worker_key(member: str) -> str:
-        _role, node, index = member.split("/")
-        return keys.worker_key(node, int(index))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)

@@ -177,9 +177,6 @@ class MasterService(ServiceRuntime):
             else:
                 dispatcher.join(name, capacity)
 
-    def _member_key(self, member: str) -> str:
-        return keys.MemberId(*_split(member)).work_key
-
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
 
@@ -229,7 +226,7 @@ class MasterService(ServiceRuntime):
         ):
             stream = self.stream = self._new_stream(frame)
             self.scatter = Scatter(
-                self.session, stream.dispatcher, self._member_key, job_type, result_type, self.counters
+                self.session, stream.dispatcher, keys.work_key_of, job_type, result_type, self.counters
             )
             self._last_seq = frame.seq
             return YawEstimate(
@@ -324,11 +321,6 @@ class MasterService(ServiceRuntime):
             dropped_frames=self.slot.dropped + self.gaps,
             redispatched=report.redispatched if report else 0,
         )
-
-
-def _split(member: str) -> tuple[keys.Role, str, int]:
-    role, node, index = member.split("/")
-    return keys.Role(role), node, int(index)
 
 
 def add_master_arguments(parser: argparse.ArgumentParser) -> None:

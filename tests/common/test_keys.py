@@ -43,3 +43,15 @@ def test_liveliness_keys_round_trip_and_garbage_is_rejected() -> None:
         keys.parse_alive_key("capataz/alive/camera/c/0").work_key  # noqa: B018
     with pytest.raises(InputError):
         keys.worker_key("h1", -1)
+
+
+def test_member_names_round_trip_to_their_work_keys_and_garbage_is_rejected() -> None:
+    worker = keys.MemberId(keys.Role.WORKER, "h2", 3)
+    assert keys.MemberId.from_name(worker.name) == worker
+    assert keys.work_key_of("worker/h2/3") == keys.worker_key("h2", 3)
+    assert keys.work_key_of("foreman/h1/0") == keys.foreman_key("h1")
+    for bad in ("worker/h2", "boss/h2/0", "worker/h2/x", "worker/h 2/0", "worker/h2/-1"):
+        with pytest.raises(InputError):
+            keys.MemberId.from_name(bad)
+    with pytest.raises(InputError, match="takes no work"):
+        keys.work_key_of("master/m/0")
