@@ -157,21 +157,17 @@ def _conclude_pair(
 ) -> _PairResult:
     fit = _fit_measurement(grid, measurement, settings)
     good = _fit_is_good(fit, measurement, settings)
+    patches = _PairResult(
+        fit.homography, EstimateMethod.PATCHES, fit, measurement, fit.residual_px > settings.max_residual_px
+    )
     if good and not check_global:
-        low = fit.residual_px > settings.max_residual_px
-        return _PairResult(fit.homography, EstimateMethod.PATCHES, fit, measurement, low)
+        return patches
     if _frame_is_flat(previous_frame) or _frame_is_flat(frame_u8):
         logger.debug("flat frame: no yaw")
         return _PairResult(np.eye(3), EstimateMethod.NONE, fit, measurement, True)
     alignment = estimate_global_alignment(previous_frame, frame_u8, settings)
     if good and alignment.response < _MIN_GLOBAL_RESPONSE:
-        return _PairResult(
-            fit.homography,
-            EstimateMethod.PATCHES,
-            fit,
-            measurement,
-            fit.residual_px > settings.max_residual_px,
-        )
+        return patches
     logger.debug(
         "patch fit %s (%d/%d inliers): global pre-alignment",
         "checked" if good else "poor",
@@ -180,13 +176,7 @@ def _conclude_pair(
     )
     prealigned = _prealigned(previous_frame, frame_u8, grid, settings, alignment, previous_spectra)
     if good and prealigned.method is not EstimateMethod.GLOBAL_PREALIGNED:
-        return _PairResult(
-            fit.homography,
-            EstimateMethod.PATCHES,
-            fit,
-            measurement,
-            fit.residual_px > settings.max_residual_px,
-        )
+        return patches
     return prealigned
 
 
