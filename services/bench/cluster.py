@@ -18,6 +18,7 @@ import argparse
 import logging
 import queue
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,16 +38,35 @@ from services.up import ClusterSpec, HostSpec, LocalCluster
 NAME = "cluster"
 logger = logging.getLogger(__name__)
 
+#: frames of each 752x480 overhead run left out of its median (the dispatcher's speeds settle)
+OVERHEAD_WARMUP = 10
 BIG_GRID = ("16x12", 128, 0)  # grid, patch size, pyramid level -> 192 patches of 128 px at full resolution
 
 
+def at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``minimum`` (else a usage error naming the bound)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frames", type=int, default=100, help="frames per configuration (after warm-up)")
     parser.add_argument(
-        "--warmup", type=int, default=20, help="frames excluded from the statistics (shares converge)"
+        "--frames", type=at_least(1), default=100, help="frames per configuration (after warm-up)"
     )
     parser.add_argument(
-        "--repeats", type=int, default=2, help="runs of every configuration, alternating none/time"
+        "--warmup", type=at_least(0), default=20, help="frames excluded from the statistics (shares converge)"
+    )
+    parser.add_argument(
+        "--repeats", type=at_least(1), default=2, help="runs of every configuration, alternating none/time"
     )
     parser.add_argument(
         "--speed",
@@ -56,9 +76,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--resolution", default="1920x1080", help="frame size WIDTHxHEIGHT")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on (same-host numbers)")
-    parser.add_argument("--overhead-frames", type=int, default=200, help="frames of the 752x480 overhead run")
     parser.add_argument(
-        "--overhead-repeats", type=int, default=3, help="runs of each 752x480 path (the median is reported)"
+        "--overhead-frames",
+        type=at_least(OVERHEAD_WARMUP + 10),
+        default=200,
+        help=f"frames of the 752x480 overhead run (the first {OVERHEAD_WARMUP} are not measured)",
+    )
+    parser.add_argument(
+        "--overhead-repeats",
+        type=at_least(1),
+        default=3,
+        help="runs of each 752x480 path (the median is reported)",
     )
     parser.add_argument(
         "--slow-factor",
@@ -375,7 +403,7 @@ def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) 
     frames = [flight.frame(i) for i in range(n_frames)]
     frame_dir = out_dir / "cluster_frames_752"
     write_frame_folder(frame_dir, frames)
-    warmup = 10
+    warmup = OVERHEAD_WARMUP
     runs: dict[str, list[dict[str, float]]] = {label: [] for label, _t, _w in OVERHEAD_PATHS}
     extras: dict[str, dict[str, float]] = {}
     baselines: list[list[float]] = []

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
-from services.bench.cluster import cpu_steal_ticks, reply_handoff, steal_percent, write_frame_folder
+from services.bench.cluster import (
+    add_arguments,
+    cpu_steal_ticks,
+    reply_handoff,
+    steal_percent,
+    write_frame_folder,
+)
 
 
 def test_frame_folder_holds_only_this_runs_frames(tmp_path: Path) -> None:
@@ -38,3 +46,17 @@ def test_steal_percent_is_the_stolen_share_of_cpu_time_between_two_readings() ->
     assert reading is not None
     steal, total = reading
     assert 0 <= steal <= total
+
+
+def test_count_options_refuse_what_would_measure_nothing() -> None:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert parser.parse_args([]).overhead_repeats == 3
+    for bad in (
+        ["--overhead-repeats", "0"],
+        ["--repeats", "x"],
+        ["--overhead-frames", "15"],
+        ["--warmup", "-1"],
+    ):
+        with pytest.raises(SystemExit):
+            parser.parse_args(bad)
