@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 
 from common.sim.flight import HOVER_FRAMES, hover_flight
-from common.transport import open_session
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
 from services.report import write_json
+from services.runtime.transport import open_session
 from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
 
 logger = logging.getLogger(__name__)

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common import keys
 from common.errors import CapatazError
 from common.messages import WireError, YawEstimate, decode
-from common.transport import TransportSettings, open_session, zbytes
+from services.runtime.transport import TransportSettings, open_session, zbytes
 
 logger = logging.getLogger(__name__)
 

@@ -27,12 +27,12 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.dispatch.patchwork import settings_to_wire
 from common.messages import PatchJob, PatchResult, decode, encode
-from common.transport import open_session, zbytes
 from common.yaw import YawSettings, YawTracker, make_patch_grid
+from common.yaw.patchwork import settings_to_wire
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
+from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
 NAME = "cluster"

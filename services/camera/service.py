@@ -34,7 +34,12 @@ from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEsti
 from common.sim.camera import PinholeCamera
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
-from common.transport import ServiceRuntime, TransportSettings, add_transport_arguments, transport_from_args
+from services.runtime.transport import (
+    ServiceRuntime,
+    TransportSettings,
+    add_transport_arguments,
+    transport_from_args,
+)
 
 DEFAULT_HFOV_DEG = 90.0
 

@@ -44,7 +44,7 @@ from common.estimation.coupling import (
 from common.estimation.ekf import EkfSettings, error_angle_covariance_world
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from common.sim.camera import PinholeCamera
-from common.transport import (
+from services.runtime.transport import (
     LatestSlot,
     ServiceRuntime,
     TransportSettings,

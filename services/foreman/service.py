@@ -19,22 +19,22 @@ import zenoh
 
 from common import keys
 from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, Plan, SpeedSource
-from common.dispatch.patchwork import (
+from common.errors import CapatazError
+from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
+from common.yaw.patchwork import (
     PatchWorkError,
     SettingsCache,
     SpectrumCache,
     measure_share,
     merge_measurements,
 )
-from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
-from common.transport import (
+from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
+from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
     add_transport_arguments,
     transport_from_args,
 )
-from services.master.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 
 #: Upper bound of patch indices a foreman accepts.
 MAX_PATCHES = 1 << 16

@@ -45,7 +45,7 @@ from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, encode
 from common.sim.camera import PinholeCamera
 from common.sim.scene import default_flight
-from common.transport import (
+from services.runtime.transport import (
     LatestSlot,
     ServiceRuntime,
     TransportSettings,

@@ -22,19 +22,19 @@ from pydantic import BaseModel, ConfigDict
 
 from common import keys
 from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
-from common.dispatch.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
-from common.transport import (
+from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
+from common.yaw.grid import U8Array
+from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
+from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments
+from services.runtime.transport import (
     LatestSlot,
     ServiceRuntime,
     TransportSettings,
     add_transport_arguments,
     transport_from_args,
 )
-from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
-from common.yaw.grid import U8Array
-from services.master.scatter import FrameWork, Scatter, add_dispatch_arguments
 
 
 class Topology(StrEnum):

@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from common import keys
-from common.transport import ServiceRuntime, TransportSettings, add_transport_arguments
+from services.runtime.transport import ServiceRuntime, TransportSettings, add_transport_arguments
 
 DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
 

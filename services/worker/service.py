@@ -9,17 +9,17 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.dispatch.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
-from common.transport import (
+from common.yaw.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
+from services.runtime.scatter import result_from_measurement
+from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
     WorkQueue,
     add_transport_arguments,
     transport_from_args,
 )
-from services.master.scatter import result_from_measurement
 
 
 class WorkerService(ServiceRuntime):

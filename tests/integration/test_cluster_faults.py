@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.transport import open_session
+from services.runtime.transport import open_session
 from services.up import LocalCluster, YawCollector
 from tests.integration.cluster_helpers import FAULT_FRAMES, reference_yaw_rad, two_by_two
 

@@ -14,7 +14,7 @@ import zenoh
 
 from common import keys
 from common.messages import Health, ImuSample, PatchJob, decode, encode, read_error_reply
-from common.transport import open_session, zbytes
+from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster, YawCollector
 from tests.integration.cluster_helpers import two_by_two
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from common.dispatch import SELF
-from common.transport import open_session
+from services.runtime.transport import open_session
 from services.up import LocalCluster, YawCollector
 from tests.integration.cluster_helpers import two_by_two
 

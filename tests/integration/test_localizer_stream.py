@@ -13,7 +13,7 @@ import pytest
 from common import keys
 from common.messages import PoseEstimate, decode
 from common.sim.scene import default_flight
-from common.transport import open_session, zbytes
+from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 

@@ -10,7 +10,7 @@ import pytest
 
 from common import keys
 from common.messages import Health, Stats, decode
-from common.transport import open_session, zbytes
+from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 

@@ -106,7 +106,7 @@ def test_capataz_up_brings_each_described_cluster_up(path: Path, tmp_path: Path)
 def test_zenoh_config_files_load_and_match_the_transport_settings(name: str) -> None:
     import zenoh
 
-    from common.transport import TransportSettings
+    from services.runtime.transport import TransportSettings
 
     config = zenoh.Config.from_file(str(ROOT / "deploy" / "zenoh" / f"{name}.json5"))
     assert config.get_json("mode") == f'"{name}"'

@@ -18,9 +18,9 @@ from common.estimation.coupling import AttitudeOutput, PoseOutput
 from common.estimation.replay import flight_measurements
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, decode, encode
 from common.sim.flight import Flight, turns_flight
-from common.transport import TransportSettings, open_session, zbytes
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import publish_measurements
+from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import free_port
 
 pytestmark = pytest.mark.zenoh

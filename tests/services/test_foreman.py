@@ -13,11 +13,11 @@ import zenoh
 
 from common import keys
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
-from common.dispatch.patchwork import PatchWorkError
 from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
-from common.transport import Counters, TransportSettings, open_session, zbytes
+from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService
-from services.master.scatter import FrameWork, Scatter
+from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.transport import Counters, TransportSettings, open_session, zbytes
 from services.up import free_port
 from services.worker.service import WorkerService
 

@@ -17,8 +17,8 @@ from common.localization.scoring import ScoringMethod, ScoringParams
 from common.localization.simulation import simulate_run
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, decode, encode
-from common.transport import TransportSettings, open_session, zbytes
 from services.localizer import LocalizerService, LocalizerSettings
+from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import free_port
 
 pytestmark = pytest.mark.zenoh

@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from common import keys
-from common.transport import TransportSettings, open_session
+from services.runtime.transport import TransportSettings, open_session
 from services.up import free_port
 
 pytestmark = pytest.mark.zenoh

@@ -17,10 +17,10 @@ import pytest
 import zenoh
 
 from common.dispatch import SELF, Dispatcher, DispatchSettings
-from common.dispatch.patchwork import PatchMeasurement
 from common.messages import PatchJob, PatchResult, decode, encode
-from common.transport import Counters, TransportSettings, open_session, zbytes
-from services.master.scatter import FrameWork, RoundReport, Scatter
+from common.yaw.patchwork import PatchMeasurement
+from services.runtime.scatter import FrameWork, RoundReport, Scatter
+from services.runtime.transport import Counters, TransportSettings, open_session, zbytes
 from services.up import free_port
 
 N_PATCHES = 6

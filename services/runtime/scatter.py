@@ -22,10 +22,10 @@ import numpy as np
 import zenoh
 
 from common.dispatch import SELF, Balance, Dispatcher, Plan, SpeedSource
-from common.dispatch.patchwork import PatchWorkError
 from common.messages import BlockJob, PatchJob, PatchResult, WireError, decode, encode, read_error_reply
-from common.transport import Counters, zbytes
 from common.yaw.correlation import PatchMeasurement
+from common.yaw.patchwork import PatchWorkError
+from services.runtime.transport import Counters, zbytes
 
 logger = logging.getLogger(__name__)
 

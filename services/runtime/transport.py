@@ -8,7 +8,7 @@
 - Hand-off primitives so that callbacks never block: :class:`LatestSlot` (latest-wins, drops counted)
   and :class:`WorkQueue` (bounded FIFO, refusals counted).
 
-This is the one module of ``common`` that talks to Zenoh: it is the wire, not a core.
+It lives in ``services`` because it talks to Zenoh: ``common`` holds only pure cores.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from common.transport import Counters, LatestSlot, TransportError, TransportSettings, WorkQueue
+from services.runtime.transport import Counters, LatestSlot, TransportError, TransportSettings, WorkQueue
 
 
 def test_settings_from_environment_and_overrides() -> None:

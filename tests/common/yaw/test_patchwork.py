@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from common.dispatch import Dispatcher, DispatchSettings
-from common.dispatch.patchwork import (
+from common.sim.flight import hover_flight
+from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
+from common.yaw.patchwork import (
     PatchWorkError,
     SpectrumCache,
     measure_share,
@@ -14,8 +16,6 @@ from common.dispatch.patchwork import (
     settings_from_wire,
     settings_to_wire,
 )
-from common.sim.flight import hover_flight
-from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
 
 
 @pytest.fixture(scope="module")
