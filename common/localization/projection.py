@@ -65,6 +65,7 @@ class EdgeSamples:
     edge_faces: IntArray
     face_normals: FloatArray
     face_offsets_m: FloatArray
+    edge_smooth: BoolArray
 
     @property
     def n_edges(self) -> int:
@@ -92,6 +93,7 @@ def sample_edges(scene: SceneModel, points_per_edge: int = 8) -> EdgeSamples:
         edge_faces=scene.edge_faces,
         face_normals=scene.face_normals,
         face_offsets_m=scene.face_offsets_m,
+        edge_smooth=scene.edge_smooth,
     )
 
 
@@ -117,12 +119,49 @@ def _rotate(matrices: Float32Array, columns: Float32Array) -> Float32Array:
 
 
 def front_facing_edges(samples: EdgeSamples, p_world_camera_m: FloatArray) -> BoolArray:
-    """Back-face culling (P, E): an edge is kept when one of its adjacent faces faces the camera."""
+    """Back-face culling (P, E): an edge is kept when one of its adjacent faces faces the camera; a smooth
+    edge only where it is a silhouette (exactly one adjacent face towards the camera); a standalone line
+    (no face) always."""
+    n_particles = p_world_camera_m.shape[0]
+    if samples.face_normals.shape[0] == 0:
+        return np.ones((n_particles, samples.n_edges), dtype=bool)
     front = np.einsum("pi,fi->pf", p_world_camera_m, samples.face_normals) - samples.face_offsets_m > 0.0
-    first = front[:, samples.edge_faces[:, 0]]
-    second_ids = samples.edge_faces[:, 1]
+    first_ids, second_ids = samples.edge_faces[:, 0], samples.edge_faces[:, 1]
+    first = front[:, np.maximum(first_ids, 0)] & (first_ids >= 0)[None, :]
     second = front[:, np.maximum(second_ids, 0)] & (second_ids >= 0)[None, :]
-    return np.asarray(first | second)
+    keep = np.where(samples.edge_smooth[None, :], first != second, first | second)
+    return np.asarray(keep | (first_ids < 0)[None, :])
+
+
+def _frustum_tangents(camera: CameraModel) -> tuple[float, float, float, float]:
+    """Tangents of the half-angles (left, right, top, bottom) of the field the image sees, through the lens
+    (the image border undistorted; a small margin)."""
+    if not camera.is_distorted:
+        return (
+            (camera.cx + 0.5) / camera.fx,
+            (camera.width - 0.5 - camera.cx) / camera.fx,
+            (camera.cy + 0.5) / camera.fy,
+            (camera.height - 0.5 - camera.cy) / camera.fy,
+        )
+    w, h = camera.width - 0.5, camera.height - 0.5
+    t = np.linspace(0.0, 1.0, 17)
+    border = np.concatenate(
+        [
+            np.stack([-0.5 + t * (w + 0.5), np.full_like(t, -0.5)], 1),
+            np.stack([-0.5 + t * (w + 0.5), np.full_like(t, h)], 1),
+            np.stack([np.full_like(t, -0.5), -0.5 + t * (h + 0.5)], 1),
+            np.stack([np.full_like(t, w), -0.5 + t * (h + 0.5)], 1),
+        ]
+    )
+    rays = camera.rays(border)
+    rays = rays[np.all(np.isfinite(rays), axis=1)]
+    margin = 1.02
+    return (
+        float(-rays[:, 0].min() * margin),
+        float(rays[:, 0].max() * margin),
+        float(-rays[:, 1].min() * margin),
+        float(rays[:, 1].max() * margin),
+    )
 
 
 def frustum_edges(
@@ -140,10 +179,7 @@ def frustum_edges(
     r = samples.radii_m.astype(np.float32)[None, :]
     # half-angle tangents of the four sides (pixel centres 0 .. width-1, half a pixel of margin); a sphere is
     # outside when its centre lies more than r beyond one side plane
-    t_left = (camera.cx + 0.5) / camera.fx
-    t_right = (camera.width - 0.5 - camera.cx) / camera.fx
-    t_top = (camera.cy + 0.5) / camera.fy
-    t_bottom = (camera.height - 0.5 - camera.cy) / camera.fy
+    t_left, t_right, t_top, t_bottom = _frustum_tangents(camera)
     keep = z > np.float32(near_m) - r
     for tangent, lateral, sign in (
         (t_right, x, -1.0),
@@ -182,6 +218,17 @@ class ProjectedSamples:
         return int(self.u_px.shape[0])
 
 
+def _through_lens(u: Float32Array, v: Float32Array, camera: CameraModel) -> tuple[Float32Array, Float32Array]:
+    """Pinhole pixels -> pixels through the camera's lens (its distortion model)."""
+    xy = np.stack([(u.ravel() - camera.cx) / camera.fx, (v.ravel() - camera.cy) / camera.fy], axis=1)
+    finite = np.all(np.isfinite(xy), axis=1)
+    xy_d = np.full(xy.shape, np.nan)
+    xy_d[finite] = camera.distortion.distort(xy[finite].astype(np.float64))
+    u_d = (camera.fx * xy_d[:, 0] + camera.cx).astype(np.float32).reshape(u.shape)
+    v_d = (camera.fy * xy_d[:, 1] + camera.cy).astype(np.float32).reshape(v.shape)
+    return u_d, v_d
+
+
 def _subset(samples: EdgeSamples, edge_ids: IntArray) -> EdgeSamples:
     """The same samples restricted to some edges (faces unchanged)."""
     return replace(
@@ -205,6 +252,22 @@ def project_samples(
     """Project every edge's sample points into every particle's camera (vectorised over P x E x S)."""
     poses = check_states(states)
     R_camera_world, p_world_camera = camera_poses(poses, R_body_camera)
+    return project_posed_samples(samples, R_camera_world, p_world_camera, camera, near_m, with_normals)
+
+
+def project_posed_samples(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    p_world_camera: FloatArray,
+    camera: CameraModel,
+    near_m: float = NEAR_PLANE_M,
+    with_normals: bool = False,
+    visible: BoolArray | None = None,
+) -> ProjectedSamples:
+    """Project every edge's sample points into the cameras ``R_camera_world`` (P, 3, 3) at
+    ``p_world_camera`` (P, 3), through the lens (the camera's distortion applied to the sample points).
+    ``visible`` (E, S), when given, drops the points hidden by the model's own faces (hidden-line removal,
+    :func:`~common.localization.visibility.visible_points`)."""
     front = front_facing_edges(samples, p_world_camera)
     candidates = np.flatnonzero(front.any(axis=0))
     keep_candidates = front[:, candidates] & frustum_edges(
@@ -213,7 +276,7 @@ def project_samples(
     seen = keep_candidates.any(axis=0)
     edge_ids = candidates[seen]
     edge_keep = keep_candidates[:, seen]
-    n_particles, n_kept, n_points = poses.shape[0], edge_ids.size, samples.points_per_edge
+    n_particles, n_kept, n_points = R_camera_world.shape[0], edge_ids.size, samples.points_per_edge
     width, height = int(camera.width), int(camera.height)
     points = samples.points_world_m[edge_ids].reshape(-1, 3).T.astype(np.float32)  # (3, E' S)
     # K folded into the rotation: one matmul gives (u z, v z, z) of every point in every particle's camera
@@ -229,10 +292,14 @@ def project_samples(
         inv_z = np.float32(1.0) / z
         u = homogeneous[:, 0] * inv_z
         v = homogeneous[:, 1] * inv_z
+        if camera.is_distorted:
+            u, v = _through_lens(u, v, camera)
         valid = in_front & (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
         shape = (n_particles, n_kept, n_points)
         valid = valid.reshape(shape)
         valid &= edge_keep[:, :, None]
+        if visible is not None:
+            valid &= visible[edge_ids][None, :, :]
         column = (u + np.float32(0.5)).astype(np.int32).reshape(shape)
         row = (v + np.float32(0.5)).astype(np.int32).reshape(shape)
     row *= np.int32(width)

@@ -74,6 +74,9 @@ class ImageEdges:
     distance_px: Float32Array
     distance_lookup: Float32Array
     edge_lookup: UInt8Array
+    #: unit image gradient (x, y) of every pixel (H, W) each, when extracted ``with_gradients``
+    gradient_x: Float32Array | None = None
+    gradient_y: Float32Array | None = None
 
     @property
     def width(self) -> int:
@@ -103,11 +106,23 @@ def check_gray_image(image: npt.ArrayLike, name: str = "image") -> UInt8Array:
 
 
 def extract_image_edges(
-    image: npt.ArrayLike, canny_low: float = 40.0, canny_high: float = 100.0
+    image: npt.ArrayLike, canny_low: float = 40.0, canny_high: float = 100.0, with_gradients: bool = False
 ) -> ImageEdges:
-    """Canny edges of a grey uint8 image and the distance (px) of every pixel to the nearest edge pixel."""
+    """Canny edges of a grey uint8 image and the distance (px) of every pixel to the nearest edge pixel;
+    ``with_gradients`` adds the unit Sobel gradient direction (for oriented edge matching)."""
     gray = check_gray_image(image)
-    edges = cv2.Canny(gray, canny_low, canny_high, L2gradient=True)
+    gradient_x: Float32Array | None = None
+    gradient_y: Float32Array | None = None
+    if with_gradients:
+        dx = cv2.Sobel(gray, cv2.CV_16S, 1, 0)
+        dy = cv2.Sobel(gray, cv2.CV_16S, 0, 1)
+        edges = cv2.Canny(dx, dy, canny_low, canny_high, L2gradient=True)
+        gx, gy = dx.astype(np.float32), dy.astype(np.float32)
+        norm = cv2.magnitude(gx, gy)
+        norm = np.maximum(norm, np.float32(1e-6))
+        gradient_x, gradient_y = gx / norm, gy / norm
+    else:
+        edges = cv2.Canny(gray, canny_low, canny_high, L2gradient=True)
     distance: Float32Array = np.asarray(
         cv2.distanceTransform(
             np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
@@ -120,6 +135,8 @@ def extract_image_edges(
         distance_px=distance,
         distance_lookup=np.append(distance.ravel(), np.float32(np.inf)),
         edge_lookup=np.append(edge_map.ravel(), np.uint8(0)),
+        gradient_x=gradient_x,
+        gradient_y=gradient_y,
     )
 
 

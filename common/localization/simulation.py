@@ -12,7 +12,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.camera import CameraModel
-from common.localization.model import SceneModel, default_scene
+from common.localization.model import SceneModel
+from common.localization.office import default_scene
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
 from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight

@@ -27,12 +27,11 @@ from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler, wrap_angle_rad
 from common.localization.model import SceneModel
 from common.localization.projection import NEAR_PLANE_M, check_states
+from common.localization.visibility import RasterLayers, rasterize_faces
 
 FloatArray = npt.NDArray[np.float64]
 UInt8Array = npt.NDArray[np.uint8]
 IntArray = npt.NDArray[np.int32]
-
-_SUBPIXEL_BITS = 4
 
 
 @dataclass(frozen=True)
@@ -46,30 +45,7 @@ class RenderOptions:
     noise_sigma: float = 0.0
     blur_sigma_px: float = 0.0
     background: float = 0.0
-
-
-@dataclass(frozen=True)
-class RasterLayers:
-    """Per pixel: index of the visible face (-1 for none) and its inverse depth (1/m, 0 for none)."""
-
-    face_id: IntArray
-    inverse_depth: FloatArray
-
-
-def _clip_near(polygon_camera: FloatArray, near_m: float) -> FloatArray:
-    """Sutherland-Hodgman clipping of a camera-frame polygon (K, 3) to ``z >= near_m``."""
-    out: list[FloatArray] = []
-    count = polygon_camera.shape[0]
-    for i in range(count):
-        a = polygon_camera[i]
-        b = polygon_camera[(i + 1) % count]
-        a_in, b_in = a[2] >= near_m, b[2] >= near_m
-        if a_in:
-            out.append(a)
-        if a_in != b_in:
-            t = (near_m - a[2]) / (b[2] - a[2])
-            out.append(a + t * (b - a))
-    return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+    texture_frequency: float = 1.0
 
 
 def rasterize_scene(
@@ -82,44 +58,7 @@ def rasterize_scene(
     """Visible face and inverse depth of every pixel (z-buffer) from one body pose ``(x, y, z, r, p, y)``."""
     pose = check_states(state, "state")[0]
     R_world_camera = matrix_from_euler(pose[3], pose[4], pose[5]) @ R_body_camera
-    R_camera_world = R_world_camera.T
-    p_world_camera = pose[:3]
-    height, width = int(camera.height), int(camera.width)
-    face_id = np.full((height, width), -1, dtype=np.int32)
-    inverse_depth = np.zeros((height, width), dtype=np.float64)
-    x_norm = (np.arange(width) - camera.cx) / camera.fx
-    y_norm = (np.arange(height) - camera.cy) / camera.fy
-    limit = 1e6 / (1 << _SUBPIXEL_BITS)
-    for f in range(scene.n_faces):
-        normal = scene.face_normals[f]
-        if float(normal @ p_world_camera) - scene.face_offsets_m[f] <= 1e-9:
-            continue  # back face
-        polygon = (scene.face_polygon_world_m(f) - p_world_camera) @ R_camera_world.T
-        polygon = _clip_near(polygon, near_m)
-        if polygon.shape[0] < 3:
-            continue
-        u = camera.fx * polygon[:, 0] / polygon[:, 2] + camera.cx
-        v = camera.fy * polygon[:, 1] / polygon[:, 2] + camera.cy
-        x0, x1 = max(int(np.floor(u.min())), 0), min(int(np.ceil(u.max())) + 1, width)
-        y0, y1 = max(int(np.floor(v.min())), 0), min(int(np.ceil(v.max())) + 1, height)
-        if x0 >= x1 or y0 >= y1:
-            continue
-        mask = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
-        pts = np.stack([np.clip(u - x0, -limit, limit), np.clip(v - y0, -limit, limit)], axis=1)
-        cv2.fillPoly(
-            mask, [np.round(pts * (1 << _SUBPIXEL_BITS)).astype(np.int32)], 1, cv2.LINE_8, _SUBPIXEL_BITS
-        )
-        # plane n_c . X = d_c in the camera frame; along the ray (x_n, y_n, 1): 1/z = (n_c . ray) / d_c
-        normal_camera = R_camera_world @ normal
-        d_camera = float(normal_camera @ polygon[0])
-        inv_z = (
-            normal_camera[0] * x_norm[None, x0:x1] + normal_camera[1] * y_norm[y0:y1, None] + normal_camera[2]
-        ) / d_camera
-        region_depth = inverse_depth[y0:y1, x0:x1]
-        closer = (mask > 0) & (inv_z > region_depth)
-        region_depth[closer] = inv_z[closer]
-        face_id[y0:y1, x0:x1][closer] = f
-    return RasterLayers(face_id=face_id, inverse_depth=inverse_depth)
+    return rasterize_faces(scene, R_world_camera.T, pose[:3], camera, near_m)
 
 
 def face_shades(scene: SceneModel, options: RenderOptions) -> FloatArray:
@@ -130,9 +69,9 @@ def face_shades(scene: SceneModel, options: RenderOptions) -> FloatArray:
     return np.asarray(255.0 * scene.face_albedo * (options.ambient + options.diffuse * half_lambert))
 
 
-def _texture(points_world_m: FloatArray) -> FloatArray:
-    """Smooth world-attached pattern in [-1, 1] (a product of three plane waves)."""
-    x, y, z = points_world_m[..., 0], points_world_m[..., 1], points_world_m[..., 2]
+def _texture(points_world_m: FloatArray, frequency: float = 1.0) -> FloatArray:
+    """Smooth world-attached pattern in [-1, 1] (a product of three plane waves; ``frequency`` scales it)."""
+    x, y, z = (frequency * points_world_m[..., i] for i in range(3))
     return np.asarray(
         np.sin(7.3 * x + 3.1 * y + 5.7 * z)
         * np.sin(4.1 * x - 6.9 * y + 2.3 * z + 1.3)
@@ -149,19 +88,37 @@ def render_scene(
     R_body_camera: FloatArray = R_BODY_CAMERA_FORWARD,
 ) -> UInt8Array:
     """Grey uint8 image (H, W) of the scene from a body pose; ``rng`` is needed when ``noise_sigma > 0``."""
-    layers = rasterize_scene(scene, state, camera, R_body_camera)
+    pose = check_states(state, "state")[0]
+    R_world_camera = matrix_from_euler(pose[3], pose[4], pose[5]) @ R_body_camera
+    return render_view(scene, R_world_camera, pose[:3], camera, options, rng)
+
+
+def render_view(
+    scene: SceneModel,
+    R_world_camera: FloatArray,
+    p_world_camera_m: FloatArray,
+    camera: CameraModel,
+    options: RenderOptions = RenderOptions(),
+    rng: np.random.Generator | None = None,
+) -> UInt8Array:
+    """Grey uint8 image (H, W) of the scene from a camera pose, through the camera's lens (a distorted camera
+    gets the pinhole rendering remapped by its distortion model)."""
+    pinhole = camera.pinhole()
+    layers = rasterize_faces(scene, R_world_camera.T, p_world_camera_m, pinhole)
     shades = np.append(face_shades(scene, options), options.background)
     image = shades[layers.face_id]  # face -1 picks the background
     if options.texture_amplitude > 0.0:
-        pose = check_states(state, "state")[0]
-        R_world_camera = matrix_from_euler(pose[3], pose[4], pose[5]) @ R_body_camera
         hit = layers.face_id >= 0
         rows, cols = np.nonzero(hit)
         rays = np.stack(
             [(cols - camera.cx) / camera.fx, (rows - camera.cy) / camera.fy, np.ones(cols.size)], axis=1
         )
-        points = pose[:3] + (rays / layers.inverse_depth[rows, cols][:, None]) @ R_world_camera.T
-        image[rows, cols] += options.texture_amplitude * _texture(points)
+        # einsum, not a BLAS matmul: (N x 3) @ (3 x 3) woke the BLAS thread pool (240 ms on a busy host)
+        scaled = rays / layers.inverse_depth[rows, cols][:, None]
+        points = p_world_camera_m + np.einsum("ni,ji->nj", scaled, R_world_camera)
+        image[rows, cols] += options.texture_amplitude * _texture(points, options.texture_frequency)
+    if camera.is_distorted:
+        image = cv2.remap(image.astype(np.float32), *_undistort_maps(camera), cv2.INTER_LINEAR)
     if options.blur_sigma_px > 0.0:
         image = cv2.GaussianBlur(image, (0, 0), options.blur_sigma_px)
     if options.noise_sigma > 0.0:
@@ -169,6 +126,15 @@ def render_scene(
             raise InputError("render_scene needs an rng when noise_sigma > 0")
         image = image + rng.normal(0.0, options.noise_sigma, size=image.shape)
     return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def _undistort_maps(camera: CameraModel) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """For every pixel of the distorted image, where it falls in the pinhole twin (cv2.remap's maps)."""
+    rows, cols = np.mgrid[0 : camera.height, 0 : camera.width]
+    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64)
+    pinhole = np.nan_to_num(camera.undistort_px(pixels), nan=-1e4)
+    shape = (camera.height, camera.width)
+    return pinhole[:, 0].reshape(shape).astype(np.float32), pinhole[:, 1].reshape(shape).astype(np.float32)
 
 
 #: Degradations of the embedded default flight's frames.

@@ -28,7 +28,7 @@ from common import keys
 from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
-from common.localization.model import default_scene
+from common.localization.office import default_scene
 from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode

@@ -32,7 +32,8 @@ from common.geometry import (
     euler_from_quaternion,
     quaternion_from_euler,
 )
-from common.localization.model import SceneModel, default_scene, scene_from_json
+from common.localization.model import SceneModel, scene_from_json
+from common.localization.office import default_scene
 from common.localization.particle_filter import (
     ParticleFilter,
     ParticleFilterConfig,

@@ -10,7 +10,8 @@ import pytest
 
 from common.errors import CapatazError
 from common.geometry import matrix_from_euler, matrix_from_quaternion, quaternion_from_euler
-from common.localization.model import SceneModelError, default_scene, scene_to_dict
+from common.localization.model import SceneModelError, scene_to_dict
+from common.localization.office import default_scene
 from common.localization.particle_filter import PoseStatistics
 from common.messages import PoseEstimate
 from services.localizer import LocalizerSettings, odometry_between, pose_message

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from common.camera import CameraModel
-from common.localization.model import SceneModel, default_scene
+from common.localization.model import SceneModel
+from common.localization.office import default_scene
 
 
 @pytest.fixture(scope="session")

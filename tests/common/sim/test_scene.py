@@ -7,7 +7,8 @@ import pytest
 
 from common.camera import CameraModel
 from common.errors import InputError
-from common.localization.model import build_scene, default_scene
+from common.localization.model import build_scene
+from common.localization.office import default_scene
 from common.sim.scene import (
     DEFAULT_FLIGHT_RENDER,
     RenderOptions,

@@ -1,0 +1,169 @@
+"""Local refinement of one pose against a frame's edges, and the texture-proof match measure.
+
+Moving-edge style (as ViSP's model-based tracker): every visible sample point of the model searches along its
+projected edge's normal, both ways up to ``search_px``, for the nearest image edge pixel whose gradient is
+parallel to that normal (within ``max_angle_deg``; either polarity). Image edges of another direction --
+texture, clutter crossing the model edge -- are not matches. The signed offsets ``d_i`` are point-to-line
+residuals; Gauss-Newton with Tukey weights solves ``J dxi = d`` for a twist ``dxi = (v, w)`` of the camera
+(``X_camera' = Exp(w) X_camera + v``), ``J_i = n_i^T (du/dX)(X) [I, -[X]x]``, re-searching at every
+iteration (the search radius halves after the first).
+
+:func:`match_fraction` is the loss measure: the fraction of visible sample points with such an oriented
+match within ``match_px``. A pose that is off, or an image without the object, scores low however much
+texture it has: texture seldom runs parallel to every model edge at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from common.camera import CameraModel
+from common.localization.pose import rotation_matrices
+from common.localization.projection import EdgeSamples, project_posed_samples
+from common.localization.scoring import ImageEdges
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Settings of :func:`refine_pose` and :func:`match_fraction`."""
+
+    iterations: int = 5
+    search_px: int = 12
+    max_angle_deg: float = 25.0
+    match_px: float = 2.5
+    tukey_px: float = 4.0
+    min_points: int = 12
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """A refined pose (``R_camera_world``, ``t_camera_world_m``), its match fraction, the number of visible
+    points, and the covariance (6, 6) of the twist ``(v, w)`` from the last Gauss-Newton step."""
+
+    R_camera_world: FloatArray
+    t_camera_world_m: FloatArray
+    match_fraction: float
+    n_points: int
+    covariance: FloatArray
+
+
+def _oriented_offsets(
+    u: FloatArray, v: FloatArray, nu: FloatArray, nv: FloatArray, edges: ImageEdges, radius: int, cos_max: float
+) -> FloatArray:
+    """Signed offset (px) along each normal to the nearest oriented edge pixel, NaN where none within radius."""
+    assert edges.gradient_x is not None and edges.gradient_y is not None
+    steps = np.concatenate([[0], np.stack([np.arange(1, radius + 1), -np.arange(1, radius + 1)], 1).ravel()])
+    su = u[:, None] + steps[None, :] * nu[:, None]
+    sv = v[:, None] + steps[None, :] * nv[:, None]
+    col = np.rint(su).astype(np.int64)
+    row = np.rint(sv).astype(np.int64)
+    inside = (col >= 0) & (col < edges.width) & (row >= 0) & (row < edges.height)
+    col = np.where(inside, col, 0)
+    row = np.where(inside, row, 0)
+    is_edge = inside & (edges.edge_map[row, col] > 0)
+    parallel = np.abs(edges.gradient_x[row, col] * nu[:, None] + edges.gradient_y[row, col] * nv[:, None])
+    hit = is_edge & (parallel >= cos_max)
+    first = np.argmax(hit, axis=1)  # steps are ordered by |offset|: the first hit is the nearest
+    found = hit[np.arange(hit.shape[0]), first]
+    return np.where(found, steps[first].astype(np.float64), np.nan)
+
+
+def _visible_projection(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    t_camera_world: FloatArray,
+    camera: CameraModel,
+    visible: BoolArray | None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Pixels, unit normals and camera-frame points of the valid sample points of one pose."""
+    p_world_camera = -R_camera_world.T @ t_camera_world
+    proj = project_posed_samples(
+        samples, R_camera_world[None], p_world_camera[None], camera, with_normals=True, visible=visible
+    )
+    assert proj.normal_u is not None and proj.normal_v is not None
+    valid = proj.valid[0]
+    points = samples.points_world_m[proj.edge_ids][valid]
+    X = points @ R_camera_world.T + t_camera_world
+    return (
+        proj.u_px[0][valid].astype(np.float64),
+        proj.v_px[0][valid].astype(np.float64),
+        proj.normal_u[0][valid].astype(np.float64),
+        proj.normal_v[0][valid].astype(np.float64),
+        X,
+    )
+
+
+def match_fraction(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    t_camera_world: FloatArray,
+    camera: CameraModel,
+    edges: ImageEdges,
+    params: RefineParams = RefineParams(),
+    visible: BoolArray | None = None,
+) -> tuple[float, int]:
+    """Fraction of the visible sample points with a same-direction image edge within ``match_px``, and the
+    number of visible points (0 gives a fraction of 0)."""
+    u, v, nu, nv, _ = _visible_projection(samples, R_camera_world, t_camera_world, camera, visible)
+    if u.size == 0:
+        return 0.0, 0
+    radius = int(np.ceil(params.match_px))
+    d = _oriented_offsets(u, v, nu, nv, edges, radius, float(np.cos(np.radians(params.max_angle_deg))))
+    return float(np.mean(np.abs(np.nan_to_num(d, nan=np.inf)) <= params.match_px)), int(u.size)
+
+
+def refine_pose(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    t_camera_world: FloatArray,
+    camera: CameraModel,
+    edges: ImageEdges,
+    params: RefineParams = RefineParams(),
+    visible: BoolArray | None = None,
+) -> Refinement:
+    """Gauss-Newton on oriented point-to-edge offsets from one pose (see the module docstring)."""
+    R, t = R_camera_world.copy(), t_camera_world.copy()
+    cos_max = float(np.cos(np.radians(params.max_angle_deg)))
+    radius = params.search_px
+    covariance = np.full((6, 6), np.nan)
+    for _ in range(params.iterations):
+        u, v, nu, nv, X = _visible_projection(samples, R, t, camera, visible)
+        if u.size < params.min_points:
+            break
+        d = _oriented_offsets(u, v, nu, nv, edges, radius, cos_max)
+        ok = np.isfinite(d)
+        if ok.sum() < params.min_points:
+            break
+        d, nu, nv, X = d[ok], nu[ok], nv[ok], X[ok]
+        x, y, z = X[:, 0], X[:, 1], X[:, 2]
+        inv_z = 1.0 / z
+        # du/dX (2 x 3) folded with the normal: a = n^T du/dX
+        a = np.stack([nu * camera.fx * inv_z, nv * camera.fy * inv_z, -(nu * camera.fx * x + nv * camera.fy * y) * inv_z**2], 1)
+        # dX/dxi = [I, -[X]x]: n^T du/dX [I, -[X]x] = [a, X x a]
+        J = np.concatenate([a, np.cross(X, a)], axis=1)
+        scale = params.tukey_px
+        w = np.where(np.abs(d) < scale, (1.0 - (d / scale) ** 2) ** 2, 0.0)
+        H = (J * w[:, None]).T @ J
+        g = (J * w[:, None]).T @ d
+        trace = np.trace(H)
+        if not np.isfinite(trace) or trace <= 0.0:
+            break
+        H_damped = H + 1e-6 * trace * np.eye(6)
+        step = np.linalg.solve(H_damped, g)
+        dR = rotation_matrices(step[3:][None, :])[0]
+        R = dR @ R
+        t = dR @ t + step[:3]
+        dof = max(float(w.sum()) - 6.0, 1.0)
+        sigma2 = float(np.sum(w * d * d) / dof) + 0.25  # pixel quantisation floor (1/2 px)
+        covariance = sigma2 * np.linalg.inv(H_damped)
+        radius = max(params.search_px // 2, int(np.ceil(params.match_px)) + 1)
+        if np.linalg.norm(step[:3]) < 1e-5 and np.linalg.norm(step[3:]) < 1e-5:
+            break
+    fraction, n_points = match_fraction(samples, R, t, camera, edges, params, visible)
+    return Refinement(R, t, fraction, n_points, covariance)

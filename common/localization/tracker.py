@@ -1,0 +1,394 @@
+"""Model tracker: the particle filter of paper B made to work without external odometry.
+
+State in, state out (:class:`TrackerState`); one call per frame::
+
+    tracker = ModelTracker(scene, camera, TrackerConfig())
+    state = tracker.start(initial_pose)                       # a CameraPose; spreads from the scene scale
+    state = tracker.step(state, edges, dt_s, rng)             # edges = tracker.edges(image)
+    state.pose, state.covariance, state.status                # estimate, 6x6 (position, error angles)
+
+Per frame:
+
+1. **Motion model** (:meth:`ModelTracker.predict`): constant velocity and angular rate estimated from the
+   tracker's own recent estimates (exponentially smoothed), process noise in physical units per second
+   (``velocity_noise_m_s``, ``angular_noise_rad_s``: the unmodelled velocity), or a given odometry.
+2. **Annealed weighting** (Deutscher et al. 2000): ``layers`` rounds of weighting with ``exp(beta l)``,
+   ``beta`` chosen so that the effective sample size is half the particles (1 on the last layer unless
+   that collapses the cloud), resampling and diffusion with a noise that halves per layer. A sharp
+   likelihood no longer starves the cloud.
+3. **Local refinement** of the best particle (:mod:`~common.localization.refine`): Gauss-Newton on oriented
+   point-to-edge offsets; the refined pose replaces the worst particle and is the estimate when it matches.
+4. **Loss detection**: the match fraction (same-direction edges within 2.5 px) of the estimate; below
+   ``lost_match`` the frame is bad. Bad frames switch the status to ``searching`` and restart the search
+   around the last good pose with a spread growing by ``spread_growth`` per attempt; after ``lost_frames``
+   bad frames the status is ``lost`` (the search goes on).
+
+Hidden-line removal: sample points hidden by the model's own faces from the predicted pose are not scored
+(:func:`~common.localization.visibility.visible_points`).
+
+Start and recovery search ``search_candidates`` poses uniformly in the box ``pose +- spread`` (position per
+axis, rotation vector per axis), annealed over ``search_layers``. The default spreads and noises scale with
+the scene: ``position_spread_m = 0.1 d`` and ``velocity_noise_m_s = 0.2 d / s`` for a camera ``d`` metres
+from the model's centre; angles do not scale.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from common.camera import CameraModel
+from common.errors import InputError
+from common.localization.model import SceneModel
+from common.localization.pose import CameraPose, mean_rotation, perturb, rotation_vectors
+from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
+from common.localization.refine import RefineParams, refine_pose
+from common.localization.scoring import ImageEdges, ScoringParams, extract_image_edges, score_particles
+from common.localization.visibility import visible_points
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class TrackingStatus(enum.Enum):
+    """What the estimate is worth: ``tracking`` (matched), ``searching`` (a few bad frames, re-searching
+    around the last good pose), ``lost`` (more bad frames; still searching with a wide spread)."""
+
+    TRACKING = "tracking"
+    SEARCHING = "searching"
+    LOST = "lost"
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring)."""
+
+    n_particles: int = 200
+    points_per_edge: int = 8
+    layers: int = 2
+    scoring: ScoringParams = field(default_factory=ScoringParams)
+    refine: RefineParams = field(default_factory=RefineParams)
+    position_spread_m: float | None = None
+    angle_spread_rad: float = float(np.radians(8.0))
+    velocity_noise_m_s: float | None = None
+    angular_noise_rad_s: float = float(np.radians(25.0))
+    search_candidates: int = 2000
+    search_layers: int = 5
+    velocity_smoothing: float = 0.7
+    lost_match: float = 0.4
+    lost_frames: int = 10
+    spread_growth: float = 1.4
+    max_spread_factor: float = 3.0
+    hidden_line_removal: bool = True
+    chunk_particles: int = 256
+
+    def __post_init__(self) -> None:
+        if self.n_particles < 2 or self.layers < 1 or self.search_layers < 1:
+            raise InputError("need n_particles >= 2, layers >= 1 and search_layers >= 1")
+        if self.search_candidates < self.n_particles:
+            raise InputError("search_candidates must be >= n_particles")
+        for name in ("position_spread_m", "velocity_noise_m_s"):
+            value = getattr(self, name)
+            if value is not None and not (np.isfinite(value) and value > 0.0):
+                raise InputError(f"{name} must be positive, got {value}")
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """Particles (centres (P, 3), ``R_world_camera`` (P, 3, 3)), the estimate and the motion model."""
+
+    positions_m: FloatArray
+    rotations: FloatArray
+    pose: CameraPose
+    covariance: FloatArray
+    velocity_m_s: FloatArray
+    angular_rate_rad_s: FloatArray
+    status: TrackingStatus
+    match: float
+    last_good: CameraPose
+    bad_frames: int = 0
+    search_pending: bool = True
+    spread_factor: float = 1.0
+    frames: int = 0
+    recoveries: int = 0
+
+
+class ModelTracker:
+    """Tracker against a known model; holds only immutable precomputed data (no tracking state)."""
+
+    def __init__(self, scene: SceneModel, camera: CameraModel, config: TrackerConfig | None = None) -> None:
+        self.scene = scene
+        self.camera = camera
+        self.config = config or TrackerConfig()
+        self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
+
+    # -- set-up ---------------------------------------------------------------------------------------
+    def edges(self, image: npt.ArrayLike) -> ImageEdges:
+        """The frame's edges as the tracker needs them (with gradient directions)."""
+        return extract_image_edges(image, with_gradients=True)
+
+    def scales(self, pose: CameraPose) -> tuple[float, float]:
+        """Position spread (m) and velocity noise (m/s) for a camera at ``pose`` (configured or scaled)."""
+        distance = max(float(np.linalg.norm(pose.p_world_camera_m - self.scene.centre_world_m)), 1e-3)
+        cfg = self.config
+        spread = cfg.position_spread_m if cfg.position_spread_m is not None else 0.1 * distance
+        noise = cfg.velocity_noise_m_s if cfg.velocity_noise_m_s is not None else 0.2 * distance
+        return spread, noise
+
+    def start(self, pose: CameraPose) -> TrackerState:
+        """A state whose first frame searches around ``pose``."""
+        n = self.config.n_particles
+        return TrackerState(
+            positions_m=np.repeat(pose.p_world_camera_m[None], n, axis=0),
+            rotations=np.repeat(pose.R_world_camera[None], n, axis=0),
+            pose=pose,
+            covariance=np.full((6, 6), np.nan),
+            velocity_m_s=np.zeros(3),
+            angular_rate_rad_s=np.zeros(3),
+            status=TrackingStatus.SEARCHING,
+            match=0.0,
+            last_good=pose,
+        )
+
+    # -- prediction -----------------------------------------------------------------------------------
+    def predict(
+        self,
+        state: TrackerState,
+        dt_s: float,
+        rng: np.random.Generator,
+        velocity_m_s: npt.ArrayLike | None = None,
+        angular_rate_rad_s: npt.ArrayLike | None = None,
+    ) -> TrackerState:
+        """Constant velocity and angular rate (the tracker's own, or given odometry) plus process noise."""
+        if not np.isfinite(dt_s) or dt_s < 0.0:
+            raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+        v = state.velocity_m_s if velocity_m_s is None else np.asarray(velocity_m_s, dtype=np.float64)
+        w = state.angular_rate_rad_s if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, float)
+        if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise InputError("velocity and angular rate must be 3 finite numbers each")
+        _, noise_m_s = self.scales(state.pose)
+        n = state.positions_m.shape[0]
+        positions = state.positions_m + v * dt_s + rng.normal(size=(n, 3)) * (noise_m_s * dt_s)
+        turns = w * dt_s + rng.normal(size=(n, 3)) * (self.config.angular_noise_rad_s * dt_s)
+        rotations = perturb(state.rotations, turns)
+        pose = CameraPose(
+            state.pose.p_world_camera_m + v * dt_s, perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0]
+        )
+        return replace(state, positions_m=positions, rotations=rotations, pose=pose)
+
+    # -- weighting ------------------------------------------------------------------------------------
+    def log_likelihood(
+        self, positions: FloatArray, rotations: FloatArray, edges: ImageEdges, visible: npt.NDArray[np.bool_] | None
+    ) -> FloatArray:
+        """log W (P,) of the configured scoring for every pose, in blocks of ``chunk_particles``."""
+        chunk = max(1, self.config.chunk_particles)
+        params = self.config.scoring
+        from common.localization.scoring import ScoringMethod  # local: only the method test needs it
+
+        out = []
+        for s in range(0, positions.shape[0], chunk):
+            R_cw = np.swapaxes(rotations[s : s + chunk], 1, 2)
+            proj = project_posed_samples(
+                self.samples,
+                R_cw,
+                positions[s : s + chunk],
+                self.camera,
+                with_normals=params.method is ScoringMethod.NEAREST_EDGE,
+                visible=visible,
+            )
+            out.append(score_particles(proj, edges, params).log_weight)
+        return np.concatenate(out)
+
+    def anneal(
+        self,
+        positions: FloatArray,
+        rotations: FloatArray,
+        edges: ImageEdges,
+        rng: np.random.Generator,
+        layers: int,
+        noise: tuple[float, float],
+        keep: int,
+        visible: npt.NDArray[np.bool_] | None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Annealed importance weighting (Deutscher et al.): per layer weigh with ``exp(beta l)`` at an
+        effective sample size of half the cloud, resample ``keep`` poses, diffuse with a halving noise
+        (position m, angle rad); the last layer is weighed and returned with its log weights."""
+        for layer in range(layers):
+            loglik = self.log_likelihood(positions, rotations, edges, visible)
+            last = layer == layers - 1
+            beta = _beta_for_ess(loglik, 0.5)
+            logw = beta * loglik
+            if last:
+                return positions, rotations, logw
+            weights = np.exp(logw - logw.max())
+            weights /= weights.sum()
+            idx = _systematic(weights, keep, rng)
+            scale = 0.5 ** (layer + 1)
+            positions = positions[idx] + rng.normal(size=(keep, 3)) * (noise[0] * scale)
+            rotations = perturb(rotations[idx], rng.normal(size=(keep, 3)) * (noise[1] * scale))
+        raise AssertionError("unreachable")
+
+    # -- one frame ------------------------------------------------------------------------------------
+    def step(
+        self,
+        state: TrackerState,
+        edges: ImageEdges,
+        dt_s: float,
+        rng: np.random.Generator,
+        velocity_m_s: npt.ArrayLike | None = None,
+        angular_rate_rad_s: npt.ArrayLike | None = None,
+    ) -> TrackerState:
+        """Predict (unless a search is pending), weigh (annealed), refine, detect loss, update the motion
+        model."""
+        if edges.width != self.camera.width or edges.height != self.camera.height:
+            raise InputError(
+                f"image edges are {edges.width}x{edges.height}, the camera is {self.camera.width}x{self.camera.height}"
+            )
+        if edges.gradient_x is None:
+            raise InputError("the tracker needs edges with gradients (ModelTracker.edges)")
+        cfg = self.config
+        previous = state.pose
+        spread_m, noise_m_s = self.scales(state.last_good)
+        n = cfg.n_particles
+        if state.search_pending:
+            centre = state.last_good if state.frames > 0 else state.pose
+            pos_spread = spread_m * state.spread_factor
+            ang_spread = cfg.angle_spread_rad * state.spread_factor
+            m = cfg.search_candidates
+            positions = centre.p_world_camera_m + rng.uniform(-1.0, 1.0, (m, 3)) * pos_spread
+            rotations = perturb(
+                np.repeat(centre.R_world_camera[None], m, axis=0), rng.uniform(-1.0, 1.0, (m, 3)) * ang_spread
+            )
+            visible = self._visible(centre)
+            positions, rotations, logw = self.anneal(
+                positions, rotations, edges, rng, cfg.search_layers, (pos_spread, ang_spread), n, visible
+            )
+        else:
+            state = self.predict(state, dt_s, rng, velocity_m_s, angular_rate_rad_s)
+            visible = self._visible(state.pose)
+            dt = max(dt_s, 1e-3)
+            noise = (noise_m_s * dt, cfg.angular_noise_rad_s * dt)
+            positions, rotations, logw = self.anneal(
+                state.positions_m, state.rotations, edges, rng, cfg.layers, noise, n, visible
+            )
+        best = int(np.argmax(logw))
+        guess = CameraPose(positions[best], rotations[best])
+        refined = refine_pose(
+            self.samples, guess.R_camera_world, guess.t_camera_world_m, self.camera, edges, cfg.refine, visible
+        )
+        refined_pose = CameraPose(-refined.R_camera_world.T @ refined.t_camera_world_m, refined.R_camera_world.T)
+        weights = np.exp(logw - logw.max())
+        weights /= weights.sum()
+        idx = _systematic(weights, n, rng)
+        positions, rotations = positions[idx], rotations[idx]
+        positions[0], rotations[0] = refined_pose.p_world_camera_m, refined_pose.R_world_camera
+        good = refined.match_fraction >= cfg.lost_match
+        mean_R = mean_rotation(rotations, np.ones(n))
+        covariance = _cloud_covariance(positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R))
+        pose = refined_pose if good else CameraPose(positions.mean(axis=0), mean_R)
+        if good and np.all(np.isfinite(refined.covariance)):
+            covariance = covariance + _twist_to_world(refined.covariance, refined_pose)
+        frames = state.frames + 1
+        if good:
+            velocity, rate = state.velocity_m_s, state.angular_rate_rad_s
+            if not state.search_pending and dt_s > 0.0:
+                a = cfg.velocity_smoothing
+                measured_v = (pose.p_world_camera_m - previous.p_world_camera_m) / dt_s
+                measured_w = rotation_vectors((pose.R_world_camera @ previous.R_world_camera.T)[None])[0] / dt_s
+                velocity = a * measured_v + (1.0 - a) * velocity
+                rate = a * measured_w + (1.0 - a) * rate
+            return replace(
+                state,
+                positions_m=positions,
+                rotations=rotations,
+                pose=pose,
+                covariance=covariance,
+                velocity_m_s=velocity,
+                angular_rate_rad_s=rate,
+                status=TrackingStatus.TRACKING,
+                match=refined.match_fraction,
+                last_good=pose,
+                bad_frames=0,
+                search_pending=False,
+                spread_factor=1.0,
+                frames=frames,
+                recoveries=state.recoveries + (1 if state.bad_frames > 0 else 0),
+            )
+        bad = state.bad_frames + 1
+        return replace(
+            state,
+            positions_m=positions,
+            rotations=rotations,
+            pose=pose,
+            covariance=covariance,
+            velocity_m_s=np.zeros(3),
+            angular_rate_rad_s=np.zeros(3),
+            status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
+            match=refined.match_fraction,
+            bad_frames=bad,
+            search_pending=True,
+            spread_factor=min(state.spread_factor * cfg.spread_growth, cfg.max_spread_factor)
+            if state.search_pending
+            else 1.0,
+            frames=frames,
+        )
+
+    def _visible(self, pose: CameraPose) -> npt.NDArray[np.bool_] | None:
+        if not self.config.hidden_line_removal or self.scene.n_faces == 0:
+            return None
+        return visible_points(
+            self.scene, self.samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, self.camera
+        )
+
+
+def _beta_for_ess(loglik: FloatArray, fraction: float) -> float:
+    """Largest ``beta`` in (0, 1] whose weights ``exp(beta l)`` keep an effective sample size of at least
+    ``fraction`` of the cloud (bisection)."""
+    spread = loglik - loglik.max()
+
+    def ess(beta: float) -> float:
+        w = np.exp(beta * spread)
+        return float(w.sum() ** 2 / np.sum(w * w)) / w.size
+
+    if ess(1.0) >= fraction:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if ess(mid) >= fraction:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1e-6)
+
+
+def _systematic(weights: FloatArray, n: int, rng: np.random.Generator) -> npt.NDArray[np.intp]:
+    positions = (rng.uniform(0.0, 1.0 / n) + np.arange(n) / n).clip(0.0, 1.0)
+    cumulative = np.cumsum(weights)
+    cumulative[-1] = 1.0
+    return np.asarray(np.searchsorted(cumulative, positions, side="left").clip(0, weights.size - 1))
+
+
+def _cloud_covariance(positions: FloatArray, rotations: FloatArray, centre: CameraPose) -> FloatArray:
+    """6x6 covariance of the cloud about ``centre``: position and world-frame error angles."""
+    dp = positions - centre.p_world_camera_m
+    dtheta = rotation_vectors(np.einsum("nij,kj->nik", rotations, centre.R_world_camera))
+    residual = np.concatenate([dp, dtheta], axis=1)
+    cov = residual.T @ residual / residual.shape[0]
+    return np.asarray(0.5 * (cov + cov.T))
+
+
+def _twist_to_world(covariance_twist: FloatArray, pose: CameraPose) -> FloatArray:
+    """Covariance of the camera twist ``(v, w)`` (camera frame) as (camera centre, world error angles)."""
+    R_wc = pose.R_world_camera
+    t = pose.t_camera_world_m
+    # p = -R_wc t; a twist (v, w) moves t -> Exp(w) t + v and R_cw -> Exp(w) R_cw:
+    # dp = -R_wc (v + w x t) + R_wc [w]x t ... to first order dp = -R_wc v, dtheta_world = -R_wc w
+    J = np.zeros((6, 6))
+    J[:3, :3] = -R_wc
+    J[3:, 3:] = -R_wc
+    del t
+    mapped = J @ covariance_twist @ J.T
+    return np.asarray(0.5 * (mapped + mapped.T))
