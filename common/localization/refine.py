@@ -67,8 +67,10 @@ def _oriented_offsets(
     col = np.where(inside, col, 0)
     row = np.where(inside, row, 0)
     is_edge = inside & (edges.edge_map[row, col] > 0)
-    parallel = np.abs(edges.gradient_x[row, col] * nu[:, None] + edges.gradient_y[row, col] * nv[:, None])
-    hit = is_edge & (parallel >= cos_max)
+    gx = edges.gradient_x[row, col].astype(np.float64)
+    gy = edges.gradient_y[row, col].astype(np.float64)
+    parallel = np.abs(gx * nu[:, None] + gy * nv[:, None])
+    hit = is_edge & (parallel >= cos_max * np.hypot(gx, gy))
     first = np.argmax(hit, axis=1)  # steps are ordered by |offset|: the first hit is the nearest
     found = hit[np.arange(hit.shape[0]), first]
     return np.where(found, steps[first].astype(np.float64), np.nan)

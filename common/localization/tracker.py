@@ -43,9 +43,9 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel
-from common.localization.pose import CameraPose, mean_rotation, perturb, rotation_vectors
+from common.localization.pose import CameraPose, mean_rotation, perturb, rotation_angle_rad, rotation_vectors
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
-from common.localization.refine import RefineParams, refine_pose
+from common.localization.refine import Refinement, RefineParams, refine_pose
 from common.localization.scoring import ImageEdges, ScoringParams, extract_image_edges, score_particles
 from common.localization.visibility import visible_points
 
@@ -74,8 +74,14 @@ class TrackerConfig:
     angle_spread_rad: float = float(np.radians(8.0))
     velocity_noise_m_s: float | None = None
     angular_noise_rad_s: float = float(np.radians(25.0))
-    search_candidates: int = 2000
-    search_layers: int = 5
+    search_candidates: int = 3000
+    search_layers: int = 7
+    search_coarseness: float = 4.0
+    refine_search: int = 8
+    refine_tracking: int = 2
+    tracking_iterations: int = 3
+    visibility_refresh_rad: float = float(np.radians(1.5))
+    min_point_ratio: float = 0.35
     velocity_smoothing: float = 0.7
     lost_match: float = 0.4
     lost_frames: int = 10
@@ -108,11 +114,15 @@ class TrackerState:
     status: TrackingStatus
     match: float
     last_good: CameraPose
+    expected_points: int = 0
     bad_frames: int = 0
     search_pending: bool = True
     spread_factor: float = 1.0
     frames: int = 0
     recoveries: int = 0
+    #: hidden-line mask (E, S) of the sample points and the pose it was computed from
+    visible: npt.NDArray[np.bool_] | None = None
+    visible_from: CameraPose | None = None
 
 
 class ModelTracker:
@@ -127,7 +137,7 @@ class ModelTracker:
     # -- set-up ---------------------------------------------------------------------------------------
     def edges(self, image: npt.ArrayLike) -> ImageEdges:
         """The frame's edges as the tracker needs them (with gradient directions)."""
-        return extract_image_edges(image, with_gradients=True)
+        return extract_image_edges(image, with_gradients=True, precise_distance=False)
 
     def scales(self, pose: CameraPose) -> tuple[float, float]:
         """Position spread (m) and velocity noise (m/s) for a camera at ``pose`` (configured or scaled)."""
@@ -180,11 +190,24 @@ class ModelTracker:
 
     # -- weighting ------------------------------------------------------------------------------------
     def log_likelihood(
-        self, positions: FloatArray, rotations: FloatArray, edges: ImageEdges, visible: npt.NDArray[np.bool_] | None
+        self,
+        positions: FloatArray,
+        rotations: FloatArray,
+        edges: ImageEdges,
+        visible: npt.NDArray[np.bool_] | None,
+        coarseness: float = 1.0,
     ) -> FloatArray:
-        """log W (P,) of the configured scoring for every pose, in blocks of ``chunk_particles``."""
+        """log W (P,) of the configured scoring for every pose, in blocks of ``chunk_particles``;
+        ``coarseness > 1`` widens its pixel scales (sigma, alignment, maximum normal) for a coarse search."""
         chunk = max(1, self.config.chunk_particles)
         params = self.config.scoring
+        if coarseness != 1.0:
+            params = replace(
+                params,
+                sigma_px=params.sigma_px * coarseness,
+                align_px=params.align_px * coarseness,
+                max_normal_px=int(round(params.max_normal_px * coarseness)),
+            )
         from common.localization.scoring import ScoringMethod  # local: only the method test needs it
 
         out = []
@@ -211,12 +234,15 @@ class ModelTracker:
         noise: tuple[float, float],
         keep: int,
         visible: npt.NDArray[np.bool_] | None,
+        coarse: float = 1.0,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Annealed importance weighting (Deutscher et al.): per layer weigh with ``exp(beta l)`` at an
         effective sample size of half the cloud, resample ``keep`` poses, diffuse with a halving noise
-        (position m, angle rad); the last layer is weighed and returned with its log weights."""
+        (position m, angle rad); the last layer is weighed and returned with its log weights. The scoring's
+        pixel scales start ``coarse`` times wider and narrow geometrically to 1 on the last layer."""
         for layer in range(layers):
-            loglik = self.log_likelihood(positions, rotations, edges, visible)
+            coarseness = coarse ** (1.0 - layer / max(layers - 1, 1))
+            loglik = self.log_likelihood(positions, rotations, edges, visible, coarseness)
             last = layer == layers - 1
             beta = _beta_for_ess(loglik, 0.5)
             logw = beta * loglik
@@ -262,29 +288,37 @@ class ModelTracker:
                 np.repeat(centre.R_world_camera[None], m, axis=0), rng.uniform(-1.0, 1.0, (m, 3)) * ang_spread
             )
             visible = self._visible(centre)
+            state = replace(state, visible=visible, visible_from=centre)
             positions, rotations, logw = self.anneal(
-                positions, rotations, edges, rng, cfg.search_layers, (pos_spread, ang_spread), n, visible
+                positions, rotations, edges, rng, cfg.search_layers, (pos_spread, ang_spread), n, visible,
+                coarse=cfg.search_coarseness,
             )
         else:
             state = self.predict(state, dt_s, rng, velocity_m_s, angular_rate_rad_s)
-            visible = self._visible(state.pose)
+            state = self._refresh_visibility(state)
+            visible = state.visible
             dt = max(dt_s, 1e-3)
             noise = (noise_m_s * dt, cfg.angular_noise_rad_s * dt)
             positions, rotations, logw = self.anneal(
                 state.positions_m, state.rotations, edges, rng, cfg.layers, noise, n, visible
             )
-        best = int(np.argmax(logw))
-        guess = CameraPose(positions[best], rotations[best])
-        refined = refine_pose(
-            self.samples, guess.R_camera_world, guess.t_camera_world_m, self.camera, edges, cfg.refine, visible
+        searching = state.search_pending
+        refined, refined_pose = self._refine_best(
+            positions,
+            rotations,
+            logw,
+            edges,
+            visible,
+            cfg.refine_search if searching else cfg.refine_tracking,
+            cfg.refine if searching else replace(cfg.refine, iterations=cfg.tracking_iterations),
         )
-        refined_pose = CameraPose(-refined.R_camera_world.T @ refined.t_camera_world_m, refined.R_camera_world.T)
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()
         idx = _systematic(weights, n, rng)
         positions, rotations = positions[idx], rotations[idx]
         positions[0], rotations[0] = refined_pose.p_world_camera_m, refined_pose.R_world_camera
-        good = refined.match_fraction >= cfg.lost_match
+        expected = state.expected_points if state.expected_points > 0 else refined.n_points
+        good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
         mean_R = mean_rotation(rotations, np.ones(n))
         covariance = _cloud_covariance(positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R))
         pose = refined_pose if good else CameraPose(positions.mean(axis=0), mean_R)
@@ -310,6 +344,7 @@ class ModelTracker:
                 status=TrackingStatus.TRACKING,
                 match=refined.match_fraction,
                 last_good=pose,
+                expected_points=refined.n_points,
                 bad_frames=0,
                 search_pending=False,
                 spread_factor=1.0,
@@ -334,6 +369,51 @@ class ModelTracker:
             else 1.0,
             frames=frames,
         )
+
+    def _refine_best(
+        self,
+        positions: FloatArray,
+        rotations: FloatArray,
+        logw: FloatArray,
+        edges: ImageEdges,
+        visible: npt.NDArray[np.bool_] | None,
+        count: int,
+        params: RefineParams,
+    ) -> tuple[Refinement, CameraPose]:
+        """Refine the ``count`` best distinct particles; the refinement with the best match wins."""
+        order = np.argsort(-logw)
+        chosen: list[int] = []
+        for i in order:
+            if len(chosen) >= count:
+                break
+            if all(np.linalg.norm(positions[i] - positions[j]) > 1e-4 for j in chosen):
+                chosen.append(int(i))
+        best: tuple[Refinement, CameraPose] | None = None
+        for i in chosen:
+            guess = CameraPose(positions[i], rotations[i])
+            result = refine_pose(
+                self.samples, guess.R_camera_world, guess.t_camera_world_m, self.camera, edges, params, visible
+            )
+            score = result.match_fraction * np.sqrt(max(result.n_points, 0))
+            if best is None or score > best[0].match_fraction * np.sqrt(max(best[0].n_points, 0)):
+                pose = CameraPose(-result.R_camera_world.T @ result.t_camera_world_m, result.R_camera_world.T)
+                best = (result, pose)
+        assert best is not None
+        return best
+
+    def _refresh_visibility(self, state: TrackerState) -> TrackerState:
+        """Recompute the hidden-line mask when the camera moved by more than 2 % of its distance to the model
+        or turned by more than ``visibility_refresh_rad`` since it was computed."""
+        if not self.config.hidden_line_removal:
+            return state
+        last = state.visible_from
+        if last is not None and state.visible is not None:
+            distance = float(np.linalg.norm(last.p_world_camera_m - self.scene.centre_world_m))
+            moved = float(np.linalg.norm(state.pose.p_world_camera_m - last.p_world_camera_m))
+            turned = float(rotation_angle_rad(state.pose.R_world_camera, last.R_world_camera))
+            if moved <= 0.02 * distance and turned <= self.config.visibility_refresh_rad:
+                return state
+        return replace(state, visible=self._visible(state.pose), visible_from=state.pose)
 
     def _visible(self, pose: CameraPose) -> npt.NDArray[np.bool_] | None:
         if not self.config.hidden_line_removal or self.scene.n_faces == 0:
