@@ -215,6 +215,9 @@ class PoseEstimate(WireModel):
     covariance: np.ndarray
     #: which estimator produced it, e.g. ``"vo"`` or ``"pf"``.
     source: str
+    #: the localizer's tracking state: ``tracking`` (the model matches the image), ``searching`` (a few bad
+    #: frames: re-searching around the last good pose), ``lost``; None for estimators without one.
+    tracking_state: Literal["tracking", "searching", "lost"] | None = None
 
 
 # ----------------------------------------------------------------------------------------------- work

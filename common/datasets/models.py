@@ -42,7 +42,9 @@ def load_model(path: str | os.PathLike[str], scale: float = 1.0) -> SceneModel:
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in SUFFIXES:
-        raise ModelFileError(f"model file {p}: unknown format {suffix!r} (expected one of {', '.join(SUFFIXES)})")
+        raise ModelFileError(
+            f"model file {p}: unknown format {suffix!r} (expected one of {', '.join(SUFFIXES)})"
+        )
     text = _read_text(p)
     try:
         if suffix == ".obj":

@@ -6,5 +6,12 @@
 - :mod:`~common.localization.particle_filter`: prediction, weighting, resampling, estimate, re-initialisation;
 - :mod:`~common.localization.baseline`: the per-particle loop (the paper's CPU shape; the bench baseline);
 - :mod:`~common.localization.tracking`: running the filter over frames, accuracy against ground truth;
-- :mod:`~common.localization.simulation`: the embedded default run (office, default flight, 320x240 camera).
+- :mod:`~common.localization.pose`: camera poses (no Euler angles inside) and the pose conventions accepted;
+- :mod:`~common.localization.visibility`: hidden-line removal (z-buffer of the model's faces);
+- :mod:`~common.localization.refine`: oriented-edge Gauss-Newton refinement and the match measure;
+- :mod:`~common.localization.tracker`: the tracker without odometry (motion model, annealing, loss, recovery);
+- :mod:`~common.localization.cad`: OBJ and ViSP .cao text -> scene;
+- :mod:`~common.localization.office`: the built-in office.
+
+Simulated runs live in :mod:`common.sim` (cores do not import the simulator).
 """

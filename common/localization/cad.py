@@ -26,6 +26,7 @@ are accepted and ignored; missing trailing sections count as empty.
 
 from __future__ import annotations
 
+import itertools
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -93,7 +94,7 @@ _OBJ_IGNORED = {"vt", "vn", "vp", "o", "g", "s", "usemtl", "mtllib"}
 
 
 def scene_from_obj(text: str, name: str = "obj", source: str = "<obj>", scale: float = 1.0) -> SceneModel:
-    """Scene of a Wavefront OBJ document (see the module docstring); ``scale`` converts its units to metres."""
+    """Scene of a Wavefront OBJ document (see the module docstring); ``scale``: its units to metres."""
     geometry = _Geometry()
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
@@ -114,7 +115,7 @@ def scene_from_obj(text: str, name: str = "obj", source: str = "<obj>", scale: f
             else:
                 if len(ids) < 2:
                     raise CadError(f"{where}: a line needs at least 2 vertices, got {len(ids)}")
-                geometry.lines.extend(zip(ids[:-1], ids[1:], strict=True))
+                geometry.lines.extend(itertools.pairwise(ids))
         elif keyword not in _OBJ_IGNORED:
             raise CadError(f"{where}: unknown OBJ statement {keyword!r}")
     return geometry.build(name, source)
@@ -145,9 +146,7 @@ def _floats(args: Sequence[str], where: str, what: str, counts: tuple[int, ...])
 
 
 # -- ViSP .cao ---------------------------------------------------------------------------------------------
-_LOAD = re.compile(
-    r'^load\(\s*"(?P<path>[^"]+)"\s*(?:,\s*(?P<kw>.*))?\)$'
-)
+_LOAD = re.compile(r'^load\(\s*"(?P<path>[^"]+)"\s*(?:,\s*(?P<kw>.*))?\)$')
 _VECTOR = re.compile(r"(?P<key>t|tu)\s*=\s*\[(?P<values>[^\]]*)\]")
 
 
@@ -204,7 +203,9 @@ def scene_from_cao(
     return _cao_geometry(text, source, load, 0).build(name, source)
 
 
-def _cao_geometry(text: str, source: str, load: Callable[[str, str], tuple[str, str]] | None, depth: int) -> _Geometry:
+def _cao_geometry(
+    text: str, source: str, load: Callable[[str, str], tuple[str, str]] | None, depth: int
+) -> _Geometry:
     rows = _Rows(text, source)
     number, header = rows.take("the header V1")
     if header.split()[0] != "V1":
@@ -261,7 +262,8 @@ def _cao_geometry(text: str, source: str, load: Callable[[str, str], tuple[str, 
         radius = _floats(tokens[:1], where, "a circle radius", (1,))[0]
         if radius <= 0.0:
             raise CadError(f"{where}: a circle radius must be positive, got {radius}")
-        _circle(geometry, radius, *(point(tok, where) for tok in tokens[1:]), where=where)
+        centre, p1, p2 = (point(tok, where) for tok in tokens[1:])
+        _circle(geometry, radius, centre, p1, p2, where)
     if (extra := rows.peek()) is not None:
         raise CadError(f"{source}:{extra[0]}: unexpected content after the circles: {extra[1]!r}")
     return geometry
@@ -300,7 +302,9 @@ def _counted(tokens: list[str], where: str, what: str, minimum: int) -> list[str
     except (IndexError, ValueError):
         raise CadError(f"{where}: {what} starts with its number of indices") from None
     if n < minimum or len(tokens) != n + 1:
-        raise CadError(f"{where}: {what} announces {tokens[0]} indices (>= {minimum}), lists {len(tokens) - 1}")
+        raise CadError(
+            f"{where}: {what} announces {tokens[0]} indices (>= {minimum}), lists {len(tokens) - 1}"
+        )
     return tokens[1:]
 
 

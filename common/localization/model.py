@@ -116,7 +116,7 @@ def newell_normal(polygon: FloatArray) -> FloatArray:
 
 
 def _plane_coordinates(polygon: FloatArray, normal: FloatArray) -> FloatArray:
-    """2D coordinates (K, 2) of a planar polygon in a frame of its plane, counter-clockwise about ``normal``."""
+    """2D coordinates (K, 2) of a planar polygon in its plane, counter-clockwise about ``normal``."""
     axis_u = polygon[1] - polygon[0]
     axis_u = axis_u - (axis_u @ normal) * normal
     axis_u /= np.linalg.norm(axis_u)
@@ -141,7 +141,9 @@ def triangulate(xy: FloatArray) -> list[tuple[int, int, int]]:
     triangles: list[tuple[int, int, int]] = []
 
     def cross(o: int, a: int, b: int) -> float:
-        return float((xy[a, 0] - xy[o, 0]) * (xy[b, 1] - xy[o, 1]) - (xy[a, 1] - xy[o, 1]) * (xy[b, 0] - xy[o, 0]))
+        return float(
+            (xy[a, 0] - xy[o, 0]) * (xy[b, 1] - xy[o, 1]) - (xy[a, 1] - xy[o, 1]) * (xy[b, 0] - xy[o, 0])
+        )
 
     while len(remaining) > 3:
         for k in range(len(remaining)):
@@ -326,7 +328,9 @@ def scene_from_dict(description: Mapping[str, Any]) -> SceneModel:
     try:
         for i, face in enumerate(faces_raw):
             if not isinstance(face, Mapping) or "vertices" not in face:
-                raise SceneModelError(f"face {i} must be an object with 'vertices' (optional 'albedo', 'group')")
+                raise SceneModelError(
+                    f"face {i} must be an object with 'vertices' (optional 'albedo', 'group')"
+                )
             faces.append([int(v) for v in face["vertices"]])
             albedo.append(float(face.get("albedo", 0.5)))
             groups.append(int(face.get("group", -1)))

@@ -1,4 +1,4 @@
-"""The built-in office: a 10 x 8 x 3 m room with doors, windows, pictures and furniture boxes (about 280 edges).
+"""The built-in office: a 10 x 8 x 3 m room, doors, windows, pictures and furniture boxes (about 280 edges).
 
 Decals (doors, windows, pictures) are faces a centimetre in front of a wall with another albedo.
 :class:`SceneBuilder` accumulates oriented quads and boxes; the object-scale simulator scene uses it too.

@@ -79,7 +79,7 @@ class CameraPose:
 
     @classmethod
     def from_body_state(cls, state: npt.ArrayLike, R_body_camera: npt.ArrayLike) -> CameraPose:
-        """Pose of a body state ``(x, y, z, roll, pitch, yaw)`` with the camera mounted by ``R_body_camera``."""
+        """Pose of a body state ``(x, y, z, roll, pitch, yaw)``, the camera mounted by ``R_body_camera``."""
         s = np.asarray(state, dtype=np.float64).reshape(-1)
         if s.shape != (6,) or not np.all(np.isfinite(s)):
             raise InputError(f"a body state is 6 finite numbers (x, y, z, roll, pitch, yaw), got {s.shape}")
@@ -148,7 +148,9 @@ def rotation_vectors(R: npt.ArrayLike) -> FloatArray:
     angle = np.arccos(cos)
     axis = np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0], M[:, 1, 0] - M[:, 0, 1]], axis=1)
     sin = np.sin(angle)
-    out = np.where((sin > 1e-6)[:, None], axis * (angle / (2.0 * np.where(sin > 1e-6, sin, 1.0)))[:, None], 0.5 * axis)
+    out = np.where(
+        (sin > 1e-6)[:, None], axis * (angle / (2.0 * np.where(sin > 1e-6, sin, 1.0)))[:, None], 0.5 * axis
+    )
     near_pi = angle > np.pi - 1e-3
     for i in np.flatnonzero(near_pi):  # axis from the symmetric part (rare)
         B = (M[i] + np.eye(3)) / 2.0

@@ -29,6 +29,10 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 
+#: Where Canny puts an edge relative to the step it marks (px, both axes; checked in the tests).
+CANNY_OFFSET_PX = 0.5
+
+
 @dataclass(frozen=True)
 class RefineParams:
     """Settings of :func:`refine_pose` and :func:`match_fraction`."""
@@ -54,13 +58,21 @@ class Refinement:
 
 
 def _oriented_offsets(
-    u: FloatArray, v: FloatArray, nu: FloatArray, nv: FloatArray, edges: ImageEdges, radius: int, cos_max: float
+    u: FloatArray,
+    v: FloatArray,
+    nu: FloatArray,
+    nv: FloatArray,
+    edges: ImageEdges,
+    radius: int,
+    cos_max: float,
 ) -> FloatArray:
-    """Signed offset (px) along each normal to the nearest oriented edge pixel, NaN where none within radius."""
+    """Signed offset (px) along each normal to the nearest oriented edge pixel (NaN: none within radius)."""
     assert edges.gradient_x is not None and edges.gradient_y is not None
     steps = np.concatenate([[0], np.stack([np.arange(1, radius + 1), -np.arange(1, radius + 1)], 1).ravel()])
-    su = u[:, None] + steps[None, :] * nu[:, None]
-    sv = v[:, None] + steps[None, :] * nv[:, None]
+    # Canny marks the pixel before a step (a step between columns 9 and 10 is marked at column 9, either
+    # polarity; likewise rows): an edge pixel at c stands for an edge at c + 1/2, so search half a pixel back
+    su = u[:, None] + (steps[None, :] * nu[:, None] - CANNY_OFFSET_PX)
+    sv = v[:, None] + (steps[None, :] * nv[:, None] - CANNY_OFFSET_PX)
     col = np.rint(su).astype(np.int64)
     row = np.rint(sv).astype(np.int64)
     inside = (col >= 0) & (col < edges.width) & (row >= 0) & (row < edges.height)
@@ -146,7 +158,14 @@ def refine_pose(
         x, y, z = X[:, 0], X[:, 1], X[:, 2]
         inv_z = 1.0 / z
         # du/dX (2 x 3) folded with the normal: a = n^T du/dX
-        a = np.stack([nu * camera.fx * inv_z, nv * camera.fy * inv_z, -(nu * camera.fx * x + nv * camera.fy * y) * inv_z**2], 1)
+        a = np.stack(
+            [
+                nu * camera.fx * inv_z,
+                nv * camera.fy * inv_z,
+                -(nu * camera.fx * x + nv * camera.fy * y) * inv_z**2,
+            ],
+            1,
+        )
         # dX/dxi = [I, -[X]x]: n^T du/dX [I, -[X]x] = [a, X x a]
         J = np.concatenate([a, np.cross(X, a)], axis=1)
         scale = params.tukey_px

@@ -28,8 +28,9 @@ Hidden-line removal: sample points hidden by the model's own faces from the pred
 
 Start and recovery search ``search_candidates`` poses uniformly in the box ``pose +- spread`` (position per
 axis, rotation vector per axis), annealed over ``search_layers``. The default spreads and noises scale with
-the scene: ``position_spread_m = 0.1 d`` and ``velocity_noise_m_s = 0.2 d / s`` for a camera ``d`` metres
-from the model's centre; angles do not scale.
+the scene: ``position_spread_m = 0.1 d`` and ``velocity_noise_m_s = 0.2 d / s`` where ``d`` is the median
+depth of the model's points in view from the initial pose (:meth:`ModelTracker.viewing_distance_m`); angles
+do not scale.
 """
 
 from __future__ import annotations
@@ -115,6 +116,7 @@ class TrackerState:
     match: float
     last_good: CameraPose
     expected_points: int = 0
+    distance_m: float = 1.0
     bad_frames: int = 0
     search_pending: bool = True
     spread_factor: float = 1.0
@@ -139,12 +141,27 @@ class ModelTracker:
         """The frame's edges as the tracker needs them (with gradient directions)."""
         return extract_image_edges(image, with_gradients=True, precise_distance=False)
 
-    def scales(self, pose: CameraPose) -> tuple[float, float]:
-        """Position spread (m) and velocity noise (m/s) for a camera at ``pose`` (configured or scaled)."""
-        distance = max(float(np.linalg.norm(pose.p_world_camera_m - self.scene.centre_world_m)), 1e-3)
+    def viewing_distance_m(self, pose: CameraPose) -> float:
+        """Median depth (m) of the model's sample points in view from ``pose`` (the distance to the model's
+        centre when none is in view): the scale of the scene as this camera sees it."""
+        pc = (self.samples.points_world_m.reshape(-1, 3) - pose.p_world_camera_m) @ pose.R_world_camera
+        z = pc[:, 2]
+        ahead = z > 1e-3
+        x_n = pc[ahead, 0] / z[ahead]
+        y_n = pc[ahead, 1] / z[ahead]
+        half_w = self.camera.width / (2.0 * self.camera.fx)
+        half_h = self.camera.height / (2.0 * self.camera.fy)
+        in_view = (np.abs(x_n) <= half_w) & (np.abs(y_n) <= half_h)
+        if in_view.sum() >= 3:
+            return float(np.median(z[ahead][in_view]))
+        return max(float(np.linalg.norm(pose.p_world_camera_m - self.scene.centre_world_m)), 1e-3)
+
+    def scales(self, distance_m: float) -> tuple[float, float]:
+        """Position spread (m) and velocity noise (m/s) for a model ``distance_m`` away (configured or
+        scaled: 0.1 d and 0.2 d / s)."""
         cfg = self.config
-        spread = cfg.position_spread_m if cfg.position_spread_m is not None else 0.1 * distance
-        noise = cfg.velocity_noise_m_s if cfg.velocity_noise_m_s is not None else 0.2 * distance
+        spread = cfg.position_spread_m if cfg.position_spread_m is not None else 0.1 * distance_m
+        noise = cfg.velocity_noise_m_s if cfg.velocity_noise_m_s is not None else 0.2 * distance_m
         return spread, noise
 
     def start(self, pose: CameraPose) -> TrackerState:
@@ -160,6 +177,7 @@ class ModelTracker:
             status=TrackingStatus.SEARCHING,
             match=0.0,
             last_good=pose,
+            distance_m=self.viewing_distance_m(pose),
         )
 
     # -- prediction -----------------------------------------------------------------------------------
@@ -178,13 +196,14 @@ class ModelTracker:
         w = state.angular_rate_rad_s if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, float)
         if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
             raise InputError("velocity and angular rate must be 3 finite numbers each")
-        _, noise_m_s = self.scales(state.pose)
+        _, noise_m_s = self.scales(state.distance_m)
         n = state.positions_m.shape[0]
         positions = state.positions_m + v * dt_s + rng.normal(size=(n, 3)) * (noise_m_s * dt_s)
         turns = w * dt_s + rng.normal(size=(n, 3)) * (self.config.angular_noise_rad_s * dt_s)
         rotations = perturb(state.rotations, turns)
         pose = CameraPose(
-            state.pose.p_world_camera_m + v * dt_s, perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0]
+            state.pose.p_world_camera_m + v * dt_s,
+            perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0],
         )
         return replace(state, positions_m=positions, rotations=rotations, pose=pose)
 
@@ -206,7 +225,7 @@ class ModelTracker:
                 params,
                 sigma_px=params.sigma_px * coarseness,
                 align_px=params.align_px * coarseness,
-                max_normal_px=int(round(params.max_normal_px * coarseness)),
+                max_normal_px=round(params.max_normal_px * coarseness),
             )
         from common.localization.scoring import ScoringMethod  # local: only the method test needs it
 
@@ -270,13 +289,14 @@ class ModelTracker:
         model."""
         if edges.width != self.camera.width or edges.height != self.camera.height:
             raise InputError(
-                f"image edges are {edges.width}x{edges.height}, the camera is {self.camera.width}x{self.camera.height}"
+                f"image edges are {edges.width}x{edges.height}, "
+                f"the camera is {self.camera.width}x{self.camera.height}"
             )
         if edges.gradient_x is None:
             raise InputError("the tracker needs edges with gradients (ModelTracker.edges)")
         cfg = self.config
         previous = state.pose
-        spread_m, noise_m_s = self.scales(state.last_good)
+        spread_m, noise_m_s = self.scales(state.distance_m)
         n = cfg.n_particles
         if state.search_pending:
             centre = state.last_good if state.frames > 0 else state.pose
@@ -290,7 +310,14 @@ class ModelTracker:
             visible = self._visible(centre)
             state = replace(state, visible=visible, visible_from=centre)
             positions, rotations, logw = self.anneal(
-                positions, rotations, edges, rng, cfg.search_layers, (pos_spread, ang_spread), n, visible,
+                positions,
+                rotations,
+                edges,
+                rng,
+                cfg.search_layers,
+                (pos_spread, ang_spread),
+                n,
+                visible,
                 coarse=cfg.search_coarseness,
             )
         else:
@@ -320,7 +347,9 @@ class ModelTracker:
         expected = state.expected_points if state.expected_points > 0 else refined.n_points
         good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
         mean_R = mean_rotation(rotations, np.ones(n))
-        covariance = _cloud_covariance(positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R))
+        covariance = _cloud_covariance(
+            positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R)
+        )
         pose = refined_pose if good else CameraPose(positions.mean(axis=0), mean_R)
         if good and np.all(np.isfinite(refined.covariance)):
             covariance = covariance + _twist_to_world(refined.covariance, refined_pose)
@@ -330,7 +359,9 @@ class ModelTracker:
             if not state.search_pending and dt_s > 0.0:
                 a = cfg.velocity_smoothing
                 measured_v = (pose.p_world_camera_m - previous.p_world_camera_m) / dt_s
-                measured_w = rotation_vectors((pose.R_world_camera @ previous.R_world_camera.T)[None])[0] / dt_s
+                measured_w = (
+                    rotation_vectors((pose.R_world_camera @ previous.R_world_camera.T)[None])[0] / dt_s
+                )
                 velocity = a * measured_v + (1.0 - a) * velocity
                 rate = a * measured_w + (1.0 - a) * rate
             return replace(
@@ -392,7 +423,13 @@ class ModelTracker:
         for i in chosen:
             guess = CameraPose(positions[i], rotations[i])
             result = refine_pose(
-                self.samples, guess.R_camera_world, guess.t_camera_world_m, self.camera, edges, params, visible
+                self.samples,
+                guess.R_camera_world,
+                guess.t_camera_world_m,
+                self.camera,
+                edges,
+                params,
+                visible,
             )
             score = result.match_fraction * np.sqrt(max(result.n_points, 0))
             if best is None or score > best[0].match_fraction * np.sqrt(max(best[0].n_points, 0)):

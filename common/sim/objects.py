@@ -60,9 +60,9 @@ class _Faces:
         self.albedo: list[float] = []
         self.groups: list[int] = []
 
-    def face(self, points: Sequence[Sequence[float]], albedo: float, group: int = -1) -> None:
+    def face(self, points: Sequence[npt.ArrayLike], albedo: float, group: int = -1) -> None:
         start = len(self.vertices)
-        self.vertices.extend([list(map(float, p)) for p in points])
+        self.vertices.extend([np.asarray(p, dtype=np.float64).tolist() for p in points])
         self.faces.append(list(range(start, start + len(points))))
         self.albedo.append(albedo)
         self.groups.append(group)
@@ -93,7 +93,9 @@ class _Faces:
             j = (i + 1) % n
             self.face([ring[i], ring[j], far[j], far[i]], albedo)
 
-    def cylinder(self, centre: Sequence[float], radius_m: float, height_m: float, albedo: float, group: int) -> None:
+    def cylinder(
+        self, centre: Sequence[float], radius_m: float, height_m: float, albedo: float, group: int
+    ) -> None:
         """A vertical 16-facet cylinder standing at ``centre`` (smooth sides, a top cap)."""
         angles = np.linspace(0.0, 2.0 * np.pi, 17)[:-1]
         c = np.asarray(centre, dtype=np.float64)
@@ -182,12 +184,16 @@ def _look_at(eye: FloatArray, target: FloatArray, roll_rad: FloatArray) -> Float
     return np.stack([x_r, y_r, z], axis=2)
 
 
-def _wander(t: FloatArray, rng: np.random.Generator, amplitude: float, period_s: tuple[float, float]) -> FloatArray:
+def _wander(
+    t: FloatArray, rng: np.random.Generator, amplitude: float, period_s: tuple[float, float]
+) -> FloatArray:
     """A smooth random signal: three sines of random periods and phases, peak about ``amplitude``."""
     out = np.zeros_like(t)
     for _ in range(3):
         period = rng.uniform(*period_s)
-        out += (amplitude / 2.0) * rng.uniform(0.4, 1.0) * np.sin(2.0 * np.pi * t / period + rng.uniform(0, 6.3))
+        out += (
+            (amplitude / 2.0) * rng.uniform(0.4, 1.0) * np.sin(2.0 * np.pi * t / period + rng.uniform(0, 6.3))
+        )
     return out
 
 
@@ -199,7 +205,7 @@ def object_flight(n_frames: int = 300, seed: int = 0, rate_hz: float = OBJECT_RA
         raise InputError(f"need n_frames >= 2 and rate_hz > 0, got {n_frames}, {rate_hz}")
     speed = 1.0
     for _ in range(20):
-        p, R = _orbit(speed * np.arange(n_frames) / rate_hz, seed)
+        p, R = _orbit(speed * np.arange(n_frames, dtype=np.float64) / rate_hz, seed)
         step_m = np.linalg.norm(np.diff(p, axis=0), axis=1).max()
         step_rad = rotation_angle_rad(R[1:], R[:-1]).max()
         ratio = max(step_m / MAX_STEP_M, step_rad / MAX_STEP_RAD)
@@ -210,10 +216,12 @@ def object_flight(n_frames: int = 300, seed: int = 0, rate_hz: float = OBJECT_RA
 
 
 def _orbit(t: FloatArray, seed: int) -> tuple[FloatArray, FloatArray]:
-    """Camera centres and rotations of the orbit at (scaled) times ``t``; its shape depends on ``seed`` only."""
+    """Camera centres and rotations of the orbit at (scaled) times ``t``; its shape depends on the seed."""
     rng = np.random.default_rng(seed)
     centre = np.asarray(OBJECT_CENTRE_M)
-    azimuth = rng.uniform(0.0, 2.0 * np.pi) + rng.choice([-1.0, 1.0]) * 0.45 * t + _wander(t, rng, 0.6, (4, 9))
+    azimuth = (
+        rng.uniform(0.0, 2.0 * np.pi) + rng.choice([-1.0, 1.0]) * 0.45 * t + _wander(t, rng, 0.6, (4, 9))
+    )
     elevation = np.radians(37.0) + _wander(t, rng, np.radians(16.0), (3, 8))
     distance = 0.66 + _wander(t, rng, 0.2, (3, 7))
     eye = centre + distance[:, None] * np.stack(
@@ -224,7 +232,9 @@ def _orbit(t: FloatArray, seed: int) -> tuple[FloatArray, FloatArray]:
     return eye, _look_at(eye, target, roll)
 
 
-def kidnap(flight: CameraFlight, frame: int, offset_m: npt.ArrayLike, rotvec_rad: npt.ArrayLike) -> CameraFlight:
+def kidnap(
+    flight: CameraFlight, frame: int, offset_m: npt.ArrayLike, rotvec_rad: npt.ArrayLike
+) -> CameraFlight:
     """The same flight with the camera teleported from ``frame`` on: shifted by ``offset_m`` and turned by
     ``rotvec_rad`` (a world-frame rotation vector) about its own centre."""
     if not 0 < frame < flight.n_frames:

@@ -29,7 +29,7 @@ import numpy as np
 from common.localization.baseline import weigh_per_particle
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig, ParticleState
 from common.localization.scoring import ImageEdges, ScoringMethod, ScoringParams, extract_image_edges
-from common.localization.simulation import (
+from common.sim.office_run import (
     INITIAL_ANGLE_ERROR_RAD,
     INITIAL_POSITION_ERROR_M,
     SimulatedRun,

@@ -29,7 +29,7 @@ from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
 from common.localization.office import default_scene
-from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
+from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from common.sim.flight import Flight, hover_flight, turns_flight
@@ -81,7 +81,7 @@ def simulated_flight(settings: CameraSettings) -> Flight:
 
 def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
     """The localizer's default flight through the built-in office: the same frames as
-    ``common.localization.simulation.simulate_run(settings.frames, settings.seed)``."""
+    ``common.sim.office_run.simulate_run(settings.frames, settings.seed)``."""
     camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
     flight = default_flight(n_frames=settings.frames)
     rng = np.random.default_rng(settings.seed)

@@ -1,9 +1,11 @@
-"""The localizer: a particle filter against a known 3D scene, fed by a UAV's camera (paper B).
+"""The localizer: tracks a known 3D model in a UAV's camera frames (paper B's particle filter, made to work
+without odometry: :mod:`common.localization.tracker`).
 
-Subscribes to ``capataz/uav/{uav}/camera`` (and, with ``--use-vo``, to ``.../pose/vo``, whose successive
-positions and yaws give the prediction its velocity and yaw rate) and publishes ``.../pose/pf``:
-a :class:`PoseEstimate` with the particle cloud's mean and its 6x6 covariance (position, world-frame error
-angles), ``source = "pf"``, the frame's ``seq`` and ``stamp_s``.
+Subscribes to ``capataz/uav/{uav}/camera`` (and, with ``--use-vo``, to ``.../pose/vo``, whose successive poses
+give the prediction its velocity and angular rate instead of the tracker's own motion model) and publishes
+``.../pose/pf``: a :class:`PoseEstimate` of the body (the camera on its mount) with the 6x6 covariance
+(position, world-frame error angles), ``source = "pf"``, ``tracking_state`` (tracking / searching / lost),
+the frame's ``seq`` and ``stamp_s``. Settings and the command line: :mod:`services.localizer.settings`.
 
 Latest frame wins: the subscriber callback only decodes and hands the frame to a one-item slot; a frame
 replaced before the filter took it is counted (``dropped_frames``). Bad frames are refused with a log line
@@ -16,104 +18,49 @@ from __future__ import annotations
 import argparse
 import threading
 import time
-from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel
-from common.errors import CapatazError
-from common.geometry import (
-    R_BODY_CAMERA_DOWN,
-    R_BODY_CAMERA_FORWARD,
-    euler_from_quaternion,
-    quaternion_from_euler,
-)
-from common.localization.model import SceneModel, scene_from_json
-from common.localization.office import default_scene
-from common.localization.particle_filter import (
-    ParticleFilter,
-    ParticleFilterConfig,
-    ParticleState,
-    PoseStatistics,
-    covariance_with_world_error_angles,
-)
-from common.localization.scoring import ScoringMethod, ScoringParams
-from common.localization.simulation import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
-from common.localization.tracking import localizer_step
+from common.geometry import matrix_from_quaternion, quaternion_from_matrix
+from common.localization.pose import rotation_vectors
+from common.localization.tracker import ModelTracker, TrackerState
 from common.messages import Frame, PoseEstimate, encode
-from common.sim.scene import default_flight
-from services.runtime.transport import (
-    LatestSlot,
-    ServiceRuntime,
-    TransportSettings,
-    add_transport_arguments,
-    transport_from_args,
-)
+from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
+from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args
 
 
-class LocalizerSettings(BaseModel):
-    """What the localizer needs besides the transport."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    uav: str = "uav0"
-    #: JSON scene file (see common.localization.model); None = the built-in office
-    scene: Path | None = None
-    width: int = Field(default=DEFAULT_WIDTH_PX, gt=0)
-    height: int = Field(default=DEFAULT_HEIGHT_PX, gt=0)
-    hfov_deg: float = Field(default=DEFAULT_HFOV_DEG, gt=0.0, lt=180.0)
-    camera_mount: Literal["forward", "down"] = "forward"
-    particles: int = Field(default=200, ge=2)
-    scoring: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
-    seed: int = 0
-    #: initial guess (x, y, z, roll, pitch, yaw) in m and rad; None = the default flight's first pose
-    initial_pose: tuple[float, float, float, float, float, float] | None = None
-    use_vo: bool = False
-
-    def camera(self) -> CameraModel:
-        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
-
-    def load_scene(self) -> SceneModel:
-        if self.scene is None:
-            return default_scene()
-        try:
-            text = self.scene.read_text()
-        except OSError as exc:
-            raise CapatazError(f"cannot read scene file {self.scene}: {exc}") from None
-        return scene_from_json(text)
-
-    def guess(self) -> np.ndarray:
-        if self.initial_pose is None:
-            return default_flight(n_frames=2).states[0]
-        return np.asarray(self.initial_pose, dtype=np.float64)
-
-
-def pose_message(uav: str, seq: int, stamp_s: float, estimate: PoseStatistics) -> PoseEstimate:
-    """The ``pose/pf`` message of a particle-cloud estimate."""
-    roll, pitch, yaw = estimate.mean[3:]
+def pose_message(
+    uav: str, seq: int, stamp_s: float, state: TrackerState, R_body_camera: np.ndarray
+) -> PoseEstimate:
+    """The ``pose/pf`` message of a tracker state: the body (``R_world_body = R_world_camera R_body_camera^T``
+    with the camera at the body origin), the covariance (camera centre, world-frame error angles), the
+    tracking state."""
+    R_world_body = state.pose.R_world_camera @ R_body_camera.T
+    covariance = np.nan_to_num(state.covariance, nan=0.0)
     return PoseEstimate(
         uav=uav,
         seq=seq,
         stamp_s=stamp_s,
-        p_world_body_m=estimate.mean[:3].copy(),
-        q_world_body=quaternion_from_euler(roll, pitch, yaw),
-        covariance=covariance_with_world_error_angles(estimate.mean, estimate.covariance),
+        p_world_body_m=state.pose.p_world_camera_m.copy(),
+        q_world_body=quaternion_from_matrix(R_world_body),
+        covariance=0.5 * (covariance + covariance.T),
         source="pf",
+        tracking_state=state.status.value,
     )
 
 
 def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.ndarray, np.ndarray] | None:
-    """World velocity (m/s) and Euler-angle rates (rad/s) between two VO poses; None unless time advanced."""
+    """World velocity (m/s) and world-frame angular rate (rad/s) between two VO poses; None unless time
+    advanced."""
     dt = current.stamp_s - previous.stamp_s
     if dt <= 0.0:
         return None
     velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
-    change = euler_from_quaternion(current.q_world_body) - euler_from_quaternion(previous.q_world_body)
-    return velocity, np.angle(np.exp(1j * change)) / dt
+    turn = matrix_from_quaternion(current.q_world_body) @ matrix_from_quaternion(previous.q_world_body).T
+    return velocity, rotation_vectors(turn[None])[0] / dt
 
 
 class LocalizerService(ServiceRuntime):
@@ -130,15 +77,9 @@ class LocalizerService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.camera = settings.camera()
-        mount = R_BODY_CAMERA_FORWARD if settings.camera_mount == "forward" else R_BODY_CAMERA_DOWN
-        config = ParticleFilterConfig(
-            n_particles=settings.particles,
-            scoring=ScoringParams(method=settings.scoring),
-            R_body_camera=mount.copy(),
-        )
-        self.filter = ParticleFilter(settings.load_scene(), self.camera, config)
+        self.tracker = ModelTracker(settings.load_scene(), self.camera, settings.tracker_config())
         self.rng = np.random.default_rng(settings.seed)
-        self.state: ParticleState = self.filter.initialize(settings.guess(), self.rng)
+        self.state: TrackerState = self.tracker.start(settings.start_pose())
         self._slot: LatestSlot[Frame] = LatestSlot()
         self._last_stamp_s: float | None = None  # of the last frame the filter used
         self._last_received_s: float | None = None  # of the last frame accepted by the subscriber
@@ -216,64 +157,26 @@ class LocalizerService(ServiceRuntime):
             with self._vo_lock:
                 velocity, rates = self._vo_velocity, self._vo_rates
             t0 = time.perf_counter()
-            self.state, estimate = localizer_step(
-                self.filter, self.state, frame.pixels, dt, self.rng, velocity, rates
+            self.state = self.tracker.step(
+                self.state, self.tracker.edges(frame.pixels), dt, self.rng, velocity, rates
             )
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
-            payload, attachment = encode(pose_message(self.settings.uav, frame.seq, frame.stamp_s, estimate))
+            self.counters.inc(f"frames_{self.state.status.value}")
+            message = pose_message(
+                self.settings.uav, frame.seq, frame.stamp_s, self.state, self.settings.R_body_camera
+            )
+            payload, attachment = encode(message)
             self._publisher.put(payload, attachment=attachment)
             self.counters.inc("poses_out")
 
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
-        "localizer", help="particle-filter localization against a known 3D scene; publishes pose/pf"
+        "localizer",
+        help="tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames; publishes pose/pf",
     )
-    add_transport_arguments(parser, node_default="localizer")
-    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
-    parser.add_argument("--scene", type=Path, help="JSON scene file (default: the built-in office)")
-    parser.add_argument(
-        "--resolution", default=f"{DEFAULT_WIDTH_PX}x{DEFAULT_HEIGHT_PX}", help="camera WIDTHxHEIGHT"
-    )
-    parser.add_argument("--hfov", type=float, default=DEFAULT_HFOV_DEG, help="horizontal field of view (deg)")
-    parser.add_argument("--mount", choices=["forward", "down"], default="forward", help="camera on the body")
-    parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
-    parser.add_argument(
-        "--scoring", choices=[m.value for m in ScoringMethod], default=ScoringMethod.NEAREST_EDGE_DT.value
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the filter's random numbers")
-    parser.add_argument(
-        "--initial-pose",
-        type=float,
-        nargs=6,
-        metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
-        help="initial guess (m, rad); default: the simulated flight's start",
-    )
-    parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
+    register_arguments(parser)
     parser.set_defaults(handler=run)
-
-
-def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
-    try:
-        width, height = (int(v) for v in args.resolution.lower().split("x"))
-    except ValueError:
-        raise CapatazError(f"--resolution must look like 320x240, got {args.resolution!r}") from None
-    try:
-        return LocalizerSettings(
-            uav=args.uav,
-            scene=args.scene,
-            width=width,
-            height=height,
-            hfov_deg=args.hfov,
-            camera_mount=args.mount,
-            particles=args.particles,
-            scoring=ScoringMethod(args.scoring),
-            seed=args.seed,
-            initial_pose=tuple(args.initial_pose) if args.initial_pose else None,
-            use_vo=args.use_vo,
-        )
-    except ValueError as exc:
-        raise CapatazError(f"invalid localizer settings: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:

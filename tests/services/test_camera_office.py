@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.localization.simulation import simulate_run
+from common.sim.office_run import simulate_run
 from services.camera.service import CameraSettings, camera_settings_from_args, office_frames
 from services.cli import build_parser
 

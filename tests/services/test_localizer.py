@@ -1,22 +1,33 @@
-"""The localizer service over Zenoh on loopback: the same poses as the in-process filter, and it survives
-malformed, foreign, wrong-size and stale frames (refused and counted)."""
+"""The localizer service over Zenoh on loopback: the same poses as the in-process tracker (the office with
+its defaults; the object flight from a model file, a calibration file and a camera-from-world initial pose),
+and it survives malformed, foreign, wrong-size and stale frames (refused and counted)."""
 
 from __future__ import annotations
 
 import queue
 import threading
 import time
+from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from common import keys
-from common.geometry import quaternion_from_euler
-from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
-from common.localization.scoring import ScoringMethod, ScoringParams
-from common.localization.simulation import simulate_run
-from common.localization.tracking import localizer_step
+from common.datasets.calibration import opencv_yaml_text
+from common.geometry import R_BODY_CAMERA_FORWARD, quaternion_from_matrix
+from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.scoring import ScoringMethod
+from common.localization.tracker import ModelTracker, TrackerState
 from common.messages import Frame, PoseEstimate, decode, encode
+from common.sim.objects import (
+    object_camera,
+    object_flight,
+    render_camera_flight,
+    tabletop_model,
+    tabletop_scene,
+)
+from common.sim.office_run import simulate_run
 from services.localizer import LocalizerService, LocalizerSettings
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import free_port
@@ -34,27 +45,31 @@ def _frame(seq: int, stamp_s: float, pixels: np.ndarray, uav: str = "uav0") -> F
     )
 
 
+def _in_process(
+    settings: LocalizerSettings, images: Sequence[np.ndarray], times_s: np.ndarray
+) -> list[TrackerState]:
+    """What the service must publish: the tracker run in this process with the service's settings."""
+    tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_config())
+    rng = np.random.default_rng(settings.seed)
+    state = tracker.start(settings.start_pose())
+    states = []
+    for i, image in enumerate(images):
+        dt = 0.0 if i == 0 else float(times_s[i] - times_s[i - 1])
+        state = tracker.step(state, tracker.edges(image), dt, rng)
+        states.append(state)
+    return states
+
+
 def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> None:
     sim = simulate_run(n_frames=N_FRAMES, seed=2)
     settings = LocalizerSettings(
         particles=PARTICLES,
         scoring=ScoringMethod.NEAREST_EDGE_DT,
         seed=SEED,
-        initial_pose=tuple(float(v) for v in sim.guess),  # type: ignore[arg-type]
+        initial_state=tuple(float(v) for v in sim.guess),  # type: ignore[arg-type]
     )
     # the in-process reference: same scene, camera, settings and seed
-    pf = ParticleFilter(
-        sim.scene,
-        sim.camera,
-        ParticleFilterConfig(n_particles=PARTICLES, scoring=ScoringParams(ScoringMethod.NEAREST_EDGE_DT)),
-    )
-    rng = np.random.default_rng(SEED)
-    state = pf.initialize(sim.guess, rng)
-    expected = []
-    for i, image in enumerate(sim.images):
-        dt = 0.0 if i == 0 else float(sim.flight.times_s[i] - sim.flight.times_s[i - 1])
-        state, estimate = localizer_step(pf, state, image, dt, rng)
-        expected.append(estimate)
+    expected = _in_process(settings, sim.images, sim.flight.times_s)
 
     port = free_port()
     service = LocalizerService(
@@ -105,10 +120,12 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     assert not runner.is_alive()
 
     assert [p.seq for p in received] == list(range(N_FRAMES))
-    for pose, estimate in zip(received, expected, strict=True):
+    for pose, state in zip(received, expected, strict=True):
         assert pose.source == "pf"
-        assert np.allclose(pose.p_world_body_m, estimate.mean[:3], atol=1e-9)
-        assert np.allclose(pose.q_world_body, quaternion_from_euler(*estimate.mean[3:]), atol=1e-9)
+        assert pose.tracking_state == state.status.value
+        assert np.allclose(pose.p_world_body_m, state.pose.p_world_camera_m, atol=1e-9)
+        R_world_body = state.pose.R_world_camera @ R_BODY_CAMERA_FORWARD.T
+        assert np.allclose(pose.q_world_body, quaternion_from_matrix(R_world_body), atol=1e-9)
         assert np.all(np.linalg.eigvalsh(pose.covariance) >= -1e-12)
     counts = service.counters.counts()
     assert counts.get("malformed") == 1
@@ -117,3 +134,87 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     assert counts.get("stale_frames") == 1
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
+
+
+def _obj_text(scene: object) -> str:
+    """The tabletop model as a Wavefront OBJ file (what a user exports from CAD)."""
+    vertices = scene.vertices_world_m
+    faces = scene.faces
+    lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in vertices]
+    lines += ["f " + " ".join(str(i + 1) for i in face) for face in faces]
+    return "\n".join(lines) + "\n"
+
+
+def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pose(tmp_path: Path) -> None:
+    n_frames = 20
+    camera = object_camera()
+    flight = object_flight(n_frames, seed=3)
+    images = list(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(3)))
+    (tmp_path / "tabletop.obj").write_text(_obj_text(tabletop_model()))
+    (tmp_path / "camera.yaml").write_text(opencv_yaml_text(camera))
+    # start 30 mm and 5 deg off, given as OpenCV rvec + tvec (camera-from-world)
+    rng = np.random.default_rng(7)
+    offset = rng.normal(size=3)
+    turn = rng.normal(size=3)
+    start = CameraPose(
+        flight.p_world_camera_m[0] + 0.03 * offset / np.linalg.norm(offset),
+        perturb(flight.R_world_camera[:1], (np.radians(5.0) * turn / np.linalg.norm(turn))[None])[0],
+    )
+    rvec, tvec = start.rvec_tvec()
+    settings = LocalizerSettings(
+        model=tmp_path / "tabletop.obj",
+        calibration=tmp_path / "camera.yaml",
+        camera_mount="camera",
+        initial_pose=(*rvec.tolist(), *tvec.tolist()),
+        seed=SEED,
+    )
+    expected = _in_process(settings, images, flight.times_s)
+    received = _serve(settings, images, flight.times_s)
+    errors_mm, errors_deg = [], []
+    for i, (pose, state) in enumerate(zip(received, expected, strict=True)):
+        assert np.allclose(pose.p_world_body_m, state.pose.p_world_camera_m, atol=1e-9)
+        assert np.allclose(pose.q_world_body, quaternion_from_matrix(state.pose.R_world_camera), atol=1e-9)
+        errors_mm.append(1e3 * np.linalg.norm(pose.p_world_body_m - flight.p_world_camera_m[i]))
+        errors_deg.append(np.degrees(rotation_angle_rad(state.pose.R_world_camera, flight.R_world_camera[i])))
+    assert [p.tracking_state for p in received[-5:]] == ["tracking"] * 5
+    assert float(np.median(errors_mm)) <= 5.0
+    assert float(np.median(errors_deg)) <= 0.5
+
+
+def _serve(
+    settings: LocalizerSettings, images: Sequence[np.ndarray], times_s: np.ndarray
+) -> list[PoseEstimate]:
+    """Frames through a running service over Zenoh, one at a time; the poses it published."""
+    port = free_port()
+    service = LocalizerService(
+        "test", 0, TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000), settings, 0.2
+    )
+    runner = threading.Thread(target=service.run, daemon=True)
+    runner.start()
+    poses: queue.Queue[PoseEstimate] = queue.Queue()
+    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
+    received: list[PoseEstimate] = []
+    try:
+        assert service.started.wait(20.0), "service did not start"
+        with open_session(client) as session:
+            subscriber = session.declare_subscriber(
+                keys.pose_pf_key("uav0"),
+                lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
+            )
+            publisher = session.declare_publisher(keys.camera_key("uav0"))
+            deadline = time.monotonic() + 10.0
+            while not publisher.matching_status.matching and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert publisher.matching_status.matching
+            for i, image in enumerate(images):
+                payload, attachment = encode(_frame(i, float(times_s[i]), image))
+                publisher.put(payload, attachment=attachment)
+                received.append(poses.get(timeout=30.0))
+            subscriber.undeclare()
+            publisher.undeclare()
+    finally:
+        service.request_stop()
+        runner.join(5.0)
+    assert not runner.is_alive()
+    assert [p.seq for p in received] == list(range(len(images)))
+    return received

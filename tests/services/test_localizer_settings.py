@@ -3,16 +3,26 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
+from common.camera import CameraModel
+from common.datasets.calibration import CalibrationError, opencv_yaml_text
 from common.errors import CapatazError
-from common.geometry import matrix_from_euler, matrix_from_quaternion, quaternion_from_euler
+from common.geometry import (
+    R_BODY_CAMERA_FORWARD,
+    matrix_from_euler,
+    matrix_from_quaternion,
+    quaternion_from_euler,
+)
 from common.localization.model import SceneModelError, scene_to_dict
 from common.localization.office import default_scene
-from common.localization.particle_filter import PoseStatistics
+from common.localization.pose import CameraPose
+from common.localization.tracker import ModelTracker, TrackingStatus
 from common.messages import PoseEstimate
 from services.localizer import LocalizerSettings, odometry_between, pose_message
 
@@ -39,29 +49,55 @@ def test_vo_odometry_is_the_finite_difference_of_positions_and_wrapped_angles() 
     assert odometry_between(b, a) is None
 
 
-def test_scene_files_load_and_bad_ones_fail_clearly(tmp_path: Path) -> None:
+def test_model_files_load_and_bad_ones_fail_clearly(tmp_path: Path) -> None:
     path = tmp_path / "office.json"
     path.write_text(json.dumps(scene_to_dict(default_scene())))
-    assert LocalizerSettings(scene=path).load_scene().n_edges == default_scene().n_edges
-    with pytest.raises(CapatazError, match="cannot read"):
-        LocalizerSettings(scene=tmp_path / "missing.json").load_scene()
+    assert LocalizerSettings(model=path).load_scene().n_edges == default_scene().n_edges
+    with pytest.raises(CapatazError, match="not a file"):
+        LocalizerSettings(model=tmp_path / "missing.json").load_scene()
     (tmp_path / "bad.json").write_text('{"vertices": []}')
     with pytest.raises(SceneModelError):
-        LocalizerSettings(scene=tmp_path / "bad.json").load_scene()
+        LocalizerSettings(model=tmp_path / "bad.json").load_scene()
 
 
-def test_pose_message_carries_the_mean_and_a_world_error_angle_covariance() -> None:
-    mean = np.array([1.0, 2.0, 1.5, 0.1, -0.05, 2.0])
+def test_calibration_file_gives_the_camera(tmp_path: Path) -> None:
+    camera = CameraModel(width=640, height=480, fx=600.0, fy=598.0, cx=321.0, cy=239.0)
+    (tmp_path / "cam.yaml").write_text(opencv_yaml_text(camera))
+    assert LocalizerSettings(calibration=tmp_path / "cam.yaml").camera() == camera
+    (tmp_path / "bad.yaml").write_text("image_width: 640\n")
+    with pytest.raises(CalibrationError):
+        LocalizerSettings(calibration=tmp_path / "bad.yaml").camera()
+
+
+def test_initial_pose_is_camera_from_world_as_rvec_tvec_or_matrix() -> None:
+    truth = CameraPose(np.array([0.3, -0.2, 0.5]), matrix_from_euler(-2.0, 0.1, 0.7))
+    rvec, tvec = truth.rvec_tvec()
+    from_rvec = LocalizerSettings(initial_pose=(*rvec.tolist(), *tvec.tolist())).start_pose()
+    from_matrix = LocalizerSettings(initial_pose=tuple(truth.T_camera_world().ravel().tolist())).start_pose()
+    for pose in (from_rvec, from_matrix):
+        assert np.allclose(pose.p_world_camera_m, truth.p_world_camera_m)
+        assert np.allclose(pose.R_world_camera, truth.R_world_camera)
+    # OpenCV's convention: the world origin lands at tvec in the camera frame
+    R_cw, _ = cv2.Rodrigues(rvec)
+    assert np.allclose(R_cw @ np.zeros(3) + tvec, truth.t_camera_world_m)
+    with pytest.raises(ValueError, match="6 numbers"):
+        LocalizerSettings(initial_pose=(1.0, 2.0, 3.0))
+    bad = truth.T_camera_world()
+    bad[3] = [0.0, 0.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="last row"):
+        LocalizerSettings(initial_pose=tuple(bad.ravel().tolist()))
+
+
+def test_pose_message_carries_the_body_pose_covariance_and_tracking_state() -> None:
+    tracker = ModelTracker(default_scene(), CameraModel.from_hfov(320, 240, 70.0))
+    state = tracker.start(CameraPose.from_body_state([5.0, 4.0, 1.5, 0.1, -0.05, 2.0], R_BODY_CAMERA_FORWARD))
     covariance = np.diag([1e-4, 2e-4, 3e-4, 1e-5, 2e-5, 3e-5])
-    message = pose_message("uav0", 7, 3.5, PoseStatistics(mean, covariance, 150.0, 0.8))
-    assert message.seq == 7 and message.source == "pf"
-    assert np.allclose(message.p_world_body_m, mean[:3])
-    assert np.allclose(matrix_from_quaternion(message.q_world_body), matrix_from_euler(*mean[3:]))
-    assert np.allclose(message.covariance[:3, :3], covariance[:3, :3])
-    # a pure yaw variance is a variance about world z
-    yaw_only = pose_message("uav0", 0, 0.0, PoseStatistics(mean, np.diag([0, 0, 0, 0, 0, 1e-4]), 1.0, 1.0))
-    assert yaw_only.covariance[5, 5] == pytest.approx(1e-4)
-    assert np.allclose(yaw_only.covariance[3:5, 3:5], 0.0)
+    state = replace(state, covariance=covariance, status=TrackingStatus.LOST)
+    message = pose_message("uav0", 7, 3.5, state, R_BODY_CAMERA_FORWARD)
+    assert message.seq == 7 and message.source == "pf" and message.tracking_state == "lost"
+    assert np.allclose(message.p_world_body_m, [5.0, 4.0, 1.5])
+    assert np.allclose(matrix_from_quaternion(message.q_world_body), matrix_from_euler(0.1, -0.05, 2.0))
+    assert np.allclose(message.covariance, covariance)
 
 
 def test_settings_are_validated() -> None:

@@ -56,7 +56,7 @@ FULL_CAO = f"""V1
 
 
 def _edge_set(scene: object) -> set[tuple[tuple[float, ...], tuple[float, ...]]]:
-    edges = getattr(scene, "edges_world_m")
+    edges = scene.edges_world_m
     out = set()
     for a, b in np.round(edges, 6):
         key = (tuple(a.tolist()), tuple(b.tolist()))
@@ -89,7 +89,9 @@ def test_cao_every_construct() -> None:
 
 def test_cao_load_sub_part_with_transform(tmp_path: Path) -> None:
     (tmp_path / "parts").mkdir()
-    (tmp_path / "parts" / "plate.cao").write_text("V1\n4\n0 0 0\n0.1 0 0\n0.1 0.1 0\n0 0.1 0\n0\n0\n1\n4 0 1 2 3\n")
+    (tmp_path / "parts" / "plate.cao").write_text(
+        "V1\n4\n0 0 0\n0.1 0 0\n0.1 0.1 0\n0 0.1 0\n0\n0\n1\n4 0 1 2 3\n"
+    )
     top = 'V1\nload("parts/plate.cao", t=[1.0, 2.0, 3.0], tu=[0.0, 0.0, 1.5707963267948966])\n1\n0 0 0\n'
     (tmp_path / "top.cao").write_text(top)
     scene = load_model(tmp_path / "top.cao")
@@ -156,7 +158,8 @@ def test_obj_non_convex_face_is_triangulated_and_lines_kept() -> None:
     assert scene.n_edges == 6 + 1
     assert np.allclose(scene.face_normals, [0.0, 0.0, 1.0])
     areas = sum(
-        0.5 * np.linalg.norm(np.cross(*(scene.face_polygon_world_m(f)[1:] - scene.face_polygon_world_m(f)[0])))
+        0.5
+        * np.linalg.norm(np.cross(*(scene.face_polygon_world_m(f)[1:] - scene.face_polygon_world_m(f)[0])))
         for f in range(scene.n_faces)
     )
     assert np.isclose(areas, 0.2 * 0.1 + 0.1 * 0.1)

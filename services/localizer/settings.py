@@ -1,0 +1,187 @@
+"""Settings of ``capataz localizer``: the model file, the camera (calibration file or resolution + FOV), the
+initial pose, the tracker's knobs, and the command line that fills them.
+
+``--initial-pose`` is camera-from-world (:func:`common.localization.pose.parse_pose_numbers`): 6 numbers =
+OpenCV ``rvec`` (rad) then ``tvec`` (m), as ``cv2.solvePnP`` returns them; 16 numbers = the 4x4 matrix row by
+row. ``--initial-state X Y Z ROLL PITCH YAW`` gives the body pose instead (the camera on its ``--mount``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from common.camera import CameraModel
+from common.datasets.calibration import load_calibration
+from common.datasets.models import load_model
+from common.errors import CapatazError
+from common.geometry import R_BODY_CAMERA_DOWN, R_BODY_CAMERA_FORWARD
+from common.localization.model import SceneModel
+from common.localization.office import default_scene
+from common.localization.pose import CameraPose, parse_pose_numbers
+from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.tracker import TrackerConfig
+from common.sim.office_run import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
+from common.sim.scene import default_flight
+from services.runtime.transport import add_transport_arguments
+
+_MOUNTS = {"forward": R_BODY_CAMERA_FORWARD, "down": R_BODY_CAMERA_DOWN, "camera": np.eye(3)}
+
+
+class LocalizerSettings(BaseModel):
+    """What the localizer needs besides the transport."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    uav: str = "uav0"
+    #: model file (.json, .obj, .cao; see common.datasets.models); None = the built-in office
+    model: Path | None = None
+    #: factor from the OBJ file's units to metres
+    model_scale: float = Field(default=1.0, gt=0.0)
+    #: camera calibration (OpenCV YAML or ROS camera_info YAML); None = width x height with hfov_deg
+    calibration: Path | None = None
+    width: int = Field(default=DEFAULT_WIDTH_PX, gt=0)
+    height: int = Field(default=DEFAULT_HEIGHT_PX, gt=0)
+    hfov_deg: float = Field(default=DEFAULT_HFOV_DEG, gt=0.0, lt=180.0)
+    #: how the camera sits on the body that pose/pf reports ("camera": the camera itself)
+    camera_mount: Literal["forward", "down", "camera"] = "forward"
+    particles: int = Field(default=200, ge=2)
+    scoring: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
+    seed: int = 0
+    #: camera-from-world, 6 numbers (rvec, tvec) or 16 (4x4 row-major); overrides initial_state
+    initial_pose: tuple[float, ...] | None = None
+    #: initial body state (x, y, z, roll, pitch, yaw) in m and rad; None (and no initial_pose) = the
+    #: simulated office flight's first pose
+    initial_state: tuple[float, float, float, float, float, float] | None = None
+    #: start / recovery spread (m per axis; None = 0.1 x the viewing distance) and angle spread (deg)
+    position_spread_m: float | None = Field(default=None, gt=0.0)
+    angle_spread_deg: float = Field(default=8.0, gt=0.0, le=90.0)
+    #: process noise: unmodelled velocity (m/s; None = 0.2 x the viewing distance per s) and rate (deg/s)
+    velocity_noise_m_s: float | None = Field(default=None, gt=0.0)
+    angular_noise_deg_s: float = Field(default=25.0, gt=0.0)
+    layers: int = Field(default=2, ge=1, le=10)
+    use_vo: bool = False
+
+    @field_validator("initial_pose")
+    @classmethod
+    def _pose_length(cls, value: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        if value is not None:
+            parse_pose_numbers(value)  # raises InputError (a ValueError) with the reason
+        return value
+
+    @property
+    def R_body_camera(self) -> np.ndarray:
+        return np.asarray(_MOUNTS[self.camera_mount], dtype=np.float64)
+
+    def camera(self) -> CameraModel:
+        if self.calibration is not None:
+            return load_calibration(self.calibration)
+        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
+
+    def load_scene(self) -> SceneModel:
+        if self.model is None:
+            return default_scene()
+        return load_model(self.model, self.model_scale)
+
+    def start_pose(self) -> CameraPose:
+        """The initial camera pose (see the field docs)."""
+        if self.initial_pose is not None:
+            return parse_pose_numbers(self.initial_pose)
+        state = default_flight(n_frames=2).states[0] if self.initial_state is None else self.initial_state
+        return CameraPose.from_body_state(state, self.R_body_camera)
+
+    def tracker_config(self) -> TrackerConfig:
+        return TrackerConfig(
+            n_particles=self.particles,
+            layers=self.layers,
+            scoring=ScoringParams(method=self.scoring),
+            position_spread_m=self.position_spread_m,
+            angle_spread_rad=float(np.radians(self.angle_spread_deg)),
+            velocity_noise_m_s=self.velocity_noise_m_s,
+            angular_noise_rad_s=float(np.radians(self.angular_noise_deg_s)),
+        )
+
+
+def register_arguments(parser: Any) -> None:
+    add_transport_arguments(parser, node_default="localizer")
+    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
+    parser.add_argument(
+        "--model", "--scene", dest="model", type=Path, help="model file .json/.obj/.cao (default: the office)"
+    )
+    parser.add_argument("--model-scale", type=float, default=1.0, help="OBJ units to metres (e.g. 0.001)")
+    parser.add_argument(
+        "--calibration", type=Path, help="camera calibration (OpenCV or ROS camera_info YAML)"
+    )
+    parser.add_argument(
+        "--resolution",
+        default=f"{DEFAULT_WIDTH_PX}x{DEFAULT_HEIGHT_PX}",
+        help="camera WIDTHxHEIGHT (no file)",
+    )
+    parser.add_argument("--hfov", type=float, default=DEFAULT_HFOV_DEG, help="horizontal FOV (deg; no file)")
+    parser.add_argument("--mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body")
+    parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
+    parser.add_argument(
+        "--scoring", choices=[m.value for m in ScoringMethod], default=ScoringMethod.NEAREST_EDGE_DT.value
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the filter's random numbers")
+    parser.add_argument(
+        "--initial-pose",
+        type=float,
+        nargs="+",
+        metavar="V",
+        help="camera-from-world: RX RY RZ TX TY TZ (OpenCV rvec rad, tvec m) or the 4x4 matrix (16 numbers)",
+    )
+    parser.add_argument(
+        "--initial-state",
+        type=float,
+        nargs=6,
+        metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
+        help="initial body pose (m, rad) instead; default: the simulated office flight's start",
+    )
+    parser.add_argument(
+        "--position-spread", type=float, help="start/recovery spread, m (default 0.1 x distance)"
+    )
+    parser.add_argument(
+        "--angle-spread", type=float, default=8.0, help="start/recovery spread, deg (default 8)"
+    )
+    parser.add_argument(
+        "--velocity-noise", type=float, help="process noise, m/s (default 0.2 x distance / s)"
+    )
+    parser.add_argument("--angular-noise", type=float, default=25.0, help="process noise, deg/s (default 25)")
+    parser.add_argument("--layers", type=int, default=2, help="annealing layers per frame (default 2)")
+    parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
+
+
+def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
+    try:
+        width, height = (int(v) for v in args.resolution.lower().split("x"))
+    except ValueError:
+        raise CapatazError(f"--resolution must look like 320x240, got {args.resolution!r}") from None
+    try:
+        return LocalizerSettings(
+            uav=args.uav,
+            model=args.model,
+            model_scale=args.model_scale,
+            calibration=args.calibration,
+            width=width,
+            height=height,
+            hfov_deg=args.hfov,
+            camera_mount=args.mount,
+            particles=args.particles,
+            scoring=ScoringMethod(args.scoring),
+            seed=args.seed,
+            initial_pose=tuple(args.initial_pose) if args.initial_pose else None,
+            initial_state=tuple(args.initial_state) if args.initial_state else None,
+            position_spread_m=args.position_spread,
+            angle_spread_deg=args.angle_spread,
+            velocity_noise_m_s=args.velocity_noise,
+            angular_noise_deg_s=args.angular_noise,
+            layers=args.layers,
+            use_vo=args.use_vo,
+        )
+    except ValueError as exc:
+        raise CapatazError(f"invalid localizer settings: {exc}") from None
