@@ -42,8 +42,9 @@ def register(subparsers: Any) -> None:
 def _runner(module: ModuleType) -> Any:
     def handler(args: argparse.Namespace) -> int:
         result = module.run(args)
-        path = write_json(args.out / f"{module.NAME}.json", result)
-        print_table(result.get("table", []), title=f"bench {module.NAME}")
+        name = result.pop("bench_name", module.NAME)  # a suite of a benchmark may name its own file
+        path = write_json(args.out / f"{name}.json", result)
+        print_table(result.get("table", []), title=f"bench {name}")
         print(f"wrote {path}")
         return 0
 

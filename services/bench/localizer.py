@@ -26,6 +26,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from common.errors import CapatazError
 from common.localization.baseline import weigh_per_particle
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig, ParticleState
 from common.localization.scoring import ImageEdges, ScoringMethod, ScoringParams, extract_image_edges
@@ -37,6 +38,7 @@ from common.sim.office_run import (
     track_run,
 )
 from common.localization.tracking import track_accuracy
+from services.bench.localizer_field import run_field
 
 logger = logging.getLogger(__name__)
 
@@ -59,6 +61,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=3,
         help="filter runs per scoring (own seeds and initial guesses; default 3)",
+    )
+    parser.add_argument(
+        "--suite",
+        choices=["paper", "field"],
+        default="paper",
+        help="paper: paper B's filter with odometry (localizer.json); field: the model tracker without "
+        "odometry on the object and office scenes (localizer_field.json; see services.bench.localizer_field)",
+    )
+    parser.add_argument("--seeds", type=int, default=5, help="field suite: runs per scene and scoring")
+    parser.add_argument("--particles", type=int, default=200, help="field suite: particles")
+    parser.add_argument(
+        "--scorings", nargs="+", choices=[m.value for m in ScoringMethod], help="field suite: scorings (all)"
     )
 
 
@@ -152,7 +166,13 @@ def _time_methods(
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    for name in ("frames", "repeats", "timing_frames", "runs", "seeds", "particles"):
+        value = getattr(args, name, 1)
+        if value is not None and value < 1:
+            raise CapatazError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
     with _one_core() as core:
+        if getattr(args, "suite", "paper") == "field":
+            return {**run_field(args), "core": core}
         return _measure(args, core)
 
 

@@ -1,0 +1,250 @@
+"""``capataz bench localizer --suite field``: the model tracker without odometry, per scene and scoring.
+
+Scenes: ``object`` (the tabletop part and its clutter, 640x480 calibrated camera, 30 fps flights moving up to
+20 mm and 2 deg per frame, start 30 mm / 5 deg off) and ``office`` (the built-in office, its 320x240 camera
+and 20 Hz flight, start 0.3 m / 10 deg off). The start error has that magnitude in a random direction per
+run. No odometry: the tracker predicts with its own motion model.
+
+Per scene and scoring, over ``--seeds`` runs (own flight, start error and filter seed each):
+
+- ``position_median_mm``, ``position_rmse_mm``, ``rotation_median_deg``, ``rotation_rmse_deg``: over the
+  frames from ``--settle`` on, pooled over the runs that were not lost;
+- ``lost_runs`` of ``runs``: a run is lost when more than 10 % of its frames from ``--settle`` on are off
+  by more than 5x the scene's goal (object 25 mm / 2.5 deg, office 15 cm / 2.5 deg), or it ends lost;
+- ``recovered_after_kidnap_frames``: the same flights with the camera teleported 0.1 m and 10 deg (random
+  directions) at the middle frame: frames until the error is back within 2x the run's median (position and
+  rotation); the worst run (None if one never recovered), and every run's;
+- ``step_ms_median`` / ``step_ms_p95``: CPU time of a full tracker step (edge extraction, prediction,
+  annealed weighting, resampling, refinement) per frame, one core.
+
+The weighting figure at 200 particles (one vectorised weighting of the cloud on object frames) is measured
+against the per-particle loop (paper B's CPU shape) interleaved on the same frames; CPU time, so other
+processes on a shared machine slow both alike but do not enter the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from common.geometry import R_BODY_CAMERA_FORWARD
+from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.tracker import ModelTracker, TrackerConfig, TrackingStatus
+from common.sim.objects import (
+    CameraFlight,
+    kidnap,
+    object_camera,
+    object_flight,
+    render_camera_flight,
+    tabletop_model,
+    tabletop_scene,
+)
+from common.sim.office_run import simulate_run
+
+logger = logging.getLogger(__name__)
+
+#: Goals of issue 13 (median error, best scoring, no odometry).
+GOALS = {"object": (5.0, 0.5), "office": (30.0, 0.5)}
+#: Start error (mm, deg) per scene.
+START_ERROR = {"object": (30.0, 5.0), "office": (300.0, 10.0)}
+KIDNAP_M, KIDNAP_DEG = 0.1, 10.0
+
+
+@dataclass(frozen=True)
+class _Scene:
+    name: str
+    model: Any
+    camera: Any
+    flight: CameraFlight
+    images: list[np.ndarray]
+    kidnap_frame: int
+    kidnapped: CameraFlight
+    kidnapped_images: list[np.ndarray]
+
+
+def _object_scene(frames: int, seed: int) -> _Scene:
+    camera = object_camera()
+    scene = tabletop_scene()
+    flight = object_flight(frames, seed=seed)
+    images = list(render_camera_flight(scene, flight, camera, rng=np.random.default_rng(seed)))
+    return _with_kidnap("object", tabletop_model(), camera, flight, images, scene, seed)
+
+
+def _office_scene(frames: int, seed: int) -> _Scene:
+    sim = simulate_run(n_frames=frames, seed=seed)
+    poses = [CameraPose.from_body_state(s, R_BODY_CAMERA_FORWARD) for s in sim.flight.states]
+    flight = CameraFlight(
+        times_s=sim.flight.times_s,
+        p_world_camera_m=np.array([p.p_world_camera_m for p in poses]),
+        R_world_camera=np.array([p.R_world_camera for p in poses]),
+    )
+    return _with_kidnap("office", sim.scene, sim.camera, flight, list(sim.images), sim.scene, seed)
+
+
+def _with_kidnap(
+    name: str, model: Any, camera: Any, flight: CameraFlight, images: list[np.ndarray], world: Any, seed: int
+) -> _Scene:
+    from common.sim.office_run import DEFAULT_FLIGHT_RENDER
+    from common.sim.objects import OBJECT_RENDER
+
+    rng = np.random.default_rng(10_000 + seed)
+    frame = flight.n_frames // 2
+    shift, turn = rng.normal(size=3), rng.normal(size=3)
+    moved = kidnap(
+        flight,
+        frame,
+        KIDNAP_M * shift / np.linalg.norm(shift),
+        np.radians(KIDNAP_DEG) * turn / np.linalg.norm(turn),
+    )
+    tail = CameraFlight(
+        moved.times_s[frame:], moved.p_world_camera_m[frame:], moved.R_world_camera[frame:]
+    )
+    options = OBJECT_RENDER if name == "object" else DEFAULT_FLIGHT_RENDER
+    after = list(render_camera_flight(world, tail, camera, options, np.random.default_rng(20_000 + seed)))
+    return _Scene(name, model, camera, flight, images, frame, moved, images[:frame] + after)
+
+
+def _start(scene: _Scene, seed: int) -> CameraPose:
+    mm, deg = START_ERROR[scene.name]
+    rng = np.random.default_rng(30_000 + seed)
+    shift, turn = rng.normal(size=3), rng.normal(size=3)
+    return CameraPose(
+        scene.flight.p_world_camera_m[0] + 1e-3 * mm * shift / np.linalg.norm(shift),
+        perturb(scene.flight.R_world_camera[:1], (np.radians(deg) * turn / np.linalg.norm(turn))[None])[0],
+    )
+
+
+def _track(
+    tracker: ModelTracker, flight: CameraFlight, images: list[np.ndarray], start: CameraPose, seed: int
+) -> tuple[np.ndarray, np.ndarray, list[float], TrackingStatus]:
+    """Position errors (mm), rotation errors (deg), CPU ms per step, final status."""
+    rng = np.random.default_rng(seed)
+    state = tracker.start(start)
+    pos, rot, ms = [], [], []
+    for i, image in enumerate(images):
+        dt = 0.0 if i == 0 else float(flight.times_s[i] - flight.times_s[i - 1])
+        c0 = time.process_time()
+        state = tracker.step(state, tracker.edges(image), dt, rng)
+        if i > 0:
+            ms.append((time.process_time() - c0) * 1e3)
+        pos.append(1e3 * np.linalg.norm(state.pose.p_world_camera_m - flight.p_world_camera_m[i]))
+        rot.append(float(np.degrees(rotation_angle_rad(state.pose.R_world_camera, flight.R_world_camera[i]))))
+    return np.asarray(pos), np.asarray(rot), ms, state.status
+
+
+def _recovery_frames(pos: np.ndarray, rot: np.ndarray, frame: int, limit: tuple[float, float]) -> int | None:
+    """Frames after ``frame`` until position and rotation errors are both within ``limit``."""
+    ok = (pos[frame:] <= limit[0]) & (rot[frame:] <= limit[1])
+    hits = np.flatnonzero(ok)
+    return int(hits[0]) if hits.size else None
+
+
+def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, settle: int) -> dict[str, Any]:
+    name = scenes[0].name
+    goal_mm, goal_deg = GOALS[name]
+    config = TrackerConfig(n_particles=particles, scoring=ScoringParams(method=method))
+    pos_all, rot_all, ms_all, lost, recovered = [], [], [], 0, []
+    for seed, scene in enumerate(scenes):
+        tracker = ModelTracker(scene.model, scene.camera, config)
+        start = _start(scene, seed)
+        pos, rot, ms, status = _track(tracker, scene.flight, scene.images, start, 40_000 + seed)
+        tail_pos, tail_rot = pos[settle:], rot[settle:]
+        off = (tail_pos > 5 * goal_mm) | (tail_rot > 5 * goal_deg)
+        is_lost = bool(np.mean(off) > 0.1) or status is TrackingStatus.LOST
+        lost += int(is_lost)
+        ms_all.extend(ms)
+        if not is_lost:
+            pos_all.append(tail_pos)
+            rot_all.append(tail_rot)
+        k_pos, k_rot, k_ms, _ = _track(tracker, scene.kidnapped, scene.kidnapped_images, start, 40_000 + seed)
+        ms_all.extend(k_ms)
+        limit = (2.0 * float(np.median(tail_pos)), 2.0 * float(np.median(tail_rot)))
+        recovered.append(_recovery_frames(k_pos, k_rot, scene.kidnap_frame, limit))
+    pooled_pos = np.concatenate(pos_all) if pos_all else np.array([np.nan])
+    pooled_rot = np.concatenate(rot_all) if rot_all else np.array([np.nan])
+    worst = None if any(r is None for r in recovered) else max(r for r in recovered if r is not None)
+    row = {
+        "position_median_mm": float(np.median(pooled_pos)),
+        "position_rmse_mm": float(np.sqrt(np.mean(pooled_pos**2))),
+        "rotation_median_deg": float(np.median(pooled_rot)),
+        "rotation_rmse_deg": float(np.sqrt(np.mean(pooled_rot**2))),
+        "lost_runs": lost,
+        "runs": len(scenes),
+        "recovered_after_kidnap_frames": worst,
+        "recovered_after_kidnap_frames_per_run": recovered,
+        "step_ms_median": float(np.median(ms_all)),
+        "step_ms_p95": float(np.percentile(ms_all, 95)),
+        "image_size": [scenes[0].camera.width, scenes[0].camera.height],
+        "particles": particles,
+    }
+    row["meets_goal"] = bool(
+        row["position_median_mm"] <= goal_mm and row["rotation_median_deg"] <= goal_deg and lost == 0
+    )
+    logger.info("%s %s: %s", name, method.value, row)
+    return row
+
+
+def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, float]:
+    """CPU ms of one vectorised weighting of ``particles`` poses vs the per-particle loop, interleaved."""
+    tracker = ModelTracker(scene.model, scene.camera, TrackerConfig(n_particles=particles))
+    rng = np.random.default_rng(0)
+    fast, slow = [], []
+    for i in np.linspace(1, scene.flight.n_frames - 1, 5).astype(int):
+        edges = tracker.edges(scene.images[i])
+        positions = scene.flight.p_world_camera_m[i] + rng.normal(0.0, 0.003, (particles, 3))
+        rotations = perturb(
+            np.repeat(scene.flight.R_world_camera[i][None], particles, axis=0),
+            rng.normal(0.0, np.radians(0.3), (particles, 3)),
+        )
+        truth = CameraPose(scene.flight.p_world_camera_m[i], scene.flight.R_world_camera[i])
+        visible = tracker._visible(truth)
+        for _ in range(repeats):
+            c0 = time.process_time()
+            tracker.log_likelihood(positions, rotations, edges, visible)
+            fast.append(time.process_time() - c0)
+            c0 = time.process_time()
+            for p in range(particles):
+                tracker.log_likelihood(positions[p : p + 1], rotations[p : p + 1], edges, visible)
+            slow.append(time.process_time() - c0)
+    fast_ms, slow_ms = 1e3 * float(np.median(fast)), 1e3 * float(np.median(slow))
+    return {"weighting_ms_200": fast_ms, "baseline_ms_200": slow_ms, "speedup_200": slow_ms / fast_ms}
+
+
+def run_field(args: argparse.Namespace) -> dict[str, Any]:
+    methods = [ScoringMethod(m) for m in args.scorings] if args.scorings else list(ScoringMethod)
+    scenes = {
+        "object": [_object_scene(args.frames, seed) for seed in range(args.seeds)],
+        "office": [_office_scene(args.frames, seed) for seed in range(args.seeds)],
+    }
+    results: dict[str, dict[str, Any]] = {name: {} for name in scenes}
+    table = []
+    for name, runs in scenes.items():
+        settle = min(args.settle, args.frames // 4)
+        for method in methods:
+            row = measure_scene(runs, method, args.particles, settle)
+            results[name][method.value] = row
+            table.append({"scene": name, "scoring": method.value, **{k: v for k, v in row.items() if "per_run" not in k}})
+    speed = weighting_speedup(scenes["object"][0], 200, args.repeats)
+    clean = [m for m in results["object"] if results["object"][m]["lost_runs"] == 0] or list(results["object"])
+    best = min(clean, key=lambda m: results["object"][m]["position_median_mm"])
+    return {
+        "bench_name": "localizer_field",
+        "scenes": results,
+        "best_scoring": best,
+        "goals": {k: {"position_median_mm": v[0], "rotation_median_deg": v[1]} for k, v in GOALS.items()},
+        "start_error": {k: {"position_mm": v[0], "rotation_deg": v[1]} for k, v in START_ERROR.items()},
+        "kidnap": {"position_m": KIDNAP_M, "rotation_deg": KIDNAP_DEG},
+        "frames": args.frames,
+        "seeds": args.seeds,
+        "settle_frames": args.settle,
+        "odometry": None,
+        **speed,
+        "timing_note": "CPU time of this process on one core (shared host: compare figures of the same run)",
+        "table": table,
+    }
