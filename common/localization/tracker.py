@@ -19,9 +19,10 @@ Per frame:
 3. **Local refinement** of the best particle (:mod:`~common.localization.refine`): Gauss-Newton on oriented
    point-to-edge offsets; the refined pose replaces the worst particle and is the estimate when it matches.
 4. **Loss detection**: the match fraction (same-direction edges within 2.5 px) of the estimate; below
-   ``lost_match`` the frame is bad. Bad frames switch the status to ``searching`` and restart the search
-   around the last good pose with a spread growing by ``spread_growth`` per attempt; after ``lost_frames``
-   bad frames the status is ``lost`` (the search goes on).
+   ``lost_match`` (or fewer than ``min_point_ratio`` of the points seen at the last good pose) the frame is
+   bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose with
+   a spread growing by ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1);
+   after ``lost_frames`` bad frames the status is ``lost`` (the search goes on).
 
 Hidden-line removal: sample points hidden by the model's own faces from the predicted pose are not scored
 (:func:`~common.localization.visibility.visible_points`).
@@ -87,7 +88,7 @@ class TrackerConfig:
     lost_match: float = 0.4
     lost_frames: int = 10
     spread_growth: float = 1.4
-    max_spread_factor: float = 3.0
+    max_spread_factor: float = 4.0
     hidden_line_removal: bool = True
     chunk_particles: int = 256
 
@@ -395,9 +396,7 @@ class ModelTracker:
             match=refined.match_fraction,
             bad_frames=bad,
             search_pending=True,
-            spread_factor=min(state.spread_factor * cfg.spread_growth, cfg.max_spread_factor)
-            if state.search_pending
-            else 1.0,
+            spread_factor=_next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
             frames=frames,
         )
 
@@ -458,6 +457,13 @@ class ModelTracker:
         return visible_points(
             self.scene, self.samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, self.camera
         )
+
+
+def _next_spread(factor: float, config: TrackerConfig) -> float:
+    """The search spread grows by ``spread_growth`` per failed search up to ``max_spread_factor``, then starts
+    again at 1: near recoveries stay quick, far ones are reached (a wide box alone samples near poses thinly)."""
+    grown = factor * config.spread_growth
+    return grown if grown <= config.max_spread_factor * (1.0 + 1e-9) else 1.0
 
 
 def _beta_for_ess(loglik: FloatArray, fraction: float) -> float:

@@ -146,9 +146,10 @@ def tabletop_model() -> SceneModel:
     return _model_faces().build("tabletop")
 
 
-def tabletop_scene() -> SceneModel:
-    """What the camera sees: the part plus clutter that is not in the model."""
-    f = _model_faces()
+def tabletop_scene(with_part: bool = True) -> SceneModel:
+    """What the camera sees: the part plus clutter that is not in the model (only the clutter when
+    ``with_part`` is False: frames where the object is gone, for loss detection)."""
+    f = _model_faces() if with_part else _Faces()
     f.face([(-0.8, -0.8, 0.0), (0.8, -0.8, 0.0), (0.8, 0.8, 0.0), (-0.8, 0.8, 0.0)], 0.42)  # table top
     for x0, y0, x1, y1, a in ((0.25, -0.5, 0.6, -0.47, 0.9), (-0.5, 0.3, -0.2, 0.32, 0.1)):  # tape markings
         f.face([(x0, y0, 0.002), (x1, y0, 0.002), (x1, y1, 0.002), (x0, y1, 0.002)], a)
