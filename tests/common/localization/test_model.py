@@ -72,3 +72,50 @@ def test_side_between_coplanar_faces_of_equal_albedo_is_dropped() -> None:
 def test_malformed_scene_files_are_refused_with_a_reason(text: str, message: str) -> None:
     with pytest.raises(SceneModelError, match=message):
         scene_from_json(text)
+
+
+def test_json_schema_lines_groups_and_errors_naming_the_place() -> None:
+    from common.localization.model import scene_from_json
+
+    text = json.dumps(
+        {
+            "name": "wedge",
+            "vertices": [
+                [0, 0, 0],
+                [1, 0, 0],
+                [1, 0, 1],
+                [0, 0, 1],
+                [1, 1, 0],
+                [0, 1, 0],
+                [0, 0, 2],
+                [1, 0, 2],
+            ],
+            "faces": [{"vertices": [0, 1, 2, 3], "group": 4}, {"vertices": [1, 4, 5, 0], "group": 4}],
+            "lines": [[6, 7]],
+            "crease_angle_deg": 10.0,
+        }
+    )
+    scene = scene_from_json(text)
+    shared = [i for i in range(scene.n_edges) if scene.edge_faces[i, 1] >= 0]
+    assert len(shared) == 1 and scene.edge_smooth[shared[0]]  # same group: smooth despite 90 deg
+    standalone = np.flatnonzero(scene.edge_faces[:, 0] < 0)
+    assert len(standalone) == 1 and np.allclose(scene.edges_world_m[standalone[0]][:, 2], 2.0)
+    with pytest.raises(SceneModelError, match="line 2"):
+        scene_from_json('{"vertices": [\n  [0, 0, x]]}')
+    with pytest.raises(SceneModelError, match="unknown key"):
+        scene_from_json('{"vertices": [[0, 0, 0]], "lnes": []}')
+    with pytest.raises(SceneModelError, match="line 0"):
+        scene_from_json('{"vertices": [[0, 0, 0], [1, 1, 1]], "lines": [[0, 0]]}')
+
+
+def test_non_convex_face_is_triangulated_without_inner_edges() -> None:
+    # a U-shaped outline: 8 corners -> 6 triangles, only the 8 outline sides remain edges
+    u = [[0, 0, 0], [3, 0, 0], [3, 3, 0], [2, 3, 0], [2, 1, 0], [1, 1, 0], [1, 3, 0], [0, 3, 0]]
+    scene = build_scene(u, [list(range(8))], [0.5])
+    assert scene.n_faces == 6 and scene.n_edges == 8
+    area = sum(
+        0.5
+        * np.linalg.norm(np.cross(*(scene.face_polygon_world_m(f)[1:] - scene.face_polygon_world_m(f)[0])))
+        for f in range(scene.n_faces)
+    )
+    assert area == pytest.approx(9.0 - 2.0)

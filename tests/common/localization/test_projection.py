@@ -124,3 +124,51 @@ def test_batched_projection_equals_one_particle_at_a_time(
         assert np.allclose(batch.v_px[p, rows][ok], single.v_px[0][ok], atol=1e-3)
         assert batch.normal_u is not None and single.normal_u is not None
         assert np.allclose(batch.normal_u[p, rows][ok], single.normal_u[0][ok], atol=1e-4)
+
+
+def test_projection_goes_through_the_lens_and_keeps_lines_and_limbs_right() -> None:
+    from common.camera import Distortion, DistortionModel
+    from common.localization.pose import CameraPose
+    from common.localization.projection import project_posed_samples
+
+    # a standalone line (no face), a smooth edge between two faces, a sharp one
+    vertices = [[-1, 2, -0.5], [1, 2, -0.5], [-1, 2, 0.5], [1, 2, 0.5], [1.4, 2.3, 0.5], [1.4, 2.3, -0.5]]
+    scene = build_scene(
+        vertices,
+        [[0, 1, 3, 2], [1, 5, 4, 3]],
+        [0.5, 0.5],
+        lines=[[0, 5]],
+        face_groups=[0, 0],
+    )
+    R_world_camera = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    pose = CameraPose(np.zeros(3), R_world_camera)
+    distorted = CameraModel(
+        640,
+        480,
+        500.0,
+        498.0,
+        321.0,
+        238.0,
+        Distortion(DistortionModel.RADTAN, (-0.2, 0.05, 0.001, -0.001, 0.0)),
+    )
+    samples = sample_edges(scene, 4)
+    projected = project_posed_samples(
+        samples, pose.R_camera_world[None], pose.p_world_camera_m[None], distorted
+    )
+    valid = projected.valid[0]
+    points = samples.points_world_m[projected.edge_ids][valid]
+    expected = distorted.project((points - pose.p_world_camera_m) @ pose.R_world_camera)
+    got = np.stack([projected.u_px[0][valid], projected.v_px[0][valid]], axis=1)
+    assert np.allclose(got, expected, atol=1e-2)
+    # the smooth edge (both faces towards the camera) is not a silhouette: culled; the line is always kept
+    smooth = int(np.flatnonzero(scene.edge_smooth)[0])
+    line = int(np.flatnonzero(scene.edge_faces[:, 0] < 0)[0])
+    assert smooth not in projected.edge_ids.tolist()
+    assert line in projected.edge_ids.tolist()
+    # folded the other way the second face turns away: the smooth edge is a limb (silhouette) and is kept
+    vertices[4], vertices[5] = [0.0, 2.5, 0.5], [0.0, 2.5, -0.5]
+    limb = build_scene(vertices, [[0, 1, 3, 2], [1, 5, 4, 3]], [0.5, 0.5], face_groups=[0, 0])
+    folded = project_posed_samples(
+        sample_edges(limb, 4), pose.R_camera_world[None], pose.p_world_camera_m[None], distorted
+    )
+    assert int(np.flatnonzero(limb.edge_smooth)[0]) in folded.edge_ids.tolist()

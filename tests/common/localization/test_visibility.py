@@ -54,8 +54,8 @@ def test_a_face_hides_the_edges_behind_it() -> None:
 def test_seen_from_the_side_the_card_reappears() -> None:
     scene = _wall_with_hidden_card()
     camera = CameraModel.from_hfov(320, 240, 90.0)
-    # beside the wall, looking at the card along +y from x = 1.2: nothing is in between
-    pose = CameraPose(np.array([0.0, -1.0, 0.0]) + [0.0, 1.2, 1.0], R_WORLD_CAMERA)
+    # between the wall and the card, looking along +y: nothing hides the card any more
+    pose = CameraPose(np.array([0.0, 0.2, 1.0]), R_WORLD_CAMERA)
     samples = sample_edges(scene, 6)
     visible = visible_points(
         scene, samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, camera
