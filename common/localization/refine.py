@@ -69,20 +69,24 @@ def _oriented_offsets(
     """Signed offset (px) along each normal to the nearest oriented edge pixel (NaN: none within radius)."""
     assert edges.gradient_x is not None and edges.gradient_y is not None
     steps = np.concatenate([[0], np.stack([np.arange(1, radius + 1), -np.arange(1, radius + 1)], 1).ravel()])
+    steps32 = steps.astype(np.float32)[None, :]
+    nu32, nv32 = nu.astype(np.float32)[:, None], nv.astype(np.float32)[:, None]
     # Canny marks the pixel before a step (a step between columns 9 and 10 is marked at column 9, either
     # polarity; likewise rows): an edge pixel at c stands for an edge at c + 1/2, so search half a pixel back
-    su = u[:, None] + (steps[None, :] * nu[:, None] - CANNY_OFFSET_PX)
-    sv = v[:, None] + (steps[None, :] * nv[:, None] - CANNY_OFFSET_PX)
-    col = np.rint(su).astype(np.int64)
-    row = np.rint(sv).astype(np.int64)
+    half = np.float32(0.5 - CANNY_OFFSET_PX)  # + 0.5 then truncation = rounding (coordinates >= -0.5)
+    col = (u.astype(np.float32)[:, None] + steps32 * nu32 + half).astype(np.int32)
+    row = (v.astype(np.float32)[:, None] + steps32 * nv32 + half).astype(np.int32)
     inside = (col >= 0) & (col < edges.width) & (row >= 0) & (row < edges.height)
-    col = np.where(inside, col, 0)
-    row = np.where(inside, row, 0)
-    is_edge = inside & (edges.edge_map[row, col] > 0)
-    gx = edges.gradient_x[row, col].astype(np.float64)
-    gy = edges.gradient_y[row, col].astype(np.float64)
-    parallel = np.abs(gx * nu[:, None] + gy * nv[:, None])
-    hit = is_edge & (parallel >= cos_max * np.hypot(gx, gy))
+    flat = np.where(inside, row * np.int32(edges.width) + col, 0)
+    is_edge = inside & (edges.edge_map.ravel()[flat] > 0)
+    candidates = np.flatnonzero(is_edge)  # only edge pixels need the direction test
+    gx = edges.gradient_x.ravel()[flat.ravel()[candidates]].astype(np.float32)
+    gy = edges.gradient_y.ravel()[flat.ravel()[candidates]].astype(np.float32)
+    point = candidates // steps.size
+    parallel = np.abs(gx * nu32[point, 0] + gy * nv32[point, 0])
+    hit = np.zeros(is_edge.size, dtype=bool)
+    hit[candidates] = parallel >= np.float32(cos_max) * np.hypot(gx, gy)
+    hit = hit.reshape(is_edge.shape)
     first = np.argmax(hit, axis=1)  # steps are ordered by |offset|: the first hit is the nearest
     found = hit[np.arange(hit.shape[0]), first]
     return np.where(found, steps[first].astype(np.float64), np.nan)

@@ -45,7 +45,14 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel
-from common.localization.pose import CameraPose, mean_rotation, perturb, rotation_angle_rad, rotation_vectors
+from common.localization.pose import (
+    CameraPose,
+    mean_rotation,
+    perturb,
+    rotation_angle_rad,
+    rotation_matrices,
+    rotation_vectors,
+)
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
 from common.localization.refine import Refinement, RefineParams, refine_pose
 from common.localization.scoring import ImageEdges, ScoringParams, extract_image_edges, score_particles
@@ -80,9 +87,10 @@ class TrackerConfig:
     search_layers: int = 7
     search_coarseness: float = 4.0
     refine_search: int = 8
-    refine_tracking: int = 2
+    refine_tracking: int = 1
     tracking_iterations: int = 3
-    visibility_refresh_rad: float = float(np.radians(1.5))
+    tracking_search_px: int = 8
+    visibility_refresh_rad: float = float(np.radians(5.0))
     min_point_ratio: float = 0.35
     velocity_smoothing: float = 0.7
     lost_match: float = 0.4
@@ -116,6 +124,7 @@ class TrackerState:
     status: TrackingStatus
     match: float
     last_good: CameraPose
+    #: sample points a good pose shows (a fading maximum of the good frames'; from the start pose at first)
     expected_points: int = 0
     distance_m: float = 1.0
     bad_frames: int = 0
@@ -179,6 +188,7 @@ class ModelTracker:
             match=0.0,
             last_good=pose,
             distance_m=self.viewing_distance_m(pose),
+            expected_points=self._points_in_view(pose),
         )
 
     # -- prediction -----------------------------------------------------------------------------------
@@ -303,10 +313,9 @@ class ModelTracker:
             centre = state.last_good if state.frames > 0 else state.pose
             pos_spread = spread_m * state.spread_factor
             ang_spread = cfg.angle_spread_rad * state.spread_factor
-            m = cfg.search_candidates
-            positions = centre.p_world_camera_m + rng.uniform(-1.0, 1.0, (m, 3)) * pos_spread
-            rotations = perturb(
-                np.repeat(centre.R_world_camera[None], m, axis=0), rng.uniform(-1.0, 1.0, (m, 3)) * ang_spread
+            centre = self._image_shift_prior(centre, edges, ang_spread + pos_spread / state.distance_m)
+            positions, rotations = self._search_candidates(
+                centre, pos_spread, ang_spread, state.distance_m, state.spread_factor, rng
             )
             visible = self._visible(centre)
             state = replace(state, visible=visible, visible_from=centre)
@@ -338,14 +347,16 @@ class ModelTracker:
             edges,
             visible,
             cfg.refine_search if searching else cfg.refine_tracking,
-            cfg.refine if searching else replace(cfg.refine, iterations=cfg.tracking_iterations),
+            cfg.refine
+            if searching
+            else replace(cfg.refine, iterations=cfg.tracking_iterations, search_px=cfg.tracking_search_px),
         )
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()
         idx = _systematic(weights, n, rng)
         positions, rotations = positions[idx], rotations[idx]
         positions[0], rotations[0] = refined_pose.p_world_camera_m, refined_pose.R_world_camera
-        expected = state.expected_points if state.expected_points > 0 else refined.n_points
+        expected = state.expected_points
         good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
         mean_R = mean_rotation(rotations, np.ones(n))
         covariance = _cloud_covariance(
@@ -376,7 +387,8 @@ class ModelTracker:
                 status=TrackingStatus.TRACKING,
                 match=refined.match_fraction,
                 last_good=pose,
-                expected_points=refined.n_points,
+                # a slowly fading maximum: a pose that shows only a sliver of the model cannot talk it down
+                expected_points=max(int(0.95 * state.expected_points), refined.n_points),
                 bad_frames=0,
                 search_pending=False,
                 spread_factor=1.0,
@@ -437,9 +449,85 @@ class ModelTracker:
         assert best is not None
         return best
 
+    def _image_shift_prior(self, centre: CameraPose, edges: ImageEdges, turn_rad: float) -> CameraPose:
+        """The search centre turned so that the model's projection lands where the image's edges fit it best
+        under a 2D shift (chamfer distance over a grid of shifts up to ``turn_rad x f``, coarse then fine).
+        A camera moved sideways or turned moves the model in the image mostly as a whole; this finds that
+        move directly, whatever the spread, and the 6D search starts from there. The centre is kept when
+        the shifted fit is not clearly better than the unshifted one."""
+        visible = self._visible(centre)
+        projected = project_posed_samples(
+            self.samples, centre.R_camera_world[None], centre.p_world_camera_m[None], self.camera, visible=visible
+        )
+        valid = projected.valid[0]
+        if valid.sum() < 20:
+            return centre
+        u = projected.u_px[0][valid].astype(np.float32)
+        v = projected.v_px[0][valid].astype(np.float32)
+        cap = np.float32(3.0 * self.config.scoring.sigma_px * 2.0)
+
+        def cost(shifts: FloatArray) -> FloatArray:
+            su = (u[None, :] + shifts[:, :1].astype(np.float32) + np.float32(0.5)).astype(np.int32)
+            sv = (v[None, :] + shifts[:, 1:].astype(np.float32) + np.float32(0.5)).astype(np.int32)
+            inside = (su >= 0) & (su < edges.width) & (sv >= 0) & (sv < edges.height)
+            index = np.where(inside, sv * np.int32(edges.width) + su, edges.width * edges.height)
+            d = np.minimum(np.take(edges.distance_lookup, index), cap)  # outside the image: the cap
+            return np.asarray(d.mean(axis=1), dtype=np.float64)
+
+        reach = max(4.0, turn_rad * max(self.camera.fx, self.camera.fy))
+        step = max(2.0, reach / 24.0)
+        grid = np.arange(-reach, reach + 1e-9, step)
+        shifts = np.stack(np.meshgrid(grid, grid), axis=-1).reshape(-1, 2)
+        costs = cost(shifts)
+        best = shifts[int(np.argmin(costs))]
+        fine = best + np.stack(np.meshgrid(*(np.arange(-step, step + 1e-9, step / 4.0),) * 2), -1).reshape(-1, 2)
+        fine_costs = cost(fine)
+        best, best_cost = fine[int(np.argmin(fine_costs))], float(np.min(fine_costs))
+        if best_cost > 0.8 * float(cost(np.zeros((1, 2)))[0]):
+            return centre
+        du, dv = float(best[0]), float(best[1])
+        turn = rotation_matrices(np.array([[-dv / self.camera.fy, du / self.camera.fx, 0.0]]))[0]
+        return CameraPose(centre.p_world_camera_m, (turn @ centre.R_camera_world).T)
+
+    def _points_in_view(self, pose: CameraPose) -> int:
+        """Sample points of the model in view from ``pose`` (culled, inside the image, not hidden)."""
+        projected = project_posed_samples(
+            self.samples,
+            pose.R_camera_world[None],
+            pose.p_world_camera_m[None],
+            self.camera,
+            visible=self._visible(pose),
+        )
+        return int(projected.valid.sum())
+
+    def _search_candidates(
+        self,
+        centre: CameraPose,
+        pos_spread: float,
+        ang_spread: float,
+        distance_m: float,
+        factor: float,
+        rng: np.random.Generator,
+    ) -> tuple[FloatArray, FloatArray]:
+        """``search_candidates x factor`` poses about ``centre``, half of them uniform in the box
+        ``+- (pos_spread, ang_spread)``, half turned more and shifted less: seen from ``distance_m`` a
+        sideways shift ``dp`` moves the model in the image like a turn of ``dp / d``, so that half covers turns
+        of ``ang_spread + pos_spread / d`` with a third of the position spread (denser where a kidnapped
+        camera's image moved)."""
+        m = int(self.config.search_candidates * max(factor, 1.0))
+        half = m // 2
+        units = rng.uniform(-1.0, 1.0, (m, 6))
+        turn = ang_spread + pos_spread / max(distance_m, 1e-6)
+        scale_p = np.where(np.arange(m)[:, None] < half, pos_spread, pos_spread / 3.0)
+        scale_r = np.where(np.arange(m)[:, None] < half, ang_spread, turn)
+        positions = centre.p_world_camera_m + units[:, :3] * scale_p
+        rotations = perturb(np.repeat(centre.R_world_camera[None], m, axis=0), units[:, 3:] * scale_r)
+        return positions, rotations
+
     def _refresh_visibility(self, state: TrackerState) -> TrackerState:
-        """Recompute the hidden-line mask when the camera moved by more than 2 % of its distance to the model
-        or turned by more than ``visibility_refresh_rad`` since it was computed."""
+        """Recompute the hidden-line mask when the camera moved by more than 5 % of its distance to the model
+        or turned by more than ``visibility_refresh_rad`` since it was computed (what a sample point's
+        visibility depends on changes slowly; a coarse buffer is no sharper than that anyway)."""
         if not self.config.hidden_line_removal:
             return state
         last = state.visible_from
@@ -447,7 +535,7 @@ class ModelTracker:
             distance = float(np.linalg.norm(last.p_world_camera_m - self.scene.centre_world_m))
             moved = float(np.linalg.norm(state.pose.p_world_camera_m - last.p_world_camera_m))
             turned = float(rotation_angle_rad(state.pose.R_world_camera, last.R_world_camera))
-            if moved <= 0.02 * distance and turned <= self.config.visibility_refresh_rad:
+            if moved <= 0.05 * distance and turned <= self.config.visibility_refresh_rad:
                 return state
         return replace(state, visible=self._visible(state.pose), visible_from=state.pose)
 
