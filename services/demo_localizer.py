@@ -18,8 +18,8 @@ import numpy as np
 
 from common.localization.particle_filter import ParticleFilterConfig
 from common.localization.scoring import ScoringMethod, ScoringParams
-from common.sim.office_run import simulate_run, track_run
 from common.localization.tracking import track_accuracy
+from common.sim.office_run import simulate_run, track_run
 
 logger = logging.getLogger(__name__)
 

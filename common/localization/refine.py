@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.camera import CameraModel
-from common.localization.pose import rotation_matrices
+from common.localization.pose import CameraPose, rotation_matrices
 from common.localization.projection import EdgeSamples, project_posed_samples
 from common.localization.scoring import ImageEdges
 
@@ -84,9 +84,9 @@ def _oriented_offsets(
     gy = edges.gradient_y.ravel()[flat.ravel()[candidates]].astype(np.float32)
     point = candidates // steps.size
     parallel = np.abs(gx * nu32[point, 0] + gy * nv32[point, 0])
-    hit = np.zeros(is_edge.size, dtype=bool)
-    hit[candidates] = parallel >= np.float32(cos_max) * np.hypot(gx, gy)
-    hit = hit.reshape(is_edge.shape)
+    hit_flat = np.zeros(is_edge.size, dtype=bool)
+    hit_flat[candidates] = parallel >= np.float32(cos_max) * np.hypot(gx, gy)
+    hit = hit_flat.reshape(is_edge.shape[0], steps.size)
     first = np.argmax(hit, axis=1)  # steps are ordered by |offset|: the first hit is the nearest
     found = hit[np.arange(hit.shape[0]), first]
     return np.where(found, steps[first].astype(np.float64), np.nan)
@@ -192,3 +192,43 @@ def refine_pose(
             break
     fraction, n_points = match_fraction(samples, R, t, camera, edges, params, visible)
     return Refinement(R, t, fraction, n_points, covariance)
+
+
+def refine_best(
+    samples: EdgeSamples,
+    camera: CameraModel,
+    positions: FloatArray,
+    rotations: FloatArray,
+    logw: FloatArray,
+    edges: ImageEdges,
+    visible: npt.NDArray[np.bool_] | None,
+    count: int,
+    params: RefineParams,
+) -> tuple[Refinement, CameraPose]:
+    """Refine the ``count`` best distinct particles (``R_world_camera`` rotations) with the largest log
+    weights; the refinement with the best ``match x sqrt(points)`` wins. Returns it and its pose."""
+    order = np.argsort(-logw)
+    chosen: list[int] = []
+    for i in order:
+        if len(chosen) >= count:
+            break
+        if all(np.linalg.norm(positions[i] - positions[j]) > 1e-4 for j in chosen):
+            chosen.append(int(i))
+    best: tuple[Refinement, CameraPose] | None = None
+    for i in chosen:
+        guess = CameraPose(positions[i], rotations[i])
+        result = refine_pose(
+            samples,
+            guess.R_camera_world,
+            guess.t_camera_world_m,
+            camera,
+            edges,
+            params,
+            visible,
+        )
+        score = result.match_fraction * np.sqrt(max(result.n_points, 0))
+        if best is None or score > best[0].match_fraction * np.sqrt(max(best[0].n_points, 0)):
+            pose = CameraPose(-result.R_camera_world.T @ result.t_camera_world_m, result.R_camera_world.T)
+            best = (result, pose)
+    assert best is not None
+    return best

@@ -36,8 +36,7 @@ do not scale.
 
 from __future__ import annotations
 
-import enum
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
@@ -45,96 +44,28 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel
+from common.localization.particle_filter import low_variance_resample
 from common.localization.pose import (
     CameraPose,
     mean_rotation,
     perturb,
     rotation_angle_rad,
-    rotation_matrices,
     rotation_vectors,
 )
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
-from common.localization.refine import Refinement, RefineParams, refine_pose
-from common.localization.scoring import ImageEdges, ScoringParams, extract_image_edges, score_particles
+from common.localization.refine import refine_best
+from common.localization.scoring import ImageEdges, extract_image_edges, score_particles
+from common.localization.search import (
+    anneal,
+    chamfer_turn,
+    cloud_covariance,
+    search_candidates,
+    twist_covariance_to_world,
+)
+from common.localization.tracker_state import TrackerConfig, TrackerState, TrackingStatus, next_spread
 from common.localization.visibility import visible_points
 
 FloatArray = npt.NDArray[np.float64]
-
-
-class TrackingStatus(enum.Enum):
-    """What the estimate is worth: ``tracking`` (matched), ``searching`` (a few bad frames, re-searching
-    around the last good pose), ``lost`` (more bad frames; still searching with a wide spread)."""
-
-    TRACKING = "tracking"
-    SEARCHING = "searching"
-    LOST = "lost"
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring)."""
-
-    n_particles: int = 200
-    points_per_edge: int = 8
-    layers: int = 2
-    scoring: ScoringParams = field(default_factory=ScoringParams)
-    refine: RefineParams = field(default_factory=RefineParams)
-    position_spread_m: float | None = None
-    angle_spread_rad: float = float(np.radians(8.0))
-    velocity_noise_m_s: float | None = None
-    angular_noise_rad_s: float = float(np.radians(25.0))
-    search_candidates: int = 3000
-    search_layers: int = 7
-    search_coarseness: float = 4.0
-    refine_search: int = 8
-    refine_tracking: int = 1
-    tracking_iterations: int = 3
-    tracking_search_px: int = 8
-    visibility_refresh_rad: float = float(np.radians(5.0))
-    min_point_ratio: float = 0.35
-    velocity_smoothing: float = 0.7
-    lost_match: float = 0.4
-    lost_frames: int = 10
-    spread_growth: float = 1.4
-    max_spread_factor: float = 4.0
-    hidden_line_removal: bool = True
-    chunk_particles: int = 256
-
-    def __post_init__(self) -> None:
-        if self.n_particles < 2 or self.layers < 1 or self.search_layers < 1:
-            raise InputError("need n_particles >= 2, layers >= 1 and search_layers >= 1")
-        if self.search_candidates < self.n_particles:
-            raise InputError("search_candidates must be >= n_particles")
-        for name in ("position_spread_m", "velocity_noise_m_s"):
-            value = getattr(self, name)
-            if value is not None and not (np.isfinite(value) and value > 0.0):
-                raise InputError(f"{name} must be positive, got {value}")
-
-
-@dataclass(frozen=True)
-class TrackerState:
-    """Particles (centres (P, 3), ``R_world_camera`` (P, 3, 3)), the estimate and the motion model."""
-
-    positions_m: FloatArray
-    rotations: FloatArray
-    pose: CameraPose
-    covariance: FloatArray
-    velocity_m_s: FloatArray
-    angular_rate_rad_s: FloatArray
-    status: TrackingStatus
-    match: float
-    last_good: CameraPose
-    #: sample points a good pose shows (a fading maximum of the good frames'; from the start pose at first)
-    expected_points: int = 0
-    distance_m: float = 1.0
-    bad_frames: int = 0
-    search_pending: bool = True
-    spread_factor: float = 1.0
-    frames: int = 0
-    recoveries: int = 0
-    #: hidden-line mask (E, S) of the sample points and the pose it was computed from
-    visible: npt.NDArray[np.bool_] | None = None
-    visible_from: CameraPose | None = None
 
 
 class ModelTracker:
@@ -254,38 +185,6 @@ class ModelTracker:
             out.append(score_particles(proj, edges, params).log_weight)
         return np.concatenate(out)
 
-    def anneal(
-        self,
-        positions: FloatArray,
-        rotations: FloatArray,
-        edges: ImageEdges,
-        rng: np.random.Generator,
-        layers: int,
-        noise: tuple[float, float],
-        keep: int,
-        visible: npt.NDArray[np.bool_] | None,
-        coarse: float = 1.0,
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Annealed importance weighting (Deutscher et al.): per layer weigh with ``exp(beta l)`` at an
-        effective sample size of half the cloud, resample ``keep`` poses, diffuse with a halving noise
-        (position m, angle rad); the last layer is weighed and returned with its log weights. The scoring's
-        pixel scales start ``coarse`` times wider and narrow geometrically to 1 on the last layer."""
-        for layer in range(layers):
-            coarseness = coarse ** (1.0 - layer / max(layers - 1, 1))
-            loglik = self.log_likelihood(positions, rotations, edges, visible, coarseness)
-            last = layer == layers - 1
-            beta = _beta_for_ess(loglik, 0.5)
-            logw = beta * loglik
-            if last:
-                return positions, rotations, logw
-            weights = np.exp(logw - logw.max())
-            weights /= weights.sum()
-            idx = _systematic(weights, keep, rng)
-            scale = 0.5 ** (layer + 1)
-            positions = positions[idx] + rng.normal(size=(keep, 3)) * (noise[0] * scale)
-            rotations = perturb(rotations[idx], rng.normal(size=(keep, 3)) * (noise[1] * scale))
-        raise AssertionError("unreachable")
-
     # -- one frame ------------------------------------------------------------------------------------
     def step(
         self,
@@ -314,12 +213,18 @@ class ModelTracker:
             pos_spread = spread_m * state.spread_factor
             ang_spread = cfg.angle_spread_rad * state.spread_factor
             centre = self._image_shift_prior(centre, edges, ang_spread + pos_spread / state.distance_m)
-            positions, rotations = self._search_candidates(
-                centre, pos_spread, ang_spread, state.distance_m, state.spread_factor, rng
+            positions, rotations = search_candidates(
+                centre,
+                int(cfg.search_candidates * max(state.spread_factor, 1.0)),
+                pos_spread,
+                ang_spread,
+                state.distance_m,
+                rng,
             )
             visible = self._visible(centre)
             state = replace(state, visible=visible, visible_from=centre)
-            positions, rotations, logw = self.anneal(
+            positions, rotations, logw = anneal(
+                self.log_likelihood,
                 positions,
                 rotations,
                 edges,
@@ -336,11 +241,21 @@ class ModelTracker:
             visible = state.visible
             dt = max(dt_s, 1e-3)
             noise = (noise_m_s * dt, cfg.angular_noise_rad_s * dt)
-            positions, rotations, logw = self.anneal(
-                state.positions_m, state.rotations, edges, rng, cfg.layers, noise, n, visible
+            positions, rotations, logw = anneal(
+                self.log_likelihood,
+                state.positions_m,
+                state.rotations,
+                edges,
+                rng,
+                cfg.layers,
+                noise,
+                n,
+                visible,
             )
         searching = state.search_pending
-        refined, refined_pose = self._refine_best(
+        refined, refined_pose = refine_best(
+            self.samples,
+            self.camera,
             positions,
             rotations,
             logw,
@@ -353,18 +268,18 @@ class ModelTracker:
         )
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()
-        idx = _systematic(weights, n, rng)
+        idx = low_variance_resample(weights, rng, n)
         positions, rotations = positions[idx], rotations[idx]
         positions[0], rotations[0] = refined_pose.p_world_camera_m, refined_pose.R_world_camera
         expected = state.expected_points
         good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
         mean_R = mean_rotation(rotations, np.ones(n))
-        covariance = _cloud_covariance(
+        covariance = cloud_covariance(
             positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R)
         )
         pose = refined_pose if good else CameraPose(positions.mean(axis=0), mean_R)
         if good and np.all(np.isfinite(refined.covariance)):
-            covariance = covariance + _twist_to_world(refined.covariance, refined_pose)
+            covariance = covariance + twist_covariance_to_world(refined.covariance, refined_pose)
         frames = state.frames + 1
         if good:
             velocity, rate = state.velocity_m_s, state.angular_rate_rad_s
@@ -408,85 +323,33 @@ class ModelTracker:
             match=refined.match_fraction,
             bad_frames=bad,
             search_pending=True,
-            spread_factor=_next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
+            spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
             frames=frames,
         )
 
-    def _refine_best(
-        self,
-        positions: FloatArray,
-        rotations: FloatArray,
-        logw: FloatArray,
-        edges: ImageEdges,
-        visible: npt.NDArray[np.bool_] | None,
-        count: int,
-        params: RefineParams,
-    ) -> tuple[Refinement, CameraPose]:
-        """Refine the ``count`` best distinct particles; the refinement with the best match wins."""
-        order = np.argsort(-logw)
-        chosen: list[int] = []
-        for i in order:
-            if len(chosen) >= count:
-                break
-            if all(np.linalg.norm(positions[i] - positions[j]) > 1e-4 for j in chosen):
-                chosen.append(int(i))
-        best: tuple[Refinement, CameraPose] | None = None
-        for i in chosen:
-            guess = CameraPose(positions[i], rotations[i])
-            result = refine_pose(
-                self.samples,
-                guess.R_camera_world,
-                guess.t_camera_world_m,
-                self.camera,
-                edges,
-                params,
-                visible,
-            )
-            score = result.match_fraction * np.sqrt(max(result.n_points, 0))
-            if best is None or score > best[0].match_fraction * np.sqrt(max(best[0].n_points, 0)):
-                pose = CameraPose(-result.R_camera_world.T @ result.t_camera_world_m, result.R_camera_world.T)
-                best = (result, pose)
-        assert best is not None
-        return best
-
     def _image_shift_prior(self, centre: CameraPose, edges: ImageEdges, turn_rad: float) -> CameraPose:
-        """The search centre turned so that the model's projection lands where the image's edges fit it best
-        under a 2D shift (chamfer distance over a grid of shifts up to ``turn_rad x f``, coarse then fine).
-        A camera moved sideways or turned moves the model in the image mostly as a whole; this finds that
-        move directly, whatever the spread, and the 6D search starts from there. The centre is kept when
-        the shifted fit is not clearly better than the unshifted one."""
-        visible = self._visible(centre)
+        """The search centre turned by :func:`~common.localization.search.chamfer_turn` (the model's
+        projection shifted to where the image's edges fit it best), or unchanged."""
         projected = project_posed_samples(
-            self.samples, centre.R_camera_world[None], centre.p_world_camera_m[None], self.camera, visible=visible
+            self.samples,
+            centre.R_camera_world[None],
+            centre.p_world_camera_m[None],
+            self.camera,
+            visible=self._visible(centre),
         )
         valid = projected.valid[0]
         if valid.sum() < 20:
             return centre
-        u = projected.u_px[0][valid].astype(np.float32)
-        v = projected.v_px[0][valid].astype(np.float32)
-        cap = np.float32(3.0 * self.config.scoring.sigma_px * 2.0)
-
-        def cost(shifts: FloatArray) -> FloatArray:
-            su = (u[None, :] + shifts[:, :1].astype(np.float32) + np.float32(0.5)).astype(np.int32)
-            sv = (v[None, :] + shifts[:, 1:].astype(np.float32) + np.float32(0.5)).astype(np.int32)
-            inside = (su >= 0) & (su < edges.width) & (sv >= 0) & (sv < edges.height)
-            index = np.where(inside, sv * np.int32(edges.width) + su, edges.width * edges.height)
-            d = np.minimum(np.take(edges.distance_lookup, index), cap)  # outside the image: the cap
-            return np.asarray(d.mean(axis=1), dtype=np.float64)
-
-        reach = max(4.0, turn_rad * max(self.camera.fx, self.camera.fy))
-        step = max(2.0, reach / 24.0)
-        grid = np.arange(-reach, reach + 1e-9, step)
-        shifts = np.stack(np.meshgrid(grid, grid), axis=-1).reshape(-1, 2)
-        costs = cost(shifts)
-        best = shifts[int(np.argmin(costs))]
-        fine = best + np.stack(np.meshgrid(*(np.arange(-step, step + 1e-9, step / 4.0),) * 2), -1).reshape(-1, 2)
-        fine_costs = cost(fine)
-        best, best_cost = fine[int(np.argmin(fine_costs))], float(np.min(fine_costs))
-        if best_cost > 0.8 * float(cost(np.zeros((1, 2)))[0]):
+        turn = chamfer_turn(
+            projected.u_px[0][valid],
+            projected.v_px[0][valid],
+            edges,
+            self.camera,
+            turn_rad,
+            cap_px=6.0 * self.config.scoring.sigma_px,
+        )
+        if turn is None:
             return centre
-        du, dv = float(best[0]), float(best[1])
-        turn = rotation_matrices(np.array([[-dv / self.camera.fy, du / self.camera.fx, 0.0]]))[0]
         return CameraPose(centre.p_world_camera_m, (turn @ centre.R_camera_world).T)
 
     def _points_in_view(self, pose: CameraPose) -> int:
@@ -499,30 +362,6 @@ class ModelTracker:
             visible=self._visible(pose),
         )
         return int(projected.valid.sum())
-
-    def _search_candidates(
-        self,
-        centre: CameraPose,
-        pos_spread: float,
-        ang_spread: float,
-        distance_m: float,
-        factor: float,
-        rng: np.random.Generator,
-    ) -> tuple[FloatArray, FloatArray]:
-        """``search_candidates x factor`` poses about ``centre``, half of them uniform in the box
-        ``+- (pos_spread, ang_spread)``, half turned more and shifted less: seen from ``distance_m`` a
-        sideways shift ``dp`` moves the model in the image like a turn of ``dp / d``, so that half covers turns
-        of ``ang_spread + pos_spread / d`` with a third of the position spread (denser where a kidnapped
-        camera's image moved)."""
-        m = int(self.config.search_candidates * max(factor, 1.0))
-        half = m // 2
-        units = rng.uniform(-1.0, 1.0, (m, 6))
-        turn = ang_spread + pos_spread / max(distance_m, 1e-6)
-        scale_p = np.where(np.arange(m)[:, None] < half, pos_spread, pos_spread / 3.0)
-        scale_r = np.where(np.arange(m)[:, None] < half, ang_spread, turn)
-        positions = centre.p_world_camera_m + units[:, :3] * scale_p
-        rotations = perturb(np.repeat(centre.R_world_camera[None], m, axis=0), units[:, 3:] * scale_r)
-        return positions, rotations
 
     def _refresh_visibility(self, state: TrackerState) -> TrackerState:
         """Recompute the hidden-line mask when the camera moved by more than 5 % of its distance to the model
@@ -545,61 +384,3 @@ class ModelTracker:
         return visible_points(
             self.scene, self.samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, self.camera
         )
-
-
-def _next_spread(factor: float, config: TrackerConfig) -> float:
-    """The search spread grows by ``spread_growth`` per failed search up to ``max_spread_factor``, then starts
-    again at 1: near recoveries stay quick, far ones are reached (a wide box alone samples near poses thinly)."""
-    grown = factor * config.spread_growth
-    return grown if grown <= config.max_spread_factor * (1.0 + 1e-9) else 1.0
-
-
-def _beta_for_ess(loglik: FloatArray, fraction: float) -> float:
-    """Largest ``beta`` in (0, 1] whose weights ``exp(beta l)`` keep an effective sample size of at least
-    ``fraction`` of the cloud (bisection)."""
-    spread = loglik - loglik.max()
-
-    def ess(beta: float) -> float:
-        w = np.exp(beta * spread)
-        return float(w.sum() ** 2 / np.sum(w * w)) / w.size
-
-    if ess(1.0) >= fraction:
-        return 1.0
-    lo, hi = 0.0, 1.0
-    for _ in range(30):
-        mid = 0.5 * (lo + hi)
-        if ess(mid) >= fraction:
-            lo = mid
-        else:
-            hi = mid
-    return max(lo, 1e-6)
-
-
-def _systematic(weights: FloatArray, n: int, rng: np.random.Generator) -> npt.NDArray[np.intp]:
-    positions = (rng.uniform(0.0, 1.0 / n) + np.arange(n) / n).clip(0.0, 1.0)
-    cumulative = np.cumsum(weights)
-    cumulative[-1] = 1.0
-    return np.asarray(np.searchsorted(cumulative, positions, side="left").clip(0, weights.size - 1))
-
-
-def _cloud_covariance(positions: FloatArray, rotations: FloatArray, centre: CameraPose) -> FloatArray:
-    """6x6 covariance of the cloud about ``centre``: position and world-frame error angles."""
-    dp = positions - centre.p_world_camera_m
-    dtheta = rotation_vectors(np.einsum("nij,kj->nik", rotations, centre.R_world_camera))
-    residual = np.concatenate([dp, dtheta], axis=1)
-    cov = residual.T @ residual / residual.shape[0]
-    return np.asarray(0.5 * (cov + cov.T))
-
-
-def _twist_to_world(covariance_twist: FloatArray, pose: CameraPose) -> FloatArray:
-    """Covariance of the camera twist ``(v, w)`` (camera frame) as (camera centre, world error angles)."""
-    R_wc = pose.R_world_camera
-    t = pose.t_camera_world_m
-    # p = -R_wc t; a twist (v, w) moves t -> Exp(w) t + v and R_cw -> Exp(w) R_cw:
-    # dp = -R_wc (v + w x t) + R_wc [w]x t ... to first order dp = -R_wc v, dtheta_world = -R_wc w
-    J = np.zeros((6, 6))
-    J[:3, :3] = -R_wc
-    J[3:, 3:] = -R_wc
-    del t
-    mapped = J @ covariance_twist @ J.T
-    return np.asarray(0.5 * (mapped + mapped.T))

@@ -30,6 +30,7 @@ from common.errors import CapatazError
 from common.localization.baseline import weigh_per_particle
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig, ParticleState
 from common.localization.scoring import ImageEdges, ScoringMethod, ScoringParams, extract_image_edges
+from common.localization.tracking import track_accuracy
 from common.sim.office_run import (
     INITIAL_ANGLE_ERROR_RAD,
     INITIAL_POSITION_ERROR_M,
@@ -37,7 +38,6 @@ from common.sim.office_run import (
     simulate_run,
     track_run,
 )
-from common.localization.tracking import track_accuracy
 from services.bench.localizer_field import run_field
 
 logger = logging.getLogger(__name__)

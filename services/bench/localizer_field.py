@@ -35,7 +35,8 @@ import numpy as np
 from common.geometry import R_BODY_CAMERA_FORWARD
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad
 from common.localization.scoring import ScoringMethod, ScoringParams
-from common.localization.tracker import ModelTracker, TrackerConfig, TrackingStatus
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerConfig, TrackingStatus
 from common.sim.objects import (
     CameraFlight,
     kidnap,
@@ -90,8 +91,8 @@ def _office_scene(frames: int, seed: int) -> _Scene:
 def _with_kidnap(
     name: str, model: Any, camera: Any, flight: CameraFlight, images: list[np.ndarray], world: Any, seed: int
 ) -> _Scene:
-    from common.sim.office_run import DEFAULT_FLIGHT_RENDER
     from common.sim.objects import OBJECT_RENDER
+    from common.sim.office_run import DEFAULT_FLIGHT_RENDER
 
     rng = np.random.default_rng(10_000 + seed)
     frame = flight.n_frames // 2
@@ -102,9 +103,7 @@ def _with_kidnap(
         KIDNAP_M * shift / np.linalg.norm(shift),
         np.radians(KIDNAP_DEG) * turn / np.linalg.norm(turn),
     )
-    tail = CameraFlight(
-        moved.times_s[frame:], moved.p_world_camera_m[frame:], moved.R_world_camera[frame:]
-    )
+    tail = CameraFlight(moved.times_s[frame:], moved.p_world_camera_m[frame:], moved.R_world_camera[frame:])
     options = OBJECT_RENDER if name == "object" else DEFAULT_FLIGHT_RENDER
     after = list(render_camera_flight(world, tail, camera, options, np.random.default_rng(20_000 + seed)))
     return _Scene(name, model, camera, flight, images, frame, moved, images[:frame] + after)
@@ -169,10 +168,12 @@ def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, s
     pooled_pos = np.concatenate(pos_all) if pos_all else np.array([np.nan])
     pooled_rot = np.concatenate(rot_all) if rot_all else np.array([np.nan])
     worst = None if any(r is None for r in recovered) else max(r for r in recovered if r is not None)
-    row = {
-        "position_median_mm": float(np.median(pooled_pos)),
+    position_median_mm = float(np.median(pooled_pos))
+    rotation_median_deg = float(np.median(pooled_rot))
+    row: dict[str, Any] = {
+        "position_median_mm": position_median_mm,
         "position_rmse_mm": float(np.sqrt(np.mean(pooled_pos**2))),
-        "rotation_median_deg": float(np.median(pooled_rot)),
+        "rotation_median_deg": rotation_median_deg,
         "rotation_rmse_deg": float(np.sqrt(np.mean(pooled_rot**2))),
         "lost_runs": lost,
         "runs": len(scenes),
@@ -183,9 +184,7 @@ def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, s
         "image_size": [scenes[0].camera.width, scenes[0].camera.height],
         "particles": particles,
     }
-    row["meets_goal"] = bool(
-        row["position_median_mm"] <= goal_mm and row["rotation_median_deg"] <= goal_deg and lost == 0
-    )
+    row["meets_goal"] = bool(position_median_mm <= goal_mm and rotation_median_deg <= goal_deg and lost == 0)
     logger.info("%s %s: %s", name, method.value, row)
     return row
 
@@ -229,9 +228,17 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
         for method in methods:
             row = measure_scene(runs, method, args.particles, settle)
             results[name][method.value] = row
-            table.append({"scene": name, "scoring": method.value, **{k: v for k, v in row.items() if "per_run" not in k}})
+            table.append(
+                {
+                    "scene": name,
+                    "scoring": method.value,
+                    **{k: v for k, v in row.items() if "per_run" not in k},
+                }
+            )
     speed = weighting_speedup(scenes["object"][0], 200, args.repeats)
-    clean = [m for m in results["object"] if results["object"][m]["lost_runs"] == 0] or list(results["object"])
+    clean = [m for m in results["object"] if results["object"][m]["lost_runs"] == 0] or list(
+        results["object"]
+    )
     best = min(clean, key=lambda m: results["object"][m]["position_median_mm"])
     return {
         "bench_name": "localizer_field",

@@ -29,10 +29,10 @@ from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
 from common.localization.office import default_scene
-from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from common.sim.flight import Flight, hover_flight, turns_flight
+from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from services.runtime.transport import (
     ServiceRuntime,

@@ -26,7 +26,8 @@ import zenoh
 from common import keys
 from common.geometry import matrix_from_quaternion, quaternion_from_matrix
 from common.localization.pose import rotation_vectors
-from common.localization.tracker import ModelTracker, TrackerState
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerState
 from common.messages import Frame, PoseEstimate, encode
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args

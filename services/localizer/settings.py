@@ -24,7 +24,7 @@ from common.localization.model import SceneModel
 from common.localization.office import default_scene
 from common.localization.pose import CameraPose, parse_pose_numbers
 from common.localization.scoring import ScoringMethod, ScoringParams
-from common.localization.tracker import TrackerConfig
+from common.localization.tracker_state import TrackerConfig
 from common.sim.office_run import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
 from common.sim.scene import default_flight
 from services.runtime.transport import add_transport_arguments

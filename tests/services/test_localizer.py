@@ -18,7 +18,8 @@ from common.datasets.calibration import opencv_yaml_text
 from common.geometry import R_BODY_CAMERA_FORWARD, quaternion_from_matrix
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad
 from common.localization.scoring import ScoringMethod
-from common.localization.tracker import ModelTracker, TrackerState
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerState
 from common.messages import Frame, PoseEstimate, decode, encode
 from common.sim.objects import (
     object_camera,

@@ -22,7 +22,8 @@ from common.geometry import (
 from common.localization.model import SceneModelError, scene_to_dict
 from common.localization.office import default_scene
 from common.localization.pose import CameraPose
-from common.localization.tracker import ModelTracker, TrackingStatus
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackingStatus
 from common.messages import PoseEstimate
 from services.localizer import LocalizerSettings, odometry_between, pose_message
 

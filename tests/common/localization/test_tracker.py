@@ -11,7 +11,8 @@ import pytest
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad
 from common.localization.refine import CANNY_OFFSET_PX, match_fraction
 from common.localization.scoring import extract_image_edges
-from common.localization.tracker import ModelTracker, TrackerConfig, TrackerState, TrackingStatus
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerConfig, TrackerState, TrackingStatus
 from common.sim.objects import (
     CameraFlight,
     kidnap,

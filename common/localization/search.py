@@ -1,0 +1,157 @@
+"""The search pieces of the model tracker (:mod:`~common.localization.tracker`): annealed weighting,
+search candidates, the 2D chamfer shift that centres a search, and the estimate's covariance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from common.camera import CameraModel
+from common.localization.particle_filter import low_variance_resample
+from common.localization.pose import CameraPose, perturb, rotation_matrices, rotation_vectors
+from common.localization.scoring import ImageEdges
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def anneal(
+    log_likelihood: Callable[..., FloatArray],
+    positions: FloatArray,
+    rotations: FloatArray,
+    edges: ImageEdges,
+    rng: np.random.Generator,
+    layers: int,
+    noise: tuple[float, float],
+    keep: int,
+    visible: npt.NDArray[np.bool_] | None,
+    coarse: float = 1.0,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Annealed importance weighting (Deutscher et al.): per layer weigh with ``exp(beta l)`` at an
+    effective sample size of half the cloud, resample ``keep`` poses, diffuse with a halving noise
+    (position m, angle rad); the last layer is weighed and returned with its log weights. The scoring's
+    pixel scales start ``coarse`` times wider and narrow geometrically to 1 on the last layer;
+    ``log_likelihood(positions, rotations, edges, visible, coarseness)`` scores the poses."""
+    for layer in range(layers):
+        coarseness = coarse ** (1.0 - layer / max(layers - 1, 1))
+        loglik = log_likelihood(positions, rotations, edges, visible, coarseness)
+        last = layer == layers - 1
+        beta = beta_for_ess(loglik, 0.5)
+        logw = beta * loglik
+        if last:
+            return positions, rotations, logw
+        weights = np.exp(logw - logw.max())
+        weights /= weights.sum()
+        idx = low_variance_resample(weights, rng, keep)
+        scale = 0.5 ** (layer + 1)
+        positions = positions[idx] + rng.normal(size=(keep, 3)) * (noise[0] * scale)
+        rotations = perturb(rotations[idx], rng.normal(size=(keep, 3)) * (noise[1] * scale))
+    raise AssertionError("unreachable")
+
+
+def search_candidates(
+    centre: CameraPose,
+    n: int,
+    pos_spread: float,
+    ang_spread: float,
+    distance_m: float,
+    rng: np.random.Generator,
+) -> tuple[FloatArray, FloatArray]:
+    """``n`` poses about ``centre``, half of them uniform in the box ``+- (pos_spread, ang_spread)``, half
+    turned more and shifted less: seen from ``distance_m`` a sideways shift ``dp`` moves the model in the
+    image like a turn of ``dp / d``, so that half covers turns of ``ang_spread + pos_spread / d`` with a third
+    of the position spread (denser where a kidnapped camera's image moved)."""
+    half = n // 2
+    units = rng.uniform(-1.0, 1.0, (n, 6))
+    turn = ang_spread + pos_spread / max(distance_m, 1e-6)
+    scale_p = np.where(np.arange(n)[:, None] < half, pos_spread, pos_spread / 3.0)
+    scale_r = np.where(np.arange(n)[:, None] < half, ang_spread, turn)
+    positions = centre.p_world_camera_m + units[:, :3] * scale_p
+    rotations = perturb(np.repeat(centre.R_world_camera[None], n, axis=0), units[:, 3:] * scale_r)
+    return positions, rotations
+
+
+def chamfer_turn(
+    u_px: npt.ArrayLike,
+    v_px: npt.ArrayLike,
+    edges: ImageEdges,
+    camera: CameraModel,
+    turn_rad: float,
+    cap_px: float,
+) -> FloatArray | None:
+    """The camera turn ``R`` (applied as ``R R_camera_world``) that moves projected model points ``(u, v)``
+    by the 2D shift where the image's edges fit them best: mean distance-transform value (capped at
+    ``cap_px``; points shifted out of the image count the cap) over a grid of shifts up to ``turn_rad x f``,
+    coarse then fine. A camera moved sideways or turned moves a model seen from afar mostly as a whole; this
+    finds that move whatever the search spread. None when the best shift is not clearly better (20 %) than
+    none."""
+    u = np.asarray(u_px, dtype=np.float32)
+    v = np.asarray(v_px, dtype=np.float32)
+    cap = np.float32(cap_px)
+
+    def cost(shifts: FloatArray) -> FloatArray:
+        su = (u[None, :] + shifts[:, :1].astype(np.float32) + np.float32(0.5)).astype(np.int32)
+        sv = (v[None, :] + shifts[:, 1:].astype(np.float32) + np.float32(0.5)).astype(np.int32)
+        inside = (su >= 0) & (su < edges.width) & (sv >= 0) & (sv < edges.height)
+        index = np.where(inside, sv * np.int32(edges.width) + su, edges.width * edges.height)
+        d = np.minimum(np.take(edges.distance_lookup, index), cap)
+        return np.asarray(d.mean(axis=1), dtype=np.float64)
+
+    reach = max(4.0, turn_rad * max(camera.fx, camera.fy))
+    step = max(2.0, reach / 24.0)
+    grid = np.arange(-reach, reach + 1e-9, step)
+    shifts = np.stack(np.meshgrid(grid, grid), axis=-1).reshape(-1, 2)
+    best = shifts[int(np.argmin(cost(shifts)))]
+    local = np.arange(-step, step + 1e-9, step / 4.0)
+    fine = best + np.stack(np.meshgrid(local, local), -1).reshape(-1, 2)
+    fine_costs = cost(fine)
+    best, best_cost = fine[int(np.argmin(fine_costs))], float(np.min(fine_costs))
+    if best_cost > 0.8 * float(cost(np.zeros((1, 2)))[0]):
+        return None
+    # a turn w (camera frame) moves image points by about (fx w_y, -fy w_x)
+    du, dv = float(best[0]), float(best[1])
+    return np.asarray(rotation_matrices(np.array([[-dv / camera.fy, du / camera.fx, 0.0]]))[0])
+
+
+def beta_for_ess(loglik: FloatArray, fraction: float) -> float:
+    """Largest ``beta`` in (0, 1] whose weights ``exp(beta l)`` keep an effective sample size of at least
+    ``fraction`` of the cloud (bisection)."""
+    spread = loglik - loglik.max()
+
+    def ess(beta: float) -> float:
+        w = np.exp(beta * spread)
+        return float(w.sum() ** 2 / np.sum(w * w)) / w.size
+
+    if ess(1.0) >= fraction:
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if ess(mid) >= fraction:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1e-6)
+
+
+def cloud_covariance(positions: FloatArray, rotations: FloatArray, centre: CameraPose) -> FloatArray:
+    """6x6 covariance of the cloud about ``centre``: position and world-frame error angles."""
+    dp = positions - centre.p_world_camera_m
+    dtheta = rotation_vectors(np.einsum("nij,kj->nik", rotations, centre.R_world_camera))
+    residual = np.concatenate([dp, dtheta], axis=1)
+    cov = residual.T @ residual / residual.shape[0]
+    return np.asarray(0.5 * (cov + cov.T))
+
+
+def twist_covariance_to_world(covariance_twist: FloatArray, pose: CameraPose) -> FloatArray:
+    """Covariance of the camera twist ``(v, w)`` (camera frame) as (camera centre, world error angles)."""
+    R_wc = pose.R_world_camera
+    # p = -R_wc t and a twist (v, w) maps t -> Exp(w) t + v, R_cw -> Exp(w) R_cw: to first order
+    # p' = -R_wc Exp(-w) (Exp(w) t + v) = p - R_wc v and R_wc' = R_wc Exp(-w) = Exp(-R_wc w) R_wc
+    J = np.zeros((6, 6))
+    J[:3, :3] = -R_wc
+    J[3:, 3:] = -R_wc
+    mapped = J @ covariance_twist @ J.T
+    return np.asarray(0.5 * (mapped + mapped.T))

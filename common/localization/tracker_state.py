@@ -1,0 +1,102 @@
+"""Value types of the model tracker (:mod:`~common.localization.tracker`): its settings, its state between
+frames, and what its estimate is worth.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.localization.pose import CameraPose
+from common.localization.refine import RefineParams
+from common.localization.scoring import ScoringParams
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class TrackingStatus(enum.Enum):
+    """What the estimate is worth: ``tracking`` (matched), ``searching`` (a few bad frames, re-searching
+    around the last good pose), ``lost`` (more bad frames; still searching with a wide spread)."""
+
+    TRACKING = "tracking"
+    SEARCHING = "searching"
+    LOST = "lost"
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring)."""
+
+    n_particles: int = 200
+    points_per_edge: int = 8
+    layers: int = 2
+    scoring: ScoringParams = field(default_factory=ScoringParams)
+    refine: RefineParams = field(default_factory=RefineParams)
+    position_spread_m: float | None = None
+    angle_spread_rad: float = float(np.radians(8.0))
+    velocity_noise_m_s: float | None = None
+    angular_noise_rad_s: float = float(np.radians(25.0))
+    search_candidates: int = 3000
+    search_layers: int = 7
+    search_coarseness: float = 4.0
+    refine_search: int = 8
+    refine_tracking: int = 1
+    tracking_iterations: int = 3
+    tracking_search_px: int = 8
+    visibility_refresh_rad: float = float(np.radians(5.0))
+    min_point_ratio: float = 0.35
+    velocity_smoothing: float = 0.7
+    lost_match: float = 0.4
+    lost_frames: int = 10
+    spread_growth: float = 1.4
+    max_spread_factor: float = 4.0
+    hidden_line_removal: bool = True
+    chunk_particles: int = 256
+
+    def __post_init__(self) -> None:
+        if self.n_particles < 2 or self.layers < 1 or self.search_layers < 1:
+            raise InputError("need n_particles >= 2, layers >= 1 and search_layers >= 1")
+        if self.search_candidates < self.n_particles:
+            raise InputError("search_candidates must be >= n_particles")
+        for name in ("position_spread_m", "velocity_noise_m_s"):
+            value = getattr(self, name)
+            if value is not None and not (np.isfinite(value) and value > 0.0):
+                raise InputError(f"{name} must be positive, got {value}")
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """Particles (centres (P, 3), ``R_world_camera`` (P, 3, 3)), the estimate and the motion model."""
+
+    positions_m: FloatArray
+    rotations: FloatArray
+    pose: CameraPose
+    covariance: FloatArray
+    velocity_m_s: FloatArray
+    angular_rate_rad_s: FloatArray
+    status: TrackingStatus
+    match: float
+    last_good: CameraPose
+    #: sample points a good pose shows (a fading maximum of the good frames'; from the start pose at first)
+    expected_points: int = 0
+    distance_m: float = 1.0
+    bad_frames: int = 0
+    search_pending: bool = True
+    spread_factor: float = 1.0
+    frames: int = 0
+    recoveries: int = 0
+    #: hidden-line mask (E, S) of the sample points and the pose it was computed from
+    visible: npt.NDArray[np.bool_] | None = None
+    visible_from: CameraPose | None = None
+
+
+def next_spread(factor: float, config: TrackerConfig) -> float:
+    """The search spread grows by ``spread_growth`` per failed search up to ``max_spread_factor``, then
+    starts again at 1: near recoveries stay quick, far ones are reached (a wide box samples near poses
+    thinly)."""
+    grown = factor * config.spread_growth
+    return grown if grown <= config.max_spread_factor * (1.0 + 1e-9) else 1.0
