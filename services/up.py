@@ -14,7 +14,6 @@ import logging
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -85,12 +84,6 @@ def load_cluster(path: Path) -> ClusterSpec:
         raise ClusterError(f"{path}: {exc}") from None
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def capataz_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "services.cli", *args]
 
@@ -109,14 +102,21 @@ class LocalCluster:
     ) -> None:
         self.spec = spec
         self.log_dir = Path(log_dir)
-        self.port = port or free_port()
-        self.router = f"tcp/127.0.0.1:{self.port}"
+        #: the router's port; None = any free port, chosen by the router itself (no reservation race)
+        self.port = port or None
         self.shared_memory = shared_memory
         self.master_args = tuple(master_args)
         self.lease_ms = lease_ms
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self._stopped: set[str] = set()
         self._taskset = shutil.which("taskset")
+
+    @property
+    def router(self) -> str:
+        """The router's endpoint (known once :meth:`start_router` returned)."""
+        if self.port is None:
+            raise ClusterError("the router's endpoint is known only after start_router()")
+        return f"tcp/127.0.0.1:{self.port}"
 
     # -- processes --------------------------------------------------------------------------------------
     def transport_args(self) -> list[str]:
@@ -152,31 +152,37 @@ class LocalCluster:
         self.processes[name] = process
         return process
 
-    def start_router(self) -> None:
+    def start_router(self, timeout_s: float = 30.0) -> None:
+        """Start the router and wait until it listens; with no port given it picks a free one itself and
+        reports it through an endpoint file (reserving a port first races with every other process)."""
+        endpoint_file = self.log_dir / "router.endpoint"
+        endpoint_file.unlink(missing_ok=True)
+        listen = f"tcp/127.0.0.1:{self.port or 0}"
         self.spawn(
             "router",
-            [
-                "router",
-                "--listen",
-                self.router,
-                "--no-multicast",
-                "--no-shm",
-                "--lease-ms",
-                str(self.lease_ms),
-            ],
+            ["router", "--listen", listen, "--no-multicast", "--no-shm", "--lease-ms", str(self.lease_ms),
+             "--endpoint-file", str(endpoint_file)],
             self.spec.aux_cpus,
-        )
-        deadline = time.monotonic() + 15.0
+        )  # fmt: skip
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            with socket.socket() as sock:
-                if sock.connect_ex(("127.0.0.1", self.port)) == 0:
-                    return
+            if endpoint_file.is_file():  # written (atomically) once the router's session listens
+                self.port = self._router_port(endpoint_file.read_text().split())
+                return
             if self.processes["router"].poll() is not None:
                 raise ClusterError(
                     f"router exited with {self.processes['router'].returncode}; see {self.log_dir}"
                 )
             time.sleep(0.05)
-        raise ClusterError("router did not start listening within 15 s")
+        raise ClusterError(f"router did not start listening within {timeout_s:.0f} s")
+
+    @staticmethod
+    def _router_port(endpoints: list[str]) -> int:
+        for endpoint in endpoints:
+            host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+            if endpoint.startswith("tcp/") and host == "127.0.0.1" and port.isdigit():
+                return int(port)
+        raise ClusterError(f"the router listens on no tcp/127.0.0.1 endpoint: {endpoints}")
 
     def start_worker(self, host: HostSpec, index: int) -> str:
         name = f"worker/{host.name}/{index}"
@@ -426,7 +432,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--frames", type=int, default=0, help="also run a camera with this many frames (0 = none)"
     )
-    parser.add_argument("--fps", type=float, default=20.0, help="camera frames per second")
+    parser.add_argument(
+        "--fps", type=float, default=20.0, help="camera frames per second (0 = as fast as possible)"
+    )
+    parser.add_argument(
+        "--in-flight", type=int, default=0, help="camera: max frames without a yaw (0 = free running)"
+    )
     parser.add_argument(
         "--duration", type=float, default=0.0, help="stop after this many seconds (0 = until ^C)"
     )
@@ -457,7 +468,16 @@ def run(args: argparse.Namespace) -> int:
             with open_session(cluster.observer_transport()) as session:
                 collector = YawCollector(session, spec.uav)
                 if args.frames:
-                    cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps)])
+                    cluster.start_camera(
+                        [
+                            "--frames",
+                            str(args.frames),
+                            "--fps",
+                            str(args.fps),
+                            "--in-flight",
+                            str(args.in_flight),
+                        ]
+                    )
                 last = -1
                 while not stop.wait(1.0):
                     newest = collector.newest()
@@ -472,7 +492,7 @@ def run(args: argparse.Namespace) -> int:
                         break
                     camera = cluster.processes.get("camera/camera/0")
                     if args.frames and camera is not None and camera.poll() is not None:
-                        time.sleep(0.5)
+                        collector.wait_for(args.frames, 5.0)  # the yaw of the last frames (bounded)
                         break
                 print(f"received {len(collector.estimates)} yaw estimates")
                 collector.close()

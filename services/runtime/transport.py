@@ -69,6 +69,9 @@ class TransportSettings(BaseModel):
     #: sender of a 1.5 MB share is blocked until most of it is on the socket, so the shares of a frame go
     #: out one after the other; with 16 they travel to the members in parallel.
     tx_queue_batches: int = Field(default=16, ge=1, le=16)
+    #: zenoh's admin space (``@/<zid>/...``): needed to read the port a ``tcp/...:0`` listener was given
+    #: (:func:`listening_endpoints`); off by default.
+    admin_space: bool = False
 
     @classmethod
     def from_env(cls, environ: dict[str, str] | None = None, **overrides: Any) -> TransportSettings:
@@ -122,6 +125,7 @@ class TransportSettings(BaseModel):
             "transport/link/tx/lease": self.lease_ms,
             "transport/link/tx/keep_alive": 4,
             "transport/link/tx/queue/size/data": self.tx_queue_batches,
+            "adminspace/enabled": self.admin_space,
         }
         if self.mode == "client" or self.connect:
             entries["connect/timeout_ms"] = self.connect_timeout_ms
@@ -141,6 +145,26 @@ def open_session(settings: TransportSettings) -> zenoh.Session:
         raise TransportError(
             f"cannot open zenoh session ({settings.mode}, connect={settings.connect}): {exc}"
         ) from exc
+
+
+def listening_endpoints(session: zenoh.Session, timeout_s: float = 5.0) -> tuple[str, ...]:
+    """The endpoints ``session`` really listens on (``tcp/127.0.0.1:0`` resolved to its port).
+
+    Read from the session's own admin space (``@/<zid>/peer`` or ``/router``), which must be enabled
+    (:attr:`TransportSettings.admin_space`). Listening on port 0 and reading the port back is free of the
+    race of reserving a port by binding and closing a socket first (another process may take it between).
+    """
+    zid = str(session.info.zid())
+    for reply in session.get(f"@/{zid}/*", timeout=timeout_s):
+        if reply.ok is None:
+            continue
+        try:
+            info = json.loads(reply.ok.payload.to_bytes())
+        except ValueError:
+            continue
+        if isinstance(info, dict) and info.get("locators"):
+            return tuple(str(locator) for locator in info["locators"])
+    raise TransportError(f"session {zid} reports no listening endpoint (is admin_space enabled?)")
 
 
 # ----------------------------------------------------------------------------------------------- hand-off

@@ -92,12 +92,14 @@ def test_image_is_non_root_with_init_and_zenoh_is_pinned() -> None:
 def test_capataz_up_brings_each_described_cluster_up(path: Path, tmp_path: Path) -> None:
     spec = load_cluster(path)
     command = [sys.executable, "-m", "services.cli", "up", "--cluster", str(path), "--port", "0",
-               "--frames", "10", "--fps", "10", "--logs", str(tmp_path)]  # fmt: skip
-    done = subprocess.run(command, capture_output=True, text=True, timeout=150, cwd=ROOT)
+               "--frames", "10", "--fps", "0", "--in-flight", "1", "--logs", str(tmp_path)]  # fmt: skip
+    # flow control (one frame without a yaw at a time) instead of a frame rate: the count below does not
+    # depend on how fast a loaded host is (at 10 fps a busy host dropped 3 of 10 frames)
+    done = subprocess.run(command, capture_output=True, text=True, timeout=240, cwd=ROOT)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     assert f"cluster {spec.name} up" in done.stdout
     received = int(re.search(r"received (\d+) yaw estimates", done.stdout).group(1))  # type: ignore[union-attr]
-    assert received >= 8, done.stdout[-1000:]
+    assert received == 10, done.stdout[-1000:]
     logs = {p.name for p in tmp_path.glob("*.log")}
     assert len([n for n in logs if n.startswith("worker_")]) == spec.n_workers
 
