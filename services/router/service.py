@@ -10,12 +10,9 @@ from typing import Any
 import zenoh
 
 from common import keys
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    add_transport_arguments,
-    listening_endpoints,
-)
+from services.runtime.cli import add_transport_arguments
+from services.runtime.service import ServiceRuntime
+from services.runtime.transport import TransportSettings, listening_endpoints
 
 DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
 

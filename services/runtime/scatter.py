@@ -25,7 +25,8 @@ from common.dispatch import SELF, Balance, Dispatcher, Plan, SpeedSource
 from common.messages import BlockJob, PatchJob, PatchResult, WireError, decode, encode, read_error_reply
 from common.yaw.correlation import PatchMeasurement
 from common.yaw.patchwork import PatchWorkError
-from services.runtime.transport import Counters, zbytes
+from services.runtime.handoff import Counters
+from services.runtime.transport import zbytes
 
 logger = logging.getLogger(__name__)
 

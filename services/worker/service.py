@@ -12,14 +12,11 @@ from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
+from services.runtime.cli import add_transport_arguments, transport_from_args
+from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    WorkQueue,
-    add_transport_arguments,
-    transport_from_args,
-)
+from services.runtime.service import ServiceRuntime
+from services.runtime.transport import TransportSettings
 
 
 class WorkerService(ServiceRuntime):

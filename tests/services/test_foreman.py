@@ -16,8 +16,9 @@ from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService
+from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, Scatter
-from services.runtime.transport import Counters, open_session, zbytes
+from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 

@@ -19,8 +19,9 @@ import zenoh
 from common.dispatch import SELF, Dispatcher, DispatchSettings
 from common.messages import PatchJob, PatchResult, decode, encode
 from common.yaw.patchwork import PatchMeasurement
+from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, RoundReport, Scatter
-from services.runtime.transport import Counters, TransportSettings, listening_endpoints, open_session, zbytes
+from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
 from tests.zenoh_helpers import matched, wait_until
 
 pytestmark = pytest.mark.zenoh

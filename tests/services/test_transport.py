@@ -1,4 +1,4 @@
-"""Transport settings (environment and overrides), zenoh config, and the non-blocking hand-off primitives."""
+"""Transport settings (environment and overrides), zenoh config, and the port a session really listens on."""
 
 from __future__ import annotations
 
@@ -8,15 +8,7 @@ from pathlib import Path
 import pytest
 
 from services.router.service import RouterService
-from services.runtime.transport import (
-    Counters,
-    LatestSlot,
-    TransportError,
-    TransportSettings,
-    WorkQueue,
-    listening_endpoints,
-    open_session,
-)
+from services.runtime.transport import TransportError, TransportSettings, listening_endpoints, open_session
 from tests.zenoh_helpers import WAIT_S, wait_until
 
 
@@ -58,36 +50,6 @@ def test_settings_become_a_zenoh_config() -> None:
     assert config.get_json("transport/shared_memory/enabled") == "false"
     with pytest.raises(TransportError):
         TransportSettings(listen=("not an endpoint",)).to_config()
-
-
-def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
-    slot: LatestSlot[int] = LatestSlot()
-    assert not slot.put(1) and slot.put(2) and slot.put(3)
-    assert slot.dropped == 2 and slot.depth() == 1
-    assert slot.take(0.0) == 3 and slot.take(0.0) is None
-    got: list[int | None] = []
-    reader = threading.Thread(target=lambda: got.append(slot.take(5.0)))
-    reader.start()
-    slot.put(9)
-    reader.join()
-    assert got == [9]
-
-
-def test_work_queue_refuses_when_full_and_never_blocks() -> None:
-    queue: WorkQueue[str] = WorkQueue(2)
-    assert queue.offer("a") and queue.offer("b") and not queue.offer("c")
-    assert queue.take(0.0) == "a" and queue.depth() == 1
-    assert queue.drain() == ["b"] and queue.take(0.0) is None
-    with pytest.raises(TransportError):
-        WorkQueue(0)
-
-
-def test_counters_and_timings() -> None:
-    counters = Counters(window=3)
-    assert counters.inc("x") == 1 and counters.inc("x", 4) == 5 and counters.get("y") == 0
-    for value in (1.0, 100.0, 2.0, 3.0):
-        counters.time_ms("t", value)
-    assert counters.counts() == {"x": 5} and counters.median_timings_ms() == {"t": 3.0}
 
 
 @pytest.mark.zenoh
