@@ -67,10 +67,11 @@ class RoundReport:
 class _Request:
     member: str
     indices: np.ndarray
-    sent_s: float
-    deadline_s: float
-    #: start of the round for the first plan's shares, the send time for re-dispatched ones
-    start_s: float = 0.0
+    sent_monotonic_s: float
+    #: when the request counts as failed (absolute, ``time.monotonic()``)
+    deadline_monotonic_s: float
+    #: start of the round for the first plan's shares, the send time for re-dispatched ones (monotonic)
+    start_monotonic_s: float = 0.0
     result: PatchResult | None = None
     error: str | None = None
     #: a solo request's own reply channel (None: replies arrive through the callbacks' event queue)
@@ -203,18 +204,18 @@ class Scatter:
 
         round_start = time.monotonic()
 
-        def dispatch(p: Plan, start_s: float | None = None) -> None:
+        def dispatch(p: Plan, start_monotonic_s: float | None = None) -> None:
             alone = not pending and len(p.assignment) == 1 and SELF not in p.assignment
             for member, indices in p.assignment.items():
                 moved = p.moved[member]
                 if member == SELF:
                     self_queue.append((indices, moved))
                     continue
-                deadline = self.dispatcher.deadline_s(member, int(indices.size), work.budget_s)
+                timeout_s = self.dispatcher.timeout_s(member, int(indices.size), work.budget_s)
                 now = time.monotonic()
-                request = _Request(member, indices, now, now + deadline, start_s or now)
+                request = _Request(member, indices, now, now + timeout_s, start_monotonic_s or now)
                 try:
-                    rid = self._send(work, member, indices, moved, deadline, request if alone else None)
+                    rid = self._send(work, member, indices, moved, timeout_s, request if alone else None)
                 except Exception as exc:  # session closing, encode failure: compute it here instead
                     self.counters.inc("send_failures")
                     logger.warning("cannot send share to %s: %s", member, exc)
@@ -230,7 +231,7 @@ class Scatter:
             self.counters.inc("redispatched")
             self.counters.inc("redispatched_patches", int(request.indices.size))
             now = time.monotonic()
-            waited = now - request.sent_s if why == "deadline missed" else None
+            waited = now - request.sent_monotonic_s if why == "deadline missed" else None
             pause = self.dispatcher.record_failure(request.member, now, int(request.indices.size), waited)
             logger.warning(
                 "frame %d: %s failed (%s); re-dispatching %d patches, member paused %.1f s",
@@ -246,14 +247,10 @@ class Scatter:
             request = pending.pop(rid)
             result = request.result
             assert result is not None
-            elapsed = time.monotonic() - request.start_s
-            # reported: the member's own speed measure (a worker: its compute time; a foreman: the sum of its
-            # workers' speeds), independent of transport; round-trip: patches / elapsed
-            reported = (
-                sum(result.speeds.values())
-                if result.speeds and self.dispatcher.settings.speed_source is SpeedSource.REPORTED
-                else None
-            )
+            elapsed = time.monotonic() - request.start_monotonic_s
+            # the member's own speed measure (a worker: its compute time; a foreman: the sum of its workers'
+            # speeds); the dispatcher's speed_source decides whether it or patches / elapsed balances
+            reported = sum(result.speeds.values()) if result.speeds else None
             self.dispatcher.record_success(request.member, work.seq, request.indices, elapsed, reported)
             report.parts.append(_measurement(result))
             n = int(request.indices.size)
@@ -301,12 +298,12 @@ class Scatter:
                             self.counters.inc("deadline_misses")
                         fail(rid, why)
                     continue
-            timeout = max(0.0, min(r.deadline_s for r in pending.values()) - time.monotonic())
+            timeout = max(0.0, min(r.deadline_monotonic_s for r in pending.values()) - time.monotonic())
             try:
                 kind, rid, value = self._events.get(timeout=timeout)
             except queue.Empty:
                 now = time.monotonic()
-                for late in [r for r, q in pending.items() if q.deadline_s <= now]:
+                for late in [r for r, q in pending.items() if q.deadline_monotonic_s <= now]:
                     self.counters.inc("deadline_misses")
                     fail(late, "deadline missed")
                 continue
