@@ -110,8 +110,8 @@ def member_table(estimates: dict[int, Any]) -> list[dict[str, Any]]:
     for member in sorted(totals):
         counts = totals[member]
         speed = next(
-            (estimates[s].timings_ms.get(f"speed:{member}") for s in reversed(seqs)
-             if f"speed:{member}" in estimates[s].timings_ms),
+            (estimates[s].speeds_patches_s[member] for s in reversed(seqs)
+             if member in estimates[s].speeds_patches_s),
             None,
         )  # fmt: skip
         rows.append(

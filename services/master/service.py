@@ -273,8 +273,6 @@ class MasterService(ServiceRuntime):
         }
         if report is not None:
             timings["self"] = report.self_s * 1e3
-            for name, speed in report.speeds.items():
-                timings[f"speed:{name}"] = speed
         return YawEstimate(
             uav=self.settings.uav,
             seq=frame.seq,
@@ -288,6 +286,7 @@ class MasterService(ServiceRuntime):
             method=core.method.name.lower(),
             timings_ms=timings,
             members=members,
+            speeds_patches_s=dict(report.speeds) if report else {},
             dropped_frames=self.slot.dropped + self.gaps,
             redispatched=report.redispatched if report else 0,
         )
