@@ -19,8 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 #: Downward camera on the body: image right = body right (-y), image down = body backward (-x),
 #: optical axis = body down (-z).

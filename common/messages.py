@@ -23,7 +23,6 @@ from typing import Any, ClassVar, Literal, TypeVar
 
 import msgpack
 import numpy as np
-import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from common.errors import CapatazError
@@ -112,7 +111,6 @@ class WireModel(BaseModel):
         return value
 
 
-FloatArray = npt.NDArray[np.float64]
 Uav = str
 
 

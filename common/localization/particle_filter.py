@@ -33,10 +33,9 @@ from common.localization.projection import (
     sample_edges,
 )
 from common.localization.scoring import ImageEdges, ScoreResult, ScoringMethod, ScoringParams, score_particles
+from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
-
-FloatArray = npt.NDArray[np.float64]
 
 
 class ParticleFilterError(CapatazError):

@@ -16,8 +16,8 @@ from common.localization.model import SceneModel, default_scene
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
 from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 UInt8Array = npt.NDArray[np.uint8]
 
 #: The localizer's default camera: 320 x 240 px, 70 deg horizontal field of view, forward-looking.
