@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from common.geometry import wrap_angle_rad
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
@@ -142,7 +143,7 @@ def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict
     axes[0].plot(seqs, np.degrees(yaw), label="cluster", lw=1, ls="--")
     axes[0].set_ylabel("yaw [deg]")
     axes[0].legend()
-    axes[1].plot(seqs, np.degrees(np.angle(np.exp(1j * (yaw - truth)))), lw=0.8)
+    axes[1].plot(seqs, np.degrees(wrap_angle_rad(yaw - truth)), lw=0.8)
     axes[1].set_ylabel("yaw error [deg]")
     top = [r["member"] for r in rows if ">" not in r["member"]]
     stack = np.array([[estimates[s].members.get(m, 0) for s in seqs] for m in top])

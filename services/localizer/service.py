@@ -31,6 +31,7 @@ from common.geometry import (
     R_BODY_CAMERA_FORWARD,
     euler_from_quaternion,
     quaternion_from_euler,
+    wrap_angle_rad,
 )
 from common.localization.model import SceneModel, default_scene, scene_from_json
 from common.localization.particle_filter import (
@@ -112,7 +113,7 @@ def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.
         return None
     velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
     change = euler_from_quaternion(current.q_world_body) - euler_from_quaternion(previous.q_world_body)
-    return velocity, np.angle(np.exp(1j * change)) / dt
+    return velocity, wrap_angle_rad(change) / dt  # the angle wrap of common.geometry
 
 
 class LocalizerService(ServiceRuntime):
