@@ -49,7 +49,7 @@ class ScoringMethod(enum.Enum):
 
 
 @dataclass(frozen=True)
-class ScoringParams:
+class ScoringSettings:
     """Constants of the scorings (paper B's ``k``, ``lambda``, ``alpha``, ``sigma``, max normal length)."""
 
     method: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
@@ -59,6 +59,10 @@ class ScoringParams:
     align_px: float = 2.0
     sigma_px: float = 2.0
     max_normal_px: int = 10
+
+
+#: the old name, kept while other branches still use it (remove once they are merged)
+ScoringParams = ScoringSettings
 
 
 @dataclass(frozen=True)
@@ -212,7 +216,7 @@ def nearest_edge_log_weight(
     return np.log(alpha) + k * mean_l, mean_l
 
 
-def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: ScoringParams) -> ScoreResult:
+def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: ScoringSettings) -> ScoreResult:
     """log W (P,) and fit (P,) of every particle by ``params.method``."""
     method = params.method
     valid = projected.valid

@@ -36,12 +36,12 @@ from common.geometry import (
 from common.localization.model import SceneModel, default_scene, scene_from_json
 from common.localization.particle_filter import (
     ParticleFilter,
-    ParticleFilterConfig,
+    ParticleFilterSettings,
     ParticleState,
     PoseStatistics,
     covariance_with_world_error_angles,
 )
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.simulation import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, encode
@@ -131,9 +131,9 @@ class LocalizerService(ServiceRuntime):
         self.settings = settings
         self.camera = settings.camera()
         mount = R_BODY_CAMERA_FORWARD if settings.camera_mount == "forward" else R_BODY_CAMERA_DOWN
-        config = ParticleFilterConfig(
+        config = ParticleFilterSettings(
             n_particles=settings.particles,
-            scoring=ScoringParams(method=settings.scoring),
+            scoring=ScoringSettings(method=settings.scoring),
             R_body_camera=mount.copy(),
         )
         self.filter = ParticleFilter(settings.load_scene(), self.camera, config)

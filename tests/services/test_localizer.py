@@ -12,8 +12,8 @@ import pytest
 
 from common import keys
 from common.geometry import quaternion_from_euler
-from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.simulation import simulate_run
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, decode, encode
@@ -46,7 +46,7 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     pf = ParticleFilter(
         sim.scene,
         sim.camera,
-        ParticleFilterConfig(n_particles=PARTICLES, scoring=ScoringParams(ScoringMethod.NEAREST_EDGE_DT)),
+        ParticleFilterSettings(n_particles=PARTICLES, scoring=ScoringSettings(ScoringMethod.NEAREST_EDGE_DT)),
     )
     rng = np.random.default_rng(SEED)
     state = pf.initialize(sim.guess, rng)
