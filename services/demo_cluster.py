@@ -18,10 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from common.dispatch import Balance
 from common.geometry import wrap_angle_rad
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
+from services.master.service import Topology
 from services.report import write_json
 from services.runtime.transport import open_session
 from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
@@ -30,8 +32,8 @@ logger = logging.getLogger(__name__)
 
 DEMO_CLUSTER = ClusterSpec(
     name="local2x2",
-    topology="master-foreman-worker",
-    balance="time",
+    topology=Topology.MASTER_FOREMAN_WORKER,
+    balance=Balance.TIME,
     hosts=(HostSpec(name="h1", workers=2), HostSpec(name="h2", workers=2)),
 )
 

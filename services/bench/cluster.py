@@ -27,11 +27,13 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.dispatch import Balance, SpeedSource
 from common.messages import PatchJob, PatchResult, decode, encode
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from common.yaw.patchwork import settings_to_wire
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
+from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
@@ -107,9 +109,9 @@ def heterogeneous(
     """The issue's cluster: host a = 1 worker pinned to core 0, host b = 4 workers sharing core 1."""
     return ClusterSpec(
         name=f"{topology}-{balance}",
-        topology=topology,  # type: ignore[arg-type]
-        balance=balance,  # type: ignore[arg-type]
-        speed=speed,  # type: ignore[arg-type]
+        topology=Topology(topology),
+        balance=Balance(balance),
+        speed=SpeedSource(speed),
         hosts=(
             HostSpec(name="a", workers=1, cpus="0"),
             HostSpec(name="b", workers=4, cpus="1", cpu_factor=slow_factor),
@@ -490,7 +492,9 @@ def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6
     idx = grid.all_indices.astype(np.int32)
     crops = [grid.crop(flight.frame(i), idx) for i in range(3)]
     wire = settings_to_wire(settings)
-    spec = ClusterSpec(name="handoff", topology="master-worker", hosts=(HostSpec(name="handoff", workers=1),))
+    spec = ClusterSpec(
+        name="handoff", topology=Topology.MASTER_WORKER, hosts=(HostSpec(name="handoff", workers=1),)
+    )
     times: dict[str, list[float]] = {"callback": [], "channel": []}
     seq = 0
     with LocalCluster(spec, out_dir / "cluster_logs" / "handoff", shared_memory=shm) as cluster:

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from services.cli import build_parser
-from services.up import compose_from_cluster, load_cluster
+from services.up import LocalCluster, compose_from_cluster, load_cluster
 
 ROOT = Path(__file__).resolve().parents[2]
 CLUSTERS = sorted((ROOT / "deploy" / "clusters").glob("*.yml"))
@@ -68,6 +68,33 @@ def test_every_cluster_file_and_its_compose_form_are_valid(path: Path) -> None:
     for host in spec.hosts:
         if host.cpus:
             assert reparsed["services"][f"worker-{host.name}-0"]["cpuset"] == host.cpus
+
+
+@pytest.mark.parametrize("path", CLUSTERS, ids=[p.stem for p in CLUSTERS])
+def test_capataz_up_and_compose_start_the_same_processes_with_the_same_options(
+    path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One rendering of a cluster file for both (compose used to drop ``--speed``)."""
+    spec = load_cluster(path)
+    cluster = LocalCluster(spec, tmp_path, port=7447)
+    spawned: dict[str, tuple[tuple[str, ...], str | None]] = {}
+
+    def spawn(name: str, args: list[str], cpus: str | None = None) -> None:
+        transport = cluster.transport_args()
+        assert args[-len(transport) :] == transport, name  # up adds only its endpoints to the command
+        spawned[name] = (tuple(args[: -len(transport)]), cpus)
+
+    monkeypatch.setattr(cluster, "spawn", spawn)
+    monkeypatch.setattr(cluster, "start_router", lambda: None)
+    cluster.start()
+    composed = {}
+    for service in compose_from_cluster(spec)["services"].values():
+        command = service["command"]
+        if command[0] in {"master", "foreman", "worker"}:
+            args = build_parser().parse_args(command)
+            composed[f"{command[0]}/{args.node}/{args.index}"] = (tuple(command), service.get("cpuset"))
+    assert composed == spawned
+    assert all("--speed" in args for name, (args, _cpus) in composed.items() if not name.startswith("worker"))
 
 
 def test_paper_clusters_are_described() -> None:
