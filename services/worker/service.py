@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from enum import StrEnum
 from typing import Any
 
 import zenoh
@@ -19,6 +20,15 @@ from services.runtime.service import ServiceRuntime
 from services.runtime.transport import TransportSettings
 
 
+class Handoff(StrEnum):
+    """How a query reaches the compute thread."""
+
+    #: zenoh's bounded FIFO channel, drained by the compute thread (no Python callback thread between)
+    CHANNEL = "channel"
+    #: a Python callback decodes and hands off to a bounded queue (full -> "busy" error reply)
+    CALLBACK = "callback"
+
+
 class WorkerService(ServiceRuntime):
     """One worker process: a queryable, a bounded job queue, one compute thread."""
 
@@ -32,14 +42,15 @@ class WorkerService(ServiceRuntime):
         queue_capacity: int = 8,
         stats_period_s: float = 1.0,
         cpu_factor: int = 1,
-        handoff: str = "channel",
+        handoff: Handoff | str = Handoff.CHANNEL,
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
-        if handoff not in ("channel", "callback"):
-            raise CapatazError(f"handoff must be 'channel' or 'callback', got {handoff!r}")
-        #: "channel": a zenoh FifoChannel drained by the compute thread; "callback": a Python callback that
-        #: decodes and hands off to a bounded queue (busy -> error reply)
-        self.handoff = handoff
+        try:
+            self.handoff = Handoff(handoff)
+        except ValueError:
+            raise CapatazError(
+                f"handoff must be one of {[h.value for h in Handoff]}, got {handoff!r}"
+            ) from None
         self.queue_capacity = queue_capacity
         if cpu_factor < 1:
             raise CapatazError(f"cpu_factor must be >= 1, got {cpu_factor}")
@@ -52,7 +63,7 @@ class WorkerService(ServiceRuntime):
 
     def start(self, session: zenoh.Session) -> None:
         key = keys.worker_key(self.node, self.index)
-        if self.handoff == "channel":
+        if self.handoff is Handoff.CHANNEL:
             # zenoh's own bounded FIFO, drained by the compute thread: no Python callback thread in between
             self._queryable = session.declare_queryable(
                 key, zenoh.handlers.FifoChannel(self.queue_capacity), complete=True
@@ -63,7 +74,7 @@ class WorkerService(ServiceRuntime):
             self.spawn(self._serve, "compute")
 
     def stop(self) -> None:
-        if self.handoff == "channel" and self._queryable is not None:
+        if self.handoff is Handoff.CHANNEL and self._queryable is not None:
             self._queryable.undeclare()  # the compute thread's recv() then raises and it exits
             self._queryable = None
         for query, _job, _received_monotonic_s in self.queue.drain():
@@ -189,8 +200,8 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--handoff",
-        choices=["channel", "callback"],
-        default="channel",
+        choices=[h.value for h in Handoff],
+        default=Handoff.CHANNEL.value,
         help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue",
     )
     parser.set_defaults(handler=run)

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.errors import CapatazError
 from common.messages import PatchJob, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
-from services.worker.service import WorkerService
+from services.worker.service import Handoff, WorkerService
 
 #: how long the stand-in computation of a job takes (a lower bound, whatever the host's load)
 COMPUTE_S = 0.05
@@ -137,3 +138,9 @@ def test_a_malformed_query_in_the_channel_is_answered_and_the_rest_computed(
     assert bad.answer is not None and bad.answer.startswith("malformed:")
     assert good.answer == "result" and worker.counters.get("malformed") == 1
     assert decode(good.payload.to_bytes(), good.attachment.to_bytes(), PatchJob).seq == 2
+
+
+def test_the_handoff_is_an_enum_and_a_bad_one_is_one_clear_error() -> None:
+    assert WorkerService("h", 0, TransportSettings(), handoff="callback").handoff is Handoff.CALLBACK
+    with pytest.raises(CapatazError, match="handoff must be one of"):
+        WorkerService("h", 0, TransportSettings(), handoff="pigeon")
