@@ -17,7 +17,7 @@ import argparse
 import threading
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -27,8 +27,7 @@ from common import keys
 from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import (
-    R_BODY_CAMERA_DOWN,
-    R_BODY_CAMERA_FORWARD,
+    CameraMount,
     euler_from_quaternion,
     quaternion_from_euler,
     wrap_angle_rad,
@@ -66,7 +65,7 @@ class LocalizerSettings(BaseModel):
     width: int = Field(default=DEFAULT_WIDTH_PX, gt=0)
     height: int = Field(default=DEFAULT_HEIGHT_PX, gt=0)
     hfov_deg: float = Field(default=DEFAULT_HFOV_DEG, gt=0.0, lt=180.0)
-    camera_mount: Literal["forward", "down"] = "forward"
+    camera_mount: CameraMount = CameraMount.FORWARD
     particles: int = Field(default=200, ge=2)
     scoring: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
     seed: int = 0
@@ -130,7 +129,7 @@ class LocalizerService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.camera = settings.camera()
-        mount = R_BODY_CAMERA_FORWARD if settings.camera_mount == "forward" else R_BODY_CAMERA_DOWN
+        mount = settings.camera_mount.R_body_camera
         config = ParticleFilterSettings(
             n_particles=settings.particles,
             scoring=ScoringSettings(method=settings.scoring),
@@ -236,7 +235,12 @@ def register(subparsers: Any) -> None:
         "--resolution", default=f"{DEFAULT_WIDTH_PX}x{DEFAULT_HEIGHT_PX}", help="camera WIDTHxHEIGHT"
     )
     parser.add_argument("--hfov", type=float, default=DEFAULT_HFOV_DEG, help="horizontal field of view (deg)")
-    parser.add_argument("--mount", choices=["forward", "down"], default="forward", help="camera on the body")
+    parser.add_argument(
+        "--mount",
+        choices=[m.value for m in CameraMount],
+        default=CameraMount.FORWARD.value,
+        help="camera on the body",
+    )
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
     parser.add_argument(
         "--scoring", choices=[m.value for m in ScoringMethod], default=ScoringMethod.NEAREST_EDGE_DT.value
