@@ -1,10 +1,11 @@
-"""Command-line options every service shares, and the transport settings they give."""
+"""Command-line options every service shares (transport, and the dispatcher's for master and foreman)."""
 
 from __future__ import annotations
 
 import argparse
 from typing import Any
 
+from common.dispatch import Balance, SpeedSource
 from services.runtime.transport import TransportSettings
 
 
@@ -34,4 +35,19 @@ def transport_from_args(args: Any) -> TransportSettings:
         multicast_scouting=args.multicast,
         shared_memory=args.shm,
         lease_ms=args.lease_ms,
+    )
+
+
+def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
+    """The dispatcher's options, shared by the master and the foreman."""
+    parser.add_argument(
+        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
+    )
+    parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
+    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+    parser.add_argument(
+        "--speed",
+        choices=[v.value for v in SpeedSource],
+        default=SpeedSource.ROUND_TRIP.value,
+        help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )
