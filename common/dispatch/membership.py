@@ -17,13 +17,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import NamedTuple
 
 from common.dispatch.dispatcher import Dispatcher
 from common.keys import MemberId, Role
 
 
-@dataclass(frozen=True)
-class Seat:
+class Seat(NamedTuple):
     """A member's place in a dispatcher: its capacity and the incarnation it was given the seat in."""
 
     capacity: float

@@ -119,13 +119,9 @@ class ForemanService(ServiceRuntime):
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
-        if event is None:
-            return
-        member, joined = event
-        self.live.on_event(member, joined)
-        if not joined and self.scatter is not None:
-            self.scatter.member_left(member.name)
-        self.counters.inc("members_joined" if joined else "members_left")
+        if event is not None:
+            member, joined = event
+            self.live.on_event(member, joined, self.counters, self.scatter)
 
     def _apply_membership(self) -> None:
         self.live.update(self.dispatcher)

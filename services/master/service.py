@@ -127,14 +127,9 @@ class MasterService(ServiceRuntime):
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
-        if event is None:
-            return
-        member, joined = event
-        self.live.on_event(member, joined)
-        if member.role is self.member_role:
-            self.counters.inc("members_joined" if joined else "members_left")
-            if not joined and self.scatter is not None:
-                self.scatter.member_left(member.name)
+        if event is not None:
+            member, joined = event
+            self.live.on_event(member, joined, self.counters, self.scatter)
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         frame = self.decode_sample(sample, Frame)

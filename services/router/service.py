@@ -24,15 +24,8 @@ class RouterService(ServiceRuntime):
 
     role = keys.Role.ROUTER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        stats_period_s: float = 1.0,
-        endpoint_file: Path | None = None,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
+    def __init__(self, *args: Any, endpoint_file: Path | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)  # ServiceRuntime's (node, index, transport, stats_period_s)
         self.endpoint_file = endpoint_file
 
     def start(self, session: zenoh.Session) -> None:
@@ -69,4 +62,6 @@ def run(args: argparse.Namespace) -> int:
         lease_ms=args.lease_ms,
         admin_space=True if args.endpoint_file else None,
     )
-    return RouterService(args.node, args.index, transport, args.stats_period, args.endpoint_file).run()
+    return RouterService(
+        args.node, args.index, transport, args.stats_period, endpoint_file=args.endpoint_file
+    ).run()

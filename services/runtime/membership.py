@@ -17,6 +17,8 @@ from common.dispatch.membership import (
     seats,
 )
 from common.keys import MemberId, Role
+from services.runtime.handoff import Counters
+from services.runtime.scatter import Scatter
 
 
 class LiveMembers:
@@ -29,12 +31,24 @@ class LiveMembers:
         self._roster = Roster()
         self._applied: tuple[Dispatcher | None, int, dict[str, Seat]] = (None, -1, {})
 
-    def on_event(self, member: MemberId, joined: bool) -> bool:
-        """Fold a liveliness event in (callback thread; never blocks for long); True if anything changed."""
+    def on_event(
+        self, member: MemberId, joined: bool, counters: Counters | None = None, scatter: Scatter | None = None
+    ) -> bool:
+        """Fold a liveliness event in (callback thread; never blocks for long); True if anything changed.
+
+        A member of :attr:`role` is counted (``members_joined`` / ``members_left``), and when it left, the
+        ``scatter`` cancels what it waits for from it at once (the dispatcher learns it at the next plan).
+        """
         with self._lock:
             before = self._roster
             self._roster = on_liveliness(before, member, joined)
-            return self._roster is not before
+            changed = self._roster is not before
+        if member.role is self.role:
+            if counters is not None:
+                counters.inc("members_joined" if joined else "members_left")
+            if not joined and scatter is not None:
+                scatter.member_left(member.name)
+        return changed
 
     def alive(self) -> tuple[str, ...]:
         with self._lock:

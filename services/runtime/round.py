@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import zenoh
@@ -49,8 +49,7 @@ class Failure:
         return f"{self.reason.value}: {self.detail}" if self.detail else self.reason.value
 
 
-@dataclass(frozen=True)
-class ReplyArrived:
+class ReplyArrived(NamedTuple):
     """A reply to request ``rid`` of round ``epoch`` (zenoh's thread stamped its arrival)."""
 
     rid: int
@@ -59,16 +58,14 @@ class ReplyArrived:
     arrived_perf_s: float
 
 
-@dataclass(frozen=True)
-class QueryDone:
+class QueryDone(NamedTuple):
     """Zenoh finished request ``rid`` of round ``epoch`` (after its replies, or without any)."""
 
     rid: int
     epoch: int
 
 
-@dataclass(frozen=True)
-class MemberLeft:
+class MemberLeft(NamedTuple):
     """A member's liveliness token vanished."""
 
     member: str

@@ -20,6 +20,7 @@ from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService
+from tests.services.fakes import FakeBytes, FakeChannel
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 
@@ -42,18 +43,10 @@ def test_a_second_block_of_a_frame_still_finds_the_previous_frame() -> None:
     assert store.get("s", 6, np.array([], dtype=np.int64), (4, 4)).shape == (0, 4, 4)
 
 
-class _Bytes:
-    def __init__(self, data: bytes) -> None:
-        self._data = data
-
-    def to_bytes(self) -> bytes:
-        return self._data
-
-
 class _Reply:
     def __init__(self, payload: bytes, attachment: bytes) -> None:
         self.err = None
-        self.ok = type("Sample", (), {"payload": _Bytes(payload), "attachment": _Bytes(attachment)})()
+        self.ok = type("Sample", (), {"payload": FakeBytes(payload), "attachment": FakeBytes(attachment)})()
 
 
 class _Workers:
@@ -75,21 +68,9 @@ class _Workers:
         )  # fmt: skip
         reply = _Reply(*encode(result))
         if isinstance(handler, zenoh.handlers.FifoChannel):  # a solo request blocks on its own channel
-            return _Channel([reply])
+            return FakeChannel([reply])
         handler.callback(reply)
         return None
-
-
-class _Channel:
-    """A reply channel: hands out its replies, then raises like a closed zenoh channel."""
-
-    def __init__(self, replies: list[Any]) -> None:
-        self._replies = list(replies)
-
-    def recv(self) -> Any:
-        if not self._replies:
-            raise zenoh.ZError("channel is empty and closed")
-        return self._replies.pop(0)
 
 
 @pytest.mark.parametrize("source", list(SpeedSource))

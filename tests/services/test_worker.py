@@ -8,7 +8,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import zenoh
 
 from common.errors import CapatazError
 from common.messages import PatchJob, decode, encode, read_error_reply
@@ -16,17 +15,10 @@ from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
 from services.worker.service import Handoff, WorkerService
+from tests.services.fakes import FakeBytes, FakeChannel
 
 #: how long the stand-in computation of a job takes (a lower bound, whatever the host's load)
 COMPUTE_S = 0.05
-
-
-class _Bytes:
-    def __init__(self, data: bytes) -> None:
-        self._data = data
-
-    def to_bytes(self) -> bytes:
-        return self._data
 
 
 class _Query:
@@ -41,7 +33,7 @@ class _Query:
             prev_crops=np.zeros((0, 8, 8), np.uint8), budget_s=budget_s,
         )  # fmt: skip
         payload, attachment = encode(job)
-        self.payload, self.attachment = _Bytes(payload), _Bytes(attachment)
+        self.payload, self.attachment = FakeBytes(payload), FakeBytes(attachment)
         self.answer: str | None = None
 
     def reply(self, _key: Any, _payload: bytes, attachment: bytes | None = None) -> None:
@@ -52,21 +44,6 @@ class _Query:
 
     def drop(self) -> None:
         pass
-
-
-class _Channel:
-    """zenoh's FIFO channel of a queryable: the queries already there, then closed (undeclared)."""
-
-    def __init__(self, queries: list[_Query]) -> None:
-        self._queries = list(queries)
-
-    def recv(self) -> _Query:
-        if not self._queries:
-            raise zenoh.ZError("Undeclared queryable")
-        return self._queries.pop(0)
-
-    def try_recv(self) -> _Query | None:
-        return self._queries.pop(0) if self._queries else None
 
 
 @pytest.fixture()
@@ -86,7 +63,7 @@ def slow_worker(monkeypatch: pytest.MonkeyPatch) -> tuple[WorkerService, list[in
 
 
 def serve(worker: WorkerService, queries: list[_Query]) -> None:
-    worker._queryable = type("Queryable", (), {"handler": _Channel(queries)})()
+    worker._queryable = type("Queryable", (), {"handler": FakeChannel(queries)})()
     worker._serve_channel()  # returns when the stand-in channel is closed
 
 
@@ -132,7 +109,7 @@ def test_a_malformed_query_in_the_channel_is_answered_and_the_rest_computed(
 ) -> None:
     worker, _depths = slow_worker
     bad = _Query(1, budget_s=60.0)
-    bad.attachment = _Bytes(b"\x93not-a-header")
+    bad.attachment = FakeBytes(b"\x93not-a-header")
     good = _Query(2, budget_s=60.0)
     serve(worker, [_Query(1, budget_s=60.0), bad, good])
     assert bad.answer is not None and bad.answer.startswith("malformed:")
