@@ -129,7 +129,7 @@ class ForemanService(ServiceRuntime):
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
 
-    def _answer_block(self, query: zenoh.Query, job: BlockJob, t_recv: float) -> None:
+    def _answer_block(self, query: zenoh.Query, job: BlockJob, received_perf_s: float) -> None:
         try:
             result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
@@ -145,7 +145,7 @@ class ForemanService(ServiceRuntime):
         self.counters.inc("patches", int(job.indices.size))
         self.counters.time_ms("block", result.compute_s * 1e3)
         self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
-        self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
+        self.counters.time_ms("handle", (time.perf_counter() - received_perf_s) * 1e3)
 
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""
