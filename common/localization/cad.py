@@ -32,12 +32,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
 from common.localization.model import SceneModel, SceneModelError, build_scene
 from common.localization.pose import rotation_matrices
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 #: Facets of a cylinder and segments of a circle.
 ROUND_SEGMENTS = 16

@@ -41,10 +41,9 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.types import BoolArray, FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: Vertices closer than this are the same point when edges are merged (m).
 _MERGE_TOLERANCE_M = 1e-6

@@ -26,8 +26,7 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.geometry import euler_from_matrix, matrix_from_euler
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 @dataclass(frozen=True)

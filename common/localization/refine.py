@@ -24,17 +24,14 @@ from common.camera import CameraModel
 from common.localization.pose import CameraPose, rotation_matrices
 from common.localization.projection import EdgeSamples, project_posed_samples
 from common.localization.scoring import ImageEdges
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
-
+from common.types import BoolArray, FloatArray
 
 #: Where Canny puts an edge relative to the step it marks (px, both axes; checked in the tests).
 CANNY_OFFSET_PX = 0.5
 
 
 @dataclass(frozen=True)
-class RefineParams:
+class RefineSettings:
     """Settings of :func:`refine_pose` and :func:`match_fraction`."""
 
     iterations: int = 5
@@ -123,7 +120,7 @@ def match_fraction(
     t_camera_world: FloatArray,
     camera: CameraModel,
     edges: ImageEdges,
-    params: RefineParams = RefineParams(),
+    params: RefineSettings = RefineSettings(),
     visible: BoolArray | None = None,
 ) -> tuple[float, int]:
     """Fraction of the visible sample points with a same-direction image edge within ``match_px``, and the
@@ -142,7 +139,7 @@ def refine_pose(
     t_camera_world: FloatArray,
     camera: CameraModel,
     edges: ImageEdges,
-    params: RefineParams = RefineParams(),
+    params: RefineSettings = RefineSettings(),
     visible: BoolArray | None = None,
 ) -> Refinement:
     """Gauss-Newton on oriented point-to-edge offsets from one pose (see the module docstring)."""
@@ -203,7 +200,7 @@ def refine_best(
     edges: ImageEdges,
     visible: npt.NDArray[np.bool_] | None,
     count: int,
-    params: RefineParams,
+    params: RefineSettings,
 ) -> tuple[Refinement, CameraPose]:
     """Refine the ``count`` best distinct particles (``R_world_camera`` rotations) with the largest log
     weights; the refinement with the best ``match x sqrt(points)`` wins. Returns it and its pose."""

@@ -13,8 +13,7 @@ from common.camera import CameraModel
 from common.localization.particle_filter import low_variance_resample
 from common.localization.pose import CameraPose, perturb, rotation_matrices, rotation_vectors
 from common.localization.scoring import ImageEdges
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 def anneal(

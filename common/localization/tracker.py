@@ -2,7 +2,7 @@
 
 State in, state out (:class:`TrackerState`); one call per frame::
 
-    tracker = ModelTracker(scene, camera, TrackerConfig())
+    tracker = ModelTracker(scene, camera, TrackerSettings())
     state = tracker.start(initial_pose)                       # a CameraPose; spreads from the scene scale
     state = tracker.step(state, edges, dt_s, rng)             # edges = tracker.edges(image)
     state.pose, state.covariance, state.status                # estimate, 6x6 (position, error angles)
@@ -62,19 +62,18 @@ from common.localization.search import (
     search_candidates,
     twist_covariance_to_world,
 )
-from common.localization.tracker_state import TrackerConfig, TrackerState, TrackingStatus, next_spread
+from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus, next_spread
 from common.localization.visibility import visible_points
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 class ModelTracker:
     """Tracker against a known model; holds only immutable precomputed data (no tracking state)."""
 
-    def __init__(self, scene: SceneModel, camera: CameraModel, config: TrackerConfig | None = None) -> None:
+    def __init__(self, scene: SceneModel, camera: CameraModel, config: TrackerSettings | None = None) -> None:
         self.scene = scene
         self.camera = camera
-        self.config = config or TrackerConfig()
+        self.config = config or TrackerSettings()
         self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
 
     # -- set-up ---------------------------------------------------------------------------------------

@@ -12,10 +12,9 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.localization.pose import CameraPose
-from common.localization.refine import RefineParams
-from common.localization.scoring import ScoringParams
-
-FloatArray = npt.NDArray[np.float64]
+from common.localization.refine import RefineSettings
+from common.localization.scoring import ScoringSettings
+from common.types import FloatArray
 
 
 class TrackingStatus(enum.Enum):
@@ -28,14 +27,14 @@ class TrackingStatus(enum.Enum):
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class TrackerSettings:
     """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring)."""
 
     n_particles: int = 200
     points_per_edge: int = 8
     layers: int = 2
-    scoring: ScoringParams = field(default_factory=ScoringParams)
-    refine: RefineParams = field(default_factory=RefineParams)
+    scoring: ScoringSettings = field(default_factory=ScoringSettings)
+    refine: RefineSettings = field(default_factory=RefineSettings)
     position_spread_m: float | None = None
     angle_spread_rad: float = float(np.radians(8.0))
     velocity_noise_m_s: float | None = None
@@ -94,7 +93,7 @@ class TrackerState:
     visible_from: CameraPose | None = None
 
 
-def next_spread(factor: float, config: TrackerConfig) -> float:
+def next_spread(factor: float, config: TrackerSettings) -> float:
     """The search spread grows by ``spread_growth`` per failed search up to ``max_spread_factor``, then
     starts again at 1: near recoveries stay quick, far ones are reached (a wide box samples near poses
     thinly)."""

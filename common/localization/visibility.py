@@ -23,10 +23,9 @@ import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.localization.model import SceneModel
+from common.types import BoolArray, FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int32]
-BoolArray = npt.NDArray[np.bool_]
 
 _SUBPIXEL_BITS = 4
 #: A sample point is hidden when the buffer is nearer by more than this fraction of the point's depth.

@@ -28,8 +28,8 @@ from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
 from common.localization.pose import perturb, rotation_angle_rad
 from common.sim.scene import RenderOptions, render_view
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 UInt8Array = npt.NDArray[np.uint8]
 
 #: Where the flights aim: a little above the part's centre (m).

@@ -34,9 +34,9 @@ import numpy as np
 
 from common.geometry import R_BODY_CAMERA_FORWARD
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker import ModelTracker
-from common.localization.tracker_state import TrackerConfig, TrackingStatus
+from common.localization.tracker_state import TrackerSettings, TrackingStatus
 from common.sim.objects import (
     CameraFlight,
     kidnap,
@@ -147,7 +147,7 @@ def _recovery_frames(pos: np.ndarray, rot: np.ndarray, frame: int, limit: tuple[
 def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, settle: int) -> dict[str, Any]:
     name = scenes[0].name
     goal_mm, goal_deg = GOALS[name]
-    config = TrackerConfig(n_particles=particles, scoring=ScoringParams(method=method))
+    config = TrackerSettings(n_particles=particles, scoring=ScoringSettings(method=method))
     pos_all, rot_all, ms_all, lost, recovered = [], [], [], 0, []
     for seed, scene in enumerate(scenes):
         tracker = ModelTracker(scene.model, scene.camera, config)
@@ -191,7 +191,7 @@ def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, s
 
 def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, float]:
     """CPU ms of one vectorised weighting of ``particles`` poses vs the per-particle loop, interleaved."""
-    tracker = ModelTracker(scene.model, scene.camera, TrackerConfig(n_particles=particles))
+    tracker = ModelTracker(scene.model, scene.camera, TrackerSettings(n_particles=particles))
     rng = np.random.default_rng(0)
     fast, slow = [], []
     for i in np.linspace(1, scene.flight.n_frames - 1, 5).astype(int):

@@ -78,7 +78,7 @@ class LocalizerService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.camera = settings.camera()
-        self.tracker = ModelTracker(settings.load_scene(), self.camera, settings.tracker_config())
+        self.tracker = ModelTracker(settings.load_scene(), self.camera, settings.tracker_settings())
         self.rng = np.random.default_rng(settings.seed)
         self.state: TrackerState = self.tracker.start(settings.start_pose())
         self._slot: LatestSlot[Frame] = LatestSlot()

@@ -19,17 +19,18 @@ from common.camera import CameraModel
 from common.datasets.calibration import load_calibration
 from common.datasets.models import load_model
 from common.errors import CapatazError
-from common.geometry import R_BODY_CAMERA_DOWN, R_BODY_CAMERA_FORWARD
+from common.geometry import CameraMount
 from common.localization.model import SceneModel
 from common.localization.office import default_scene
 from common.localization.pose import CameraPose, parse_pose_numbers
-from common.localization.scoring import ScoringMethod, ScoringParams
-from common.localization.tracker_state import TrackerConfig
+from common.localization.scoring import ScoringMethod, ScoringSettings
+from common.localization.tracker_state import TrackerSettings
 from common.sim.office_run import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
 from common.sim.scene import default_flight
 from services.runtime.transport import add_transport_arguments
 
-_MOUNTS = {"forward": R_BODY_CAMERA_FORWARD, "down": R_BODY_CAMERA_DOWN, "camera": np.eye(3)}
+#: the body's camera mounts, plus "camera": the published pose is the camera's own (no body)
+_MOUNTS = {**{m.value: m.R_body_camera for m in CameraMount}, "camera": np.eye(3)}
 
 
 class LocalizerSettings(BaseModel):
@@ -94,11 +95,11 @@ class LocalizerSettings(BaseModel):
         state = default_flight(n_frames=2).states[0] if self.initial_state is None else self.initial_state
         return CameraPose.from_body_state(state, self.R_body_camera)
 
-    def tracker_config(self) -> TrackerConfig:
-        return TrackerConfig(
+    def tracker_settings(self) -> TrackerSettings:
+        return TrackerSettings(
             n_particles=self.particles,
             layers=self.layers,
-            scoring=ScoringParams(method=self.scoring),
+            scoring=ScoringSettings(method=self.scoring),
             position_spread_m=self.position_spread_m,
             angle_spread_rad=float(np.radians(self.angle_spread_deg)),
             velocity_noise_m_s=self.velocity_noise_m_s,

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -30,8 +29,8 @@ from common.sim.objects import (
 )
 from common.sim.office_run import simulate_run
 from services.localizer import LocalizerService, LocalizerSettings
-from services.runtime.transport import TransportSettings, open_session, zbytes
-from services.up import free_port
+from services.runtime.transport import open_session, zbytes
+from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 pytestmark = pytest.mark.zenoh
 
@@ -50,7 +49,7 @@ def _in_process(
     settings: LocalizerSettings, images: Sequence[np.ndarray], times_s: np.ndarray
 ) -> list[TrackerState]:
     """What the service must publish: the tracker run in this process with the service's settings."""
-    tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_config())
+    tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_settings())
     rng = np.random.default_rng(settings.seed)
     state = tracker.start(settings.start_pose())
     states = []
@@ -72,54 +71,8 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     # the in-process reference: same scene, camera, settings and seed
     expected = _in_process(settings, sim.images, sim.flight.times_s)
 
-    port = free_port()
-    service = LocalizerService(
-        "test",
-        0,
-        TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000),
-        settings,
-        stats_period_s=0.2,
-    )
-    runner = threading.Thread(target=service.run, daemon=True)
-    runner.start()
-    poses: queue.Queue[PoseEstimate] = queue.Queue()
-    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
-    try:
-        assert service.started.wait(20.0), "service did not start"
-        with open_session(client) as session:
-            subscriber = session.declare_subscriber(
-                keys.pose_pf_key("uav0"),
-                lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
-            )
-            publisher = session.declare_publisher(keys.camera_key("uav0"))
-            deadline = time.monotonic() + 10.0
-            while not publisher.matching_status.matching and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert publisher.matching_status.matching
-
-            def put(message: Frame) -> None:
-                payload, attachment = encode(message)
-                publisher.put(payload, attachment=attachment)
-
-            received: list[PoseEstimate] = []
-            for i, image in enumerate(sim.images):
-                stamp = float(sim.flight.times_s[i])
-                if i == 3:  # garbage, another UAV's frame, a wrong size, a stale stamp: all refused
-                    publisher.put(b"\x00garbage", attachment=b"\x93not-a-header")
-                    put(_frame(99, stamp, image, uav="uav7"))
-                    put(_frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
-                    put(_frame(99, float(sim.flight.times_s[i - 1]), image))
-                put(_frame(i, stamp, image))
-                received.append(poses.get(timeout=20.0))  # one frame in flight: nothing dropped
-            time.sleep(0.3)
-            assert poses.empty(), "a refused frame produced a pose"
-            subscriber.undeclare()
-            publisher.undeclare()
-    finally:
-        service.request_stop()
-        runner.join(5.0)
-    assert not runner.is_alive()
-
+    with hub() as endpoint:
+        service, received = _run_the_service(sim.images, sim.flight.times_s, settings, endpoint)
     assert [p.seq for p in received] == list(range(N_FRAMES))
     for pose, state in zip(received, expected, strict=True):
         assert pose.source == "pf"
@@ -135,6 +88,62 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     assert counts.get("stale_frames") == 1
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
+
+
+def _run_the_service(
+    images: Sequence[np.ndarray],
+    times_s: np.ndarray,
+    settings: LocalizerSettings,
+    endpoint: str,
+    bad_frames: bool = True,
+) -> tuple[LocalizerService, list[PoseEstimate]]:
+    service = LocalizerService("test", 0, peer(endpoint), settings, stats_period_s=0.2)
+    runner = threading.Thread(target=service.run, daemon=True)
+    runner.start()
+    poses: queue.Queue[PoseEstimate] = queue.Queue()
+    try:
+        assert service.started.wait(WAIT_S), "service did not start"
+        with open_session(peer(endpoint)) as session:
+            subscriber = session.declare_subscriber(
+                keys.pose_pf_key("uav0"),
+                lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
+            )
+            publisher = session.declare_publisher(keys.camera_key("uav0"))
+            assert matched(publisher) and matched(service._publisher)  # both directions are routed
+
+            def put(message: Frame) -> None:
+                payload, attachment = encode(message)
+                publisher.put(payload, attachment=attachment)
+
+            received: list[PoseEstimate] = []
+            for i, image in enumerate(images):
+                stamp = float(times_s[i])
+                if (
+                    bad_frames and i == 3
+                ):  # garbage, another UAV's frame, a wrong size, a stale stamp: all refused
+                    publisher.put(b"\x00garbage", attachment=b"\x93not-a-header")
+                    put(_frame(99, stamp, image, uav="uav7"))
+                    put(_frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
+                    put(_frame(99, float(times_s[i - 1]), image))
+                put(_frame(i, stamp, image))
+                received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
+
+            def all_refused() -> bool:
+                counts = service.counters.counts()
+                return (
+                    sum(counts.get(k, 0) for k in ("malformed", "wrong_uav", "bad_frames", "stale_frames"))
+                    >= 4
+                )
+
+            assert not bad_frames or wait_until(all_refused), service.counters.counts()
+            assert poses.empty(), "a refused frame produced a pose"
+            subscriber.undeclare()
+            publisher.undeclare()
+    finally:
+        service.request_stop()
+        runner.join(5.0)
+    assert not runner.is_alive()
+    return service, received
 
 
 def _obj_text(scene: object) -> str:
@@ -170,7 +179,9 @@ def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pos
         seed=SEED,
     )
     expected = _in_process(settings, images, flight.times_s)
-    received = _serve(settings, images, flight.times_s)
+    with hub() as endpoint:
+        _, received = _run_the_service(images, flight.times_s, settings, endpoint, bad_frames=False)
+    assert [p.seq for p in received] == list(range(n_frames))
     errors_mm, errors_deg = [], []
     for i, (pose, state) in enumerate(zip(received, expected, strict=True)):
         assert np.allclose(pose.p_world_body_m, state.pose.p_world_camera_m, atol=1e-9)
@@ -180,42 +191,3 @@ def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pos
     assert [p.tracking_state for p in received[-5:]] == ["tracking"] * 5
     assert float(np.median(errors_mm)) <= 5.0
     assert float(np.median(errors_deg)) <= 0.5
-
-
-def _serve(
-    settings: LocalizerSettings, images: Sequence[np.ndarray], times_s: np.ndarray
-) -> list[PoseEstimate]:
-    """Frames through a running service over Zenoh, one at a time; the poses it published."""
-    port = free_port()
-    service = LocalizerService(
-        "test", 0, TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000), settings, 0.2
-    )
-    runner = threading.Thread(target=service.run, daemon=True)
-    runner.start()
-    poses: queue.Queue[PoseEstimate] = queue.Queue()
-    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
-    received: list[PoseEstimate] = []
-    try:
-        assert service.started.wait(20.0), "service did not start"
-        with open_session(client) as session:
-            subscriber = session.declare_subscriber(
-                keys.pose_pf_key("uav0"),
-                lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
-            )
-            publisher = session.declare_publisher(keys.camera_key("uav0"))
-            deadline = time.monotonic() + 10.0
-            while not publisher.matching_status.matching and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert publisher.matching_status.matching
-            for i, image in enumerate(images):
-                payload, attachment = encode(_frame(i, float(times_s[i]), image))
-                publisher.put(payload, attachment=attachment)
-                received.append(poses.get(timeout=30.0))
-            subscriber.undeclare()
-            publisher.undeclare()
-    finally:
-        service.request_stop()
-        runner.join(5.0)
-    assert not runner.is_alive()
-    assert [p.seq for p in received] == list(range(len(images)))
-    return received

@@ -12,7 +12,7 @@ from common.localization.pose import CameraPose, perturb, rotation_angle_rad
 from common.localization.refine import CANNY_OFFSET_PX, match_fraction
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
-from common.localization.tracker_state import TrackerConfig, TrackerState, TrackingStatus
+from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
 from common.sim.objects import (
     CameraFlight,
     kidnap,
@@ -27,7 +27,7 @@ from common.sim.scene import render_view
 
 @pytest.fixture(scope="module")
 def tracker() -> ModelTracker:
-    return ModelTracker(tabletop_model(), object_camera(), TrackerConfig())
+    return ModelTracker(tabletop_model(), object_camera(), TrackerSettings())
 
 
 def _start(flight: CameraFlight, seed: int, mm: float = 30.0, deg: float = 5.0) -> CameraPose:
@@ -96,7 +96,7 @@ def test_kidnapped_camera_is_found_again_within_30_frames(tracker: ModelTracker)
 
 def test_motion_model_carries_the_cloud_at_its_velocity(tracker: ModelTracker) -> None:
     quiet = ModelTracker(
-        tracker.scene, tracker.camera, TrackerConfig(velocity_noise_m_s=1e-12, angular_noise_rad_s=1e-12)
+        tracker.scene, tracker.camera, TrackerSettings(velocity_noise_m_s=1e-12, angular_noise_rad_s=1e-12)
     )
     flight = object_flight(2, seed=0)
     state = quiet.start(CameraPose(flight.p_world_camera_m[0], flight.R_world_camera[0]))
