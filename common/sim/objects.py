@@ -26,7 +26,7 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
-from common.localization.pose import perturb, rotation_angle_rad
+from common.localization.pose import CameraPose, perturb, rotation_angle_rad
 from common.sim.scene import RenderOptions, render_view
 from common.types import FloatArray
 
@@ -246,6 +246,19 @@ def kidnap(
     rot = np.broadcast_to(np.asarray(rotvec_rad, dtype=np.float64), (flight.n_frames - frame, 3))
     R[frame:] = perturb(R[frame:], np.ascontiguousarray(rot))
     return replace(flight, p_world_camera_m=p, R_world_camera=R)
+
+
+def offset_pose(
+    p_world_camera_m: FloatArray, R_world_camera: FloatArray, position_m: float, angle_rad: float, seed: int
+) -> CameraPose:
+    """A camera pose off by exactly ``position_m`` and ``angle_rad`` in random directions (by seed): the
+    start error of the localizer's tests and bench."""
+    rng = np.random.default_rng(seed)
+    shift, turn = rng.normal(size=3), rng.normal(size=3)
+    return CameraPose(
+        p_world_camera_m + position_m * shift / np.linalg.norm(shift),
+        perturb(R_world_camera[None], (angle_rad * turn / np.linalg.norm(turn))[None])[0],
+    )
 
 
 def render_camera_flight(

@@ -42,6 +42,7 @@ from common.sim.objects import (
     kidnap,
     object_camera,
     object_flight,
+    offset_pose,
     render_camera_flight,
     tabletop_model,
     tabletop_scene,
@@ -111,11 +112,9 @@ def _with_kidnap(
 
 def _start(scene: _Scene, seed: int) -> CameraPose:
     mm, deg = START_ERROR[scene.name]
-    rng = np.random.default_rng(30_000 + seed)
-    shift, turn = rng.normal(size=3), rng.normal(size=3)
-    return CameraPose(
-        scene.flight.p_world_camera_m[0] + 1e-3 * mm * shift / np.linalg.norm(shift),
-        perturb(scene.flight.R_world_camera[:1], (np.radians(deg) * turn / np.linalg.norm(turn))[None])[0],
+    flight = scene.flight
+    return offset_pose(
+        flight.p_world_camera_m[0], flight.R_world_camera[0], 1e-3 * mm, np.radians(deg), 30_000 + seed
     )
 
 

@@ -15,7 +15,7 @@ import pytest
 from common import keys
 from common.datasets.calibration import opencv_yaml_text
 from common.geometry import R_BODY_CAMERA_FORWARD, quaternion_from_matrix
-from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.pose import rotation_angle_rad
 from common.localization.scoring import ScoringMethod
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState
@@ -23,6 +23,7 @@ from common.messages import Frame, PoseEstimate, decode, encode
 from common.sim.objects import (
     object_camera,
     object_flight,
+    offset_pose,
     render_camera_flight,
     tabletop_model,
     tabletop_scene,
@@ -163,13 +164,7 @@ def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pos
     (tmp_path / "tabletop.obj").write_text(_obj_text(tabletop_model()))
     (tmp_path / "camera.yaml").write_text(opencv_yaml_text(camera))
     # start 30 mm and 5 deg off, given as OpenCV rvec + tvec (camera-from-world)
-    rng = np.random.default_rng(7)
-    offset = rng.normal(size=3)
-    turn = rng.normal(size=3)
-    start = CameraPose(
-        flight.p_world_camera_m[0] + 0.03 * offset / np.linalg.norm(offset),
-        perturb(flight.R_world_camera[:1], (np.radians(5.0) * turn / np.linalg.norm(turn))[None])[0],
-    )
+    start = offset_pose(flight.p_world_camera_m[0], flight.R_world_camera[0], 0.03, np.radians(5.0), 7)
     rvec, tvec = start.rvec_tvec()
     settings = LocalizerSettings(
         model=tmp_path / "tabletop.obj",

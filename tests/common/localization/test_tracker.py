@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.refine import CANNY_OFFSET_PX, match_fraction
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
@@ -18,6 +18,7 @@ from common.sim.objects import (
     kidnap,
     object_camera,
     object_flight,
+    offset_pose,
     render_camera_flight,
     tabletop_model,
     tabletop_scene,
@@ -31,12 +32,7 @@ def tracker() -> ModelTracker:
 
 
 def _start(flight: CameraFlight, seed: int, mm: float = 30.0, deg: float = 5.0) -> CameraPose:
-    rng = np.random.default_rng(seed)
-    shift, turn = rng.normal(size=3), rng.normal(size=3)
-    return CameraPose(
-        flight.p_world_camera_m[0] + 1e-3 * mm * shift / np.linalg.norm(shift),
-        perturb(flight.R_world_camera[:1], (np.radians(deg) * turn / np.linalg.norm(turn))[None])[0],
-    )
+    return offset_pose(flight.p_world_camera_m[0], flight.R_world_camera[0], 1e-3 * mm, np.radians(deg), seed)
 
 
 def _run(
