@@ -70,6 +70,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "odometry on the object and office scenes (localizer_field.json; see services.bench.localizer_field)",
     )
     parser.add_argument("--seeds", type=int, default=5, help="field suite: runs per scene and scoring")
+    parser.add_argument(
+        "--scenes", nargs="+", choices=["object", "office"], help="field suite: scenes (default both)"
+    )
     parser.add_argument("--particles", type=int, default=200, help="field suite: particles")
     parser.add_argument(
         "--scorings", nargs="+", choices=[m.value for m in ScoringMethod], help="field suite: scorings (all)"
