@@ -28,40 +28,63 @@ latest-wins: a frame still pending when a newer one arrives is dropped and count
 
 from __future__ import annotations
 
-import enum
 import logging
 import math
-import time
-from collections import Counter, deque
-from dataclasses import dataclass, field
+from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from common.errors import InputError
 from common.estimation.buffer import Refusal, TimeOrderedBuffer
-from common.estimation.ekf import AttitudeAltitudeEkf, EkfError, EkfSettings, EkfState, UpdateResult
-from common.estimation.rectify import RectificationError, check_image_u8, rectify_frame
-from common.estimation.vo import (
-    MotionModel,
-    PreparedFrame,
-    VoError,
-    VoPose,
-    VoSettings,
-    compose_pose,
-    estimate_relative_motion,
-    metric_translation,
-    prepare_frame,
+from common.estimation.coupling_types import (
+    AttitudeOutput,
+    CameraModel,
+    CouplingSettings,
+    FilterKind,
+    Output,
+    PoseOutput,
+    ScaleSource,
+)
+from common.estimation.ekf import (
+    AttitudeAltitudeEkf,
+    EkfError,
+    EkfSettings,
+    EkfState,
+    altitude_from_range,
+    propagate_quaternion,
+)
+from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
+from common.estimation.homography import VoError
+from common.estimation.measurements import (
+    SENSOR_ORDER,
+    FrameMeasurement,
+    ImuMeasurement,
+    Measurement,
+    RangeMeasurement,
+    Sensor,
+    YawMeasurement,
+    sensor_of,
+)
+from common.estimation.rectify import RectificationError
+from common.estimation.tilt import ManoeuvreTrack, VisionTilt, residual_tilt_offset
+from common.estimation.vo import MotionModel, PreparedFrame, VoPose, VoSettings
+from common.estimation.vo_chain import (
+    VoChainSettings,
+    VoChainState,
+    advance_vo_chain,
+    prepare_view,
+    shifted,
+    start_vo_chain,
+    with_pose,
 )
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
-    check_rotation_matrix,
     euler_from_matrix,
     euler_from_quaternion,
     matrix_from_euler,
     matrix_from_quaternion,
     quaternion_from_euler,
-    quaternion_multiply,
 )
 
 logger = logging.getLogger(__name__)
@@ -70,222 +93,8 @@ FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 
-class Sensor(enum.Enum):
-    """Input streams of the estimator."""
-
-    IMU = "imu"
-    RANGE = "range"
-    CAMERA = "camera"
-    YAW = "yaw"
-
-
-class ScaleSource(enum.Enum):
-    """Where the visual odometry takes its metric scale (the camera's height) from."""
-
-    EKF = "ekf"
-    RANGE = "range"
-
-
-@dataclass(frozen=True)
-class ImuMeasurement:
-    """Gyro (rad/s, body) and specific force (m/s^2, body) at ``stamp_s``."""
-
-    stamp_s: float
-    gyro_rad_s: FloatArray
-    accel_m_s2: FloatArray
-
-
-@dataclass(frozen=True)
-class RangeMeasurement:
-    """Rangefinder reading along the body's -z axis."""
-
-    stamp_s: float
-    range_m: float
-
-
-@dataclass(frozen=True)
-class YawMeasurement:
-    """An external yaw (e.g. from the yaw cluster), any unwrapping."""
-
-    stamp_s: float
-    yaw_rad: float
-
-
-@dataclass(frozen=True)
-class FrameMeasurement:
-    """A grey camera frame."""
-
-    stamp_s: float
-    image: ImageU8
-
-
-Measurement = ImuMeasurement | RangeMeasurement | YawMeasurement | FrameMeasurement
-
-
-def check_imu(stamp_s: float, gyro_rad_s: npt.ArrayLike, accel_m_s2: npt.ArrayLike) -> ImuMeasurement:
-    """Validated IMU sample (finite stamp, two finite 3-vectors) or InputError."""
-    gyro = np.asarray(gyro_rad_s, dtype=np.float64)
-    accel = np.asarray(accel_m_s2, dtype=np.float64)
-    if gyro.shape != (3,) or accel.shape != (3,):
-        raise InputError(f"gyro and accel must have shape (3,), got {gyro.shape} and {accel.shape}")
-    if not (math.isfinite(stamp_s) and np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel))):
-        raise InputError("IMU sample has a non-finite stamp, gyro or accel value")
-    return ImuMeasurement(stamp_s=float(stamp_s), gyro_rad_s=gyro, accel_m_s2=accel)
-
-
-def check_range(stamp_s: float, range_m: float) -> RangeMeasurement:
-    """Validated range sample (finite stamp, finite positive range) or InputError."""
-    if not (math.isfinite(stamp_s) and math.isfinite(range_m) and range_m > 0.0):
-        raise InputError(f"range sample must have a finite stamp and a finite range > 0, got {range_m}")
-    return RangeMeasurement(stamp_s=float(stamp_s), range_m=float(range_m))
-
-
-def check_yaw(stamp_s: float, yaw_rad: float) -> YawMeasurement:
-    """Validated yaw sample or InputError."""
-    if not (math.isfinite(stamp_s) and math.isfinite(yaw_rad)):
-        raise InputError(f"yaw sample must be finite, got stamp {stamp_s}, yaw {yaw_rad}")
-    return YawMeasurement(stamp_s=float(stamp_s), yaw_rad=float(yaw_rad))
-
-
-def check_frame(stamp_s: float, image: npt.ArrayLike, shape: tuple[int, int]) -> FrameMeasurement:
-    """Validated grey frame of the camera's ``(height, width)`` or InputError."""
-    img = check_image_u8(image)
-    if img.shape != shape:
-        raise InputError(f"frame must have shape {shape} (height, width), got {img.shape}")
-    if not math.isfinite(stamp_s):
-        raise InputError("frame stamp must be finite")
-    return FrameMeasurement(stamp_s=float(stamp_s), image=img)
-
-
-@dataclass(frozen=True)
-class CouplingSettings:
-    """How the two layers are coupled."""
-
-    #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's
-    #: "traditional" VO).
-    rectify: bool = True
-    #: Time constant (s) pulling the rectification attitude (gyro-propagated between frames) towards the
-    #: EKF's; 0 rectifies with the EKF attitude of each frame as it is.
-    rectification_smoothing_s: float = 0.0
-    #: Metric scale of the VO: the EKF altitude (coupled) or the last rangefinder reading as it is
-    #: (the uncoupled, traditional VO: longer than the height when tilted, and noisy).
-    scale_from: ScaleSource = ScaleSource.EKF
-    #: How rectified pairs are turned into a motion: the similarity of two level views for the
-    #: translation and the free decomposition's rotation about the optical axis for the yaw (the
-    #: default, :attr:`MotionModel.LEVEL_FREE_YAW`), or freely (``cv2.decomposeHomographyMat``), with the
-    #: known plane normal, or the similarity alone (:attr:`MotionModel.LEVEL`).
-    rectified_motion_model: MotionModel = MotionModel.LEVEL_FREE_YAW
-    #: The VO's position origin (``initial_position_m``) is the first frame at least this long after the
-    #: first IMU sample (frames before it already give the VO yaw). A rectified VO position is off by
-    #: ``h * d`` (``d``: the EKF's tilt error when the frame was rectified); these offsets telescope
-    #: along the chain, so the error is ``h_k d_k - h_0 d_0`` with ``0`` the origin frame. An origin
-    #: before the EKF's tilt has settled from the first accelerometer sample leaves that transient in
-    #: ``d_0`` for the whole flight.
-    vo_origin_delay_s: float = 0.0
-    #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
-    #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
-    #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
-    #: it was rectified with the known initial attitude, else from the latest estimate.
-    vision_tilt_correction: bool = True
-    #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
-    #: pairs) it needs before it is used.
-    vision_tilt_window_s: float = 5.0
-    vision_tilt_min_information: float = 1e-3
-    #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
-    visual_yaw: bool = True
-    #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
-    external_yaw: bool = False
-    vo_yaw_noise_rad: float = 0.005
-    external_yaw_noise_rad: float = 0.02
-    #: Samples are held until this much older than the newest stamp, then applied in order.
-    max_lag_s: float = 0.02
-    max_pending: int = 4096
-    #: Altitude assumed before the first range reading, and its std.
-    default_altitude_m: float = 1.0
-    default_altitude_std_m: float = 2.0
-    #: Compensate the accelerometer for the manoeuvre acceleration estimated from the VO positions (the
-    #: hover model of eq. 16 alone reads the coordinated tilt of a turn as level).
-    accel_compensation: bool = True
-    #: Time span of the VO positions fitted (cubic in time) for that acceleration.
-    accel_window_s: float = 0.6
-    #: After the start, skip the accelerometer for up to this long until the VO acceleration is available
-    #: (0: use the hover model meanwhile, right for a start at rest; > 0 for a start in mid-manoeuvre).
-    accel_wait_for_vo_s: float = 0.0
-    #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
-    initial_yaw_rad: float = 0.0
-    initial_position_m: tuple[float, float] = (0.0, 0.0)
-    #: Known initial attitude ``q_world_body`` (else roll and pitch from the first accelerometer sample).
-    initial_q_world_body: tuple[float, float, float, float] | None = None
-
-
-@dataclass(frozen=True)
-class CameraModel:
-    """Intrinsics and mounting of the camera used by the visual odometry."""
-
-    K: FloatArray
-    width: int
-    height: int
-    R_body_camera: FloatArray = field(default_factory=lambda: R_BODY_CAMERA_DOWN.copy())
-
-    def __post_init__(self) -> None:
-        K = np.asarray(self.K, dtype=np.float64)
-        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise InputError(f"K must be a finite (3, 3) intrinsic matrix, got {K}")
-        check_rotation_matrix(self.R_body_camera, "R_body_camera")
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (int(self.height), int(self.width))
-
-
-@dataclass(frozen=True)
-class AttitudeOutput:
-    """EKF estimate after one IMU sample."""
-
-    stamp_s: float
-    q_world_body: FloatArray
-    pz_m: float
-    covariance_diag: FloatArray
-
-
-@dataclass(frozen=True)
-class PoseOutput:
-    """Visual-odometry pose after one frame: body position (x, y from VO, z from the EKF) and attitude."""
-
-    stamp_s: float
-    p_world_body_m: FloatArray
-    q_world_body: FloatArray
-    vo_yaw_rad: float
-    n_inliers: int
-    vo_ms: float
-    ok: bool
-
-
-Output = AttitudeOutput | PoseOutput
-
-
-def motion_acceleration(stamps_s: npt.ArrayLike, positions_m: npt.ArrayLike) -> FloatArray:
-    """Acceleration at the last stamp of a cubic fit in time to positions ``(N, D)`` (N >= 5), else zeros."""
-    t = np.asarray(stamps_s, dtype=np.float64)
-    p = np.asarray(positions_m, dtype=np.float64)
-    if len(t) < 5:
-        return np.zeros(p.shape[1] if p.ndim == 2 else 3)
-    tau = t - t[-1]
-    scale = max(float(-tau[0]), 1e-6)
-    x = tau / scale
-    A = np.stack([np.ones_like(x), x, x * x, x * x * x], axis=1)
-    coeffs, *_ = np.linalg.lstsq(A, p, rcond=None)
-    return np.asarray(2.0 * coeffs[2] / (scale * scale), dtype=np.float64)
-
-
-def residual_tilt_offset(R_n_camera: FloatArray, altitude_m: float, normal_xy: FloatArray) -> FloatArray:
-    """Horizontal offset ``(2,)`` (navigation frame) of the ground point on a rectified camera's optical axis
-    from the point below it, when the rectified view is in fact tilted so that the ground normal is
-    ``(nx, ny, ~1)`` in its frame: ``R_n_camera (-h nx, -h ny, 0)``. A VO chain of such views tracks
-    that ground point instead of the camera."""
-    n = np.asarray(normal_xy, dtype=np.float64)
-    offset_cam = np.array([-altitude_m * n[0], -altitude_m * n[1], 0.0])
-    return np.asarray((R_n_camera @ offset_cam)[:2], dtype=np.float64)
+AnyFilter = AttitudeAltitudeEkf | BiasAwareEkf
+AnyState = EkfState | BiasEkfState
 
 
 def yaw_of_camera(R_world_camera: FloatArray, R_body_camera: FloatArray) -> float:
@@ -293,8 +102,42 @@ def yaw_of_camera(R_world_camera: FloatArray, R_body_camera: FloatArray) -> floa
     return float(euler_from_matrix(R_world_camera @ R_body_camera.T)[2])
 
 
+def tilt_std_rad(attitude_covariance_world: FloatArray) -> float:
+    """Largest standard deviation of the horizontal (tilt) error angles."""
+    C = np.asarray(attitude_covariance_world, dtype=np.float64)[:2, :2]
+    return float(math.sqrt(max(float(np.linalg.eigvalsh(C)[-1]), 0.0)))
+
+
+def rectified_axis_offset(
+    yaw_rad: float,
+    roll_pitch_used_rad: tuple[float, float],
+    roll_pitch_true_rad: tuple[float, float],
+    altitude_m: float,
+) -> FloatArray:
+    """Horizontal offset ``(2,)`` of the ground point on the optical axis of a view rectified with
+    ``roll_pitch_used`` when the attitude was ``roll_pitch_true``: the axis is
+    ``Rz R_tilt_true R_tilt_used^T (0, 0, -1)`` and the chain tracks where it meets the ground."""
+    Rt = matrix_from_euler(roll_pitch_true_rad[0], roll_pitch_true_rad[1], yaw_rad)
+    Ru = matrix_from_euler(roll_pitch_used_rad[0], roll_pitch_used_rad[1], yaw_rad)
+    axis = Rt @ Ru.T @ np.array([0.0, 0.0, -1.0])
+    return np.asarray(altitude_m * axis[:2] / -axis[2], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class _Origin:
+    """The VO origin frame: its rectified camera, altitude, the attitude it was rectified with and the
+    accelerometer-bias estimate then (for the later re-estimate of its tilt error)."""
+
+    R_n_camera: FloatArray
+    altitude_m: float
+    yaw_rad: float
+    roll_pitch_rad: tuple[float, float]
+    accel_bias_m_s2: FloatArray | None
+    at_known_attitude: bool
+
+
 class DoubleCouplingEstimator:
-    """EKF + visual odometry with double coupling, fed sample by sample (single-threaded, not thread-safe)."""
+    """Filter + visual odometry with double coupling, fed sample by sample (single-threaded)."""
 
     def __init__(
         self,
@@ -302,47 +145,47 @@ class DoubleCouplingEstimator:
         ekf_settings: EkfSettings | None = None,
         vo_settings: VoSettings | None = None,
         settings: CouplingSettings | None = None,
+        chain_settings: VoChainSettings | None = None,
     ) -> None:
         self.camera = camera
         self.settings = settings or CouplingSettings()
-        self.ekf = AttitudeAltitudeEkf(ekf_settings)
+        self.ekf: AnyFilter
+        if self.settings.filter is FilterKind.BIAS:
+            self.ekf = BiasAwareEkf(ekf_settings if isinstance(ekf_settings, BiasEkfSettings) else None)
+        else:
+            self.ekf = AttitudeAltitudeEkf(ekf_settings)
         self.vo_settings = vo_settings or VoSettings()
+        self.chain_settings = chain_settings or VoChainSettings()
         self.buffer: TimeOrderedBuffer[Measurement] = TimeOrderedBuffer(
             self.settings.max_lag_s, self.settings.max_pending
         )
-        self.state: EkfState | None = None
-        self.pose: VoPose | None = None
+        self.state: AnyState | None = None
+        self.chain: VoChainState | None = None
         self.counters: Counter[str] = Counter()
-        self._prev_frame: PreparedFrame | None = None
-        self._prev_altitude_m = math.nan
         self._last_range_m: float | None = None
         self._latest_frame_stamp_s = -math.inf
         self._vo_yaw_unwrapped = math.nan
         self._altitude_from_range = False
-        self._vo_track: deque[tuple[float, float, float]] = deque()
-        self._motion_accel: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._track = ManoeuvreTrack()
+        self._tilt = VisionTilt()
         self._first_imu_s: float | None = None
         self._rect_q: FloatArray | None = None
         self._accel_position = np.zeros(3)
-        self._tilt_sum = np.zeros(2)
-        self._tilt_information = 0.0
-        self._tilt_stamp_s = math.nan
-        self._tilt_informed = False
-        self._origin_set = False
-        self._origin_at_known_attitude = False
-        self._anchor: tuple[FloatArray, float] | None = None
+        #: the keyframe the accelerometer's (free) positions are measured from, and its position
+        self._accel_keyframe: tuple[PreparedFrame | None, FloatArray] = (None, np.zeros(3))
+        self._origin: _Origin | None = None
 
     # ---- input ------------------------------------------------------------------------------------
 
     def push(self, measurement: Measurement) -> Refusal | None:
         """Queue one validated sample; returns why it was refused, if it was."""
-        sensor = _sensor_of(measurement)
+        sensor = sensor_of(measurement)
         if sensor is Sensor.CAMERA:
             if measurement.stamp_s <= self._latest_frame_stamp_s:
                 self.counters["refused_camera_stale"] += 1
                 return Refusal.STALE
             self._latest_frame_stamp_s = measurement.stamp_s
-        refusal = self.buffer.push(measurement.stamp_s, sensor.value, measurement, _RANK[sensor])
+        refusal = self.buffer.push(measurement.stamp_s, sensor.value, measurement, SENSOR_ORDER[sensor])
         if refusal is not None:
             self.counters[f"refused_{sensor.value}_{refusal.value}"] += 1
         return refusal
@@ -375,56 +218,94 @@ class DoubleCouplingEstimator:
                     outputs.append(pose)
         return outputs
 
-    # ---- EKF inputs -------------------------------------------------------------------------------
+    # ---- filter inputs ----------------------------------------------------------------------------
 
-    def _initial_state(self, m: ImuMeasurement) -> EkfState:
+    def _initial_state(self, m: ImuMeasurement) -> AnyState:
         ax, ay, az = m.accel_m_s2
         roll = math.atan2(ay, az)
         pitch = math.atan2(-ax, math.hypot(ay, az))
         q = quaternion_from_euler(roll, pitch, self.settings.initial_yaw_rad)
         if self.settings.initial_q_world_body is not None:
             q = np.asarray(self.settings.initial_q_world_body, dtype=np.float64)
+        state = self.ekf.initial_state(q, self.settings.default_altitude_m, m.stamp_s)
         if self._last_range_m is not None:
-            R33 = float(matrix_from_quaternion(q)[2, 2])
-            state = self.ekf.initial_state(q, self._last_range_m * R33, m.stamp_s)
-            P = state.covariance.copy()
-            P[4, 4] = self.ekf.settings.range_noise_m**2
-            state = EkfState(state.q_world_body, state.pz_m, P, state.stamp_s)
             self._altitude_from_range = True
-        else:
-            state = self.ekf.initial_state(q, self.settings.default_altitude_m, m.stamp_s)
-            P = state.covariance.copy()
-            P[4, 4] = self.settings.default_altitude_std_m**2
-            state = EkfState(state.q_world_body, state.pz_m, P, state.stamp_s)
-        return state
+            return self._with_altitude(state, self._last_range_m, self.ekf.settings.range_noise_m)
+        return self._with_altitude(state, None, self.settings.default_altitude_std_m)
+
+    def _with_altitude(self, state: AnyState, range_m: float | None, std_m: float) -> AnyState:
+        """The state with its altitude from a range reading (eq. 21 inverted), or the default."""
+        q = state.q_world_body.tolist()
+        pz = (
+            self.settings.default_altitude_m
+            if range_m is None
+            else altitude_from_range((q[0], q[1], q[2], q[3]), range_m)
+        )
+        if isinstance(state, BiasEkfState) and isinstance(self.ekf, BiasAwareEkf):
+            return self.ekf.with_altitude(state, pz, std_m)
+        if isinstance(state, EkfState) and isinstance(self.ekf, AttitudeAltitudeEkf):
+            return self.ekf.with_altitude(state, pz, std_m)
+        raise EkfError("filter and state kinds differ")
+
+    def _attitude_output(self, stamp_s: float) -> AttitudeOutput:
+        assert self.state is not None
+        return AttitudeOutput(
+            stamp_s=stamp_s,
+            q_world_body=self.state.q_world_body,
+            pz_m=self.state.pz_m,
+            attitude_covariance_world=self._attitude_covariance(),
+            altitude_var_m2=self._altitude_var(),
+        )
+
+    def _attitude_covariance(self) -> FloatArray:
+        state, ekf = self.state, self.ekf
+        if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
+            return ekf.attitude_covariance_world(state)
+        if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
+            return ekf.attitude_covariance_world(state)
+        raise EkfError("no state")
+
+    def _altitude_var(self) -> float:
+        state, ekf = self.state, self.ekf
+        if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
+            return ekf.altitude_variance(state)
+        if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
+            return ekf.altitude_variance(state)
+        raise EkfError("no state")
+
+    def _step(self, kind: str, *args: object) -> tuple[AnyState, bool]:
+        """One filter call on the current state (the two filters share the method names)."""
+        method = getattr(self.ekf, kind)
+        result = method(self.state, *args)
+        if kind == "predict":
+            return result, True
+        return result.state, bool(result.accepted)
 
     def _on_imu(self, m: ImuMeasurement) -> AttitudeOutput | None:
         if self.state is None:
             self.state = self._initial_state(m)
             self._first_imu_s = m.stamp_s
         dt_s = m.stamp_s - self.state.stamp_s
+        previous = self.state
         try:
-            state = self.ekf.predict(self.state, m.gyro_rad_s, dt_s)
+            self.state, _ = self._step("predict", m.gyro_rad_s, dt_s)
             if self._accel_waits_for_vo(m.stamp_s):
                 self.counters["accel_waiting_for_vo"] += 1
-                result = UpdateResult(state=state, accepted=True, nis=math.nan)
+                accepted = True
             else:
-                result = self.ekf.update_accelerometer(state, m.accel_m_s2, self._motion_accel)
+                self.state, accepted = self._step(
+                    "update_accelerometer", m.accel_m_s2, self._track.accel_world_m_s2
+                )
         except EkfError as exc:
+            self.state = previous
             self.counters["ekf_errors"] += 1
             logger.warning("IMU sample at %.4f s not applied: %s", m.stamp_s, exc)
             return None
         self.counters["imu_applied"] += 1
-        self._propagate_rectification_attitude(m, dt_s, result.state)
-        if not result.accepted:
+        if not accepted:
             self.counters["accel_gated"] += 1
-        self.state = result.state
-        return AttitudeOutput(
-            stamp_s=m.stamp_s,
-            q_world_body=self.state.q_world_body,
-            pz_m=self.state.pz_m,
-            covariance_diag=np.diag(self.state.covariance).copy(),
-        )
+        self._propagate_rectification_attitude(m, dt_s)
+        return self._attitude_output(m.stamp_s)
 
     def _on_range(self, m: RangeMeasurement) -> None:
         self._last_range_m = m.range_m
@@ -432,36 +313,28 @@ class DoubleCouplingEstimator:
             return
         if not self._altitude_from_range:
             # first reading: take the altitude from it (eq. 21 inverted) instead of a huge innovation
-            q0, q1, q2, q3 = self.state.q_world_body.tolist()
-            P = self.state.covariance.copy()
-            P[4, :] = 0.0
-            P[:, 4] = 0.0
-            P[4, 4] = self.ekf.settings.range_noise_m**2
-            pz = m.range_m * (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
-            self.state = EkfState(self.state.q_world_body, pz, P, self.state.stamp_s)
+            self.state = self._with_altitude(self.state, m.range_m, self.ekf.settings.range_noise_m)
             self._altitude_from_range = True
             self.counters["range_applied"] += 1
             return
         try:
-            result = self.ekf.update_range(self.state, m.range_m)
+            self.state, accepted = self._step("update_range", m.range_m)
         except EkfError as exc:
             self.counters["ekf_errors"] += 1
             logger.warning("range sample at %.4f s not applied: %s", m.stamp_s, exc)
             return
-        self.counters["range_applied" if result.accepted else "range_gated"] += 1
-        self.state = result.state
+        self.counters["range_applied" if accepted else "range_gated"] += 1
 
     def _apply_yaw(self, yaw_rad: float, noise_rad: float, counter: str) -> None:
         if self.state is None:
             return
         try:
-            result = self.ekf.update_yaw(self.state, yaw_rad, noise_rad)
+            self.state, accepted = self._step("update_yaw", yaw_rad, noise_rad)
         except EkfError as exc:
             self.counters["ekf_errors"] += 1
             logger.warning("yaw update not applied: %s", exc)
             return
-        self.counters[f"{counter}_applied" if result.accepted else f"{counter}_gated"] += 1
-        self.state = result.state
+        self.counters[f"{counter}_applied" if accepted else f"{counter}_gated"] += 1
 
     def _on_yaw(self, m: YawMeasurement) -> None:
         if self.settings.external_yaw:
@@ -471,170 +344,196 @@ class DoubleCouplingEstimator:
 
     # ---- frames: rectification, VO, yaw coupling --------------------------------------------------
 
+    def _rectification_weight(self, attitude_covariance: FloatArray) -> float:
+        ref = self.settings.rectification_tilt_ref_rad
+        if not math.isfinite(ref):
+            return 1.0
+        return 1.0 / (1.0 + (tilt_std_rad(attitude_covariance) / ref) ** 2)
+
     def _on_frame(self, m: FrameMeasurement) -> PoseOutput | None:
         if self.state is None:
             self.counters["frames_before_imu"] += 1
             return None
-        t0 = time.perf_counter()
+        s = self.settings
         roll, pitch, yaw_ekf = (float(v) for v in euler_from_quaternion(self.state.q_world_body))
-        if self._rect_q is not None and self.settings.rectification_smoothing_s > 0.0:
+        if self._rect_q is not None and s.rectification_smoothing_s > 0.0:
             roll, pitch, _ = (float(v) for v in euler_from_quaternion(self._rect_q))
         altitude_m = self.state.pz_m
-        if self.settings.scale_from is ScaleSource.RANGE and self._last_range_m is not None:
+        if s.scale_from is ScaleSource.RANGE and self._last_range_m is not None:
             altitude_m = self._last_range_m
+        att_cov = self._attitude_covariance()
+        weight = self._rectification_weight(att_cov) if s.rectify else math.nan
         cam = self.camera
         try:
-            if self.settings.rectify:
-                rect = rectify_frame(
-                    m.image, cam.K, roll, pitch, cam.R_body_camera, border_px=self.vo_settings.mask_margin_px
-                )
-                frame = prepare_frame(rect.image, rect.valid_mask, self.vo_settings)
-            else:
-                frame = prepare_frame(m.image, None, self.vo_settings)
+            frame = prepare_view(
+                m.image, cam.K, cam.R_body_camera, (roll, pitch) if s.rectify else None, self.vo_settings
+            )
         except RectificationError as exc:
             self.counters["frames_unrectifiable"] += 1
             logger.warning("frame at %.4f s not rectified: %s", m.stamp_s, exc)
             return None
         ok = False
         n_inliers = 0
-        if self.pose is None or self._prev_frame is None:
-            self.pose = self._initial_pose(roll, pitch, yaw_ekf, altitude_m)
-            self._anchor = (self.pose.R_n_camera.copy(), altitude_m)
-            self._maybe_set_origin(m.stamp_s, altitude_m)
-            self._accel_position = self.pose.p_n_camera_m.copy()
-            self._vo_yaw_unwrapped = yaw_of_camera(self.pose.R_n_camera, self._vo_camera_mount())
+        if self.chain is None:
+            self.chain = start_vo_chain(
+                frame, self._initial_pose(roll, pitch, yaw_ekf, altitude_m), altitude_m
+            )
+            self._maybe_set_origin(m.stamp_s, altitude_m, roll, pitch, yaw_ekf)
+            self._accel_position = self.chain.pose.p_n_camera_m.copy()
+            self._vo_yaw_unwrapped = yaw_of_camera(self.chain.pose.R_n_camera, self._vo_camera_mount())
             ok = True
         else:
             try:
-                model = self.settings.rectified_motion_model if self.settings.rectify else MotionModel.FREE
-                motion = estimate_relative_motion(
-                    self._prev_frame, frame, cam.K, self.vo_settings, model=model
+                model = s.rectified_motion_model if s.rectify else MotionModel.FREE
+                step = advance_vo_chain(
+                    self.chain, frame, altitude_m, cam.K, self.vo_settings, model, self.chain_settings
                 )
-                t_m = metric_translation(motion.t_over_d, self._prev_altitude_m)
-                self.pose = compose_pose(self.pose, motion.R_k_km1, t_m)
+                pose = step.state.pose
                 # the accelerometer compensation follows the free decomposition: with the level model a
-                # tilt error of the EKF would leak into the translation and back into the EKF (a loop)
-                t_free = metric_translation(motion.t_over_d_free, self._prev_altitude_m)
-                self._accel_position = self._accel_position - self.pose.R_n_camera @ t_free
-                n_inliers = motion.n_inliers
-                self._maybe_set_origin(m.stamp_s, altitude_m)
-                if self.settings.rectify and self.settings.vision_tilt_correction:
-                    self._update_vision_tilt(m.stamp_s, motion.t_over_d_free, motion.normal_km1_free)
+                # tilt error of the filter would leak into the translation and back into it (a loop)
+                if s.rectify and weight < 1.0:
+                    blended = step.keyframe_pose.p_n_camera_m + (
+                        weight * step.displacement_m + (1.0 - weight) * step.displacement_free_m
+                    )
+                    pose = VoPose(R_n_camera=pose.R_n_camera, p_n_camera_m=blended)
+                self.chain = with_pose(step.state, pose)
+                if step.keyframe_frame is not self._accel_keyframe[0]:
+                    self._accel_keyframe = (step.keyframe_frame, self._accel_position)
+                self._accel_position = self._accel_keyframe[1] + step.displacement_free_m
+                if self.chain.keyframe.frame is frame:
+                    self._accel_keyframe = (frame, self._accel_position)
+                n_inliers = step.motion.n_inliers
+                self._maybe_set_origin(m.stamp_s, altitude_m, roll, pitch, yaw_ekf)
+                if s.rectify and s.vision_tilt_correction:
+                    self._tilt = self._tilt.updated(
+                        m.stamp_s, step.motion.t_over_d_free, step.motion.normal_km1_free,
+                        s.vision_tilt_window_s, s.vision_tilt_min_information,
+                    )  # fmt: skip
                 ok = True
                 self.counters["vo_pairs"] += 1
             except VoError as exc:
                 self.counters["vo_failures"] += 1
-                self._vo_track.clear()
+                self._track = self._track.cleared()
+                self.chain = start_vo_chain(frame, self.chain.pose, altitude_m)
                 logger.info("VO pair ending at %.4f s failed: %s", m.stamp_s, exc)
-        self._prev_frame = frame
-        self._prev_altitude_m = altitude_m
-        if ok and self.settings.accel_compensation:
-            self._update_motion_accel(m.stamp_s)
-        vo_ms = (time.perf_counter() - t0) * 1e3
-        yaw_wrapped = yaw_of_camera(self.pose.R_n_camera, self._vo_camera_mount())
+        if ok and s.accel_compensation:
+            p = self._accel_position
+            self._track = self._track.updated(m.stamp_s, float(p[0]), float(p[1]), s.accel_window_s)
+        pose = self.chain.pose
+        yaw_wrapped = yaw_of_camera(pose.R_n_camera, self._vo_camera_mount())
         self._vo_yaw_unwrapped += math.remainder(yaw_wrapped - self._vo_yaw_unwrapped, 2.0 * math.pi)
-        if ok and self.settings.visual_yaw:
-            self._apply_yaw(self._vo_yaw_unwrapped, self.settings.vo_yaw_noise_rad, "vo_yaw")
-        if not self._origin_set:
+        if ok and s.visual_yaw:
+            self._apply_yaw(self._vo_yaw_unwrapped, s.vo_yaw_noise_rad, "vo_yaw")
+        if self._origin is None:
             self.counters["frames_before_vo_origin"] += 1
             return None
-        p = self.pose.p_n_camera_m.copy()
-        tilt = self.vision_tilt()
-        if tilt is not None and self._anchor is not None:
-            # the chain follows the ground point on the axis of the (tilted) rectified views: remove the
-            # current frame's offset and add the origin frame's. The origin's tilt error was not
-            # measurable then (hovering): the EKF's tilt error being mostly a body-fixed bias, the latest
-            # (best-informed) estimate stands for it; zero when the origin had the known initial attitude.
-            anchor_offset = (
-                np.zeros(2)
-                if self._origin_at_known_attitude
-                else residual_tilt_offset(self._anchor[0], self._anchor[1], tilt)
-            )
-            p[:2] += anchor_offset - residual_tilt_offset(self.pose.R_n_camera, altitude_m, tilt)
+        p = pose.p_n_camera_m.copy()
+        p[:2] += self._tilt_offset_correction(pose.R_n_camera, altitude_m, weight)
         return PoseOutput(
             stamp_s=m.stamp_s,
             p_world_body_m=np.array([p[0], p[1], self.state.pz_m]),
             q_world_body=self.state.q_world_body,
+            attitude_covariance_world=self._attitude_covariance(),
+            altitude_var_m2=self._altitude_var(),
             vo_yaw_rad=self._vo_yaw_unwrapped,
             n_inliers=n_inliers,
-            vo_ms=vo_ms,
+            rectification_weight=weight,
             ok=ok,
         )
 
-    def _propagate_rectification_attitude(self, m: ImuMeasurement, dt_s: float, state: EkfState) -> None:
-        """Attitude used to rectify: the gyro's rotation between frames, pulled towards the EKF with the
-        time constant ``rectification_smoothing_s`` (consecutive frames are rectified consistently; the
-        EKF's accelerometer corrections would otherwise make them jitter against each other)."""
+    def _tilt_offset_correction(self, R_n_camera: FloatArray, altitude_m: float, weight: float) -> FloatArray:
+        """What to add to a rectified chain's position: the origin frame's axis offset ``h_0 d_0`` minus the
+        current frame's ``h_k d_k`` (the chain follows the ground point on the rectified optical axis)."""
+        s = self.settings
+        origin = self._origin
+        if origin is None or not s.rectify or s.rectified_motion_model not in _LEVEL_MODELS:
+            return np.zeros(2)
+        correction = np.zeros(2)
+        normal = self.vision_tilt()
+        if normal is not None:
+            # the current frame's offset from the vision tilt; without a better source the origin's is
+            # the same estimate (the 5-state filter's tilt error being mostly a body-fixed bias), zero when
+            # the origin had the known initial attitude
+            correction -= residual_tilt_offset(R_n_camera, altitude_m, normal)
+            if not origin.at_known_attitude and not self._origin_tilt_from_bias():
+                correction += residual_tilt_offset(origin.R_n_camera, origin.altitude_m, normal)
+        if self._origin_tilt_from_bias() and not origin.at_known_attitude:
+            assert isinstance(self.state, BiasEkfState) and origin.accel_bias_m_s2 is not None
+            db = self.state.accel_bias_m_s2 - origin.accel_bias_m_s2
+            g = self.ekf.settings.gravity_m_s2
+            roll_used, pitch_used = origin.roll_pitch_rad
+            true_rp = (roll_used - float(db[1]) / g, pitch_used + float(db[0]) / g)
+            correction += rectified_axis_offset(
+                origin.yaw_rad, origin.roll_pitch_rad, true_rp, origin.altitude_m
+            )
+        return correction * (1.0 if not math.isfinite(weight) else weight)
+
+    def _origin_tilt_from_bias(self) -> bool:
+        return (
+            self.settings.origin_tilt_from_bias
+            and isinstance(self.state, BiasEkfState)
+            and self._origin is not None
+            and self._origin.accel_bias_m_s2 is not None
+        )
+
+    def _propagate_rectification_attitude(self, m: ImuMeasurement, dt_s: float) -> None:
+        """Attitude used to rectify: the gyro's rotation between frames (eq. 12), pulled towards the
+        filter's with the time constant ``rectification_smoothing_s`` (consecutive frames are rectified
+        consistently; the accelerometer corrections would otherwise make them jitter against each other)."""
+        assert self.state is not None
         tau = self.settings.rectification_smoothing_s
         if self._rect_q is None or tau <= 0.0:
-            self._rect_q = state.q_world_body
+            self._rect_q = self.state.q_world_body
             return
         half = 0.5 * dt_s
         w = m.gyro_rad_s
-        q = quaternion_multiply(self._rect_q, [1.0, half * w[0], half * w[1], half * w[2]])
-        ekf_q = state.q_world_body if float(np.dot(q, state.q_world_body)) >= 0.0 else -state.q_world_body
+        r = self._rect_q.tolist()
+        q = np.array(propagate_quaternion((r[0], r[1], r[2], r[3]), half * w[0], half * w[1], half * w[2]))
+        target = self.state.q_world_body
+        ekf_q = target if float(np.dot(q, target)) >= 0.0 else -target
         alpha = min(1.0, dt_s / tau)
         q = (1.0 - alpha) * q + alpha * ekf_q
         self._rect_q = q / np.linalg.norm(q)
 
-    def _maybe_set_origin(self, stamp_s: float, altitude_m: float) -> None:
+    def _maybe_set_origin(
+        self, stamp_s: float, altitude_m: float, roll: float, pitch: float, yaw: float
+    ) -> None:
         """Move the VO position to ``initial_position_m`` at the first frame after ``vo_origin_delay_s``."""
-        if self._origin_set or self.pose is None or self._first_imu_s is None:
+        if self._origin is not None or self.chain is None or self._first_imu_s is None:
             return
         if stamp_s < self._first_imu_s + self.settings.vo_origin_delay_s - 1e-9:
             return
         x0, y0 = self.settings.initial_position_m
-        p = np.array([x0, y0, self.pose.p_n_camera_m[2]])
-        self.pose = VoPose(R_n_camera=self.pose.R_n_camera, p_n_camera_m=p)
-        self._anchor = (self.pose.R_n_camera.copy(), altitude_m)
-        self._origin_set = True
-        self._origin_at_known_attitude = (
-            self.settings.initial_q_world_body is not None and stamp_s <= self._first_imu_s + 1e-9
+        pose = self.chain.pose
+        self.chain = shifted(self.chain, np.array([x0, y0, 0.0]) - np.r_[pose.p_n_camera_m[:2], 0.0])
+        bias = self.state.accel_bias_m_s2.copy() if isinstance(self.state, BiasEkfState) else None
+        self._origin = _Origin(
+            R_n_camera=pose.R_n_camera.copy(),
+            altitude_m=altitude_m,
+            yaw_rad=yaw,
+            roll_pitch_rad=(roll, pitch),
+            accel_bias_m_s2=bias,
+            at_known_attitude=(
+                self.settings.initial_q_world_body is not None and stamp_s <= self._first_imu_s + 1e-9
+            ),
         )
-
-    def _update_vision_tilt(self, stamp_s: float, t_over_d_free: FloatArray, normal_free: FloatArray) -> None:
-        """Information-weighted, exponentially forgetting mean of the free normals' tilt (a pair says more
-        about the normal the more it translates: weight ``|T/d|^2``)."""
-        n = np.asarray(normal_free, dtype=np.float64).reshape(3)
-        n = n / n[2]
-        weight = float(np.sum(np.asarray(t_over_d_free, dtype=np.float64)[:2] ** 2))
-        if math.isfinite(self._tilt_stamp_s):
-            forget = math.exp(-(stamp_s - self._tilt_stamp_s) / self.settings.vision_tilt_window_s)
-            self._tilt_sum *= forget
-            self._tilt_information *= forget
-        self._tilt_stamp_s = stamp_s
-        self._tilt_sum += weight * n[:2]
-        self._tilt_information += weight
 
     def vision_tilt(self) -> FloatArray | None:
         """Estimated ground normal ``(nx, ny)`` in the rectified camera (None until informed enough)."""
         s = self.settings
         if not (s.rectify and s.vision_tilt_correction and s.rectified_motion_model in _LEVEL_MODELS):
             return None
-        if self._tilt_information >= self.settings.vision_tilt_min_information:
-            self._tilt_informed = True
-        if not self._tilt_informed or self._tilt_information <= 0.0:
-            return None
-        return np.asarray(self._tilt_sum / self._tilt_information, dtype=np.float64)
+        return self._tilt.normal_xy()
 
     def _accel_waits_for_vo(self, stamp_s: float) -> bool:
         """At a start in mid-manoeuvre the hover model is wrong until the VO gives the acceleration."""
         s = self.settings
         return (
             s.accel_compensation
-            and len(self._vo_track) < 5
+            and not self._track.fitted
             and self._first_imu_s is not None
             and stamp_s - self._first_imu_s < s.accel_wait_for_vo_s
         )
-
-    def _update_motion_accel(self, stamp_s: float) -> None:
-        p = self._accel_position
-        self._vo_track.append((stamp_s, float(p[0]), float(p[1])))
-        while self._vo_track and self._vo_track[0][0] < stamp_s - self.settings.accel_window_s:
-            self._vo_track.popleft()
-        track = np.array(self._vo_track)
-        ax, ay = motion_acceleration(track[:, 0], track[:, 1:])
-        self._motion_accel = (float(ax), float(ay), 0.0)
 
     def _vo_camera_mount(self) -> FloatArray:
         """Mounting of the camera whose poses the VO composes (the rectified one is level, looking down)."""
@@ -659,18 +558,3 @@ class DoubleCouplingEstimator:
 
 #: Rectified-pair models that follow the ground point on the optical axis (a similarity of level views).
 _LEVEL_MODELS = (MotionModel.LEVEL, MotionModel.LEVEL_FREE_YAW)
-
-#: Application order of samples with equal stamps: the range first (it initialises the altitude).
-_RANK = {Sensor.RANGE: 0, Sensor.IMU: 1, Sensor.YAW: 2, Sensor.CAMERA: 3}
-
-
-def _sensor_of(measurement: Measurement) -> Sensor:
-    if isinstance(measurement, ImuMeasurement):
-        return Sensor.IMU
-    if isinstance(measurement, RangeMeasurement):
-        return Sensor.RANGE
-    if isinstance(measurement, YawMeasurement):
-        return Sensor.YAW
-    if isinstance(measurement, FrameMeasurement):
-        return Sensor.CAMERA
-    raise InputError(f"unknown measurement type {type(measurement).__name__}")

@@ -264,6 +264,13 @@ def rangefinder_model(
     return pz_m * inv, (k * q0, -k * q1, -k * q2, k * q3, inv)
 
 
+def altitude_from_range(q: tuple[float, float, float, float], range_m: float) -> float:
+    """Altitude from a range reading along the body's -z axis: paper C eq. 21 inverted,
+    ``pz = s (q0^2 - q1^2 - q2^2 + q3^2)`` (the inverse of :func:`rangefinder_model`)."""
+    q0, q1, q2, q3 = q
+    return float(range_m) * (q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3)
+
+
 def error_angle_covariance_world(q_world_body: npt.ArrayLike, covariance_q: npt.ArrayLike) -> FloatArray:
     """3x3 covariance of world-frame error angles ``dtheta`` (``q_true = [1, dtheta/2] * q``) from the 4x4
     covariance of a unit quaternion: ``dtheta = 2 Psi(q)^T dq``, ``Psi`` the left-product matrix."""
@@ -366,6 +373,21 @@ class AttitudeAltitudeEkf:
         P[:4, :4] = (0.5 * s.initial_attitude_std_rad) ** 2 * (np.eye(4) - np.outer(qa, qa))
         P[4, 4] = s.initial_altitude_std_m**2
         return EkfState(q_world_body=qa, pz_m=float(pz_m), covariance=P, stamp_s=float(stamp_s))
+
+    def with_altitude(self, state: EkfState, pz_m: float, std_m: float) -> EkfState:
+        """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
+        P = state.covariance.copy()
+        P[4, :] = 0.0
+        P[:, 4] = 0.0
+        P[4, 4] = std_m**2
+        return EkfState(state.q_world_body, float(pz_m), P, state.stamp_s)
+
+    def attitude_covariance_world(self, state: EkfState) -> FloatArray:
+        """3x3 covariance of world-frame error angles (:func:`error_angle_covariance_world`)."""
+        return error_angle_covariance_world(state.q_world_body, state.covariance[:4, :4])
+
+    def altitude_variance(self, state: EkfState) -> float:
+        return float(state.covariance[4, 4])
 
     # ---- predict ----------------------------------------------------------------------------------
 

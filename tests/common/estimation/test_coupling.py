@@ -10,9 +10,9 @@ import pytest
 
 from common.errors import InputError
 from common.estimation.buffer import Refusal
-from common.estimation.coupling import (
-    CouplingSettings,
-    DoubleCouplingEstimator,
+from common.estimation.coupling import DoubleCouplingEstimator
+from common.estimation.coupling_types import CouplingSettings
+from common.estimation.measurements import (
     FrameMeasurement,
     ImuMeasurement,
     RangeMeasurement,
@@ -20,8 +20,6 @@ from common.estimation.coupling import (
     check_frame,
     check_imu,
     check_range,
-    motion_acceleration,
-    residual_tilt_offset,
 )
 from common.estimation.replay import (
     camera_model_of,
@@ -31,6 +29,7 @@ from common.estimation.replay import (
     run_estimators,
     vo_with_true_attitude,
 )
+from common.estimation.tilt import motion_acceleration, residual_tilt_offset
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
 from common.sim.flight import Flight
 

@@ -11,19 +11,21 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.errors import InputError
-from common.estimation.vo import (
-    MotionModel,
+from common.estimation.homography import (
     VoError,
-    VoPose,
-    VoSettings,
     calibrated_homography,
     choose_decomposition,
-    compose_pose,
     decompose_with_known_normal,
+    rotation_about_optical_axis,
+)
+from common.estimation.vo import (
+    MotionModel,
+    VoPose,
+    VoSettings,
+    compose_pose,
     estimate_relative_motion,
     metric_translation,
     prepare_frame,
-    rotation_about_optical_axis,
 )
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
