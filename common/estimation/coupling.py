@@ -76,7 +76,6 @@ from common.estimation.vo_chain import (
     prepare_view,
     shifted,
     start_vo_chain,
-    with_pose,
 )
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
@@ -134,6 +133,7 @@ class _Origin:
     roll_pitch_rad: tuple[float, float]
     accel_bias_m_s2: FloatArray | None
     at_known_attitude: bool
+    tilt_std_rad: float
 
 
 class DoubleCouplingEstimator:
@@ -170,9 +170,12 @@ class DoubleCouplingEstimator:
         self._tilt = VisionTilt()
         self._first_imu_s: float | None = None
         self._rect_q: FloatArray | None = None
-        self._accel_position = np.zeros(3)
-        #: the keyframe the accelerometer's (free) positions are measured from, and its position
-        self._accel_keyframe: tuple[PreparedFrame | None, FloatArray] = (None, np.zeros(3))
+        self._free_position = np.zeros(3)
+        #: the keyframe the free chain's positions are measured from, and its position; the free chain's
+        #: offset to the navigation frame (set with the VO origin)
+        self._free_keyframe: tuple[PreparedFrame | None, FloatArray] = (None, np.zeros(3))
+        self._free_offset = np.zeros(2)
+        self._free_path_m = 0.0
         self._origin: _Origin | None = None
 
     # ---- input ------------------------------------------------------------------------------------
@@ -344,11 +347,22 @@ class DoubleCouplingEstimator:
 
     # ---- frames: rectification, VO, yaw coupling --------------------------------------------------
 
-    def _rectification_weight(self, attitude_covariance: FloatArray) -> float:
-        ref = self.settings.rectification_tilt_ref_rad
-        if not math.isfinite(ref):
+    def _rectification_weight(self, tilt_std_now_rad: float, altitude_m: float) -> float:
+        """Share of the level chain in the output: ``var_free / (var_free + var_level)``."""
+        origin = self._origin
+        if not self.settings.uncertainty_aware or origin is None:
             return 1.0
-        return 1.0 / (1.0 + (tilt_std_rad(attitude_covariance) / ref) ** 2)
+        origin_std = origin.tilt_std_rad
+        bias_state = self.state if isinstance(self.state, BiasEkfState) else None
+        if self._origin_tilt_from_bias() and not origin.at_known_attitude and bias_state is not None:
+            # the origin's tilt error is re-estimated from the bias: what is left is the bias' uncertainty
+            g = self.ekf.settings.gravity_m_s2
+            origin_std = math.sqrt(float(np.max(np.diag(bias_state.covariance)[7:9]))) / g
+        var_level = (altitude_m * tilt_std_now_rad) ** 2 + (origin.altitude_m * origin_std) ** 2
+        var_free = (self.settings.free_drift_per_m * self._free_path_m) ** 2
+        if var_free + var_level <= 0.0:
+            return 1.0
+        return var_free / (var_free + var_level)
 
     def _on_frame(self, m: FrameMeasurement) -> PoseOutput | None:
         if self.state is None:
@@ -361,8 +375,7 @@ class DoubleCouplingEstimator:
         altitude_m = self.state.pz_m
         if s.scale_from is ScaleSource.RANGE and self._last_range_m is not None:
             altitude_m = self._last_range_m
-        att_cov = self._attitude_covariance()
-        weight = self._rectification_weight(att_cov) if s.rectify else math.nan
+        tilt_std_now = tilt_std_rad(self._attitude_covariance())
         cam = self.camera
         try:
             frame = prepare_view(
@@ -378,8 +391,8 @@ class DoubleCouplingEstimator:
             self.chain = start_vo_chain(
                 frame, self._initial_pose(roll, pitch, yaw_ekf, altitude_m), altitude_m
             )
+            self._free_position = self.chain.pose.p_n_camera_m.copy()
             self._maybe_set_origin(m.stamp_s, altitude_m, roll, pitch, yaw_ekf)
-            self._accel_position = self.chain.pose.p_n_camera_m.copy()
             self._vo_yaw_unwrapped = yaw_of_camera(self.chain.pose.R_n_camera, self._vo_camera_mount())
             ok = True
         else:
@@ -388,20 +401,18 @@ class DoubleCouplingEstimator:
                 step = advance_vo_chain(
                     self.chain, frame, altitude_m, cam.K, self.vo_settings, model, self.chain_settings
                 )
-                pose = step.state.pose
-                # the accelerometer compensation follows the free decomposition: with the level model a
-                # tilt error of the filter would leak into the translation and back into it (a loop)
-                if s.rectify and weight < 1.0:
-                    blended = step.keyframe_pose.p_n_camera_m + (
-                        weight * step.displacement_m + (1.0 - weight) * step.displacement_free_m
-                    )
-                    pose = VoPose(R_n_camera=pose.R_n_camera, p_n_camera_m=blended)
-                self.chain = with_pose(step.state, pose)
-                if step.keyframe_frame is not self._accel_keyframe[0]:
-                    self._accel_keyframe = (step.keyframe_frame, self._accel_position)
-                self._accel_position = self._accel_keyframe[1] + step.displacement_free_m
+                self.chain = step.state
+                # the free decomposition's chain: the traditional path (it does not depend on the filter's
+                # tilt) for the uncertainty-aware output and the accelerometer compensation (with the level
+                # model a tilt error would leak into the translation and back into the filter: a loop)
+                if step.keyframe_frame is not self._free_keyframe[0]:
+                    self._free_keyframe = (step.keyframe_frame, self._free_position)
+                previous_free = self._free_position
+                self._free_position = self._free_keyframe[1] + step.displacement_free_m
+                if self._origin is not None:
+                    self._free_path_m += float(np.linalg.norm((self._free_position - previous_free)[:2]))
                 if self.chain.keyframe.frame is frame:
-                    self._accel_keyframe = (frame, self._accel_position)
+                    self._free_keyframe = (frame, self._free_position)
                 n_inliers = step.motion.n_inliers
                 self._maybe_set_origin(m.stamp_s, altitude_m, roll, pitch, yaw_ekf)
                 if s.rectify and s.vision_tilt_correction:
@@ -417,7 +428,7 @@ class DoubleCouplingEstimator:
                 self.chain = start_vo_chain(frame, self.chain.pose, altitude_m)
                 logger.info("VO pair ending at %.4f s failed: %s", m.stamp_s, exc)
         if ok and s.accel_compensation:
-            p = self._accel_position
+            p = self._free_position
             self._track = self._track.updated(m.stamp_s, float(p[0]), float(p[1]), s.accel_window_s)
         pose = self.chain.pose
         yaw_wrapped = yaw_of_camera(pose.R_n_camera, self._vo_camera_mount())
@@ -428,7 +439,11 @@ class DoubleCouplingEstimator:
             self.counters["frames_before_vo_origin"] += 1
             return None
         p = pose.p_n_camera_m.copy()
-        p[:2] += self._tilt_offset_correction(pose.R_n_camera, altitude_m, weight)
+        p[:2] += self._tilt_offset_correction(pose.R_n_camera, altitude_m)
+        weight = self._rectification_weight(tilt_std_now, altitude_m) if s.rectify else math.nan
+        if s.rectify and weight < 1.0:
+            # uncertainty-aware: toward the free decomposition's chain while the tilt is uncertain
+            p[:2] = weight * p[:2] + (1.0 - weight) * (self._free_position[:2] + self._free_offset)
         return PoseOutput(
             stamp_s=m.stamp_s,
             p_world_body_m=np.array([p[0], p[1], self.state.pz_m]),
@@ -441,7 +456,7 @@ class DoubleCouplingEstimator:
             ok=ok,
         )
 
-    def _tilt_offset_correction(self, R_n_camera: FloatArray, altitude_m: float, weight: float) -> FloatArray:
+    def _tilt_offset_correction(self, R_n_camera: FloatArray, altitude_m: float) -> FloatArray:
         """What to add to a rectified chain's position: the origin frame's axis offset ``h_0 d_0`` minus the
         current frame's ``h_k d_k`` (the chain follows the ground point on the rectified optical axis)."""
         s = self.settings
@@ -466,7 +481,7 @@ class DoubleCouplingEstimator:
             correction += rectified_axis_offset(
                 origin.yaw_rad, origin.roll_pitch_rad, true_rp, origin.altitude_m
             )
-        return correction * (1.0 if not math.isfinite(weight) else weight)
+        return correction
 
     def _origin_tilt_from_bias(self) -> bool:
         return (
@@ -506,16 +521,18 @@ class DoubleCouplingEstimator:
         x0, y0 = self.settings.initial_position_m
         pose = self.chain.pose
         self.chain = shifted(self.chain, np.array([x0, y0, 0.0]) - np.r_[pose.p_n_camera_m[:2], 0.0])
+        self._free_offset = np.array([x0, y0]) - self._free_position[:2]
         bias = self.state.accel_bias_m_s2.copy() if isinstance(self.state, BiasEkfState) else None
+        at_known = self.settings.initial_q_world_body is not None and stamp_s <= self._first_imu_s + 1e-9
         self._origin = _Origin(
             R_n_camera=pose.R_n_camera.copy(),
             altitude_m=altitude_m,
             yaw_rad=yaw,
             roll_pitch_rad=(roll, pitch),
             accel_bias_m_s2=bias,
-            at_known_attitude=(
-                self.settings.initial_q_world_body is not None and stamp_s <= self._first_imu_s + 1e-9
-            ),
+            at_known_attitude=at_known,
+            # a known initial attitude is exact at the origin; else the filter's tilt std then
+            tilt_std_rad=0.0 if at_known else tilt_std_rad(self._attitude_covariance()),
         )
 
     def vision_tilt(self) -> FloatArray | None:

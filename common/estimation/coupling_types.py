@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,12 +87,15 @@ class CouplingSettings:
     accel_wait_for_vo_s: float = 0.0
     #: The attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF.
     filter: FilterKind = FilterKind.BIAS
-    #: Uncertainty-aware rectification: each rectified pair's translation is the blend
-    #: ``w * level + (1 - w) * free`` with ``w = 1 / (1 + (sigma_tilt / ref)^2)``, ``sigma_tilt`` the
-    #: filter's tilt std; a level similarity is exact only for level views, the free decomposition (the
-    #: traditional path) does not depend on the tilt, so an uncertain tilt falls back to it.
-    #: ``inf`` always trusts the level model (the previous behaviour).
-    rectification_tilt_ref_rad: float = math.radians(0.25)
+    #: Uncertainty-aware rectification: the output position is the inverse-variance blend
+    #: ``w * level + (1 - w) * free`` of two chains over the same rectified pairs: the level model's (error
+    #: ``h_k d_k - h_0 d_0``, std ``sqrt((h_k s_k)^2 + (h_0 s_0)^2)`` from the filter's current tilt std
+    #: ``s_k`` and the origin's ``s_0``) and the free decomposition's (the traditional path, independent of
+    #: the filter's tilt; std ``free_drift_per_m`` times the path since the origin). An uncertain tilt
+    #: falls back to the free chain; False always trusts the level model (paper C's rectified VO).
+    uncertainty_aware: bool = True
+    #: Drift of the free chain per metre travelled (1-sigma, the traditional VO's RPE on the simulator).
+    free_drift_per_m: float = 0.004
     #: With the bias filter: correct the VO origin's offset ``h_0 d_0`` with the tilt error its frame had,
     #: re-estimated from how much the accelerometer-bias estimate changed since (at hover a bias error
     #: ``db`` reads as a tilt error of ``db / g``).

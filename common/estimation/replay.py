@@ -303,7 +303,7 @@ CONFIGURATIONS: dict[str, dict[str, Any]] = {
         "visual_yaw": True,
         "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
         "filter": FilterKind.PAPER_C,
-        "rectification_tilt_ref_rad": math.inf,
+        "uncertainty_aware": False,
     },
     "traditional": {"rectify": False, "visual_yaw": True, "scale_from": ScaleSource.RANGE},
     "raw_ekf_scale": {"rectify": False, "visual_yaw": True},
