@@ -3,6 +3,7 @@ errors (evo's APE and RPE, translation part)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -129,7 +130,7 @@ def path_pairs_by_distance(path_m: npt.ArrayLike, delta_m: float) -> list[tuple[
         if travelled >= delta_m:
             ids.append(i)
             travelled = 0.0
-    return list(zip(ids, ids[1:], strict=False))
+    return list(itertools.pairwise(ids))
 
 
 @dataclass(frozen=True)

@@ -36,10 +36,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
+from common.errors import InputError
 from common.estimation.buffer import Refusal, TimeOrderedBuffer
 from common.estimation.coupling_types import (
     AttitudeOutput,
-    CameraModel,
     CouplingSettings,
     FilterKind,
     Output,
@@ -79,6 +80,7 @@ from common.estimation.vo_chain import (
 )
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
+    check_rotation_matrix,
     euler_from_matrix,
     euler_from_quaternion,
     matrix_from_euler,
@@ -142,12 +144,20 @@ class DoubleCouplingEstimator:
     def __init__(
         self,
         camera: CameraModel,
+        R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN,
         ekf_settings: EkfSettings | None = None,
         vo_settings: VoSettings | None = None,
         settings: CouplingSettings | None = None,
         chain_settings: VoChainSettings | None = None,
     ) -> None:
+        if camera.is_distorted:
+            raise InputError(
+                "the estimator needs an undistorted (pinhole) camera: undistort the frames first "
+                f"(got {camera.distortion.model.value} distortion)"
+            )
         self.camera = camera
+        #: mounting of the camera on the body (the camera model itself is the intrinsics only)
+        self.R_body_camera = check_rotation_matrix(R_body_camera, "R_body_camera")
         self.settings = settings or CouplingSettings()
         self.ekf: AnyFilter
         if self.settings.filter is FilterKind.BIAS:
@@ -379,7 +389,7 @@ class DoubleCouplingEstimator:
         cam = self.camera
         try:
             frame = prepare_view(
-                m.image, cam.K, cam.R_body_camera, (roll, pitch) if s.rectify else None, self.vo_settings
+                m.image, cam.K, self.R_body_camera, (roll, pitch) if s.rectify else None, self.vo_settings
             )
         except RectificationError as exc:
             self.counters["frames_unrectifiable"] += 1
@@ -554,7 +564,7 @@ class DoubleCouplingEstimator:
 
     def _vo_camera_mount(self) -> FloatArray:
         """Mounting of the camera whose poses the VO composes (the rectified one is level, looking down)."""
-        return R_BODY_CAMERA_DOWN if self.settings.rectify else self.camera.R_body_camera
+        return R_BODY_CAMERA_DOWN if self.settings.rectify else self.R_body_camera
 
     def _initial_pose(self, roll: float, pitch: float, yaw: float, altitude_m: float) -> VoPose:
         x0, y0 = self.settings.initial_position_m

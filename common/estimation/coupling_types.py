@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from common.errors import InputError
 from common.estimation.vo import MotionModel
-from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -105,26 +103,6 @@ class CouplingSettings:
     initial_position_m: tuple[float, float] = (0.0, 0.0)
     #: Known initial attitude ``q_world_body`` (else roll and pitch from the first accelerometer sample).
     initial_q_world_body: tuple[float, float, float, float] | None = None
-
-
-@dataclass(frozen=True)
-class CameraModel:
-    """Intrinsics and mounting of the camera used by the visual odometry."""
-
-    K: FloatArray
-    width: int
-    height: int
-    R_body_camera: FloatArray = field(default_factory=lambda: R_BODY_CAMERA_DOWN.copy())
-
-    def __post_init__(self) -> None:
-        K = np.asarray(self.K, dtype=np.float64)
-        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise InputError(f"K must be a finite (3, 3) intrinsic matrix, got {K}")
-        check_rotation_matrix(self.R_body_camera, "R_body_camera")
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (int(self.height), int(self.width))
 
 
 @dataclass(frozen=True)

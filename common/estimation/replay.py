@@ -14,10 +14,10 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import (
     AttitudeOutput,
-    CameraModel,
     CouplingSettings,
     FilterKind,
     PoseOutput,
@@ -44,17 +44,6 @@ from common.metrics import ate_rmse_m, rpe_translation
 
 FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
-
-
-class CameraLike(Protocol):
-    """Intrinsics of a recorded camera."""
-
-    @property
-    def K(self) -> FloatArray: ...
-    @property
-    def width(self) -> int: ...
-    @property
-    def height(self) -> int: ...
 
 
 class ImuSeriesLike(Protocol):
@@ -86,7 +75,7 @@ class FlightRecord(Protocol):
     series, frames on demand, and the true pose at the frame stamps. The cores never import the simulator."""
 
     @property
-    def camera(self) -> CameraLike: ...
+    def camera(self) -> CameraModel: ...
     @property
     def R_body_camera(self) -> FloatArray: ...
     @property
@@ -111,9 +100,8 @@ class FlightRecord(Protocol):
 
 
 def camera_model_of(flight: FlightRecord) -> CameraModel:
-    """The estimator's camera model for a flight."""
-    cam = flight.camera
-    return CameraModel(K=cam.K, width=cam.width, height=cam.height, R_body_camera=flight.R_body_camera)
+    """The flight's camera model (intrinsics; the mount is ``flight.R_body_camera``)."""
+    return flight.camera
 
 
 def flight_measurements(
@@ -337,5 +325,5 @@ def standard_estimators(
             vo_origin_delay_s=delay_s,
             **config,
         )
-        out[name] = DoubleCouplingEstimator(camera_model_of(flight), settings=settings)
+        out[name] = DoubleCouplingEstimator(flight.camera, flight.R_body_camera, settings=settings)
     return out

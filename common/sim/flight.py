@@ -30,8 +30,8 @@ from common.sim.sensors import (
 from common.sim.trajectory import (
     NOMINAL_HOVER_DURATION_S,
     AttitudeMode,
-    agile_trajectory,
     Trajectory,
+    agile_trajectory,
     hover_trajectory,
     turns_trajectory,
 )
@@ -215,7 +215,7 @@ def turns_flight(
 
 def agile_flight(
     seed: int = 0,
-    camera: PinholeCamera | None = None,
+    camera: CameraModel | None = None,
     texture: GroundTexture | None = None,
     degradation: ImageDegradation | None = None,
     imu_noise: ImuNoise | None = None,

@@ -563,12 +563,8 @@ def agile_trajectory(
     rng = np.random.default_rng([TRAJECTORY_STREAM, 3, int(seed)])
     eight = 2.0 * np.pi / float(rng.uniform(11.0, 13.0))  # rad/s of the figure of eight
     phase = float(rng.uniform(-np.pi, np.pi))
-    x = FunctionSum(
-        (SineSum((1.2,), (eight,), (phase,)), _random_sines(rng, (0.07,), (1.3,)))
-    )
-    y = FunctionSum(
-        (SineSum((0.7,), (2.0 * eight,), (2.0 * phase,)), _random_sines(rng, (0.07,), (1.2,)))
-    )
+    x = FunctionSum((SineSum((1.2,), (eight,), (phase,)), _random_sines(rng, (0.07,), (1.3,))))
+    y = FunctionSum((SineSum((0.7,), (2.0 * eight,), (2.0 * phase,)), _random_sines(rng, (0.07,), (1.2,))))
     z = _random_sines(rng, (altitude_swing_m,), (14.0,))
     up = SmoothStep(hover_s, ramp_s)
     down = SmoothStep(duration_s - hover_s - ramp_s, ramp_s)
@@ -588,6 +584,10 @@ def agile_trajectory(
         "path_length_m": float(np.sum(speed) * 0.01),
     }
     return Trajectory(
-        name="agile", duration_s=float(duration_s), path=path, yaw=yaw, mode=AttitudeMode.COORDINATED,
+        name="agile",
+        duration_s=float(duration_s),
+        path=path,
+        yaw=yaw,
+        mode=AttitudeMode.COORDINATED,
         info=info,
     )

@@ -28,12 +28,11 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel as LensCamera
+from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import (
     AttitudeOutput,
-    CameraModel,
     CouplingSettings,
     FilterKind,
     PoseOutput,
@@ -74,8 +73,7 @@ class EstimatorSettings(BaseModel):
     vo_drift_fraction: float = Field(default=0.001, gt=0.0)
 
     def camera(self) -> CameraModel:
-        cam = LensCamera.from_hfov(self.width, self.height, self.hfov_deg)
-        return CameraModel(K=cam.K, width=cam.width, height=cam.height)
+        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
 
     def coupling(self) -> CouplingSettings:
         return CouplingSettings(

@@ -69,7 +69,7 @@ def test_metrics_reject_bad_input() -> None:
 def _walk(seed: int, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     """A reference path (random 3-D walk, steps ~5 cm) and an estimate drifting from it."""
     rng = np.random.default_rng(seed)
-    ref = np.cumsum(rng.normal(0.0, 0.03, (n, 3)) + [0.03, 0.01, 0.0], axis=0)
+    ref = np.cumsum(rng.normal(0.0, 0.03, (n, 3)) + np.array([0.03, 0.01, 0.0]), axis=0)
     est = ref + np.cumsum(rng.normal(0.0, 0.002, (n, 3)), axis=0)
     return est, ref
 
@@ -91,7 +91,9 @@ def test_ate_and_rpe_match_evo(seed: int) -> None:
     ape.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
     assert ate_rmse_m(est, ref) == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9)
     rpe = evo_metrics.RPE(
-        evo_metrics.PoseRelation.translation_part, delta=1.0, delta_unit=evo_metrics.Unit.meters,
+        evo_metrics.PoseRelation.translation_part,
+        delta=1.0,
+        delta_unit=evo_metrics.Unit.meters,
         pairs_from_reference=True,
     )
     rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
@@ -110,7 +112,9 @@ def test_horizontal_rpe_with_3d_pairs_matches_evo_with_true_altitude() -> None:
     est, ref = _walk(5)
     est_true_z = np.c_[est[:, :2], ref[:, 2]]
     rpe = evo_metrics.RPE(
-        evo_metrics.PoseRelation.translation_part, delta=1.0, delta_unit=evo_metrics.Unit.meters,
+        evo_metrics.PoseRelation.translation_part,
+        delta=1.0,
+        delta_unit=evo_metrics.Unit.meters,
         pairs_from_reference=True,
     )
     rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est_true_z)))
