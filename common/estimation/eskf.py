@@ -27,14 +27,16 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.estimation.ekf import (
-    EkfError,
     EkfSettings,
-    _normalized,
-    _three_floats,
+)
+from common.estimation.ekf_models import (
+    EkfError,
     accelerometer_model,
     chi_square_quantile,
+    normalized_quaternion,
     propagate_quaternion,
     rangefinder_model,
+    three_floats,
     yaw_model,
 )
 from common.geometry import check_quaternion, matrix_from_quaternion
@@ -121,7 +123,7 @@ class BiasAwareEkf:
             raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
         if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
             raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = _normalized(*(float(v) for v in q))
+        qn, _ = normalized_quaternion(*(float(v) for v in q))
         s = self.settings
         diag = np.r_[
             np.full(3, s.initial_attitude_std_rad**2),
@@ -161,13 +163,13 @@ class BiasAwareEkf:
         ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``."""
         if not (dt_s >= 0.0 and math.isfinite(dt_s)):
             raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
-        gx, gy, gz = _three_floats(gyro_rad_s)
+        gx, gy, gz = three_floats(gyro_rad_s)
         bx, by, bz = state.gyro_bias_rad_s.tolist()
         wx, wy, wz = gx - bx, gy - by, gz - bz
         half = 0.5 * dt_s
         q = state.q_world_body.tolist()
         q0, q1, q2, q3 = propagate_quaternion((q[0], q[1], q[2], q[3]), half * wx, half * wy, half * wz)
-        qn, _ = _normalized(q0, q1, q2, q3)
+        qn, _ = normalized_quaternion(q0, q1, q2, q3)
         F = self._F
         ax, ay, az = wx * dt_s, wy * dt_s, wz * dt_s
         F[0, 1], F[0, 2], F[1, 0], F[1, 2], F[2, 0], F[2, 1] = az, -ay, -az, ax, ay, -ax
@@ -204,7 +206,7 @@ class BiasAwareEkf:
     ) -> BiasUpdateResult:
         """Accelerometer: eq. 16 plus the bias, ``h = R^T (a + g e_z) + b_a``; skipped like the 5-state
         filter's when the bias-corrected specific force is far from the expected norm."""
-        ax, ay, az = _three_floats(accel_m_s2)
+        ax, ay, az = three_floats(accel_m_s2)
         bax, bay, baz = state.accel_bias_m_s2.tolist()
         cx, cy, cz = ax - bax, ay - bay, az - baz
         s = self.settings
@@ -278,7 +280,7 @@ class BiasAwareEkf:
         q0, q1, q2, q3 = state.q_world_body.tolist()
         a, b, c = 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2]
         # q * [1, dtheta/2] (right product, body-frame error)
-        qn, _ = _normalized(
+        qn, _ = normalized_quaternion(
             q0 - q1 * a - q2 * b - q3 * c,
             q1 + q0 * a + q2 * c - q3 * b,
             q2 + q0 * b + q3 * a - q1 * c,

@@ -3,6 +3,8 @@
 - :class:`VisionTilt`: the residual tilt of rectified views (the EKF's tilt error), an information-weighted,
   exponentially forgetting mean of the free decompositions' plane normals, and the horizontal offset
   ``h * d`` it causes (:func:`residual_tilt_offset`).
+- :class:`VoOrigin`: the VO origin frame and its axis offset ``h_0 d_0``, re-estimated from the accelerometer
+  bias; :func:`level_share`: the weight of the level chain in the uncertainty-aware output.
 - :class:`ManoeuvreTrack`: the recent VO positions and the acceleration of a cubic fit to them
   (:func:`motion_acceleration`), which compensates the accelerometer model of eq. 16 in turns.
 """
@@ -14,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+from common.geometry import matrix_from_euler
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -103,3 +107,62 @@ class ManoeuvreTrack:
     @property
     def fitted(self) -> bool:
         return len(self.samples) >= 5
+
+
+def rectified_axis_offset(
+    yaw_rad: float,
+    roll_pitch_used_rad: tuple[float, float],
+    roll_pitch_true_rad: tuple[float, float],
+    altitude_m: float,
+) -> FloatArray:
+    """Horizontal offset ``(2,)`` of the ground point on the optical axis of a view rectified with
+    ``roll_pitch_used`` when the attitude was ``roll_pitch_true``: the axis is
+    ``Rz R_tilt_true R_tilt_used^T (0, 0, -1)`` and the chain tracks where it meets the ground."""
+    Rt = matrix_from_euler(roll_pitch_true_rad[0], roll_pitch_true_rad[1], yaw_rad)
+    Ru = matrix_from_euler(roll_pitch_used_rad[0], roll_pitch_used_rad[1], yaw_rad)
+    axis = Rt @ Ru.T @ np.array([0.0, 0.0, -1.0])
+    return np.asarray(altitude_m * axis[:2] / -axis[2], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class VoOrigin:
+    """The VO origin frame: its rectified camera, altitude, the attitude it was rectified with and the
+    accelerometer-bias estimate then (for the later re-estimate of its tilt error)."""
+
+    R_n_camera: FloatArray
+    altitude_m: float
+    yaw_rad: float
+    roll_pitch_rad: tuple[float, float]
+    accel_bias_m_s2: FloatArray | None
+    at_known_attitude: bool
+    tilt_std_rad: float
+
+    def tilt_from_bias(self, accel_bias_now_m_s2: FloatArray, gravity_m_s2: float) -> tuple[float, float]:
+        """The origin frame's roll and pitch re-estimated with today's accelerometer bias: at hover a bias
+        error ``db`` (body) read as a tilt error of ``(db_y, -db_x) / g``."""
+        assert self.accel_bias_m_s2 is not None
+        db = np.asarray(accel_bias_now_m_s2, dtype=np.float64) - self.accel_bias_m_s2
+        roll, pitch = self.roll_pitch_rad
+        return roll - float(db[1]) / gravity_m_s2, pitch + float(db[0]) / gravity_m_s2
+
+    def offset_from_bias(self, accel_bias_now_m_s2: FloatArray, gravity_m_s2: float) -> FloatArray:
+        """The origin frame's axis offset ``h_0 d_0`` with its tilt error re-estimated from the bias."""
+        true_rp = self.tilt_from_bias(accel_bias_now_m_s2, gravity_m_s2)
+        return rectified_axis_offset(self.yaw_rad, self.roll_pitch_rad, true_rp, self.altitude_m)
+
+
+def level_share(
+    altitude_m: float,
+    tilt_std_now_rad: float,
+    origin_altitude_m: float,
+    origin_tilt_std_rad: float,
+    free_drift_per_m: float,
+    free_path_m: float,
+) -> float:
+    """Share of the level chain in the uncertainty-aware output, ``var_free / (var_free + var_level)``:
+    the level chain's error ``h_k d_k - h_0 d_0`` against the free chain's drift over its path."""
+    var_level = (altitude_m * tilt_std_now_rad) ** 2 + (origin_altitude_m * origin_tilt_std_rad) ** 2
+    var_free = (free_drift_per_m * free_path_m) ** 2
+    if var_free + var_level <= 0.0:
+        return 1.0
+    return var_free / (var_free + var_level)

@@ -10,7 +10,7 @@ import pytest
 
 from common.errors import InputError
 from common.estimation.buffer import Refusal
-from common.estimation.coupling import DoubleCouplingEstimator, rectified_axis_offset
+from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import AttitudeOutput, CouplingSettings, FilterKind
 from common.estimation.measurements import (
     FrameMeasurement,
@@ -29,7 +29,7 @@ from common.estimation.replay import (
     run_estimators,
     vo_with_true_attitude,
 )
-from common.estimation.tilt import motion_acceleration, residual_tilt_offset
+from common.estimation.tilt import motion_acceleration, rectified_axis_offset, residual_tilt_offset
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
     euler_from_quaternion,

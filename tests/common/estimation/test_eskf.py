@@ -13,6 +13,8 @@ from hypothesis import strategies as st
 from common.errors import InputError
 from common.estimation.ekf import (
     AttitudeAltitudeEkf,
+)
+from common.estimation.ekf_models import (
     EkfError,
     accelerometer_model,
     altitude_from_range,
