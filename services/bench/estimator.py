@@ -160,6 +160,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "ekf_us_median_paper_c": ekf_ref.median,
         "ekf_us_p95_paper_c": ekf_ref.p95,
         "ekf_cpu_steal_pct": ekf.steal_pct,
+        # steal is the hypervisor's share; a host shared with other work shows as load instead
+        "load_avg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan"),
+        "cpu_count": os.cpu_count(),
         "vo_ms_median": vo.median,
         "vo_ms_p95": vo.p95,
         "vo_ms_p90": vo.p90,
