@@ -114,6 +114,9 @@ def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict
     for name in ("traditional", "rectified", "gyro_yaw"):
         run = runs[name]
         yaw = np.degrees(np.unwrap(euler_from_quaternion(run.q_world_body)[:, 2]))
+        # the same turn count as the truth's unwrapped yaw at the run's first sample
+        true0 = float(np.degrees(np.interp(run.attitude_stamps_s[0], t_true, flight.yaw_rad)))
+        yaw += 360.0 * np.round((true0 - yaw[0]) / 360.0)
         ax.plot(run.attitude_stamps_s, yaw, color=COLOURS[name], lw=1.0, label=f"yaw, {LABELS[name]}")
     ax.set_ylabel("yaw (deg)")
     inset = ax.inset_axes((0.55, 0.08, 0.42, 0.35))
