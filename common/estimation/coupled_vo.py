@@ -21,7 +21,6 @@ from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.estimation.coupling_types import CouplingSettings
@@ -39,10 +38,10 @@ from common.estimation.vo_chain import (
     start_vo_chain,
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_matrix, matrix_from_euler
+from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 #: Rectified-pair models that follow the ground point on the optical axis (a similarity of level views).
 LEVEL_MODELS = (MotionModel.LEVEL, MotionModel.LEVEL_FREE_YAW)

@@ -81,10 +81,10 @@ from common.geometry import (
     matrix_from_quaternion,
     quaternion_from_euler,
 )
+from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 

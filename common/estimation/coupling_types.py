@@ -5,12 +5,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-import numpy as np
-import numpy.typing as npt
-
 from common.estimation.vo import MotionModel
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 class FilterKind(enum.Enum):

@@ -35,6 +35,7 @@ from common.estimation.ekf_models import (
     yaw_model,
 )
 from common.geometry import check_quaternion
+from common.types import FloatArray
 
 __all__ = [
     "STANDARD_GRAVITY_M_S2",
@@ -44,8 +45,6 @@ __all__ = [
     "EkfState",
     "UpdateResult",
 ]
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -40,8 +40,7 @@ from common.estimation.ekf_models import (
     yaw_model,
 )
 from common.geometry import check_quaternion, matrix_from_quaternion
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 #: Error-state layout.
 THETA, PZ, BG, BA = slice(0, 3), 3, slice(4, 7), slice(7, 10)

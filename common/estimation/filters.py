@@ -7,14 +7,12 @@ import math
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from common.estimation.coupling_types import FilterKind
 from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState
 from common.estimation.ekf_models import EkfError, propagate_quaternion
 from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 AnyFilter = AttitudeAltitudeEkf | BiasAwareEkf
 AnyState = EkfState | BiasEkfState

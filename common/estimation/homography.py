@@ -11,8 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import CapatazError
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 class VoError(CapatazError):

@@ -10,9 +10,9 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-from common.estimation.rectify import check_image_u8
+from common.images import check_grey_image
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 
@@ -93,7 +93,7 @@ def check_yaw(stamp_s: float, yaw_rad: float) -> YawMeasurement:
 
 def check_frame(stamp_s: float, image: npt.ArrayLike, shape: tuple[int, int]) -> FrameMeasurement:
     """Validated grey frame of the camera's ``(height, width)`` or InputError."""
-    img = check_image_u8(image)
+    img = check_grey_image(image, "image", min_side_px=8)
     if img.shape != shape:
         raise InputError(f"frame must have shape {shape} (height, width), got {img.shape}")
     if not math.isfinite(stamp_s):

@@ -41,8 +41,8 @@ from common.estimation.vo_chain import (
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
 from common.metrics import ate_rmse_m, rpe_translation
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 

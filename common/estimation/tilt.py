@@ -18,8 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.geometry import matrix_from_euler
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 def residual_tilt_offset(R_n_camera: FloatArray, altitude_m: float, normal_xy: FloatArray) -> FloatArray:

@@ -30,8 +30,8 @@ from common.estimation.vo import (
     metric_translation,
     prepare_frame,
 )
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 

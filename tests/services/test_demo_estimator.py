@@ -1,4 +1,4 @@
-"""The estimator demo's plot and summary on 40 frames of flight (b) (the whole flight runs in ``capataz run``)."""
+"""The estimator demo's plot and summary on 40 frames of flight (b) (the whole flight: ``capataz run``)."""
 
 from __future__ import annotations
 
