@@ -149,10 +149,11 @@ class CoupledVo:
         if self._origin is None:
             return VoFrame(ok, self._vo_yaw_unwrapped, None, n_inliers, math.nan)
         p_xy = pose.p_n_camera_m[:2] + self._tilt_offset_correction(pose.R_n_camera, view)
-        weight = self._level_share(view) if s.rectify else math.nan
+        p_free = self._free_position[:2] + self._free_offset
+        weight = self._level_share(view, float(np.sum((p_xy - p_free) ** 2))) if s.rectify else math.nan
         if s.rectify and weight < 1.0:
             # uncertainty-aware: toward the free decomposition's chain while the tilt is uncertain
-            p_xy = weight * p_xy + (1.0 - weight) * (self._free_position[:2] + self._free_offset)
+            p_xy = weight * p_xy + (1.0 - weight) * p_free
         return VoFrame(ok, self._vo_yaw_unwrapped, p_xy, n_inliers, weight)
 
     def _advance(self, m: FrameMeasurement, frame: PreparedFrame, view: FilterView) -> int:
@@ -192,7 +193,10 @@ class CoupledVo:
             and not origin.at_known_attitude
         )
 
-    def _level_share(self, view: FilterView) -> float:
+    def _level_share(self, view: FilterView, disagreement_m2: float) -> float:
+        """The level chain's share; ``disagreement_m2`` is the squared distance between the two chains: when
+        it exceeds what their variances allow, the level chain's variance is raised to explain it (the
+        filter's tilt std is then too optimistic, e.g. in hard manoeuvres)."""
         origin = self._origin
         if not self.settings.uncertainty_aware or origin is None:
             return 1.0
@@ -202,7 +206,7 @@ class CoupledVo:
             origin_std = view.accel_bias_std_m_s2 / view.gravity_m_s2
         return level_share(
             view.altitude_m, view.tilt_std_rad, origin.altitude_m, origin_std,
-            self.settings.free_drift_per_m, self._free_path_m,
+            self.settings.free_drift_per_m, self._free_path_m, disagreement_m2,
         )  # fmt: skip
 
     def _tilt_offset_correction(self, R_n_camera: FloatArray, view: FilterView) -> FloatArray:

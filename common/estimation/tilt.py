@@ -157,11 +157,15 @@ def level_share(
     origin_tilt_std_rad: float,
     free_drift_per_m: float,
     free_path_m: float,
+    disagreement_m2: float = 0.0,
 ) -> float:
     """Share of the level chain in the uncertainty-aware output, ``var_free / (var_free + var_level)``:
-    the level chain's error ``h_k d_k - h_0 d_0`` against the free chain's drift over its path."""
+    the level chain's error ``h_k d_k - h_0 d_0`` against the free chain's drift over its path. A squared
+    distance between the chains beyond ``var_free + var_level`` raises ``var_level`` to explain it
+    (``var_level >= disagreement - var_free``): evidence that the tilt std is too optimistic."""
     var_level = (altitude_m * tilt_std_now_rad) ** 2 + (origin_altitude_m * origin_tilt_std_rad) ** 2
     var_free = (free_drift_per_m * free_path_m) ** 2
+    var_level = max(var_level, disagreement_m2 - var_free)
     if var_free + var_level <= 0.0:
         return 1.0
     return var_free / (var_free + var_level)

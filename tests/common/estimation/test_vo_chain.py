@@ -88,3 +88,15 @@ def test_manoeuvre_track_fits_the_acceleration_of_its_window() -> None:
     cleared = track.cleared()
     assert not cleared.fitted and cleared.accel_world_m_s2 == track.accel_world_m_s2
     assert math.isfinite(cleared.accel_world_m_s2[0])
+
+
+def test_level_share_weighs_the_chains_and_distrusts_a_level_chain_that_disagrees() -> None:
+    from common.estimation.tilt import level_share
+
+    # at the origin the free chain has no drift yet: all free; far along with a certain tilt: mostly level
+    assert level_share(3.0, 0.001, 3.0, 0.001, 0.004, 0.0) == 0.0
+    far = level_share(3.0, math.radians(0.02), 3.0, math.radians(0.02), 0.004, 10.0)
+    assert far > 0.9
+    # the same, but the chains 10 cm apart while their stds allow a few centimetres: toward the free chain
+    assert level_share(3.0, math.radians(0.02), 3.0, math.radians(0.02), 0.004, 10.0, 0.1**2) < 0.3
+    assert level_share(3.0, 0.0, 3.0, 0.0, 0.0, 0.0) == 1.0
