@@ -7,7 +7,7 @@ import math
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from common.camera import CameraModel
@@ -126,6 +126,7 @@ def test_choose_decomposition_prefers_the_ground_normal() -> None:
     assert np.allclose(np.ravel(ts[best]), t, atol=1e-6)
 
 
+@settings(deadline=None)  # no wall-clock limit: the suite runs on busy hosts
 @given(
     st.lists(
         st.tuples(rot, rot, rot, st.floats(-0.05, 0.05), st.floats(-0.05, 0.05)), min_size=1, max_size=10
