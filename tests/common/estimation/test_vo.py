@@ -90,6 +90,7 @@ def test_tiny_translation_is_not_lost(texture: GroundTexture) -> None:
 rot = st.floats(-0.05, 0.05)
 
 
+@settings(deadline=None)
 @given(
     rot,
     rot,
