@@ -21,9 +21,10 @@ import numpy as np
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
+from services.observe import YawCollector
 from services.report import write_json
 from services.runtime.transport import open_session
-from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
+from services.up import ClusterSpec, HostSpec, LocalCluster
 
 logger = logging.getLogger(__name__)
 

@@ -28,11 +28,13 @@ from typing import Any, Generic, Literal, TypeVar
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import keys
 from common.errors import CapatazError
 from common.messages import Health, Stats, WireError, WireModel, decode, encode, error_reply
+from services.runtime.presence import ConnectionMonitor, TokenWatch
+from services.runtime.usage import condense_validation_error
 
 logger = logging.getLogger(__name__)
 
@@ -87,7 +89,7 @@ class TransportSettings(BaseModel):
                 return True
             if low in {"0", "false", "no", "off"}:
                 return False
-            raise TransportError(f"boolean environment value expected, got {text!r}")
+            raise ValueError("must be one of 1/0/true/false/yes/no/on/off")
 
         table: dict[str, tuple[str, Callable[[str], Any]]] = {
             "MODE": ("mode", str.strip),
@@ -108,8 +110,10 @@ class TransportSettings(BaseModel):
         values.update({k: v for k, v in overrides.items() if v is not None})
         try:
             return cls(**values)
-        except ValueError as exc:
-            raise TransportError(f"invalid transport settings: {exc}") from None
+        except ValidationError as exc:
+            names = {f: f"--{s.lower().replace('_', '-')} / {ENV_PREFIX}{s}" for s, (f, _) in table.items()}
+            text = condense_validation_error(exc, lambda field: names.get(field, field))
+            raise TransportError(f"invalid transport settings: {text}") from None
 
     def to_config(self) -> zenoh.Config:
         config = zenoh.Config()
@@ -443,18 +447,29 @@ class ServiceRuntime:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         with self._signals(), open_session(self.transport) as session:
             self.session = session
+            watch = TokenWatch(session, keys.alive_key(self.role, self.node, self.index))
             health = session.declare_queryable(
                 keys.health_key(self.role, self.node, self.index), self._on_health, complete=True
             )
             stats_pub = session.declare_publisher(keys.stats_key(self.role, self.node, self.index))
             token = None
             try:
+                watch.refuse_duplicate(self.name, self.transport.lease_ms, self.stop_event)
                 self.start(session)
                 # liveliness last: a member that is seen alive already answers its work and health keys
                 token = session.liveliness().declare_token(keys.alive_key(self.role, self.node, self.index))
                 self.started.set()
-                logger.info("%s: up (%s)", self.name, self.transport.mode)
+                logger.info(
+                    "%s: up (%s, zid %s), listen %s, connect %s",
+                    self.name,
+                    self.transport.mode,
+                    session.info.zid(),
+                    ", ".join(self.transport.listen) or "none",
+                    ", ".join(self.transport.connect) or "none",
+                )
+                monitor = ConnectionMonitor(self.name, self.transport.connect, self.role is keys.Role.ROUTER)
                 while not self.stop_event.wait(self.stats_period_s):
+                    monitor.check(session)
                     payload, attachment = encode(self.stats_message())
                     stats_pub.put(payload, attachment=attachment)
             finally:

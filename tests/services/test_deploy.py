@@ -12,7 +12,8 @@ import pytest
 import yaml
 
 from services.cli import build_parser
-from services.up import compose_from_cluster, load_cluster
+from services.compose import compose_from_cluster
+from services.up import load_cluster
 
 ROOT = Path(__file__).resolve().parents[2]
 CLUSTERS = sorted((ROOT / "deploy" / "clusters").glob("*.yml"))
