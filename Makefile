@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test bench lint typecheck clean
+.PHONY: run test test-docker bench lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,6 +18,10 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# the compose deployment on a real Docker engine (builds the image; BASE_IMAGE=... without Docker Hub)
+test-docker: $(STAMP)
+	CAPATAZ_DOCKER_TEST=1 $(BIN)/python -m pytest -q -s -m docker tests/integration/test_docker_e2e.py
 
 bench: $(STAMP)
 	$(BIN)/capataz bench all

@@ -40,6 +40,7 @@ fi
 # apt inside the image keeps working (the Dockerfile may install more packages)
 echo "deb $MIRROR $SUITE main" >"$ROOTFS/etc/apt/sources.list"
 
+chmod 755 "$ROOTFS"  # mktemp made it 0700: the image's / would be closed to the non-root user
 tar -C "$ROOTFS" -c . | docker import \
     --change 'ENV PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin' \
     --change 'ENV LANG=C.UTF-8' \

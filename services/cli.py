@@ -76,7 +76,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         if (
             not action.option_strings
             or "default" in text.lower()
-            or action.default in (None, False, argparse.SUPPRESS)
+            or any(action.default is v for v in (None, False, argparse.SUPPRESS))
             or isinstance(action, (argparse._HelpAction, argparse._VersionAction))
         ):
             return text

@@ -3,7 +3,8 @@
 Valid for Compose v1 (``docker-compose``) and v2 (``docker compose``): no top-level ``name`` (v1 refuses
 it; the project name comes from the folder or ``-p``). Each service can build the image (``build:``, with the
 host's network so that pip reaches PyPI on engines without a default bridge). The router's port is published
-on 127.0.0.1 only unless another address is asked for.
+on 127.0.0.1 only unless another address is asked for. No ``init: true``: the image's entry point is tini
+already (and the engine's docker-init could not be mounted on this project's machines).
 """
 
 from __future__ import annotations
@@ -49,7 +50,6 @@ def compose_from_cluster(
     def base() -> dict[str, Any]:
         return {
             "image": image,
-            "init": True,
             "restart": "unless-stopped",
             "depends_on": ["router"],
             "environment": dict(env),
@@ -59,7 +59,6 @@ def compose_from_cluster(
         "router": {
             "image": image,
             "build": build,
-            "init": True,
             "restart": "unless-stopped",
             "command": ["router", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}", "--no-multicast", "--no-shm"],
             "ports": [f"{publish_address}:{ROUTER_PORT}:{ROUTER_PORT}"],

@@ -14,9 +14,12 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterable, Iterator
 from contextlib import ExitStack, contextmanager
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 _state = {"quiet": False}
 
@@ -24,6 +27,11 @@ _state = {"quiet": False}
 def configure(quiet: bool) -> None:
     """Set by the ``capataz`` entry point from ``--quiet``."""
     _state["quiet"] = quiet
+
+
+def quiet() -> bool:
+    """``--quiet`` was given: no bars and no periodic progress lines either."""
+    return _state["quiet"]
 
 
 def enabled() -> bool:
@@ -57,6 +65,12 @@ class Bar:
             self._impl.total = total
             self._impl.refresh()
 
+    def track(self, items: Iterable[T]) -> Iterator[T]:
+        """``items``, counting each one as it is consumed."""
+        for item in items:
+            yield item
+            self.update()
+
     def note(self, text: str) -> None:
         """Short live figures after the bar (``12.3 fps, yaw +0.012 rad``)."""
         if self._impl is not None:
@@ -65,7 +79,11 @@ class Bar:
 
 @contextmanager
 def bar(total: float | None, desc: str, unit: str = "it") -> Iterator[Bar]:
-    """A progress bar with rate and ETA, closed on exit (also on an exception)."""
+    """A progress bar with rate and ETA, closed on exit (also on an exception).
+
+    The bar is redrawn every second even without updates, so that a long step shows its elapsed time (a step
+    whose length is unknown: ``total=None``).
+    """
     if not enabled():
         yield Bar(None)
         return
@@ -77,4 +95,14 @@ def bar(total: float | None, desc: str, unit: str = "it") -> Iterator[Bar]:
         impl = stack.enter_context(
             tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, leave=True, file=sys.stderr)
         )
+        done = threading.Event()
+        ticker = threading.Thread(target=_tick, args=(impl, done), name="progress", daemon=True)
+        ticker.start()
+        stack.callback(ticker.join)
+        stack.callback(done.set)
         yield Bar(impl)
+
+
+def _tick(impl: Any, done: threading.Event) -> None:
+    while not done.wait(1.0):
+        impl.refresh()

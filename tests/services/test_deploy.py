@@ -31,7 +31,7 @@ def check_compose(document: dict) -> None:
     commands = registered_commands()
     for name, service in document["services"].items():
         assert service.get("image") or service.get("build"), f"{name}: no image"
-        assert service.get("init") is True, f"{name}: needs init: true (signals reach the service)"
+        assert not service.get("init"), f"{name}: the image's tini is PID 1 (init: true nests a second init)"
         command = service["command"]
         assert isinstance(command, list) and all(isinstance(c, str) for c in command), name
         assert command[0] in commands, f"{name}: unknown command {command[0]!r}"
