@@ -13,6 +13,7 @@ shown go above it.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import threading
 from collections.abc import Iterable, Iterator
@@ -90,10 +91,12 @@ def bar(total: float | None, desc: str, unit: str = "it") -> Iterator[Bar]:
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
+    # a terminal that reports no size (0x0, e.g. under `script`) would hide the bar: assume 100x24 then
+    columns, rows = shutil.get_terminal_size((100, 24))
     with ExitStack() as stack:
         stack.enter_context(logging_redirect_tqdm())
         impl = stack.enter_context(
-            tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, leave=True, file=sys.stderr)
+            tqdm(total=total, desc=desc, unit=unit, ncols=columns, nrows=rows, leave=True, file=sys.stderr)
         )
         done = threading.Event()
         ticker = threading.Thread(target=_tick, args=(impl, done), name="progress", daemon=True)
