@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-docker bench lint typecheck clean
+.PHONY: run test test-loaded test-docker bench lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -22,6 +22,10 @@ test: $(STAMP)
 # the compose deployment on a real Docker engine (builds the image; BASE_IMAGE=... without Docker Hub)
 test-docker: $(STAMP)
 	CAPATAZ_DOCKER_TEST=1 $(BIN)/python -m pytest -q -s -m docker tests/integration/test_docker_e2e.py
+
+# the suite on a host whose cores are all busy (busy-loop processes for the whole run)
+test-loaded: $(STAMP)
+	$(BIN)/python -m tests.under_load -q
 
 bench: $(STAMP)
 	$(BIN)/capataz bench all

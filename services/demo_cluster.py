@@ -18,9 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from common.dispatch import Balance
+from common.geometry import wrap_angle_rad
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
+from services.master.service import Topology
 from services.observe import YawCollector
 from services.report import write_json
 from services.runtime.progress import bar as progress_bar
@@ -34,8 +37,8 @@ PRINT_PERIOD_S = 10.0
 
 DEMO_CLUSTER = ClusterSpec(
     name="local2x2",
-    topology="master-foreman-worker",
-    balance="time",
+    topology=Topology.MASTER_FOREMAN_WORKER,
+    balance=Balance.TIME,
     hosts=(HostSpec(name="h1", workers=2), HostSpec(name="h2", workers=2)),
 )
 
@@ -117,8 +120,8 @@ def member_table(estimates: dict[int, Any]) -> list[dict[str, Any]]:
     for member in sorted(totals):
         counts = totals[member]
         speed = next(
-            (estimates[s].timings_ms.get(f"speed:{member}") for s in reversed(seqs)
-             if f"speed:{member}" in estimates[s].timings_ms),
+            (estimates[s].speeds_patches_s[member] for s in reversed(seqs)
+             if member in estimates[s].speeds_patches_s),
             None,
         )  # fmt: skip
         rows.append(
@@ -146,7 +149,7 @@ def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict
     truth_deg = np.degrees(flight.yaw_rad[seqs])
     # the cluster integrates yaw from 0 at frame 0: put it on the truth's reference, as report_yaw does
     yaw_deg = np.degrees(np.array([estimates[s].yaw_rad for s in seqs]) + flight.yaw_rad[0])
-    error_deg = (yaw_deg - truth_deg + 180.0) % 360.0 - 180.0
+    error_deg = np.degrees(wrap_angle_rad(np.radians(yaw_deg - truth_deg)))
     total_ms = np.array([estimates[s].timings_ms.get("total", np.nan) for s in seqs])
     paths = []
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)

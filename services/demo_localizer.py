@@ -17,8 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from common.localization.particle_filter import ParticleFilterConfig
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.particle_filter import ParticleFilterSettings
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.simulation import simulate_run, track_run
 from common.localization.tracking import track_accuracy
 from services.runtime import progress
@@ -97,7 +97,7 @@ def run_demo(
     with progress.bar(total=None, desc="localizer: rendering the office flight", unit="run") as bar:
         sim = simulate_run(n_frames=n_frames, seed=seed)
         bar.update()
-    config = ParticleFilterConfig(n_particles=n_particles, scoring=ScoringParams(method=method))
+    config = ParticleFilterSettings(n_particles=n_particles, scoring=ScoringSettings(method=method))
     with progress.bar(total=n_frames, desc="localizer: particle filter", unit="frame") as bar:
         # track_run iterates the images once, in order: count them as the filter consumes them
         counted = replace(sim, images=cast(Any, bar.track(sim.images)))

@@ -19,15 +19,18 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import keys
+from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
+from services.master.service import Topology
 from services.runtime.transport import TransportSettings, open_session
 from services.runtime.usage import condense_validation_error, one_line
 
@@ -60,10 +63,10 @@ class ClusterSpec(BaseModel):
 
     name: str
     description: str = ""
-    topology: Literal["master-worker", "master-foreman-worker"] = "master-foreman-worker"
-    balance: Literal["none", "time"] = "time"
+    topology: Topology = Topology.MASTER_FOREMAN_WORKER
+    balance: Balance = Balance.TIME
     #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
-    speed: Literal["reported", "round-trip"] = "round-trip"
+    speed: SpeedSource = SpeedSource.ROUND_TRIP
     master_computes: bool = False
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera
@@ -76,6 +79,50 @@ class ClusterSpec(BaseModel):
         return sum(h.workers for h in self.hosts)
 
 
+@dataclass(frozen=True)
+class ServiceCommand:
+    """One cluster process as ``capataz`` arguments, without transport options (added by where it runs:
+    :class:`LocalCluster` adds endpoints, compose sets ``CAPATAZ_ZENOH_*``)."""
+
+    #: ``role/node/index``, the name of its liveliness token
+    name: str
+    args: tuple[str, ...]
+    #: taskset CPU list (compose: cpuset); None = not pinned
+    cpus: str | None = None
+
+
+def worker_command(spec: ClusterSpec, host: HostSpec, index: int) -> ServiceCommand:
+    args = ["worker", "--node", host.name, "--index", str(index)]
+    if host.cpu_factor != 1:
+        args += ["--cpu-factor", str(host.cpu_factor)]
+    return ServiceCommand(f"worker/{host.name}/{index}", tuple(args), host.cpus)
+
+
+def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
+    compute = "--compute" if host.foreman_computes else "--no-compute"
+    args = ("foreman", "--node", host.name, "--balance", spec.balance.value, compute,
+            "--speed", spec.speed.value)  # fmt: skip
+    return ServiceCommand(f"foreman/{host.name}/0", args, host.cpus)
+
+
+def master_command(spec: ClusterSpec) -> ServiceCommand:
+    args = ("master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
+            "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
+            "--speed", spec.speed.value)  # fmt: skip
+    return ServiceCommand("master/master/0", args, spec.master_cpus)
+
+
+def cluster_commands(spec: ClusterSpec) -> list[ServiceCommand]:
+    """Every process of the cluster but the router and the camera, in start order (workers, foremen,
+    master): the one rendering of a :class:`ClusterSpec` for ``capataz up`` and for compose."""
+    commands: list[ServiceCommand] = []
+    for host in spec.hosts:
+        commands += [worker_command(spec, host, i) for i in range(host.workers)]
+        if spec.topology is Topology.MASTER_FOREMAN_WORKER:
+            commands.append(foreman_command(spec, host))
+    return [*commands, master_command(spec)]
+
+
 def load_cluster(path: Path) -> ClusterSpec:
     try:
         raw = yaml.safe_load(Path(path).read_text())
@@ -84,12 +131,6 @@ def load_cluster(path: Path) -> ClusterSpec:
         raise ClusterError(f"{path}: {condense_validation_error(exc)}") from None
     except (OSError, yaml.YAMLError) as exc:
         raise ClusterError(f"{path}: {one_line(str(exc))}") from None
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def check_port_free(port: int, host: str = "127.0.0.1") -> None:
@@ -123,8 +164,8 @@ class LocalCluster:
     ) -> None:
         self.spec = spec
         self.log_dir = Path(log_dir)
-        self.port = port or free_port()
-        self.router = f"tcp/127.0.0.1:{self.port}"
+        #: the router's port; None = any free port, chosen by the router itself (no reservation race)
+        self.port = port or None
         self.shared_memory = shared_memory
         self.master_args = tuple(master_args)
         self.lease_ms = lease_ms
@@ -133,6 +174,13 @@ class LocalCluster:
         self.spawned_at: dict[str, float] = {}
         self._stopped: set[str] = set()
         self._taskset = shutil.which("taskset")
+
+    @property
+    def router(self) -> str:
+        """The router's endpoint (known once :meth:`start_router` returned)."""
+        if self.port is None:
+            raise ClusterError("the router's endpoint is known only after start_router()")
+        return f"tcp/127.0.0.1:{self.port}"
 
     # -- processes --------------------------------------------------------------------------------------
     def transport_args(self) -> list[str]:
@@ -169,79 +217,52 @@ class LocalCluster:
         self.spawned_at[name] = time.monotonic()
         return process
 
-    def start_router(self) -> None:
-        check_port_free(self.port)
+    def start_router(self, timeout_s: float = 30.0) -> None:
+        """Start the router and wait until it listens; with no port given it picks a free one itself and
+        reports it through an endpoint file (reserving a port first races with every other process)."""
+        if self.port is not None:
+            check_port_free(self.port)  # else the members would join whichever router holds the port
+        endpoint_file = self.log_dir / "router.endpoint"
+        endpoint_file.unlink(missing_ok=True)
+        listen = f"tcp/127.0.0.1:{self.port or 0}"
         self.spawn(
             "router",
-            [
-                "router",
-                "--listen",
-                self.router,
-                "--no-multicast",
-                "--no-shm",
-                "--lease-ms",
-                str(self.lease_ms),
-            ],
+            ["router", "--listen", listen, "--no-multicast", "--no-shm", "--lease-ms", str(self.lease_ms),
+             "--endpoint-file", str(endpoint_file)],
             self.spec.aux_cpus,
-        )
-        deadline = time.monotonic() + 15.0
+        )  # fmt: skip
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            with socket.socket() as sock:
-                if sock.connect_ex(("127.0.0.1", self.port)) == 0:
-                    return
+            if endpoint_file.is_file():  # written (atomically) once the router's session listens
+                self.port = self._router_port(endpoint_file.read_text().split())
+                return
             if self.processes["router"].poll() is not None:
                 raise ClusterError(
                     f"router exited with {self.processes['router'].returncode}; see {self.log_dir}"
                 )
             time.sleep(0.05)
-        raise ClusterError("router did not start listening within 15 s")
+        raise ClusterError(f"router did not start listening within {timeout_s:.0f} s")
+
+    @staticmethod
+    def _router_port(endpoints: list[str]) -> int:
+        for endpoint in endpoints:
+            host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+            if endpoint.startswith("tcp/") and host == "127.0.0.1" and port.isdigit():
+                return int(port)
+        raise ClusterError(f"the router listens on no tcp/127.0.0.1 endpoint: {endpoints}")
+
+    def start_command(self, command: ServiceCommand, extra: Sequence[str] = ()) -> str:
+        self.spawn(command.name, [*command.args, *extra, *self.transport_args()], command.cpus)
+        return command.name
 
     def start_worker(self, host: HostSpec, index: int) -> str:
-        name = f"worker/{host.name}/{index}"
-        args = ["worker", *self.transport_args(), "--node", host.name, "--index", str(index)]
-        if host.cpu_factor != 1:
-            args += ["--cpu-factor", str(host.cpu_factor)]
-        self.spawn(name, args, host.cpus)
-        return name
+        return self.start_command(worker_command(self.spec, host, index))
 
     def start_foreman(self, host: HostSpec, extra: Sequence[str] = ()) -> str:
-        name = f"foreman/{host.name}/0"
-        args = [
-            "foreman",
-            *self.transport_args(),
-            "--node",
-            host.name,
-            "--balance",
-            self.spec.balance,
-            "--compute" if host.foreman_computes else "--no-compute",
-            "--speed",
-            self.spec.speed,
-            *extra,
-        ]
-        self.spawn(name, args, host.cpus)
-        return name
+        return self.start_command(foreman_command(self.spec, host), extra)
 
     def start_master(self, extra: Sequence[str] = ()) -> str:
-        name = "master/master/0"
-        args = [
-            "master",
-            *self.transport_args(),
-            "--node",
-            "master",
-            "--uav",
-            self.spec.uav,
-            "--topology",
-            self.spec.topology,
-            "--balance",
-            self.spec.balance,
-            "--compute" if self.spec.master_computes else "--no-compute",
-            "--speed",
-            self.spec.speed,
-            *self.master_args,
-            *extra,
-        ]
-        self.spawn(name, args, self.spec.master_cpus)
-        return name
+        return self.start_command(master_command(self.spec), [*self.master_args, *extra])
 
     def start_camera(self, extra: Sequence[str] = ()) -> str:
         name = "camera/camera/0"
@@ -251,21 +272,14 @@ class LocalCluster:
         return name
 
     def expected_members(self) -> set[str]:
-        names = {"master/master/0"}
-        for host in self.spec.hosts:
-            names |= {f"worker/{host.name}/{i}" for i in range(host.workers)}
-            if self.spec.topology == "master-foreman-worker":
-                names.add(f"foreman/{host.name}/0")
-        return names
+        return {command.name for command in cluster_commands(self.spec)}
 
     def start(self, with_master: bool = True) -> None:
         """Router, then workers, foremen (for that topology) and the master, all in parallel."""
         self.start_router()
-        for host in self.spec.hosts:
-            for i in range(host.workers):
-                self.start_worker(host, i)
-            if self.spec.topology == "master-foreman-worker":
-                self.start_foreman(host)
+        for command in cluster_commands(self.spec):
+            if command.name != "master/master/0":
+                self.start_command(command)
         if with_master:
             self.start_master()
 
@@ -274,6 +288,7 @@ class LocalCluster:
         seconds each member took from its start to its token (as first seen here)."""
         seen: set[str] = set()
         alive_after_s: dict[str, float] = {}
+        t0 = time.monotonic()
         lock = threading.Condition()
 
         def on_alive(sample: zenoh.Sample) -> None:
@@ -289,7 +304,6 @@ class LocalCluster:
                     seen.discard(member)
                 lock.notify_all()
 
-        t0 = time.monotonic()
         with open_session(self.observer_transport()) as session:
             sub = session.liveliness().declare_subscriber(keys.ALIVE_ALL, on_alive, history=True)
             deadline = time.monotonic() + timeout_s

@@ -16,8 +16,9 @@ import argparse
 import threading
 import time
 from collections.abc import Iterator
+from enum import StrEnum
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -25,13 +26,13 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
+from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
 from common.localization.model import default_scene
 from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
-from common.sim.camera import PinholeCamera
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from services.runtime.transport import (
@@ -44,11 +45,22 @@ from services.runtime.transport import (
 DEFAULT_HFOV_DEG = 90.0
 
 
+class FlightName(StrEnum):
+    """The simulated flights the camera can replay."""
+
+    #: paper A's hover over the ground (752x480)
+    HOVER = "hover"
+    #: paper C's turns over the ground
+    TURNS = "turns"
+    #: the localizer's default flight through the built-in office (320x240, forward camera)
+    OFFICE = "office"
+
+
 class CameraSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     uavs: tuple[str, ...] = ("uav0",)
-    flight: Literal["hover", "turns", "office"] = "hover"
+    flight: FlightName = FlightName.HOVER
     frames: int = Field(default=2041, ge=2)
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
@@ -72,9 +84,9 @@ def simulated_flight(settings: CameraSettings) -> Flight:
     camera = (
         None
         if settings.width is None or settings.height is None
-        else PinholeCamera.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
+        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
     )
-    if settings.flight == "turns":
+    if settings.flight is FlightName.TURNS:
         return turns_flight(seed=settings.seed, camera=camera)
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
 
@@ -82,7 +94,7 @@ def simulated_flight(settings: CameraSettings) -> Flight:
 def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
     """The localizer's default flight through the built-in office: the same frames as
     ``common.localization.simulation.simulate_run(settings.frames, settings.seed)``."""
-    camera = PinholeCamera.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
+    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
     flight = default_flight(n_frames=settings.frames)
     rng = np.random.default_rng(settings.seed)
     images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
@@ -127,7 +139,7 @@ class CameraService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.flight: Flight | None = (
-            None if settings.images or settings.flight == "office" else simulated_flight(settings)
+            None if settings.images or settings.flight is FlightName.OFFICE else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
@@ -136,7 +148,9 @@ class CameraService(ServiceRuntime):
         self._masters = threading.Event()
         self._preloaded: list[np.ndarray] | None = None
         self._odometry = (
-            office_odometry_poses(settings) if settings.flight == "office" and not settings.images else None
+            office_odometry_poses(settings)
+            if settings.flight is FlightName.OFFICE and not settings.images
+            else None
         )
         if settings.images is not None and settings.preload:
             self._preloaded = list(self._images())
@@ -330,8 +344,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
     parser.add_argument(
         "--flight",
-        choices=["hover", "turns", "office"],
-        default="hover",
+        choices=[f.value for f in FlightName],
+        default=FlightName.HOVER.value,
         help="simulated flight: paper A's hover, paper C's turns (ground camera), or the localizer's office",
     )
     parser.add_argument(
