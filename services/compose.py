@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from services.up import ClusterSpec
+from services.up import ClusterSpec, cluster_commands
 
 DEFAULT_IMAGE = "capataz:0.1.0"
 #: the repository root (holds deploy/Dockerfile): the build context of a generated compose file
@@ -64,25 +64,12 @@ def compose_from_cluster(
             "ports": [f"{publish_address}:{ROUTER_PORT}:{ROUTER_PORT}"],
         },
         "camera": {**base(), "command": ["camera", "--node", "camera", "--uav", spec.uav, "--loop"]},
-        "master": {
-            **base(),
-            "command": ["master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology,
-                        "--balance", spec.balance, "--compute" if spec.master_computes else "--no-compute"],
-        },
-    }  # fmt: skip
-    if spec.master_cpus:
-        services["master"]["cpuset"] = spec.master_cpus
-    for host in spec.hosts:
-        pin = {"cpuset": host.cpus} if host.cpus else {}
-        if spec.topology == "master-foreman-worker":
-            services[f"foreman-{host.name}"] = {
-                **base(), **pin,
-                "command": ["foreman", "--node", host.name, "--balance", spec.balance,
-                            "--compute" if host.foreman_computes else "--no-compute"],
-            }  # fmt: skip
-        for i in range(host.workers):
-            command = ["worker", "--node", host.name, "--index", str(i)]
-            if host.cpu_factor != 1:
-                command += ["--cpu-factor", str(host.cpu_factor)]
-            services[f"worker-{host.name}-{i}"] = {**base(), **pin, "command": command}
+    }
+    # the processes as `capataz up` starts them (one rendering of a cluster file for both)
+    for command in cluster_commands(spec):
+        role, node, index = command.name.split("/")
+        name = {"master": "master", "foreman": f"foreman-{node}"}.get(role, f"worker-{node}-{index}")
+        services[name] = {**base(), "command": list(command.args)}
+        if command.cpus:
+            services[name]["cpuset"] = command.cpus
     return {"services": services}

@@ -50,6 +50,12 @@ def register(subparsers: Any) -> None:
         help="camera frames per second (0 = as fast as possible)",
     )
     parser.add_argument(
+        "--in-flight",
+        type=number_in(int, 0),
+        default=0,
+        help="camera: max frames without a yaw (0 = free running)",
+    )
+    parser.add_argument(
         "--duration",
         type=number_in(float, 0.0),
         default=None,
@@ -97,9 +103,18 @@ def run(args: argparse.Namespace) -> int:
                 collector, watch = YawCollector(session, spec.uav), StatsWatch(session)
                 camera = None
                 if args.camera:
-                    camera = cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps)])
+                    camera = cluster.start_camera(
+                        [
+                            "--frames",
+                            str(args.frames),
+                            "--fps",
+                            str(args.fps),
+                            "--in-flight",
+                            str(args.in_flight),
+                        ]
+                    )
                     alive_after_s.update(cluster.wait_alive({camera}))
-                watch_until_done(cluster, collector, stop, args.duration, camera, t0)
+                watch_until_done(cluster, collector, stop, args.duration, camera, t0, args.frames)
                 stats = watch.snapshot()
                 collector.close()
                 watch.close()
@@ -125,6 +140,7 @@ def watch_until_done(
     duration_s: float | None,
     camera: str | None,
     t0: float,
+    frames: int,
 ) -> None:
     """Print each new yaw once a second until ^C, ``duration_s`` (0 = no limit) or the camera's end."""
     last = -1
@@ -142,7 +158,7 @@ def watch_until_done(
             return
         if camera is not None and cluster.processes[camera].poll() is not None and not camera_done_logged:
             if duration_s is None:
-                time.sleep(0.5)  # the last frames' yaw are on their way
+                collector.wait_for(frames, 5.0)  # the yaw of the last frames (bounded)
                 return
             print("camera finished its flight; the cluster stays up (^C to stop)")
             camera_done_logged = True

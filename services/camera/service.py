@@ -41,6 +41,7 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
+from services.runtime.usage import UsageError
 
 DEFAULT_HFOV_DEG = 90.0
 
@@ -116,12 +117,21 @@ def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndar
     return flight.times_s, positions, angles
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".bmp")
+
+
 def _image_files(folder: Path) -> list[Path]:
-    files = sorted(
-        p for p in folder.iterdir() if p.suffix.lower() in {".png", ".jpg", ".jpeg", ".pgm", ".bmp"}
-    )
+    """The images of ``--images`` in name order; UsageError (one line, exit 2) for a missing folder, a file,
+    or a folder without images: checked before the service waits for anything."""
+    if not folder.exists():
+        raise UsageError(f"--images {folder}: no such folder")
+    if not folder.is_dir():
+        raise UsageError(
+            f"--images {folder}: not a folder (expected a folder of {'/'.join(IMAGE_SUFFIXES)} files)"
+        )
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
-        raise CapatazError(f"no images in {folder}")
+        raise UsageError(f"--images {folder}: no {'/'.join(IMAGE_SUFFIXES)} files in the folder")
     return files
 
 
@@ -393,6 +403,8 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.images is not None:
+        _image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import threading
 import time
@@ -29,7 +30,6 @@ from common.sim.flight import hover_flight
 from common.sim.scene import default_flight
 from services.report import write_json
 from services.runtime.transport import TransportSettings, open_session, zbytes
-from services.up import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 PROJECT = "capataz-e2e"
@@ -54,6 +54,13 @@ pytestmark = [
         reason="Docker end-to-end test: opt in with `make test-docker` (builds the image: several minutes)",
     ),
 ]
+
+
+def host_port() -> int:
+    """A port free on the host now, for the router's published port (docker binds it moments later)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 def _run(*command: str, env: dict[str, str] | None = None, timeout: float = 1200) -> str:
@@ -155,7 +162,7 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
     build_s = time.monotonic() - t0
     size_mb = int(_run("docker", "image", "inspect", "-f", "{{.Size}}", IMAGE)) / 1e6
 
-    port = free_port()
+    port = host_port()
     # vfs (no overlay filesystem here) copies the whole image for each of the 12 containers: give compose time
     env = dict(os.environ, CAPATAZ_PORT=str(port), COMPOSE_PROJECT_NAME=PROJECT, COMPOSE_HTTP_TIMEOUT="900")
     if base:
