@@ -35,13 +35,13 @@ from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from services.camera.images import image_files
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
     add_transport_arguments,
     transport_from_args,
 )
-from services.runtime.usage import UsageError
 
 DEFAULT_HFOV_DEG = 90.0
 
@@ -115,24 +115,6 @@ def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndar
     positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
     angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
     return flight.times_s, positions, angles
-
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".bmp")
-
-
-def _image_files(folder: Path) -> list[Path]:
-    """The images of ``--images`` in name order; UsageError (one line, exit 2) for a missing folder, a file,
-    or a folder without images: checked before the service waits for anything."""
-    if not folder.exists():
-        raise UsageError(f"--images {folder}: no such folder")
-    if not folder.is_dir():
-        raise UsageError(
-            f"--images {folder}: not a folder (expected a folder of {'/'.join(IMAGE_SUFFIXES)} files)"
-        )
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise UsageError(f"--images {folder}: no {'/'.join(IMAGE_SUFFIXES)} files in the folder")
-    return files
 
 
 class CameraService(ServiceRuntime):
@@ -220,7 +202,7 @@ class CameraService(ServiceRuntime):
             yield from self._preloaded
             return
         assert self.settings.images is not None
-        for path in _image_files(self.settings.images):
+        for path in image_files(self.settings.images):
             image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
             if image is None:
                 self.count_error("bad_images", "cannot read image", str(path))
@@ -404,7 +386,7 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 
 def run(args: argparse.Namespace) -> int:
     if args.images is not None:
-        _image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
+        image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()

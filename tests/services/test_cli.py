@@ -47,6 +47,7 @@ def assert_one_line(done: subprocess.CompletedProcess[str], code: int, *fragment
 NO_ROUTER = ["--connect", "tcp/127.0.0.1:9", "--wait-master", "0"]
 
 
+@pytest.mark.zenoh
 @pytest.mark.parametrize(
     ("args", "fragments"),
     [
@@ -69,6 +70,7 @@ def test_bad_option_values_give_one_line_and_exit_2(args: list[str], fragments: 
     assert_one_line(capataz(*args, *extra), 2, *fragments)
 
 
+@pytest.mark.zenoh
 @pytest.mark.parametrize("case", ["empty", "missing", "file"])
 def test_camera_images_that_are_not_a_folder_of_images_give_one_line(case: str, tmp_path: Path) -> None:
     folder = {"empty": tmp_path, "missing": tmp_path / "nowhere", "file": tmp_path / "a.txt"}[case]
@@ -79,16 +81,19 @@ def test_camera_images_that_are_not_a_folder_of_images_give_one_line(case: str, 
     assert str(folder) in line
 
 
+@pytest.mark.zenoh
 def test_a_bad_environment_variable_is_named() -> None:
     done = capataz("router", "--listen", "tcp/127.0.0.1:0", env={"CAPATAZ_ZENOH_MULTICAST": "maybe"})
     assert_one_line(done, 1, "CAPATAZ_ZENOH_MULTICAST", "maybe", "true/false")
 
 
+@pytest.mark.zenoh
 def test_a_pydantic_range_error_is_condensed_to_one_line_without_urls() -> None:
     done = capataz("router", "--listen", "tcp/127.0.0.1:0", "--lease-ms", "5")
     assert_one_line(done, 1, "--lease-ms", "CAPATAZ_ZENOH_LEASE_MS", ">= 100", "got 5")
 
 
+@pytest.mark.zenoh
 def test_up_fails_at_once_when_its_port_is_taken(tmp_path: Path) -> None:
     with socket.socket() as holder:
         holder.bind(("127.0.0.1", 0))
