@@ -21,7 +21,6 @@ SIM_IMPORT_EXCEPTIONS = {
 LONG_MODULE_EXCEPTIONS = {
     "common/messages.py",
     "services/bench/cluster.py",
-    "services/up.py",
 }
 
 
