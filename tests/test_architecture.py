@@ -14,17 +14,11 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 400
 
 #: cores that still import the simulator (the estimator and localizer work removes them)
-SIM_IMPORT_EXCEPTIONS = {
-    "common/estimation/replay.py",  # the simulated flight's measurements
-}
+SIM_IMPORT_EXCEPTIONS: set[str] = set()
 #: modules over MAX_LINES today (split them, then remove them here)
 LONG_MODULE_EXCEPTIONS = {
-    "common/estimation/coupling.py",
-    "common/estimation/ekf.py",
-    "common/estimation/vo.py",
     "common/messages.py",
     "services/bench/cluster.py",
-    "services/up.py",
 }
 
 
