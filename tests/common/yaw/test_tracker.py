@@ -196,7 +196,8 @@ def test_dropped_frames_hover_stays_accurate_through_the_fallback() -> None:
         methods.add(estimate.method)
         assert not estimate.low_confidence
         assert abs(math.degrees(estimate.delta_yaw_rad - (true_yaw[k] - true_yaw[k - 1]))) < 0.25
-    assert EstimateMethod.GLOBAL_PREALIGNED in methods
+    # the held yaw rate turns frame k back (cheap) before any global stage is needed
+    assert methods & {EstimateMethod.GLOBAL_PREALIGNED, EstimateMethod.PRIOR_PREALIGNED}
     assert abs(math.degrees(state.yaw_rad - (true_yaw[-1] - true_yaw[0]))) < 0.5
 
 
