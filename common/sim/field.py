@@ -42,12 +42,12 @@ from common.sim.ground import (
 from common.sim.sensors import ImageDegradation
 from common.sim.trajectory import (
     AttitudeMode,
+    AxesPath,
     FunctionSum,
     SineSum,
     SmoothStep,
     TanhSteps,
     Trajectory,
-    AxesPath,
 )
 
 FloatArray = npt.NDArray[np.float64]
@@ -72,7 +72,7 @@ class FieldError(InputError):
 
 # ------------------------------------------------------------------------------------------------- floors
 def _texel_for(period_m: float) -> float:
-    """Texel size: ``period_m / 2^k``, the largest not above :data:`MAX_TEXEL_M` (the period is whole texels)."""
+    """Texel size ``period_m / 2^k``, the largest not above :data:`MAX_TEXEL_M` (whole texels per period)."""
     if not (math.isfinite(period_m) and 0.01 <= period_m <= 2.0):
         raise FieldError(f"pattern size must be in [0.01, 2] m, got {period_m}")
     texels = 1
@@ -84,7 +84,7 @@ def _texel_for(period_m: float) -> float:
 
 
 def _grain(seed: int, texel_m: float, grain_dn: float) -> Float32Array:
-    """Zero-mean low-contrast noise carpet (print texture, wear, dust), ``grain_dn`` per standard deviation."""
+    """Zero-mean low-contrast noise carpet (print texture, wear, dust), ``grain_dn`` per std."""
     if grain_dn <= 0.0:
         return np.zeros((FLOOR_SIZE_PX, FLOOR_SIZE_PX), np.float32)
     carpet = make_ground_texture(
@@ -101,7 +101,11 @@ def _soften(image: Float32Array, sigma_texels: float = 0.7) -> Float32Array:
 
 
 def checkerboard_texture(
-    seed: int = 0, square_m: float = 0.10, dark_dn: float = 35.0, light_dn: float = 220.0, grain_dn: float = 3.0
+    seed: int = 0,
+    square_m: float = 0.10,
+    dark_dn: float = 35.0,
+    light_dn: float = 220.0,
+    grain_dn: float = 3.0,
 ) -> GroundTexture:
     """A black-and-white checkerboard mat of ``square_m`` squares (the tile repeats it exactly)."""
     texel = _texel_for(square_m)
@@ -133,7 +137,7 @@ def tiled_texture(
     shade = tile_dn + tile_variation_dn * rng.standard_normal((tiles, tiles))
     image = np.kron(shade, np.ones((n, n))).astype(np.float32)
     pos = np.arange(FLOOR_SIZE_PX) % n
-    line = (pos < grout)
+    line = pos < grout
     image[line, :] = grout_dn
     image[:, line] = grout_dn
     image = _soften(image)
@@ -349,7 +353,7 @@ class ExposureSteps:
 
 @dataclass(frozen=True, eq=False)
 class FieldFlight(Flight):
-    """A :class:`Flight` rendered through any lens (exact ray casting), with motion blur and exposure steps."""
+    """A :class:`Flight` rendered through any lens (exact ray casting), motion blur and exposure steps."""
 
     rays_camera: FloatArray = field(default_factory=lambda: np.zeros((0, 0, 3)))
     exposure: ExposureSteps = ExposureSteps()
@@ -475,7 +479,9 @@ def field_flight(
         name=scenario.name,
     )
     if camera is None:
-        camera = wide_angle_camera() if scenario.wide_angle else CameraModel.from_hfov(320, 240, NARROW_HFOV_DEG)
+        camera = (
+            wide_angle_camera() if scenario.wide_angle else CameraModel.from_hfov(320, 240, NARROW_HFOV_DEG)
+        )
     base = simulate_flight(
         trajectory,
         seed=seed,

@@ -23,23 +23,17 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.provenance import Provenance
 from common.yaw.settings import YawSettings
 
 FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["Prior", "PriorSource", "Provenance", "gyro_delta_yaw_rad", "make_prior"]
 
 #: The held rate's tolerance never drops below this (deg): measurement noise and rate estimation noise.
 MIN_HOLD_TOLERANCE_DEG = 5.0
 #: Variance of a measured pair's delta: (residual / lever)^2 * 2 / inliers, residual at least this (px).
 MIN_RESIDUAL_PX = 0.1
-
-
-class Provenance(Enum):
-    """How the delta integrated into a published yaw was obtained."""
-
-    MEASURED = "measured"  # the camera measured it (and it agreed with the prior and the physical limits)
-    BRIDGED = "bridged"  # the gyro's rotation bridged an untrusted pair
-    HELD = "held"  # no gyro: the recent yaw rate was held over the pair
-    INITIAL = "initial"  # frame 0 of a stream: yaw 0 by definition
 
 
 class PriorSource(Enum):
@@ -133,15 +127,13 @@ def wrap_rad(angle: float) -> float:
 
 def plausible(delta_rad: float, prior: Prior, settings: YawSettings) -> bool:
     """Within the physical rate limit (when stamped) and the prior's tolerance."""
-    if prior.dt_s is not None and prior.dt_s > 0.0:
-        if abs(delta_rad) > math.radians(settings.max_yaw_rate_deg_s) * prior.dt_s:
-            return False
+    limit = math.radians(settings.max_yaw_rate_deg_s)
+    if prior.dt_s is not None and prior.dt_s > 0.0 and abs(delta_rad) > limit * prior.dt_s:
+        return False
     return abs(wrap_rad(delta_rad - prior.delta_rad)) <= prior.tolerance_rad
 
 
-def choose_rotation(
-    candidates: list[tuple[float, float]], prior: Prior, settings: YawSettings
-) -> int | None:
+def choose_rotation(candidates: list[tuple[float, float]], prior: Prior, settings: YawSettings) -> int | None:
     """Index of the candidate rotation ``(rotation_rad, response)`` to verify, or None when ambiguous.
 
     Candidates that break the rate limit or the prior's tolerance are out; of those left, the ones whose

@@ -67,6 +67,9 @@ class YawSettings:
     global_angle_bins: int = 720
     #: Residual (full-resolution px, median over inliers) above which the estimate is low-confidence.
     max_residual_px: float = 1.5
+    #: Above this patch-fit rotation (deg) the patches are measured again on frame k turned back by it (the
+    #: window's pull of the shifts towards zero then acts on tiny shifts only); 180 = never.
+    refine_min_deg: float = 0.25
     #: Physical limit: a delta implying a faster yaw rate between two stamped frames is refused.
     max_yaw_rate_deg_s: float = 300.0
     #: Physical limit on the yaw acceleration: how far a measured delta may leave the held yaw rate.
@@ -118,6 +121,8 @@ class YawSettings:
             raise InputError(
                 "max_yaw_rate_deg_s, max_yaw_accel_deg_s2, gyro_gate_deg and frame_period_s must be positive"
             )
+        if not (math.isfinite(self.refine_min_deg) and self.refine_min_deg >= 0.0):
+            raise InputError(f"refine_min_deg must be >= 0, got {self.refine_min_deg}")
         if not (math.isfinite(self.gyro_sigma_deg_s) and self.gyro_sigma_deg_s >= 0.0):
             raise InputError(f"gyro_sigma_deg_s must be >= 0, got {self.gyro_sigma_deg_s}")
         if not 0.0 < self.ambiguity_ratio <= 1.0:

@@ -10,12 +10,10 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, replace
-from enum import Enum
 
 import numpy as np
 import numpy.typing as npt
 
-from common.camera import CameraModel
 from common.errors import InputError
 from common.yaw.correlation import (
     PatchMeasurement,
@@ -24,38 +22,17 @@ from common.yaw.correlation import (
     merge_measurements,
     patch_spectra,
 )
-from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
-from common.yaw.global_align import estimate_global_alignment, warp_into
+from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, U8Array, check_frame, make_patch_grid
-from common.yaw.honest import (
-    Prior,
-    PriorSource,
-    Provenance,
-    choose_rotation,
-    make_prior,
-    measured_variance_rad2,
-    plausible,
-)
+from common.yaw.honest import PriorSource, Provenance, make_prior, measured_variance_rad2
 from common.yaw.settings import YawSettings
+from common.yaw.stages import EstimateMethod, PairResult, conclude_pair, lens_of
 
 logger = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 
-#: A frame whose grey-level std (0..255) is below this has nothing to correlate (black, saturated).
-_MIN_FRAME_STD = 2.0
-#: The global alignment is trusted alone (flagged low-confidence) above this correlation response.
-_MIN_GLOBAL_RESPONSE = 0.05
-
-
-class EstimateMethod(Enum):
-    """Which stage produced the measured delta."""
-
-    PATCHES = "patches"  # patch fit on the raw pair
-    PRIOR_PREALIGNED = "prior_prealigned"  # frame k turned back by the prior (gyro / held rate), then patches
-    GLOBAL_PREALIGNED = "global_prealigned"  # Fourier-Mellin pre-alignment, then the patch fit
-    GLOBAL_ONLY = "global_only"  # patch fit failed even after pre-alignment; global estimate only
-    NONE = "none"  # nothing usable (textureless, garbage)
+__all__ = ["EstimateMethod", "TrackerState", "YawEstimate", "YawTracker", "estimate_pair"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,35 +83,6 @@ class TrackerState:
     yaw_variance_rad2: float = 0.0
 
 
-@dataclass(frozen=True)
-class _Lens:
-    """Where correspondences live: undistorted patch centres, the rotation centre and the lever arm."""
-
-    camera: CameraModel | None
-    centre_px: tuple[float, float]
-    src_px: FloatArray  # (P, 2) patch centres, undistorted
-    lever_px: float
-
-
-def _lens_of(grid: PatchGrid, settings: YawSettings) -> _Lens:
-    height, width = grid.frame_shape
-    camera = settings.camera
-    if camera is None:
-        centre = ((width - 1) / 2.0, (height - 1) / 2.0)
-        src = grid.centres_px
-    else:
-        if camera.shape != grid.frame_shape:
-            if abs(camera.width / width - camera.height / height) > 1e-9:
-                raise InputError(
-                    f"camera is {camera.width}x{camera.height}, frames are {width}x{height} (other aspect)"
-                )
-            camera = camera.scaled(width / camera.width)
-        centre = (camera.cx, camera.cy)
-        src = camera.undistort_px(grid.centres_px)
-    lever = float(np.median(np.hypot(src[:, 0] - centre[0], src[:, 1] - centre[1])))
-    return _Lens(camera, centre, src, lever)
-
-
 def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> float:
     """Vehicle yaw change from the image homography of a downward camera (``rotation_of_homography_rad``).
 
@@ -146,151 +94,6 @@ def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> fl
     return rotation_of_homography_rad(homography, ((width - 1) / 2.0, (height - 1) / 2.0))
 
 
-def _frame_is_flat(frame_u8: U8Array) -> bool:
-    small = frame_u8[::4, ::4]
-    return bool(float(np.std(small)) < _MIN_FRAME_STD)
-
-
-def _fit_measurement(
-    grid: PatchGrid,
-    lens: _Lens,
-    measurement: PatchMeasurement,
-    settings: YawSettings,
-    matrix: FloatArray | None = None,
-) -> ModelFit:
-    """Fit patch centre -> centre + shift (mapped by the pre-alignment ``matrix`` when given: the shift was
-    measured against frame k warped back by it), both undistorted through the lens model first."""
-    valid = measurement.valid
-    index = measurement.indices[valid]
-    dst = grid.centres_px[index] + measurement.shift_px[valid]
-    if matrix is not None:
-        mapped = np.hstack([dst, np.ones((dst.shape[0], 1))]) @ matrix.T
-        dst = mapped[:, :2] / mapped[:, 2:3]
-    src = lens.src_px[index]
-    if lens.camera is not None and dst.size:
-        dst = lens.camera.undistort_px(dst) if np.all(np.isfinite(dst)) else np.full_like(dst, np.nan)
-        keep = np.all(np.isfinite(dst), axis=1)
-        src, dst = src[keep], dst[keep]
-    return fit_correspondences(src, dst, settings)
-
-
-def _fit_is_good(fit: ModelFit, measurement: PatchMeasurement, settings: YawSettings) -> bool:
-    """Enough of the valid (textured, unambiguous) patches agree; low texture lowers the confidence only."""
-    return bool(fit.ok and fit.inlier_count >= settings.min_inlier_fraction * measurement.n_valid)
-
-
-@dataclass(frozen=True, eq=False)
-class _PairResult:
-    homography: FloatArray
-    method: EstimateMethod
-    fit: ModelFit
-    measurement: PatchMeasurement
-    low_confidence: bool
-    delta_rad: float
-    trusted: bool
-
-
-def _result(
-    homography: FloatArray,
-    method: EstimateMethod,
-    fit: ModelFit,
-    measurement: PatchMeasurement,
-    lens: _Lens,
-    settings: YawSettings,
-    prior: Prior,
-    good: bool,
-) -> _PairResult:
-    delta = rotation_of_homography_rad(homography, lens.centre_px) if method is not EstimateMethod.NONE else 0.0
-    low = not good or fit.residual_px > settings.max_residual_px or method in _UNTRUSTED
-    trusted = not low and plausible(delta, prior, settings)
-    return _PairResult(homography, method, fit, measurement, low, delta, trusted)
-
-
-_UNTRUSTED = (EstimateMethod.GLOBAL_ONLY, EstimateMethod.NONE)
-
-
-def _prealigned(
-    previous_frame: U8Array,
-    frame_u8: U8Array,
-    grid: PatchGrid,
-    lens: _Lens,
-    settings: YawSettings,
-    matrix: FloatArray,
-    method: EstimateMethod,
-    previous_spectra: PatchSpectra | None,
-    prior: Prior,
-) -> _PairResult:
-    """Patch stage on frame k warped back by ``matrix`` (frame k-1 px -> frame k px), fitted through it."""
-    aligned = warp_into(frame_u8, matrix, grid.frame_shape)
-    before = (
-        previous_spectra
-        if previous_spectra is not None
-        else patch_spectra(previous_frame, grid, None, settings)
-    )
-    measurement = measure_patches(before, patch_spectra(aligned, grid, before.indices, settings), settings)
-    # After a long gap the residual holds the perspective of the tilt change: fit a homography.
-    model = replace(settings, fit_model=settings.prealigned_fit_model)
-    fit = _fit_measurement(grid, lens, measurement, model, matrix)
-    good = _fit_is_good(fit, measurement, settings)
-    return _result(fit.homography, method, fit, measurement, lens, settings, prior, good)
-
-
-def _rotation_about(centre: tuple[float, float], rotation_rad: float) -> FloatArray:
-    cx, cy = centre
-    c, s = math.cos(rotation_rad), math.sin(rotation_rad)
-    return np.array([[c, -s, cx - c * cx + s * cy], [s, c, cy - s * cx - c * cy], [0.0, 0.0, 1.0]])
-
-
-def _conclude_pair(
-    previous_frame: U8Array,
-    frame_u8: U8Array,
-    measurement: PatchMeasurement,
-    grid: PatchGrid,
-    lens: _Lens,
-    settings: YawSettings,
-    previous_spectra: PatchSpectra | None,
-    prior: Prior,
-    check_global: bool,
-) -> _PairResult:
-    """Raw patch fit; if untrusted, the patches on frame k turned back by an informative prior; if still
-    untrusted and there is no gyro, the global stage's candidates r + k 90 deg, disambiguated by their
-    responses and the prior, each verified by the patch stage. The cost is bounded by the gyro: with it the
-    global stage never runs (the gyro bridges what the patches cannot measure)."""
-    fit = _fit_measurement(grid, lens, measurement, settings)
-    good = _fit_is_good(fit, measurement, settings)
-    patches = _result(fit.homography, EstimateMethod.PATCHES, fit, measurement, lens, settings, prior, good)
-    if patches.trusted and not check_global:
-        return patches
-    if _frame_is_flat(previous_frame) or _frame_is_flat(frame_u8):
-        logger.debug("flat frame: no yaw")
-        return _result(np.eye(3), EstimateMethod.NONE, fit, measurement, lens, settings, prior, False)
-    if prior.informative and not check_global:
-        matrix = _rotation_about(lens.centre_px, prior.delta_rad)
-        turned = _prealigned(
-            previous_frame, frame_u8, grid, lens, settings, matrix,
-            EstimateMethod.PRIOR_PREALIGNED, previous_spectra, prior,
-        )  # fmt: skip
-        if turned.trusted or prior.source is PriorSource.GYRO:
-            return turned
-    alignment = estimate_global_alignment(previous_frame, frame_u8, settings)
-    if patches.trusted and alignment.response < _MIN_GLOBAL_RESPONSE:
-        return patches
-    logger.debug("patch fit %s (%d/%d inliers): global stage", good, fit.inlier_count, measurement.n_valid)
-    candidates = [(rotation, response) for _, rotation, response in alignment.candidates]
-    chosen = choose_rotation(candidates, prior, settings)
-    if chosen is not None and alignment.candidates[chosen][2] >= _MIN_GLOBAL_RESPONSE:
-        prealigned = _prealigned(
-            previous_frame, frame_u8, grid, lens, settings, alignment.candidates[chosen][0],
-            EstimateMethod.GLOBAL_PREALIGNED, previous_spectra, prior,
-        )  # fmt: skip
-        if prealigned.trusted or (not patches.trusted and prealigned.fit.ok):
-            return prealigned
-    if patches.trusted:
-        return patches
-    matrix = alignment.matrix if chosen is None else alignment.candidates[chosen][0]
-    return _result(matrix, EstimateMethod.GLOBAL_ONLY, fit, measurement, lens, settings, prior, False)
-
-
 class YawTracker:
     """Integrates the yaw of a frame stream; explicit state in, state out."""
 
@@ -299,7 +102,7 @@ class YawTracker:
             raise InputError("grid was made with other settings (pyramid level / patch size differ)")
         self.settings = settings
         self.grid = grid
-        self.lens = _lens_of(grid, settings)
+        self.lens = lens_of(grid, settings)
 
     def _check(self, frame_u8: U8Array, name: str) -> U8Array:
         check_frame(frame_u8, name)
@@ -345,14 +148,17 @@ class YawTracker:
         if dt is not None and dt <= 0.0:
             raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
         prior = make_prior(self.settings, dt, gyro_delta_rad, state.rate_rad_s, state.since_measured_s)
-        result = _conclude_pair(
+        result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
             state.previous_spectra, prior, False,
         )  # fmt: skip
         step_s = dt if dt is not None else self.settings.frame_period_s
+        rate: float | None
         if result.trusted:
             provenance, delta = Provenance.MEASURED, result.delta_rad
-            variance = measured_variance_rad2(result.fit.residual_px, result.fit.inlier_count, self.lens.lever_px)
+            variance = measured_variance_rad2(
+                result.fit.residual_px, result.fit.inlier_count, self.lens.lever_px
+            )
             rate, since = delta / step_s, 0.0
         elif prior.source is PriorSource.GYRO:
             provenance, delta, variance = Provenance.BRIDGED, prior.delta_rad, prior.variance_rad2
@@ -403,7 +209,7 @@ def _make_estimate(
     seq: int,
     delta: float,
     yaw: float,
-    result: _PairResult,
+    result: PairResult,
     provenance: Provenance,
     delta_variance: float,
     yaw_variance: float,
@@ -448,10 +254,12 @@ def estimate_pair(
     assert before is not None
     measurement = measure_patches(before, patch_spectra(frame_b, grid, None, settings), settings)
     prior = make_prior(settings, None, gyro_delta_rad, None, 0.0)
-    result = _conclude_pair(frame_a, frame_b, measurement, grid, tracker.lens, settings, before, prior, True)
+    result = conclude_pair(frame_a, frame_b, measurement, grid, tracker.lens, settings, before, prior, True)
     if result.trusted:
         provenance, delta = Provenance.MEASURED, result.delta_rad
-        variance = measured_variance_rad2(result.fit.residual_px, result.fit.inlier_count, tracker.lens.lever_px)
+        variance = measured_variance_rad2(
+            result.fit.residual_px, result.fit.inlier_count, tracker.lens.lever_px
+        )
     else:
         provenance = Provenance.BRIDGED if prior.source is PriorSource.GYRO else Provenance.HELD
         delta, variance = prior.delta_rad, prior.variance_rad2

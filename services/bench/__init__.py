@@ -42,7 +42,10 @@ def register(subparsers: Any) -> None:
 def _runner(module: ModuleType) -> Any:
     def handler(args: argparse.Namespace) -> int:
         result = module.run(args)
-        path = write_json(args.out / f"{module.NAME}.json", result)
+        # a suite may name its own file and payload (e.g. ``bench yaw --suite field`` -> yaw_field.json)
+        name = result.pop("json_name", module.NAME)
+        payload = result.pop("json", result)
+        path = write_json(args.out / f"{name}.json", payload)
         print_table(result.get("table", []), title=f"bench {module.NAME}")
         print(f"wrote {path}")
         return 0
