@@ -12,6 +12,7 @@ from common.errors import InputError
 from common.sim.flight import hover_flight
 from common.yaw import (
     EstimateMethod,
+    Provenance,
     YawSettings,
     YawTracker,
     estimate_pair,
@@ -76,7 +77,8 @@ def test_hover_yaw_follows_the_simulator_truth(hover_frames: tuple[list[np.ndarr
     deltas = []
     for frame in frames[1:]:
         state, estimate = tracker.track(state, frame)
-        assert estimate.method is EstimateMethod.PATCHES and not estimate.low_confidence
+        assert estimate.method in (EstimateMethod.PATCHES, EstimateMethod.REFINED)
+        assert estimate.provenance is Provenance.MEASURED and not estimate.low_confidence
         estimated.append(estimate.yaw_rad)
         deltas.append(estimate.delta_yaw_rad)
     true_delta = np.diff(true_yaw)
