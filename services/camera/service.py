@@ -26,12 +26,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.camera import CameraModel
+from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
 from common.localization.model import default_scene
 from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from services.runtime.transport import (
@@ -48,7 +50,10 @@ class CameraSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     uavs: tuple[str, ...] = ("uav0",)
-    flight: Literal["hover", "turns", "office"] = "hover"
+    flight: Literal[
+        "hover", "turns", "office",
+        "checkerboard", "tiles", "wide_angle", "low_altitude", "blur_exposure", "fast_yaw", "field",
+    ] = "hover"  # fmt: skip
     frames: int = Field(default=2041, ge=2)
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
@@ -76,6 +81,8 @@ def simulated_flight(settings: CameraSettings) -> Flight:
     )
     if settings.flight == "turns":
         return turns_flight(seed=settings.seed, camera=camera)
+    if settings.flight in FIELD_SCENARIOS:
+        return field_flight(settings.flight, seed=settings.seed, n_frames=settings.frames, camera=camera)
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
 
 
@@ -330,9 +337,11 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
     parser.add_argument(
         "--flight",
-        choices=["hover", "turns", "office"],
+        choices=["hover", "turns", "office", *FIELD_SCENARIOS],
         default="hover",
-        help="simulated flight: paper A's hover, paper C's turns (ground camera), or the localizer's office",
+        help="simulated flight: paper A's hover, paper C's turns (ground camera), the localizer's office, "
+        "or a field scenario (checkerboard or tiled floor, distorted wide-angle lens, low altitude, blur; "
+        "'field' combines them; 320x240; --write-calibration gives the master its lens)",
     )
     parser.add_argument(
         "--frames", type=int, default=2041, help="frames of the hover or office flight (default 2041)"
@@ -350,6 +359,12 @@ def register(subparsers: Any) -> None:
         "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
     )
     parser.add_argument("--wait-master", type=float, default=10.0, help="seconds to wait for a master")
+    parser.add_argument(
+        "--write-calibration",
+        type=Path,
+        help="write the simulated flight's camera as an OpenCV YAML calibration (for the master's "
+        "--calibration) and exit",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -379,6 +394,14 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.write_calibration is not None:
+        settings = camera_settings_from_args(args)
+        if settings.images is not None or settings.flight == "office":
+            raise CapatazError("--write-calibration needs a simulated ground flight (not --images or office)")
+        camera = simulated_flight(settings.model_copy(update={"frames": 2})).camera
+        args.write_calibration.write_text(opencv_yaml_text(camera))
+        print(f"wrote {args.write_calibration}")
+        return 0
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()
