@@ -9,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common import keys
 from common.datasets.calibration import opencv_yaml_text
+from common.messages import Stats, decode
 from common.provenance import Provenance
 from common.sim.field import field_flight
 from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
-from services.runtime.transport import open_session
+from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster, YawCollector
 from tests.integration.cluster_helpers import two_by_two
 
@@ -48,6 +50,11 @@ def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_a
         cluster.start()
         cluster.wait_alive(cluster.expected_members())
         with open_session(cluster.observer_transport()) as session:
+            stats: list[Stats] = []
+            master_stats = session.declare_subscriber(
+                keys.stats_key("master", "master", 0),
+                lambda s: stats.append(decode(zbytes(s.payload), zbytes(s.attachment), Stats)),
+            )
             collector = YawCollector(session, "uav0")
             cluster.start_camera(
                 ["--flight", "field", "--frames", str(FRAMES), "--fps", "0", "--in-flight", "1"]
@@ -57,7 +64,14 @@ def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_a
                 collector.wait_for(FRAMES, 1.0)
             estimates = dict(collector.estimates)
             collector.close()
+            deadline = time.monotonic() + 5.0  # the next stats message counts every frame
+            while time.monotonic() < deadline and not (
+                stats and stats[-1].counters.get("gyro_prior", 0) >= FRAMES - 1
+            ):
+                time.sleep(0.05)
+            master_stats.undeclare()
         cluster.stop()
+    assert stats and stats[-1].counters.get("gyro_prior", 0) == FRAMES - 1  # every pair had the gyro prior
     assert sorted(estimates) == list(range(FRAMES))
     yaw = np.array([estimates[k].yaw_rad for k in range(FRAMES)])
     assert np.degrees(np.abs(yaw - expected_yaw)).max() <= 1e-9
