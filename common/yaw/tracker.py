@@ -12,9 +12,10 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-import numpy.typing as npt
 
 from common.errors import InputError
+from common.images import check_grey_image
+from common.types import FloatArray
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -23,14 +24,13 @@ from common.yaw.correlation import (
     patch_spectra,
 )
 from common.yaw.fit import rotation_of_homography_rad
-from common.yaw.grid import PatchGrid, U8Array, check_frame, make_patch_grid
+from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
 from common.yaw.honest import PriorSource, Provenance, make_prior, measured_variance_rad2
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, PairResult, conclude_pair, lens_of
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 __all__ = ["EstimateMethod", "TrackerState", "YawEstimate", "YawTracker", "estimate_pair"]
 
@@ -105,7 +105,7 @@ class YawTracker:
         self.lens = lens_of(grid, settings)
 
     def _check(self, frame_u8: U8Array, name: str) -> U8Array:
-        check_frame(frame_u8, name)
+        check_grey_image(frame_u8, name)
         if frame_u8.shape != self.grid.frame_shape:
             raise InputError(f"{name} must have shape {self.grid.frame_shape}, got {frame_u8.shape}")
         return frame_u8
@@ -241,8 +241,8 @@ def estimate_pair(
     """Yaw of one pair a -> b (any rotation): patch fit, checked against and if needed pre-aligned by
     the global Fourier-Mellin estimate; ``gyro_delta_rad`` disambiguates look-alike rotations. Without a
     trusted measurement the delta is the prior's (0 without a gyro) and the estimate is not MEASURED."""
-    check_frame(frame_a, "frame_a")
-    check_frame(frame_b, "frame_b")
+    check_grey_image(frame_a, "frame_a")
+    check_grey_image(frame_b, "frame_b")
     if frame_a.shape != frame_b.shape:
         raise InputError(
             f"frame_a and frame_b must have the same shape, got {frame_a.shape} and {frame_b.shape}"

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -25,17 +25,17 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel
-from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
-from common.localization.model import default_scene
-from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
-from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
-from common.sim.field import FIELD_SCENARIOS, field_flight
-from common.sim.flight import Flight, hover_flight, turns_flight
-from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from common.sim.flight import Flight
+from services.camera.flights import (
+    FlightName,
+    office_frames,
+    office_odometry_poses,
+    simulated_flight,
+    write_flight_calibration,
+)
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -43,17 +43,12 @@ from services.runtime.transport import (
     transport_from_args,
 )
 
-DEFAULT_HFOV_DEG = 90.0
-
 
 class CameraSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     uavs: tuple[str, ...] = ("uav0",)
-    flight: Literal[
-        "hover", "turns", "office",
-        "checkerboard", "tiles", "wide_angle", "low_altitude", "blur_exposure", "fast_yaw", "field",
-    ] = "hover"  # fmt: skip
+    flight: FlightName = FlightName.HOVER
     frames: int = Field(default=2041, ge=2)
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
@@ -70,45 +65,6 @@ class CameraSettings(BaseModel):
     wait_master_s: float = Field(default=10.0, ge=0.0)
     #: give up waiting for a yaw after this long (flow control only)
     yaw_timeout_s: float = Field(default=5.0, gt=0.0)
-
-
-def simulated_flight(settings: CameraSettings) -> Flight:
-    """The ground flight the camera replays (the in-process reference builds the same one)."""
-    camera = (
-        None
-        if settings.width is None or settings.height is None
-        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
-    )
-    if settings.flight == "turns":
-        return turns_flight(seed=settings.seed, camera=camera)
-    if settings.flight in FIELD_SCENARIOS:
-        return field_flight(settings.flight, seed=settings.seed, n_frames=settings.frames, camera=camera)
-    return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
-
-
-def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
-    """The localizer's default flight through the built-in office: the same frames as
-    ``common.localization.simulation.simulate_run(settings.frames, settings.seed)``."""
-    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
-    flight = default_flight(n_frames=settings.frames)
-    rng = np.random.default_rng(settings.seed)
-    images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
-    for i, image in enumerate(images):
-        yield i, float(flight.times_s[i]), image
-
-
-def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stamps (T,), positions (T, 3) and Euler angles (T, 3) whose frame-to-frame differences are the office
-    flight's noisy odometry (the localizer's in-process stand-in for VO), starting at the true first pose."""
-    flight = default_flight(n_frames=settings.frames)
-    odometry = noisy_odometry(
-        flight.velocities_world_m_s, flight.euler_rates_rad_s, np.random.default_rng(settings.seed + 1)
-    )
-    dt_s = np.diff(flight.times_s, prepend=flight.times_s[0])[:, None]
-    start = flight.states[0]
-    positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
-    angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
-    return flight.times_s, positions, angles
 
 
 def _image_files(folder: Path) -> list[Path]:
@@ -134,7 +90,7 @@ class CameraService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.flight: Flight | None = (
-            None if settings.images or settings.flight == "office" else simulated_flight(settings)
+            None if settings.images or settings.flight is FlightName.OFFICE else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
@@ -143,7 +99,9 @@ class CameraService(ServiceRuntime):
         self._masters = threading.Event()
         self._preloaded: list[np.ndarray] | None = None
         self._odometry = (
-            office_odometry_poses(settings) if settings.flight == "office" and not settings.images else None
+            office_odometry_poses(settings)
+            if settings.flight is FlightName.OFFICE and not settings.images
+            else None
         )
         if settings.images is not None and settings.preload:
             self._preloaded = list(self._images())
@@ -337,8 +295,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
     parser.add_argument(
         "--flight",
-        choices=["hover", "turns", "office", *FIELD_SCENARIOS],
-        default="hover",
+        choices=[f.value for f in FlightName],
+        default=FlightName.HOVER.value,
         help="simulated flight: paper A's hover, paper C's turns (ground camera), the localizer's office, "
         "or a field scenario (checkerboard or tiled floor, distorted wide-angle lens, low altitude, blur; "
         "'field' combines them; 320x240; --write-calibration gives the master its lens)",
@@ -395,13 +353,7 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 
 def run(args: argparse.Namespace) -> int:
     if args.write_calibration is not None:
-        settings = camera_settings_from_args(args)
-        if settings.images is not None or settings.flight == "office":
-            raise CapatazError("--write-calibration needs a simulated ground flight (not --images or office)")
-        camera = simulated_flight(settings.model_copy(update={"frames": 2})).camera
-        args.write_calibration.write_text(opencv_yaml_text(camera))
-        print(f"wrote {args.write_calibration}")
-        return 0
+        return write_flight_calibration(args.write_calibration, camera_settings_from_args(args))
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()
