@@ -49,10 +49,9 @@ from common.sim.trajectory import (
     TanhSteps,
     Trajectory,
 )
+from common.types import Float32Array, FloatArray, U8Array
 
-FloatArray = npt.NDArray[np.float64]
-Float32Array = npt.NDArray[np.float32]
-ImageU8 = npt.NDArray[np.uint8]
+ImageU8 = U8Array
 
 #: Stream labels mixed into the seed (floors, trajectory shape, exposure steps).
 FLOOR_STREAM = 0xF10
@@ -100,6 +99,12 @@ def _soften(image: Float32Array, sigma_texels: float = 0.7) -> Float32Array:
     return np.asarray(cv2.GaussianBlur(padded, (0, 0), sigma_texels)[pad:-pad, pad:-pad], dtype=np.float32)
 
 
+def _printed(pattern: Float32Array, seed: int, texel_m: float, grain_dn: float) -> GroundTexture:
+    """A pattern as printed on a floor: edges softened to the texel, a faint grain, 8-bit grey."""
+    image = np.clip(np.rint(_soften(pattern) + _grain(seed, texel_m, grain_dn)), 0, 255).astype(np.uint8)
+    return ground_texture_from_image(image, texel_m)
+
+
 def checkerboard_texture(
     seed: int = 0,
     square_m: float = 0.10,
@@ -112,10 +117,7 @@ def checkerboard_texture(
     n = round(square_m / texel)
     idx = np.arange(FLOOR_SIZE_PX) // n
     board = np.where((idx[:, None] + idx[None, :]) % 2 == 0, dark_dn, light_dn).astype(np.float32)
-    # a touch of edge softness (printing) so edges are not sharper than the texel
-    board = _soften(board)
-    image = np.clip(np.rint(board + _grain(seed, texel, grain_dn)), 0, 255).astype(np.uint8)
-    return ground_texture_from_image(image, texel)
+    return _printed(board, seed, texel, grain_dn)
 
 
 def tiled_texture(
@@ -140,9 +142,7 @@ def tiled_texture(
     line = pos < grout
     image[line, :] = grout_dn
     image[:, line] = grout_dn
-    image = _soften(image)
-    out = np.clip(np.rint(image + _grain(seed, texel, grain_dn)), 0, 255).astype(np.uint8)
-    return ground_texture_from_image(out, texel)
+    return _printed(image, seed, texel, grain_dn)
 
 
 # ---------------------------------------------------------------------------------------------------- lens

@@ -26,8 +26,6 @@ from common.errors import InputError
 from common.provenance import Provenance
 from common.yaw.settings import YawSettings
 
-FloatArray = npt.NDArray[np.float64]
-
 __all__ = ["Prior", "PriorSource", "Provenance", "gyro_delta_yaw_rad", "make_prior"]
 
 #: The held rate's tolerance never drops below this (deg): measurement noise and rate estimation noise.

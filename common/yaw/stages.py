@@ -9,10 +9,10 @@ from dataclasses import dataclass, replace
 from enum import Enum
 
 import numpy as np
-import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.errors import InputError
+from common.types import FloatArray
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -28,7 +28,6 @@ from common.yaw.settings import FitModel, YawSettings
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 #: A frame whose grey-level std (0..255) is below this has nothing to correlate (black, saturated).
 _MIN_FRAME_STD = 2.0

@@ -25,12 +25,12 @@ import numpy.typing as npt
 from common.metrics import accumulated_mean_error, yaw_error_rad
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight
+from common.types import FloatArray
 from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
 from common.yaw.reference import reference_pair, reference_settings
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 BLOCK_FRAMES = 32
 AME_WINDOW = 100
 
