@@ -201,8 +201,6 @@ class MasterService(ServiceRuntime):
             stream is None
             or stream.grid.frame_shape != (frame.height, frame.width)
             or frame.seq <= stream.prev_seq
-            or stream.state.stamp_s is None
-            or frame.stamp_s <= stream.state.stamp_s
         ):
             stream = self.stream = self._new_stream(frame)
             self.scatter = Scatter(
@@ -270,10 +268,13 @@ class MasterService(ServiceRuntime):
             measurement = compute_self(grid.all_indices, grid.all_indices)
             report = None
         t_round = time.perf_counter()
-        gyro = self.gyro.delta_rad(stream.state.stamp_s, frame.stamp_s)
-        stream.state, core = stream.tracker.conclude(
-            stream.state, frame.pixels, measurement, frame.stamp_s, gyro
-        )
+        # a stamp that does not increase (a bad stamp file) leaves this pair untimed: no rate limit, no gyro
+        previous_s = stream.state.stamp_s
+        stamp: float | None = frame.stamp_s if previous_s is None or frame.stamp_s > previous_s else None
+        if stamp is None:
+            self.counters.inc("stamps_not_increasing")
+        gyro = self.gyro.delta_rad(previous_s, stamp) if stamp is not None else None
+        stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement, stamp, gyro)
         stream.prev_level, stream.prev_seq = level, frame.seq
         self._last_seq = frame.seq
         t_end = time.perf_counter()
