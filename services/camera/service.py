@@ -36,6 +36,7 @@ from services.camera.flights import (
     simulated_flight,
     write_flight_calibration,
 )
+from services.camera.images import image_files
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -65,15 +66,6 @@ class CameraSettings(BaseModel):
     wait_master_s: float = Field(default=10.0, ge=0.0)
     #: give up waiting for a yaw after this long (flow control only)
     yaw_timeout_s: float = Field(default=5.0, gt=0.0)
-
-
-def _image_files(folder: Path) -> list[Path]:
-    files = sorted(
-        p for p in folder.iterdir() if p.suffix.lower() in {".png", ".jpg", ".jpeg", ".pgm", ".bmp"}
-    )
-    if not files:
-        raise CapatazError(f"no images in {folder}")
-    return files
 
 
 class CameraService(ServiceRuntime):
@@ -161,7 +153,7 @@ class CameraService(ServiceRuntime):
             yield from self._preloaded
             return
         assert self.settings.images is not None
-        for path in _image_files(self.settings.images):
+        for path in image_files(self.settings.images):
             image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
             if image is None:
                 self.count_error("bad_images", "cannot read image", str(path))
@@ -354,6 +346,8 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 def run(args: argparse.Namespace) -> int:
     if args.write_calibration is not None:
         return write_flight_calibration(args.write_calibration, camera_settings_from_args(args))
+    if args.images is not None:
+        image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()
