@@ -15,8 +15,9 @@ from common.messages import Stats, decode
 from common.provenance import Provenance
 from common.sim.field import field_flight
 from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
+from services.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
-from services.up import LocalCluster, YawCollector
+from services.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
