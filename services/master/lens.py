@@ -109,9 +109,9 @@ def add_yaw_prior_arguments(parser: argparse.ArgumentParser) -> None:
         "--calibration", type=Path, help="OpenCV YAML or ROS camera_info YAML calibration file"
     )
     group.add_argument("--fx", type=float, help="focal length x (px); --fy defaults to it")
-    group.add_argument("--fy", type=float)
+    group.add_argument("--fy", type=float, help="focal length y (px); default --fx")
     group.add_argument("--cx", type=float, help="principal point x (px); default the frame centre")
-    group.add_argument("--cy", type=float)
+    group.add_argument("--cy", type=float, help="principal point y (px); default the frame centre")
     group.add_argument(
         "--distortion", choices=[m.value for m in LensModel], default="none", help="lens distortion model"
     )
