@@ -26,6 +26,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from common.errors import CapatazError
+from common.provenance import Provenance
 
 #: Bump when a field changes meaning; decoders reject other versions.
 SCHEMA_VERSION = 1
@@ -183,6 +184,13 @@ class YawEstimate(WireModel):
     dropped_frames: int = Field(ge=0, default=0)
     #: shares re-dispatched in this frame because a member failed.
     redispatched: int = Field(ge=0, default=0)
+    #: how ``delta_yaw_rad`` was obtained: measured by the camera, bridged by the gyro, or the held rate.
+    provenance: Provenance = Provenance.MEASURED
+    #: variance of ``yaw_rad`` (rad^2) and of this frame's ``delta_yaw_rad``; grows fastest while bridging.
+    yaw_variance_rad2: float = Field(ge=0.0, default=0.0)
+    delta_variance_rad2: float = Field(ge=0.0, default=0.0)
+    #: the camera's own delta when it measured one (also when not trusted), else None.
+    measured_delta_rad: float | None = None
 
 
 class AttitudeEstimate(WireModel):

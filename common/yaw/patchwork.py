@@ -28,10 +28,16 @@ class PatchWorkError(CapatazError):
     """A job cannot be computed (missing previous spectra, inconsistent settings or crops)."""
 
 
+#: Settings only the central stage uses (the lens model): never sent to members.
+LOCAL_SETTINGS = frozenset({"camera"})
+
+
 def settings_to_wire(settings: YawSettings) -> dict[str, Any]:
-    """Yaw settings as a flat msgpack-able dict (enums by value)."""
+    """Yaw settings as a flat msgpack-able dict (enums by value), without :data:`LOCAL_SETTINGS`."""
     out: dict[str, Any] = {}
     for f in dataclasses.fields(settings):
+        if f.name in LOCAL_SETTINGS:
+            continue
         value = getattr(settings, f.name)
         out[f.name] = value.value if isinstance(value, enum.Enum) else value
     return out
@@ -40,7 +46,7 @@ def settings_to_wire(settings: YawSettings) -> dict[str, Any]:
 def settings_from_wire(values: dict[str, Any]) -> YawSettings:
     """Inverse of :func:`settings_to_wire`; unknown or invalid fields raise :class:`PatchWorkError`."""
     defaults = YawSettings()
-    known = {f.name for f in dataclasses.fields(YawSettings)}
+    known = {f.name for f in dataclasses.fields(YawSettings)} - LOCAL_SETTINGS
     unknown = set(values) - known
     if unknown:
         raise PatchWorkError(f"unknown yaw settings {sorted(unknown)}")

@@ -23,9 +23,12 @@ from common import keys
 from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
+from common.provenance import Provenance
 from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
+from services.master.gyro import GyroPrior
+from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments
 from services.runtime.transport import (
@@ -57,6 +60,8 @@ class MasterSettings(BaseModel):
     grid_rows: int = 5
     patch_size_px: int = 32
     pyramid_level: int = 1
+    #: lens model, gyro prior and physical yaw-rate limit of the central stage
+    prior: YawPriorSettings = YawPriorSettings()
 
     def yaw_settings(self) -> YawSettings:
         return YawSettings(
@@ -110,6 +115,7 @@ class MasterService(ServiceRuntime):
         self._last_seq = -1
         self.gaps = 0
         self._last_shares: dict[str, float] = {}
+        self.gyro = GyroPrior(settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters)
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -119,6 +125,8 @@ class MasterService(ServiceRuntime):
             session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_alive, history=True)
         )
         self._entities.append(session.declare_subscriber(keys.camera_key(self.settings.uav), self._on_frame))
+        if self.gyro.enabled:
+            self._entities.append(session.declare_subscriber(keys.imu_key(self.settings.uav), self._on_imu))
         self.spawn(self._serve, "frames")
 
     @property
@@ -138,6 +146,9 @@ class MasterService(ServiceRuntime):
         self.counters.inc("frames_in")
         if self.slot.put(frame):
             self.counters.inc("frames_dropped")
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type))
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
         self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
@@ -172,8 +183,10 @@ class MasterService(ServiceRuntime):
 
     def _new_stream(self, frame: Frame) -> _Stream:
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
-        tracker = YawTracker(self.yaw_settings, grid)
-        state = tracker.initial_state(frame.pixels, with_spectra=False)
+        tracker = YawTracker(
+            self.settings.prior.tracker_settings(self.yaw_settings, frame.width, frame.height), grid
+        )
+        state = tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s)
         dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
         return _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher)
 
@@ -205,6 +218,7 @@ class MasterService(ServiceRuntime):
                 confidence=0.0,
                 low_confidence=True,
                 method="initial",
+                provenance=Provenance.INITIAL,
                 timings_ms={"total": (time.perf_counter() - t0) * 1e3},
                 dropped_frames=self.slot.dropped + self.gaps,
             )
@@ -254,7 +268,13 @@ class MasterService(ServiceRuntime):
             measurement = compute_self(grid.all_indices, grid.all_indices)
             report = None
         t_round = time.perf_counter()
-        stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement)
+        # a stamp that does not increase (a bad stamp file) leaves this pair untimed: no rate limit, no gyro
+        previous_s = stream.state.stamp_s
+        stamp: float | None = frame.stamp_s if previous_s is None or frame.stamp_s > previous_s else None
+        if stamp is None:
+            self.counters.inc("stamps_not_increasing")
+        gyro = self.gyro.delta_rad(previous_s, stamp) if stamp is not None else None
+        stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement, stamp, gyro)
         stream.prev_level, stream.prev_seq = level, frame.seq
         self._last_seq = frame.seq
         t_end = time.perf_counter()
@@ -284,6 +304,10 @@ class MasterService(ServiceRuntime):
             speeds_patches_s=dict(report.speeds) if report else {},
             dropped_frames=self.slot.dropped + self.gaps,
             redispatched=report.redispatched if report else 0,
+            provenance=core.provenance,
+            yaw_variance_rad2=core.yaw_variance_rad2,
+            delta_variance_rad2=core.delta_variance_rad2,
+            measured_delta_rad=core.measured_delta_rad if np.isfinite(core.measured_delta_rad) else None,
         )
 
 
@@ -301,6 +325,7 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
     parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
     parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
+    add_yaw_prior_arguments(parser)
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
@@ -320,6 +345,7 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
         grid_rows=rows,
         patch_size_px=args.patch_size,
         pyramid_level=args.pyramid_level,
+        prior=yaw_prior_settings_from_args(args),
     )
 
 
