@@ -32,6 +32,7 @@ lint: $(STAMP)
 
 typecheck: $(STAMP)
 	$(BIN)/mypy common services
+	$(BIN)/mypy --strict common
 
 clean:
 	rm -rf out .pytest_cache .mypy_cache .ruff_cache

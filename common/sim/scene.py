@@ -168,7 +168,7 @@ def render_scene(
         if rng is None:
             raise InputError("render_scene needs an rng when noise_sigma > 0")
         image = image + rng.normal(0.0, options.noise_sigma, size=image.shape)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return np.asarray(np.clip(np.rint(image), 0, 255), dtype=np.uint8)
 
 
 #: Degradations of the embedded default flight's frames.

@@ -15,7 +15,7 @@ import numpy as np
 
 from common.errors import InputError
 from common.images import check_grey_image
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -25,7 +25,7 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
 from common.yaw.global_align import GlobalAlignment, estimate_global_alignment, warp_into
-from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
+from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.settings import YawSettings
 
 logger = logging.getLogger(__name__)
