@@ -37,3 +37,14 @@ def _real_sessions_need_the_zenoh_marker(
         raise AssertionError(f"{request.node.nodeid} opens a real Zenoh session: mark it pytest.mark.zenoh")
 
     monkeypatch.setattr(zenoh, "open", refuse)
+
+
+#: hang guard of tests marked ``slow`` (whole flights: a 2041-frame hover took 275 s on a loaded 2-core host,
+#: close to the 300 s every other test gets); a guard against hangs, not a speed claim
+SLOW_TEST_TIMEOUT_S = 1800
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("slow") is not None and item.get_closest_marker("timeout") is None:
+            item.add_marker(pytest.mark.timeout(SLOW_TEST_TIMEOUT_S))
