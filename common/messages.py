@@ -77,7 +77,7 @@ class ArraySpec:
             raise ValueError(f"{name}: expected shape {pattern}, got {value.shape}")
         if self._check_finite and value.size and not np.isfinite(value).all():  # type: ignore[attr-defined]
             raise ValueError(f"{name}: contains NaN or inf")
-        return value
+        return np.asarray(value)  # the array itself (typed)
 
 
 class WireModel(BaseModel):

@@ -392,7 +392,8 @@ class FieldFlight(Flight):
             image = sum((self._view(t + float(o)) for o in offsets), np.zeros(self.camera.shape, np.float32))
             image = image / np.float32(k)
         gain = self.exposure.gain(t, self.seed, float(self.frame_stamps_s[-1]))
-        return np.clip(np.rint(image * np.float32(gain)), 0, 255).astype(np.uint8)
+        frame: U8Array = np.clip(np.rint(image * np.float32(gain)), 0, 255).astype(np.uint8)
+        return frame
 
 
 # ------------------------------------------------------------------------------------------------ scenarios

@@ -14,8 +14,7 @@ import cv2
 import numpy as np
 
 from common.images import check_grey_image
-from common.types import Float32Array, FloatArray
-from common.yaw.grid import U8Array
+from common.types import Float32Array, FloatArray, U8Array
 from common.yaw.settings import YawSettings
 
 

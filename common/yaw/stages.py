@@ -12,7 +12,7 @@ import numpy as np
 
 from common.camera import CameraModel
 from common.errors import InputError
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -22,7 +22,7 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
 from common.yaw.global_align import estimate_global_alignment, warp_into
-from common.yaw.grid import PatchGrid, U8Array, pyramid_image
+from common.yaw.grid import PatchGrid, pyramid_image
 from common.yaw.honest import Prior, PriorSource, choose_rotation, plausible
 from common.yaw.settings import FitModel, YawSettings
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from common.errors import InputError
 from common.images import check_grey_image
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -24,7 +24,7 @@ from common.yaw.correlation import (
     patch_spectra,
 )
 from common.yaw.fit import rotation_of_homography_rad
-from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
+from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.honest import PriorSource, Provenance, make_prior, measured_variance_rad2
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, PairResult, conclude_pair, lens_of
