@@ -9,7 +9,8 @@ one also holds the leader token (``.../leader/{node}/{i}``). The rule (:func:`sh
 - of two leaders (a healed partition), the one later by name yields.
 
 A killed leader's tokens vanish within milliseconds, a frozen one's within the link lease, and the standby
-takes over at its next loop turn. Liveliness callbacks only record tokens; :meth:`Election.update` declares
+takes over at its next loop turn. A new master decides nothing for ``settle_s`` after it starts, while the
+tokens alive already reach it. Liveliness callbacks only record tokens; :meth:`Election.update` declares
 or undeclares the leader token from the master's own thread.
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Any
 
 import zenoh
@@ -40,7 +42,9 @@ def should_lead(me: str, leading: bool, candidates: set[str], leaders: set[str])
 class Election:
     """One master's side of the election for ``uav`` on a zenoh session."""
 
-    def __init__(self, session: zenoh.Session, uav: str, node: str, index: int) -> None:
+    def __init__(
+        self, session: zenoh.Session, uav: str, node: str, index: int, settle_s: float = 1.0
+    ) -> None:
         self.session = session
         self.uav = uav
         self.me = f"{node}/{index}"
@@ -55,11 +59,11 @@ class Election:
         self._closed = False
         prefix = keys.election_all(uav).removesuffix("**")
         self._prefix = prefix
-        # the tokens alive now, before the first decision (a fresh master must not lead next to a leader)
-        for reply in session.liveliness().get(keys.election_all(uav), timeout=1.0):
-            if reply.ok is not None:
-                self._record(str(reply.ok.key_expr), True)
-        self._subscriber = session.liveliness().declare_subscriber(keys.election_all(uav), self._on_token)
+        # the tokens alive now arrive as history once the session is connected: no decision before settle_s
+        self._settled_at = time.monotonic() + settle_s
+        self._subscriber = session.liveliness().declare_subscriber(
+            keys.election_all(uav), self._on_token, history=True
+        )
         self._candidate = session.liveliness().declare_token(keys.master_candidate_key(uav, node, index))
 
     def _record(self, key: str, alive: bool) -> None:
@@ -80,7 +84,7 @@ class Election:
     def update(self) -> bool:
         """Apply the rule; returns True exactly when this call made this master the leader."""
         with self._lock:
-            if self._closed:
+            if self._closed or time.monotonic() < self._settled_at:
                 return False
             lead = should_lead(self.me, self.leading, set(self._candidates), set(self._leaders))
         if lead and not self.leading:
