@@ -13,6 +13,8 @@ Two gates, both state in, decision out:
   the wall clock itself when the stream runs on wall-clock time. The same confirmation rule adopts a real
   clock jump. No single sample can move the guard, so no single sample can freeze a filter behind it.
 
+:class:`StreamTable` bounds per-stream state (foremen, workers) by count and age.
+
 Clocks in names: ``now_s`` is a monotonic reading of the receiver, ``wall_s`` its ``time.time()``.
 """
 
@@ -20,7 +22,10 @@ from __future__ import annotations
 
 import enum
 import math
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Generic, TypeVar
 
 from common.errors import InputError
 
@@ -261,3 +266,51 @@ def check_stamp(
     return replace(state, candidate_stamp_s=stamp_s, candidate_now_s=now_s, candidate_count=count), Decision(
         Verdict.REFUSE, "future_stamp", detail
     )
+
+
+V = TypeVar("V")
+
+
+class StreamTable(Generic[V]):
+    """Per-stream state bounded by count and age: the least recently used stream beyond ``max_streams``, and
+    every stream unused for ``max_age_s``, is evicted (so thousands of stream names cost bounded memory)."""
+
+    def __init__(self, max_streams: int, max_age_s: float) -> None:
+        if max_streams < 1 or not (math.isfinite(max_age_s) and max_age_s > 0):
+            raise InputError(f"max_streams must be >= 1 and max_age_s > 0, got {max_streams}, {max_age_s}")
+        self.max_streams = max_streams
+        self.max_age_s = max_age_s
+        self._items: OrderedDict[str, tuple[float, V]] = OrderedDict()
+        self.evicted = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __contains__(self, stream: object) -> bool:
+        return stream in self._items
+
+    def values(self) -> list[V]:
+        return [value for _, value in self._items.values()]
+
+    def get(self, stream: str, now_s: float, create: Callable[[], V]) -> V:
+        """The state of ``stream`` (created when absent), marked as used at ``now_s``."""
+        item = self._items.pop(stream, None)
+        value = create() if item is None else item[1]
+        self._items[stream] = (now_s, value)
+        self._evict(now_s)
+        return value
+
+    def peek(self, stream: str) -> V | None:
+        item = self._items.get(stream)
+        return None if item is None else item[1]
+
+    def _evict(self, now_s: float) -> None:
+        while len(self._items) > self.max_streams:
+            self._items.popitem(last=False)
+            self.evicted += 1
+        while self._items:
+            oldest = next(iter(self._items.values()))[0]
+            if now_s - oldest <= self.max_age_s:
+                break
+            self._items.popitem(last=False)
+            self.evicted += 1
