@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common import keys
 from common.camera import CameraModel as LensCamera
 from common.errors import InputError
+from common.estimation.buffer import Refusal
 from common.estimation.coupling import (
     AttitudeOutput,
     CameraModel,
@@ -42,8 +43,10 @@ from common.estimation.coupling import (
     check_range,
     check_yaw,
 )
-from common.estimation.ekf import EkfSettings, error_angle_covariance_world
+from common.estimation.ekf import EkfSettings
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from services.estimator.outputs import attitude_message, pose_message
+from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
     LatestSlot,
     ServiceRuntime,
@@ -54,6 +57,10 @@ from services.runtime.transport import (
 )
 
 SENSOR_QUEUE = 4096
+#: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
+RESET_AFTER_STALE = 400
+#: seconds without an output, while inputs arrive, after which health reports degraded
+OUTPUT_SILENCE_S = 2.0
 
 
 class EstimatorSettings(BaseModel):
@@ -95,36 +102,6 @@ def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
     return DoubleCouplingEstimator(settings.camera(), EkfSettings(), settings=settings.coupling())
 
 
-def attitude_message(uav: str, seq: int, out: AttitudeOutput, covariance_q: np.ndarray) -> AttitudeEstimate:
-    """The ``attitude`` message of one EKF output."""
-    return AttitudeEstimate(
-        uav=uav,
-        seq=seq,
-        stamp_s=out.stamp_s,
-        q_world_body=out.q_world_body.copy(),
-        covariance=error_angle_covariance_world(out.q_world_body, covariance_q),
-    )
-
-
-def pose_message(
-    uav: str, seq: int, out: PoseOutput, covariance_q: np.ndarray, var_z: float, var_xy: float
-) -> PoseEstimate:
-    """The ``pose/vo`` message of one frame."""
-    cov = np.zeros((6, 6))
-    cov[0, 0] = cov[1, 1] = var_xy
-    cov[2, 2] = var_z
-    cov[3:, 3:] = error_angle_covariance_world(out.q_world_body, covariance_q)
-    return PoseEstimate(
-        uav=uav,
-        seq=seq,
-        stamp_s=out.stamp_s,
-        p_world_body_m=out.p_world_body_m.copy(),
-        q_world_body=out.q_world_body.copy(),
-        covariance=cov,
-        source="vo",
-    )
-
-
 class EstimatorService(ServiceRuntime):
     role = keys.Role.ESTIMATOR
 
@@ -148,6 +125,12 @@ class EstimatorService(ServiceRuntime):
         self._pose_seq = 0
         self._travelled_m = 0.0
         self._last_xy: np.ndarray | None = None
+        self.stamps = InputStamps()
+        self._stale_run = 0
+        self._covariance_q = np.eye(4) * 1e-2
+        self._var_z = 1.0
+        self._last_input_s = 0.0
+        self._last_output_s = time.monotonic()
 
     def start(self, session: zenoh.Session) -> None:
         uav = self.settings.uav
@@ -167,9 +150,18 @@ class EstimatorService(ServiceRuntime):
         self.spawn(self._estimate, "estimate")
 
     def stop(self) -> None:
-        self.undeclare_all(
-            [*self._entities, getattr(self, "_attitude_pub", None), getattr(self, "_pose_pub", None)]
-        )
+        # subscribers only: the estimate thread may still publish until it is joined (the session closes the
+        # publishers; undeclaring them here raced with it: "ZError: Undeclared publisher", exit 1)
+        self.undeclare_all(self._entities)
+
+    def healthy(self) -> tuple[bool, str]:
+        refused = self.stamps.recent_refusals()
+        if refused:
+            return False, f"degraded: {refused} inputs refused in the last {self.stamps.window_s:.0f} s"
+        now = time.monotonic()
+        if now - self._last_input_s < 1.0 and now - self._last_output_s > OUTPUT_SILENCE_S:
+            return False, f"degraded: inputs arrive but no output for {now - self._last_output_s:.1f} s"
+        return True, "ok"
 
     def queue_depths(self) -> dict[str, int]:
         return {
@@ -182,8 +174,19 @@ class EstimatorService(ServiceRuntime):
     def _own(self, uav: str, what: str, key: Any) -> bool:
         if uav != self.settings.uav:
             self.count_error("wrong_uav", f"{what} of another UAV refused", f"{uav!r} on {key}")
+            self.stamps.note_refusal()
             return False
         return True
+
+    def _admit(self, sensor: str, stamp_s: float) -> bool:
+        """The stamp guard: a stamp too far ahead of the sensor's recent ones or the wall clock is refused."""
+        self._last_input_s = time.monotonic()
+        admitted, reason, detail = self.stamps.check(sensor, stamp_s)
+        if not admitted:
+            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} sample refused", detail)
+        elif reason:
+            self.count_error("clock_jumps", f"{sensor} clock jump adopted", f"stamp {stamp_s}")
+        return admitted
 
     def _offer(self, measurement: Measurement) -> None:
         if not self._samples.offer(measurement):
@@ -191,7 +194,11 @@ class EstimatorService(ServiceRuntime):
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
         msg = self.decode_sample(sample, ImuSample)
-        if msg is None or not self._own(msg.uav, "IMU sample", sample.key_expr):
+        if (
+            msg is None
+            or not self._own(msg.uav, "IMU sample", sample.key_expr)
+            or not self._admit("imu", msg.stamp_s)
+        ):
             return
         try:
             self._offer(check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
@@ -202,6 +209,8 @@ class EstimatorService(ServiceRuntime):
         msg = self.decode_sample(sample, RangeSample)
         if msg is None or not self._own(msg.uav, "range sample", sample.key_expr):
             return
+        if not self._admit("range", msg.stamp_s):
+            return
         try:
             self._offer(check_range(msg.stamp_s, msg.range_m))
         except InputError as exc:
@@ -209,7 +218,11 @@ class EstimatorService(ServiceRuntime):
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
         msg = self.decode_sample(sample, YawEstimate)
-        if msg is None or not self._own(msg.uav, "yaw", sample.key_expr):
+        if (
+            msg is None
+            or not self._own(msg.uav, "yaw", sample.key_expr)
+            or not self._admit("yaw", msg.stamp_s)
+        ):
             return
         if msg.low_confidence:
             self.counters.inc("yaw_low_confidence")
@@ -223,6 +236,8 @@ class EstimatorService(ServiceRuntime):
         msg = self.decode_sample(sample, Frame)
         if msg is None or not self._own(msg.uav, "frame", sample.key_expr):
             return
+        if not self._admit("camera", msg.stamp_s):
+            return
         try:
             frame = check_frame(msg.stamp_s, msg.pixels, self._shape)
         except InputError as exc:
@@ -235,19 +250,34 @@ class EstimatorService(ServiceRuntime):
     # -- the estimator thread ------------------------------------------------------------------------
     def _push(self, measurement: Measurement) -> None:
         refusal = self.estimator.push(measurement)
-        if refusal is not None:
-            name = type(measurement).__name__.removesuffix("Measurement").lower()
+        if refusal is None:
+            self._stale_run = 0
+            return
+        name = type(measurement).__name__.removesuffix("Measurement").lower()
+        self.count_error(
+            f"refused_{name}_{refusal.value}",
+            "sample refused",
+            f"{refusal.value} stamp {measurement.stamp_s}",
+        )
+        self.stamps.note_refusal()
+        self._stale_run = self._stale_run + 1 if refusal is Refusal.STALE else 0
+        if self._stale_run >= RESET_AFTER_STALE:
+            # the stream's clock went back for good (a restarted sensor stack): start a new filter
             self.count_error(
-                f"refused_{name}_{refusal.value}",
-                "sample refused",
-                f"{refusal.value} stamp {measurement.stamp_s}",
+                "estimator_resets", "filter rebuilt", f"{self._stale_run} stale samples in a row"
             )
+            self.estimator = build_estimator(self.settings)
+            self._stale_run = 0
+            self._last_xy, self._travelled_m = None, 0.0
 
     def _estimate(self) -> None:
         while not self.stop_event.is_set():
             first = self._samples.take(0.02)
-            batch = [] if first is None else [first, *self._samples.drain()]
+            # the frame before the drain: every sample published before it is then in this batch, so a queue
+            # that is behind never has the frame release the filter past samples still waiting (range samples
+            # were refused as stale so under load)
             frame = self._frames.take(0.0)
+            batch = [] if first is None else [first, *self._samples.drain()]
             for m in batch:
                 self._push(m)
             if frame is not None:
@@ -261,14 +291,15 @@ class EstimatorService(ServiceRuntime):
             self._mirror_counters()
 
     def _publish(self, outputs: list[AttitudeOutput | PoseOutput]) -> None:
-        state = self.estimator.state
-        if state is None:
-            return
-        P = state.covariance
+        if outputs:
+            self._last_output_s = time.monotonic()
         for out in outputs:
             if isinstance(out, AttitudeOutput):
+                # each output with its own uncertainty, not the batch's last state's (issue 9 section 5)
+                self._covariance_q = np.diag(out.covariance_diag[:4])
+                self._var_z = float(out.covariance_diag[4])
                 msg: AttitudeEstimate | PoseEstimate = attitude_message(
-                    self.settings.uav, self._attitude_seq, out, P[:4, :4]
+                    self.settings.uav, self._attitude_seq, out, self._covariance_q
                 )
                 self._attitude_seq += 1
                 publisher = self._attitude_pub
@@ -278,12 +309,19 @@ class EstimatorService(ServiceRuntime):
                     self._travelled_m += float(np.linalg.norm(xy - self._last_xy))
                 self._last_xy = xy
                 var_xy = (self.settings.vo_drift_fraction * self._travelled_m) ** 2 + 1e-6
-                msg = pose_message(self.settings.uav, self._pose_seq, out, P[:4, :4], float(P[4, 4]), var_xy)
+                msg = pose_message(
+                    self.settings.uav, self._pose_seq, out, self._covariance_q, self._var_z, var_xy
+                )
                 self._pose_seq += 1
                 publisher = self._pose_pub
                 self.counters.time_ms("vo", out.vo_ms)
             payload, attachment = encode(msg)
-            publisher.put(payload, attachment=attachment)
+            try:
+                publisher.put(payload, attachment=attachment)
+            except zenoh.ZError:
+                if self.stop_event.is_set():
+                    return  # shutting down: the session is closing under us
+                raise
             self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")
 
     def _mirror_counters(self) -> None:
