@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -28,6 +29,10 @@ from services.estimator import EstimatorService, EstimatorSettings
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import capataz_command, free_port
+
+
+def _matching(publisher: Any) -> bool:
+    return bool(publisher.matching_status.matching)
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +73,7 @@ class _Recorder:
 def test_each_output_of_a_batch_carries_its_own_covariance(flight: Flight) -> None:
     """Regression (issue 9 section 5): the batch's last covariance was attached to every output of a batch."""
     service = EstimatorService("cov", 0, TransportSettings(), settings_of(flight))
-    service._attitude_pub, service._pose_pub = _Recorder(), _Recorder()  # type: ignore[attr-defined]
+    service._attitude_pub, service._pose_pub = _Recorder(), _Recorder()  # type: ignore[assignment]
     for m in flight_measurements(flight, 0, 6):
         service.estimator.push(m)
     outputs = service.estimator.process_due()  # one batch: many IMU steps and some frames
@@ -110,7 +115,7 @@ def test_future_stamped_imu_is_refused_counted_and_the_filter_goes_on(flight: Fl
                 keys.imu_key("uav0"), congestion_control=zenoh.CongestionControl.BLOCK
             )
             deadline = time.monotonic() + 10.0
-            while not probe.matching_status.matching and time.monotonic() < deadline:
+            while not _matching(probe) and time.monotonic() < deadline:
                 time.sleep(0.02)
             time.sleep(0.3)
             half = len(stream) // 2
@@ -159,7 +164,7 @@ def test_sigterm_while_busy_exits_0_twenty_times_in_twenty(flight: Flight) -> No
                 with open_session(client) as session:
                     probe = session.declare_publisher(keys.imu_key("uav0"))
                     deadline = time.monotonic() + 30.0
-                    while not probe.matching_status.matching and time.monotonic() < deadline:
+                    while not _matching(probe) and time.monotonic() < deadline:
                         time.sleep(0.05)
                     probe.undeclare()
                     sender = threading.Thread(
@@ -200,7 +205,7 @@ def test_paper_c_flight_under_a_busy_host_ends_within_2_cm(flight: Flight) -> No
                 )
                 probe = session.declare_publisher(keys.imu_key("uav0"))
                 deadline = time.monotonic() + 10.0
-                while not probe.matching_status.matching and time.monotonic() < deadline:
+                while not _matching(probe) and time.monotonic() < deadline:
                     time.sleep(0.02)
                 time.sleep(0.3)
                 publish_measurements(session, "uav0", stream, speed=1.0, block=True)
