@@ -1,5 +1,5 @@
 """The localizer service over Zenoh on loopback: the same poses as the in-process filter, and it survives
-malformed, foreign, wrong-size and stale frames (refused and counted)."""
+malformed, foreign, wrong-size, stale and future-stamped frames (refused and counted)."""
 
 from __future__ import annotations
 
@@ -93,6 +93,8 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
                     put(_frame(99, stamp, image, uav="uav7"))
                     put(_frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
                     put(_frame(99, float(sim.flight.times_s[i - 1]), image))
+                if i == 5:  # a frame 1e5 s in the future: refused, it must not freeze the filter
+                    put(_frame(99, stamp + 1e5, image))
                 put(_frame(i, stamp, image))
                 received.append(poses.get(timeout=20.0))  # one frame in flight: nothing dropped
             time.sleep(0.3)
@@ -115,5 +117,6 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     assert counts.get("wrong_uav") == 1
     assert counts.get("bad_frames") == 1
     assert counts.get("stale_frames") == 1
+    assert counts.get("refused_camera_future_stamp") == 1
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
