@@ -9,8 +9,8 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
   z and attitude from the EKF), ``source = "vo"``.
 
 Callbacks only decode, validate and hand off, on zenoh's receiving thread in arrival order: IMU, range and
-yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a one-item slot (latest frame
-wins, ``dropped_frames``). One thread feeds them to
+yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a short FIFO (dropped only when
+it is full, ``dropped_frames``). One thread feeds them to
 :class:`~common.estimation.coupling.DoubleCouplingEstimator`, which applies them in stamp order within a
 bounded lag. Bad samples are refused with a log line and a counter, never a crash:
 undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong shape (``bad_samples``,
@@ -25,17 +25,12 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel as LensCamera
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling import (
     AttitudeOutput,
-    CameraModel,
-    CouplingSettings,
-    DoubleCouplingEstimator,
     Measurement,
     PoseOutput,
     check_frame,
@@ -43,12 +38,11 @@ from common.estimation.coupling import (
     check_range,
     check_yaw,
 )
-from common.estimation.ekf import EkfSettings
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from services.estimator.outputs import attitude_message, pose_message
+from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
-    LatestSlot,
     ServiceRuntime,
     TransportSettings,
     WorkQueue,
@@ -57,53 +51,23 @@ from services.runtime.transport import (
 )
 
 SENSOR_QUEUE = 4096
+FRAME_QUEUE = 40
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
 RESET_AFTER_STALE = 400
 #: seconds without an output, while inputs arrive, after which health reports degraded
 OUTPUT_SILENCE_S = 2.0
 
 
-class EstimatorSettings(BaseModel):
-    """What the estimator needs besides the transport."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    uav: str = "uav0"
-    width: int = Field(default=752, gt=0)
-    height: int = Field(default=480, gt=0)
-    hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0)
-    rectify: bool = True
-    visual_yaw: bool = True
-    external_yaw: bool = False
-    max_lag_s: float = Field(default=0.02, ge=0.0, le=1.0)
-    initial_yaw_rad: float = 0.0
-    initial_x_m: float = 0.0
-    initial_y_m: float = 0.0
-    #: seconds after the first frame at which the VO sets its origin (the EKF's tilt settles first; paper C's
-    #: flight hovers 5 s, the bench uses 4 s); the initial x, y are the position at that moment
-    vo_origin_delay_s: float = Field(default=0.0, ge=0.0, le=60.0)
-    #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
-    vo_drift_fraction: float = Field(default=0.001, gt=0.0)
-
-    def camera(self) -> CameraModel:
-        cam = LensCamera.from_hfov(self.width, self.height, self.hfov_deg)
-        return CameraModel(K=cam.K, width=cam.width, height=cam.height)
-
-    def coupling(self) -> CouplingSettings:
-        return CouplingSettings(
-            rectify=self.rectify,
-            visual_yaw=self.visual_yaw,
-            external_yaw=self.external_yaw,
-            max_lag_s=self.max_lag_s,
-            initial_yaw_rad=self.initial_yaw_rad,
-            initial_position_m=(self.initial_x_m, self.initial_y_m),
-            vo_origin_delay_s=self.vo_origin_delay_s,
-        )
-
-
-def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
-    """The in-process estimator the service runs (also used to check the service against)."""
-    return DoubleCouplingEstimator(settings.camera(), EkfSettings(), settings=settings.coupling())
+def thin_frames(frames: list[Measurement]) -> list[Measurement]:
+    """The frames to use when ``frames`` queued up (the filter is behind): every one while two or fewer wait,
+    else every second or third, always the newest. Evenly thinned frames keep VO pairs two or three frames
+    apart, which the VO handles; dropping a burst (a full queue) left pairs a second apart, which it did not
+    (a busy host ended paper C's flight 0.4-1.9 m off)."""
+    n = len(frames)
+    if n <= 2:
+        return frames
+    stride = 2 if n <= 6 else 3
+    return frames[n - 1 :: -stride][::-1]
 
 
 class EstimatorService(ServiceRuntime):
@@ -122,7 +86,9 @@ class EstimatorService(ServiceRuntime):
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
-        self._frames: LatestSlot[Measurement] = LatestSlot()
+        #: frames wait in a short FIFO (a busy moment costs latency, not frames: VO pairs stay one apart);
+        #: only when it is full are frames dropped (counted), and the VO pairs the frames it gets
+        self._frames: WorkQueue[Measurement] = WorkQueue(FRAME_QUEUE)
         self._entities: list[Any] = []
         self._mirrored: dict[str, int] = {}
         self._attitude_seq = 0
@@ -248,8 +214,10 @@ class EstimatorService(ServiceRuntime):
             self.count_error("bad_frames", "frame refused", exc)
             return
         self.counters.inc("frames_in")
-        if self._frames.put(frame):
-            self.counters.inc("dropped_frames")
+        if not self._frames.offer(frame):
+            self.count_error(
+                "dropped_frames", "frame dropped", "the frame queue is full (the filter is behind)"
+            )
 
     # -- the estimator thread ------------------------------------------------------------------------
     def _push(self, measurement: Measurement) -> None:
@@ -280,19 +248,33 @@ class EstimatorService(ServiceRuntime):
             # the frame before the drain: every sample published before it is then in this batch, so a queue
             # that is behind never has the frame release the filter past samples still waiting (range samples
             # were refused as stale so under load)
-            frame = self._frames.take(0.0)
+            queued = self._frames.drain()
+            frames = thin_frames(queued)
+            if len(frames) < len(queued):
+                self.counters.inc("frames_thinned", len(queued) - len(frames))
             batch = [] if first is None else [first, *self._samples.drain()]
-            for m in batch:
-                self._push(m)
-            if frame is not None:
-                self._push(frame)
-            if not batch and frame is None:
+            if not batch and not frames:
                 continue
-            t0 = time.perf_counter()
-            outputs = self.estimator.process_due()
-            self.counters.time_ms("process", (time.perf_counter() - t0) * 1e3)
-            self._publish(outputs)
+            # in stamp order, the filter brought up to each frame before it is pushed: a frame pushed while an
+            # older one is still pending would supersede it
+            batch.sort(key=lambda m: m.stamp_s)
+            i = 0
+            for frame in frames:
+                while i < len(batch) and batch[i].stamp_s <= frame.stamp_s:
+                    self._push(batch[i])
+                    i += 1
+                self._process()
+                self._push(frame)
+            for m in batch[i:]:
+                self._push(m)
+            self._process()
             self._mirror_counters()
+
+    def _process(self) -> None:
+        t0 = time.perf_counter()
+        outputs = self.estimator.process_due()
+        self.counters.time_ms("process", (time.perf_counter() - t0) * 1e3)
+        self._publish(outputs)
 
     def _publish(self, outputs: list[AttitudeOutput | PoseOutput]) -> None:
         if outputs:
@@ -361,27 +343,6 @@ def register(subparsers: Any) -> None:
         help="seconds before the VO sets its origin (at --initial-xy)",
     )
     parser.set_defaults(handler=run)
-
-
-def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
-    try:
-        width, height = (int(v) for v in str(args.resolution).lower().split("x"))
-        return EstimatorSettings(
-            uav=args.uav,
-            width=width,
-            height=height,
-            hfov_deg=args.hfov,
-            rectify=not args.no_rectify,
-            visual_yaw=not args.no_visual_yaw,
-            external_yaw=args.external_yaw,
-            max_lag_s=args.max_lag,
-            initial_yaw_rad=args.initial_yaw,
-            initial_x_m=args.initial_xy[0],
-            initial_y_m=args.initial_xy[1],
-            vo_origin_delay_s=args.vo_origin_delay,
-        )
-    except ValueError as exc:
-        raise InputError(f"invalid estimator settings: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:
