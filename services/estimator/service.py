@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
@@ -50,6 +50,7 @@ from services.runtime.transport import (
     transport_from_args,
 )
 
+T = TypeVar("T")
 SENSOR_QUEUE = 4096
 FRAME_QUEUE = 40
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
@@ -58,7 +59,7 @@ RESET_AFTER_STALE = 400
 OUTPUT_SILENCE_S = 2.0
 
 
-def thin_frames(frames: list[Measurement]) -> list[Measurement]:
+def thin_frames(frames: list[T]) -> list[T]:
     """The frames to use when ``frames`` queued up (the filter is behind): every one while two or fewer wait,
     else every second or third, always the newest. Evenly thinned frames keep VO pairs two or three frames
     apart, which the VO handles; dropping a burst (a full queue) left pairs a second apart, which it did not

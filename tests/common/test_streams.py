@@ -1,4 +1,5 @@
-"""Stream admission at the wire: hostile frames and stamps are refused and counted, restarts are new epochs."""
+"""Stream admission at the wire: hostile frames and stamps are refused and counted, restarts are new
+epochs."""
 
 from __future__ import annotations
 

@@ -35,8 +35,8 @@ def _job(n: int, side: int = 32, stream: str = "uav0") -> PatchJob:
 
 @pytest.mark.parametrize(
     ("job", "match"),
-    [(_job(MAX_JOB_PATCHES + 1, 8), "patches"), (_job(1, 1024), "square"), (_job(40, stream="x" * 65), "stream"),
-     (_job(400, 256), "pixels")],
+    [(_job(MAX_JOB_PATCHES + 1, 8), "patches"), (_job(1, 1024), "square"),
+     (_job(40, stream="x" * 65), "stream"), (_job(400, 256), "pixels")],
 )  # fmt: skip
 def test_oversized_jobs_are_refused_at_decode(job: PatchJob, match: str) -> None:
     payload, header = encode(job)

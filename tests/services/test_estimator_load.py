@@ -245,7 +245,7 @@ def test_paper_c_flight_under_a_busy_host_ends_within_2_cm(flight: Flight) -> No
 @given(st.integers(0, 40))
 def test_queued_frames_are_thinned_evenly_and_the_newest_is_kept(n: int) -> None:
     frames = list(range(n))
-    kept = thin_frames(frames)  # type: ignore[arg-type]
+    kept = thin_frames(frames)
     if n <= 2:
         assert kept == frames
         return

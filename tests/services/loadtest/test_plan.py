@@ -71,7 +71,7 @@ def test_latency_of_nothing_is_nan_and_fails_every_latency_objective() -> None:
     assert not parse_objective("p99_ms<=1000").met(stats.p99)
 
 
-def _stream(n: int = 200, fps: float = 20.0, lost: set[int] = frozenset(), jump_at: int | None = None,
+def _stream(n: int = 200, fps: float = 20.0, lost: frozenset[int] | set[int] = frozenset(), jump_at: int | None = None,
             latency_s: float = 0.02) -> list[FrameRecord]:  # fmt: skip
     true = np.radians(10.0) * np.sin(np.arange(n) / 30.0)
     records = []
