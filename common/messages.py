@@ -195,7 +195,7 @@ class YawEstimate(WireModel):
     timings_ms: dict[str, float] = Field(default_factory=dict)
     #: patches computed by each member for this frame (member name -> count; ``self`` = the master).
     members: dict[str, int] = Field(default_factory=dict)
-    #: frames of this stream dropped so far by latest-frame-wins.
+    #: frames of this stream dropped so far by the master's bounded frame queue (oldest first), each once.
     dropped_frames: int = Field(ge=0, default=0)
     #: shares re-dispatched in this frame because a member failed.
     redispatched: int = Field(ge=0, default=0)

@@ -177,10 +177,11 @@ class LoadCluster:
     def restart(self, name: str) -> None:
         """Start ``name`` again, as a supervisor (compose's restart policy) would."""
         cluster, spec = self.cluster, self.cluster.spec
-        role, node, index = name.split("/")
-        if role == "router":
+        if name == "router":
             cluster.start_router()
-        elif role == "master":
+            return
+        role, node, index = name.split("/")
+        if role == "master":
             cluster.spawn(name, self._master_args[name], spec.master_cpus)
         elif role == "foreman":
             cluster.start_foreman(next(h for h in spec.hosts if h.name == node))

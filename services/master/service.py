@@ -28,6 +28,7 @@ from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
 from services.master.election import Election
+from services.master.frames import FrameQueue
 from services.master.settings import (
     MasterSettings,
     Topology,
@@ -36,7 +37,6 @@ from services.master.settings import (
 )
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.transport import (
-    LatestSlot,
     ServiceRuntime,
     TransportSettings,
     add_transport_arguments,
@@ -71,7 +71,9 @@ class MasterService(ServiceRuntime):
         self.settings = settings
         self.yaw_settings = settings.yaw_settings()
         self.wire_settings = settings_to_wire(self.yaw_settings)
-        self.slot: LatestSlot[tuple[int, Frame]] = LatestSlot()
+        #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
+        #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
+        self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
         self.gate_settings = settings.gate_settings()
         self._gate = FrameGateState()
         self._recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)

@@ -38,6 +38,8 @@ class MasterSettings(BaseModel):
     election: bool = True
     #: newest admitted frames kept (a standby taking over measures them against the last published one)
     recent_frames: int = Field(default=8, ge=1, le=64)
+    #: frames waiting for the yaw stage at most (oldest dropped beyond)
+    frame_queue: int = Field(default=8, ge=1, le=256)
     max_seq_jump: int = Field(default=200, ge=1)
     confirm_frames: int = Field(default=3, ge=1, le=100)
 
