@@ -50,7 +50,9 @@ def test_dropped_frames_counts_each_drop_once() -> None:
     ]
     estimates = []
     master._on_frame(_Sample(frames[0]))  # type: ignore[arg-type]
-    estimates.append(master._estimate(*master.slot.take(0.0), time.perf_counter()))  # type: ignore[misc]
+    first = master.slot.take(0.0)
+    assert first is not None
+    estimates.append(master._estimate(*first, time.perf_counter()))
     for frame in frames[1:]:  # five frames while the master is busy: a queue of two drops the three oldest
         master._on_frame(_Sample(frame))  # type: ignore[arg-type]
     while (item := master.slot.take(0.0)) is not None:
