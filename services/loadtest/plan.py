@@ -170,7 +170,7 @@ class FaultOutcome:
     lost: int
     #: longest time between two consecutive yaws around the fault (s)
     gap_s: float
-    #: from the fault to the first frame sent after it that got a yaw (s)
+    #: from the fault to the last frame lost or late because of it (s)
     recovery_s: float
     #: largest |published yaw change - true yaw change| between consecutive yaws around the fault (deg)
     yaw_discontinuity_deg: float
@@ -198,14 +198,24 @@ def gaps_s(records: Sequence[FrameRecord]) -> list[tuple[float, float]]:
 
 
 def analyse_fault(records: Sequence[FrameRecord], fault: Fault, t0_s: float, until_s: float) -> FaultOutcome:
-    """The fault's effect on one stream: frames sent in ``[fault, until)`` (``t0_s`` = the run's start)."""
+    """The fault's effect on one stream: frames sent in ``[fault, until)`` (``t0_s`` = the run's start).
+
+    ``recovery_s`` runs from the fault to the last frame that was lost or late (latency above three times
+    the median of the 2 s before the fault, and at least 50 ms above it): 0 when nothing was.
+    """
     start = t0_s + fault.at_s
     window = [r for r in records if start - 0.5 <= r.sent_s < until_s]
-    lost = sum(1 for r in window if r.sent_s >= start and r.received_s is None)
-    recovered = [
-        r.sent_s for r in window if r.sent_s >= start + fault.duration_s and r.received_s is not None
+    after = [r for r in window if r.sent_s >= start]
+    lost = sum(1 for r in after if r.received_s is None)
+    before = [r.received_s - r.sent_s for r in records if start - 2.0 <= r.sent_s < start and r.received_s]
+    baseline = float(np.median(before)) if before else 0.0
+    late_s = max(3.0 * baseline, baseline + 0.05)
+    troubled = [
+        (r.sent_s if r.received_s is None else r.received_s) - start
+        for r in after
+        if r.received_s is None or r.received_s - r.sent_s > late_s
     ]
-    recovery = (min(recovered) - start) if recovered else float("inf")
+    recovery = max(troubled, default=0.0)
     gap = max((g for t, g in gaps_s(window) if t >= start), default=0.0)
     jump = max((j for t, j in yaw_jumps_deg(window) if t >= start), default=0.0)
     return FaultOutcome(fault, lost, gap, recovery, jump)
