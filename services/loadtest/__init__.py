@@ -38,7 +38,7 @@ def register(subparsers: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
-        "--cluster", type=Path, default=Path("deploy/clusters/local2x2.yml"), help="cluster file"
+        "--cluster", type=Path, default=Path("deploy/clusters/loadtest.yml"), help="cluster file"
     )
     parser.add_argument("--streams", type=int, default=4, help="UAV streams (752x480 camera each)")
     parser.add_argument("--fps", type=float, default=20.0, help="frames per second of each stream")

@@ -138,7 +138,8 @@ class LoadCluster:
             for role in ("m", "s") if self.settings.standby_masters else ("m",):
                 node = f"{role}{i}"
                 args = ["master", *cluster.transport_args(), "--node", node, "--uav", uav, "--topology",
-                        spec.topology, "--balance", spec.balance, "--speed", spec.speed]  # fmt: skip
+                        spec.topology, "--balance", spec.balance, "--speed", spec.speed,
+                        "--compute" if spec.master_computes else "--no-compute"]  # fmt: skip
                 name = f"master/{node}/0"
                 self._master_args[name] = args
                 cluster.spawn(name, args, spec.master_cpus)
