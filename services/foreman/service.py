@@ -10,6 +10,7 @@ an error reply and is counted).
 from __future__ import annotations
 
 import argparse
+import copy
 import threading
 import time
 from typing import Any
@@ -29,6 +30,8 @@ from common.yaw.patchwork import (
     measure_share,
     merge_measurements,
 )
+from services.runtime.cli import add_stream_bound_arguments
+from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 from services.runtime.transport import (
     ServiceRuntime,
@@ -77,12 +80,18 @@ class CropStore:
 
 
 class _StreamState:
-    """What a foreman keeps per stream: its own dispatcher (sticky shares, held history), round, crops."""
+    """What a foreman keeps per stream: its own dispatcher (sticky shares, held history, suspensions), round,
+    crops, and the roster as applied to that dispatcher."""
 
-    def __init__(self, session: zenoh.Session, dispatch: DispatchSettings, counters: Any) -> None:
+    def __init__(
+        self, session: zenoh.Session, dispatch: DispatchSettings, counters: Any, live: LiveMembers
+    ) -> None:
         self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
         self.scatter = Scatter(session, self.dispatcher, keys.work_key_of, PatchJob, PatchResult, counters)
         self.crops_prev = CropStore()
+        # a copy of the node's roster (the roster itself is immutable; events are fed to every copy): one
+        # LiveMembers per dispatcher, so alternating streams never re-join (and un-suspend) members
+        self.live = copy.copy(live)
 
 
 class ForemanService(ServiceRuntime):
@@ -106,8 +115,8 @@ class ForemanService(ServiceRuntime):
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
         self.streams: StreamTable[_StreamState] = StreamTable(max_streams, stream_ttl_s)
         self._streams_lock = threading.Lock()
-        self._workers: set[str] = set()
-        self._membership_lock = threading.Lock()
+        #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
+        self.live = LiveMembers(keys.Role.WORKER)
         self.settings_cache = SettingsCache()
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
@@ -134,26 +143,11 @@ class ForemanService(ServiceRuntime):
         if event is None:
             return
         member, joined = event
-        with self._membership_lock:
-            if joined:
-                self._workers.add(member.name)
-            else:
-                self._workers.discard(member.name)
-        if not joined:
-            with self._streams_lock:
-                states = self.streams.values()
-            for state in states:
-                state.scatter.member_left(member.name)
-        self.counters.inc("members_joined" if joined else "members_left")
-
-    def _apply_membership(self, dispatcher: Dispatcher) -> None:
-        with self._membership_lock:
-            workers = set(self._workers)
-        for name in dispatcher.members:
-            if name not in workers:
-                dispatcher.leave(name)
-        for name in workers - set(dispatcher.members):
-            dispatcher.join(name)
+        with self._streams_lock:
+            self.live.on_event(member, joined, self.counters)
+            states = self.streams.values()
+        for state in states:
+            state.live.on_event(member, joined, None, state.scatter)
 
     def _stream(self, stream: str) -> _StreamState:
         assert self.session is not None
@@ -163,7 +157,7 @@ class ForemanService(ServiceRuntime):
             state = self.streams.get(
                 stream,
                 time.monotonic(),
-                lambda: _StreamState(session, self.dispatch_settings, self.counters),
+                lambda: _StreamState(session, self.dispatch_settings, self.counters, self.live),
             )
             evicted = self.streams.evicted - before
         if evicted:
@@ -173,7 +167,7 @@ class ForemanService(ServiceRuntime):
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
 
-    def _answer_block(self, query: zenoh.Query, job: BlockJob, t_recv: float) -> None:
+    def _answer_block(self, query: zenoh.Query, job: BlockJob, received_perf_s: float) -> None:
         try:
             result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
@@ -189,7 +183,7 @@ class ForemanService(ServiceRuntime):
         self.counters.inc("patches", int(job.indices.size))
         self.counters.time_ms("block", result.compute_s * 1e3)
         self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
-        self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
+        self.counters.time_ms("handle", (time.perf_counter() - received_perf_s) * 1e3)
 
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""
@@ -227,7 +221,7 @@ class ForemanService(ServiceRuntime):
                 prev_crops(moved),
             )
 
-        self._apply_membership(dispatcher)
+        stream.live.update(dispatcher)
         # workers get most of the budget; the rest is for re-dispatching a failed share here
         work = FrameWork(
             stream=job.stream,
@@ -272,12 +266,6 @@ def register(subparsers: Any) -> None:
     )
     add_stream_bound_arguments(parser)
     parser.set_defaults(handler=run)
-
-
-def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
-    """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker."""
-    parser.add_argument("--max-streams", type=int, default=64, help="streams kept at most (LRU evicted)")
-    parser.add_argument("--stream-ttl", type=float, default=60.0, help="seconds an unused stream is kept")
 
 
 def run(args: argparse.Namespace) -> int:

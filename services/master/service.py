@@ -35,6 +35,7 @@ from services.master.settings import (
     add_master_arguments,
     master_settings_from_args,
 )
+from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.transport import (
     ServiceRuntime,
@@ -84,11 +85,7 @@ class MasterService(ServiceRuntime):
         self._job_types: tuple[type[PatchJob], type[PatchResult]] = (BlockJob, BlockResult)
         self.stream: _Stream | None = None
         self.scatter: Scatter | None = None
-        self._members: dict[str, keys.MemberId] = {}
-        self._membership_lock = threading.Lock()
-        #: bumped on every liveliness change; a dispatcher that saw the current version needs no update
-        self._membership_version = 0
-        self._applied: tuple[Dispatcher | None, int] = (None, -1)
+        self.live = LiveMembers(self.member_role)
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_shares: dict[str, float] = {}
@@ -112,19 +109,9 @@ class MasterService(ServiceRuntime):
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
-        if event is None:
-            return
-        member, joined = event
-        with self._membership_lock:
-            if joined:
-                self._members[member.name] = member
-            else:
-                self._members.pop(member.name, None)
-            self._membership_version += 1
-        if member.role is self.member_role:
-            self.counters.inc("members_joined" if joined else "members_left")
-            if not joined and self.scatter is not None:
-                self.scatter.member_left(member.name)
+        if event is not None:
+            member, joined = event
+            self.live.on_event(member, joined, self.counters, self.scatter)
 
     def stop(self) -> None:
         # the publisher stays declared (the frames thread may still be publishing; the session closes it)
@@ -165,28 +152,7 @@ class MasterService(ServiceRuntime):
                 self._published.popitem(last=False)
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
-        with self._membership_lock:
-            if self._applied == (dispatcher, self._membership_version):
-                return  # nothing changed since this dispatcher was last brought up to date
-            self._applied = (dispatcher, self._membership_version)
-            members = dict(self._members)
-        wanted = {name for name, m in members.items() if m.role is self.member_role}
-        workers_per_node: dict[str, int] = {}
-        for m in members.values():
-            if m.role is keys.Role.WORKER:
-                workers_per_node[m.node] = workers_per_node.get(m.node, 0) + 1
-        for name in dispatcher.members:
-            if name not in wanted:
-                dispatcher.leave(name)
-        for name in wanted:
-            member = members[name]
-            capacity = 1.0
-            if member.role is keys.Role.FOREMAN:
-                capacity = float(max(1, workers_per_node.get(member.node, 0)))
-            if name in dispatcher.members:
-                dispatcher.set_capacity(name, capacity)
-            else:
-                dispatcher.join(name, capacity)
+        self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
 
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
@@ -348,8 +314,6 @@ class MasterService(ServiceRuntime):
         }
         if report is not None:
             timings["self"] = report.self_s * 1e3
-            for name, speed in report.speeds.items():
-                timings[f"speed:{name}"] = speed
         return YawEstimate(
             uav=self.settings.uav,
             seq=frame.seq,
@@ -363,6 +327,7 @@ class MasterService(ServiceRuntime):
             method=core.method.name.lower(),
             timings_ms=timings,
             members=members,
+            speeds_patches_s=dict(report.speeds) if report else {},
             dropped_frames=self.slot.dropped,
             redispatched=report.redispatched if report else 0,
         )
