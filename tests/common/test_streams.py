@@ -102,7 +102,9 @@ def test_a_wall_clock_stream_refuses_future_stamps() -> None:
 @given(
     hostile=st.lists(
         st.tuples(
-            st.integers(0, 2**60),
+            # a seq that cannot continue the stream (backwards, or a jump beyond the bound): a frame that looks
+            # exactly like the next one cannot be told apart without the sender's identity
+            st.one_of(st.integers(0, 3), st.integers(10_000, 2**60)),
             st.floats(-1e9, 1e9, allow_nan=False),
             st.sampled_from(["uav0", "uav1"]),
             st.sampled_from([KEY, FrameKey(64, 64, "mono8")]),
@@ -114,7 +116,7 @@ def test_a_wall_clock_stream_refuses_future_stamps() -> None:
 def test_hostile_frames_between_real_ones_never_change_the_epoch(
     hostile: list[tuple[int, float, str, FrameKey]], at: int
 ) -> None:
-    """A real stream interleaved with any single hostile frame between two real ones stays in its epoch."""
+    """A real stream interleaved with hostile frames (one between two real ones) stays in its epoch."""
     state = run_stream(FrameGateState(), range(0, at))
     for k in range(at, at + 3 * len(hostile) + 3):
         if hostile and k % 3 == 0:
