@@ -102,8 +102,8 @@ def test_a_wall_clock_stream_refuses_future_stamps() -> None:
 @given(
     hostile=st.lists(
         st.tuples(
-            # a seq that cannot continue the stream (backwards, or a jump beyond the bound): a frame that looks
-            # exactly like the next one cannot be told apart without the sender's identity
+            # a seq that cannot continue the stream (backwards, or a jump beyond the bound): a frame that
+            # looks exactly like the next one cannot be told apart without the sender's identity
             st.one_of(st.integers(0, 3), st.integers(10_000, 2**60)),
             st.floats(-1e9, 1e9, allow_nan=False),
             st.sampled_from(["uav0", "uav1"]),
