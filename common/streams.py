@@ -55,6 +55,14 @@ class Decision:
         return self.verdict is not Verdict.REFUSE
 
 
+def check_positive(settings: object, names: tuple[str, ...]) -> None:
+    """Each named field of ``settings`` must be finite and > 0 (else :class:`InputError` naming it)."""
+    for name in names:
+        value = getattr(settings, name)
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be finite and > 0, got {value}")
+
+
 @dataclass(frozen=True)
 class FrameGateSettings:
     """Bounds of a camera stream."""
@@ -75,10 +83,7 @@ class FrameGateSettings:
     def __post_init__(self) -> None:
         if self.max_seq_jump < 1 or self.confirm_frames < 1:
             raise InputError("max_seq_jump and confirm_frames must be >= 1")
-        for name in ("max_stamp_jump_s", "silence_s", "max_future_s", "max_rate"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise InputError(f"{name} must be finite and > 0, got {value}")
+        check_positive(self, ("max_stamp_jump_s", "silence_s", "max_future_s", "max_rate"))
 
 
 @dataclass(frozen=True)
@@ -203,14 +208,9 @@ class StampGuardSettings:
     confirm_samples: int = 5
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.max_ahead_s) and self.max_ahead_s > 0):
-            raise InputError(f"max_ahead_s must be finite and > 0, got {self.max_ahead_s}")
-        if not (math.isfinite(self.max_rate) and self.max_rate > 0):
-            raise InputError(f"max_rate must be finite and > 0, got {self.max_rate}")
-        if not (math.isfinite(self.max_future_s) and self.max_future_s > 0):
-            raise InputError(f"max_future_s must be finite and > 0, got {self.max_future_s}")
         if self.confirm_samples < 1:
             raise InputError("confirm_samples must be >= 1")
+        check_positive(self, ("max_ahead_s", "max_rate", "max_future_s"))
 
 
 @dataclass(frozen=True)
