@@ -1,4 +1,9 @@
-"""The master of one UAV stream: latest frame -> shares -> merged measurement -> yaw.
+"""The master of one UAV stream: admitted frame -> shares -> merged measurement -> yaw.
+
+Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, seq and stamp jumps
+refused and counted; a confirmed restart is a new epoch whose yaw continues the last one) and waits in a
+short FIFO. Several masters may serve one UAV: one is active (:mod:`services.master.election`), the others
+stand by warm and take over from the last published yaw.
 
 Topology is a setting: ``master-worker`` (members = every worker) or ``master-foreman-worker``
 (members = foremen, each splitting its block among its workers). Balancing and self-compute are the
@@ -37,6 +42,7 @@ from services.master.settings import (
 )
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -82,6 +88,8 @@ class MasterService(ServiceRuntime):
         #: yaw published for this UAV (by any master) by seq: (stamp, yaw), the newest few
         self._published: OrderedDict[int, tuple[float, float]] = OrderedDict()
         self.election: Election | None = None
+        #: recent refusals, for health
+        self._refusals = InputStamps()
         self._job_types: tuple[type[PatchJob], type[PatchResult]] = (BlockJob, BlockResult)
         self.stream: _Stream | None = None
         self.scatter: Scatter | None = None
@@ -131,6 +139,7 @@ class MasterService(ServiceRuntime):
             )  # fmt: skip
             if decision.verdict is Verdict.REFUSE:
                 self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
+                self._refusals.note_refusal()
                 return
             if decision.verdict is Verdict.NEW_EPOCH:
                 self.counters.inc("epochs")
@@ -159,6 +168,13 @@ class MasterService(ServiceRuntime):
 
     def queue_depths(self) -> dict[str, int]:
         return {"frames": self.slot.depth()}
+
+    def healthy(self) -> tuple[bool, str]:
+        recent = self._refusals.recent_refusals()
+        if recent:
+            return False, f"degraded: {recent} frames refused in the last {self._refusals.window_s:.0f} s"
+        role = "active" if self.election is None or self.election.leading else "standby"
+        return True, role
 
     # -- frames -----------------------------------------------------------------------------------------
     def _serve(self) -> None:

@@ -1,4 +1,4 @@
-"""The master's frame path without a cluster: admission, the frame queue and the yaw of each frame."""
+"""The master's frame path without a cluster: admission, the frame queue, the yaw of each frame, health."""
 
 from __future__ import annotations
 
@@ -71,3 +71,5 @@ def test_a_foreign_or_resized_frame_never_reaches_the_yaw_stage() -> None:
     master._on_frame(_Sample(Frame(uav="uav0", seq=1, stamp_s=0.05, width=64, height=64, pixels=small)))  # type: ignore[arg-type]
     assert master.slot.depth() == 1
     assert master.counters.get("refused_foreign_uav") == 1 and master.counters.get("refused_wrong_size") == 1
+    ok, detail = master.healthy()
+    assert not ok and "2 frames refused" in detail
