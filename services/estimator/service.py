@@ -261,6 +261,8 @@ class EstimatorService(ServiceRuntime):
             batch.sort(key=lambda m: m.stamp_s)
             i = 0
             for frame in frames:
+                if self.stop_event.is_set():
+                    return  # a long backlog is not worked off at shutdown (the session is closing)
                 while i < len(batch) and batch[i].stamp_s <= frame.stamp_s:
                     self._push(batch[i])
                     i += 1
