@@ -59,15 +59,19 @@ RESET_AFTER_STALE = 400
 OUTPUT_SILENCE_S = 2.0
 
 
+#: queued frames up to which every frame is used (a short stall of the host is worked off, not thinned)
+THIN_AFTER = 6
+
+
 def thin_frames(frames: list[T]) -> list[T]:
-    """The frames to use when ``frames`` queued up (the filter is behind): every one while two or fewer wait,
-    else every second or third, always the newest. Evenly thinned frames keep VO pairs two or three frames
-    apart, which the VO handles; dropping a burst (a full queue) left pairs a second apart, which it did not
-    (a busy host ended paper C's flight 0.4-1.9 m off)."""
+    """The frames to use when ``frames`` queued up (the filter is behind): every one while no more than
+    :data:`THIN_AFTER` wait, else every second (up to twice that) or third, always the newest. Evenly thinned
+    frames keep VO pairs two or three frames apart, which the VO handles; dropping a burst (a full queue)
+    left pairs a second apart, which it did not (a busy host ended paper C's flight 0.4-1.9 m off)."""
     n = len(frames)
-    if n <= 2:
+    if n <= THIN_AFTER:
         return frames
-    stride = 2 if n <= 6 else 3
+    stride = 2 if n <= 2 * THIN_AFTER else 3
     return frames[n - 1 :: -stride][::-1]
 
 

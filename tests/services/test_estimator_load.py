@@ -28,7 +28,7 @@ from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measuremen
 from common.messages import AttitudeEstimate, ImuSample, PoseEstimate, decode, encode
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings
-from services.estimator.service import thin_frames
+from services.estimator.service import THIN_AFTER, thin_frames
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import capataz_command
@@ -233,7 +233,7 @@ def test_paper_c_flight_under_a_busy_host_ends_within_2_cm(flight: Flight) -> No
 def test_queued_frames_are_thinned_evenly_and_the_newest_is_kept(n: int) -> None:
     frames = list(range(n))
     kept = thin_frames(frames)
-    if n <= 2:
+    if n <= THIN_AFTER:
         assert kept == frames
         return
     assert kept[-1] == n - 1 and kept == sorted(kept)
