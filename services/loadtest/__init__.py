@@ -34,8 +34,9 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "loadtest",
         help="drive a local cluster with N simulated UAV streams, inject faults, check objectives",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="N simulated UAV streams through a local cluster, faults, objectives (SLOs), a report "
+        "(out/loadtest/<name>.json and .png). Exit code 2 when an objective is breached.",
+        epilog="examples:\n" + __doc__.split("Examples::", 1)[1].rstrip(),
     )
     parser.add_argument(
         "--cluster", type=Path, default=Path("deploy/clusters/loadtest.yml"), help="cluster file"
