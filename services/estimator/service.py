@@ -29,15 +29,8 @@ import zenoh
 from common import keys
 from common.errors import InputError
 from common.estimation.buffer import Refusal
-from common.estimation.coupling import (
-    AttitudeOutput,
-    Measurement,
-    PoseOutput,
-    check_frame,
-    check_imu,
-    check_range,
-    check_yaw,
-)
+from common.estimation.coupling_types import AttitudeOutput, FilterKind, PoseOutput
+from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from services.estimator.outputs import attitude_message, pose_message
 from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
@@ -102,8 +95,6 @@ class EstimatorService(ServiceRuntime):
         self._last_xy: np.ndarray | None = None
         self.stamps = InputStamps()
         self._stale_run = 0
-        self._covariance_q = np.eye(4) * 1e-2
-        self._var_z = 1.0
         self._last_input_s = 0.0
         self._last_output_s = time.monotonic()
 
@@ -289,10 +280,8 @@ class EstimatorService(ServiceRuntime):
         for out in outputs:
             if isinstance(out, AttitudeOutput):
                 # each output with its own uncertainty, not the batch's last state's (issue 9 section 5)
-                self._covariance_q = np.diag(out.covariance_diag[:4])
-                self._var_z = float(out.covariance_diag[4])
                 msg: AttitudeEstimate | PoseEstimate = attitude_message(
-                    self.settings.uav, self._attitude_seq, out, self._covariance_q
+                    self.settings.uav, self._attitude_seq, out
                 )
                 self._attitude_seq += 1
                 publisher = self._attitude_pub
@@ -302,12 +291,9 @@ class EstimatorService(ServiceRuntime):
                     self._travelled_m += float(np.linalg.norm(xy - self._last_xy))
                 self._last_xy = xy
                 var_xy = (self.settings.vo_drift_fraction * self._travelled_m) ** 2 + 1e-6
-                msg = pose_message(
-                    self.settings.uav, self._pose_seq, out, self._covariance_q, self._var_z, var_xy
-                )
+                msg = pose_message(self.settings.uav, self._pose_seq, out, var_xy)
                 self._pose_seq += 1
                 publisher = self._pose_pub
-                self.counters.time_ms("vo", out.vo_ms)
             payload, attachment = encode(msg)
             try:
                 publisher.put(payload, attachment=attachment)
@@ -337,6 +323,13 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--hfov", type=float, default=90.0, help="horizontal field of view (deg)")
     parser.add_argument(
         "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
+    )
+    parser.add_argument(
+        "--filter",
+        choices=[kind.value for kind in FilterKind],
+        default=FilterKind.BIAS.value,
+        help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
+        "paper_c (paper C's 5-state EKF)",
     )
     parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
     parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")

@@ -22,8 +22,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common import keys
-from common.estimation.coupling import AttitudeOutput, PoseOutput
-from common.estimation.ekf import error_angle_covariance_world
+from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
 from common.messages import AttitudeEstimate, ImuSample, PoseEstimate, decode, encode
 from common.sim.flight import Flight, turns_flight
@@ -88,8 +87,7 @@ def test_each_output_of_a_batch_carries_its_own_covariance(flight: Flight) -> No
     published = [decode(p, a, AttitudeEstimate) for p, a in service._attitude_pub.puts]  # type: ignore[attr-defined]
     assert len(published) == len(attitudes)
     for msg, out in zip(published, attitudes, strict=True):
-        own = error_angle_covariance_world(out.q_world_body, np.diag(out.covariance_diag[:4]))
-        np.testing.assert_allclose(msg.covariance, own, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(msg.covariance, out.attitude_covariance_world, rtol=1e-12, atol=1e-18)
     assert not np.allclose(published[0].covariance, published[-1].covariance)
 
 
