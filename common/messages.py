@@ -19,11 +19,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal, TypeVar
+from typing import Annotated, Any, ClassVar, Literal, TypeVar
 
 import msgpack
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from common.errors import CapatazError
 from common.provenance import Provenance
@@ -38,6 +46,14 @@ WIRE_DTYPES: frozenset[str] = frozenset(
 _WIRE_NP_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in WIRE_DTYPES}
 #: Largest header accepted (bytes); arrays travel in the payload, so headers are small.
 MAX_HEADER_BYTES = 1 << 20
+#: Wire bounds: every count and size a sender chooses is bounded here, at the boundary.
+MAX_NAME_CHARS = 64  # UAV ids, stream names
+MAX_SEQ = (1 << 63) - 1  # msgpack's signed range
+MAX_FRAME_SIDE_PX = 8192
+MAX_JOB_PATCHES = 4096
+MAX_CROP_SIDE_PX = 512
+MAX_JOB_PIXELS = 1 << 24  # crops + previous crops of one job (16 MB)
+MAX_SETTINGS_ENTRIES = 64
 
 
 class WireError(CapatazError):
@@ -112,7 +128,7 @@ class WireModel(BaseModel):
         return value
 
 
-Uav = str
+Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -121,10 +137,10 @@ class Frame(WireModel):
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
     uav: Uav
-    seq: int = Field(ge=0)
+    seq: int = Field(ge=0, le=MAX_SEQ)
     stamp_s: float
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
+    width: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
+    height: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     encoding: Literal["mono8"] = "mono8"
     pixels: np.ndarray
 
@@ -180,7 +196,7 @@ class YawEstimate(WireModel):
     members: dict[str, int] = Field(default_factory=dict)
     #: each member's speed as its dispatcher measured it (patches/s; ``foreman>worker`` for the second tier).
     speeds_patches_s: dict[str, float] = Field(default_factory=dict)
-    #: frames of this stream dropped so far by latest-frame-wins.
+    #: frames of this stream dropped so far by the master's bounded frame queue (oldest first), each once.
     dropped_frames: int = Field(ge=0, default=0)
     #: shares re-dispatched in this frame because a member failed.
     redispatched: int = Field(ge=0, default=0)
@@ -243,10 +259,10 @@ class PatchJob(WireModel):
         "prev_indices": ArraySpec("<i4", (None,)),
         "prev_crops": ArraySpec("|u1", (None, None, None)),
     }
-    stream: str
-    seq: int = Field(ge=0)
-    prev_seq: int = Field(ge=-1)
-    settings: dict[str, Any]
+    stream: Uav
+    seq: int = Field(ge=0, le=MAX_SEQ)
+    prev_seq: int = Field(ge=-1, le=MAX_SEQ)
+    settings: dict[str, Any] = Field(max_length=MAX_SETTINGS_ENTRIES)
     indices: np.ndarray
     crops: np.ndarray
     prev_indices: np.ndarray
@@ -256,6 +272,13 @@ class PatchJob(WireModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> PatchJob:
+        if self.indices.shape[0] > MAX_JOB_PATCHES:
+            raise ValueError(f"indices: {self.indices.shape[0]} patches > {MAX_JOB_PATCHES}")
+        side = self.crops.shape[1:]
+        if side[0] != side[1] or not 0 < side[0] <= MAX_CROP_SIDE_PX:
+            raise ValueError(f"crops: {side} must be square, 1..{MAX_CROP_SIDE_PX} px")
+        if self.crops.size + self.prev_crops.size > MAX_JOB_PIXELS:
+            raise ValueError(f"crops: {self.crops.size + self.prev_crops.size} pixels > {MAX_JOB_PIXELS}")
         if self.crops.shape[0] != self.indices.shape[0]:
             raise ValueError(f"crops: {self.crops.shape[0]} crops for {self.indices.shape[0]} indices")
         if self.prev_crops.shape[0] != self.prev_indices.shape[0]:
