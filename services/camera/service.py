@@ -19,13 +19,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import keys
-from common.errors import CapatazError
+from common.errors import CapatazError, InputError
 from common.geometry import quaternion_from_euler
 from common.localization.model import default_scene
 from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
@@ -34,6 +33,13 @@ from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEsti
 from common.sim.camera import PinholeCamera
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from services.camera.replay import replay_recording
+from services.camera.sources import (
+    add_source_arguments,
+    open_camera_source,
+    preloaded,
+    source_settings_from_args,
+)
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -53,7 +59,23 @@ class CameraSettings(BaseModel):
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
     loop: bool = False
+    #: a recorded input instead of a simulation (at most one; see services/camera/sources.py)
     images: Path | None = None
+    #: per-frame stamps of ``images``: ``index,stamp`` CSV or EuRoC's ``data.csv``
+    stamps: Path | None = None
+    start: int = Field(default=0, ge=0)
+    stop: int | None = Field(default=None, ge=0)
+    step: int = Field(default=1, ge=1)
+    calibration: Path | None = None
+    bag: Path | None = None
+    image_topic: str | None = None
+    imu_topic: str | None = None
+    range_topic: str | None = None
+    camera_info_topic: str | None = None
+    euroc: Path | None = None
+    mcap: Path | None = None
+    #: a recording's replay speed (1 = recorded rate; 0 = as fast as consumed; ``fps = 0`` also unpaces)
+    rate: float = Field(default=1.0, ge=0.0)
     #: image size; None = the flight's own camera (752x480 over the ground, 320x240 in the office)
     width: int | None = None
     height: int | None = None
@@ -104,15 +126,6 @@ def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndar
     return flight.times_s, positions, angles
 
 
-def _image_files(folder: Path) -> list[Path]:
-    files = sorted(
-        p for p in folder.iterdir() if p.suffix.lower() in {".png", ".jpg", ".jpeg", ".pgm", ".bmp"}
-    )
-    if not files:
-        raise CapatazError(f"no images in {folder}")
-    return files
-
-
 class CameraService(ServiceRuntime):
     role = keys.Role.CAMERA
 
@@ -126,20 +139,21 @@ class CameraService(ServiceRuntime):
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
+        # a recorded input is opened and checked before anything is published (one clear error otherwise)
+        self.source = open_camera_source(settings)
+        if self.source is not None and settings.preload:
+            self.source = preloaded(self.source)
         self.flight: Flight | None = (
-            None if settings.images or settings.flight == "office" else simulated_flight(settings)
+            None if self.source is not None or settings.flight == "office" else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
         self.finished = threading.Event()
         self._entities: list[Any] = []
         self._masters = threading.Event()
-        self._preloaded: list[np.ndarray] | None = None
         self._odometry = (
-            office_odometry_poses(settings) if settings.flight == "office" and not settings.images else None
+            office_odometry_poses(settings) if settings.flight == "office" and self.source is None else None
         )
-        if settings.images is not None and settings.preload:
-            self._preloaded = list(self._images())
 
     def start(self, session: zenoh.Session) -> None:
         self._pub: dict[str, dict[str, Any]] = {}
@@ -183,25 +197,7 @@ class CameraService(ServiceRuntime):
             for i in range(self.flight.n_frames):
                 yield i, float(self.flight.frame_stamps_s[i]), self.flight.frame(i)
             return
-        if self.settings.images is None:
-            yield from office_frames(self.settings)
-            return
-        period = 1.0 / self.settings.fps if self.settings.fps else 0.05
-        for i, image in enumerate(self._images()):
-            yield i, i * period, image
-
-    def _images(self) -> Iterator[np.ndarray]:
-        """Images of the folder, read lazily, or all at once (``preload``) so reading costs no frame time."""
-        if self._preloaded is not None:
-            yield from self._preloaded
-            return
-        assert self.settings.images is not None
-        for path in _image_files(self.settings.images):
-            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                self.count_error("bad_images", "cannot read image", str(path))
-                continue
-            yield image
+        yield from office_frames(self.settings)
 
     def _put(self, uav: str, topic: str, message: Any) -> None:
         payload, attachment = encode(message)
@@ -271,6 +267,13 @@ class CameraService(ServiceRuntime):
             )
 
     def _publish_all(self) -> None:
+        self._wait_for_master()
+        if self.source is not None:
+            replay_recording(self, self.source)
+            return
+        self._publish_simulated()
+
+    def _wait_for_master(self) -> None:
         if self.settings.wait_master_s:
             deadline = time.monotonic() + self.settings.wait_master_s
             if not self._masters.wait(self.settings.wait_master_s):
@@ -280,6 +283,8 @@ class CameraService(ServiceRuntime):
                 if all(p["camera"].matching_status.matching for p in self._pub.values()):
                     break
                 time.sleep(0.01)
+
+    def _publish_simulated(self) -> None:
         t_start = time.monotonic()
         published = 0
         rounds = 0
@@ -340,8 +345,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--seed", type=int, default=0, help="simulation seed")
     parser.add_argument("--fps", type=float, default=20.0, help="frames per second (0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="replay forever")
-    parser.add_argument("--images", type=Path, help="publish a folder of images instead of a simulation")
-    parser.add_argument("--preload", action="store_true", help="read all --images before publishing")
+    parser.add_argument("--preload", action="store_true", help="read a whole recording before publishing")
     parser.add_argument(
         "--resolution", help="simulated camera WIDTHxHEIGHT (default: 752x480 ground, 320x240 office)"
     )
@@ -350,6 +354,7 @@ def register(subparsers: Any) -> None:
         "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
     )
     parser.add_argument("--wait-master", type=float, default=10.0, help="seconds to wait for a master")
+    add_source_arguments(parser)
     parser.set_defaults(handler=run)
 
 
@@ -361,6 +366,16 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
             width, height = (int(v) for v in args.resolution.lower().split("x"))
         except ValueError:
             raise CapatazError(f"--resolution must look like 752x480, got {args.resolution!r}") from None
+    try:
+        return _settings(args, width, height)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"--{'.'.join(map(str, e['loc'])).replace('_', '-')}: {e['msg']}" for e in exc.errors()
+        )
+        raise InputError(f"camera: {problems}") from None
+
+
+def _settings(args: argparse.Namespace, width: int | None, height: int | None) -> CameraSettings:
     return CameraSettings(
         uavs=tuple(args.uav or ["uav0"]),
         flight=args.flight,
@@ -368,13 +383,13 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
         seed=args.seed,
         fps=args.fps,
         loop=args.loop,
-        images=args.images,
         width=width,
         height=height,
         sensors=not args.no_sensors,
         in_flight=args.in_flight,
         wait_master_s=args.wait_master,
         preload=args.preload,
+        **source_settings_from_args(args),
     )
 
 

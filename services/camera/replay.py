@@ -1,0 +1,93 @@
+"""Replay of a recorded input (image folder, bag, EuRoC folder, capataz recording) by the camera service.
+
+Samples go out in stamp order with their own stamps (the sensor's time base), paced at the recorded rate
+times ``--rate`` or, with ``--rate 0`` / ``--fps 0``, as fast as they are consumed (``--in-flight K``
+is the flow control: at most K frames without a published yaw). ``--loop`` replays again, stamps shifted
+by the recording's span plus one frame period, so stamps keep increasing.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING
+
+from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.messages import Frame, ImuSample, RangeSample
+from services.camera.sources import RecordedSource
+
+if TYPE_CHECKING:
+    from services.camera.service import CameraService
+
+logger = logging.getLogger(__name__)
+
+
+def replay_recording(service: CameraService, source: RecordedSource) -> None:
+    """Publish ``source`` on every UAV stream of ``service`` (then mark the service finished)."""
+    settings = service.settings
+    paced = settings.fps > 0 and settings.rate > 0
+    logger.info("replaying %s%s", source.description, f" at {settings.rate:g}x" if paced else ", unpaced")
+    seq = {"camera": -1, "imu": -1, "range": -1}
+    offset_s = 0.0
+    first_s: float | None = None
+    last_s = 0.0
+    period_s = 0.05
+    t_wall0 = time.monotonic()
+    skip = lambda kind, why: service.count_error(f"skipped_{kind}", "sample skipped", why)  # noqa: E731
+    while not service.stop_event.is_set():
+        for m in source.measurements(skip):
+            if service.stop_event.is_set():
+                break
+            stamp_s = m.stamp_s + offset_s
+            if first_s is None:
+                first_s, t_wall0 = stamp_s, time.monotonic()
+            if paced:
+                delay = t_wall0 + (stamp_s - first_s) / settings.rate - time.monotonic()
+                if delay > 0 and service.stop_event.wait(delay):
+                    break
+            if isinstance(m, FrameMeasurement):
+                if seq["camera"] >= 0 and stamp_s > last_s:
+                    period_s = stamp_s - last_s
+                seq["camera"] += 1
+                last_s = stamp_s
+                h, w = m.image.shape
+                for uav in settings.uavs:
+                    service._wait_yaw(uav, seq["camera"] - 1)
+                    service._put(
+                        uav,
+                        "camera",
+                        Frame(uav=uav, seq=seq["camera"], stamp_s=stamp_s, width=w, height=h, pixels=m.image),
+                    )
+                service.counters.inc("frames_out")
+            elif not settings.sensors:
+                continue
+            elif isinstance(m, ImuMeasurement):
+                seq["imu"] += 1
+                for uav in settings.uavs:
+                    service._put(
+                        uav,
+                        "imu",
+                        ImuSample(
+                            uav=uav,
+                            seq=seq["imu"],
+                            stamp_s=stamp_s,
+                            gyro_rad_s=m.gyro_rad_s,
+                            accel_m_s2=m.accel_m_s2,
+                        ),
+                    )
+            elif isinstance(m, RangeMeasurement):
+                seq["range"] += 1
+                for uav in settings.uavs:
+                    service._put(
+                        uav,
+                        "range",
+                        RangeSample(uav=uav, seq=seq["range"], stamp_s=stamp_s, range_m=m.range_m),
+                    )
+        if not settings.loop or seq["camera"] < 0:
+            break
+        # next round: its first sample one frame period after this round's last frame
+        offset_s = last_s + period_s - (first_s if first_s is not None else 0.0)
+    for uav in settings.uavs:
+        service._wait_yaw(uav, seq["camera"])
+    service.finished.set()
+    service.stop_event.set()
