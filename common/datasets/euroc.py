@@ -9,10 +9,11 @@ tests store a simulated flight's rangefinder. IMU samples are passed through in 
 from __future__ import annotations
 
 import heapq
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import yaml
 
@@ -20,7 +21,7 @@ from common.datasets.images import ImageFolder, ImageFolderError, open_image_fol
 from common.datasets.source import CameraInfo
 from common.datasets.tum import Trajectory, TumError
 from common.errors import InputError
-from common.estimation.coupling import ImuMeasurement, Measurement, RangeMeasurement
+from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 
 
 class EurocError(InputError):
@@ -122,3 +123,56 @@ def open_euroc(folder: Path) -> EurocFolder:
             raise EurocError(f"ground truth {truth_csv}: {exc}") from None
     info = _camera_info(cam / "sensor.yaml", camera.width, camera.height)
     return EurocFolder(root, camera, imu[:, :7].copy(), rng[:, :2].copy(), info, truth)
+
+
+def write_euroc(
+    folder: Path,
+    measurements: Iterable[Measurement],
+    camera_info: CameraInfo | None = None,
+    ground_truth: Trajectory | None = None,
+) -> Path:
+    """Write ``measurements`` as a EuRoC folder (``folder/mav0/...``; frames as PNG, stamps in ns), the
+    rangefinder in capataz's ``range0`` extension. How a simulated flight is exported for EuRoC tools."""
+    mav = Path(folder) / "mav0"
+    for sub in ("cam0/data", "imu0", "range0", "state_groundtruth_estimate0"):
+        (mav / sub).mkdir(parents=True, exist_ok=True)
+    cam_rows, imu_rows, range_rows = [], [], []
+    for m in measurements:
+        ns = round(m.stamp_s * 1e9)
+        if isinstance(m, FrameMeasurement):
+            cv2.imwrite(str(mav / "cam0" / "data" / f"{ns}.png"), m.image)
+            cam_rows.append(f"{ns},{ns}.png")
+        elif isinstance(m, ImuMeasurement):
+            values = [*m.gyro_rad_s, *m.accel_m_s2]
+            imu_rows.append(f"{ns}," + ",".join(repr(float(v)) for v in values))
+        elif isinstance(m, RangeMeasurement):
+            range_rows.append(f"{ns},{m.range_m!r}")
+    (mav / "cam0" / "data.csv").write_text("#timestamp [ns],filename\n" + "".join(r + "\n" for r in cam_rows))
+    imu_header = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+    imu_header += "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n"
+    (mav / "imu0" / "data.csv").write_text(imu_header + "".join(r + "\n" for r in imu_rows))
+    (mav / "range0" / "data.csv").write_text(
+        "#timestamp [ns],range [m]\n" + "".join(r + "\n" for r in range_rows)
+    )
+    if camera_info is not None:
+        doc = {
+            "sensor_type": "camera",
+            "camera_model": "pinhole",
+            "intrinsics": [camera_info.fx, camera_info.fy, camera_info.cx, camera_info.cy],
+            "distortion_model": "radial-tangential",
+            "distortion_coefficients": list(camera_info.distortion) or [0.0, 0.0, 0.0, 0.0],
+            "resolution": [camera_info.width, camera_info.height],
+        }
+        (mav / "cam0" / "sensor.yaml").write_text(yaml.safe_dump(doc))
+    if ground_truth is not None:
+        rows = [
+            f"{round(t * 1e9)}," + ",".join(repr(float(v)) for v in (*p, *q))
+            for t, p, q in zip(
+                ground_truth.stamps_s, ground_truth.p_world_body_m, ground_truth.q_world_body, strict=True
+            )
+        ]
+        header = "#timestamp,p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []\n"
+        (mav / "state_groundtruth_estimate0" / "data.csv").write_text(
+            header + "".join(r + "\n" for r in rows)
+        )
+    return Path(folder)

@@ -265,6 +265,8 @@ def open_bag(
         counts: dict[str, int] = {}
         for c in reader.connections:
             counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
+        if not counts.get(topics.image):
+            raise BagError(f"{path}: image topic {topics.image} has no messages")
         info = None
         if topics.camera_info is not None:
             connections = [c for c in reader.connections if c.topic == topics.camera_info]

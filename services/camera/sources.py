@@ -13,13 +13,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from common.datasets.euroc import open_euroc
 from common.datasets.images import open_image_folder
 from common.datasets.rosbag import open_bag
 from common.datasets.source import CameraInfo
 from common.datasets.tum import Trajectory
 from common.errors import InputError
-from common.estimation.coupling import Measurement
+from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.sim.flight import Flight
 
 #: what a skipped sample is reported to: (kind, why)
 OnSkip = Callable[[str, str], None]
@@ -172,3 +175,21 @@ def source_settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
         "rate",
     )
     return {name: getattr(args, name) for name in names}
+
+
+def simulated_camera_measurements(flight: Flight) -> Iterator[Measurement]:
+    """Exactly what ``capataz camera`` publishes for ``flight`` (one round, no stamp offset): before each
+    frame, the IMU then the range samples stamped in ``(previous frame, this frame]`` (frame 0: all up to
+    it). Exporting this stream (a bag, a EuRoC folder) lets a replay be compared with the simulation."""
+    imu, rng = flight.imu, flight.range
+    previous = -np.inf
+    for i in range(flight.n_frames):
+        stamp = float(flight.frame_stamps_s[i])
+        a, b = np.searchsorted(imu.stamps_s, [previous, stamp], side="right")
+        for k in range(int(a), int(b)):
+            yield ImuMeasurement(float(imu.stamps_s[k]), imu.gyro_rad_s[k], imu.accel_m_s2[k])
+        a, b = np.searchsorted(rng.stamps_s, [previous, stamp], side="right")
+        for k in range(int(a), int(b)):
+            yield RangeMeasurement(float(rng.stamps_s[k]), float(rng.range_m[k]))
+        yield FrameMeasurement(stamp, flight.frame(i))
+        previous = stamp
