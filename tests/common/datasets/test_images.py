@@ -63,8 +63,10 @@ def test_index_stamp_csv_gives_each_image_its_stamp(tmp_path: Path) -> None:
 def test_euroc_data_csv_stamps_by_file_name(tmp_path: Path) -> None:
     folder = _folder(tmp_path, ["1403636579763555584.png", "1403636579813555456.png"])
     stamps = tmp_path / "data.csv"
-    stamps.write_text("#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n"
-                      "1403636579813555456,1403636579813555456.png\n")  # fmt: skip
+    stamps.write_text(
+        "#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n"
+        "1403636579813555456,1403636579813555456.png\n"
+    )
     opened = open_image_folder(folder, stamps)
     assert opened.stamps_s == (1403636579763555584 / 1e9, 1403636579813555456 / 1e9)
 
@@ -122,10 +124,24 @@ def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_pat
     else:
         folder = folder / "0.png"
     result = subprocess.run(
-        [sys.executable, "-m", "services.cli", "camera", "--images", str(folder), "--wait-master", "0",
-         "--listen", "tcp/127.0.0.1:0", "--no-multicast"],
-        capture_output=True, text=True, timeout=120, check=False,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "camera",
+            "--images",
+            str(folder),
+            "--wait-master",
+            "0",
+            "--listen",
+            "tcp/127.0.0.1:0",
+            "--no-multicast",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert result.returncode == 1
     lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
     assert len(lines) == 1 and "ImageFolderError" in lines[0], lines

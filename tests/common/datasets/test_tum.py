@@ -23,8 +23,11 @@ def _flight_trajectory(n: int = 200) -> Trajectory:
 def _noisy(truth: Trajectory, seed: int) -> Trajectory:
     rng = np.random.default_rng(seed)
     q = truth.q_world_body + rng.normal(0, 0.01, truth.q_world_body.shape)
-    return Trajectory(truth.stamps_s, truth.p_world_body_m + rng.normal(0, 0.05, truth.p_world_body_m.shape),
-                      q / np.linalg.norm(q, axis=1, keepdims=True))  # fmt: skip
+    return Trajectory(
+        truth.stamps_s,
+        truth.p_world_body_m + rng.normal(0, 0.05, truth.p_world_body_m.shape),
+        q / np.linalg.norm(q, axis=1, keepdims=True),
+    )
 
 
 @settings(max_examples=25, deadline=None)
@@ -34,8 +37,11 @@ def test_write_then_read_gives_the_same_floats(n: int, seed: int) -> None:
 
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
-    traj = Trajectory(np.cumsum(rng.uniform(0.001, 1.0, n)) + rng.uniform(0, 2e9), rng.normal(0, 100, (n, 3)),
-                      q / np.linalg.norm(q, axis=1, keepdims=True))  # fmt: skip
+    traj = Trajectory(
+        np.cumsum(rng.uniform(0.001, 1.0, n)) + rng.uniform(0, 2e9),
+        rng.normal(0, 100, (n, 3)),
+        q / np.linalg.norm(q, axis=1, keepdims=True),
+    )
     with tempfile.TemporaryDirectory() as tmp:
         back = read_tum(write_tum(Path(tmp) / "t.tum", traj))
     for name in ("stamps_s", "p_world_body_m", "q_world_body"):
@@ -59,11 +65,19 @@ def test_evo_reads_our_files_and_its_ape_equals_ours(tmp_path: Path) -> None:
     assert np.allclose(est.orientations_quat_wxyz, estimate.q_world_body, atol=0)
     ref, est = sync.associate_trajectories(ref, est)
     for relation, ours in (
-        (metrics.PoseRelation.translation_part,
-         ape_translation_rmse_m(estimate.stamps_s, estimate.p_world_body_m, truth.stamps_s, truth.p_world_body_m)),
-        (metrics.PoseRelation.rotation_angle_deg,
-         ape_rotation_rmse_deg(estimate.stamps_s, estimate.q_world_body, truth.stamps_s, truth.q_world_body)),
-    ):  # fmt: skip
+        (
+            metrics.PoseRelation.translation_part,
+            ape_translation_rmse_m(
+                estimate.stamps_s, estimate.p_world_body_m, truth.stamps_s, truth.p_world_body_m
+            ),
+        ),
+        (
+            metrics.PoseRelation.rotation_angle_deg,
+            ape_rotation_rmse_deg(
+                estimate.stamps_s, estimate.q_world_body, truth.stamps_s, truth.q_world_body
+            ),
+        ),
+    ):
         ape = metrics.APE(relation)
         ape.process_data((ref, est))
         theirs = ape.get_statistic(metrics.StatisticsType.rmse)
@@ -79,9 +93,13 @@ def test_yaw_trajectory_is_a_rotation_about_z() -> None:
 
 @pytest.mark.parametrize(
     ("text", "message"),
-    [("0 1 2 3 0 0 0\n", "expected 8 columns"), ("0 1 2 x 0 0 0 1\n", "not numbers"),
-     ("0 1 2 3 0 0 0 2\n", "unit quaternions"), ("0 nan 2 3 0 0 0 1\n", "NaN")],
-)  # fmt: skip
+    [
+        ("0 1 2 3 0 0 0\n", "expected 8 columns"),
+        ("0 1 2 x 0 0 0 1\n", "not numbers"),
+        ("0 1 2 3 0 0 0 2\n", "unit quaternions"),
+        ("0 nan 2 3 0 0 0 1\n", "NaN"),
+    ],
+)
 def test_malformed_files_name_the_problem(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "bad.tum"
     path.write_text(text)
