@@ -1,7 +1,8 @@
 """Replay of a recorded input (image folder, bag, EuRoC folder, capataz recording) by the camera service.
 
-Samples go out in stamp order with their own stamps (the sensor's time base), paced at the recorded rate
-times ``--rate`` or, with ``--rate 0`` / ``--fps 0``, as fast as they are consumed (``--in-flight K``
+Samples go out in stamp order with their own stamps (the sensor's time base), frames paced at the recorded
+rate times ``--rate`` (the IMU and range samples up to a frame go out just before it, as the simulated
+camera sends them) or, with ``--rate 0`` / ``--fps 0``, as fast as they are consumed (``--in-flight K``
 is the flow control: at most K frames without a published yaw). ``--loop`` replays again, stamps shifted
 by the recording's span plus one frame period, so stamps keep increasing.
 """
@@ -41,7 +42,7 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
             stamp_s = m.stamp_s + offset_s
             if first_s is None:
                 first_s, t_wall0 = stamp_s, time.monotonic()
-            if paced:
+            if paced and isinstance(m, FrameMeasurement):  # sensor samples go out as read, before their frame
                 delay = t_wall0 + (stamp_s - first_s) / settings.rate - time.monotonic()
                 if delay > 0 and service.stop_event.wait(delay):
                     break
