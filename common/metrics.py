@@ -85,6 +85,8 @@ def _associate_exact(
 ) -> npt.NDArray[np.intp]:
     """Index into ``ref`` of each estimate stamp (equal within ``tol_s``), else InputError."""
     ref = np.asarray(ref_stamps_s, dtype=np.float64)
+    if est_stamps_s.size == 0:
+        raise InputError("APE of an empty trajectory")
     order = np.argsort(ref)
     pos = np.clip(np.searchsorted(ref[order], est_stamps_s), 1, max(ref.size - 1, 1))
     left, right = order[pos - 1], order[np.minimum(pos, ref.size - 1)]

@@ -16,10 +16,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from common.datasets.tum import Trajectory
+from common.geometry import quaternion_from_euler
 from common.localization.particle_filter import ParticleFilterConfig
 from common.localization.scoring import ScoringMethod, ScoringParams
 from common.localization.simulation import simulate_run, track_run
 from common.localization.tracking import track_accuracy
+from services.trajectory import write_with_truth
 
 logger = logging.getLogger(__name__)
 
@@ -85,7 +88,12 @@ def run_demo(
         "settle_frames": settle,
         "reinitialisations": track.reinitialisations,
         "plot": str(path),
-    }
+        "tum": write_with_truth(
+            out_dir / "tum", "pose_pf",
+            Trajectory(t, track.means[:, :3], np.atleast_2d(quaternion_from_euler(*track.means[:, 3:6].T))),
+            Trajectory(t, truth[:, :3], np.atleast_2d(quaternion_from_euler(*truth[:, 3:6].T))),
+        ),
+    }  # fmt: skip
     print(
         f"localizer: {n_frames} frames through '{sim.scene.name}' ({sim.scene.n_edges} edges), "
         f"{n_particles} particles, {method.value}: after {settle} frames position RMSE "

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,16 @@ from common.estimation.coupling import (
     check_yaw,
 )
 from common.estimation.ekf import EkfSettings, error_angle_covariance_world
-from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from common.messages import (
+    AttitudeEstimate,
+    Frame,
+    ImuSample,
+    PoseEstimate,
+    RangeSample,
+    WireModel,
+    YawEstimate,
+    encode,
+)
 from common.sim.camera import PinholeCamera
 from services.runtime.transport import (
     LatestSlot,
@@ -52,6 +62,7 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
+from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 SENSOR_QUEUE = 4096
 
@@ -284,6 +295,8 @@ class EstimatorService(ServiceRuntime):
                 self.counters.time_ms("vo", out.vo_ms)
             payload, attachment = encode(msg)
             publisher.put(payload, attachment=attachment)
+            if self.trajectory_tap is not None:
+                self.trajectory_tap.write(msg)
             self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")
 
     def _mirror_counters(self) -> None:
@@ -312,6 +325,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
     parser.add_argument("--initial-yaw", type=float, default=0.0, help="initial yaw (rad)")
     parser.add_argument("--initial-xy", type=float, nargs=2, default=(0.0, 0.0), metavar=("X", "Y"))
+    add_trajectory_argument(parser, "pose/vo")
+    add_trajectory_argument(parser, "the attitude (position 0)", flag="--attitude-trajectory")
     parser.set_defaults(handler=run)
 
 
@@ -339,4 +354,8 @@ def run(args: argparse.Namespace) -> int:
     service = EstimatorService(
         args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
     )
-    return service.run()
+    paths: dict[type[WireModel], Path | None] = {
+        PoseEstimate: args.trajectory,
+        AttitudeEstimate: args.attitude_trajectory,
+    }
+    return run_with_trajectories(service, paths)

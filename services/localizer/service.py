@@ -52,6 +52,7 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
+from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
 class LocalizerSettings(BaseModel):
@@ -219,8 +220,11 @@ class LocalizerService(ServiceRuntime):
                 self.filter, self.state, frame.pixels, dt, self.rng, velocity, rates
             )
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
-            payload, attachment = encode(pose_message(self.settings.uav, frame.seq, frame.stamp_s, estimate))
+            message = pose_message(self.settings.uav, frame.seq, frame.stamp_s, estimate)
+            payload, attachment = encode(message)
             self._publisher.put(payload, attachment=attachment)
+            if self.trajectory_tap is not None:
+                self.trajectory_tap.write(message)
             self.counters.inc("poses_out")
 
 
@@ -249,6 +253,7 @@ def register(subparsers: Any) -> None:
         help="initial guess (m, rad); default: the simulated flight's start",
     )
     parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
+    add_trajectory_argument(parser, "pose/pf")
     parser.set_defaults(handler=run)
 
 
@@ -276,6 +281,7 @@ def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
 
 
 def run(args: argparse.Namespace) -> int:
-    return LocalizerService(
+    service = LocalizerService(
         args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
-    ).run()
+    )
+    return run_with_trajectories(service, {PoseEstimate: args.trajectory})
