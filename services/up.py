@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shlex
 import shutil
 import signal
 import socket
@@ -28,6 +29,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import keys
+from common.datasets.images import open_image_folder
 from common.errors import CapatazError
 from common.messages import WireError, YawEstimate, decode
 from services.runtime.transport import TransportSettings, open_session, zbytes
@@ -433,11 +435,30 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--logs", type=Path, default=Path("out/up"), help="log folder")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on")
     parser.add_argument("--compose", type=Path, help="write the cluster as a docker-compose file and exit")
+    parser.add_argument(
+        "--images", type=Path, help="run a camera on this image folder (checked before start)"
+    )
+    parser.add_argument(
+        "--stamps", type=Path, help="per-image stamps of --images (index,stamp CSV or data.csv)"
+    )
+    parser.add_argument("--calibration", type=Path, help="camera calibration file for --images")
+    parser.add_argument(
+        "--master-args",
+        default="",
+        help='extra master options (yaw settings), e.g. "--grid 8x5 --patch-size 32"',
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     spec = load_cluster(args.cluster)
+    camera_args = ["--frames", str(args.frames), "--fps", str(args.fps)] if args.frames else []
+    if args.images is not None:  # refused here, in one line, before any process starts
+        open_image_folder(args.images, args.stamps, fps=args.fps)
+        camera_args = ["--images", str(args.images), "--fps", str(args.fps)]
+        camera_args += ["--stamps", str(args.stamps)] if args.stamps else []
+        camera_args += ["--calibration", str(args.calibration)] if args.calibration else []
+    master_args = shlex.split(args.master_args)
     if args.compose:
         args.compose.parent.mkdir(parents=True, exist_ok=True)
         args.compose.write_text(yaml.safe_dump(compose_from_cluster(spec), sort_keys=False))
@@ -446,7 +467,9 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        with LocalCluster(spec, args.logs, port=args.port or None, shared_memory=args.shm) as cluster:
+        with LocalCluster(
+            spec, args.logs, port=args.port or None, shared_memory=args.shm, master_args=master_args
+        ) as cluster:
             t0 = time.monotonic()
             cluster.start()
             cluster.wait_alive(cluster.expected_members())
@@ -456,8 +479,8 @@ def run(args: argparse.Namespace) -> int:
             )
             with open_session(cluster.observer_transport()) as session:
                 collector = YawCollector(session, spec.uav)
-                if args.frames:
-                    cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps)])
+                if camera_args:
+                    cluster.start_camera(camera_args)
                 last = -1
                 while not stop.wait(1.0):
                     newest = collector.newest()
@@ -471,7 +494,7 @@ def run(args: argparse.Namespace) -> int:
                     if args.duration and time.monotonic() - t0 > args.duration:
                         break
                     camera = cluster.processes.get("camera/camera/0")
-                    if args.frames and camera is not None and camera.poll() is not None:
+                    if camera_args and camera is not None and camera.poll() is not None:
                         time.sleep(0.5)
                         break
                 print(f"received {len(collector.estimates)} yaw estimates")

@@ -17,8 +17,9 @@ import cv2
 import numpy as np
 import yaml
 
+from common.camera import CameraModel
+from common.datasets.calibration import CalibrationError, camera_from_camera_info
 from common.datasets.images import ImageFolder, ImageFolderError, open_image_folder
-from common.datasets.source import CameraInfo
 from common.datasets.tum import Trajectory, TumError
 from common.errors import InputError
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
@@ -36,7 +37,7 @@ class EurocFolder:
     camera: ImageFolder
     imu: np.ndarray  # (N, 7): stamp_s, gyro xyz rad/s, accel xyz m/s^2
     range: np.ndarray  # (M, 2): stamp_s, range_m
-    camera_info: CameraInfo | None
+    camera_info: CameraModel | None
     ground_truth: Trajectory | None
 
     def measurements(self) -> Iterator[Measurement]:
@@ -78,20 +79,26 @@ def _table(path: Path, columns: int, what: str) -> np.ndarray:
     return data
 
 
-def _camera_info(path: Path, width: int, height: int) -> CameraInfo | None:
+def _camera_info(path: Path, width: int, height: int) -> CameraModel | None:
+    """The camera of EuRoC's ``sensor.yaml`` (``intrinsics: [fu, fv, cu, cv]``, ``distortion_model``,
+    ``distortion_coefficients``, ``resolution``), or None without the file."""
     if not path.is_file():
         return None
     try:
         text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("%YAML"))
         doc = yaml.safe_load(text)
         fx, fy, cx, cy = (float(v) for v in doc["intrinsics"])
-        coeffs = tuple(float(v) for v in doc.get("distortion_coefficients", ()))
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
-        raise EurocError(f"camera calibration {path}: malformed ({exc})") from None
-    model = {"radial-tangential": "plumb_bob", "equidistant": "equidistant"}.get(
-        str(doc.get("distortion_model", "radial-tangential")), str(doc.get("distortion_model"))
-    )
-    return CameraInfo(width, height, fx, fy, cx, cy, model, coeffs, frame_id="cam0")
+        coeffs = [float(v) for v in doc.get("distortion_coefficients", ())]
+        w, h = (int(v) for v in doc.get("resolution", (width, height)))
+        model = str(doc.get("distortion_model", "radial-tangential"))
+        camera = camera_from_camera_info(w, h, model, coeffs, [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise EurocError(f"camera calibration {path}: malformed ({type(exc).__name__}: {exc})") from None
+    except CalibrationError as exc:
+        raise EurocError(f"camera calibration {path}: {exc}") from None
+    if (camera.width, camera.height) != (width, height):
+        raise EurocError(f"camera calibration {path}: {w}x{h}, but the images are {width}x{height}")
+    return camera
 
 
 def open_euroc(folder: Path) -> EurocFolder:
@@ -128,7 +135,7 @@ def open_euroc(folder: Path) -> EurocFolder:
 def write_euroc(
     folder: Path,
     measurements: Iterable[Measurement],
-    camera_info: CameraInfo | None = None,
+    camera_info: CameraModel | None = None,
     ground_truth: Trajectory | None = None,
 ) -> Path:
     """Write ``measurements`` as a EuRoC folder (``folder/mav0/...``; frames as PNG, stamps in ns), the
@@ -158,10 +165,14 @@ def write_euroc(
         doc = {
             "sensor_type": "camera",
             "camera_model": "pinhole",
-            "intrinsics": [camera_info.fx, camera_info.fy, camera_info.cx, camera_info.cy],
-            "distortion_model": "radial-tangential",
-            "distortion_coefficients": list(camera_info.distortion) or [0.0, 0.0, 0.0, 0.0],
-            "resolution": [camera_info.width, camera_info.height],
+            "intrinsics": [
+                float(v) for v in (camera_info.fx, camera_info.fy, camera_info.cx, camera_info.cy)
+            ],
+            "distortion_model": "equidistant"
+            if camera_info.distortion.model.value == "fisheye"
+            else "radial-tangential",
+            "distortion_coefficients": [float(c) for c in camera_info.distortion.coeffs] or [0.0] * 4,
+            "resolution": [int(camera_info.width), int(camera_info.height)],
         }
         (mav / "cam0" / "sensor.yaml").write_text(yaml.safe_dump(doc))
     if ground_truth is not None:

@@ -23,7 +23,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from common.datasets.source import CameraInfo, in_stamp_order, to_grey_u8
+from common.camera import CameraModel
+from common.datasets.calibration import CalibrationError, camera_from_camera_info
+from common.datasets.source import in_stamp_order, to_grey_u8
 from common.errors import InputError
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 
@@ -57,7 +59,10 @@ class Bag:
     path: Path
     topics: BagTopics
     counts: dict[str, int] = field(default_factory=dict)
-    camera_info: CameraInfo | None = None
+    camera_info: CameraModel | None = None
+    #: size of the first image (every frame must have it)
+    width: int = 0
+    height: int = 0
 
     def measurements(self, on_skip: Callable[[str, str], None] | None = None) -> Iterator[Measurement]:
         """Frames, IMU and range samples in stamp order. A sample that cannot be a measurement (a range
@@ -122,23 +127,17 @@ def image_of(msg: Any, msgtype: str, topic: str) -> np.ndarray:
     return to_grey_u8(pixels, encoding, topic)
 
 
-def camera_info_of(msg: Any, frame_id: str = "camera") -> CameraInfo:
-    """A ``sensor_msgs/CameraInfo`` as :class:`CameraInfo` (``K`` row-major, ``D`` in ROS order)."""
+def camera_info_of(msg: Any, topic: str = "camera_info") -> CameraModel:
+    """A ``sensor_msgs/CameraInfo`` as the project's :class:`~common.camera.CameraModel` (``K`` row-major,
+    ``D`` in ROS order; ``plumb_bob`` = radtan, ``equidistant`` = fisheye)."""
     k = np.asarray(msg.k if hasattr(msg, "k") else msg.K, dtype=np.float64)
     d = np.asarray(msg.d if hasattr(msg, "d") else msg.D, dtype=np.float64)
-    if k.shape != (9,) or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
-        raise BagError(f"camera_info: K must be 9 finite values with fx, fy > 0, got {k.tolist()}")
-    return CameraInfo(
-        int(msg.width),
-        int(msg.height),
-        float(k[0]),
-        float(k[4]),
-        float(k[2]),
-        float(k[5]),
-        str(msg.distortion_model) or "plumb_bob",
-        tuple(float(v) for v in d),
-        str(msg.header.frame_id) or frame_id,
-    )
+    try:
+        return camera_from_camera_info(
+            int(msg.width), int(msg.height), str(msg.distortion_model) or "plumb_bob", d.tolist(), k.tolist()
+        )
+    except CalibrationError as exc:
+        raise BagError(f"{topic}: camera_info is not a usable calibration ({exc})") from None
 
 
 #: what rosbags and the storage layers raise for a file that is not a (whole) bag
@@ -271,6 +270,20 @@ def open_bag(
         if topics.camera_info is not None:
             connections = [c for c in reader.connections if c.topic == topics.camera_info]
             for connection, _t, raw in _guard(path, reader.messages(connections=connections)):
-                info = camera_info_of(_deserialize(path, reader, raw, connection))
+                info = camera_info_of(_deserialize(path, reader, raw, connection), connection.topic)
                 break
-    return Bag(path, topics, counts, info)
+        # the first image is decoded now: an unsupported encoding is refused before anything is published
+        connections = [c for c in reader.connections if c.topic == topics.image]
+        first = None
+        for connection, _t, raw in _guard(path, reader.messages(connections=connections)):
+            msg = _deserialize(path, reader, raw, connection)
+            first = image_of(msg, connection.msgtype, connection.topic)
+            break
+    if first is None:
+        raise BagError(f"{path}: image topic {topics.image} has no readable message")
+    if info is not None and (info.width, info.height) != (first.shape[1], first.shape[0]):
+        raise BagError(
+            f"{topics.camera_info}: calibration is {info.width}x{info.height}, the images "
+            f"{first.shape[1]}x{first.shape[0]}"
+        )
+    return Bag(path, topics, counts, info, first.shape[1], first.shape[0])

@@ -14,8 +14,8 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from common.camera import CameraModel, DistortionModel
 from common.datasets.rosbag import COMPRESSED, IMAGE, IMU, INFO, RANGE, BagError
-from common.datasets.source import CameraInfo
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 
 #: topics of a written bag
@@ -30,7 +30,7 @@ TOPICS = {
 def write_bag(
     path: Path,
     measurements: Iterable[Measurement],
-    camera_info: CameraInfo | None = None,
+    camera_info: CameraModel | None = None,
     kind: Literal["ros2-mcap", "ros2-sqlite3", "ros1"] = "ros2-mcap",
     encoding: Literal["mono8", "bgr8", "rgb8", "mono16", "png"] = "mono8",
     range_limits_m: tuple[float, float] = (0.01, 100.0),
@@ -137,18 +137,27 @@ def _image_msg(T: Any, image: np.ndarray, encoding: str, header: Any) -> Any:
     )
 
 
-def _camera_info_msg(T: Any, info: CameraInfo, header: Any, ros1: bool) -> Any:
-    k = np.array([info.fx, 0.0, info.cx, 0.0, info.fy, info.cy, 0.0, 0.0, 1.0])
-    p = np.array([info.fx, 0.0, info.cx, 0.0, 0.0, info.fy, info.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+#: ROS's names of the distortion models
+ROS_DISTORTION = {
+    DistortionModel.NONE: "plumb_bob",
+    DistortionModel.RADTAN: "plumb_bob",
+    DistortionModel.FISHEYE: "equidistant",
+}
+
+
+def _camera_info_msg(T: Any, camera: CameraModel, header: Any, ros1: bool) -> Any:
+    k = camera.K.reshape(-1)
+    p = np.array([camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
     roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    matrices = {"D": np.array(info.distortion, dtype=np.float64), "K": k, "R": np.eye(3).reshape(-1), "P": p}
+    d = np.array(camera.distortion.coeffs or (0.0,) * 5, dtype=np.float64)
+    matrices = {"D": d, "K": k, "R": np.eye(3).reshape(-1), "P": p}
     if not ros1:
         matrices = {name.lower(): value for name, value in matrices.items()}
     return T[INFO](
         header=header,
-        height=info.height,
-        width=info.width,
-        distortion_model=info.distortion_model,
+        height=camera.height,
+        width=camera.width,
+        distortion_model=ROS_DISTORTION[camera.distortion.model],
         binning_x=0,
         binning_y=0,
         roi=roi,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import heapq
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -14,25 +13,6 @@ from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measure
 
 #: Order of measurements with equal stamps (the simulated camera's: IMU, range, then the frame).
 _KIND_ORDER = {ImuMeasurement: 0, RangeMeasurement: 1, FrameMeasurement: 2}
-
-
-@dataclass(frozen=True)
-class CameraInfo:
-    """Intrinsics as a recording states them (ROS ``sensor_msgs/CameraInfo`` or a EuRoC ``sensor.yaml``).
-
-    ``distortion_model`` is ROS's name (``plumb_bob``, ``rational_polynomial``, ``equidistant``) and
-    ``distortion`` its coefficients in ROS order (k1 k2 p1 p2 k3 for plumb_bob).
-    """
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    distortion_model: str = "plumb_bob"
-    distortion: tuple[float, ...] = ()
-    frame_id: str = "camera"
 
 
 def to_grey_u8(image: np.ndarray, encoding: str, what: str) -> np.ndarray:

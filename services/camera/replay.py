@@ -28,6 +28,8 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
     settings = service.settings
     paced = settings.fps > 0 and settings.rate > 0
     logger.info("replaying %s%s", source.description, f" at {settings.rate:g}x" if paced else ", unpaced")
+    if source.camera_info is not None:
+        logger.info("camera calibration: %s", source.camera_info)
     seq = {"camera": -1, "imu": -1, "range": -1}
     offset_s = 0.0
     first_s: float | None = None

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from common.camera import CameraModel
+from common.datasets.calibration import CalibrationError, load_calibration
 from common.datasets.euroc import open_euroc
 from common.datasets.images import open_image_folder
 from common.datasets.rosbag import open_bag
-from common.datasets.source import CameraInfo
 from common.datasets.tum import Trajectory
 from common.errors import InputError
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
@@ -34,17 +35,30 @@ class RecordedSource:
 
     description: str
     measurements: Callable[[OnSkip | None], Iterator[Measurement]]
-    camera_info: CameraInfo | None = None
+    camera_info: CameraModel | None = None
     ground_truth: Trajectory | None = None
     frames: int | None = None
+    #: frame size (every frame of the recording has it)
+    width: int = 0
+    height: int = 0
 
 
 def preloaded(source: RecordedSource) -> RecordedSource:
     """The same source with every measurement read into memory first (reading costs no frame time)."""
     items = list(source.measurements(None))
-    return RecordedSource(
-        source.description, lambda _skip: iter(items), source.camera_info, source.ground_truth, source.frames
-    )
+    return replace(source, measurements=lambda _skip: iter(items))
+
+
+def with_calibration(source: RecordedSource, path: Path) -> RecordedSource:
+    """``source`` with the camera of a calibration file (it replaces a recording's own CameraInfo); the
+    calibration must be of the recording's frame size."""
+    camera = load_calibration(path)
+    if source.width and (camera.width, camera.height) != (source.width, source.height):
+        raise CalibrationError(
+            f"calibration file {path}: {camera.width}x{camera.height}, but the frames are "
+            f"{source.width}x{source.height}"
+        )
+    return replace(source, camera_info=camera)
 
 
 def open_source(
@@ -76,6 +90,8 @@ def open_source(
             f"{len(folder)} images of {folder.path} ({folder.width}x{folder.height})",
             lambda _skip: iter(folder.frames()),
             frames=len(folder),
+            width=folder.width,
+            height=folder.height,
         )
     if bag is not None:
         opened = open_bag(bag, **(topics or {}))
@@ -85,6 +101,8 @@ def open_source(
             opened.measurements,
             camera_info=opened.camera_info,
             frames=opened.counts.get(opened.topics.image),
+            width=opened.width,
+            height=opened.height,
         )
     if euroc is not None:
         folder_e = open_euroc(euroc)
@@ -94,6 +112,8 @@ def open_source(
             camera_info=folder_e.camera_info,
             ground_truth=folder_e.ground_truth,
             frames=len(folder_e.camera),
+            width=folder_e.camera.width,
+            height=folder_e.camera.height,
         )
     if mcap is not None:
         from common.datasets.recording import open_recording
@@ -103,6 +123,8 @@ def open_source(
             f"capataz recording {recording.path} ({recording.frames} frames of {recording.uav})",
             lambda _skip: recording.measurements(),
             frames=recording.frames,
+            width=recording.width,
+            height=recording.height,
         )
     return None
 
@@ -113,7 +135,11 @@ def open_camera_source(settings: Any) -> RecordedSource | None:
         name: getattr(settings, name)
         for name in ("image_topic", "imu_topic", "range_topic", "camera_info_topic")
     }
-    return open_source(
+    if settings.calibration is not None and not any(
+        getattr(settings, name) is not None for name in ("images", "bag", "euroc", "mcap")
+    ):
+        raise InputError("--calibration needs a recorded input (--images, --bag, --euroc or --mcap)")
+    source = open_source(
         settings.images,
         settings.stamps,
         settings.start,
@@ -126,6 +152,9 @@ def open_camera_source(settings: Any) -> RecordedSource | None:
         settings.mcap,
         settings.uavs[0],
     )
+    if source is not None and settings.calibration is not None:
+        source = with_calibration(source, settings.calibration)
+    return source
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> None:

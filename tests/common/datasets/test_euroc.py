@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.camera import CameraModel
 from common.datasets.euroc import EurocError, open_euroc, write_euroc
-from common.datasets.source import CameraInfo
 from common.datasets.tum import Trajectory
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from common.sim.flight import hover_flight
@@ -20,7 +20,7 @@ def test_euroc_folder_reads_back_the_simulated_stream(tmp_path: Path) -> None:
     flight = hover_flight(seed=0, n_frames=5)
     stream = list(simulated_camera_measurements(flight))
     truth = Trajectory(flight.frame_stamps_s, flight.p_world_body_m, flight.q_world_body)
-    info = CameraInfo(752, 480, 376.0, 376.0, 375.5, 239.5)
+    info = CameraModel.default()
     write_euroc(tmp_path / "MH_sim", stream, info, truth)
     folder = open_euroc(tmp_path / "MH_sim")
     order = {ImuMeasurement: 0, RangeMeasurement: 1, FrameMeasurement: 2}
@@ -35,7 +35,7 @@ def test_euroc_folder_reads_back_the_simulated_stream(tmp_path: Path) -> None:
             assert np.array_equal(r.gyro_rad_s, e.gyro_rad_s)  # type: ignore[union-attr]
         else:
             assert r.range_m == e.range_m  # type: ignore[union-attr]
-    assert folder.camera_info is not None and folder.camera_info.fx == 376.0
+    assert folder.camera_info == info
     assert folder.ground_truth is not None
     assert np.array_equal(folder.ground_truth.p_world_body_m, truth.p_world_body_m)
     # the mav0 folder itself is accepted too

@@ -146,3 +146,19 @@ def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_pat
     lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
     assert len(lines) == 1 and "ImageFolderError" in lines[0], lines
     assert "Traceback" not in result.stderr
+
+
+def test_calibration_file_must_match_the_folders_image_size(tmp_path: Path) -> None:
+    from common.camera import CameraModel
+    from common.datasets.calibration import CalibrationError, ros_yaml_text
+    from services.camera.service import CameraSettings
+    from services.camera.sources import open_camera_source
+
+    folder = _folder(tmp_path, ["0.png", "1.png"])  # 64x48
+    good, bad = tmp_path / "good.yaml", tmp_path / "bad.yaml"
+    good.write_text(ros_yaml_text(CameraModel.from_hfov(64, 48, 90.0)))
+    bad.write_text(ros_yaml_text(CameraModel.default()))  # 752x480
+    source = open_camera_source(CameraSettings(images=folder, calibration=good))
+    assert source is not None and source.camera_info == CameraModel.from_hfov(64, 48, 90.0)
+    with pytest.raises(CalibrationError, match="752x480, but the frames are 64x48"):
+        open_camera_source(CameraSettings(images=folder, calibration=bad))

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.camera import CameraModel, Distortion, DistortionModel
 from common.datasets.rosbag import BagError, open_bag
 from common.datasets.rosbag_writer import write_bag
-from common.datasets.source import CameraInfo
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.sim.flight import Flight, hover_flight
 from services.camera.sources import simulated_camera_measurements
@@ -28,10 +28,16 @@ def stream(flight: Flight) -> list[Measurement]:
     return list(simulated_camera_measurements(flight))
 
 
-def _info(flight: Flight) -> CameraInfo:
+def _info(flight: Flight) -> CameraModel:
     c = flight.camera
-    return CameraInfo(
-        c.width, c.height, float(c.fx), float(c.fy), c.cx, c.cy, "plumb_bob", (0.1, -0.02, 0, 0, 0)
+    return CameraModel(
+        c.width,
+        c.height,
+        c.fx,
+        c.fy,
+        c.cx,
+        c.cy,
+        Distortion(DistortionModel.RADTAN, (0.1, -0.02, 0.0, 0.0, 0.0)),
     )
 
 
@@ -77,7 +83,7 @@ def test_bag_reads_back_the_simulated_stream(
         float(flight.camera.fx),
         239.5,
     )
-    assert bag.camera_info.distortion == (0.1, -0.02, 0, 0, 0)
+    assert bag.camera_info == _info(flight)  # CameraInfo became the project's camera model
     _assert_same(list(bag.measurements()), stream)
 
 
@@ -108,9 +114,8 @@ def test_unknown_encoding_is_one_clear_error(tmp_path: Path, stream: list[Measur
             data=np.zeros(4, np.uint8),
         )
         writer.write(conn, 1, ts.serialize_cdr(msg, "sensor_msgs/msg/Image"))
-    bag = open_bag(tmp_path / "bayer")
     with pytest.raises(BagError, match="encoding 'bayer_rggb8' is not supported"):
-        list(bag.measurements())
+        open_bag(tmp_path / "bayer")  # refused at open, before a frame is published
 
 
 def test_missing_topics_are_named(tmp_path: Path, stream: list[Measurement]) -> None:
