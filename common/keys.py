@@ -37,6 +37,8 @@ class Role(StrEnum):
     ROUTER = "router"
     ESTIMATOR = "estimator"
     LOCALIZER = "localizer"
+    RECORDER = "recorder"
+    VIEWER = "viewer"
 
 
 def check_name(value: str, what: str = "name") -> str:
@@ -104,6 +106,8 @@ def health_key(role: str | Role, node: str, i: int) -> str:
     return f"{ROOT}/health/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
 
 
+#: everything capataz publishes (what ``capataz record`` subscribes to)
+ALL = f"{ROOT}/**"
 #: every liveliness token / every stats publication / every health queryable
 ALIVE_ALL = f"{ROOT}/alive/**"
 STATS_ALL = f"{ROOT}/stats/**"
