@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from common.localization.simulation import simulate_run
-from services.camera.service import CameraSettings, camera_settings_from_args, office_frames
+from services.camera.service import CameraSettings, camera_settings_from_args
+from services.camera.simulated import office_frames
 from services.cli import build_parser
 
 

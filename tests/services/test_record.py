@@ -46,20 +46,50 @@ def test_record_writes_every_key_as_a_channel_and_reads_back(tmp_path: Path) -> 
     assert service.started.wait(20.0)
     sent = []
     with open_session(TransportSettings(connect=(f"tcp/127.0.0.1:{port}",))) as session:
-        publishers = {k: session.declare_publisher(k) for k in
-                      (keys.camera_key("uav0"), keys.imu_key("uav0"), keys.range_key("uav0"), keys.pose_vo_key("uav0"))}  # fmt: skip
+        publishers = {
+            k: session.declare_publisher(k)
+            for k in (
+                keys.camera_key("uav0"),
+                keys.imu_key("uav0"),
+                keys.range_key("uav0"),
+                keys.pose_vo_key("uav0"),
+            )
+        }
         assert _wait(lambda: all(p.matching_status.matching for p in publishers.values()))
         for i in range(3):
             stamp = float(flight.frame_stamps_s[i])
             messages = [
-                (keys.imu_key("uav0"), ImuSample(uav="uav0", seq=i, stamp_s=stamp - 0.001,
-                                                 gyro_rad_s=flight.imu.gyro_rad_s[i], accel_m_s2=flight.imu.accel_m_s2[i])),
-                (keys.range_key("uav0"), RangeSample(uav="uav0", seq=i, stamp_s=stamp - 0.0005, range_m=1.5 + i)),
-                (keys.camera_key("uav0"), Frame(uav="uav0", seq=i, stamp_s=stamp, width=752, height=480,
-                                                pixels=flight.frame(i))),
-                (keys.pose_vo_key("uav0"), PoseEstimate(uav="uav0", seq=i, stamp_s=stamp, p_world_body_m=[i, 2.0, 3.0],
-                                                        q_world_body=[1.0, 0, 0, 0], covariance=np.eye(6) * (i + 1), source="vo")),
-            ]  # fmt: skip
+                (
+                    keys.imu_key("uav0"),
+                    ImuSample(
+                        uav="uav0",
+                        seq=i,
+                        stamp_s=stamp - 0.001,
+                        gyro_rad_s=flight.imu.gyro_rad_s[i],
+                        accel_m_s2=flight.imu.accel_m_s2[i],
+                    ),
+                ),
+                (
+                    keys.range_key("uav0"),
+                    RangeSample(uav="uav0", seq=i, stamp_s=stamp - 0.0005, range_m=1.5 + i),
+                ),
+                (
+                    keys.camera_key("uav0"),
+                    Frame(uav="uav0", seq=i, stamp_s=stamp, width=752, height=480, pixels=flight.frame(i)),
+                ),
+                (
+                    keys.pose_vo_key("uav0"),
+                    PoseEstimate(
+                        uav="uav0",
+                        seq=i,
+                        stamp_s=stamp,
+                        p_world_body_m=[i, 2.0, 3.0],
+                        q_world_body=[1.0, 0, 0, 0],
+                        covariance=np.eye(6) * (i + 1),
+                        source="vo",
+                    ),
+                ),
+            ]
             for key, message in messages:
                 payload, attachment = encode(message)
                 publishers[key].put(payload, attachment=attachment)
@@ -78,8 +108,13 @@ def test_record_writes_every_key_as_a_channel_and_reads_back(tmp_path: Path) -> 
         assert summary is not None
         by_topic = {c.topic: c for c in summary.channels.values()}
         schemas = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
-        assert set(by_topic) == {keys.camera_key("uav0"), keys.imu_key("uav0"), keys.range_key("uav0"),
-                                 keys.pose_vo_key("uav0"), keys.pose_vo_key("uav0") + "/in_frame"}  # fmt: skip
+        assert set(by_topic) == {
+            keys.camera_key("uav0"),
+            keys.imu_key("uav0"),
+            keys.range_key("uav0"),
+            keys.pose_vo_key("uav0"),
+            keys.pose_vo_key("uav0") + "/in_frame",
+        }
         assert schemas[keys.camera_key("uav0")].name == "foxglove.RawImage"
         assert by_topic[keys.camera_key("uav0")].message_encoding == "protobuf"
         assert schemas[keys.pose_vo_key("uav0") + "/in_frame"].name == "foxglove.PoseInFrame"
@@ -120,8 +155,14 @@ def test_truncated_recording_is_one_clear_error(tmp_path: Path) -> None:
     flight = hover_flight(seed=0, n_frames=4)
     writer = RecordingWriter(tmp_path / "r.mcap")
     for i in range(4):
-        frame = Frame(uav="u", seq=i, stamp_s=float(flight.frame_stamps_s[i]), width=752, height=480,
-                      pixels=flight.frame(i))  # fmt: skip
+        frame = Frame(
+            uav="u",
+            seq=i,
+            stamp_s=float(flight.frame_stamps_s[i]),
+            width=752,
+            height=480,
+            pixels=flight.frame(i),
+        )
         writer.write(keys.camera_key("u"), frame, 1000 + i)
     writer.close()
     data = (tmp_path / "r.mcap").read_bytes()

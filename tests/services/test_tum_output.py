@@ -57,13 +57,34 @@ def test_estimator_tum_files_evo_agrees_with(tmp_path: Path) -> None:
 
 
 def test_services_trajectory_tap_writes_each_estimate_once(tmp_path: Path) -> None:
-    tap = TrajectoryTap({YawEstimate: tmp_path / "yaw.tum", PoseEstimate: tmp_path / "pose.tum",
-                         AttitudeEstimate: None})  # fmt: skip
+    tap = TrajectoryTap(
+        {YawEstimate: tmp_path / "yaw.tum", PoseEstimate: tmp_path / "pose.tum", AttitudeEstimate: None}
+    )
     q = np.array([np.cos(0.25), 0.0, 0.0, np.sin(0.25)])
-    tap.write(YawEstimate(uav="u", seq=0, stamp_s=1.5, delta_yaw_rad=0.0, yaw_rad=0.5, inlier_count=0,
-                          patch_count=0, confidence=1.0, low_confidence=False, method="patch"))  # fmt: skip
-    tap.write(PoseEstimate(uav="u", stamp_s=2.0, p_world_body_m=[1.0, 2.0, 3.0], q_world_body=q,
-                           covariance=np.eye(6), source="vo"))  # fmt: skip
+    tap.write(
+        YawEstimate(
+            uav="u",
+            seq=0,
+            stamp_s=1.5,
+            delta_yaw_rad=0.0,
+            yaw_rad=0.5,
+            inlier_count=0,
+            patch_count=0,
+            confidence=1.0,
+            low_confidence=False,
+            method="patch",
+        )
+    )
+    tap.write(
+        PoseEstimate(
+            uav="u",
+            stamp_s=2.0,
+            p_world_body_m=[1.0, 2.0, 3.0],
+            q_world_body=q,
+            covariance=np.eye(6),
+            source="vo",
+        )
+    )
     tap.write(AttitudeEstimate(uav="u", stamp_s=2.0, q_world_body=q, covariance=np.eye(3)))  # no file asked
     tap.close()
     yaw, pose = read_tum(tmp_path / "yaw.tum"), read_tum(tmp_path / "pose.tum")

@@ -1,0 +1,57 @@
+"""The camera's simulated inputs: paper A's hover or paper C's turns over the ground; the office."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from common.camera import CameraModel
+from common.localization.model import default_scene
+from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
+from common.localization.tracking import noisy_odometry
+from common.sim.flight import Flight, hover_flight, turns_flight
+from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+
+if TYPE_CHECKING:
+    from services.camera.service import CameraSettings
+
+DEFAULT_HFOV_DEG = 90.0
+
+
+def simulated_flight(settings: CameraSettings) -> Flight:
+    """The ground flight the camera replays (the in-process reference builds the same one)."""
+    camera = (
+        None
+        if settings.width is None or settings.height is None
+        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
+    )
+    if settings.flight == "turns":
+        return turns_flight(seed=settings.seed, camera=camera)
+    return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
+
+
+def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
+    """The localizer's default flight through the built-in office: the same frames as
+    ``common.localization.simulation.simulate_run(settings.frames, settings.seed)``."""
+    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
+    flight = default_flight(n_frames=settings.frames)
+    rng = np.random.default_rng(settings.seed)
+    images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
+    for i, image in enumerate(images):
+        yield i, float(flight.times_s[i]), image
+
+
+def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stamps (T,), positions (T, 3) and Euler angles (T, 3) whose frame-to-frame differences are the office
+    flight's noisy odometry (the localizer's in-process stand-in for VO), starting at the true first pose."""
+    flight = default_flight(n_frames=settings.frames)
+    odometry = noisy_odometry(
+        flight.velocities_world_m_s, flight.euler_rates_rad_s, np.random.default_rng(settings.seed + 1)
+    )
+    dt_s = np.diff(flight.times_s, prepend=flight.times_s[0])[:, None]
+    start = flight.states[0]
+    positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
+    angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
+    return flight.times_s, positions, angles
