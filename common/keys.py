@@ -8,6 +8,7 @@
 | ``capataz/uav/{uav}/yaw``               | pub/sub    | YawEstimate                   |
 | ``capataz/uav/{uav}/attitude``          | pub/sub    | AttitudeEstimate              |
 | ``capataz/uav/{uav}/pose/vo``, ``/pf``  | pub/sub    | PoseEstimate                  |
+| ``capataz/uav/{uav}/truth``             | pub/sub    | PoseEstimate (simulated only) |
 | ``capataz/node/{node}/foreman``         | queryable  | BlockJob -> BlockResult       |
 | ``capataz/node/{node}/worker/{i}``      | queryable  | PatchJob -> PatchResult       |
 | ``capataz/alive/{role}/{node}/{i}``     | liveliness | membership                    |
@@ -84,6 +85,11 @@ def pose_vo_key(uav: str) -> str:
 
 def pose_pf_key(uav: str) -> str:
     return uav_key(uav, "pose/pf")
+
+
+def truth_key(uav: str) -> str:
+    """Ground truth of a simulated flight (PoseEstimate, source ``truth``), published by the camera."""
+    return uav_key(uav, "truth")
 
 
 def foreman_key(node: str) -> str:

@@ -29,6 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.localizer",
     "services.estimator",
     "services.record",
+    "services.view",
 )
 
 

@@ -45,6 +45,7 @@ class _ArraysAsLists(GenerateJsonSchema):
 def json_schema(cls: type[WireModel]) -> dict[str, Any]:
     """JSON Schema of a wire message; array fields are nested lists of numbers (dtype and shape noted)."""
     schema = cls.model_json_schema(schema_generator=_ArraysAsLists)
+    schema["title"] = f"capataz.{cls.__name__}"
     for name, spec in cls.ARRAYS.items():
         shape = ["n" if n is None else n for n in spec.shape]
         schema["properties"][name] = {"type": "array", "description": f"{spec.dtype} array of shape {shape}"}

@@ -33,6 +33,7 @@ from services.camera.simulated import (
     office_frames,
     office_odometry_poses,
     simulated_flight,
+    truth_pose,
 )
 from services.camera.sources import (
     add_source_arguments,
@@ -132,6 +133,7 @@ class CameraService(ServiceRuntime):
                 "imu": session.declare_publisher(keys.imu_key(uav)),
                 "range": session.declare_publisher(keys.range_key(uav)),
                 "pose_vo": session.declare_publisher(keys.pose_vo_key(uav)),
+                "truth": session.declare_publisher(keys.truth_key(uav)),
             }
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
@@ -277,6 +279,8 @@ class CameraService(ServiceRuntime):
                             pixels=image,
                         ),
                     )
+                    if self.flight is not None:  # the simulation's ground truth (for views, recordings)
+                        self._put(uav, "truth", truth_pose(uav, seq, stamp_s + offset, self.flight, _i))
                 previous_stamp, span = stamp_s, stamp_s + 0.05
                 last_seq = seq
                 published += 1

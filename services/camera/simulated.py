@@ -11,6 +11,7 @@ from common.camera import CameraModel
 from common.localization.model import default_scene
 from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
+from common.messages import PoseEstimate
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 
@@ -55,3 +56,16 @@ def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndar
     positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
     angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
     return flight.times_s, positions, angles
+
+
+def truth_pose(uav: str, seq: int, stamp_s: float, flight: Flight, i: int) -> PoseEstimate:
+    """The simulated flight's true pose at frame ``i`` (world frame, zero covariance, source ``truth``)."""
+    return PoseEstimate(
+        uav=uav,
+        seq=seq,
+        stamp_s=stamp_s,
+        p_world_body_m=flight.p_world_body_m[i],
+        q_world_body=flight.q_world_body[i],
+        covariance=np.zeros((6, 6)),
+        source="truth",
+    )

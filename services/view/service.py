@@ -1,0 +1,248 @@
+"""``capataz view``: a Foxglove WebSocket server (foxglove-sdk) on 127.0.0.1 that republishes, per UAV, what
+a user wants to watch of a flight. Connect the Foxglove app to ``ws://127.0.0.1:8765`` and open
+``deploy/foxglove/capataz.json`` (the layout).
+
+Foxglove topics (``{key}`` = a Zenoh key of the UAV, e.g. ``capataz/uav/uav0/pose/pf``):
+
+- ``/{key}`` of ``camera``: foxglove.RawImage (mono8), down-scaled to ``--image-width``, at most
+  ``--image-rate`` Hz;
+- ``/{key}`` of ``yaw``, ``attitude``, ``pose/vo``, ``pose/pf``, ``truth`` (simulated flights) and of every
+  ``capataz/stats/...``: JSON, the whole message (covariances, timings) with its JSON Schema;
+- ``/capataz/uav/{uav}/cluster``: JSON of each yaw's per-member shares and stage timings;
+- ``/{key}/in_frame`` of each pose key: foxglove.PoseInFrame in frame ``world`` (Foxglove's 3D panel);
+- ``/tf``: foxglove.FrameTransform ``world`` -> ``{uav}/vo``, ``{uav}/pf``, ``{uav}/truth``.
+
+Channels are advertised when their first message arrives. The Zenoh callbacks only hand a sample off
+(frames: to a latest-wins slot per UAV after the rate limit; the rest: to a bounded queue); one thread
+decodes, converts and logs to the server. A malformed sample is counted and dropped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from typing import Any
+
+import cv2
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from common import keys
+from common.datasets.recording import FRAME_IDS, json_schema, to_json
+from common.messages import Frame, PoseEstimate, Stats, WireError, WireModel, YawEstimate, decode
+from services.runtime.transport import (
+    ServiceRuntime,
+    TransportSettings,
+    WorkQueue,
+    add_transport_arguments,
+    transport_from_args,
+    zbytes,
+)
+
+logger = logging.getLogger(__name__)
+
+#: what the cluster channel carries of a YawEstimate
+CLUSTER_SCHEMA = {
+    "type": "object",
+    "title": "capataz.Cluster",
+    "properties": {
+        "stamp_s": {"type": "number"},
+        "members": {"type": "object", "description": "patches per member in this frame"},
+        "timings_ms": {"type": "object", "description": "stage timings and per-member speeds"},
+        "dropped_frames": {"type": "integer"},
+        "redispatched": {"type": "integer"},
+    },
+}
+
+
+class ViewSettings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    host: str = "127.0.0.1"
+    #: WebSocket port (0 = any free port)
+    port: int = Field(default=8765, ge=0, le=65535)
+    #: frames are down-scaled to at most this width (pixels)
+    image_width: int = Field(default=376, ge=16)
+    #: frames republished per UAV per second at most
+    image_rate_hz: float = Field(default=5.0, gt=0.0)
+    queue: int = Field(default=512, ge=1)
+
+
+_Item = tuple[str, bytes | None, bytes | None]
+
+
+class ViewService(ServiceRuntime):
+    role = keys.Role.VIEWER
+
+    def __init__(
+        self,
+        node: str,
+        index: int,
+        transport: TransportSettings,
+        settings: ViewSettings,
+        stats_period_s: float = 1.0,
+    ) -> None:
+        super().__init__(node, index, transport, stats_period_s)
+        self.settings = settings
+        self._queue: WorkQueue[_Item] = WorkQueue(settings.queue)
+        self._last_frame_s: dict[str, float] = {}
+        self._channels: dict[str, Any] = {}
+        self._entities: list[Any] = []
+        self.server: Any = None
+        self.context: Any = None
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+    def start(self, session: zenoh.Session) -> None:
+        import foxglove
+
+        self.context = foxglove.Context()
+        self.server = foxglove.start_server(
+            name="capataz", host=self.settings.host, port=self.settings.port, context=self.context
+        )
+        logger.info("Foxglove WebSocket server on ws://%s:%d", self.settings.host, self.server.port)
+        self._entities.append(session.declare_subscriber(f"{keys.ROOT}/uav/**", self._on_sample))
+        self._entities.append(session.declare_subscriber(keys.STATS_ALL, self._on_sample))
+        self.spawn(self._convert_loop, "convert")
+
+    def stop(self) -> None:
+        self.undeclare_all(self._entities)
+        if self.server is not None:
+            self.server.stop()
+
+    @property
+    def port(self) -> int:
+        return int(self.server.port) if self.server is not None else 0
+
+    def queue_depths(self) -> dict[str, int]:
+        return {"convert": self._queue.depth()}
+
+    # -- callback: rate limit frames, hand off -----------------------------------------------------------
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if key.endswith("/camera"):
+            now = time.monotonic()
+            if now - self._last_frame_s.get(key, -1e9) < 1.0 / self.settings.image_rate_hz:
+                self.counters.inc("frames_skipped")
+                return
+            self._last_frame_s[key] = now
+        if not self._queue.offer((key, zbytes(sample.payload), zbytes(sample.attachment))):
+            self.counters.inc("dropped_full")
+
+    # -- the converting thread ---------------------------------------------------------------------------
+    def _convert_loop(self) -> None:
+        while not self.stop_event.is_set():
+            item = self._queue.take(0.1)
+            if item is None:
+                continue
+            key, payload, attachment = item
+            try:
+                message: WireModel = decode(payload, attachment)
+            except WireError as exc:
+                self.count_error("malformed", f"bad message on {key}", exc)
+                continue
+            self._republish(key, message, time.time_ns())
+
+    def _channel(self, topic: str, kind: str, schema: dict[str, Any] | None = None) -> Any:
+        channel = self._channels.get(topic)
+        if channel is None:
+            import foxglove
+            from foxglove.channels import FrameTransformChannel, PoseInFrameChannel, RawImageChannel
+
+            if kind == "image":
+                channel = RawImageChannel(topic, context=self.context)
+            elif kind == "pose":
+                channel = PoseInFrameChannel(topic, context=self.context)
+            elif kind == "tf":
+                channel = FrameTransformChannel(topic, context=self.context)
+            else:
+                channel = foxglove.Channel(topic, schema=schema, context=self.context)
+            self._channels[topic] = channel
+            self.counters.inc("channels")
+        return channel
+
+    def _republish(self, key: str, message: WireModel, log_ns: int) -> None:
+        from foxglove.messages import (
+            FrameTransform,
+            Pose,
+            PoseInFrame,
+            Quaternion,
+            RawImage,
+            Timestamp,
+            Vector3,
+        )
+
+        topic = "/" + key
+        if isinstance(message, Frame):
+            pixels = message.pixels
+            if message.width > self.settings.image_width:
+                height = max(1, round(message.height * self.settings.image_width / message.width))
+                pixels = cv2.resize(pixels, (self.settings.image_width, height), interpolation=cv2.INTER_AREA)
+            h, w = pixels.shape
+            image = RawImage(
+                timestamp=_stamp(message.stamp_s, Timestamp),
+                frame_id=FRAME_IDS["Frame"],
+                width=w,
+                height=h,
+                encoding="mono8",
+                step=w,
+                data=pixels.tobytes(),
+            )
+            self._channel(topic, "image").log(image, log_time=log_ns)
+            self.counters.inc("frames_out")
+            return
+        self._channel(topic, "json", json_schema(type(message))).log(to_json(message), log_time=log_ns)
+        if isinstance(message, YawEstimate):
+            cluster = {
+                "stamp_s": message.stamp_s,
+                "members": message.members,
+                "timings_ms": message.timings_ms,
+                "dropped_frames": message.dropped_frames,
+                "redispatched": message.redispatched,
+            }
+            self._channel(topic.removesuffix("/yaw") + "/cluster", "json", CLUSTER_SCHEMA).log(
+                cluster, log_time=log_ns
+            )
+        elif isinstance(message, PoseEstimate):
+            p, q = message.p_world_body_m, message.q_world_body
+            stamp = _stamp(message.stamp_s, Timestamp)
+            position = Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+            orientation = Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0]))
+            pose = PoseInFrame(
+                timestamp=stamp, frame_id="world", pose=Pose(position=position, orientation=orientation)
+            )
+            self._channel(topic + "/in_frame", "pose").log(pose, log_time=log_ns)
+            child = f"{message.uav}/{key.rsplit('/', 1)[-1]}"  # uav0/vo, uav0/pf, uav0/truth
+            tf = FrameTransform(
+                timestamp=stamp,
+                parent_frame_id="world",
+                child_frame_id=child,
+                translation=position,
+                rotation=orientation,
+            )
+            self._channel("/tf", "tf").log(tf, log_time=log_ns)
+        elif isinstance(message, Stats):
+            pass  # the JSON above carries its counters, timings, queue depths and shares
+        self.counters.inc("messages_out")
+
+
+def _stamp(stamp_s: float, timestamp: Any) -> Any:
+    ns = max(0, round(stamp_s * 1e9))
+    return timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser("view", help="Foxglove WebSocket server: watch each UAV's flight live")
+    add_transport_arguments(parser, node_default="view")
+    parser.add_argument("--host", default="127.0.0.1", help="WebSocket address (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765)")
+    parser.add_argument("--image-width", type=int, default=376, help="frames down-scaled to this width")
+    parser.add_argument("--image-rate", type=float, default=5.0, help="frames per second per UAV at most")
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = ViewSettings(
+        host=args.host, port=args.port, image_width=args.image_width, image_rate_hz=args.image_rate
+    )
+    return ViewService(args.node, args.index, transport_from_args(args), settings, args.stats_period).run()
