@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -39,6 +40,7 @@ from services.runtime.transport import (
     transport_from_args,
     zbytes,
 )
+from services.view.layout import layout_json
 
 logger = logging.getLogger(__name__)
 
@@ -238,10 +240,17 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765)")
     parser.add_argument("--image-width", type=int, default=376, help="frames down-scaled to this width")
     parser.add_argument("--image-rate", type=float, default=5.0, help="frames per second per UAV at most")
+    parser.add_argument("--write-layout", type=Path, help="write the Foxglove layout (for --uav) and exit")
+    parser.add_argument("--uav", default="uav0", help="UAV of the written layout (default uav0)")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.write_layout is not None:
+        args.write_layout.parent.mkdir(parents=True, exist_ok=True)
+        args.write_layout.write_text(layout_json(args.uav))
+        print(f"wrote {args.write_layout}")
+        return 0
     settings = ViewSettings(
         host=args.host, port=args.port, image_width=args.image_width, image_rate_hz=args.image_rate
     )

@@ -200,3 +200,14 @@ def test_foxglove_client_receives_every_advertised_channel(tmp_path: Path) -> No
     assert decoded["/capataz/stats/master/m/0"]["shares"] == {"worker/h1/0": 1.0}
     assert not runner.is_alive()
     assert retries <= len(advertised)
+
+
+def test_deploy_layout_is_the_generated_one_and_names_only_served_topics() -> None:
+    from services.view.layout import layout_json, layout_topics
+
+    path = Path(__file__).resolve().parents[2] / "deploy" / "foxglove" / "capataz.json"
+    assert path.read_text() == layout_json("uav0"), "regenerate: capataz view --write-layout " + str(path)
+    served = {f"/capataz/uav/uav0/{t}" for t in ("camera", "yaw", "cluster", "attitude", "pose/vo", "pose/pf",
+              "truth", "pose/vo/in_frame", "pose/pf/in_frame", "truth/in_frame")}  # fmt: skip
+    topics = layout_topics(json.loads(path.read_text()))
+    assert topics and topics <= served, topics - served
