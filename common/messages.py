@@ -114,6 +114,14 @@ class WireModel(BaseModel):
 
 FloatArray = npt.NDArray[np.float64]
 Uav = str
+#: Frames of reference (``frame_id``; README "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
+#: ``body`` (FLU: x forward, y left, z up), ``camera`` (OpenCV optical: x right, y down, z along the axis).
+FRAME_ID_PATTERN = r"^[A-Za-z0-9_./-]{1,64}$"
+
+
+def frame_id_field(default: str) -> Any:
+    """The ``frame_id`` of a message: the frame its data is expressed in (estimates: their parent frame)."""
+    return Field(default=default, pattern=FRAME_ID_PATTERN)
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -128,6 +136,7 @@ class Frame(WireModel):
     height: int = Field(gt=0)
     encoding: Literal["mono8"] = "mono8"
     pixels: np.ndarray
+    frame_id: str = frame_id_field("camera")
 
     @model_validator(mode="after")
     def _shape_matches(self) -> Frame:
@@ -150,6 +159,7 @@ class ImuSample(WireModel):
     stamp_s: float
     gyro_rad_s: np.ndarray
     accel_m_s2: np.ndarray
+    frame_id: str = frame_id_field("body")
 
 
 class RangeSample(WireModel):
@@ -159,6 +169,7 @@ class RangeSample(WireModel):
     seq: int = Field(ge=0, default=0)
     stamp_s: float
     range_m: float = Field(gt=0.0)
+    frame_id: str = frame_id_field("body")
 
 
 # ----------------------------------------------------------------------------------------------- estimates
@@ -183,6 +194,8 @@ class YawEstimate(WireModel):
     dropped_frames: int = Field(ge=0, default=0)
     #: shares re-dispatched in this frame because a member failed.
     redispatched: int = Field(ge=0, default=0)
+    #: yaw is the body's rotation about this frame's z axis (from the stream's first frame)
+    frame_id: str = frame_id_field("world")
 
 
 class AttitudeEstimate(WireModel):
@@ -197,6 +210,7 @@ class AttitudeEstimate(WireModel):
     stamp_s: float
     q_world_body: np.ndarray
     covariance: np.ndarray
+    frame_id: str = frame_id_field("world")
 
 
 class PoseEstimate(WireModel):
@@ -215,6 +229,7 @@ class PoseEstimate(WireModel):
     covariance: np.ndarray
     #: which estimator produced it, e.g. ``"vo"`` or ``"pf"``.
     source: str
+    frame_id: str = frame_id_field("world")
 
 
 # ----------------------------------------------------------------------------------------------- work

@@ -27,8 +27,6 @@ from common.errors import InputError
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, WireModel
 
-#: frames of reference of the messages (documented in the README, "Keys and frames")
-FRAME_IDS = {"Frame": "camera", "ImuSample": "body", "RangeSample": "body"}
 #: suffix of the derived PoseInFrame channel of a pose key
 IN_FRAME = "/in_frame"
 
@@ -77,7 +75,7 @@ def raw_image(frame: Frame) -> bytes:
 
     return RawImage(
         timestamp=_timestamp(frame.stamp_s),
-        frame_id=FRAME_IDS["Frame"],
+        frame_id=frame.frame_id,
         width=frame.width,
         height=frame.height,
         encoding="mono8",
@@ -93,7 +91,7 @@ def pose_in_frame(pose: PoseEstimate) -> bytes:
     p, q = pose.p_world_body_m, pose.q_world_body
     return PoseInFrame(
         timestamp=_timestamp(pose.stamp_s),
-        frame_id="world",
+        frame_id=pose.frame_id,
         pose=Pose(
             position=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
             orientation=Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0])),

@@ -30,7 +30,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.datasets.recording import FRAME_IDS, json_schema, to_json
+from common.datasets.recording import json_schema, to_json
 from common.messages import Frame, PoseEstimate, Stats, WireError, WireModel, YawEstimate, decode
 from services.runtime.transport import (
     ServiceRuntime,
@@ -183,7 +183,7 @@ class ViewService(ServiceRuntime):
             h, w = pixels.shape
             image = RawImage(
                 timestamp=_stamp(message.stamp_s, Timestamp),
-                frame_id=FRAME_IDS["Frame"],
+                frame_id=message.frame_id,
                 width=w,
                 height=h,
                 encoding="mono8",
@@ -211,13 +211,15 @@ class ViewService(ServiceRuntime):
             position = Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
             orientation = Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0]))
             pose = PoseInFrame(
-                timestamp=stamp, frame_id="world", pose=Pose(position=position, orientation=orientation)
+                timestamp=stamp,
+                frame_id=message.frame_id,
+                pose=Pose(position=position, orientation=orientation),
             )
             self._channel(topic + "/in_frame", "pose").log(pose, log_time=log_ns)
             child = f"{message.uav}/{key.rsplit('/', 1)[-1]}"  # uav0/vo, uav0/pf, uav0/truth
             tf = FrameTransform(
                 timestamp=stamp,
-                parent_frame_id="world",
+                parent_frame_id=message.frame_id,
                 child_frame_id=child,
                 translation=position,
                 rotation=orientation,
