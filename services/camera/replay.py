@@ -4,7 +4,7 @@ Samples go out in stamp order with their own stamps (the sensor's time base), fr
 rate times ``--rate`` (the IMU and range samples up to a frame go out just before it, as the simulated
 camera sends them) or, with ``--rate 0`` / ``--fps 0``, as fast as they are consumed (``--in-flight K``
 is the flow control: at most K frames without a published yaw). ``--loop`` replays again, stamps shifted
-by the recording's span plus one frame period, so stamps keep increasing.
+by the recording's span (first to last sample) plus one frame period, so stamps keep increasing.
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
     seq = {"camera": -1, "imu": -1, "range": -1}
     offset_s = 0.0
     first_s: float | None = None
-    last_s = 0.0
+    last_s = 0.0  # the last frame's stamp
+    last_any_s = 0.0  # the last sample's stamp
     period_s = 0.05
     t_wall0 = time.monotonic()
     skip = lambda kind, why: service.count_error(f"skipped_{kind}", "sample skipped", why)  # noqa: E731
@@ -42,6 +43,7 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
             if service.stop_event.is_set():
                 break
             stamp_s = m.stamp_s + offset_s
+            last_any_s = stamp_s
             if first_s is None:
                 first_s, t_wall0 = stamp_s, time.monotonic()
             if paced and isinstance(m, FrameMeasurement):  # sensor samples go out as read, before their frame
@@ -88,8 +90,9 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
                     )
         if not settings.loop or seq["camera"] < 0:
             break
-        # next round: its first sample one frame period after this round's last frame
-        offset_s = last_s + period_s - (first_s if first_s is not None else 0.0)
+        # next round: its first sample one frame period after this round's last sample
+        # (first_s is the first sample's stamp of the first round, whose offset is 0)
+        offset_s = last_any_s + period_s - (first_s if first_s is not None else 0.0)
     for uav in settings.uavs:
         service._wait_yaw(uav, seq["camera"])
     service.finished.set()
