@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -112,7 +113,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         rows.append({"run": "rectified_true_attitude_vo_only", "vo_final_cm": truth_vo_cm})
     rows.append({"run": "ekf_step_us", "vo_final_cm": float("nan"), "vo_ms_median": float("nan"),
                  "alt_rmse_cm": float("nan"), "yaw_rmse_deg": float(np.median(ekf_us))})  # fmt: skip
+    from services.demo_estimator import write_estimator_tum  # the demo's TUM files, for this bench's run
+
     return {
+        "tum": write_estimator_tum(
+            Path(getattr(args, "out", "out/bench")) / "tum_estimator", flight, runs["rectified"]
+        ),
         "seed": args.seed,
         "start_frame": args.start_frame,
         "frames": len(runs["rectified"].pose_stamps_s),
