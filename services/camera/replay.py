@@ -11,16 +11,20 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
-from common.messages import Frame, ImuSample, RangeSample
 from services.camera.sources import RecordedSource
+from services.estimator.sim_publisher import message_of
 
 if TYPE_CHECKING:
     from services.camera.service import CameraService
 
 logger = logging.getLogger(__name__)
+
+#: the camera's publisher of each measurement type
+_TOPICS = {FrameMeasurement: "camera", ImuMeasurement: "imu", RangeMeasurement: "range"}
 
 
 def replay_recording(service: CameraService, source: RecordedSource) -> None:
@@ -50,44 +54,21 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
                 delay = t_wall0 + (stamp_s - first_s) / settings.rate - time.monotonic()
                 if delay > 0 and service.stop_event.wait(delay):
                     break
+            topic = _TOPICS[type(m)]
+            if topic != "camera" and not settings.sensors:
+                continue
             if isinstance(m, FrameMeasurement):
                 if seq["camera"] >= 0 and stamp_s > last_s:
                     period_s = stamp_s - last_s
-                seq["camera"] += 1
                 last_s = stamp_s
-                h, w = m.image.shape
-                for uav in settings.uavs:
+            seq[topic] += 1
+            shifted = replace(m, stamp_s=stamp_s)
+            for uav in settings.uavs:
+                if topic == "camera":
                     service._wait_yaw(uav, seq["camera"] - 1)
-                    service._put(
-                        uav,
-                        "camera",
-                        Frame(uav=uav, seq=seq["camera"], stamp_s=stamp_s, width=w, height=h, pixels=m.image),
-                    )
+                service._put(uav, topic, message_of(uav, seq[topic], shifted)[1])
+            if topic == "camera":
                 service.counters.inc("frames_out")
-            elif not settings.sensors:
-                continue
-            elif isinstance(m, ImuMeasurement):
-                seq["imu"] += 1
-                for uav in settings.uavs:
-                    service._put(
-                        uav,
-                        "imu",
-                        ImuSample(
-                            uav=uav,
-                            seq=seq["imu"],
-                            stamp_s=stamp_s,
-                            gyro_rad_s=m.gyro_rad_s,
-                            accel_m_s2=m.accel_m_s2,
-                        ),
-                    )
-            elif isinstance(m, RangeMeasurement):
-                seq["range"] += 1
-                for uav in settings.uavs:
-                    service._put(
-                        uav,
-                        "range",
-                        RangeSample(uav=uav, seq=seq["range"], stamp_s=stamp_s, range_m=m.range_m),
-                    )
         if not settings.loop or seq["camera"] < 0:
             break
         # next round: its first sample one frame period after this round's last sample

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import time
 from pathlib import Path
 from typing import Any
 
@@ -20,15 +19,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.datasets.recording import RecordingWriter
-from common.messages import WireError, WireModel, decode
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    WorkQueue,
-    add_transport_arguments,
-    transport_from_args,
-    zbytes,
-)
+from common.messages import WireModel
+from services.runtime.tap import KeyTap
+from services.runtime.transport import TransportSettings, add_transport_arguments, transport_from_args
 
 logger = logging.getLogger(__name__)
 
@@ -45,64 +38,34 @@ class RecordSettings(BaseModel):
     duration_s: float = Field(default=0.0, ge=0.0)
 
 
-_Item = tuple[str, bytes | None, bytes | None, int, int | None]
-
-
-class RecordService(ServiceRuntime):
+class RecordService(KeyTap):
     role = keys.Role.RECORDER
 
     def __init__(
         self, node: str, index: int, transport: TransportSettings, settings: RecordSettings,
         stats_period_s: float = 1.0,
     ) -> None:  # fmt: skip
-        super().__init__(node, index, transport, stats_period_s)
+        super().__init__(node, index, transport, settings.queue, stats_period_s)
         self.settings = settings
         self.writer = RecordingWriter(settings.out)
-        self._queue: WorkQueue[_Item] = WorkQueue(settings.queue)
-        self._entities: list[Any] = []
+
+    def tap_keys(self) -> tuple[str, ...]:
+        return (self.settings.key_expr,)
 
     def start(self, session: zenoh.Session) -> None:
-        self._entities.append(session.declare_subscriber(self.settings.key_expr, self._on_sample))
-        self.spawn(self._write_loop, "write")
+        super().start(session)
         if self.settings.duration_s:
             self.spawn(self._stop_after, "duration")
 
     def stop(self) -> None:
-        self.undeclare_all(self._entities)
-        self._drain()
+        super().stop()
+        self.drain()
         self.writer.close()
         logger.info("recorded %d messages into %s", self.writer.messages, self.settings.out)
 
-    def queue_depths(self) -> dict[str, int]:
-        return {"write": self._queue.depth()}
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        log_ns = time.time_ns()
-        stamp = sample.timestamp
-        publish_ns = int(stamp.get_time().timestamp() * 1e9) if stamp is not None else None
-        item = (str(sample.key_expr), zbytes(sample.payload), zbytes(sample.attachment), log_ns, publish_ns)
-        if not self._queue.offer(item):
-            self.counters.inc("dropped_full")
-
-    def _write(self, item: _Item) -> None:
-        key, payload, attachment, log_ns, publish_ns = item
-        try:
-            message: WireModel = decode(payload, attachment)
-        except WireError as exc:
-            self.count_error("malformed", f"not recorded: bad message on {key}", exc)
-            return
+    def handle(self, key: str, message: WireModel, log_ns: int, publish_ns: int | None) -> None:
         self.writer.write(key, message, log_ns, publish_ns)
         self.counters.inc("recorded")
-
-    def _write_loop(self) -> None:
-        while not self.stop_event.is_set():
-            item = self._queue.take(0.1)
-            if item is not None:
-                self._write(item)
-
-    def _drain(self) -> None:
-        for item in self._queue.drain():
-            self._write(item)
 
     def _stop_after(self) -> None:
         if not self.stop_event.wait(self.settings.duration_s):

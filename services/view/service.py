@@ -31,15 +31,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.datasets.recording import json_schema, to_json
-from common.messages import Frame, PoseEstimate, Stats, WireError, WireModel, YawEstimate, decode
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    WorkQueue,
-    add_transport_arguments,
-    transport_from_args,
-    zbytes,
-)
+from common.messages import Frame, PoseEstimate, Stats, WireModel, YawEstimate
+from services.runtime.tap import KeyTap
+from services.runtime.transport import TransportSettings, add_transport_arguments, transport_from_args
 from services.view.layout import layout_json
 
 logger = logging.getLogger(__name__)
@@ -71,10 +65,7 @@ class ViewSettings(BaseModel):
     queue: int = Field(default=512, ge=1)
 
 
-_Item = tuple[str, bytes | None, bytes | None]
-
-
-class ViewService(ServiceRuntime):
+class ViewService(KeyTap):
     role = keys.Role.VIEWER
 
     def __init__(
@@ -85,16 +76,17 @@ class ViewService(ServiceRuntime):
         settings: ViewSettings,
         stats_period_s: float = 1.0,
     ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
+        super().__init__(node, index, transport, settings.queue, stats_period_s)
         self.settings = settings
-        self._queue: WorkQueue[_Item] = WorkQueue(settings.queue)
         self._last_frame_s: dict[str, float] = {}
         self._channels: dict[str, Any] = {}
-        self._entities: list[Any] = []
         self.server: Any = None
         self.context: Any = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
+    def tap_keys(self) -> tuple[str, ...]:
+        return (f"{keys.ROOT}/uav/**", keys.STATS_ALL)
+
     def start(self, session: zenoh.Session) -> None:
         import foxglove
 
@@ -103,12 +95,10 @@ class ViewService(ServiceRuntime):
             name="capataz", host=self.settings.host, port=self.settings.port, context=self.context
         )
         logger.info("Foxglove WebSocket server on ws://%s:%d", self.settings.host, self.server.port)
-        self._entities.append(session.declare_subscriber(f"{keys.ROOT}/uav/**", self._on_sample))
-        self._entities.append(session.declare_subscriber(keys.STATS_ALL, self._on_sample))
-        self.spawn(self._convert_loop, "convert")
+        super().start(session)
 
     def stop(self) -> None:
-        self.undeclare_all(self._entities)
+        super().stop()
         if self.server is not None:
             self.server.stop()
 
@@ -116,34 +106,19 @@ class ViewService(ServiceRuntime):
     def port(self) -> int:
         return int(self.server.port) if self.server is not None else 0
 
-    def queue_depths(self) -> dict[str, int]:
-        return {"convert": self._queue.depth()}
+    def admit(self, key: str) -> bool:
+        """Frames: at most ``image_rate_hz`` per UAV, decided before they are queued."""
+        if not key.endswith("/camera"):
+            return True
+        now = time.monotonic()
+        if now - self._last_frame_s.get(key, -1e9) < 1.0 / self.settings.image_rate_hz:
+            self.counters.inc("frames_skipped")
+            return False
+        self._last_frame_s[key] = now
+        return True
 
-    # -- callback: rate limit frames, hand off -----------------------------------------------------------
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if key.endswith("/camera"):
-            now = time.monotonic()
-            if now - self._last_frame_s.get(key, -1e9) < 1.0 / self.settings.image_rate_hz:
-                self.counters.inc("frames_skipped")
-                return
-            self._last_frame_s[key] = now
-        if not self._queue.offer((key, zbytes(sample.payload), zbytes(sample.attachment))):
-            self.counters.inc("dropped_full")
-
-    # -- the converting thread ---------------------------------------------------------------------------
-    def _convert_loop(self) -> None:
-        while not self.stop_event.is_set():
-            item = self._queue.take(0.1)
-            if item is None:
-                continue
-            key, payload, attachment = item
-            try:
-                message: WireModel = decode(payload, attachment)
-            except WireError as exc:
-                self.count_error("malformed", f"bad message on {key}", exc)
-                continue
-            self._republish(key, message, time.time_ns())
+    def handle(self, key: str, message: WireModel, log_ns: int, publish_ns: int | None) -> None:
+        self._republish(key, message, log_ns)
 
     def _channel(self, topic: str, kind: str, schema: dict[str, Any] | None = None) -> Any:
         channel = self._channels.get(topic)
