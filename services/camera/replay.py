@@ -14,6 +14,7 @@ import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+from common.errors import InputError
 from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from services.camera.sources import RecordedSource
 from services.estimator.sim_publisher import message_of
@@ -28,7 +29,18 @@ _TOPICS = {FrameMeasurement: "camera", ImuMeasurement: "imu", RangeMeasurement: 
 
 
 def replay_recording(service: CameraService, source: RecordedSource) -> None:
-    """Publish ``source`` on every UAV stream of ``service`` (then mark the service finished)."""
+    """Publish ``source`` on every UAV stream of ``service``, then mark the service finished. A recording
+    found broken half-way (a truncated bag, an image changed since it was checked) stops the replay with
+    one logged line and the ``recording_errors`` counter (the camera then exits with code 1)."""
+    try:
+        _replay(service, source)
+    except InputError as exc:
+        service.count_error("recording_errors", "replay stopped", exc)
+    service.finished.set()
+    service.stop_event.set()
+
+
+def _replay(service: CameraService, source: RecordedSource) -> None:
     settings = service.settings
     paced = settings.fps > 0 and settings.rate > 0
     logger.info("replaying %s%s", source.description, f" at {settings.rate:g}x" if paced else ", unpaced")
@@ -76,5 +88,3 @@ def replay_recording(service: CameraService, source: RecordedSource) -> None:
         offset_s = last_any_s + period_s - (first_s if first_s is not None else 0.0)
     for uav in settings.uavs:
         service._wait_yaw(uav, seq["camera"])
-    service.finished.set()
-    service.stop_event.set()

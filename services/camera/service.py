@@ -143,6 +143,11 @@ class CameraService(ServiceRuntime):
         )
         self.spawn(self._publish_all, "publish")
 
+    def run(self) -> int:
+        """The service's run; exit code 1 also when a recording broke half-way."""
+        code = super().run()
+        return code or (1 if self.counters.get("recording_errors") else 0)
+
     def _on_master(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
             self._masters.set()

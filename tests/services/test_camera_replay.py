@@ -69,3 +69,16 @@ def test_loop_shifts_each_round_by_its_span_plus_one_frame_period() -> None:
     # a round spans 0.99 (its first IMU sample) .. 1.05; the next starts one frame period (0.05 s) later
     assert np.allclose(stamps, [1.0, 1.05, 1.11, 1.16, 1.22, 1.27])
     assert all(t == "camera" for _, t, _ in camera.puts)  # --no-sensors
+
+
+def test_a_recording_broken_half_way_stops_the_replay_with_one_counted_error() -> None:
+    from common.datasets.rosbag import BagError
+
+    def broken(_skip: Any) -> Any:
+        yield FrameMeasurement(1.0, np.zeros((4, 6), np.uint8))
+        raise BagError("bag.mcap: truncated or corrupt bag (EOFError)")
+
+    camera = _Camera(CameraSettings(fps=0.0))
+    replay_recording(camera, RecordedSource("broken", broken, frames=2, width=6, height=4))  # type: ignore[arg-type]
+    assert camera.counters.get("recording_errors") == 1 and camera.counters.get("frames_out") == 1
+    assert camera.finished.is_set() and camera.stop_event.is_set()
