@@ -23,14 +23,19 @@ import numpy as np
 
 from common import keys
 from common.datasets.recording import open_recording
+from common.dispatch import Balance
 from common.messages import Frame, YawEstimate, decode
+from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
 NAME = "record"
 
 SPEC = ClusterSpec(
-    name="record", topology="master-worker", balance="time", hosts=(HostSpec(name="h1", workers=2),)
+    name="record",
+    topology=Topology.MASTER_WORKER,
+    balance=Balance.TIME,
+    hosts=(HostSpec(name="h1", workers=2),),
 )
 
 

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -30,6 +30,7 @@ from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEsti
 from common.sim.flight import Flight
 from services.camera.replay import replay_recording
 from services.camera.simulated import (
+    FlightName,
     office_frames,
     office_odometry_poses,
     simulated_flight,
@@ -53,7 +54,7 @@ class CameraSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     uavs: tuple[str, ...] = ("uav0",)
-    flight: Literal["hover", "turns", "office"] = "hover"
+    flight: FlightName = FlightName.HOVER
     frames: int = Field(default=2041, ge=2)
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
@@ -106,7 +107,9 @@ class CameraService(ServiceRuntime):
         if self.source is not None and settings.preload:
             self.source = preloaded(self.source)
         self.flight: Flight | None = (
-            None if self.source is not None or settings.flight == "office" else simulated_flight(settings)
+            None
+            if self.source is not None or settings.flight is FlightName.OFFICE
+            else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
@@ -114,7 +117,9 @@ class CameraService(ServiceRuntime):
         self._entities: list[Any] = []
         self._masters = threading.Event()
         self._odometry = (
-            office_odometry_poses(settings) if settings.flight == "office" and self.source is None else None
+            office_odometry_poses(settings)
+            if settings.flight is FlightName.OFFICE and self.source is None
+            else None
         )
 
     def start(self, session: zenoh.Session) -> None:
@@ -305,8 +310,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
     parser.add_argument(
         "--flight",
-        choices=["hover", "turns", "office"],
-        default="hover",
+        choices=[f.value for f in FlightName],
+        default=FlightName.HOVER.value,
         help="simulated flight: paper A's hover, paper C's turns (ground camera), or the localizer's office",
     )
     parser.add_argument(

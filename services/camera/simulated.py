@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -21,6 +22,17 @@ if TYPE_CHECKING:
 DEFAULT_HFOV_DEG = 90.0
 
 
+class FlightName(StrEnum):
+    """The simulated flights the camera can replay."""
+
+    #: paper A's hover over the ground (752x480)
+    HOVER = "hover"
+    #: paper C's turns over the ground
+    TURNS = "turns"
+    #: the localizer's default flight through the built-in office (320x240, forward camera)
+    OFFICE = "office"
+
+
 def simulated_flight(settings: CameraSettings) -> Flight:
     """The ground flight the camera replays (the in-process reference builds the same one)."""
     camera = (
@@ -28,7 +40,7 @@ def simulated_flight(settings: CameraSettings) -> Flight:
         if settings.width is None or settings.height is None
         else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
     )
-    if settings.flight == "turns":
+    if settings.flight is FlightName.TURNS:
         return turns_flight(seed=settings.seed, camera=camera)
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
 

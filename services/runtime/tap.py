@@ -14,7 +14,9 @@ from typing import Any
 import zenoh
 
 from common.messages import WireError, WireModel, decode
-from services.runtime.transport import ServiceRuntime, TransportSettings, WorkQueue, zbytes
+from services.runtime.handoff import WorkQueue
+from services.runtime.service import ServiceRuntime
+from services.runtime.transport import TransportSettings, zbytes
 
 _Item = tuple[str, bytes | None, bytes | None, int, int | None]
 

@@ -32,8 +32,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from common import keys
 from common.datasets.recording import json_schema, to_json
 from common.messages import Frame, PoseEstimate, Stats, WireModel, YawEstimate
+from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.tap import KeyTap
-from services.runtime.transport import TransportSettings, add_transport_arguments, transport_from_args
+from services.runtime.transport import TransportSettings
 from services.view.layout import layout_json
 
 logger = logging.getLogger(__name__)

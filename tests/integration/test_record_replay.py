@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from common import keys
+from common.dispatch import Balance
+from services.master.service import Topology
 from services.runtime.transport import open_session
 from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
 
@@ -24,7 +26,10 @@ def test_recorded_run_reads_back_and_replays_with_the_same_yaw(tmp_path: Path) -
     from mcap.reader import make_reader
 
     spec = ClusterSpec(
-        name="rec", topology="master-worker", balance="time", hosts=(HostSpec(name="h1", workers=1),)
+        name="rec",
+        topology=Topology.MASTER_WORKER,
+        balance=Balance.TIME,
+        hosts=(HostSpec(name="h1", workers=1),),
     )
     mcap = tmp_path / "run.mcap"
     with LocalCluster(spec, tmp_path / "logs") as cluster:

@@ -26,9 +26,11 @@ import pytest
 from common import keys
 from common.datasets.euroc import write_euroc
 from common.datasets.rosbag_writer import write_bag
+from common.dispatch import Balance
 from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate, decode
 from common.sim.flight import hover_flight
 from services.camera.sources import simulated_camera_measurements
+from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
@@ -159,7 +161,10 @@ def test_bags_and_euroc_folder_replay_with_the_simulated_cameras_results(tmp_pat
     write_bag(tmp_path / "flight.bag", stream, None, "ros1", encoding="bgr8")
     write_euroc(tmp_path / "flight_euroc", stream)
     spec = ClusterSpec(
-        name="replay", topology="master-worker", balance="time", hosts=(HostSpec(name="h1", workers=1),)
+        name="replay",
+        topology=Topology.MASTER_WORKER,
+        balance=Balance.TIME,
+        hosts=(HostSpec(name="h1", workers=1),),
     )
     runs: dict[str, _Outputs] = {}
     rate = FPS * float(flight.frame_stamps_s[1] - flight.frame_stamps_s[0])  # recorded rate -> FPS

@@ -12,7 +12,7 @@ from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMe
 from services.camera.replay import replay_recording
 from services.camera.service import CameraSettings
 from services.camera.sources import RecordedSource
-from services.runtime.transport import Counters
+from services.runtime.handoff import Counters
 
 
 class _Camera:

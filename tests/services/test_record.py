@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -17,10 +18,16 @@ from common.datasets.recording import RecordingError, from_json, open_recording
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, encode
 from common.sim.flight import hover_flight
 from services.record import RecordService, RecordSettings
-from services.runtime.transport import TransportSettings, open_session
-from services.up import free_port
+from services.runtime.transport import open_session
+from tests.zenoh_helpers import hub, peer
 
 pytestmark = pytest.mark.zenoh
+
+
+@pytest.fixture
+def endpoint() -> Iterator[str]:
+    with hub() as router:
+        yield router
 
 
 def _wait(condition, timeout_s: float = 20.0) -> bool:  # type: ignore[no-untyped-def]
@@ -32,20 +39,17 @@ def _wait(condition, timeout_s: float = 20.0) -> bool:  # type: ignore[no-untype
     return False
 
 
-def test_record_writes_every_key_as_a_channel_and_reads_back(tmp_path: Path) -> None:
+def test_record_writes_every_key_as_a_channel_and_reads_back(tmp_path: Path, endpoint: str) -> None:
     from mcap.reader import make_reader
 
     flight = hover_flight(seed=0, n_frames=3)
-    port = free_port()
     out = tmp_path / "run.mcap"
-    service = RecordService(
-        "rec", 0, TransportSettings(listen=(f"tcp/127.0.0.1:{port}",)), RecordSettings(out=out)
-    )
+    service = RecordService("rec", 0, peer(endpoint), RecordSettings(out=out))
     runner = threading.Thread(target=service.run, daemon=True)
     runner.start()
     assert service.started.wait(20.0)
     sent = []
-    with open_session(TransportSettings(connect=(f"tcp/127.0.0.1:{port}",))) as session:
+    with open_session(peer(endpoint)) as session:
         publishers = {
             k: session.declare_publisher(k)
             for k in (

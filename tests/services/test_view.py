@@ -9,6 +9,7 @@ import json
 import struct
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +19,18 @@ import pytest
 from common import keys
 from common.messages import AttitudeEstimate, Frame, PoseEstimate, Stats, WireModel, YawEstimate, encode
 from common.sim.flight import hover_flight
-from services.runtime.transport import TransportSettings, open_session
-from services.up import free_port
+from services.runtime.transport import open_session
 from services.view import ViewService, ViewSettings
+from tests.zenoh_helpers import hub, peer
 
 pytestmark = pytest.mark.zenoh
+
+
+@pytest.fixture
+def endpoint() -> Iterator[str]:
+    with hub() as router:
+        yield router
+
 
 UAV = "uav0"
 
@@ -92,16 +100,15 @@ def _subscribe(ws: Any, channel_ids: list[int]) -> None:
     ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
 
-def test_foxglove_client_receives_every_advertised_channel(tmp_path: Path) -> None:
+def test_foxglove_client_receives_every_advertised_channel(tmp_path: Path, endpoint: str) -> None:
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
     flight = hover_flight(seed=0, n_frames=3)
-    port = free_port()
     service = ViewService(
         "view",
         0,
-        TransportSettings(listen=(f"tcp/127.0.0.1:{port}",)),
+        peer(endpoint),
         ViewSettings(port=0, image_rate_hz=20.0),
     )
     runner = threading.Thread(target=service.run, daemon=True)
@@ -110,7 +117,7 @@ def test_foxglove_client_receives_every_advertised_channel(tmp_path: Path) -> No
     done = threading.Event()
 
     def publish() -> None:
-        with open_session(TransportSettings(connect=(f"tcp/127.0.0.1:{port}",))) as session:
+        with open_session(peer(endpoint)) as session:
             k = 0
             while not done.wait(0.1):
                 for key, message in _messages(k, flight):

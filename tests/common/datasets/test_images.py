@@ -113,6 +113,7 @@ def test_bad_folders_are_refused_with_one_clear_error(tmp_path: Path, setup: str
         open_image_folder(folder, **kwargs)  # type: ignore[arg-type]
 
 
+@pytest.mark.zenoh  # starts the camera command (it refuses the input before opening a session)
 @pytest.mark.parametrize("kind", ["empty", "mixed", "file"])
 def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_path: Path, kind: str) -> None:
     folder = _folder(tmp_path, ["0.png", "1.png"])

@@ -150,6 +150,7 @@ def test_not_a_bag_and_no_such_bag(tmp_path: Path) -> None:
         open_bag(tmp_path / "missing.bag")
 
 
+@pytest.mark.zenoh  # starts the camera command (it refuses the input before opening a session)
 def test_camera_command_refuses_a_truncated_bag_in_one_line(
     tmp_path: Path, stream: list[Measurement]
 ) -> None:
