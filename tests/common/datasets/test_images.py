@@ -163,3 +163,18 @@ def test_calibration_file_must_match_the_folders_image_size(tmp_path: Path) -> N
     assert source is not None and source.camera_info == CameraModel.from_hfov(64, 48, 90.0)
     with pytest.raises(CalibrationError, match="752x480, but the frames are 64x48"):
         open_camera_source(CameraSettings(images=folder, calibration=bad))
+
+
+@pytest.mark.zenoh  # starts the up command (it refuses the folder before starting any process)
+def test_up_refuses_a_bad_image_folder_before_starting_anything(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, ["0.png"])
+    cv2.imwrite(str(folder / "1.png"), np.zeros((10, 10), np.uint8))
+    cluster = Path(__file__).resolve().parents[3] / "deploy" / "clusters" / "local2x2.yml"
+    result = subprocess.run(
+        [sys.executable, "-m", "services.cli", "up", "--cluster", str(cluster), "--port", "0",
+         "--images", str(folder), "--logs", str(tmp_path / "logs")],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    assert result.returncode == 1 and len(lines) == 1 and "mixed image sizes" in lines[0], lines
+    assert not (tmp_path / "logs").exists()  # no process was started
