@@ -16,6 +16,7 @@ import argparse
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +26,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import keys
 from common.errors import CapatazError, InputError
+from common.estimation.coupling import ImuMeasurement
 from common.geometry import quaternion_from_euler
-from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from common.messages import Frame, PoseEstimate, YawEstimate, encode
 from common.sim.flight import Flight
 from services.camera.replay import replay_recording
 from services.camera.simulated import (
@@ -40,8 +42,10 @@ from services.camera.sources import (
     add_source_arguments,
     open_camera_source,
     preloaded,
+    sensor_samples,
     source_settings_from_args,
 )
+from services.estimator.sim_publisher import message_of
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -112,6 +116,8 @@ class CameraService(ServiceRuntime):
             else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
+        #: seq of the last IMU / range sample published per (uav, topic)
+        self._sensor_seq: dict[tuple[str, str], int] = {}
         self._ack = threading.Condition()
         self.finished = threading.Event()
         self._entities: list[Any] = []
@@ -212,32 +218,12 @@ class CameraService(ServiceRuntime):
                 )
         if self.flight is None:
             return
-        imu, rng = self.flight.imu, self.flight.range
-        a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
-        for k in range(int(a), int(b)):
-            self._put(
-                uav,
-                "imu",
-                ImuSample(
-                    uav=uav,
-                    seq=k,
-                    stamp_s=float(imu.stamps_s[k]) + offset_s,
-                    gyro_rad_s=imu.gyro_rad_s[k],
-                    accel_m_s2=imu.accel_m_s2[k],
-                ),
-            )
-        a, b = np.searchsorted(rng.stamps_s, [start_s, stop_s], side="right")
-        for k in range(int(a), int(b)):
-            self._put(
-                uav,
-                "range",
-                RangeSample(
-                    uav=uav,
-                    seq=k,
-                    stamp_s=float(rng.stamps_s[k]) + offset_s,
-                    range_m=float(rng.range_m[k]),
-                ),
-            )
+        # merged in stamp order: all IMU samples first would make the range samples of the same interval
+        # older than the newest IMU one, which the estimator may already have passed (refused as stale)
+        for m in sensor_samples(self.flight, start_s, stop_s):
+            topic = "imu" if isinstance(m, ImuMeasurement) else "range"
+            seq = self._sensor_seq[uav, topic] = self._sensor_seq.get((uav, topic), -1) + 1
+            self._put(uav, topic, message_of(uav, seq, replace(m, stamp_s=m.stamp_s + offset_s))[1])
 
     def _publish_all(self) -> None:
         self._wait_for_master()

@@ -206,19 +206,31 @@ def source_settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
     return {name: getattr(args, name) for name in names}
 
 
+def sensor_samples(flight: Flight, start_s: float, stop_s: float) -> list[Measurement]:
+    """The flight's IMU and range samples stamped in ``(start_s, stop_s]``, merged in stamp order (ties:
+    IMU first)."""
+    imu, rng = flight.imu, flight.range
+    a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
+    samples: list[Measurement] = [
+        ImuMeasurement(float(imu.stamps_s[k]), imu.gyro_rad_s[k], imu.accel_m_s2[k])
+        for k in range(int(a), int(b))
+    ]
+    a, b = np.searchsorted(rng.stamps_s, [start_s, stop_s], side="right")
+    samples += [
+        RangeMeasurement(float(rng.stamps_s[k]), float(rng.range_m[k])) for k in range(int(a), int(b))
+    ]
+    samples.sort(key=lambda m: (m.stamp_s, isinstance(m, RangeMeasurement)))
+    return samples
+
+
 def simulated_camera_measurements(flight: Flight) -> Iterator[Measurement]:
     """Exactly what ``capataz camera`` publishes for ``flight`` (one round, no stamp offset): before each
-    frame, the IMU then the range samples stamped in ``(previous frame, this frame]`` (frame 0: all up to
-    it). Exporting this stream (a bag, a EuRoC folder) lets a replay be compared with the simulation."""
-    imu, rng = flight.imu, flight.range
+    frame, the IMU and range samples stamped in ``(previous frame, this frame]`` in stamp order (frame 0:
+    all up to it). Exporting this stream (a bag, a EuRoC folder) lets a replay be compared with the
+    simulation."""
     previous = -np.inf
     for i in range(flight.n_frames):
         stamp = float(flight.frame_stamps_s[i])
-        a, b = np.searchsorted(imu.stamps_s, [previous, stamp], side="right")
-        for k in range(int(a), int(b)):
-            yield ImuMeasurement(float(imu.stamps_s[k]), imu.gyro_rad_s[k], imu.accel_m_s2[k])
-        a, b = np.searchsorted(rng.stamps_s, [previous, stamp], side="right")
-        for k in range(int(a), int(b)):
-            yield RangeMeasurement(float(rng.stamps_s[k]), float(rng.range_m[k]))
+        yield from sensor_samples(flight, previous, stamp)
         yield FrameMeasurement(stamp, flight.frame(i))
         previous = stamp
