@@ -30,6 +30,7 @@ from common.estimation.coupling import ImuMeasurement
 from common.geometry import quaternion_from_euler
 from common.messages import Frame, PoseEstimate, YawEstimate, encode
 from common.sim.flight import Flight
+from services.camera.images import image_files
 from services.camera.replay import replay_recording
 from services.camera.simulated import (
     FlightName,
@@ -355,6 +356,8 @@ def _settings(args: argparse.Namespace, width: int | None, height: int | None) -
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.images is not None:
+        image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()
