@@ -14,8 +14,9 @@ import pytest
 from common import keys
 from common.dispatch import Balance
 from services.master.service import Topology
+from services.observe import YawCollector
 from services.runtime.transport import open_session
-from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
+from services.up import ClusterSpec, HostSpec, LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 
