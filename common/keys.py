@@ -8,6 +8,7 @@
 | ``capataz/uav/{uav}/yaw``               | pub/sub    | YawEstimate                   |
 | ``capataz/uav/{uav}/attitude``          | pub/sub    | AttitudeEstimate              |
 | ``capataz/uav/{uav}/pose/vo``, ``/pf``  | pub/sub    | PoseEstimate                  |
+| ``capataz/uav/{uav}/truth``             | pub/sub    | PoseEstimate (simulated only) |
 | ``capataz/node/{node}/foreman``         | queryable  | BlockJob -> BlockResult       |
 | ``capataz/node/{node}/worker/{i}``      | queryable  | PatchJob -> PatchResult       |
 | ``capataz/alive/{role}/{node}/{i}``     | liveliness | membership                    |
@@ -37,6 +38,8 @@ class Role(StrEnum):
     ROUTER = "router"
     ESTIMATOR = "estimator"
     LOCALIZER = "localizer"
+    RECORDER = "recorder"
+    VIEWER = "viewer"
 
 
 def check_name(value: str, what: str = "name") -> str:
@@ -84,6 +87,11 @@ def pose_pf_key(uav: str) -> str:
     return uav_key(uav, "pose/pf")
 
 
+def truth_key(uav: str) -> str:
+    """Ground truth of a simulated flight (PoseEstimate, source ``truth``), published by the camera."""
+    return uav_key(uav, "truth")
+
+
 def foreman_key(node: str) -> str:
     return f"{ROOT}/node/{check_name(node, 'node')}/foreman"
 
@@ -102,6 +110,10 @@ def stats_key(role: str | Role, node: str, i: int) -> str:
 
 def health_key(role: str | Role, node: str, i: int) -> str:
     return f"{ROOT}/health/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+
+
+#: everything capataz publishes (what ``capataz record`` subscribes to)
+ALL = f"{ROOT}/**"
 
 
 #: every liveliness token / every stats publication / every health queryable

@@ -129,6 +129,14 @@ class WireModel(BaseModel):
 
 
 Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
+#: Frames of reference (``frame_id``; README "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
+#: ``body`` (FLU: x forward, y left, z up), ``camera`` (OpenCV optical: x right, y down, z along the axis).
+FRAME_ID_PATTERN = r"^[A-Za-z0-9_./-]{1,64}$"
+
+
+def frame_id_field(default: str) -> Any:
+    """The ``frame_id`` of a message: the frame its data is expressed in (estimates: their parent frame)."""
+    return Field(default=default, pattern=FRAME_ID_PATTERN)
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -143,6 +151,7 @@ class Frame(WireModel):
     height: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     encoding: Literal["mono8"] = "mono8"
     pixels: np.ndarray
+    frame_id: str = frame_id_field("camera")
 
     @model_validator(mode="after")
     def _shape_matches(self) -> Frame:
@@ -165,6 +174,7 @@ class ImuSample(WireModel):
     stamp_s: float
     gyro_rad_s: np.ndarray
     accel_m_s2: np.ndarray
+    frame_id: str = frame_id_field("body")
 
 
 class RangeSample(WireModel):
@@ -174,6 +184,7 @@ class RangeSample(WireModel):
     seq: int = Field(ge=0, default=0)
     stamp_s: float
     range_m: float = Field(gt=0.0)
+    frame_id: str = frame_id_field("body")
 
 
 # ----------------------------------------------------------------------------------------------- estimates
@@ -207,6 +218,8 @@ class YawEstimate(WireModel):
     delta_variance_rad2: float = Field(ge=0.0, default=0.0)
     #: the camera's own delta when it measured one (also when not trusted), else None.
     measured_delta_rad: float | None = None
+    #: yaw is the body's rotation about this frame's z axis (from the stream's first frame)
+    frame_id: str = frame_id_field("world")
 
 
 class AttitudeEstimate(WireModel):
@@ -221,6 +234,7 @@ class AttitudeEstimate(WireModel):
     stamp_s: float
     q_world_body: np.ndarray
     covariance: np.ndarray
+    frame_id: str = frame_id_field("world")
 
 
 class PoseEstimate(WireModel):
@@ -242,6 +256,7 @@ class PoseEstimate(WireModel):
     #: the localizer's tracking state: ``tracking`` (the model matches the image), ``searching`` (a few bad
     #: frames: re-searching around the last good pose), ``lost``; None for estimators without one.
     tracking_state: Literal["tracking", "searching", "lost"] | None = None
+    frame_id: str = frame_id_field("world")
 
 
 # ----------------------------------------------------------------------------------------------- work

@@ -180,3 +180,51 @@ def rpe_translation(
         rmse_m=float(np.sqrt(np.mean(err**2))),
         max_m=float(np.max(err)),
     )
+
+
+def _associate_exact(
+    est_stamps_s: FloatArray, ref_stamps_s: FloatArray, tol_s: float
+) -> npt.NDArray[np.intp]:
+    """Index into ``ref`` of each estimate stamp (equal within ``tol_s``), else InputError."""
+    ref = np.asarray(ref_stamps_s, dtype=np.float64)
+    if est_stamps_s.size == 0:
+        raise InputError("APE of an empty trajectory")
+    order = np.argsort(ref)
+    pos = np.clip(np.searchsorted(ref[order], est_stamps_s), 1, max(ref.size - 1, 1))
+    left, right = order[pos - 1], order[np.minimum(pos, ref.size - 1)]
+    nearest = np.where(np.abs(ref[left] - est_stamps_s) <= np.abs(ref[right] - est_stamps_s), left, right)
+    if ref.size == 0 or np.any(np.abs(ref[nearest] - est_stamps_s) > tol_s):
+        raise InputError(f"every estimate needs a ground-truth pose at its stamp (within {tol_s} s)")
+    return nearest
+
+
+def ape_translation_rmse_m(
+    est_stamps_s: npt.ArrayLike, est_p_m: npt.ArrayLike, ref_stamps_s: npt.ArrayLike, ref_p_m: npt.ArrayLike,
+    tol_s: float = 1e-6,
+) -> float:  # fmt: skip
+    """Absolute pose error, translation part, RMSE (metres), without alignment: evo's ``evo_ape tum REF
+    EST`` (``-r trans_part``). Poses are associated by equal stamps."""
+    stamps = np.asarray(est_stamps_s, dtype=np.float64)
+    idx = _associate_exact(stamps, np.asarray(ref_stamps_s, dtype=np.float64), tol_s)
+    err = np.linalg.norm(np.asarray(est_p_m, dtype=np.float64) - np.asarray(ref_p_m)[idx], axis=1)
+    return float(np.sqrt(np.mean(err**2)))
+
+
+def ape_rotation_rmse_deg(
+    est_stamps_s: npt.ArrayLike, est_q: npt.ArrayLike, ref_stamps_s: npt.ArrayLike, ref_q: npt.ArrayLike,
+    tol_s: float = 1e-6,
+) -> float:  # fmt: skip
+    """Absolute pose error, rotation angle, RMSE (degrees; evo's ``-r angle_deg``): the angle of
+    ``R_ref^T R_est`` per pose. Quaternions scalar first; associated by equal stamps."""
+    stamps = np.asarray(est_stamps_s, dtype=np.float64)
+    idx = _associate_exact(stamps, np.asarray(ref_stamps_s, dtype=np.float64), tol_s)
+    q_est = np.asarray(est_q, dtype=np.float64)
+    q_ref = np.asarray(ref_q, dtype=np.float64)[idx]
+    q_est = q_est / np.linalg.norm(q_est, axis=1, keepdims=True)
+    q_ref = q_ref / np.linalg.norm(q_ref, axis=1, keepdims=True)
+    # relative rotation conj(q_ref) * q_est: w = q_ref . q_est, v = w_r v_e - w_e v_r - v_r x v_e;
+    # the angle from atan2 keeps full precision for small errors (arccos of w does not)
+    w = np.sum(q_ref * q_est, axis=1)
+    v = q_ref[:, :1] * q_est[:, 1:] - q_est[:, :1] * q_ref[:, 1:] - np.cross(q_ref[:, 1:], q_est[:, 1:])
+    angle_deg = np.degrees(2.0 * np.arctan2(np.linalg.norm(v, axis=1), np.abs(w)))
+    return float(np.sqrt(np.mean(angle_deg**2)))

@@ -38,6 +38,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.localizer",
     "services.estimator",
     "services.loadtest",
+    "services.record",
+    "services.view",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.

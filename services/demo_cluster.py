@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from common.datasets.tum import Trajectory
 from common.dispatch import Balance
 from common.geometry import wrap_angle_rad
 from common.sim.flight import HOVER_FRAMES, hover_flight
@@ -29,6 +30,7 @@ from services.report import write_json
 from services.runtime.progress import bar as progress_bar
 from services.runtime.progress import quiet
 from services.runtime.transport import open_session
+from services.trajectory import write_with_truth
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
 logger = logging.getLogger(__name__)
@@ -238,6 +240,11 @@ def run_demo(out_dir: Path, n_frames: int = HOVER_FRAMES) -> dict[str, Any]:
         stem="yaw_cluster",
     )
     plots = _plot(cluster_dir, flight, estimates, rows)
+    stamps = flight.frame_stamps_s[seqs]
+    summary["tum"] = write_with_truth(
+        out / "tum", "yaw", Trajectory.from_yaw(stamps, yaw),
+        Trajectory.from_yaw(stamps, flight.yaw_rad[seqs] - flight.yaw_rad[0]),
+    )  # fmt: skip
     summary["members"] = rows
     summary["plots"] = [str(p) for p in plots]
     write_json(cluster_dir / "summary.json", summary)

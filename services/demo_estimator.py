@@ -11,11 +11,13 @@ from typing import Any
 
 import numpy as np
 
+from common.datasets.tum import Trajectory
 from common.estimation.replay import EstimatorRun, RunErrors, evaluate
 from common.geometry import euler_from_quaternion, wrap_angle_rad
 from common.sim.flight import Flight
 from services.bench.estimator import compare_on_flight_b
 from services.report import write_json
+from services.trajectory import truth_at, write_with_truth
 
 logger = logging.getLogger(__name__)
 
@@ -62,6 +64,24 @@ def _roll_pitch_error_deg(run: EstimatorRun, flight: Flight) -> np.ndarray:
     idx = np.searchsorted(flight.imu.stamps_s, run.attitude_stamps_s - 1e-9)
     err = euler_from_quaternion(run.q_world_body) - euler_from_quaternion(flight.imu.true_q_world_body[idx])
     return np.asarray(np.degrees(wrap_angle_rad(err))[:, :2], dtype=np.float64)
+
+
+def write_estimator_tum(out_dir: Path, flight: Flight, run: EstimatorRun) -> dict[str, Any]:
+    """TUM files of the attitude (position 0) and pose/vo (orientation: the attitude at the pose's stamp)
+    with their ground truth at the same stamps; capataz's APE of each."""
+    imu = flight.imu
+    attitude = Trajectory(run.attitude_stamps_s, np.zeros((len(run.attitude_stamps_s), 3)), run.q_world_body)
+    truth_q = truth_at(run.attitude_stamps_s, imu.stamps_s, np.zeros_like(imu.true_p_world_body_m),
+                       imu.true_q_world_body)  # fmt: skip
+    q_pose = truth_at(run.pose_stamps_s, run.attitude_stamps_s, attitude.p_world_body_m, run.q_world_body)
+    pose = Trajectory(run.pose_stamps_s, run.p_world_body_m, q_pose.q_world_body)
+    truth_pose = truth_at(
+        run.pose_stamps_s, flight.frame_stamps_s, flight.p_world_body_m, flight.q_world_body
+    )
+    return {
+        "attitude": write_with_truth(out_dir, "attitude", attitude, truth_q),
+        "pose_vo": write_with_truth(out_dir, "pose_vo", pose, truth_pose),
+    }
 
 
 def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict[str, RunErrors]) -> Path:
@@ -151,6 +171,7 @@ def run_demo(out_dir: Path) -> dict[str, Any]:
     flight, runs = compare_on_flight_b()
     errors = {name: evaluate(run, flight) for name, run in runs.items()}
     summary = summarize(flight, runs, errors)
+    summary["tum"] = write_estimator_tum(out_dir / "tum", flight, runs["rectified"])
     png = plot(out_dir / "estimator.png", flight, runs, errors)
     write_json(out_dir / "estimator.json", summary)
     r, p, y = summary["att_rmse_deg_roll_pitch_yaw"]

@@ -17,11 +17,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from common.datasets.tum import Trajectory
+from common.geometry import quaternion_from_euler
 from common.localization.particle_filter import ParticleFilterSettings
 from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracking import track_accuracy
 from common.sim.office_run import simulate_run, track_run
 from services.runtime import progress
+from services.trajectory import write_with_truth
 
 logger = logging.getLogger(__name__)
 
@@ -120,6 +123,12 @@ def run_demo(
         "settle_frames": settle,
         "reinitialisations": track.reinitialisations,
         "plot": str(path),
+        "tum": write_with_truth(
+            out_dir / "tum",
+            "pose_pf",
+            _trajectory(sim.flight.times_s, track.means),
+            _trajectory(sim.flight.times_s, truth),
+        ),
     }
     print(
         f"localizer: {n_frames} frames through '{sim.scene.name}' ({sim.scene.n_edges} edges), "
@@ -129,3 +138,8 @@ def run_demo(
         f"{summary['guess_yaw_error_deg']:.1f} deg yaw); wrote {path}"
     )
     return summary
+
+
+def _trajectory(stamps_s: np.ndarray, states: np.ndarray) -> Trajectory:
+    """Poses (x, y, z, roll, pitch, yaw) per stamp as a TUM trajectory."""
+    return Trajectory(stamps_s, states[:, :3], np.atleast_2d(quaternion_from_euler(*states[:, 3:6].T)))

@@ -8,6 +8,7 @@ table gives each member's start-up time, inputs, dropped frames, refused inputs 
 from __future__ import annotations
 
 import argparse
+import shlex
 import signal
 import threading
 import time
@@ -16,6 +17,7 @@ from typing import Any
 
 import yaml
 
+from common.datasets.images import open_image_folder
 from services.compose import compose_from_cluster
 from services.observe import StatsWatch, YawCollector, member_rows
 from services.report import print_table
@@ -70,6 +72,18 @@ def register(subparsers: Any) -> None:
         default="127.0.0.1",
         help="with --compose: host address the router's port is published on (0.0.0.0 = every interface)",
     )
+    parser.add_argument(
+        "--images", type=Path, help="run the camera on this image folder (checked before start)"
+    )
+    parser.add_argument(
+        "--stamps", type=Path, help="per-image stamps of --images (index,stamp CSV or data.csv)"
+    )
+    parser.add_argument("--calibration", type=Path, help="camera calibration file for --images")
+    parser.add_argument(
+        "--master-args",
+        default="",
+        help='extra master options (yaw settings), e.g. "--grid 8x5 --patch-size 32"',
+    )
     parser.set_defaults(handler=run)
 
 
@@ -85,13 +99,26 @@ def write_compose(spec: ClusterSpec, path: Path, publish_address: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     spec = load_cluster(args.cluster)
+    camera_args = ["--frames", str(args.frames)]
+    frames = args.frames
+    if args.images is not None:  # refused here, in one line, before any process starts
+        frames = len(open_image_folder(args.images, args.stamps, fps=args.fps))
+        camera_args = ["--images", str(args.images)]
+        camera_args += ["--stamps", str(args.stamps)] if args.stamps else []
+        camera_args += ["--calibration", str(args.calibration)] if args.calibration else []
     if args.compose:
         print(f"wrote {write_compose(spec, args.compose, args.publish_address)}")
         return 0
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        with LocalCluster(spec, args.logs, port=args.port or None, shared_memory=args.shm) as cluster:
+        with LocalCluster(
+            spec,
+            args.logs,
+            port=args.port or None,
+            shared_memory=args.shm,
+            master_args=shlex.split(args.master_args),
+        ) as cluster:
             t0 = time.monotonic()
             cluster.start()
             alive_after_s = cluster.wait_alive(cluster.expected_members())
@@ -102,11 +129,10 @@ def run(args: argparse.Namespace) -> int:
             with open_session(cluster.observer_transport()) as session:
                 collector, watch = YawCollector(session, spec.uav), StatsWatch(session)
                 camera = None
-                if args.camera:
+                if args.camera or args.images is not None:
                     camera = cluster.start_camera(
                         [
-                            "--frames",
-                            str(args.frames),
+                            *camera_args,
                             "--fps",
                             str(args.fps),
                             "--in-flight",
@@ -114,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
                         ]
                     )
                     alive_after_s.update(cluster.wait_alive({camera}))
-                watch_until_done(cluster, collector, stop, args.duration, camera, t0, args.frames)
+                watch_until_done(cluster, collector, stop, args.duration, camera, t0, frames)
                 stats = watch.snapshot()
                 collector.close()
                 watch.close()

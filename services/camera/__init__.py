@@ -1,5 +1,6 @@
 """``capataz camera``: publishes a simulated flight (frames, IMU, rangefinder) or a folder of images."""
 
-from services.camera.service import CameraService, CameraSettings, register, simulated_flight
+from services.camera.flights import simulated_flight
+from services.camera.service import CameraService, CameraSettings, register
 
 __all__ = ["CameraService", "CameraSettings", "register", "simulated_flight"]

@@ -15,6 +15,7 @@ from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.localization.office import default_scene
 from common.localization.tracking import noisy_odometry
+from common.messages import PoseEstimate
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
@@ -109,3 +110,16 @@ def write_flight_calibration(path: Path, settings: FlightSettings) -> int:
     path.write_text(opencv_yaml_text(simulated_flight(settings).camera))
     print(f"wrote {path}")
     return 0
+
+
+def truth_pose(uav: str, seq: int, stamp_s: float, flight: Flight, i: int) -> PoseEstimate:
+    """The simulated flight's true pose at frame ``i`` (world frame, zero covariance, source ``truth``)."""
+    return PoseEstimate(
+        uav=uav,
+        seq=seq,
+        stamp_s=stamp_s,
+        p_world_body_m=flight.p_world_body_m[i],
+        q_world_body=flight.q_world_body[i],
+        covariance=np.zeros((6, 6)),
+        source="truth",
+    )

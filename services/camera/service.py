@@ -16,27 +16,38 @@ import argparse
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.errors import CapatazError
+from common.estimation.measurements import ImuMeasurement
 from common.geometry import quaternion_from_euler
-from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from common.messages import Frame, PoseEstimate, YawEstimate, encode
 from common.sim.flight import Flight
 from services.camera.flights import (
     FlightName,
     office_frames,
     office_odometry_poses,
     simulated_flight,
+    truth_pose,
     write_flight_calibration,
 )
 from services.camera.images import image_files
+from services.camera.replay import replay_recording
+from services.camera.sources import (
+    add_source_arguments,
+    open_camera_source,
+    preloaded,
+    sensor_samples,
+    source_settings_from_args,
+)
+from services.estimator.sim_publisher import message_of
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -54,7 +65,23 @@ class CameraSettings(BaseModel):
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
     loop: bool = False
+    #: a recorded input instead of a simulation (at most one; see services/camera/sources.py)
     images: Path | None = None
+    #: per-frame stamps of ``images``: ``index,stamp`` CSV or EuRoC's ``data.csv``
+    stamps: Path | None = None
+    start: int = Field(default=0, ge=0)
+    stop: int | None = Field(default=None, ge=0)
+    step: int = Field(default=1, ge=1)
+    calibration: Path | None = None
+    bag: Path | None = None
+    image_topic: str | None = None
+    imu_topic: str | None = None
+    range_topic: str | None = None
+    camera_info_topic: str | None = None
+    euroc: Path | None = None
+    mcap: Path | None = None
+    #: a recording's replay speed (1 = recorded rate; 0 = as fast as consumed; ``fps = 0`` also unpaces)
+    rate: float = Field(default=1.0, ge=0.0)
     #: image size; None = the flight's own camera (752x480 over the ground, 320x240 in the office)
     width: int | None = None
     height: int | None = None
@@ -81,22 +108,27 @@ class CameraService(ServiceRuntime):
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
+        # a recorded input is opened and checked before anything is published (one clear error otherwise)
+        self.source = open_camera_source(settings)
+        if self.source is not None and settings.preload:
+            self.source = preloaded(self.source)
         self.flight: Flight | None = (
-            None if settings.images or settings.flight is FlightName.OFFICE else simulated_flight(settings)
+            None
+            if self.source is not None or settings.flight is FlightName.OFFICE
+            else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
+        #: seq of the last IMU / range sample published per (uav, topic)
+        self._sensor_seq: dict[tuple[str, str], int] = {}
         self._ack = threading.Condition()
         self.finished = threading.Event()
         self._entities: list[Any] = []
         self._masters = threading.Event()
-        self._preloaded: list[np.ndarray] | None = None
         self._odometry = (
             office_odometry_poses(settings)
-            if settings.flight is FlightName.OFFICE and not settings.images
+            if settings.flight is FlightName.OFFICE and self.source is None
             else None
         )
-        if settings.images is not None and settings.preload:
-            self._preloaded = list(self._images())
 
     def start(self, session: zenoh.Session) -> None:
         self._pub: dict[str, dict[str, Any]] = {}
@@ -114,6 +146,7 @@ class CameraService(ServiceRuntime):
                 "imu": session.declare_publisher(keys.imu_key(uav)),
                 "range": session.declare_publisher(keys.range_key(uav)),
                 "pose_vo": session.declare_publisher(keys.pose_vo_key(uav)),
+                "truth": session.declare_publisher(keys.truth_key(uav)),
             }
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
@@ -122,6 +155,11 @@ class CameraService(ServiceRuntime):
             )
         )
         self.spawn(self._publish_all, "publish")
+
+    def run(self) -> int:
+        """The service's run; exit code 1 also when a recording broke half-way."""
+        code = super().run()
+        return code or (1 if self.counters.get("recording_errors") else 0)
 
     def _on_master(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
@@ -140,25 +178,7 @@ class CameraService(ServiceRuntime):
             for i in range(self.flight.n_frames):
                 yield i, float(self.flight.frame_stamps_s[i]), self.flight.frame(i)
             return
-        if self.settings.images is None:
-            yield from office_frames(self.settings)
-            return
-        period = 1.0 / self.settings.fps if self.settings.fps else 0.05
-        for i, image in enumerate(self._images()):
-            yield i, i * period, image
-
-    def _images(self) -> Iterator[np.ndarray]:
-        """Images of the folder, read lazily, or all at once (``preload``) so reading costs no frame time."""
-        if self._preloaded is not None:
-            yield from self._preloaded
-            return
-        assert self.settings.images is not None
-        for path in image_files(self.settings.images):
-            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                self.count_error("bad_images", "cannot read image", str(path))
-                continue
-            yield image
+        yield from office_frames(self.settings)
 
     def _put(self, uav: str, topic: str, message: Any) -> None:
         payload, attachment = encode(message)
@@ -200,34 +220,21 @@ class CameraService(ServiceRuntime):
                 )
         if self.flight is None:
             return
-        imu, rng = self.flight.imu, self.flight.range
-        a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
-        for k in range(int(a), int(b)):
-            self._put(
-                uav,
-                "imu",
-                ImuSample(
-                    uav=uav,
-                    seq=k,
-                    stamp_s=float(imu.stamps_s[k]) + offset_s,
-                    gyro_rad_s=imu.gyro_rad_s[k],
-                    accel_m_s2=imu.accel_m_s2[k],
-                ),
-            )
-        a, b = np.searchsorted(rng.stamps_s, [start_s, stop_s], side="right")
-        for k in range(int(a), int(b)):
-            self._put(
-                uav,
-                "range",
-                RangeSample(
-                    uav=uav,
-                    seq=k,
-                    stamp_s=float(rng.stamps_s[k]) + offset_s,
-                    range_m=float(rng.range_m[k]),
-                ),
-            )
+        # merged in stamp order: all IMU samples first would make the range samples of the same interval
+        # older than the newest IMU one, which the estimator may already have passed (refused as stale)
+        for m in sensor_samples(self.flight, start_s, stop_s):
+            topic = "imu" if isinstance(m, ImuMeasurement) else "range"
+            seq = self._sensor_seq[uav, topic] = self._sensor_seq.get((uav, topic), -1) + 1
+            self._put(uav, topic, message_of(uav, seq, replace(m, stamp_s=m.stamp_s + offset_s))[1])
 
     def _publish_all(self) -> None:
+        self._wait_for_master()
+        if self.source is not None:
+            replay_recording(self, self.source)
+            return
+        self._publish_simulated()
+
+    def _wait_for_master(self) -> None:
         if self.settings.wait_master_s:
             deadline = time.monotonic() + self.settings.wait_master_s
             if not self._masters.wait(self.settings.wait_master_s):
@@ -237,6 +244,8 @@ class CameraService(ServiceRuntime):
                 if all(p["camera"].matching_status.matching for p in self._pub.values()):
                     break
                 time.sleep(0.01)
+
+    def _publish_simulated(self) -> None:
         t_start = time.monotonic()
         published = 0
         rounds = 0
@@ -268,6 +277,8 @@ class CameraService(ServiceRuntime):
                             pixels=image,
                         ),
                     )
+                    if self.flight is not None:  # the simulation's ground truth (for views, recordings)
+                        self._put(uav, "truth", truth_pose(uav, seq, stamp_s + offset, self.flight, _i))
                 previous_stamp, span = stamp_s, stamp_s + 0.05
                 last_seq = seq
                 published += 1
@@ -299,8 +310,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--seed", type=int, default=0, help="simulation seed")
     parser.add_argument("--fps", type=float, default=20.0, help="frames per second (0 = as fast as possible)")
     parser.add_argument("--loop", action="store_true", help="replay forever")
-    parser.add_argument("--images", type=Path, help="publish a folder of images instead of a simulation")
-    parser.add_argument("--preload", action="store_true", help="read all --images before publishing")
+    parser.add_argument("--preload", action="store_true", help="read a whole recording before publishing")
     parser.add_argument(
         "--resolution", help="simulated camera WIDTHxHEIGHT (default: 752x480 ground, 320x240 office)"
     )
@@ -315,6 +325,7 @@ def register(subparsers: Any) -> None:
         help="write the simulated flight's camera as an OpenCV YAML calibration (for the master's "
         "--calibration) and exit",
     )
+    add_source_arguments(parser)
     parser.set_defaults(handler=run)
 
 
@@ -326,6 +337,10 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
             width, height = (int(v) for v in args.resolution.lower().split("x"))
         except ValueError:
             raise CapatazError(f"--resolution must look like 752x480, got {args.resolution!r}") from None
+    return _settings(args, width, height)
+
+
+def _settings(args: argparse.Namespace, width: int | None, height: int | None) -> CameraSettings:
     return CameraSettings(
         uavs=tuple(args.uav or ["uav0"]),
         flight=args.flight,
@@ -333,13 +348,13 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
         seed=args.seed,
         fps=args.fps,
         loop=args.loop,
-        images=args.images,
         width=width,
         height=height,
         sensors=not args.no_sensors,
         in_flight=args.in_flight,
         wait_master_s=args.wait_master,
         preload=args.preload,
+        **source_settings_from_args(args),
     )
 
 

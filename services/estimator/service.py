@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -31,7 +32,16 @@ from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, FilterKind, PoseOutput
 from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
-from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from common.messages import (
+    AttitudeEstimate,
+    Frame,
+    ImuSample,
+    PoseEstimate,
+    RangeSample,
+    WireModel,
+    YawEstimate,
+    encode,
+)
 from services.estimator.outputs import attitude_message, pose_message
 from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
 from services.runtime.stamps import InputStamps
@@ -42,6 +52,7 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
+from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 T = TypeVar("T")
 SENSOR_QUEUE = 4096
@@ -301,6 +312,8 @@ class EstimatorService(ServiceRuntime):
                 if self.stop_event.is_set():
                     return  # shutting down: the session is closing under us
                 raise
+            if self.trajectory_tap is not None:
+                self.trajectory_tap.write(msg)
             self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")
 
     def _mirror_counters(self) -> None:
@@ -349,6 +362,8 @@ def register(subparsers: Any) -> None:
         default=0.0,
         help="seconds before the VO sets its origin (at --initial-xy)",
     )
+    add_trajectory_argument(parser, "pose/vo")
+    add_trajectory_argument(parser, "the attitude (position 0)", flag="--attitude-trajectory")
     parser.set_defaults(handler=run)
 
 
@@ -356,4 +371,8 @@ def run(args: argparse.Namespace) -> int:
     service = EstimatorService(
         args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
     )
-    return service.run()
+    paths: dict[type[WireModel], Path | None] = {
+        PoseEstimate: args.trajectory,
+        AttitudeEstimate: args.attitude_trajectory,
+    }
+    return run_with_trajectories(service, paths)

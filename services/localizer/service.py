@@ -32,6 +32,7 @@ from common.messages import Frame, PoseEstimate, encode
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args
+from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
 def pose_message(
@@ -185,6 +186,8 @@ class LocalizerService(ServiceRuntime):
             )
             payload, attachment = encode(message)
             self._publisher.put(payload, attachment=attachment)
+            if self.trajectory_tap is not None:
+                self.trajectory_tap.write(message)
             self.counters.inc("poses_out")
 
 
@@ -194,10 +197,12 @@ def register(subparsers: Any) -> None:
         help="tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames; publishes pose/pf",
     )
     register_arguments(parser)
+    add_trajectory_argument(parser, "pose/pf")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    return LocalizerService(
+    service = LocalizerService(
         args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
-    ).run()
+    )
+    return run_with_trajectories(service, {PoseEstimate: args.trajectory})

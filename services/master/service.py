@@ -51,6 +51,7 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
+from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
 @dataclass
@@ -214,6 +215,8 @@ class MasterService(ServiceRuntime):
             return
         payload, attachment = encode(estimate)
         self._publisher.put(payload, attachment=attachment)
+        if self.trajectory_tap is not None:
+            self.trajectory_tap.write(estimate)
         self.counters.inc("yaw_out")
         self.counters.time_ms("frame", estimate.timings_ms["total"])
 
@@ -378,10 +381,12 @@ def register(subparsers: Any) -> None:
     )
     add_transport_arguments(parser)
     add_master_arguments(parser)
+    add_trajectory_argument(parser, "the published yaw (rotation about world z)")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    return MasterService(
+    service = MasterService(
         args.node, args.index, transport_from_args(args), master_settings_from_args(args), args.stats_period
-    ).run()
+    )
+    return run_with_trajectories(service, {YawEstimate: args.trajectory})

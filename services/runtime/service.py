@@ -41,6 +41,8 @@ class ServiceRuntime:
     """
 
     role: keys.Role = keys.Role.WORKER
+    #: the ``--trajectory`` files of a service that publishes estimates (services/trajectory.py), or None
+    trajectory_tap: Any = None
 
     def __init__(
         self,

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from services.demo_cluster import run_demo
+from tests.services.test_tum_output import assert_evo_agrees
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 
@@ -25,3 +26,5 @@ def test_cluster_demo_reports_every_frame_equal_to_in_process(tmp_path: Path) ->
     assert (tmp_path / "cluster" / "yaw_cluster.json").is_file()
     assert (tmp_path / "cluster" / "yaw_cluster.png").is_file()
     assert all(code == 0 for code in summary["exit_codes"].values()), summary["exit_codes"]
+    assert summary["tum"]["poses"] == 120 and summary["tum"]["ape_rotation_rmse_deg"] > 0
+    assert_evo_agrees(summary["tum"])  # out/tum/yaw.tum and yaw_truth.tum

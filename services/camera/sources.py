@@ -1,0 +1,236 @@
+"""The camera's recorded inputs: an image folder, a ROS bag, a EuRoC folder or a capataz MCAP recording,
+each opened (and checked) before the first frame, then replayed as one time-ordered measurement stream.
+
+Opening refuses a bad input with one :class:`~common.errors.InputError` line (the CLI's exit code 1):
+nothing is published from a recording that would stop half-way (a yaw reset the user would not see).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.camera import CameraModel
+from common.datasets.calibration import CalibrationError, load_calibration
+from common.datasets.euroc import open_euroc
+from common.datasets.images import open_image_folder
+from common.datasets.rosbag import open_bag
+from common.datasets.tum import Trajectory
+from common.errors import InputError
+from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.sim.flight import Flight
+
+#: what a skipped sample is reported to: (kind, why)
+OnSkip = Callable[[str, str], None]
+
+
+@dataclass(frozen=True)
+class RecordedSource:
+    """An opened recording: a description, the calibration it carries, and its measurement stream."""
+
+    description: str
+    measurements: Callable[[OnSkip | None], Iterator[Measurement]]
+    camera_info: CameraModel | None = None
+    ground_truth: Trajectory | None = None
+    frames: int | None = None
+    #: frame size (every frame of the recording has it)
+    width: int = 0
+    height: int = 0
+
+
+def preloaded(source: RecordedSource) -> RecordedSource:
+    """The same source with every measurement read into memory first (reading costs no frame time)."""
+    items = list(source.measurements(None))
+    return replace(source, measurements=lambda _skip: iter(items))
+
+
+def with_calibration(source: RecordedSource, path: Path) -> RecordedSource:
+    """``source`` with the camera of a calibration file (it replaces a recording's own CameraInfo); the
+    calibration must be of the recording's frame size."""
+    camera = load_calibration(path)
+    if source.width and (camera.width, camera.height) != (source.width, source.height):
+        raise CalibrationError(
+            f"calibration file {path}: {camera.width}x{camera.height}, but the frames are "
+            f"{source.width}x{source.height}"
+        )
+    return replace(source, camera_info=camera)
+
+
+def open_source(
+    images: Path | None = None,
+    stamps: Path | None = None,
+    start: int = 0,
+    stop: int | None = None,
+    step: int = 1,
+    fps: float = 0.0,
+    bag: Path | None = None,
+    topics: dict[str, str | None] | None = None,
+    euroc: Path | None = None,
+    mcap: Path | None = None,
+    uav: str = "uav0",
+) -> RecordedSource | None:
+    """Open the one recorded input given (None: none given, the camera simulates)."""
+    given = [
+        name
+        for name, value in (("--images", images), ("--bag", bag), ("--euroc", euroc), ("--mcap", mcap))
+        if value is not None
+    ]
+    if len(given) > 1:
+        raise InputError(f"give one input, not {' and '.join(given)}")
+    if stamps is not None and images is None:
+        raise InputError("--stamps needs --images")
+    if images is not None:
+        folder = open_image_folder(images, stamps, start, stop, step, fps)
+        return RecordedSource(
+            f"{len(folder)} images of {folder.path} ({folder.width}x{folder.height})",
+            lambda _skip: iter(folder.frames()),
+            frames=len(folder),
+            width=folder.width,
+            height=folder.height,
+        )
+    if bag is not None:
+        opened = open_bag(bag, **(topics or {}))
+        return RecordedSource(
+            f"bag {opened.path} (image {opened.topics.image}, imu {opened.topics.imu}, "
+            f"range {opened.topics.range})",
+            opened.measurements,
+            camera_info=opened.camera_info,
+            frames=opened.counts.get(opened.topics.image),
+            width=opened.width,
+            height=opened.height,
+        )
+    if euroc is not None:
+        folder_e = open_euroc(euroc)
+        return RecordedSource(
+            f"EuRoC {folder_e.root} ({len(folder_e.camera)} frames, {len(folder_e.imu)} IMU samples)",
+            lambda _skip: folder_e.measurements(),
+            camera_info=folder_e.camera_info,
+            ground_truth=folder_e.ground_truth,
+            frames=len(folder_e.camera),
+            width=folder_e.camera.width,
+            height=folder_e.camera.height,
+        )
+    if mcap is not None:
+        from common.datasets.recording import open_recording
+
+        recording = open_recording(mcap, uav)
+        return RecordedSource(
+            f"capataz recording {recording.path} ({recording.frames} frames of {recording.uav})",
+            lambda _skip: recording.measurements(),
+            frames=recording.frames,
+            width=recording.width,
+            height=recording.height,
+        )
+    return None
+
+
+def open_camera_source(settings: Any) -> RecordedSource | None:
+    """:func:`open_source` of a camera's settings (``CameraSettings``)."""
+    topics = {
+        name: getattr(settings, name)
+        for name in ("image_topic", "imu_topic", "range_topic", "camera_info_topic")
+    }
+    if settings.calibration is not None and not any(
+        getattr(settings, name) is not None for name in ("images", "bag", "euroc", "mcap")
+    ):
+        raise InputError("--calibration needs a recorded input (--images, --bag, --euroc or --mcap)")
+    source = open_source(
+        settings.images,
+        settings.stamps,
+        settings.start,
+        settings.stop,
+        settings.step,
+        settings.fps,
+        settings.bag,
+        topics,
+        settings.euroc,
+        settings.mcap,
+        settings.uavs[0],
+    )
+    if source is not None and settings.calibration is not None:
+        source = with_calibration(source, settings.calibration)
+    return source
+
+
+def add_source_arguments(parser: argparse.ArgumentParser) -> None:
+    """Recorded-input options: ``--images`` (stamps, slice), ``--bag``, ``--euroc``, ``--mcap``."""
+    group = parser.add_argument_group("recorded input (instead of a simulation; one of them)")
+    group.add_argument("--images", type=Path, help="a folder of images (natural order: 2.png before 10.png)")
+    group.add_argument(
+        "--stamps", type=Path, help="per-image stamps: 'index,stamp' CSV (s) or EuRoC data.csv (ns)"
+    )
+    group.add_argument("--start", type=int, default=0, help="first image (position in natural order)")
+    group.add_argument("--stop", type=int, help="stop before this image")
+    group.add_argument("--step", type=int, default=1, help="take every STEP-th image")
+    group.add_argument(
+        "--calibration", type=Path, help="camera calibration (OpenCV YAML or ROS camera_info YAML)"
+    )
+    group.add_argument("--bag", type=Path, help="a ROS 1 .bag or a ROS 2 bag (folder, .mcap or .db3)")
+    group.add_argument("--image-topic", help="bag topic of sensor_msgs/Image or CompressedImage")
+    group.add_argument("--imu-topic", help="bag topic of sensor_msgs/Imu")
+    group.add_argument("--range-topic", help="bag topic of sensor_msgs/Range")
+    group.add_argument("--camera-info-topic", help="bag topic of sensor_msgs/CameraInfo")
+    group.add_argument("--euroc", type=Path, help="a EuRoC folder (mav0/cam0, imu0, ground truth)")
+    group.add_argument("--mcap", type=Path, help="a capataz recording (capataz record) to replay")
+    group.add_argument(
+        "--rate",
+        type=float,
+        default=1.0,
+        help="replay speed of a recording (1 = recorded rate, 0 = as fast as consumed)",
+    )
+
+
+def source_settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The :class:`~services.camera.service.CameraSettings` fields of :func:`add_source_arguments`."""
+    names = (
+        "images",
+        "stamps",
+        "start",
+        "stop",
+        "step",
+        "calibration",
+        "bag",
+        "image_topic",
+        "imu_topic",
+        "range_topic",
+        "camera_info_topic",
+        "euroc",
+        "mcap",
+        "rate",
+    )
+    return {name: getattr(args, name) for name in names}
+
+
+def sensor_samples(flight: Flight, start_s: float, stop_s: float) -> list[Measurement]:
+    """The flight's IMU and range samples stamped in ``(start_s, stop_s]``, merged in stamp order (ties:
+    IMU first)."""
+    imu, rng = flight.imu, flight.range
+    a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
+    samples: list[Measurement] = [
+        ImuMeasurement(float(imu.stamps_s[k]), imu.gyro_rad_s[k], imu.accel_m_s2[k])
+        for k in range(int(a), int(b))
+    ]
+    a, b = np.searchsorted(rng.stamps_s, [start_s, stop_s], side="right")
+    samples += [
+        RangeMeasurement(float(rng.stamps_s[k]), float(rng.range_m[k])) for k in range(int(a), int(b))
+    ]
+    samples.sort(key=lambda m: (m.stamp_s, isinstance(m, RangeMeasurement)))
+    return samples
+
+
+def simulated_camera_measurements(flight: Flight) -> Iterator[Measurement]:
+    """Exactly what ``capataz camera`` publishes for ``flight`` (one round, no stamp offset): before each
+    frame, the IMU and range samples stamped in ``(previous frame, this frame]`` in stamp order (frame 0:
+    all up to it). Exporting this stream (a bag, a EuRoC folder) lets a replay be compared with the
+    simulation."""
+    previous = -np.inf
+    for i in range(flight.n_frames):
+        stamp = float(flight.frame_stamps_s[i])
+        yield from sensor_samples(flight, previous, stamp)
+        yield FrameMeasurement(stamp, flight.frame(i))
+        previous = stamp

@@ -1,0 +1,85 @@
+"""A service that taps key expressions: every sample is handed (raw) to a bounded queue by the Zenoh
+callback, and one thread decodes it and calls :meth:`KeyTap.handle` (``capataz record``, ``capataz view``).
+
+A full queue drops the sample and counts it (``dropped_full``): a tap never slows the deployment down. A
+malformed sample is counted (``malformed``) and not handled. Log time is the receipt time (ns); publish time
+the sample's Zenoh timestamp when it carries one, else None.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import zenoh
+
+from common.messages import WireError, WireModel, decode
+from services.runtime.handoff import WorkQueue
+from services.runtime.service import ServiceRuntime
+from services.runtime.transport import TransportSettings, zbytes
+
+_Item = tuple[str, bytes | None, bytes | None, int, int | None]
+
+
+class KeyTap(ServiceRuntime):
+    """Subclasses give :meth:`tap_keys` and :meth:`handle`; :meth:`admit` may refuse samples early."""
+
+    def __init__(
+        self, node: str, index: int, transport: TransportSettings, queue: int, stats_period_s: float = 1.0
+    ) -> None:
+        super().__init__(node, index, transport, stats_period_s)
+        self._queue: WorkQueue[_Item] = WorkQueue(queue)
+        self._tap_entities: list[Any] = []
+
+    def tap_keys(self) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    def admit(self, key: str) -> bool:
+        """Called in the Zenoh callback (keep it cheap): False drops the sample before the queue."""
+        return True
+
+    def handle(self, key: str, message: WireModel, log_ns: int, publish_ns: int | None) -> None:
+        raise NotImplementedError
+
+    def start(self, session: zenoh.Session) -> None:
+        for key_expr in self.tap_keys():
+            self._tap_entities.append(session.declare_subscriber(key_expr, self._on_sample))
+        self.spawn(self._handle_loop, "handle")
+
+    def stop(self) -> None:
+        self.undeclare_all(self._tap_entities)
+
+    def queue_depths(self) -> dict[str, int]:
+        return {"tap": self._queue.depth()}
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        log_ns = time.time_ns()
+        key = str(sample.key_expr)
+        if not self.admit(key):
+            return
+        stamp = sample.timestamp
+        publish_ns = int(stamp.get_time().timestamp() * 1e9) if stamp is not None else None
+        if not self._queue.offer(
+            (key, zbytes(sample.payload), zbytes(sample.attachment), log_ns, publish_ns)
+        ):
+            self.counters.inc("dropped_full")
+
+    def _handle_item(self, item: _Item) -> None:
+        key, payload, attachment, log_ns, publish_ns = item
+        try:
+            message: WireModel = decode(payload, attachment)
+        except WireError as exc:
+            self.count_error("malformed", f"bad message on {key}", exc)
+            return
+        self.handle(key, message, log_ns, publish_ns)
+
+    def _handle_loop(self) -> None:
+        while not self.stop_event.is_set():
+            item = self._queue.take(0.1)
+            if item is not None:
+                self._handle_item(item)
+
+    def drain(self) -> None:
+        """Handle what is still queued (a recorder's last samples at shutdown)."""
+        for item in self._queue.drain():
+            self._handle_item(item)

@@ -1,0 +1,183 @@
+"""Image folders as users have them (issue 10 section 4): natural order, stamps files, a slice, and one
+clear refusal (exit code 1, no traceback) for an empty folder, mixed sizes or a file path."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from common.datasets.images import ImageFolderError, natural_key, open_image_folder
+from common.sim.flight import hover_flight
+
+
+def _folder(tmp_path: Path, names: list[str], shape: tuple[int, int] = (48, 64)) -> Path:
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for k, name in enumerate(names):
+        cv2.imwrite(str(folder / name), np.full(shape, k * 10, np.uint8))
+    return folder
+
+
+def test_natural_order_puts_frame_2_before_frame_10(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, ["frame10.png", "frame2.png", "frame1.png"])
+    opened = open_image_folder(folder)
+    assert [p.name for p in opened.files] == ["frame1.png", "frame2.png", "frame10.png"]
+    # each frame is the image of that file (the value written for it), not of the string order
+    values = [int(f.image[0, 0]) for f in opened.frames()]
+    assert values == [20, 10, 0]
+
+
+@given(st.lists(st.integers(0, 10**6), min_size=2, max_size=30, unique=True))
+def test_natural_key_orders_numbered_names_by_number(numbers: list[int]) -> None:
+    names = [f"img_{n}.png" for n in numbers]
+    assert sorted(names, key=natural_key) == [f"img_{n}.png" for n in sorted(numbers)]
+
+
+def test_real_frames_keep_their_pixels(tmp_path: Path) -> None:
+    flight = hover_flight(seed=0, n_frames=3)
+    folder = tmp_path / "flight"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i}.png"), flight.frame(i))
+    frames = list(open_image_folder(folder, fps=20.0).frames())
+    assert [f.stamp_s for f in frames] == [0.0, 0.05, 0.1]
+    for i, f in enumerate(frames):
+        assert np.array_equal(f.image, flight.frame(i))
+
+
+def test_index_stamp_csv_gives_each_image_its_stamp(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, ["a1.png", "a2.png", "a10.png"])
+    stamps = tmp_path / "stamps.csv"
+    stamps.write_text("index,stamp\n2,0.31\n0,0.10\n1,0.20\n")
+    opened = open_image_folder(folder, stamps)
+    assert opened.stamps_s == (0.10, 0.20, 0.31)
+
+
+def test_euroc_data_csv_stamps_by_file_name(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, ["1403636579763555584.png", "1403636579813555456.png"])
+    stamps = tmp_path / "data.csv"
+    stamps.write_text(
+        "#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n"
+        "1403636579813555456,1403636579813555456.png\n"
+    )
+    opened = open_image_folder(folder, stamps)
+    assert opened.stamps_s == (1403636579763555584 / 1e9, 1403636579813555456 / 1e9)
+
+
+def test_start_stop_step_select_frames_with_their_original_stamps(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, [f"{i}.png" for i in range(10)])
+    opened = open_image_folder(folder, start=2, stop=9, step=3, fps=10.0)
+    assert [p.name for p in opened.files] == ["2.png", "5.png", "8.png"]
+    assert opened.stamps_s == pytest.approx((0.2, 0.5, 0.8))
+
+
+@pytest.mark.parametrize(
+    ("setup", "message"),
+    [
+        ("empty", "no images"),
+        ("file", "is a file, not a folder"),
+        ("mixed", "mixed image sizes"),
+        ("missing_stamp", "no stamp for 1 image"),
+        ("decreasing", "stamps must increase"),
+        ("corrupt", "not a readable image"),
+        ("one_selected", "a yaw needs at least 2"),
+    ],
+)
+def test_bad_folders_are_refused_with_one_clear_error(tmp_path: Path, setup: str, message: str) -> None:
+    folder = _folder(tmp_path, ["0.png", "1.png", "2.png"])
+    kwargs: dict[str, object] = {}
+    if setup == "empty":
+        folder = tmp_path / "empty"
+        folder.mkdir()
+    elif setup == "file":
+        folder = folder / "0.png"
+    elif setup == "mixed":
+        cv2.imwrite(str(folder / "3.png"), np.zeros((40, 64), np.uint8))
+    elif setup in ("missing_stamp", "decreasing"):
+        stamps = tmp_path / "s.csv"
+        rows = "0,0.0\n1,0.1\n" if setup == "missing_stamp" else "0,0.0\n1,0.2\n2,0.1\n"
+        stamps.write_text(rows)
+        kwargs["stamps_file"] = stamps
+    elif setup == "corrupt":
+        (folder / "5.png").write_bytes(b"not a png at all")
+    elif setup == "one_selected":
+        kwargs["start"] = 2
+    with pytest.raises(ImageFolderError, match=message):
+        open_image_folder(folder, **kwargs)  # type: ignore[arg-type]
+
+
+@pytest.mark.zenoh  # starts the camera command (it refuses the input before opening a session)
+@pytest.mark.parametrize("kind", ["empty", "mixed", "file"])
+def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_path: Path, kind: str) -> None:
+    folder = _folder(tmp_path, ["0.png", "1.png"])
+    if kind == "empty":
+        folder = tmp_path / "nothing"
+        folder.mkdir()
+    elif kind == "mixed":
+        cv2.imwrite(str(folder / "2.png"), np.zeros((10, 10), np.uint8))
+    else:
+        folder = folder / "0.png"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "camera",
+            "--images",
+            str(folder),
+            "--wait-master",
+            "0",
+            "--listen",
+            "tcp/127.0.0.1:0",
+            "--no-multicast",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    # not a folder of images at all: a usage error (exit 2, services/camera/images.py); a folder that cannot
+    # be replayed (mixed sizes): ImageFolderError (exit 1)
+    expected = (1, "ImageFolderError") if kind == "mixed" else (2, "--images")
+    assert result.returncode == expected[0]
+    assert len(lines) == 1 and expected[1] in lines[0], lines
+    assert "Traceback" not in result.stderr
+
+
+def test_calibration_file_must_match_the_folders_image_size(tmp_path: Path) -> None:
+    from common.camera import CameraModel
+    from common.datasets.calibration import CalibrationError, ros_yaml_text
+    from services.camera.service import CameraSettings
+    from services.camera.sources import open_camera_source
+
+    folder = _folder(tmp_path, ["0.png", "1.png"])  # 64x48
+    good, bad = tmp_path / "good.yaml", tmp_path / "bad.yaml"
+    good.write_text(ros_yaml_text(CameraModel.from_hfov(64, 48, 90.0)))
+    bad.write_text(ros_yaml_text(CameraModel.default()))  # 752x480
+    source = open_camera_source(CameraSettings(images=folder, calibration=good))
+    assert source is not None and source.camera_info == CameraModel.from_hfov(64, 48, 90.0)
+    with pytest.raises(CalibrationError, match="752x480, but the frames are 64x48"):
+        open_camera_source(CameraSettings(images=folder, calibration=bad))
+
+
+@pytest.mark.zenoh  # starts the up command (it refuses the folder before starting any process)
+def test_up_refuses_a_bad_image_folder_before_starting_anything(tmp_path: Path) -> None:
+    folder = _folder(tmp_path, ["0.png"])
+    cv2.imwrite(str(folder / "1.png"), np.zeros((10, 10), np.uint8))
+    cluster = Path(__file__).resolve().parents[3] / "deploy" / "clusters" / "local2x2.yml"
+    result = subprocess.run(
+        [sys.executable, "-m", "services.cli", "up", "--cluster", str(cluster), "--port", "0",
+         "--images", str(folder), "--logs", str(tmp_path / "logs")],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    assert result.returncode == 1 and len(lines) == 1 and "mixed image sizes" in lines[0], lines
+    assert not (tmp_path / "logs").exists()  # no process was started
