@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.up",
     "services.localizer",
     "services.estimator",
+    "services.secure",
 )
 
 

@@ -30,7 +30,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common import keys
 from common.errors import CapatazError
 from common.messages import WireError, YawEstimate, decode
+from services.runtime.acl import UAV_ROLES
 from services.runtime.transport import TransportSettings, open_session, zbytes
+from services.secure import DEFAULT_DIR as SECURE_DIR
+from services.secure import SecureProfile
 
 logger = logging.getLogger(__name__)
 
@@ -106,11 +109,15 @@ class LocalCluster:
         shared_memory: bool = False,
         master_args: Sequence[str] = (),
         lease_ms: int = 2000,
+        secure: SecureProfile | None = None,
     ) -> None:
         self.spec = spec
         self.log_dir = Path(log_dir)
         self.port = port or free_port()
-        self.router = f"tcp/127.0.0.1:{self.port}"
+        #: the secure profile: mutual TLS with per-role certificates and access control on every participant
+        self.secure = secure
+        self.scheme = "tls" if secure is not None else "tcp"
+        self.router = f"{self.scheme}/127.0.0.1:{self.port}"
         self.shared_memory = shared_memory
         self.master_args = tuple(master_args)
         self.lease_ms = lease_ms
@@ -124,7 +131,7 @@ class LocalCluster:
             "--connect",
             self.router,
             "--listen",
-            "tcp/127.0.0.1:0",
+            f"{self.scheme}/127.0.0.1:0",
             "--no-multicast",
             "--shm" if self.shared_memory else "--no-shm",
             "--lease-ms",
@@ -132,9 +139,19 @@ class LocalCluster:
         ]
 
     def observer_transport(self) -> TransportSettings:
-        return TransportSettings(
-            connect=(self.router,), shared_memory=self.shared_memory, lease_ms=self.lease_ms
+        """The transport of our own observing session (a read-only ``client`` in the secure profile)."""
+        return TransportSettings.from_env(
+            environ=self.secure.environment("client") if self.secure else {},
+            connect=(self.router,),
+            listen=(f"{self.scheme}/127.0.0.1:0",),
+            shared_memory=self.shared_memory,
+            lease_ms=self.lease_ms,
         )
+
+    def common_name(self, name: str) -> str:
+        """The certificate of a process ``role/node/i`` (or ``router``) in the secure profile."""
+        role = name.split("/")[0]
+        return f"{role}.{self.spec.uav}" if role in {r.value for r in UAV_ROLES} else role
 
     def spawn(self, name: str, args: Sequence[str], cpus: str | None = None) -> subprocess.Popen[bytes]:
         if name in self.processes and self.processes[name].poll() is None:
@@ -145,6 +162,8 @@ class LocalCluster:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log = (self.log_dir / f"{name.replace('/', '_')}.log").open("ab")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        if self.secure is not None:
+            env.update(self.secure.environment(self.common_name(name)))
         process = subprocess.Popen(
             command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
         )
@@ -433,6 +452,15 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--logs", type=Path, default=Path("out/up"), help="log folder")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on")
     parser.add_argument("--compose", type=Path, help="write the cluster as a docker-compose file and exit")
+    parser.add_argument(
+        "--secure",
+        type=Path,
+        nargs="?",
+        const=SECURE_DIR,
+        metavar="DIR",
+        help=f"secure profile: mutual TLS + access control, certificates and config in DIR "
+        f"(default {SECURE_DIR}; made when missing)",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -443,10 +471,13 @@ def run(args: argparse.Namespace) -> int:
         args.compose.write_text(yaml.safe_dump(compose_from_cluster(spec), sort_keys=False))
         print(f"wrote {args.compose}")
         return 0
+    secure = SecureProfile.ensure(args.secure, (spec.uav,)) if getattr(args, "secure", None) else None
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        with LocalCluster(spec, args.logs, port=args.port or None, shared_memory=args.shm) as cluster:
+        with LocalCluster(
+            spec, args.logs, port=args.port or None, shared_memory=args.shm, secure=secure
+        ) as cluster:
             t0 = time.monotonic()
             cluster.start()
             cluster.wait_alive(cluster.expected_members())

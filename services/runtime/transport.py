@@ -14,7 +14,6 @@ It lives in ``services`` because it talks to Zenoh: ``common`` holds only pure c
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import signal
@@ -24,7 +23,8 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, Generic, Literal, TypeVar
+from pathlib import Path
+from typing import Any, ClassVar, Generic, Literal, TypeVar
 
 import numpy as np
 import zenoh
@@ -33,6 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common import keys
 from common.errors import CapatazError
 from common.messages import Health, Stats, WireError, WireModel, decode, encode, error_reply
+from services.runtime import zconfig
 
 logger = logging.getLogger(__name__)
 
@@ -69,11 +70,19 @@ class TransportSettings(BaseModel):
     #: sender of a 1.5 MB share is blocked until most of it is on the socket, so the shares of a frame go
     #: out one after the other; with 16 they travel to the members in parallel.
     tx_queue_batches: int = Field(default=16, ge=1, le=16)
+    #: a Zenoh configuration file under these settings (see :mod:`services.runtime.zconfig`)
+    zenoh_config: Path | None = None
+    #: credentials: PEM files for mutual TLS, a ``user:password`` file; from the environment only
+    tls_ca: Path | None = None
+    tls_cert: Path | None = None
+    tls_key: Path | None = None
+    usrpwd_file: Path | None = None
 
     @classmethod
     def from_env(cls, environ: dict[str, str] | None = None, **overrides: Any) -> TransportSettings:
         """Settings from ``CAPATAZ_ZENOH_{MODE,LISTEN,CONNECT,MULTICAST,SHM,LEASE_MS,CONNECT_TIMEOUT_MS,
-        TX_QUEUE_BATCHES}``.
+        TX_QUEUE_BATCHES,CONFIG,TLS_CA,TLS_CERT,TLS_KEY,USRPWD_FILE}`` (``CONFIG`` falls back to zenoh's
+        ``ZENOH_CONFIG``).
 
         Endpoint lists are comma separated; booleans accept 1/0/true/false. ``overrides`` that are not
         None win over the environment.
@@ -98,7 +107,13 @@ class TransportSettings(BaseModel):
             "LEASE_MS": ("lease_ms", int),
             "CONNECT_TIMEOUT_MS": ("connect_timeout_ms", int),
             "TX_QUEUE_BATCHES": ("tx_queue_batches", int),
+            "TLS_CA": ("tls_ca", Path),
+            "TLS_CERT": ("tls_cert", Path),
+            "TLS_KEY": ("tls_key", Path),
+            "USRPWD_FILE": ("usrpwd_file", Path),
         }
+        if (config_path := zconfig.config_path_from_env(env)) is not None:
+            values["zenoh_config"] = config_path
         for suffix, (field, parse) in table.items():
             if (text := env.get(ENV_PREFIX + suffix)) is not None:
                 try:
@@ -112,7 +127,46 @@ class TransportSettings(BaseModel):
             raise TransportError(f"invalid transport settings: {exc}") from None
 
     def to_config(self) -> zenoh.Config:
-        config = zenoh.Config()
+        """Zenoh's configuration: the config file (if any), these settings over it, then credentials.
+
+        A key the file sets is kept unless the setting was given explicitly (``model_fields_set``).
+        """
+        try:
+            config = zconfig.load_config(self.zenoh_config)
+            entries = self._entries(config)
+            entries.update(zconfig.tls_entries(self.tls_ca, self.tls_cert, self.tls_key))
+            entries.update(zconfig.usrpwd_entries(self.usrpwd_file))
+            for key, value in entries.items():
+                zconfig.insert(config, key, value)
+            zconfig.check_tls_ready(config, zconfig.get(config, "listen/endpoints") or [])
+        except zconfig.ZenohConfigError as exc:
+            raise TransportError(str(exc)) from None
+        return config
+
+    #: which setting decides which zenoh key (a file's value survives unless the setting was given)
+    _FIELD_OF_KEY: ClassVar[dict[str, str]] = {
+        "mode": "mode",
+        "listen/endpoints": "listen",
+        "connect/endpoints": "connect",
+        "scouting/multicast/enabled": "multicast_scouting",
+        "transport/shared_memory/enabled": "shared_memory",
+        "transport/link/tx/lease": "lease_ms",
+        "connect/timeout_ms": "connect_timeout_ms",
+        "transport/link/tx/queue/size/data": "tx_queue_batches",
+    }
+
+    def _entries(self, base: zenoh.Config) -> dict[str, Any]:
+        entries = self._own_entries()
+        if self.zenoh_config is None:
+            return entries
+        explicit = self.model_fields_set
+        return {
+            key: value
+            for key, value in entries.items()
+            if self._FIELD_OF_KEY.get(key) in explicit or not zconfig.file_sets(base, key)
+        }
+
+    def _own_entries(self) -> dict[str, Any]:
         entries: dict[str, Any] = {
             "mode": self.mode,
             "listen/endpoints": list(self.listen),
@@ -125,12 +179,7 @@ class TransportSettings(BaseModel):
         }
         if self.mode == "client" or self.connect:
             entries["connect/timeout_ms"] = self.connect_timeout_ms
-        for key, value in entries.items():
-            try:
-                config.insert_json5(key, json.dumps(value))
-            except Exception as exc:  # zenoh raises ZError for bad values
-                raise TransportError(f"zenoh config {key}={value!r}: {exc}") from None
-        return config
+        return entries
 
 
 def open_session(settings: TransportSettings) -> zenoh.Session:
@@ -489,6 +538,14 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
         "--shm", action=argparse.BooleanOptionalAction, help="zenoh shared memory on/off (default off)"
     )
     group.add_argument("--lease-ms", type=int, help="link lease in ms (default 2000)")
+    group.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="zenoh configuration file under these settings (access control, TLS, ...; env "
+        "CAPATAZ_ZENOH_CONFIG); credentials only from it or CAPATAZ_ZENOH_TLS_{CA,CERT,KEY}, "
+        "CAPATAZ_ZENOH_USRPWD_FILE",
+    )
     group.add_argument("--node", default=node_default, help=f"node (host) name (default {node_default})")
     group.add_argument("--index", type=int, default=0, help="instance index on the node (default 0)")
     group.add_argument("--stats-period", type=float, default=1.0, help="seconds between stats messages")
@@ -502,4 +559,5 @@ def transport_from_args(args: Any) -> TransportSettings:
         multicast_scouting=args.multicast,
         shared_memory=args.shm,
         lease_ms=args.lease_ms,
+        zenoh_config=getattr(args, "zenoh_config", None),
     )
