@@ -23,6 +23,7 @@ from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
 from services.report import write_json
 from services.runtime.transport import open_session
+from services.secure import SecureProfile
 from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
 
 logger = logging.getLogger(__name__)
@@ -45,9 +46,12 @@ def run_cluster_flight(
     camera_args: tuple[str, ...] = (),
     progress: bool = True,
     shared_memory: bool = False,
+    secure: SecureProfile | None = None,
 ) -> tuple[dict[int, Any], float, dict[str, int | None]]:
     """Run one flight through a fresh local cluster; returns (estimates by seq, wall seconds, exit codes)."""
-    with LocalCluster(spec, log_dir, shared_memory=shared_memory, master_args=master_args) as cluster:
+    with LocalCluster(
+        spec, log_dir, shared_memory=shared_memory, master_args=master_args, secure=secure
+    ) as cluster:
         t_start = time.monotonic()
         cluster.start()
         cluster.wait_alive(cluster.expected_members())

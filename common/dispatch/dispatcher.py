@@ -25,6 +25,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
+from common.dispatch.trust import TrustMonitor, cap_counts, capped_weights
 from common.errors import CapatazError, InputError
 
 IndexArray = npt.NDArray[np.int32]
@@ -157,6 +158,8 @@ class Dispatcher:
         self._memo: tuple[tuple[object, ...], dict[str, IndexArray]] | None = None
         self._all = list(range(n_patches))
         self.last_plan: Plan | None = None
+        #: defence in depth (see :mod:`common.dispatch.trust`): suspensions, share cap, earned speed
+        self.trust: TrustMonitor | None = None
 
     # -- membership -------------------------------------------------------------------------------------
     def join(self, member: str, capacity: float = 1.0) -> None:
@@ -195,7 +198,10 @@ class Dispatcher:
 
     def active(self, now_s: float) -> list[str]:
         """Members that get work now: remote members not suspended, plus ``SELF`` when configured or alone."""
-        remote = [m for m in self.members if self._members[m].suspended_until_s <= now_s]
+        distrusted = self.trust.suspended(now_s) if self.trust is not None else frozenset()
+        remote = [
+            m for m in self.members if self._members[m].suspended_until_s <= now_s and m not in distrusted
+        ]
         if self.settings.self_compute or not remote:
             return [*remote, SELF]
         return remote
@@ -220,15 +226,37 @@ class Dispatcher:
             return capacity
         # a member without measurement starts at the mean speed per unit of capacity of the measured ones
         per_capacity = sum(known) / len(known)
-        return [
+        weights = [
             float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)
         ]
+        if self.trust is None or not self.trust.settings.enabled:
+            return weights
+        trust = self.trust
+        held = capped_weights(
+            dict(zip(members, weights, strict=True)),
+            dict(zip(members, capacity, strict=True)),
+            {m: m == SELF or trust.credited(m) for m in members},
+        )
+        return [held[m] for m in members]
+
+    def _counts(self, members: list[str], total: int) -> tuple[list[str], list[int]]:
+        """Counts per member, with the trust share caps applied from two joined remote members on (the
+        overflow goes to the dispatcher itself, which is added when it is not among ``members``)."""
+        counts = _largest_remainder(self.weights(members), total)
+        trust = self.trust
+        if trust is None or not trust.settings.enabled or len(self.members) < 2:
+            return members, counts
+        limits = [None if m == SELF else math.floor(trust.share_limit(m) * total) for m in members]
+        if all(limit is None or c <= limit for c, limit in zip(counts, limits, strict=True)):
+            return members, counts
+        if SELF not in members:
+            members, counts, limits = [*members, SELF], [*counts, 0], [*limits, None]
+        return members, cap_counts(counts, limits)
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
         todo = self._all if indices is None else self._check_indices(indices)
-        members = self.active(now_s)
-        counts = _largest_remainder(self.weights(members), len(todo))
+        members, counts = self._counts(self.active(now_s), len(todo))
         key = (tuple(members), tuple(counts), tuple(todo))
         if self._memo is not None and self._memo[0] == key:
             repeated = dict(self._memo[1])
@@ -296,7 +324,7 @@ class Dispatcher:
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
         members = [m for m in self.active(now_s) if m not in exclude] or [SELF]
-        counts = _largest_remainder(self.weights(members), int(idx.size))
+        members, counts = self._counts(members, int(idx.size))
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}
         start = 0

@@ -20,6 +20,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.bench.cluster",
     "services.bench.yaw",
     "services.bench.estimator",
+    "services.bench.security",
 )
 
 

@@ -10,6 +10,7 @@ published yaw equals the in-process tracker's when no frame is dropped.
 from __future__ import annotations
 
 import argparse
+import logging
 import threading
 import time
 from dataclasses import dataclass, field
@@ -21,7 +22,16 @@ import zenoh
 from pydantic import BaseModel, ConfigDict
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
+from common.dispatch import (
+    SELF,
+    Balance,
+    Dispatcher,
+    DispatchSettings,
+    SpeedSource,
+    TrustMonitor,
+    TrustSettings,
+)
+from common.dispatch.vetting import round_outcomes
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
 from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
@@ -35,6 +45,8 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
+
+logger = logging.getLogger(__name__)
 
 
 class Topology(StrEnum):
@@ -57,6 +69,8 @@ class MasterSettings(BaseModel):
     grid_rows: int = 5
     patch_size_px: int = 32
     pyramid_level: int = 1
+    #: defence in depth: vet members' results against the robust fit, cap shares (see common.dispatch.trust)
+    trust: bool = True
 
     def yaw_settings(self) -> YawSettings:
         return YawSettings(
@@ -205,11 +219,28 @@ class MasterService(ServiceRuntime):
             self.counters.inc("yaw_out")
             self.counters.time_ms("frame", estimate.timings_ms["total"])
 
+    def _vet(self, stream: _Stream, owners: list[str], parts: list[Any], measurement: Any) -> None:
+        """Judge the members' patches against the frame's robust fit; suspend and report inconsistent ones."""
+        trust = stream.dispatcher.trust
+        if trust is None or not trust.settings.enabled:
+            return
+        outcomes = round_outcomes(owners, parts, measurement, stream.grid.centres_px, self.yaw_settings)
+        for verdict in trust.observe(outcomes, time.monotonic()):
+            self.counters.inc("trust_suspensions")
+            logger.warning(
+                "%s: suspending %s for %.0f s: %s",
+                self.name,
+                verdict.member,
+                verdict.until_s - time.monotonic(),
+                verdict.reason,
+            )
+
     def _new_stream(self, frame: Frame) -> _Stream:
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
         tracker = YawTracker(self.yaw_settings, grid)
         state = tracker.initial_state(frame.pixels, with_spectra=False)
         dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
+        dispatcher.trust = TrustMonitor(TrustSettings(enabled=self.settings.trust))
         return _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher)
 
     def _estimate(
@@ -289,6 +320,8 @@ class MasterService(ServiceRuntime):
             measurement = compute_self(grid.all_indices, grid.all_indices)
             report = None
         t_round = time.perf_counter()
+        if report is not None:
+            self._vet(stream, report.owners, report.parts, measurement)
         stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement)
         stream.prev_level, stream.prev_seq = level, frame.seq
         self._last_seq = frame.seq
@@ -333,6 +366,12 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
     parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
     parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
+    parser.add_argument(
+        "--trust",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="vet members' results against the robust fit, cap shares (default on)",
+    )
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
@@ -352,6 +391,7 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
         grid_rows=rows,
         patch_size_px=args.patch_size,
         pyramid_level=args.pyramid_level,
+        trust=args.trust,
     )
 
 
