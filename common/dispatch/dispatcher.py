@@ -25,7 +25,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
-from common.dispatch.trust import TrustMonitor, cap_counts, capped_weights
+from common.dispatch.trust import TrustMonitor
 from common.errors import CapatazError, InputError
 
 IndexArray = npt.NDArray[np.int32]
@@ -160,6 +160,8 @@ class Dispatcher:
         self.last_plan: Plan | None = None
         #: defence in depth (see :mod:`common.dispatch.trust`): suspensions, share cap, earned speed
         self.trust: TrustMonitor | None = None
+        #: the current frame's size and patches per member (the share caps count re-dispatched ones too)
+        self._frame: tuple[int, dict[str, int]] = (0, {})
 
     # -- membership -------------------------------------------------------------------------------------
     def join(self, member: str, capacity: float = 1.0) -> None:
@@ -229,29 +231,17 @@ class Dispatcher:
         weights = [
             float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)
         ]
-        if self.trust is None or not self.trust.settings.enabled:
+        if self.trust is None:
             return weights
-        trust = self.trust
-        held = capped_weights(
-            dict(zip(members, weights, strict=True)),
-            dict(zip(members, capacity, strict=True)),
-            {m: m == SELF or trust.credited(m) for m in members},
-        )
-        return [held[m] for m in members]
+        return self.trust.hold_weights(members, weights, capacity, trusted=SELF)
 
-    def _counts(self, members: list[str], total: int) -> tuple[list[str], list[int]]:
-        """Counts per member, with the trust share caps applied from two joined remote members on (the
-        overflow goes to the dispatcher itself, which is added when it is not among ``members``)."""
+    def _counts(self, members: list[str], total: int, redo: bool = False) -> tuple[list[str], list[int]]:
+        """Counts per member under the trust share caps (a re-dispatch counts the frame's earlier shares)."""
         counts = _largest_remainder(self.weights(members), total)
-        trust = self.trust
-        if trust is None or not trust.settings.enabled or len(self.members) < 2:
+        if self.trust is None:
             return members, counts
-        limits = [None if m == SELF else math.floor(trust.share_limit(m) * total) for m in members]
-        if all(limit is None or c <= limit for c, limit in zip(counts, limits, strict=True)):
-            return members, counts
-        if SELF not in members:
-            members, counts, limits = [*members, SELF], [*counts, 0], [*limits, None]
-        return members, cap_counts(counts, limits)
+        frame, load = self._frame if redo and self._frame[0] else (total, {})
+        return self.trust.cap(members, counts, frame, load, len(self.members), dispatcher=SELF)
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
@@ -262,6 +252,7 @@ class Dispatcher:
             repeated = dict(self._memo[1])
             missing = {m: self._missing(m, owned, prev_seq) for m, owned in repeated.items()}
             self.last_plan = Plan(seq=seq, prev_seq=prev_seq, assignment=repeated, moved=missing)
+            self._frame = (len(todo), {m: len(v) for m, v in repeated.items()})
             return self.last_plan
         targets = dict(zip(members, counts, strict=True))
         keep: dict[str, list[int]] = {m: [] for m in members}
@@ -292,6 +283,7 @@ class Dispatcher:
         self._memo = (key, assignment)
         plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
         self.last_plan = plan
+        self._frame = (len(todo), {m: len(v) for m, v in assignment.items()})
         return plan
 
     def _check_indices(self, indices: npt.ArrayLike) -> list[int]:
@@ -324,7 +316,7 @@ class Dispatcher:
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
         members = [m for m in self.active(now_s) if m not in exclude] or [SELF]
-        members, counts = self._counts(members, int(idx.size))
+        members, counts = self._counts(members, int(idx.size), redo=True)
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}
         start = 0
@@ -338,6 +330,7 @@ class Dispatcher:
             self._memo = None
             assignment[m] = part
             moved[m] = self._missing(m, part, prev_seq)
+            self._frame[1][m] = self._frame[1].get(m, 0) + int(n)
         seq = self.last_plan.seq if self.last_plan else 0
         return Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
 

@@ -206,9 +206,52 @@ class TrustMonitor:
         rec = self._records.get(member)
         return rec is not None and rec.consistent_frames >= self.settings.earn_frames
 
+    def limit(self, member: str, frame_total: int) -> int:
+        """The most patches of a frame of ``frame_total`` that ``member`` may hold."""
+        return math.floor(self.share_limit(member) * frame_total)
+
     def share_limit(self, member: str) -> float:
         """The largest share of a frame ``member`` may get now."""
         return self.settings.max_share if self.credited(member) else self.settings.probation_share
+
+    def hold_weights(
+        self, members: Sequence[str], weights: Sequence[float], capacity: Sequence[float], trusted: str
+    ) -> list[float]:
+        """Balancing weights where uncredited members' speed buys no more than :func:`capped_weights`."""
+        if not self.settings.enabled:
+            return list(weights)
+        held = capped_weights(
+            dict(zip(members, weights, strict=True)),
+            dict(zip(members, capacity, strict=True)),
+            {m: m == trusted or self.credited(m) for m in members},
+        )
+        return [held[m] for m in members]
+
+    def cap(
+        self,
+        members: Sequence[str],
+        counts: Sequence[int],
+        frame_total: int,
+        load: Mapping[str, int],
+        joined: int,
+        dispatcher: str,
+    ) -> tuple[list[str], list[int]]:
+        """Apply the share caps (from two ``joined`` remote members on) to a plan's or re-dispatch's counts.
+
+        Each member may hold at most ``share_limit * frame_total`` of the frame, ``load`` being what it holds
+        already; the overflow goes to the ``dispatcher`` itself, which is appended when absent.
+        """
+        members, counts = list(members), list(counts)
+        if not self.settings.enabled or joined < 2:
+            return members, counts
+        limits: list[int | None] = [
+            None if m == dispatcher else max(0, self.limit(m, frame_total) - load.get(m, 0)) for m in members
+        ]
+        if all(limit is None or c <= limit for c, limit in zip(counts, limits, strict=True)):
+            return members, counts
+        if dispatcher not in members:
+            members, counts, limits = [*members, dispatcher], [*counts, 0], [*limits, None]
+        return members, cap_counts(counts, limits)
 
     def report(self) -> dict[str, float]:
         """Outlier rate per member (for stats)."""

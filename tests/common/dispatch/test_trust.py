@@ -154,3 +154,22 @@ def test_vetting_flags_the_member_that_reports_a_wrong_rotation() -> None:
     got = {o.member: o for o in round_outcomes(["a", "b", "liar"], parts, merged, centres, settings)}
     assert got["liar"].outliers >= 10
     assert got["a"].outliers <= 1 and got["b"].outliers <= 1
+
+
+def test_redispatch_counts_the_frames_earlier_shares_against_the_cap_regression() -> None:
+    """Seen in the hostile suite: both honest foremen failed a frame and their re-dispatched patches went
+    to the fake one, which then held the majority of that frame (the yaw moved by one frame's 2 deg)."""
+    d = Dispatcher(DispatchSettings(), 40)
+    d.trust = TrustMonitor()
+    for m in ("foreman/a/0", "foreman/b/0", "foreman/liar/0"):
+        d.join(m)
+    plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
+    held = len(plan.assignment["foreman/liar/0"])
+    assert held <= 13
+    failed: set[str] = set()
+    for honest in ("foreman/a/0", "foreman/b/0"):
+        failed.add(honest)
+        d.record_failure(honest, now_s=0.1)
+        again = d.redistribute(plan.assignment[honest], failed, now_s=0.1, prev_seq=0)
+        held += len(again.assignment.get("foreman/liar/0", []))
+    assert held <= 13
