@@ -153,7 +153,9 @@ class LocalCluster:
         role = name.split("/")[0]
         return f"{role}.{self.spec.uav}" if role in {r.value for r in UAV_ROLES} else role
 
-    def spawn(self, name: str, args: Sequence[str], cpus: str | None = None) -> subprocess.Popen[bytes]:
+    def spawn(
+        self, name: str, args: Sequence[str], cpus: str | None = None, common_name: str | None = None
+    ) -> subprocess.Popen[bytes]:
         if name in self.processes and self.processes[name].poll() is None:
             raise ClusterError(f"{name} is already running")
         command = capataz_command(*args)
@@ -163,7 +165,7 @@ class LocalCluster:
         log = (self.log_dir / f"{name.replace('/', '_')}.log").open("ab")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         if self.secure is not None:
-            env.update(self.secure.environment(self.common_name(name)))
+            env.update(self.secure.environment(common_name or self.common_name(name)))
         process = subprocess.Popen(
             command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
         )

@@ -238,14 +238,19 @@ class YawWatch:
 
 
 def fly(
-    cluster: LocalCluster, watch: YawWatch, frames: int, fps: float, timeout_s: float, in_flight: int = 0
+    cluster: LocalCluster,
+    watch: YawWatch,
+    frames: int,
+    fps: float,
+    timeout_s: float,
+    in_flight: int = 0,
+    sensors: bool = False,
 ) -> float:
-    """Run the camera's simulated flight at ``fps`` (``in_flight`` > 0: flow-controlled) and wait for its
-    last yaw; wall seconds."""
+    """Run the camera's simulated flight at ``fps`` (``in_flight`` > 0: flow-controlled; ``sensors``: with
+    IMU and rangefinder) and wait for its last yaw; wall seconds."""
     t0 = time.monotonic()
-    camera = cluster.start_camera(
-        ["--frames", str(frames), "--fps", str(fps), "--in-flight", str(in_flight), "--no-sensors"]
-    )
+    args = ["--frames", str(frames), "--fps", str(fps), "--in-flight", str(in_flight)]
+    camera = cluster.start_camera(args if sensors else [*args, "--no-sensors"])
     deadline = t0 + timeout_s
     while time.monotonic() < deadline and cluster.processes[camera].poll() is None:
         time.sleep(0.1)
