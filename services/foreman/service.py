@@ -18,7 +18,16 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, Plan, SpeedSource
+from common.dispatch import (
+    SELF,
+    Balance,
+    Dispatcher,
+    DispatchSettings,
+    Plan,
+    SpeedSource,
+    TrustMonitor,
+    TrustSettings,
+)
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.patchwork import (
@@ -87,6 +96,8 @@ class ForemanService(ServiceRuntime):
         super().__init__(node, 0, transport, stats_period_s)
         self.dispatch_settings = dispatch
         self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
+        # no fit here to vet workers against (the master vets the foreman's whole block): share caps only
+        self.dispatcher.trust = TrustMonitor(TrustSettings(earn_frames=0))
         self.queue_capacity = queue_capacity
         self._queryable: Any = None
         self.cache = SpectrumCache()

@@ -10,7 +10,6 @@ published yaw equals the in-process tracker's when no frame is dropped.
 from __future__ import annotations
 
 import argparse
-import logging
 import threading
 import time
 from dataclasses import dataclass, field
@@ -28,15 +27,13 @@ from common.dispatch import (
     Dispatcher,
     DispatchSettings,
     SpeedSource,
-    TrustMonitor,
-    TrustSettings,
 )
-from common.dispatch.vetting import round_outcomes
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
 from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
+from services.runtime.guard import DispatchGuard
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments
 from services.runtime.transport import (
     LatestSlot,
@@ -45,8 +42,6 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
-
-logger = logging.getLogger(__name__)
 
 
 class Topology(StrEnum):
@@ -122,7 +117,9 @@ class MasterService(ServiceRuntime):
         self._membership_lock = threading.Lock()
         #: bumped on every liveliness change; a dispatcher that saw the current version needs no update
         self._membership_version = 0
-        self._applied: tuple[Dispatcher | None, int] = (None, -1)
+        self._applied: tuple[Dispatcher | None, int, frozenset[str]] = (None, -1, frozenset())
+        #: defence in depth: trust vetting, one frame source, liveliness churn limited per key
+        self.guard = DispatchGuard(self.name, self.counters, settings.trust)
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_seq = -1
@@ -149,6 +146,7 @@ class MasterService(ServiceRuntime):
             return
         member, joined = event
         with self._membership_lock:
+            self.guard.note_alive(member.name, joined)
             if joined:
                 self._members[member.name] = member
             else:
@@ -160,6 +158,8 @@ class MasterService(ServiceRuntime):
                 self.scatter.member_left(member.name)
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
+        if not self.guard.admit_frame(sample):
+            return
         frame = self.decode_sample(sample, Frame)
         if frame is None:
             return
@@ -169,11 +169,12 @@ class MasterService(ServiceRuntime):
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
         with self._membership_lock:
-            if self._applied == (dispatcher, self._membership_version):
+            churning = self.guard.quarantined()
+            if self._applied == (dispatcher, self._membership_version, churning):
                 return  # nothing changed since this dispatcher was last brought up to date
-            self._applied = (dispatcher, self._membership_version)
+            self._applied = (dispatcher, self._membership_version, churning)
             members = dict(self._members)
-        wanted = {name for name, m in members.items() if m.role is self.member_role}
+        wanted = {name for name, m in members.items() if m.role is self.member_role and name not in churning}
         workers_per_node: dict[str, int] = {}
         for m in members.values():
             if m.role is keys.Role.WORKER:
@@ -219,28 +220,12 @@ class MasterService(ServiceRuntime):
             self.counters.inc("yaw_out")
             self.counters.time_ms("frame", estimate.timings_ms["total"])
 
-    def _vet(self, stream: _Stream, owners: list[str], parts: list[Any], measurement: Any) -> None:
-        """Judge the members' patches against the frame's robust fit; suspend and report inconsistent ones."""
-        trust = stream.dispatcher.trust
-        if trust is None or not trust.settings.enabled:
-            return
-        outcomes = round_outcomes(owners, parts, measurement, stream.grid.centres_px, self.yaw_settings)
-        for verdict in trust.observe(outcomes, time.monotonic()):
-            self.counters.inc("trust_suspensions")
-            logger.warning(
-                "%s: suspending %s for %.0f s: %s",
-                self.name,
-                verdict.member,
-                verdict.until_s - time.monotonic(),
-                verdict.reason,
-            )
-
     def _new_stream(self, frame: Frame) -> _Stream:
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
         tracker = YawTracker(self.yaw_settings, grid)
         state = tracker.initial_state(frame.pixels, with_spectra=False)
         dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
-        dispatcher.trust = TrustMonitor(TrustSettings(enabled=self.settings.trust))
+        dispatcher.trust = self.guard.monitor()
         return _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher)
 
     def _estimate(
@@ -321,7 +306,9 @@ class MasterService(ServiceRuntime):
             report = None
         t_round = time.perf_counter()
         if report is not None:
-            self._vet(stream, report.owners, report.parts, measurement)
+            self.guard.vet(
+                stream.dispatcher.trust, report.owners, report.parts, measurement, grid.centres_px, settings
+            )
         stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement)
         stream.prev_level, stream.prev_seq = level, frame.seq
         self._last_seq = frame.seq
@@ -366,12 +353,8 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
     parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
     parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
-    parser.add_argument(
-        "--trust",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="vet members' results against the robust fit, cap shares (default on)",
-    )
+    parser.add_argument("--trust", action=argparse.BooleanOptionalAction, default=True,
+                        help="vet members, cap shares, one frame source (default on)")  # fmt: skip
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:

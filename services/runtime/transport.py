@@ -294,6 +294,17 @@ def zbytes(value: Any) -> bytes | None:
     return None if value is None else value.to_bytes()
 
 
+def source_of(sample: zenoh.Sample) -> str | None:
+    """The source a sample *declares* (``zid/eid`` of its publisher), None when it declares none.
+
+    Zenoh 1.10 gives a Python subscriber no transport-authenticated sender: this is what the publisher
+    chose to attach (the capataz camera does), so it separates senders but does not authenticate them.
+    """
+    info = sample.source_info
+    source = None if info is None else info.source_id
+    return None if source is None else f"{source.zid}/{source.eid}"
+
+
 class ServiceRuntime:
     """Base of every service: session, liveliness, health, stats, signals, clean shutdown.
 
