@@ -103,6 +103,22 @@ class SecureProfile:
         }
 
 
+def process_common_name(name: str, uav: str) -> str:
+    """The certificate of a local process ``role/node/i`` (or ``router``) of a cluster flying ``uav``."""
+    role = name.split("/")[0]
+    return f"{role}.{uav}" if role in {r.value for r in acl.UAV_ROLES} else role
+
+
+def participant_environment(
+    secure: SecureProfile | None, zenoh_config: Path | None, common_name: str
+) -> dict[str, str]:
+    """What a local participant needs in its environment: its certificate in the secure profile, else the
+    zenoh configuration file, if any."""
+    if secure is not None:
+        return secure.environment(common_name)
+    return {"CAPATAZ_ZENOH_CONFIG": str(zenoh_config)} if zenoh_config else {}
+
+
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("secure", help="secure profile: certificates, access-control config")
     sub = parser.add_subparsers(dest="secure_command", required=True, metavar="WHAT")

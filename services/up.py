@@ -30,10 +30,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common import keys
 from common.errors import CapatazError
 from common.messages import WireError, YawEstimate, decode
-from services.runtime.acl import UAV_ROLES
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.secure import DEFAULT_DIR as SECURE_DIR
-from services.secure import SecureProfile
+from services.secure import SecureProfile, participant_environment, process_common_name
 
 logger = logging.getLogger(__name__)
 
@@ -110,6 +109,7 @@ class LocalCluster:
         master_args: Sequence[str] = (),
         lease_ms: int = 2000,
         secure: SecureProfile | None = None,
+        zenoh_config: Path | None = None,
     ) -> None:
         self.spec = spec
         self.log_dir = Path(log_dir)
@@ -117,6 +117,8 @@ class LocalCluster:
         #: the secure profile: mutual TLS with per-role certificates and access control on every participant
         self.secure = secure
         self.scheme = "tls" if secure is not None else "tcp"
+        #: a zenoh configuration file every process (and our own sessions) loads (the secure one wins)
+        self.zenoh_config = Path(zenoh_config).resolve() if zenoh_config else None
         self.router = f"{self.scheme}/127.0.0.1:{self.port}"
         self.shared_memory = shared_memory
         self.master_args = tuple(master_args)
@@ -141,17 +143,12 @@ class LocalCluster:
     def observer_transport(self) -> TransportSettings:
         """The transport of our own observing session (a read-only ``client`` in the secure profile)."""
         return TransportSettings.from_env(
-            environ=self.secure.environment("client") if self.secure else {},
+            environ=participant_environment(self.secure, self.zenoh_config, "client"),
             connect=(self.router,),
             listen=(f"{self.scheme}/127.0.0.1:0",),
             shared_memory=self.shared_memory,
             lease_ms=self.lease_ms,
         )
-
-    def common_name(self, name: str) -> str:
-        """The certificate of a process ``role/node/i`` (or ``router``) in the secure profile."""
-        role = name.split("/")[0]
-        return f"{role}.{self.spec.uav}" if role in {r.value for r in UAV_ROLES} else role
 
     def spawn(
         self, name: str, args: Sequence[str], cpus: str | None = None, common_name: str | None = None
@@ -163,9 +160,10 @@ class LocalCluster:
             command = [self._taskset, "-c", cpus, *command]
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log = (self.log_dir / f"{name.replace('/', '_')}.log").open("ab")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        if self.secure is not None:
-            env.update(self.secure.environment(common_name or self.common_name(name)))
+        cn = common_name or process_common_name(name, self.spec.uav)
+        env = dict(
+            os.environ, PYTHONUNBUFFERED="1", **participant_environment(self.secure, self.zenoh_config, cn)
+        )
         process = subprocess.Popen(
             command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
         )
@@ -455,6 +453,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on")
     parser.add_argument("--compose", type=Path, help="write the cluster as a docker-compose file and exit")
     parser.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="zenoh configuration file for every process (env CAPATAZ_ZENOH_CONFIG)",
+    )
+    parser.add_argument(
         "--secure",
         type=Path,
         nargs="?",
@@ -478,7 +482,12 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
         with LocalCluster(
-            spec, args.logs, port=args.port or None, shared_memory=args.shm, secure=secure
+            spec,
+            args.logs,
+            port=args.port or None,
+            shared_memory=args.shm,
+            secure=secure,
+            zenoh_config=getattr(args, "zenoh_config", None),
         ) as cluster:
             t0 = time.monotonic()
             cluster.start()
