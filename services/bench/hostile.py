@@ -33,7 +33,7 @@ from common.messages import (
     decode,
     encode,
 )
-from common.yaw import YawSettings, YawTracker, make_patch_grid
+from common.yaw import YawSettings, make_patch_grid
 from common.yaw.patchwork import settings_from_wire
 from services.runtime.transport import TransportError, TransportSettings, open_session, zbytes
 from services.up import LocalCluster
@@ -276,16 +276,10 @@ def max_yaw_error_deg(watch: YawWatch, reference_rad: np.ndarray) -> float:
 def reference_yaw_rad(frames: int) -> np.ndarray:
     """In-process yaw of every frame of the camera's simulated flight (what the cluster must publish)."""
     from services.camera import CameraSettings, simulated_flight
+    from services.demo_yaw import track_frames
 
     flight = simulated_flight(CameraSettings(frames=frames))
-    settings = YawSettings()
-    tracker = YawTracker(settings, make_patch_grid((flight.camera.height, flight.camera.width), settings))
-    state = tracker.initial_state(flight.frame(0))
-    yaw = np.zeros(frames)
-    for k in range(1, frames):
-        state, estimate = tracker.track(state, flight.frame(k))
-        yaw[k] = estimate.yaw_rad
-    return yaw
+    return track_frames((flight.frame(k) for k in range(frames)), YawSettings()).yaw_rad
 
 
 @contextmanager

@@ -63,7 +63,9 @@ class CropStore:
 
     def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
         frames = self._frames.setdefault(stream, {})
-        if frames and seq < min(frames) and len(frames) >= self._keep:
+        if frames and seq + self._keep < min(frames):
+            frames.clear()  # the stream restarted (a new camera run counts from 0 again)
+        elif frames and seq < min(frames) and len(frames) >= self._keep:
             return  # older than everything kept
         entry = frames.setdefault(seq, {})
         entry.update(zip(indices.tolist(), crops, strict=True))

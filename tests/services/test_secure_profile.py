@@ -87,15 +87,6 @@ def test_policy_refuses_bad_uav_names() -> None:
         PolicySettings(uavs=("uav/0",))
 
 
-@pytest.fixture(scope="module")
-def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl is not installed (needed to make the development certificates)")
-    out = tmp_path_factory.mktemp("certs")
-    make_certs(out, ("uav0",))
-    return out
-
-
 def subject(path: Path) -> str:
     return subprocess.run(
         ["openssl", "x509", "-in", str(path), "-noout", "-subject"],
@@ -158,3 +149,12 @@ def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only(
         if "." in role:
             assert f"--uav {role.split('.')[1]}" in " ".join(service["command"]), name
         assert all(v.endswith(":ro") for v in service["volumes"]), name
+
+
+def test_up_takes_secure_and_zenoh_config_options() -> None:
+    from services.cli import build_parser
+
+    args = build_parser().parse_args(["up", "--cluster", "deploy/clusters/local2x2.yml", "--secure"])
+    assert args.secure == Path("out/secure") and args.zenoh_config is None
+    args = build_parser().parse_args(["up", "--cluster", "x.yml", "--zenoh-config", "z.json5"])
+    assert args.zenoh_config == Path("z.json5") and args.secure is None

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -17,19 +16,9 @@ import zenoh
 
 from services.runtime import zconfig
 from services.runtime.transport import TransportError, TransportSettings, open_session
-from services.secure import make_certs
 from services.up import free_port
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl is not installed (needed to make the development certificates)")
-    out = tmp_path_factory.mktemp("certs")
-    make_certs(out, ("uav0",))
-    return out
 
 
 def write(path: Path, config: dict[str, object]) -> Path:
@@ -190,5 +179,44 @@ def test_router_listens_on_tls_with_credentials_from_the_environment_regression(
         )
         with open_session(settings) as session:
             assert session.info.routers_zid()
+    finally:
+        stop(process)
+
+
+@pytest.mark.zenoh
+def test_user_password_authentication_from_a_credentials_file(tmp_path: Path) -> None:
+    """Zenoh's usrpwd authentication, the router's dictionary in its config file and the client's
+    ``user:password`` in CAPATAZ_ZENOH_USRPWD_FILE: right credentials connect, wrong ones are refused."""
+    port = free_port()
+    dictionary = tmp_path / "users.txt"
+    dictionary.write_text("camera:right-password\n")
+    path = write(
+        tmp_path / "router.json5", {"transport": {"auth": {"usrpwd": {"dictionary_file": str(dictionary)}}}}
+    )
+    # the router authenticates itself too when it has a user; give it one the dictionary knows
+    (tmp_path / "router-cred").write_text("camera:right-password\n")
+    process = router(
+        {"CAPATAZ_ZENOH_CONFIG": str(path), "CAPATAZ_ZENOH_USRPWD_FILE": str(tmp_path / "router-cred")},
+        "--listen",
+        f"tcp/127.0.0.1:{port}",
+    )
+    try:
+        wait_listening(process, port)
+        for password, ok in (("right-password", True), ("wrong", False)):
+            cred = tmp_path / f"cred-{password}"
+            cred.write_text(f"camera:{password}\n")
+            settings = TransportSettings.from_env(
+                environ={"CAPATAZ_ZENOH_USRPWD_FILE": str(cred)},
+                mode="client",
+                connect=(f"tcp/127.0.0.1:{port}",),
+                listen=(),
+                connect_timeout_ms=2000,
+            )
+            if ok:
+                with open_session(settings) as session:
+                    assert session.info.routers_zid()
+            else:
+                with pytest.raises(TransportError):
+                    open_session(settings).close()
     finally:
         stop(process)
