@@ -200,10 +200,10 @@ class Dispatcher:
 
     def active(self, now_s: float) -> list[str]:
         """Members that get work now: remote members not suspended, plus ``SELF`` when configured or alone."""
-        distrusted = self.trust.suspended(now_s) if self.trust is not None else frozenset()
-        remote = [
-            m for m in self.members if self._members[m].suspended_until_s <= now_s and m not in distrusted
-        ]
+        remote = [m for m in self.members if self._members[m].suspended_until_s <= now_s]
+        if self.trust is not None:  # suspended for inconsistent results; new members tried a few at a time
+            fresh = {m for m in remote if self._members[m].speed_ema is None}
+            remote = self.trust.screen(remote, fresh, now_s)
         if self.settings.self_compute or not remote:
             return [*remote, SELF]
         return remote

@@ -52,6 +52,9 @@ class TrustSettings:
     max_suspend_s: float = 600.0
     #: consistent frames before a member's speed may buy more than its capacity share
     earn_frames: int = 10
+    #: members that never answered yet which get work in one frame (a flood of fake tokens is tried a few
+    #: at a time; each that fails is paused by the dispatcher)
+    max_untested: int = 4
     enabled: bool = True
 
     def __post_init__(self) -> None:
@@ -59,8 +62,8 @@ class TrustSettings:
             raise InputError(
                 f"need 0 < probation_share <= max_share <= 1, got {self.probation_share}, {self.max_share}"
             )
-        if self.window < 1 or self.min_patches < 1 or self.earn_frames < 0:
-            raise InputError("window and min_patches must be >= 1, earn_frames >= 0")
+        if self.window < 1 or self.min_patches < 1 or self.earn_frames < 0 or self.max_untested < 1:
+            raise InputError("window, min_patches and max_untested must be >= 1, earn_frames >= 0")
         if not 0.0 < self.outlier_margin < 1.0 or self.suspend_s <= 0 or self.max_suspend_s < self.suspend_s:
             raise InputError("outlier_margin must be in (0, 1); 0 < suspend_s <= max_suspend_s")
 
@@ -213,6 +216,17 @@ class TrustMonitor:
     def share_limit(self, member: str) -> float:
         """The largest share of a frame ``member`` may get now."""
         return self.settings.max_share if self.credited(member) else self.settings.probation_share
+
+    def screen(self, members: Sequence[str], untested: set[str], now_s: float) -> list[str]:
+        """``members`` without the suspended ones, and with at most ``max_untested`` of the ``untested``
+        ones (members that never answered yet; the first in order)."""
+        suspended = self.suspended(now_s)
+        kept = [m for m in members if m not in suspended]
+        fresh = sorted(m for m in kept if m in untested)
+        if not self.settings.enabled or len(fresh) <= self.settings.max_untested:
+            return kept
+        allowed = set(fresh[: self.settings.max_untested])
+        return [m for m in kept if m not in untested or m in allowed]
 
     def hold_weights(
         self, members: Sequence[str], weights: Sequence[float], capacity: Sequence[float], trusted: str

@@ -173,3 +173,17 @@ def test_redispatch_counts_the_frames_earlier_shares_against_the_cap_regression(
         again = d.redistribute(plan.assignment[honest], failed, now_s=0.1, prev_seq=0)
         held += len(again.assignment.get("foreman/liar/0", []))
     assert held <= 13
+
+
+def test_a_flood_of_new_members_is_tried_a_few_at_a_time() -> None:
+    d = Dispatcher(DispatchSettings(), 40)
+    d.trust = TrustMonitor(TrustSettings(max_untested=4))
+    d.join("foreman/a/0")
+    d.record_success("foreman/a/0", 0, np.arange(40), 0.01)
+    for i in range(100):
+        d.join(f"foreman/flood{i:03d}/0")
+    tried = [m for m in d.active(now_s=0.0) if "flood" in m]
+    assert len(tried) == 4 and "foreman/a/0" in d.active(now_s=0.0)
+    for m in tried:  # they fail and are paused: the next ones are tried
+        d.record_failure(m, now_s=0.0)
+    assert not set(tried) & {m for m in d.active(now_s=0.1) if "flood" in m}
