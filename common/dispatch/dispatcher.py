@@ -198,12 +198,12 @@ class Dispatcher:
         """Remote members (without ``SELF``), sorted."""
         return tuple(sorted(m for m in self._members if m != SELF))
 
-    def active(self, now_s: float) -> list[str]:
-        """Members that get work now: remote members not suspended, plus ``SELF`` when configured or alone."""
+    def active(self, now_s: float, answered_only: bool = False) -> list[str]:
+        """Remote members not suspended, plus ``SELF`` when configured or alone (see TrustMonitor.screen)."""
         remote = [m for m in self.members if self._members[m].suspended_until_s <= now_s]
         if self.trust is not None:  # suspended for inconsistent results; new members tried a few at a time
             fresh = {m for m in remote if self._members[m].speed_ema is None}
-            remote = self.trust.screen(remote, fresh, now_s)
+            remote = self.trust.screen(remote, fresh, now_s, answered_only)
         if self.settings.self_compute or not remote:
             return [*remote, SELF]
         return remote
@@ -241,7 +241,7 @@ class Dispatcher:
         if self.trust is None:
             return members, counts
         frame, load = self._frame if redo and self._frame[0] else (total, {})
-        return self.trust.cap(members, counts, frame, load, len(self.members), dispatcher=SELF)
+        return self.trust.cap(members, counts, frame, load, len(self.members), SELF)
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
@@ -315,7 +315,7 @@ class Dispatcher:
         The receivers become the owners of those indices (sticky from the next frame on).
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
-        members = [m for m in self.active(now_s) if m not in exclude] or [SELF]
+        members = [m for m in self.active(now_s, answered_only=True) if m not in exclude] or [SELF]
         members, counts = self._counts(members, int(idx.size), redo=True)
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}

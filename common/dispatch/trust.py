@@ -217,15 +217,17 @@ class TrustMonitor:
         """The largest share of a frame ``member`` may get now."""
         return self.settings.max_share if self.credited(member) else self.settings.probation_share
 
-    def screen(self, members: Sequence[str], untested: set[str], now_s: float) -> list[str]:
+    def screen(
+        self, members: Sequence[str], untested: set[str], now_s: float, answered_only: bool = False
+    ) -> list[str]:
         """``members`` without the suspended ones, and with at most ``max_untested`` of the ``untested``
-        ones (members that never answered yet; the first in order)."""
+        ones (members that never answered yet; the first in order), none with ``answered_only``."""
         suspended = self.suspended(now_s)
         kept = [m for m in members if m not in suspended]
         fresh = sorted(m for m in kept if m in untested)
-        if not self.settings.enabled or len(fresh) <= self.settings.max_untested:
+        if not self.settings.enabled or (len(fresh) <= self.settings.max_untested and not answered_only):
             return kept
-        allowed = set(fresh[: self.settings.max_untested])
+        allowed = set() if answered_only else set(fresh[: self.settings.max_untested])
         return [m for m in kept if m not in untested or m in allowed]
 
     def hold_weights(
