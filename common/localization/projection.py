@@ -20,11 +20,11 @@ roll, pitch, yaw (rad) of ``R_world_body``; the camera sits at the body origin, 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler
 from common.localization.model import SceneModel
@@ -36,23 +36,6 @@ IntArray = npt.NDArray[np.int64]
 
 #: Default near plane of the virtual camera (m).
 NEAR_PLANE_M = 0.05
-
-
-class CameraModel(Protocol):
-    """What projection needs of a pinhole camera (OpenCV frame, pixel centres at integer coordinates)."""
-
-    @property
-    def width(self) -> int: ...
-    @property
-    def height(self) -> int: ...
-    @property
-    def fx(self) -> float: ...
-    @property
-    def fy(self) -> float: ...
-    @property
-    def cx(self) -> float: ...
-    @property
-    def cy(self) -> float: ...
 
 
 def check_states(states: npt.ArrayLike, name: str = "states") -> FloatArray:

@@ -11,10 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.localization.model import SceneModel, default_scene
 from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
 from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
-from common.sim.camera import PinholeCamera
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight
 
 FloatArray = npt.NDArray[np.float64]
@@ -29,8 +29,8 @@ INITIAL_POSITION_ERROR_M = 0.5
 INITIAL_ANGLE_ERROR_RAD = float(np.radians(10.0))
 
 
-def default_camera() -> PinholeCamera:
-    return PinholeCamera.from_hfov(DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG)
+def default_camera() -> CameraModel:
+    return CameraModel.from_hfov(DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG)
 
 
 @dataclass(frozen=True)
@@ -38,14 +38,14 @@ class SimulatedRun:
     """Frames of a flight through a scene with its truth, an initial guess and noisy odometry."""
 
     scene: SceneModel
-    camera: PinholeCamera
+    camera: CameraModel
     flight: SceneFlight
     images: tuple[UInt8Array, ...]
     guess: FloatArray
     odometry: Odometry
 
 
-def simulate_run(n_frames: int = 300, seed: int = 0, camera: PinholeCamera | None = None) -> SimulatedRun:
+def simulate_run(n_frames: int = 300, seed: int = 0, camera: CameraModel | None = None) -> SimulatedRun:
     """Render the default flight through the office; the guess is the first true pose plus a uniform error
     within +-0.5 m per axis and +-10 deg per angle."""
     rng = np.random.default_rng(seed)

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_DOWN
-from common.sim.camera import PinholeCamera
 from common.sim.ground import GroundTexture, camera_pose_from_body, make_ground_texture, render_ground_view
 from common.sim.sensors import (
     ImageDegradation,
@@ -52,7 +52,7 @@ class Flight:
     name: str
     seed: int
     trajectory: Trajectory
-    camera: PinholeCamera
+    camera: CameraModel
     R_body_camera: FloatArray  # (3, 3)
     texture: GroundTexture
     degradation: ImageDegradation
@@ -106,7 +106,7 @@ def simulate_flight(
     trajectory: Trajectory,
     seed: int = 0,
     n_frames: int | None = None,
-    camera: PinholeCamera | None = None,
+    camera: CameraModel | None = None,
     R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN,
     texture: GroundTexture | None = None,
     degradation: ImageDegradation | None = None,
@@ -140,7 +140,7 @@ def simulate_flight(
         name=trajectory.name,
         seed=int(seed),
         trajectory=trajectory,
-        camera=camera or PinholeCamera.default(),
+        camera=camera or CameraModel.default(),
         R_body_camera=R_bc,
         texture=texture if texture is not None else make_ground_texture(seed),
         degradation=degradation if degradation is not None else ImageDegradation(),
@@ -158,7 +158,7 @@ def hover_flight(
     seed: int = 0,
     n_frames: int = HOVER_FRAMES,
     altitude_m: float = 1.5,
-    camera: PinholeCamera | None = None,
+    camera: CameraModel | None = None,
     texture: GroundTexture | None = None,
     degradation: ImageDegradation | None = None,
     imu_noise: ImuNoise | None = None,
@@ -188,7 +188,7 @@ def hover_flight(
 
 def turns_flight(
     seed: int = 0,
-    camera: PinholeCamera | None = None,
+    camera: CameraModel | None = None,
     texture: GroundTexture | None = None,
     degradation: ImageDegradation | None = None,
     imu_noise: ImuNoise | None = None,

@@ -31,9 +31,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix, matrix_from_euler
-from common.sim.camera import PinholeCamera
 
 logger = logging.getLogger(__name__)
 
@@ -192,7 +192,7 @@ def check_camera_pose(
 
 
 def ground_homography(
-    camera: PinholeCamera, R_world_camera: npt.ArrayLike, p_world_camera_m: npt.ArrayLike
+    camera: CameraModel, R_world_camera: npt.ArrayLike, p_world_camera_m: npt.ArrayLike
 ) -> FloatArray:
     """Plane-induced homography ``H_pixel_ground`` (3, 3): world ground ``(x, y, 1)`` -> pixel (homogeneous).
 
@@ -213,7 +213,7 @@ def ground_homography(
 
 
 def homography_between_views(
-    camera: PinholeCamera,
+    camera: CameraModel,
     R_world_camera_a: npt.ArrayLike,
     p_world_camera_a_m: npt.ArrayLike,
     R_world_camera_b: npt.ArrayLike,
@@ -243,7 +243,7 @@ def _max_texels_per_pixel(H_texel_pixel: FloatArray, points_px: FloatArray) -> f
 
 def level_of_detail(
     texture: GroundTexture,
-    camera: PinholeCamera,
+    camera: CameraModel,
     R_world_camera: npt.ArrayLike,
     p_world_camera_m: npt.ArrayLike,
 ) -> float:
@@ -257,7 +257,7 @@ def level_of_detail(
 
 def render_ground_view(
     texture: GroundTexture,
-    camera: PinholeCamera,
+    camera: CameraModel,
     R_world_camera: npt.ArrayLike,
     p_world_camera_m: npt.ArrayLike,
     lod_bias: float = 0.0,
@@ -330,7 +330,7 @@ def camera_pose_from_body(
 
 def render_pair(
     texture: GroundTexture,
-    camera: PinholeCamera,
+    camera: CameraModel,
     pose_a: tuple[npt.ArrayLike, npt.ArrayLike],
     pose_b: tuple[npt.ArrayLike, npt.ArrayLike],
 ) -> tuple[ImageU8, ImageU8, FloatArray]:

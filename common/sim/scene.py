@@ -22,10 +22,11 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler, wrap_angle_rad
 from common.localization.model import SceneModel
-from common.localization.projection import NEAR_PLANE_M, CameraModel, check_states
+from common.localization.projection import NEAR_PLANE_M, check_states
 
 FloatArray = npt.NDArray[np.float64]
 UInt8Array = npt.NDArray[np.uint8]

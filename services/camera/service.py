@@ -25,13 +25,13 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
+from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
 from common.localization.model import default_scene
 from common.localization.simulation import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
 from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
-from common.sim.camera import PinholeCamera
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from services.runtime.transport import (
@@ -72,7 +72,7 @@ def simulated_flight(settings: CameraSettings) -> Flight:
     camera = (
         None
         if settings.width is None or settings.height is None
-        else PinholeCamera.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
+        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
     )
     if settings.flight == "turns":
         return turns_flight(seed=settings.seed, camera=camera)
@@ -82,7 +82,7 @@ def simulated_flight(settings: CameraSettings) -> Flight:
 def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
     """The localizer's default flight through the built-in office: the same frames as
     ``common.localization.simulation.simulate_run(settings.frames, settings.seed)``."""
-    camera = PinholeCamera.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
+    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
     flight = default_flight(n_frames=settings.frames)
     rng = np.random.default_rng(settings.seed)
     images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)

@@ -28,6 +28,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
+from common.camera import CameraModel as LensCamera
 from common.errors import InputError
 from common.estimation.coupling import (
     AttitudeOutput,
@@ -43,7 +44,6 @@ from common.estimation.coupling import (
 )
 from common.estimation.ekf import EkfSettings, error_angle_covariance_world
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
-from common.sim.camera import PinholeCamera
 from services.runtime.transport import (
     LatestSlot,
     ServiceRuntime,
@@ -76,7 +76,7 @@ class EstimatorSettings(BaseModel):
     vo_drift_fraction: float = Field(default=0.001, gt=0.0)
 
     def camera(self) -> CameraModel:
-        cam = PinholeCamera.from_hfov(self.width, self.height, self.hfov_deg)
+        cam = LensCamera.from_hfov(self.width, self.height, self.hfov_deg)
         return CameraModel(K=cam.K, width=cam.width, height=cam.height)
 
     def coupling(self) -> CouplingSettings:

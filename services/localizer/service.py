@@ -24,6 +24,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
+from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
@@ -43,7 +44,6 @@ from common.localization.scoring import ScoringMethod, ScoringParams
 from common.localization.simulation import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, encode
-from common.sim.camera import PinholeCamera
 from common.sim.scene import default_flight
 from services.runtime.transport import (
     LatestSlot,
@@ -73,8 +73,8 @@ class LocalizerSettings(BaseModel):
     initial_pose: tuple[float, float, float, float, float, float] | None = None
     use_vo: bool = False
 
-    def camera(self) -> PinholeCamera:
-        return PinholeCamera.from_hfov(self.width, self.height, self.hfov_deg)
+    def camera(self) -> CameraModel:
+        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
 
     def load_scene(self) -> SceneModel:
         if self.scene is None:

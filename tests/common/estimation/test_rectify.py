@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.rectify import (
     RectificationError,
@@ -19,10 +20,9 @@ from common.estimation.rectify import (
     rectifying_rotation,
 )
 from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
-from common.sim.camera import PinholeCamera
 from common.sim.ground import GroundTexture, camera_pose_from_body, render_ground_view
 
-CAMERA = PinholeCamera.default()
+CAMERA = CameraModel.default()
 tilt = st.floats(-0.15, 0.15)
 
 

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.vo import (
     MotionModel,
@@ -31,10 +32,9 @@ from common.geometry import (
     matrix_from_quaternion,
     quaternion_from_rotation_vector,
 )
-from common.sim.camera import PinholeCamera
 from common.sim.ground import GroundTexture, camera_pose_from_body, render_ground_view
 
-CAMERA = PinholeCamera.default()
+CAMERA = CameraModel.default()
 SETTINGS = VoSettings()
 
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from common.camera import CameraModel
 from common.localization.model import SceneModel, default_scene
-from common.sim.camera import PinholeCamera
 
 
 @pytest.fixture(scope="session")
@@ -14,5 +14,5 @@ def office() -> SceneModel:
 
 
 @pytest.fixture(scope="session")
-def small_camera() -> PinholeCamera:
-    return PinholeCamera.from_hfov(320, 240, 70.0)
+def small_camera() -> CameraModel:
+    return CameraModel.from_hfov(320, 240, 70.0)

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import matrix_from_euler, quaternion_from_matrix, rotation_vector_from_quaternion
 from common.localization.baseline import weigh_per_particle
@@ -25,7 +26,6 @@ from common.localization.particle_filter import (
 )
 from common.localization.scoring import ScoringMethod, ScoringParams, extract_image_edges
 from common.localization.tracking import noisy_odometry, track_accuracy, track_flight
-from common.sim.camera import PinholeCamera
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight, render_scene
 
 
@@ -65,7 +65,7 @@ def test_normalised_log_weights_sum_to_one_and_survive_all_minus_infinity() -> N
 
 
 def test_prediction_follows_paper_b_motion_model_and_seeded_noise(
-    office: SceneModel, small_camera: PinholeCamera
+    office: SceneModel, small_camera: CameraModel
 ) -> None:
     quiet = ParticleFilter(
         office,
@@ -88,7 +88,7 @@ def test_prediction_follows_paper_b_motion_model_and_seeded_noise(
 
 
 def test_vectorised_weighting_equals_the_per_particle_baseline(
-    office: SceneModel, small_camera: PinholeCamera
+    office: SceneModel, small_camera: CameraModel
 ) -> None:
     rng = np.random.default_rng(4)
     truth = np.array([5.0, 3.0, 1.4, 0.02, -0.03, 2.0])
@@ -105,7 +105,7 @@ def test_vectorised_weighting_equals_the_per_particle_baseline(
 
 
 def test_resampling_happens_only_when_the_effective_sample_size_drops(
-    office: SceneModel, small_camera: PinholeCamera
+    office: SceneModel, small_camera: CameraModel
 ) -> None:
     pf = ParticleFilter(office, small_camera, ParticleFilterConfig(n_particles=8))
     rng = np.random.default_rng(5)
@@ -118,7 +118,7 @@ def test_resampling_happens_only_when_the_effective_sample_size_drops(
 
 
 def test_collapsed_likelihood_reinitialises_around_the_estimate(
-    office: SceneModel, small_camera: PinholeCamera
+    office: SceneModel, small_camera: CameraModel
 ) -> None:
     config = ParticleFilterConfig(n_particles=30, collapse_frames=3)
     pf = ParticleFilter(office, small_camera, config)
@@ -135,7 +135,7 @@ def test_collapsed_likelihood_reinitialises_around_the_estimate(
 
 
 def test_short_flight_converges_from_the_initial_uncertainty(
-    office: SceneModel, small_camera: PinholeCamera
+    office: SceneModel, small_camera: CameraModel
 ) -> None:
     rng = np.random.default_rng(7)
     flight = default_flight(n_frames=100)

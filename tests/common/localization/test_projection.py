@@ -7,12 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
 from common.localization.projection import project_samples, sample_edges
-from common.sim.camera import PinholeCamera
 
-CAMERA = PinholeCamera(width=320, height=240, fx=200.0, fy=210.0, cx=159.5, cy=119.5)
+CAMERA = CameraModel(width=320, height=240, fx=200.0, fy=210.0, cx=159.5, cy=119.5)
 
 
 def _quad_scene(corners: list[list[float]], towards: list[float]) -> SceneModel:

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel
 from common.localization.projection import ProjectedSamples, project_samples, sample_edges
@@ -23,7 +24,6 @@ from common.localization.scoring import (
     per_edge_log_weight,
     score_particles,
 )
-from common.sim.camera import PinholeCamera
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, render_scene
 
 
@@ -63,7 +63,7 @@ direction = st.tuples(*(st.floats(-1.0, 1.0, allow_nan=False) for _ in range(3))
 )
 def test_every_scoring_ranks_the_true_pose_above_perturbed_poses(
     office: SceneModel,
-    small_camera: PinholeCamera,
+    small_camera: CameraModel,
     pose_unit: list[float],
     directions: list[tuple[float, float, float]],
     position_offset_m: float,
@@ -99,7 +99,7 @@ def _ranks(x: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_distance_transform_fast_path_ranks_particles_like_the_normal_search(
-    office: SceneModel, small_camera: PinholeCamera, seed: int
+    office: SceneModel, small_camera: CameraModel, seed: int
 ) -> None:
     rng = np.random.default_rng(seed)
     truth = _random_true_pose(list(rng.uniform(0.0, 1.0, 6)))

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
-from common.sim.camera import PinholeCamera
 from common.sim.ground import (
     GroundTexture,
     GroundViewError,
@@ -93,7 +93,7 @@ def _centroid(image: np.ndarray) -> np.ndarray:
 def test_bright_dot_lands_where_the_camera_projects_it(
     dot_texture: GroundTexture, u: float, v: float, altitude: float, yaw: float, roll: float, pitch: float
 ) -> None:
-    cam = PinholeCamera.default()
+    cam = CameraModel.default()
     R_world_camera = matrix_from_euler(roll, pitch, yaw) @ R_BODY_CAMERA_DOWN
     dot_world = np.array([0.3, -0.2, 0.0])
     # place the camera at `altitude` so that the dot is seen at pixel (u, v)
@@ -115,7 +115,7 @@ def test_bright_dot_lands_where_the_camera_projects_it(
 
 
 def test_warping_one_view_by_the_true_homography_gives_the_other(texture: GroundTexture) -> None:
-    cam = PinholeCamera.default()
+    cam = CameraModel.default()
     pose_a = (matrix_from_euler(0.03, -0.02, 0.4) @ R_BODY_CAMERA_DOWN, np.array([0.1, 0.2, 1.5]))
     pose_b = (matrix_from_euler(-0.02, 0.04, 0.55) @ R_BODY_CAMERA_DOWN, np.array([0.15, 0.12, 1.55]))
     image_a, image_b, H_b_a = render_pair(texture, cam, pose_a, pose_b)
@@ -133,7 +133,7 @@ def test_warping_one_view_by_the_true_homography_gives_the_other(texture: Ground
 
 
 def test_nadir_views_differ_by_a_pure_rotation_about_the_image_centre() -> None:
-    cam = PinholeCamera.default()
+    cam = CameraModel.default()
     pose_a = nadir_camera_pose(0.0, 0.0, 1.5, yaw_rad=0.2)
     pose_b = nadir_camera_pose(0.0, 0.0, 1.5, yaw_rad=0.2 + np.radians(7.0))
     H = homography_between_views(cam, *pose_a, *pose_b)
@@ -144,7 +144,7 @@ def test_nadir_views_differ_by_a_pure_rotation_about_the_image_centre() -> None:
 
 
 def test_render_is_deterministic_and_fills_the_frame(texture: GroundTexture) -> None:
-    cam = PinholeCamera.default()
+    cam = CameraModel.default()
     pose = nadir_camera_pose(12.3, -40.0, 2.0, 1.0)  # far outside the tile: wraps
     a = render_ground_view(texture, cam, *pose)
     b = render_ground_view(texture, cam, *pose)
@@ -157,9 +157,9 @@ def test_render_is_deterministic_and_fills_the_frame(texture: GroundTexture) -> 
 @pytest.mark.parametrize("altitude", [1.0, 2.0, 3.0, 5.0])
 def test_mipmapping_matches_a_supersampled_reference(texture: GroundTexture, altitude: float) -> None:
     """Anti-aliasing: close to a 6x supersampled, box-filtered render; better than sampling level 0."""
-    cam = PinholeCamera.default()
+    cam = CameraModel.default()
     s = 6
-    big = PinholeCamera(cam.width * s, cam.height * s, cam.fx * s, cam.fy * s, (cam.cx + 0.5) * s - 0.5,
+    big = CameraModel(cam.width * s, cam.height * s, cam.fx * s, cam.fy * s, (cam.cx + 0.5) * s - 0.5,
                         (cam.cy + 0.5) * s - 0.5)  # fmt: skip
     R, p = nadir_camera_pose(0.3, 0.2, altitude, 0.4)
     reference = cv2.resize(
@@ -178,7 +178,7 @@ def test_mipmapping_matches_a_supersampled_reference(texture: GroundTexture, alt
 
 
 def test_bad_views_raise() -> None:
-    cam = PinholeCamera.default()
+    cam = CameraModel.default()
     with pytest.raises(GroundViewError, match="above the ground"):
         ground_homography(cam, *nadir_camera_pose(0.0, 0.0, -1.0))
     looking_forward = matrix_from_euler(0.0, 0.0, 0.0) @ np.array(

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import build_scene, default_scene
-from common.sim.camera import PinholeCamera
 from common.sim.scene import (
     DEFAULT_FLIGHT_RENDER,
     RenderOptions,
@@ -17,7 +17,7 @@ from common.sim.scene import (
     render_scene,
 )
 
-CAMERA = PinholeCamera.from_hfov(160, 120, 70.0)
+CAMERA = CameraModel.from_hfov(160, 120, 70.0)
 
 
 def _wall_with_decal():

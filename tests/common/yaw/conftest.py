@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from common.sim.camera import PinholeCamera
+from common.camera import CameraModel
 from common.sim.ground import GroundTexture, make_ground_texture, nadir_camera_pose, render_ground_view
 
 ALTITUDE_M = 1.5
@@ -22,12 +22,12 @@ def texture() -> GroundTexture:
 
 
 @pytest.fixture(scope="session")
-def camera() -> PinholeCamera:
-    return PinholeCamera.default()
+def camera() -> CameraModel:
+    return CameraModel.default()
 
 
 @pytest.fixture(scope="session")
-def nadir_pair(texture: GroundTexture, camera: PinholeCamera) -> PairMaker:
+def nadir_pair(texture: GroundTexture, camera: CameraModel) -> PairMaker:
     """``nadir_pair(delta_yaw_deg, shift_px=(0, 0), yaw0_deg=20, altitude_ratio=1)``: two noise-free downward
     views from a level body; the second is yawed by ``delta_yaw_deg``, moved by ``shift_px`` (the ground
     distance of that many pixels along world x, y) and flown at ``altitude_ratio`` times the height."""

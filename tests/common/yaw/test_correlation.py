@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.sim.camera import PinholeCamera
+from common.camera import CameraModel
 from common.sim.ground import GroundTexture, homography_between_views, nadir_camera_pose, render_ground_view
 from common.yaw import (
     FftBackend,
@@ -31,7 +31,7 @@ def _measure(
 
 
 def _translated_pair(
-    texture: GroundTexture, camera: PinholeCamera, move_m: tuple[float, float]
+    texture: GroundTexture, camera: CameraModel, move_m: tuple[float, float]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pose_a = nadir_camera_pose(0.1, 0.2, ALTITUDE_M, 0.3)
     pose_b = nadir_camera_pose(0.1 + move_m[0], 0.2 + move_m[1], ALTITUDE_M, 0.3)
@@ -42,7 +42,7 @@ def _translated_pair(
 
 @pytest.mark.parametrize("backend", [FftBackend.OPENCV, FftBackend.NUMPY])
 def test_shifts_match_the_true_motion_at_every_patch(
-    texture: GroundTexture, camera: PinholeCamera, backend: FftBackend
+    texture: GroundTexture, camera: CameraModel, backend: FftBackend
 ) -> None:
     a, b, H_b_a = _translated_pair(texture, camera, (0.0123, -0.0087))  # about 3 and 2 px
     settings = YawSettings(fft_backend=backend)
@@ -56,7 +56,7 @@ def test_shifts_match_the_true_motion_at_every_patch(
 
 
 def test_crops_give_the_same_spectra_bit_for_bit_for_any_subset(
-    texture: GroundTexture, camera: PinholeCamera
+    texture: GroundTexture, camera: CameraModel
 ) -> None:
     a, b, _ = _translated_pair(texture, camera, (0.01, 0.004))
     settings = YawSettings()
@@ -78,7 +78,7 @@ def test_crops_give_the_same_spectra_bit_for_bit_for_any_subset(
     assert np.array_equal(merged.shift_px, full.shift_px[merged.indices])
 
 
-def test_textureless_patches_are_rejected(texture: GroundTexture, camera: PinholeCamera) -> None:
+def test_textureless_patches_are_rejected(texture: GroundTexture, camera: CameraModel) -> None:
     a, b, _ = _translated_pair(texture, camera, (0.01, 0.0))
     a, b = a.copy(), b.copy()
     a[:, :200] = 128  # a flat strip: the left columns of patches see nothing
@@ -93,7 +93,7 @@ def test_textureless_patches_are_rejected(texture: GroundTexture, camera: Pinhol
     assert m.valid[grid.centres_px[:, 0] > 260].all()
 
 
-def test_backends_agree(texture: GroundTexture, camera: PinholeCamera) -> None:
+def test_backends_agree(texture: GroundTexture, camera: CameraModel) -> None:
     a, b, _ = _translated_pair(texture, camera, (-0.007, 0.011))
     shifts = []
     for backend in FftBackend:
@@ -104,7 +104,7 @@ def test_backends_agree(texture: GroundTexture, camera: PinholeCamera) -> None:
     assert np.max(np.abs(shifts[0] - shifts[1])) < 1e-3
 
 
-def test_mismatched_spectra_raise_yaw_error(texture: GroundTexture, camera: PinholeCamera) -> None:
+def test_mismatched_spectra_raise_yaw_error(texture: GroundTexture, camera: CameraModel) -> None:
     a, b, _ = _translated_pair(texture, camera, (0.0, 0.0))
     settings = YawSettings()
     grid = make_patch_grid(a.shape, settings)
