@@ -38,8 +38,8 @@ class TrustSettings:
     #: largest share of a frame one remote member may get (applied from two joined remote members on, so
     #: it holds while the others are suspended); 1 = off
     max_share: float = 0.5
-    #: the same for a member that has not earned credit yet (new, or inconsistent lately): the dispatcher
-    #: computes the rest itself, so a newcomer alone never outvotes it
+    #: the same for a member that has not earned credit yet (new, or inconsistent lately) while others
+    #: have: the dispatcher computes the rest itself, so a newcomer alone never outvotes it
     probation_share: float = 1.0 / 3.0
     #: frames of history per member
     window: int = 30
@@ -214,8 +214,11 @@ class TrustMonitor:
         return math.floor(self.share_limit(member) * frame_total)
 
     def share_limit(self, member: str) -> float:
-        """The largest share of a frame ``member`` may get now."""
-        return self.settings.max_share if self.credited(member) else self.settings.probation_share
+        """The largest share of a frame ``member`` may get now: ``probation_share`` while it has no credit
+        and others have (a newcomer next to proven members), else ``max_share``."""
+        if self.credited(member) or not any(self.credited(m) for m in self._records):
+            return self.settings.max_share
+        return self.settings.probation_share
 
     def screen(
         self, members: Sequence[str], untested: set[str], now_s: float, answered_only: bool = False

@@ -28,7 +28,7 @@ logger = logging.getLogger(__name__)
 
 
 class DispatchGuard:
-    """Per service: the frame source lock and churn limiter; a trust monitor per dispatcher."""
+    """Per service: the frame source lock, the churn limiter and the trust monitor."""
 
     def __init__(self, name: str, counters: Counters, enabled: bool = True) -> None:
         self.name = name
@@ -37,10 +37,12 @@ class DispatchGuard:
         self.sources = SourceLock()
         self.churn = ChurnLimiter()
         self._lock = threading.Lock()
+        #: one for every dispatcher of the service: credit and suspensions outlive a stream's restart
+        self._monitor = TrustMonitor(TrustSettings(enabled=enabled))
 
     def monitor(self) -> TrustMonitor:
-        """A trust monitor for a new dispatcher (disabled when the guard is)."""
-        return TrustMonitor(TrustSettings(enabled=self.enabled))
+        """The service's trust monitor, for a new dispatcher (disabled when the guard is)."""
+        return self._monitor
 
     def admit_frame(self, sample: zenoh.Sample) -> bool:
         """Whether a frame sample is from the followed source; others are dropped, counted and logged."""

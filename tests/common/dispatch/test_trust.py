@@ -97,9 +97,17 @@ def test_suspension_survives_leave_and_rejoin_of_the_member() -> None:
     assert "foreman/liar/0" not in plan.assignment
 
 
+def credit(monitor: TrustMonitor, *members: str) -> None:
+    """Consistent frames until ``members`` have earned credit."""
+    for k in range(monitor.settings.earn_frames):
+        monitor.observe([MemberOutcome(m, 13, 0) for m in members], now_s=float(k))
+    assert all(monitor.credited(m) for m in members)
+
+
 def test_no_member_gets_the_majority_even_when_the_others_are_suspended() -> None:
     d = Dispatcher(DispatchSettings(), 40)
     d.trust = TrustMonitor()
+    credit(d.trust, "foreman/a/0", "foreman/b/0")
     d.join("foreman/a/0")
     d.join("foreman/fast/0")
     d.record_success("foreman/fast/0", 0, np.arange(20), 1e-4)  # implausibly fast
@@ -161,8 +169,10 @@ def test_redispatch_counts_the_frames_earlier_shares_against_the_cap_regression(
     to the fake one, which then held the majority of that frame (the yaw moved by one frame's 2 deg)."""
     d = Dispatcher(DispatchSettings(), 40)
     d.trust = TrustMonitor()
+    credit(d.trust, "foreman/a/0", "foreman/b/0")
     for m in ("foreman/a/0", "foreman/b/0", "foreman/liar/0"):
         d.join(m)
+    d.record_success("foreman/liar/0", 0, np.arange(5), 1e-4)  # it answered once, implausibly fast
     plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
     held = len(plan.assignment["foreman/liar/0"])
     assert held <= 13
@@ -203,3 +213,15 @@ def test_a_failed_share_is_not_re_dispatched_to_members_that_never_answered_regr
     d.record_failure(victim, now_s=0.0)
     again = d.redistribute(plan.assignment[victim], {victim}, now_s=0.0, prev_seq=0)
     assert set(again.assignment) <= {"foreman/a/0", SELF}
+
+
+def test_at_start_nobody_is_on_probation_so_two_members_share_without_the_dispatcher() -> None:
+    """Probation (a third) applies next to credited members only: a fresh 2-member cluster is not slowed."""
+    d = Dispatcher(DispatchSettings(), 40)
+    d.trust = TrustMonitor()
+    d.join("foreman/a/0")
+    d.join("foreman/b/0")
+    d.record_success("foreman/a/0", 0, np.arange(20), 0.01)
+    d.record_success("foreman/b/0", 0, np.arange(20, 40), 0.012)
+    plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
+    assert SELF not in plan.assignment and sorted(len(v) for v in plan.assignment.values()) == [20, 20]
