@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test bench lint typecheck clean
+.PHONY: run test test-loaded bench lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,6 +18,10 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+# the suite on a host whose cores are all busy (busy-loop processes for the whole run)
+test-loaded: $(STAMP)
+	$(BIN)/python -m tests.under_load -q
 
 bench: $(STAMP)
 	$(BIN)/capataz bench all

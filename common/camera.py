@@ -37,8 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 DEFAULT_WIDTH_PX = 752
 DEFAULT_HEIGHT_PX = 480

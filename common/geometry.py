@@ -15,12 +15,13 @@ All functions accept a single item or a batch along leading axes where noted.
 
 from __future__ import annotations
 
+from enum import StrEnum
+
 import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 #: Downward camera on the body: image right = body right (-y), image down = body backward (-x),
 #: optical axis = body down (-z).
@@ -28,6 +29,18 @@ R_BODY_CAMERA_DOWN: FloatArray = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [
 #: Forward camera on the body: image right = body right (-y), image down = body down (-z),
 #: optical axis = body forward (+x).
 R_BODY_CAMERA_FORWARD: FloatArray = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+class CameraMount(StrEnum):
+    """How the camera sits on the body (the localizer's setting)."""
+
+    FORWARD = "forward"
+    DOWN = "down"
+
+    @property
+    def R_body_camera(self) -> FloatArray:
+        """:data:`R_BODY_CAMERA_FORWARD` or :data:`R_BODY_CAMERA_DOWN`."""
+        return R_BODY_CAMERA_FORWARD if self is CameraMount.FORWARD else R_BODY_CAMERA_DOWN
 
 
 def check_quaternion(q: npt.ArrayLike, name: str = "q") -> FloatArray:

@@ -23,7 +23,6 @@ from typing import Any, ClassVar, Literal, TypeVar
 
 import msgpack
 import numpy as np
-import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from common.errors import CapatazError
@@ -112,7 +111,6 @@ class WireModel(BaseModel):
         return value
 
 
-FloatArray = npt.NDArray[np.float64]
 Uav = str
 
 
@@ -179,6 +177,8 @@ class YawEstimate(WireModel):
     timings_ms: dict[str, float] = Field(default_factory=dict)
     #: patches computed by each member for this frame (member name -> count; ``self`` = the master).
     members: dict[str, int] = Field(default_factory=dict)
+    #: each member's speed as its dispatcher measured it (patches/s; ``foreman>worker`` for the second tier).
+    speeds_patches_s: dict[str, float] = Field(default_factory=dict)
     #: frames of this stream dropped so far by latest-frame-wins.
     dropped_frames: int = Field(ge=0, default=0)
     #: shares re-dispatched in this frame because a member failed.

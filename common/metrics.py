@@ -10,8 +10,7 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.geometry import wrap_angle_rad
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 def check_angle_series(values: npt.ArrayLike, name: str) -> FloatArray:

@@ -18,9 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from common.dispatch import Balance
+from common.geometry import wrap_angle_rad
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
+from services.master.service import Topology
 from services.report import write_json
 from services.runtime.transport import open_session
 from services.secure import SecureProfile
@@ -30,8 +33,8 @@ logger = logging.getLogger(__name__)
 
 DEMO_CLUSTER = ClusterSpec(
     name="local2x2",
-    topology="master-foreman-worker",
-    balance="time",
+    topology=Topology.MASTER_FOREMAN_WORKER,
+    balance=Balance.TIME,
     hosts=(HostSpec(name="h1", workers=2), HostSpec(name="h2", workers=2)),
 )
 
@@ -114,8 +117,8 @@ def member_table(estimates: dict[int, Any]) -> list[dict[str, Any]]:
     for member in sorted(totals):
         counts = totals[member]
         speed = next(
-            (estimates[s].timings_ms.get(f"speed:{member}") for s in reversed(seqs)
-             if f"speed:{member}" in estimates[s].timings_ms),
+            (estimates[s].speeds_patches_s[member] for s in reversed(seqs)
+             if member in estimates[s].speeds_patches_s),
             None,
         )  # fmt: skip
         rows.append(
@@ -146,7 +149,7 @@ def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict
     axes[0].plot(seqs, np.degrees(yaw), label="cluster", lw=1, ls="--")
     axes[0].set_ylabel("yaw [deg]")
     axes[0].legend()
-    axes[1].plot(seqs, np.degrees(np.angle(np.exp(1j * (yaw - truth)))), lw=0.8)
+    axes[1].plot(seqs, np.degrees(wrap_angle_rad(yaw - truth)), lw=0.8)
     axes[1].set_ylabel("yaw error [deg]")
     top = [r["member"] for r in rows if ">" not in r["member"]]
     stack = np.array([[estimates[s].members.get(m, 0) for s in seqs] for m in top])

@@ -16,8 +16,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from common.localization.particle_filter import ParticleFilterConfig
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.particle_filter import ParticleFilterSettings
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.simulation import simulate_run, track_run
 from common.localization.tracking import track_accuracy
 
@@ -35,7 +35,7 @@ def run_demo(
     seed: int = 0,
 ) -> dict[str, Any]:
     sim = simulate_run(n_frames=n_frames, seed=seed)
-    config = ParticleFilterConfig(n_particles=n_particles, scoring=ScoringParams(method=method))
+    config = ParticleFilterSettings(n_particles=n_particles, scoring=ScoringSettings(method=method))
     track = track_run(sim, config, seed=seed + 1)
     settle = min(SETTLE_FRAMES, n_frames - 1)
     accuracy = track_accuracy(track.means, sim.flight.states, first_frame=settle)

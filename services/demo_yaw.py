@@ -18,12 +18,12 @@ import numpy.typing as npt
 
 from common.metrics import accumulated_mean_error, yaw_error_rad, yaw_error_stats
 from common.sim.flight import hover_flight
+from common.types import FloatArray
 from common.yaw import EstimateMethod, YawSettings, YawTracker, make_patch_grid
 from services.report import write_json
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 AME_WINDOW = 100
 

@@ -43,12 +43,12 @@ def format_cell(value: Any) -> str:
 
 
 def print_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> None:
-    """Print rows of dicts as an aligned text table (columns from the first row)."""
+    """Print rows of dicts as an aligned text table (the columns of all rows, in order of appearance)."""
     if title:
         print(title)
     if not rows:
         return
-    columns = list(rows[0].keys())
+    columns = list(dict.fromkeys(c for row in rows for c in row))
     cells = [[format_cell(row.get(c, "")) for c in columns] for row in rows]
     widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(columns)]
     print("  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)))

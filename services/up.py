@@ -14,22 +14,24 @@ import logging
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common import keys
+from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
 from common.messages import WireError, YawEstimate, decode
+from services.master.service import Topology
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.secure import DEFAULT_DIR as SECURE_DIR
 from services.secure import SecureProfile, participant_environment, process_common_name
@@ -63,10 +65,10 @@ class ClusterSpec(BaseModel):
 
     name: str
     description: str = ""
-    topology: Literal["master-worker", "master-foreman-worker"] = "master-foreman-worker"
-    balance: Literal["none", "time"] = "time"
+    topology: Topology = Topology.MASTER_FOREMAN_WORKER
+    balance: Balance = Balance.TIME
     #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
-    speed: Literal["reported", "round-trip"] = "round-trip"
+    speed: SpeedSource = SpeedSource.ROUND_TRIP
     master_computes: bool = False
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera
@@ -79,18 +81,56 @@ class ClusterSpec(BaseModel):
         return sum(h.workers for h in self.hosts)
 
 
+@dataclass(frozen=True)
+class ServiceCommand:
+    """One cluster process as ``capataz`` arguments, without transport options (added by where it runs:
+    :class:`LocalCluster` adds endpoints, compose sets ``CAPATAZ_ZENOH_*``)."""
+
+    #: ``role/node/index``, the name of its liveliness token
+    name: str
+    args: tuple[str, ...]
+    #: taskset CPU list (compose: cpuset); None = not pinned
+    cpus: str | None = None
+
+
+def worker_command(spec: ClusterSpec, host: HostSpec, index: int) -> ServiceCommand:
+    args = ["worker", "--node", host.name, "--index", str(index)]
+    if host.cpu_factor != 1:
+        args += ["--cpu-factor", str(host.cpu_factor)]
+    return ServiceCommand(f"worker/{host.name}/{index}", tuple(args), host.cpus)
+
+
+def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
+    compute = "--compute" if host.foreman_computes else "--no-compute"
+    args = ("foreman", "--node", host.name, "--balance", spec.balance.value, compute,
+            "--speed", spec.speed.value)  # fmt: skip
+    return ServiceCommand(f"foreman/{host.name}/0", args, host.cpus)
+
+
+def master_command(spec: ClusterSpec) -> ServiceCommand:
+    args = ("master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
+            "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
+            "--speed", spec.speed.value)  # fmt: skip
+    return ServiceCommand("master/master/0", args, spec.master_cpus)
+
+
+def cluster_commands(spec: ClusterSpec) -> list[ServiceCommand]:
+    """Every process of the cluster but the router and the camera, in start order (workers, foremen,
+    master): the one rendering of a :class:`ClusterSpec` for ``capataz up`` and for compose."""
+    commands: list[ServiceCommand] = []
+    for host in spec.hosts:
+        commands += [worker_command(spec, host, i) for i in range(host.workers)]
+        if spec.topology is Topology.MASTER_FOREMAN_WORKER:
+            commands.append(foreman_command(spec, host))
+    return [*commands, master_command(spec)]
+
+
 def load_cluster(path: Path) -> ClusterSpec:
     try:
         raw = yaml.safe_load(Path(path).read_text())
         return ClusterSpec.model_validate(raw)
     except (OSError, yaml.YAMLError, ValidationError) as exc:
         raise ClusterError(f"{path}: {exc}") from None
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def capataz_command(*args: str) -> list[str]:
@@ -113,19 +153,26 @@ class LocalCluster:
     ) -> None:
         self.spec = spec
         self.log_dir = Path(log_dir)
-        self.port = port or free_port()
+        #: the router's port; None = any free port, chosen by the router itself (no reservation race)
+        self.port = port or None
         #: the secure profile: mutual TLS with per-role certificates and access control on every participant
         self.secure = secure
         self.scheme = "tls" if secure is not None else "tcp"
         #: a zenoh configuration file every process (and our own sessions) loads (the secure one wins)
         self.zenoh_config = Path(zenoh_config).resolve() if zenoh_config else None
-        self.router = f"{self.scheme}/127.0.0.1:{self.port}"
         self.shared_memory = shared_memory
         self.master_args = tuple(master_args)
         self.lease_ms = lease_ms
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self._stopped: set[str] = set()
         self._taskset = shutil.which("taskset")
+
+    @property
+    def router(self) -> str:
+        """The router's endpoint (known once :meth:`start_router` returned)."""
+        if self.port is None:
+            raise ClusterError("the router's endpoint is known only after start_router()")
+        return f"{self.scheme}/127.0.0.1:{self.port}"
 
     # -- processes --------------------------------------------------------------------------------------
     def transport_args(self) -> list[str]:
@@ -171,78 +218,50 @@ class LocalCluster:
         self.processes[name] = process
         return process
 
-    def start_router(self) -> None:
+    def start_router(self, timeout_s: float = 30.0) -> None:
+        """Start the router and wait until it listens; with no port given it picks a free one itself and
+        reports it through an endpoint file (reserving a port first races with every other process)."""
+        endpoint_file = self.log_dir / "router.endpoint"
+        endpoint_file.unlink(missing_ok=True)
+        listen = f"{self.scheme}/127.0.0.1:{self.port or 0}"
         self.spawn(
             "router",
-            [
-                "router",
-                "--listen",
-                self.router,
-                "--no-multicast",
-                "--no-shm",
-                "--lease-ms",
-                str(self.lease_ms),
-            ],
+            ["router", "--listen", listen, "--no-multicast", "--no-shm", "--lease-ms", str(self.lease_ms),
+             "--endpoint-file", str(endpoint_file)],
             self.spec.aux_cpus,
-        )
-        deadline = time.monotonic() + 15.0
+        )  # fmt: skip
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            with socket.socket() as sock:
-                if sock.connect_ex(("127.0.0.1", self.port)) == 0:
-                    return
+            if endpoint_file.is_file():  # written (atomically) once the router's session listens
+                self.port = self._router_port(endpoint_file.read_text().split())
+                return
             if self.processes["router"].poll() is not None:
                 raise ClusterError(
                     f"router exited with {self.processes['router'].returncode}; see {self.log_dir}"
                 )
             time.sleep(0.05)
-        raise ClusterError("router did not start listening within 15 s")
+        raise ClusterError(f"router did not start listening within {timeout_s:.0f} s")
+
+    def _router_port(self, endpoints: list[str]) -> int:
+        prefix = f"{self.scheme}/"
+        for endpoint in endpoints:
+            host, _, port = endpoint.removeprefix(prefix).rpartition(":")
+            if endpoint.startswith(prefix) and host == "127.0.0.1" and port.isdigit():
+                return int(port)
+        raise ClusterError(f"the router listens on no {prefix}127.0.0.1 endpoint: {endpoints}")
+
+    def start_command(self, command: ServiceCommand, extra: Sequence[str] = ()) -> str:
+        self.spawn(command.name, [*command.args, *extra, *self.transport_args()], command.cpus)
+        return command.name
 
     def start_worker(self, host: HostSpec, index: int) -> str:
-        name = f"worker/{host.name}/{index}"
-        args = ["worker", *self.transport_args(), "--node", host.name, "--index", str(index)]
-        if host.cpu_factor != 1:
-            args += ["--cpu-factor", str(host.cpu_factor)]
-        self.spawn(name, args, host.cpus)
-        return name
+        return self.start_command(worker_command(self.spec, host, index))
 
     def start_foreman(self, host: HostSpec, extra: Sequence[str] = ()) -> str:
-        name = f"foreman/{host.name}/0"
-        args = [
-            "foreman",
-            *self.transport_args(),
-            "--node",
-            host.name,
-            "--balance",
-            self.spec.balance,
-            "--compute" if host.foreman_computes else "--no-compute",
-            "--speed",
-            self.spec.speed,
-            *extra,
-        ]
-        self.spawn(name, args, host.cpus)
-        return name
+        return self.start_command(foreman_command(self.spec, host), extra)
 
     def start_master(self, extra: Sequence[str] = ()) -> str:
-        name = "master/master/0"
-        args = [
-            "master",
-            *self.transport_args(),
-            "--node",
-            "master",
-            "--uav",
-            self.spec.uav,
-            "--topology",
-            self.spec.topology,
-            "--balance",
-            self.spec.balance,
-            "--compute" if self.spec.master_computes else "--no-compute",
-            "--speed",
-            self.spec.speed,
-            *self.master_args,
-            *extra,
-        ]
-        self.spawn(name, args, self.spec.master_cpus)
-        return name
+        return self.start_command(master_command(self.spec), [*self.master_args, *extra])
 
     def start_camera(self, extra: Sequence[str] = ()) -> str:
         name = "camera/camera/0"
@@ -252,21 +271,14 @@ class LocalCluster:
         return name
 
     def expected_members(self) -> set[str]:
-        names = {"master/master/0"}
-        for host in self.spec.hosts:
-            names |= {f"worker/{host.name}/{i}" for i in range(host.workers)}
-            if self.spec.topology == "master-foreman-worker":
-                names.add(f"foreman/{host.name}/0")
-        return names
+        return {command.name for command in cluster_commands(self.spec)}
 
     def start(self, with_master: bool = True) -> None:
         """Router, then workers, foremen (for that topology) and the master, all in parallel."""
         self.start_router()
-        for host in self.spec.hosts:
-            for i in range(host.workers):
-                self.start_worker(host, i)
-            if self.spec.topology == "master-foreman-worker":
-                self.start_foreman(host)
+        for command in cluster_commands(self.spec):
+            if command.name != "master/master/0":
+                self.start_command(command)
         if with_master:
             self.start_master()
 
@@ -385,7 +397,8 @@ class YawCollector:
 def compose_from_cluster(spec: ClusterSpec, image: str = "capataz:0.1.0") -> dict[str, Any]:
     """A docker-compose document for a described cluster (router, camera, master, foremen, workers).
 
-    A host's ``cpus`` list becomes the containers' ``cpuset`` (the compose twin of ``taskset``).
+    The processes are rendered by :func:`cluster_commands`, as for ``capataz up``; a host's ``cpus`` list
+    becomes the containers' ``cpuset`` (the compose twin of ``taskset``).
     """
     env = {
         "CAPATAZ_ZENOH_MODE": "peer",
@@ -412,27 +425,13 @@ def compose_from_cluster(spec: ClusterSpec, image: str = "capataz:0.1.0") -> dic
             "ports": ["7447:7447"],
         },
         "camera": {**base(), "command": ["camera", "--node", "camera", "--uav", spec.uav, "--loop"]},
-        "master": {
-            **base(),
-            "command": ["master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology,
-                        "--balance", spec.balance, "--compute" if spec.master_computes else "--no-compute"],
-        },
-    }  # fmt: skip
-    if spec.master_cpus:
-        services["master"]["cpuset"] = spec.master_cpus
-    for host in spec.hosts:
-        pin = {"cpuset": host.cpus} if host.cpus else {}
-        if spec.topology == "master-foreman-worker":
-            services[f"foreman-{host.name}"] = {
-                **base(), **pin,
-                "command": ["foreman", "--node", host.name, "--balance", spec.balance,
-                            "--compute" if host.foreman_computes else "--no-compute"],
-            }  # fmt: skip
-        for i in range(host.workers):
-            command = ["worker", "--node", host.name, "--index", str(i)]
-            if host.cpu_factor != 1:
-                command += ["--cpu-factor", str(host.cpu_factor)]
-            services[f"worker-{host.name}-{i}"] = {**base(), **pin, "command": command}
+    }
+    for command in cluster_commands(spec):
+        role, node, index = command.name.split("/")
+        name = {"master": "master", "foreman": f"foreman-{node}"}.get(role, f"worker-{node}-{index}")
+        services[name] = {**base(), "command": list(command.args)}
+        if command.cpus:
+            services[name]["cpuset"] = command.cpus
     return {"name": f"capataz-{spec.name}", "services": services}
 
 
@@ -445,7 +444,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--frames", type=int, default=0, help="also run a camera with this many frames (0 = none)"
     )
-    parser.add_argument("--fps", type=float, default=20.0, help="camera frames per second")
+    parser.add_argument(
+        "--fps", type=float, default=20.0, help="camera frames per second (0 = as fast as possible)"
+    )
+    parser.add_argument(
+        "--in-flight", type=int, default=0, help="camera: max frames without a yaw (0 = free running)"
+    )
     parser.add_argument(
         "--duration", type=float, default=0.0, help="stop after this many seconds (0 = until ^C)"
     )
@@ -477,10 +481,10 @@ def run(args: argparse.Namespace) -> int:
         args.compose.write_text(yaml.safe_dump(compose_from_cluster(spec), sort_keys=False))
         print(f"wrote {args.compose}")
         return 0
-    secure = SecureProfile.ensure(args.secure, (spec.uav,)) if getattr(args, "secure", None) else None
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
+        secure = SecureProfile.ensure(args.secure, (spec.uav,)) if getattr(args, "secure", None) else None
         with LocalCluster(
             spec,
             args.logs,
@@ -499,7 +503,16 @@ def run(args: argparse.Namespace) -> int:
             with open_session(cluster.observer_transport()) as session:
                 collector = YawCollector(session, spec.uav)
                 if args.frames:
-                    cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps)])
+                    cluster.start_camera(
+                        [
+                            "--frames",
+                            str(args.frames),
+                            "--fps",
+                            str(args.fps),
+                            "--in-flight",
+                            str(args.in_flight),
+                        ]
+                    )
                 last = -1
                 while not stop.wait(1.0):
                     newest = collector.newest()
@@ -514,7 +527,7 @@ def run(args: argparse.Namespace) -> int:
                         break
                     camera = cluster.processes.get("camera/camera/0")
                     if args.frames and camera is not None and camera.poll() is not None:
-                        time.sleep(0.5)
+                        collector.wait_for(args.frames, 5.0)  # the yaw of the last frames (bounded)
                         break
                 print(f"received {len(collector.estimates)} yaw estimates")
                 collector.close()

@@ -93,7 +93,11 @@ class ChurnLimiter:
         return True
 
     def quarantined(self, now_s: float) -> frozenset[str]:
-        return frozenset(k for k, until in self._quarantined.items() if until > now_s)
+        return frozenset(self.quarantine_ends(now_s))
+
+    def quarantine_ends(self, now_s: float) -> dict[str, float]:
+        """Keys quarantined now and when their quarantine ends."""
+        return {k: until for k, until in self._quarantined.items() if until > now_s}
 
     def _forget_old(self, now_s: float) -> None:
         s = self.settings

@@ -336,14 +336,19 @@ class Dispatcher:
 
     # -- outcomes ---------------------------------------------------------------------------------------
     def record_success(
-        self, member: str, seq: int, indices: npt.ArrayLike, elapsed_s: float, speed: float | None = None
+        self,
+        member: str,
+        seq: int,
+        indices: npt.ArrayLike,
+        elapsed_s: float,
+        reported_speed: float | None = None,
     ) -> None:
         """A member computed ``indices`` of frame ``seq`` in ``elapsed_s``: update its speed and history.
 
-        ``speed`` (patches/s) is the member's own measure of its compute speed when it reports one (a
-        worker's compute time, a foreman's sum of its workers' speeds); otherwise ``len/elapsed_s``. The
-        member's own measure is preferred: a round-trip rate includes a fixed per-request overhead, which
-        makes rate-proportional shares drift towards members that already have large shares.
+        ``reported_speed`` (patches/s) is the member's own measure when it reports one (a worker's compute
+        time, a foreman's sum of its workers' speeds). Which measure balances is
+        :attr:`DispatchSettings.speed_source`: ``reported`` uses it when given, ``round-trip`` (the default,
+        see :class:`SpeedSource` for why) always ``len(indices) / elapsed_s``.
         """
         state = self._members.get(member)
         if state is None:
@@ -355,6 +360,7 @@ class Dispatcher:
             state.held_seq, state.held = seq, idx
         state.failures = 0
         state.suspended_until_s = -math.inf
+        speed = reported_speed if self.settings.speed_source is SpeedSource.REPORTED else None
         if speed is None and idx and elapsed_s > 0:
             speed = len(idx) / elapsed_s
         if speed is not None and speed > 0 and math.isfinite(speed):
@@ -390,9 +396,10 @@ class Dispatcher:
         if state is not None:
             state.held_seq, state.held = -2, frozenset()
 
-    def deadline_s(self, member: str, n_patches: int, budget_s: float) -> float:
-        """Per-request deadline for ``n_patches``: the whole budget while the member's speed is unknown,
-        else ``deadline_factor`` times the expected time (at least ``min_deadline_s``, at most the budget)."""
+    def timeout_s(self, member: str, n_patches: int, budget_s: float) -> float:
+        """How long a request of ``n_patches`` may take (a duration): the whole budget while the member's
+        speed is unknown, else ``deadline_factor`` times the expected time (at least ``min_deadline_s``, at
+        most the budget)."""
         speed = self.speed(member)
         if not speed:
             return budget_s

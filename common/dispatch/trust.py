@@ -178,6 +178,11 @@ class TrustMonitor:
         self.verdicts.extend(new)
         return new
 
+    def suspend(self, member: str, until_s: float) -> None:
+        """Suspend ``member`` until ``until_s`` for a reason of the caller's (e.g. liveliness churn)."""
+        rec = self._record(member)
+        rec.suspended_until_s = max(rec.suspended_until_s, until_s)
+
     def outlier_rate(self, member: str) -> tuple[float, int]:
         """Outlier rate over the member's window and the number of valid patches in it."""
         rec = self._records.get(member)

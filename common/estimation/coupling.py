@@ -41,7 +41,7 @@ import numpy.typing as npt
 from common.errors import InputError
 from common.estimation.buffer import Refusal, TimeOrderedBuffer
 from common.estimation.ekf import AttitudeAltitudeEkf, EkfError, EkfSettings, EkfState, UpdateResult
-from common.estimation.rectify import RectificationError, check_image_u8, rectify_frame
+from common.estimation.rectify import RectificationError, rectify_frame
 from common.estimation.vo import (
     MotionModel,
     PreparedFrame,
@@ -63,10 +63,11 @@ from common.geometry import (
     quaternion_from_euler,
     quaternion_multiply,
 )
+from common.images import check_grey_image
+from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 
@@ -149,7 +150,7 @@ def check_yaw(stamp_s: float, yaw_rad: float) -> YawMeasurement:
 
 def check_frame(stamp_s: float, image: npt.ArrayLike, shape: tuple[int, int]) -> FrameMeasurement:
     """Validated grey frame of the camera's ``(height, width)`` or InputError."""
-    img = check_image_u8(image)
+    img = check_grey_image(image, "image", min_side_px=8)
     if img.shape != shape:
         raise InputError(f"frame must have shape {shape} (height, width), got {img.shape}")
     if not math.isfinite(stamp_s):

@@ -21,8 +21,7 @@ import numpy.typing as npt
 
 from common.errors import CapatazError, InputError
 from common.geometry import check_quaternion
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 #: Standard gravity used by the accelerometer model (m/s^2).
 STANDARD_GRAVITY_M_S2 = 9.80665

@@ -21,10 +21,11 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from common.errors import CapatazError, InputError
+from common.errors import CapatazError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix, matrix_from_euler
+from common.images import check_grey_image
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 
@@ -40,14 +41,6 @@ class RectifiedFrame:
     valid_mask: ImageU8
     H_rect_orig: FloatArray
     R_rcam_cam: FloatArray
-
-
-def check_image_u8(image: npt.ArrayLike, name: str = "image") -> ImageU8:
-    """Return a 2-D uint8 image or raise InputError naming the expected shape."""
-    arr = np.asarray(image)
-    if arr.ndim != 2 or arr.dtype != np.uint8 or arr.shape[0] < 8 or arr.shape[1] < 8:
-        raise InputError(f"{name} must be a (H, W) uint8 image of at least 8x8, got {arr.dtype} {arr.shape}")
-    return arr
 
 
 def rectifying_rotation(roll_rad: float, pitch_rad: float, R_body_camera: npt.ArrayLike) -> FloatArray:
@@ -81,7 +74,7 @@ def rectify_frame(
 
     The mask is the warped outline of the original image shrunk by ``border_px`` (the interpolation border).
     """
-    img = check_image_u8(image)
+    img = check_grey_image(image, "image", min_side_px=8)
     R_rcam_cam = rectifying_rotation(roll_rad, pitch_rad, R_body_camera)
     H = rectifying_homography(K, R_rcam_cam)
     h_px, w_px = img.shape

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from common.estimation.coupling import (
     AttitudeOutput,
@@ -37,8 +36,7 @@ from common.estimation.vo import (
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
 from common.sim.flight import Flight
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 #: Order of sensors that share a stamp: range first (it initialises the altitude), then IMU, then camera.
 _RANGE, _IMU, _CAMERA = 0, 1, 2

@@ -26,9 +26,9 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import CapatazError, InputError
-from common.estimation.rectify import check_image_u8
+from common.images import check_grey_image
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 
@@ -144,7 +144,7 @@ def _inner_mask(mask: ImageU8 | None, shape: tuple[int, int], margin_px: int) ->
 
 def prepare_frame(image: npt.ArrayLike, mask: npt.ArrayLike | None, settings: VoSettings) -> PreparedFrame:
     """Shi-Tomasi features (inside ``mask`` shrunk by the margin)."""
-    img = check_image_u8(image)
+    img = check_grey_image(image, "image", min_side_px=8)
     if settings.presmooth_sigma_px > 0.0:
         img = np.asarray(cv2.GaussianBlur(img, (0, 0), settings.presmooth_sigma_px), dtype=np.uint8)
     inner = _inner_mask(None if mask is None else np.asarray(mask), img.shape, settings.mask_margin_px)

@@ -30,8 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 #: Vertices closer than this are the same point when edges are merged (m).

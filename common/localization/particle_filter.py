@@ -2,7 +2,7 @@
 
 Explicit state in, state out::
 
-    pf = ParticleFilter(scene, camera, ParticleFilterConfig())
+    pf = ParticleFilter(scene, camera, ParticleFilterSettings())
     state = pf.initialize(guess, rng)
     state = pf.predict(state, dt_s, rng, velocity_world_m_s=v)     # paper B's motion model + noise
     state, score = pf.weigh(state, extract_image_edges(image))    # project, score, weight
@@ -32,11 +32,16 @@ from common.localization.projection import (
     project_samples,
     sample_edges,
 )
-from common.localization.scoring import ImageEdges, ScoreResult, ScoringMethod, ScoringParams, score_particles
+from common.localization.scoring import (
+    ImageEdges,
+    ScoreResult,
+    ScoringMethod,
+    ScoringSettings,
+    score_particles,
+)
+from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
-
-FloatArray = npt.NDArray[np.float64]
 
 
 class ParticleFilterError(CapatazError):
@@ -44,7 +49,7 @@ class ParticleFilterError(CapatazError):
 
 
 @dataclass(frozen=True)
-class ParticleFilterConfig:
+class ParticleFilterSettings:
     """Settings of :class:`ParticleFilter`.
 
     Noise is a random walk added at every prediction: standard deviation ``noise * sqrt(dt_s)`` per
@@ -57,7 +62,7 @@ class ParticleFilterConfig:
 
     n_particles: int = 200
     points_per_edge: int = 8
-    scoring: ScoringParams = field(default_factory=ScoringParams)
+    scoring: ScoringSettings = field(default_factory=ScoringSettings)
     position_noise_m: float = 0.04
     angle_noise_rad: tuple[float, float, float] = (0.015, 0.015, 0.02)
     good_fit: float = 0.75
@@ -79,6 +84,10 @@ class ParticleFilterConfig:
             raise InputError(f"resample_ess_fraction must lie in (0, 1], got {self.resample_ess_fraction}")
         if self.position_noise_m < 0.0 or min(self.angle_noise_rad) < 0.0:
             raise InputError("noise levels must be non-negative")
+
+
+#: the old name, kept while other branches still use it (remove once they are merged)
+ParticleFilterConfig = ParticleFilterSettings
 
 
 @dataclass(frozen=True)
@@ -174,11 +183,11 @@ class ParticleFilter:
     """Particle filter against a known scene; holds only immutable precomputed data (no filter state)."""
 
     def __init__(
-        self, scene: SceneModel, camera: CameraModel, config: ParticleFilterConfig | None = None
+        self, scene: SceneModel, camera: CameraModel, config: ParticleFilterSettings | None = None
     ) -> None:
         self.scene = scene
         self.camera = camera
-        self.config = config or ParticleFilterConfig()
+        self.config = config or ParticleFilterSettings()
         self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
 
     # -- initialisation ---------------------------------------------------------------------------
@@ -277,7 +286,7 @@ class ParticleFilter:
 
     # -- measurement ------------------------------------------------------------------------------
     def score(
-        self, particles: FloatArray, edges: ImageEdges, scoring: ScoringParams | None = None
+        self, particles: FloatArray, edges: ImageEdges, scoring: ScoringSettings | None = None
     ) -> ScoreResult:
         """Project and score every particle at once (the vectorised weighting step without the update).
 

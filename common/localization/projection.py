@@ -28,10 +28,8 @@ from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler
 from common.localization.model import SceneModel
+from common.types import BoolArray, Float32Array, FloatArray
 
-FloatArray = npt.NDArray[np.float64]
-Float32Array = npt.NDArray[np.float32]
-BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.int64]
 
 #: Default near plane of the virtual camera (m).

@@ -32,11 +32,10 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.images import check_grey_image
 from common.localization.projection import ProjectedSamples
+from common.types import BoolArray, Float32Array, FloatArray
 
-FloatArray = npt.NDArray[np.float64]
-Float32Array = npt.NDArray[np.float32]
-BoolArray = npt.NDArray[np.bool_]
 UInt8Array = npt.NDArray[np.uint8]
 
 
@@ -50,7 +49,7 @@ class ScoringMethod(enum.Enum):
 
 
 @dataclass(frozen=True)
-class ScoringParams:
+class ScoringSettings:
     """Constants of the scorings (paper B's ``k``, ``lambda``, ``alpha``, ``sigma``, max normal length)."""
 
     method: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
@@ -60,6 +59,10 @@ class ScoringParams:
     align_px: float = 2.0
     sigma_px: float = 2.0
     max_normal_px: int = 10
+
+
+#: the old name, kept while other branches still use it (remove once they are merged)
+ScoringParams = ScoringSettings
 
 
 @dataclass(frozen=True)
@@ -92,21 +95,11 @@ class ScoreResult:
     fit: FloatArray
 
 
-def check_gray_image(image: npt.ArrayLike, name: str = "image") -> UInt8Array:
-    """A grey uint8 image (H, W) with H, W >= 8, or raise InputError."""
-    arr = np.asarray(image)
-    if arr.ndim != 2 or arr.shape[0] < 8 or arr.shape[1] < 8:
-        raise InputError(f"{name} must be a grey image of shape (H >= 8, W >= 8), got {arr.shape}")
-    if arr.dtype != np.uint8:
-        raise InputError(f"{name} must have dtype uint8, got {arr.dtype}")
-    return arr
-
-
 def extract_image_edges(
     image: npt.ArrayLike, canny_low: float = 40.0, canny_high: float = 100.0
 ) -> ImageEdges:
     """Canny edges of a grey uint8 image and the distance (px) of every pixel to the nearest edge pixel."""
-    gray = check_gray_image(image)
+    gray = check_grey_image(image, "image", min_side_px=8)
     edges = cv2.Canny(gray, canny_low, canny_high, L2gradient=True)
     distance: Float32Array = np.asarray(
         cv2.distanceTransform(
@@ -223,7 +216,7 @@ def nearest_edge_log_weight(
     return np.log(alpha) + k * mean_l, mean_l
 
 
-def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: ScoringParams) -> ScoreResult:
+def score_particles(projected: ProjectedSamples, edges: ImageEdges, params: ScoringSettings) -> ScoreResult:
     """log W (P,) and fit (P,) of every particle by ``params.method``."""
     method = params.method
     valid = projected.valid

@@ -13,11 +13,11 @@ import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.localization.model import SceneModel, default_scene
-from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
+from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings
 from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 UInt8Array = npt.NDArray[np.uint8]
 
 #: The localizer's default camera: 320 x 240 px, 70 deg horizontal field of view, forward-looking.
@@ -67,7 +67,7 @@ def simulate_run(n_frames: int = 300, seed: int = 0, camera: CameraModel | None 
     )
 
 
-def track_run(run: SimulatedRun, config: ParticleFilterConfig, seed: int = 1) -> TrackResult:
+def track_run(run: SimulatedRun, config: ParticleFilterSettings, seed: int = 1) -> TrackResult:
     """The particle filter over a simulated run (its own seeded RNG)."""
     pf = ParticleFilter(run.scene, run.camera, config)
     return track_flight(

@@ -16,8 +16,7 @@ from common.errors import InputError
 from common.geometry import wrap_angle_rad
 from common.localization.particle_filter import ParticleFilter, ParticleState, PoseStatistics
 from common.localization.scoring import extract_image_edges
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 @dataclass(frozen=True)

@@ -34,8 +34,8 @@ from common.sim.trajectory import (
     hover_trajectory,
     turns_trajectory,
 )
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 CAMERA_RATE_HZ = 20.0

@@ -34,10 +34,10 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix, matrix_from_euler
+from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 #: Stream label mixed into the seed so the texture's random numbers differ from the flight's noise.

@@ -27,8 +27,8 @@ from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler, wrap_angle_rad
 from common.localization.model import SceneModel
 from common.localization.projection import NEAR_PLANE_M, check_states
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 UInt8Array = npt.NDArray[np.uint8]
 IntArray = npt.NDArray[np.int32]
 

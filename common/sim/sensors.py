@@ -25,8 +25,8 @@ import numpy.typing as npt
 
 from common.errors import CapatazError, InputError
 from common.sim.trajectory import Trajectory
+from common.types import FloatArray
 
-FloatArray = npt.NDArray[np.float64]
 ImageU8 = npt.NDArray[np.uint8]
 
 IMU_STREAM = 0x1A0

@@ -39,8 +39,7 @@ import numpy.typing as npt
 
 from common.errors import CapatazError, InputError
 from common.geometry import matrix_from_euler, quaternion_from_euler
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 GRAVITY_M_S2 = 9.80665
 

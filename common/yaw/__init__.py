@@ -14,7 +14,7 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad, scale_of_homography
 from common.yaw.global_align import GlobalAlignment, estimate_global_alignment
-from common.yaw.grid import PatchGrid, check_frame, make_patch_grid
+from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.settings import FftBackend, FitModel, YawError, YawSettings
 from common.yaw.tracker import (
     EstimateMethod,
@@ -39,7 +39,6 @@ __all__ = [
     "YawEstimate",
     "YawSettings",
     "YawTracker",
-    "check_frame",
     "delta_yaw_from_homography_rad",
     "estimate_global_alignment",
     "estimate_pair",

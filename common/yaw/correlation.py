@@ -16,11 +16,10 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.types import Float32Array, FloatArray
 from common.yaw.grid import IntArray, PatchGrid, U8Array
 from common.yaw.settings import FftBackend, YawError, YawSettings
 
-FloatArray = npt.NDArray[np.float64]
-Float32Array = npt.NDArray[np.float32]
 ComplexArray = npt.NDArray[np.complex64]
 
 #: Peaks closer than this (level px, per axis) to the main peak do not count as a second peak.

@@ -10,10 +10,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.types import BoolArray, FloatArray
 from common.yaw.settings import FitModel, YawSettings
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True, eq=False)

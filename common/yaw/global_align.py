@@ -12,13 +12,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 
-from common.yaw.grid import U8Array, check_frame
+from common.images import check_grey_image
+from common.types import Float32Array, FloatArray
+from common.yaw.grid import U8Array
 from common.yaw.settings import YawSettings
-
-FloatArray = npt.NDArray[np.float64]
-Float32Array = npt.NDArray[np.float32]
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,8 +105,8 @@ def estimate_global_alignment(frame_a: U8Array, frame_b: U8Array, settings: YawS
     squares (translation-invariant); the 180 deg ambiguity of a magnitude spectrum and the translation
     come from phase correlation of frame a with frame b warped back by each candidate.
     """
-    check_frame(frame_a, "frame_a")
-    check_frame(frame_b, "frame_b")
+    check_grey_image(frame_a, "frame_a")
+    check_grey_image(frame_b, "frame_b")
     size = settings.global_size_px
     factor = size / min(min(frame_a.shape), min(frame_b.shape))
 

@@ -9,24 +9,11 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.images import check_grey_image
+from common.types import FloatArray, U8Array
 from common.yaw.settings import YawSettings
 
-U8Array = npt.NDArray[np.uint8]
 IntArray = npt.NDArray[np.intp]
-FloatArray = npt.NDArray[np.float64]
-
-
-def check_frame(frame: object, name: str = "frame") -> U8Array:
-    """Return ``frame`` if it is a non-empty 2-D uint8 grey image (H, W), else raise InputError."""
-    if not isinstance(frame, np.ndarray):
-        raise InputError(f"{name} must be a numpy array of shape (H, W) and dtype uint8, got {type(frame)}")
-    if frame.dtype != np.uint8:
-        raise InputError(f"{name} must have dtype uint8 (grey 0..255), got {frame.dtype}")
-    if frame.ndim != 2:
-        raise InputError(f"{name} must have shape (H, W) (one grey channel), got {frame.shape}")
-    if frame.size == 0:
-        raise InputError(f"{name} is empty, shape {frame.shape}")
-    return frame
 
 
 def pyramid_image(frame_u8: U8Array, level: int) -> U8Array:
@@ -88,7 +75,7 @@ class PatchGrid:
 
     def level_image(self, frame_u8: U8Array) -> U8Array:
         """The frame at the grid's pyramid level (checks the frame and its shape)."""
-        check_frame(frame_u8)
+        check_grey_image(frame_u8, "frame")
         if frame_u8.shape != self.frame_shape:
             raise InputError(f"frame must have shape {self.frame_shape} for this grid, got {frame_u8.shape}")
         return pyramid_image(frame_u8, self.pyramid_level)

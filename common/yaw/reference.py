@@ -11,15 +11,14 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 
 from common.errors import InputError
+from common.images import check_grey_image
+from common.types import FloatArray
 from common.yaw.fit import ModelFit, fit_correspondences
-from common.yaw.grid import PatchGrid, U8Array, check_frame, make_patch_grid
+from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
 from common.yaw.settings import FitModel, YawSettings
 from common.yaw.tracker import delta_yaw_from_homography_rad
-
-FloatArray = npt.NDArray[np.float64]
 
 #: The paper's fit: a homography through RANSAC.
 REFERENCE_FIT_MODEL = FitModel.HOMOGRAPHY
@@ -75,8 +74,8 @@ def reference_pair(
     frame_a: U8Array, frame_b: U8Array, grid: PatchGrid, settings: YawSettings
 ) -> ReferencePair:
     """The paper's method on one pair a -> b (no pre-alignment, no texture rejection)."""
-    check_frame(frame_a, "frame_a")
-    check_frame(frame_b, "frame_b")
+    check_grey_image(frame_a, "frame_a")
+    check_grey_image(frame_b, "frame_b")
     if frame_a.shape != frame_b.shape:
         raise InputError(f"frames must have the same shape, got {frame_a.shape} and {frame_b.shape}")
     shifts, responses = reference_shifts(frame_a, frame_b, grid)

@@ -12,9 +12,10 @@ from dataclasses import dataclass, replace
 from enum import Enum
 
 import numpy as np
-import numpy.typing as npt
 
 from common.errors import InputError
+from common.images import check_grey_image
+from common.types import FloatArray
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -24,12 +25,11 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
 from common.yaw.global_align import GlobalAlignment, estimate_global_alignment, warp_into
-from common.yaw.grid import PatchGrid, U8Array, check_frame, make_patch_grid
+from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
 from common.yaw.settings import YawSettings
 
 logger = logging.getLogger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 #: A frame whose grey-level std (0..255) is below this has nothing to correlate (black, saturated).
 _MIN_FRAME_STD = 2.0
@@ -190,7 +190,7 @@ class YawTracker:
         self.grid = grid
 
     def _check(self, frame_u8: U8Array, name: str) -> U8Array:
-        check_frame(frame_u8, name)
+        check_grey_image(frame_u8, name)
         if frame_u8.shape != self.grid.frame_shape:
             raise InputError(f"{name} must have shape {self.grid.frame_shape}, got {frame_u8.shape}")
         return frame_u8
@@ -263,8 +263,8 @@ def _make_estimate(seq: int, delta: float, yaw: float, result: _PairResult) -> Y
 def estimate_pair(frame_a: U8Array, frame_b: U8Array, settings: YawSettings) -> YawEstimate:
     """Yaw of one pair a -> b (any rotation): patch fit, checked against and if needed pre-aligned by
     the global Fourier-Mellin estimate."""
-    check_frame(frame_a, "frame_a")
-    check_frame(frame_b, "frame_b")
+    check_grey_image(frame_a, "frame_a")
+    check_grey_image(frame_b, "frame_b")
     if frame_a.shape != frame_b.shape:
         raise InputError(
             f"frame_a and frame_b must have the same shape, got {frame_a.shape} and {frame_b.shape}"

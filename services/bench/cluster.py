@@ -27,11 +27,13 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.dispatch import Balance, SpeedSource
 from common.messages import PatchJob, PatchResult, decode, encode
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from common.yaw.patchwork import settings_to_wire
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
+from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
@@ -107,9 +109,9 @@ def heterogeneous(
     """The issue's cluster: host a = 1 worker pinned to core 0, host b = 4 workers sharing core 1."""
     return ClusterSpec(
         name=f"{topology}-{balance}",
-        topology=topology,  # type: ignore[arg-type]
-        balance=balance,  # type: ignore[arg-type]
-        speed=speed,  # type: ignore[arg-type]
+        topology=Topology(topology),
+        balance=Balance(balance),
+        speed=SpeedSource(speed),
         hosts=(
             HostSpec(name="a", workers=1, cpus="0"),
             HostSpec(name="b", workers=4, cpus="1", cpu_factor=slow_factor),
@@ -154,9 +156,7 @@ def shares_and_speeds(estimates: dict[int, Any], last: int = 20) -> dict[str, di
     for member in members:
         share = np.mean([estimates[s].members.get(member, 0) / estimates[s].patch_count for s in seqs])
         speeds = [
-            estimates[s].timings_ms[f"speed:{member}"]
-            for s in seqs
-            if f"speed:{member}" in estimates[s].timings_ms
+            estimates[s].speeds_patches_s[member] for s in seqs if member in estimates[s].speeds_patches_s
         ]
         out[member] = {
             "share": float(share),
@@ -365,18 +365,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         for c in configs
     ]
     tag = "emulated" if emulation else "taskset only"
-    result["table"].append({"config": f"balance gain MFW none/time ({tag})", "median_ms": gain_mfw})
-    result["table"].append({"config": f"balance gain MW none/time ({tag})", "median_ms": gain_mw})
+    # ratios of medians, not times: their own column (they were in median_ms)
+    result["table"].append({"config": f"balance gain MFW none/time ({tag})", "ratio": gain_mfw})
+    result["table"].append({"config": f"balance gain MW none/time ({tag})", "ratio": gain_mw})
     for label, row in overhead["paths"].items():
         result["table"].append(
             {
-                "config": f"752x480 +ms/frame {label} (median of {args.overhead_repeats})",
-                "median_ms": row["overhead_ms"],
+                "config": f"752x480 overhead per frame {label} (median of {args.overhead_repeats})",
+                "overhead_ms": row["overhead_ms"],
             }
         )
     for mode in ("callback", "channel"):
         result["table"].append(
-            {"config": f"752x480 job round trip, reply via {mode}", "median_ms": handoff[f"{mode}_ms"]}
+            {"config": f"752x480 job round trip, reply via {mode}", "round_trip_ms": handoff[f"{mode}_ms"]}
         )
     result["plot"] = str(plot(out_dir / "cluster.png", configs, gain_mfw))
     return result
@@ -491,7 +492,9 @@ def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6
     idx = grid.all_indices.astype(np.int32)
     crops = [grid.crop(flight.frame(i), idx) for i in range(3)]
     wire = settings_to_wire(settings)
-    spec = ClusterSpec(name="handoff", topology="master-worker", hosts=(HostSpec(name="handoff", workers=1),))
+    spec = ClusterSpec(
+        name="handoff", topology=Topology.MASTER_WORKER, hosts=(HostSpec(name="handoff", workers=1),)
+    )
     times: dict[str, list[float]] = {"callback": [], "channel": []}
     seq = 0
     with LocalCluster(spec, out_dir / "cluster_logs" / "handoff", shared_memory=shm) as cluster:

@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 
 from common.localization.baseline import weigh_per_particle
-from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig, ParticleState
-from common.localization.scoring import ImageEdges, ScoringMethod, ScoringParams, extract_image_edges
+from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings, ParticleState
+from common.localization.scoring import ImageEdges, ScoringMethod, ScoringSettings, extract_image_edges
 from common.localization.simulation import (
     INITIAL_ANGLE_ERROR_RAD,
     INITIAL_POSITION_ERROR_M,
@@ -169,7 +169,7 @@ def _measure(args: argparse.Namespace, core: str) -> dict[str, Any]:
     edges_ms = (time.perf_counter() - t0) / len(timing_frames) * 1e3
 
     configs = {
-        method.value: ParticleFilterConfig(n_particles=200, scoring=ScoringParams(method=method))
+        method.value: ParticleFilterSettings(n_particles=200, scoring=ScoringSettings(method=method))
         for method in ScoringMethod
     }
     timings = _time_methods(
@@ -219,10 +219,12 @@ def _measure(args: argparse.Namespace, core: str) -> dict[str, Any]:
 
     meeting = [name for name, row in per_method.items() if row["meets_accuracy_goal"]]
     best = min(meeting or per_method, key=lambda name: per_method[name]["ms_per_step_200"])
-    best_params = ScoringParams(method=ScoringMethod(best))
-    pf_200 = ParticleFilter(sim.scene, sim.camera, ParticleFilterConfig(n_particles=200, scoring=best_params))
+    best_params = ScoringSettings(method=ScoringMethod(best))
+    pf_200 = ParticleFilter(
+        sim.scene, sim.camera, ParticleFilterSettings(n_particles=200, scoring=best_params)
+    )
     pf_1000 = ParticleFilter(
-        sim.scene, sim.camera, ParticleFilterConfig(n_particles=1000, scoring=best_params)
+        sim.scene, sim.camera, ParticleFilterSettings(n_particles=1000, scoring=best_params)
     )
     step_200, baseline = _time_steps(pf_200, clouds_200, args.repeats, baseline_every=2)
     assert baseline is not None
@@ -290,7 +292,7 @@ def _measure(args: argparse.Namespace, core: str) -> dict[str, Any]:
         "settle_frames": args.settle,
         "image_size": [sim.camera.width, sim.camera.height],
         "scene_edges": sim.scene.n_edges,
-        "points_per_edge": ParticleFilterConfig().points_per_edge,
+        "points_per_edge": ParticleFilterSettings().points_per_edge,
         "render_s": render_s,
         "core": core,
         "table": table,

@@ -20,10 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from common.dispatch import Balance
 from services.bench import hostile
 from services.bench.cluster import write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
+from services.master.service import Topology
 from services.secure import SecureProfile
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
@@ -46,7 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def small_cluster() -> ClusterSpec:
     hosts = (HostSpec(name="h1", workers=1), HostSpec(name="h2", workers=1))
-    return ClusterSpec(name="security", topology="master-foreman-worker", balance="time", hosts=hosts)
+    return ClusterSpec(
+        name="security", topology=Topology.MASTER_FOREMAN_WORKER, balance=Balance.TIME, hosts=hosts
+    )
 
 
 ATTACKS = ("forged_outputs", "fake_worker_crops", "liveliness_flood", "forged_frame_flood", "fake_foreman")
@@ -98,7 +102,7 @@ def overhead(
     frame_dir = out_dir / "security_frames_752"
     write_frame_folder(frame_dir, [flight.frame(i) for i in range(frames)])
     spec = ClusterSpec(
-        name="overhead", topology="master-foreman-worker", hosts=(HostSpec(name="h1", workers=1),)
+        name="overhead", topology=Topology.MASTER_FOREMAN_WORKER, hosts=(HostSpec(name="h1", workers=1),)
     )
     secure = SecureProfile.ensure(secure_dir)
     samples: dict[str, list[np.ndarray]] = {p: [] for p in PROFILES}

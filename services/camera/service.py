@@ -16,8 +16,9 @@ import argparse
 import threading
 import time
 from collections.abc import Iterator
+from enum import StrEnum
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -44,11 +45,22 @@ from services.runtime.transport import (
 DEFAULT_HFOV_DEG = 90.0
 
 
+class FlightName(StrEnum):
+    """The simulated flights the camera can replay."""
+
+    #: paper A's hover over the ground (752x480)
+    HOVER = "hover"
+    #: paper C's turns over the ground
+    TURNS = "turns"
+    #: the localizer's default flight through the built-in office (320x240, forward camera)
+    OFFICE = "office"
+
+
 class CameraSettings(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     uavs: tuple[str, ...] = ("uav0",)
-    flight: Literal["hover", "turns", "office"] = "hover"
+    flight: FlightName = FlightName.HOVER
     frames: int = Field(default=2041, ge=2)
     seed: int = 0
     fps: float = Field(default=20.0, ge=0.0)
@@ -74,7 +86,7 @@ def simulated_flight(settings: CameraSettings) -> Flight:
         if settings.width is None or settings.height is None
         else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
     )
-    if settings.flight == "turns":
+    if settings.flight is FlightName.TURNS:
         return turns_flight(seed=settings.seed, camera=camera)
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
 
@@ -127,7 +139,7 @@ class CameraService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.flight: Flight | None = (
-            None if settings.images or settings.flight == "office" else simulated_flight(settings)
+            None if settings.images or settings.flight is FlightName.OFFICE else simulated_flight(settings)
         )
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
@@ -136,7 +148,9 @@ class CameraService(ServiceRuntime):
         self._masters = threading.Event()
         self._preloaded: list[np.ndarray] | None = None
         self._odometry = (
-            office_odometry_poses(settings) if settings.flight == "office" and not settings.images else None
+            office_odometry_poses(settings)
+            if settings.flight is FlightName.OFFICE and not settings.images
+            else None
         )
         if settings.images is not None and settings.preload:
             self._preloaded = list(self._images())
@@ -335,8 +349,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
     parser.add_argument(
         "--flight",
-        choices=["hover", "turns", "office"],
-        default="hover",
+        choices=[f.value for f in FlightName],
+        default=FlightName.HOVER.value,
         help="simulated flight: paper A's hover, paper C's turns (ground camera), or the localizer's office",
     )
     parser.add_argument(

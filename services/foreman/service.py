@@ -10,7 +10,6 @@ an error reply and is counted).
 from __future__ import annotations
 
 import argparse
-import threading
 import time
 from typing import Any
 
@@ -37,6 +36,7 @@ from common.yaw.patchwork import (
     measure_share,
     merge_measurements,
 )
+from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 from services.runtime.transport import (
     ServiceRuntime,
@@ -104,8 +104,7 @@ class ForemanService(ServiceRuntime):
         self._queryable: Any = None
         self.cache = SpectrumCache()
         self.crops_prev = CropStore()
-        self._membership: list[tuple[bool, str]] = []
-        self._membership_lock = threading.Lock()
+        self.live = LiveMembers(keys.Role.WORKER)  # the workers of this node (see the liveliness key)
         self.settings_cache = SettingsCache()
         self.scatter: Scatter | None = None
         self._last_shares: dict[str, float] = {}
@@ -133,28 +132,17 @@ class ForemanService(ServiceRuntime):
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
-        if event is None:
-            return
-        member, joined = event
-        with self._membership_lock:
-            self._membership.append((joined, member.name))
-        if not joined and self.scatter is not None:
-            self.scatter.member_left(member.name)
-        self.counters.inc("members_joined" if joined else "members_left")
+        if event is not None:
+            member, joined = event
+            self.live.on_event(member, joined, self.counters, self.scatter)
 
     def _apply_membership(self) -> None:
-        with self._membership_lock:
-            changes, self._membership = self._membership, []
-        for joined, name in changes:
-            if joined:
-                self.dispatcher.join(name)
-            else:
-                self.dispatcher.leave(name)
+        self.live.update(self.dispatcher)
 
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
 
-    def _answer_block(self, query: zenoh.Query, job: BlockJob, t_recv: float) -> None:
+    def _answer_block(self, query: zenoh.Query, job: BlockJob, received_perf_s: float) -> None:
         try:
             result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
@@ -170,7 +158,7 @@ class ForemanService(ServiceRuntime):
         self.counters.inc("patches", int(job.indices.size))
         self.counters.time_ms("block", result.compute_s * 1e3)
         self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
-        self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
+        self.counters.time_ms("handle", (time.perf_counter() - received_perf_s) * 1e3)
 
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""

@@ -17,7 +17,7 @@ import argparse
 import threading
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -27,20 +27,20 @@ from common import keys
 from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import (
-    R_BODY_CAMERA_DOWN,
-    R_BODY_CAMERA_FORWARD,
+    CameraMount,
     euler_from_quaternion,
     quaternion_from_euler,
+    wrap_angle_rad,
 )
 from common.localization.model import SceneModel, default_scene, scene_from_json
 from common.localization.particle_filter import (
     ParticleFilter,
-    ParticleFilterConfig,
+    ParticleFilterSettings,
     ParticleState,
     PoseStatistics,
     covariance_with_world_error_angles,
 )
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.simulation import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, encode
@@ -65,7 +65,7 @@ class LocalizerSettings(BaseModel):
     width: int = Field(default=DEFAULT_WIDTH_PX, gt=0)
     height: int = Field(default=DEFAULT_HEIGHT_PX, gt=0)
     hfov_deg: float = Field(default=DEFAULT_HFOV_DEG, gt=0.0, lt=180.0)
-    camera_mount: Literal["forward", "down"] = "forward"
+    camera_mount: CameraMount = CameraMount.FORWARD
     particles: int = Field(default=200, ge=2)
     scoring: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
     seed: int = 0
@@ -112,7 +112,7 @@ def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.
         return None
     velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
     change = euler_from_quaternion(current.q_world_body) - euler_from_quaternion(previous.q_world_body)
-    return velocity, np.angle(np.exp(1j * change)) / dt
+    return velocity, wrap_angle_rad(change) / dt  # the angle wrap of common.geometry
 
 
 class LocalizerService(ServiceRuntime):
@@ -129,10 +129,10 @@ class LocalizerService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.camera = settings.camera()
-        mount = R_BODY_CAMERA_FORWARD if settings.camera_mount == "forward" else R_BODY_CAMERA_DOWN
-        config = ParticleFilterConfig(
+        mount = settings.camera_mount.R_body_camera
+        config = ParticleFilterSettings(
             n_particles=settings.particles,
-            scoring=ScoringParams(method=settings.scoring),
+            scoring=ScoringSettings(method=settings.scoring),
             R_body_camera=mount.copy(),
         )
         self.filter = ParticleFilter(settings.load_scene(), self.camera, config)
@@ -235,7 +235,12 @@ def register(subparsers: Any) -> None:
         "--resolution", default=f"{DEFAULT_WIDTH_PX}x{DEFAULT_HEIGHT_PX}", help="camera WIDTHxHEIGHT"
     )
     parser.add_argument("--hfov", type=float, default=DEFAULT_HFOV_DEG, help="horizontal field of view (deg)")
-    parser.add_argument("--mount", choices=["forward", "down"], default="forward", help="camera on the body")
+    parser.add_argument(
+        "--mount",
+        choices=[m.value for m in CameraMount],
+        default=CameraMount.FORWARD.value,
+        help="camera on the body",
+    )
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
     parser.add_argument(
         "--scoring", choices=[m.value for m in ScoringMethod], default=ScoringMethod.NEAREST_EDGE_DT.value

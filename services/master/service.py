@@ -10,7 +10,6 @@ published yaw equals the in-process tracker's when no frame is dropped.
 from __future__ import annotations
 
 import argparse
-import threading
 import time
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -21,19 +20,14 @@ import zenoh
 from pydantic import BaseModel, ConfigDict
 
 from common import keys
-from common.dispatch import (
-    SELF,
-    Balance,
-    Dispatcher,
-    DispatchSettings,
-    SpeedSource,
-)
+from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
 from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
 from services.runtime.guard import DispatchGuard
+from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments
 from services.runtime.transport import (
     LatestSlot,
@@ -113,11 +107,7 @@ class MasterService(ServiceRuntime):
         self.slot: LatestSlot[Frame] = LatestSlot()
         self.stream: _Stream | None = None
         self.scatter: Scatter | None = None
-        self._members: dict[str, keys.MemberId] = {}
-        self._membership_lock = threading.Lock()
-        #: bumped on every liveliness change; a dispatcher that saw the current version needs no update
-        self._membership_version = 0
-        self._applied: tuple[Dispatcher | None, int, frozenset[str]] = (None, -1, frozenset())
+        self.live = LiveMembers(self.member_role)
         #: defence in depth: trust vetting, one frame source, liveliness churn limited per key
         self.guard = DispatchGuard(self.name, self.counters, settings.trust)
         self._entities: list[Any] = []
@@ -142,20 +132,10 @@ class MasterService(ServiceRuntime):
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
-        if event is None:
-            return
-        member, joined = event
-        with self._membership_lock:
+        if event is not None:
+            member, joined = event
             self.guard.note_alive(member.name, joined)
-            if joined:
-                self._members[member.name] = member
-            else:
-                self._members.pop(member.name, None)
-            self._membership_version += 1
-        if member.role is self.member_role:
-            self.counters.inc("members_joined" if joined else "members_left")
-            if not joined and self.scatter is not None:
-                self.scatter.member_left(member.name)
+            self.live.on_event(member, joined, self.counters, self.scatter)
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         if not self.guard.admit_frame(sample):
@@ -168,29 +148,8 @@ class MasterService(ServiceRuntime):
             self.counters.inc("frames_dropped")
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
-        with self._membership_lock:
-            churning = self.guard.quarantined()
-            if self._applied == (dispatcher, self._membership_version, churning):
-                return  # nothing changed since this dispatcher was last brought up to date
-            self._applied = (dispatcher, self._membership_version, churning)
-            members = dict(self._members)
-        wanted = {name for name, m in members.items() if m.role is self.member_role and name not in churning}
-        workers_per_node: dict[str, int] = {}
-        for m in members.values():
-            if m.role is keys.Role.WORKER:
-                workers_per_node[m.node] = workers_per_node.get(m.node, 0) + 1
-        for name in dispatcher.members:
-            if name not in wanted:
-                dispatcher.leave(name)
-        for name in wanted:
-            member = members[name]
-            capacity = 1.0
-            if member.role is keys.Role.FOREMAN:
-                capacity = float(max(1, workers_per_node.get(member.node, 0)))
-            if name in dispatcher.members:
-                dispatcher.set_capacity(name, capacity)
-            else:
-                dispatcher.join(name, capacity)
+        self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
+        self.guard.apply_quarantine(dispatcher.trust)  # members whose liveliness churns are paused
 
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
@@ -323,8 +282,6 @@ class MasterService(ServiceRuntime):
         }
         if report is not None:
             timings["self"] = report.self_s * 1e3
-            for name, speed in report.speeds.items():
-                timings[f"speed:{name}"] = speed
         return YawEstimate(
             uav=self.settings.uav,
             seq=frame.seq,
@@ -338,6 +295,7 @@ class MasterService(ServiceRuntime):
             method=core.method.name.lower(),
             timings_ms=timings,
             members=members,
+            speeds_patches_s=dict(report.speeds) if report else {},
             dropped_frames=self.slot.dropped + self.gaps,
             redispatched=report.redispatched if report else 0,
         )

@@ -22,7 +22,8 @@ from common.dispatch.admission import ChurnLimiter, SourceLock
 from common.dispatch.vetting import round_outcomes
 from common.yaw import YawSettings
 from common.yaw.correlation import PatchMeasurement
-from services.runtime.transport import Counters, source_of
+from services.runtime.handoff import Counters
+from services.runtime.transport import source_of
 
 logger = logging.getLogger(__name__)
 
@@ -60,12 +61,14 @@ class DispatchGuard:
         with self._lock:
             self.churn.allow(member, joined, time.monotonic())
 
-    def quarantined(self) -> frozenset[str]:
-        """Members whose liveliness churns: left out of the dispatcher until their quarantine ends."""
-        if not self.enabled:
-            return frozenset()
+    def apply_quarantine(self, trust: TrustMonitor | None) -> None:
+        """Pause members whose liveliness churns (dispatching thread) until their quarantine ends."""
+        if not self.enabled or trust is None:
+            return
         with self._lock:
-            return self.churn.quarantined(time.monotonic())
+            ends = self.churn.quarantine_ends(time.monotonic())
+        for member, until_s in ends.items():
+            trust.suspend(member, until_s)
 
     def vet(
         self,

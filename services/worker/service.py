@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from enum import StrEnum
 from typing import Any
 
 import zenoh
@@ -12,14 +13,20 @@ from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
+from services.runtime.cli import add_transport_arguments, transport_from_args
+from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    WorkQueue,
-    add_transport_arguments,
-    transport_from_args,
-)
+from services.runtime.service import ServiceRuntime
+from services.runtime.transport import TransportSettings
+
+
+class Handoff(StrEnum):
+    """How a query reaches the compute thread."""
+
+    #: zenoh's bounded FIFO channel, drained by the compute thread (no Python callback thread between)
+    CHANNEL = "channel"
+    #: a Python callback decodes and hands off to a bounded queue (full -> "busy" error reply)
+    CALLBACK = "callback"
 
 
 class WorkerService(ServiceRuntime):
@@ -35,14 +42,15 @@ class WorkerService(ServiceRuntime):
         queue_capacity: int = 8,
         stats_period_s: float = 1.0,
         cpu_factor: int = 1,
-        handoff: str = "channel",
+        handoff: Handoff | str = Handoff.CHANNEL,
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
-        if handoff not in ("channel", "callback"):
-            raise CapatazError(f"handoff must be 'channel' or 'callback', got {handoff!r}")
-        #: "channel": a zenoh FifoChannel drained by the compute thread; "callback": a Python callback that
-        #: decodes and hands off to a bounded queue (busy -> error reply)
-        self.handoff = handoff
+        try:
+            self.handoff = Handoff(handoff)
+        except ValueError:
+            raise CapatazError(
+                f"handoff must be one of {[h.value for h in Handoff]}, got {handoff!r}"
+            ) from None
         self.queue_capacity = queue_capacity
         if cpu_factor < 1:
             raise CapatazError(f"cpu_factor must be >= 1, got {cpu_factor}")
@@ -55,26 +63,69 @@ class WorkerService(ServiceRuntime):
 
     def start(self, session: zenoh.Session) -> None:
         key = keys.worker_key(self.node, self.index)
-        if self.handoff == "channel":
+        if self.handoff is Handoff.CHANNEL:
             # zenoh's own bounded FIFO, drained by the compute thread: no Python callback thread in between
             self._queryable = session.declare_queryable(
                 key, zenoh.handlers.FifoChannel(self.queue_capacity), complete=True
             )
-            self.spawn(lambda: self.serve_queries(self._queryable, PatchJob, self._answer_job), "compute")
+            self.spawn(self._serve_channel, "compute")
         else:
             self._queryable = session.declare_queryable(key, self._on_query, complete=True)
             self.spawn(self._serve, "compute")
 
     def stop(self) -> None:
-        if self.handoff == "channel" and self._queryable is not None:
+        if self.handoff is Handoff.CHANNEL and self._queryable is not None:
             self._queryable.undeclare()  # the compute thread's recv() then raises and it exits
             self._queryable = None
-        for query, _job, _t in self.queue.drain():
+        for query, _job, _received_monotonic_s in self.queue.drain():
             self.reply_error(query, "shutdown", f"{self.name} is shutting down")
 
-    def _answer_job(self, query: zenoh.Query, job: PatchJob, t_recv: float) -> None:
-        self._handle(query, job, time.monotonic())
-        self.counters.time_ms("handle", (time.perf_counter() - t_recv) * 1e3)
+    def _serve_channel(self) -> None:
+        """The compute thread of the channel hand-off: jobs in arrival order, each checked for expiry.
+
+        A job is stamped when this thread first sees it. Blocking in ``recv`` (idle) that is its arrival;
+        before each job the thread also moves the queries already waiting in zenoh's channel into
+        :attr:`queue` (stamped then), so a job that waits behind others is seen to wait, and the queue depth
+        is the real backlog. The stamp is an upper bound of the arrival, so expiry never fires early.
+        Regression: the job used to be stamped just before its expiry check, which then never fired, and
+        the job queue always read 0 in this mode.
+        """
+        channel = self._queryable.handler
+        while not self.stop_event.is_set():
+            item = self.queue.take(0.0)
+            if item is None:
+                try:
+                    query = channel.recv()
+                except zenoh.ZError:
+                    return  # queryable undeclared: shutting down
+                item = self._admit(query)
+                if item is None:
+                    continue
+            self._pull_waiting(channel)
+            self._handle(*item)
+            self.counters.time_ms("handle", (time.monotonic() - item[2]) * 1e3)
+
+    def _admit(self, query: zenoh.Query) -> tuple[zenoh.Query, PatchJob, float] | None:
+        """Count and decode a query (a bad one gets an error reply); the job with its seen time, or None."""
+        seen_monotonic_s = time.monotonic()
+        self.counters.inc("queries")
+        job = self.decode_query(query, PatchJob)
+        self.counters.time_ms("decode", (time.monotonic() - seen_monotonic_s) * 1e3)
+        return None if job is None else (query, job, seen_monotonic_s)
+
+    def _pull_waiting(self, channel: Any) -> None:
+        """Move queries waiting in zenoh's channel into :attr:`queue` while it has room (the rest stays in
+        the channel, which then holds the session back as before: no job is refused here)."""
+        while self.queue.depth() < self.queue_capacity:
+            try:
+                query = channel.try_recv()
+            except zenoh.ZError:
+                return
+            if query is None:
+                return
+            item = self._admit(query)
+            if item is not None:
+                self.queue.offer(item)
 
     def queue_depths(self) -> dict[str, int]:
         return {"jobs": self.queue.depth()}
@@ -95,8 +146,8 @@ class WorkerService(ServiceRuntime):
             if item is not None:
                 self._handle(*item)
 
-    def _handle(self, query: zenoh.Query, job: PatchJob, received: float) -> None:
-        if time.monotonic() - received > job.budget_s:
+    def _handle(self, query: zenoh.Query, job: PatchJob, received_monotonic_s: float) -> None:
+        if time.monotonic() - received_monotonic_s > job.budget_s:
             self.counters.inc("expired")
             self.reply_error(query, "expired", f"{self.name}: job waited longer than its budget")
             return
@@ -149,8 +200,8 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--handoff",
-        choices=["channel", "callback"],
-        default="channel",
+        choices=[h.value for h in Handoff],
+        default=Handoff.CHANNEL.value,
         help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue",
     )
     parser.set_defaults(handler=run)

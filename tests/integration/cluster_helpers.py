@@ -6,8 +6,10 @@ import os
 
 import numpy as np
 
+from common.dispatch import Balance
 from common.sim.flight import hover_flight
 from common.yaw import YawSettings, YawTracker, make_patch_grid
+from services.master.service import Topology
 from services.up import ClusterSpec, HostSpec
 
 #: Frames of the fault run in CI (the issue's 2041-frame figure: CAPATAZ_CLUSTER_FRAMES=2041).
@@ -30,7 +32,7 @@ def reference_yaw_rad(n_frames: int, seed: int = 0) -> np.ndarray:
 def two_by_two(topology: str = "master-foreman-worker", workers: int = 2) -> ClusterSpec:
     return ClusterSpec(
         name="test",
-        topology=topology,  # type: ignore[arg-type]
-        balance="time",
+        topology=Topology(topology),
+        balance=Balance.TIME,
         hosts=(HostSpec(name="h1", workers=workers), HostSpec(name="h2", workers=workers)),
     )

@@ -17,6 +17,7 @@ from common.messages import Health, ImuSample, PatchJob, decode, encode, read_er
 from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster, YawCollector
 from tests.integration.cluster_helpers import two_by_two
+from tests.zenoh_helpers import wait_until
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 
@@ -122,7 +123,8 @@ def test_ten_thousand_malformed_messages_are_counted_answered_and_survived(tmp_p
             assert oks == 0 and len(errors) == total_queries
             assert all(e.startswith("malformed:") for e in errors), {e.split(":")[0] for e in errors}
 
-            time.sleep(1.0)  # the last frames reach the master
+            # the last frames reach the master on its own threads: wait for its count (bounded), then compare
+            wait_until(lambda: health(session, "master", "master").counters.get("malformed", 0) >= N_FRAMES)
             counts = {
                 "worker": health(session, "worker", "h1").counters.get("malformed", 0),
                 "foreman": health(session, "foreman", "h2").counters.get("malformed", 0),

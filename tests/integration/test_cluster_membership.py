@@ -4,7 +4,6 @@ master keeps publishing yaw alone (master-worker topology, the paper's baseline)
 from __future__ import annotations
 
 import signal
-import time
 from pathlib import Path
 
 import pytest
@@ -13,17 +12,9 @@ from common.dispatch import SELF
 from services.runtime.transport import open_session
 from services.up import LocalCluster, YawCollector
 from tests.integration.cluster_helpers import two_by_two
+from tests.zenoh_helpers import wait_until
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
-
-
-def wait_until(condition, timeout_s: float) -> bool:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_joiner_gets_a_share_within_five_frames_and_master_computes_alone_without_workers(

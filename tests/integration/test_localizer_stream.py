@@ -39,7 +39,6 @@ def test_office_camera_process_drives_the_localizer_process_onto_the_truth(tmp_p
         cluster.wait_alive({"localizer/localizer/0"})
         with open_session(cluster.observer_transport()) as session:
             subscriber = session.declare_subscriber(keys.pose_pf_key("uav1"), on_pose)
-            time.sleep(0.5)  # routes of the new subscriber
             camera = cluster.spawn(
                 "camera/office/0",
                 [

@@ -31,6 +31,7 @@ def test_frame_folder_holds_only_this_runs_frames(tmp_path: Path) -> None:
         assert np.array_equal(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE), frame)
 
 
+@pytest.mark.zenoh
 def test_reply_handoff_times_both_ways_of_receiving_a_workers_reply(tmp_path: Path) -> None:
     result = reply_handoff(tmp_path, shm=False, requests=8, blocks=2)
     assert result["requests_per_mode"] == 8

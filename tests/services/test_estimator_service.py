@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from typing import Any
 
 import numpy as np
@@ -20,16 +19,12 @@ from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, Ra
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import publish_measurements
-from services.runtime.transport import TransportSettings, open_session, zbytes
-from services.up import free_port
+from services.runtime.transport import open_session, zbytes
+from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 pytestmark = pytest.mark.zenoh
 
 N_FRAMES = 24
-
-
-def _matching(publisher: Any) -> bool:
-    return bool(publisher.matching_status.matching)
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +33,11 @@ def flight() -> Flight:
 
 
 def test_service_matches_in_process_run_and_survives_malformed_samples(flight: Flight) -> None:
+    with hub() as endpoint:
+        _matches_in_process_run_and_survives_malformed_samples(flight, endpoint)
+
+
+def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpoint: str) -> None:
     settings = EstimatorSettings(
         initial_yaw_rad=float(flight.yaw_rad[0]),
         initial_x_m=float(flight.p_world_body_m[0, 0]),
@@ -53,22 +53,14 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
     expected_att = [o for o in expected if isinstance(o, AttitudeOutput)]
     expected_pose = [o for o in expected if isinstance(o, PoseOutput)]
 
-    port = free_port()
-    service = EstimatorService(
-        "test",
-        0,
-        TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000),
-        settings,
-        stats_period_s=0.2,
-    )
+    service = EstimatorService("test", 0, peer(endpoint), settings, stats_period_s=0.2)
     runner = threading.Thread(target=service.run, daemon=True)
     runner.start()
     attitudes: queue.Queue[AttitudeEstimate] = queue.Queue()
     poses: queue.Queue[PoseEstimate] = queue.Queue()
-    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
     try:
-        assert service.started.wait(20.0), "service did not start"
-        with open_session(client) as session:
+        assert service.started.wait(WAIT_S), "service did not start"
+        with open_session(peer(endpoint)) as session:
             subs = [
                 session.declare_subscriber(
                     keys.attitude_key("uav0"),
@@ -84,11 +76,10 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
             probe = session.declare_publisher(
                 keys.imu_key("uav0"), congestion_control=zenoh.CongestionControl.BLOCK
             )
-            deadline = time.monotonic() + 10.0
-            while not _matching(probe) and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert _matching(probe)
-            time.sleep(0.3)  # the other subscribers of the service are declared together with this one
+            camera = session.declare_publisher(keys.camera_key("uav0"))
+            ranger = session.declare_publisher(keys.range_key("uav0"))
+            # every subscriber of the service is routed (and it sees ours): nothing published is lost
+            assert all(matched(p) for p in (probe, camera, ranger, service._attitude_pub, service._pose_pub))
             assert publish_measurements(session, "uav0", stream, speed=0.5, block=True) == len(stream)
 
             # the end of the stream is held back by the reordering lag: push it out with later IMU samples
@@ -111,20 +102,18 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
             received_att = []
             try:
                 for _ in range(len(expected_att)):
-                    received_att.append(attitudes.get(timeout=20.0))
+                    received_att.append(attitudes.get(timeout=WAIT_S))
             except queue.Empty:
                 raise AssertionError(
                     f"{len(received_att)} of {len(expected_att)} attitudes; {service.counters.counts()}"
                 ) from None
-            received_pose = [poses.get(timeout=20.0) for _ in range(len(expected_pose))]
+            received_pose = [poses.get(timeout=WAIT_S) for _ in range(len(expected_pose))]
 
             # a burst of bad samples: garbage, NaN, another UAV's, wrong frame size, stale stamps
             nan_payload, nan_header = encode(
                 ImuSample(uav="uav0", stamp_s=t_end + 0.2, gyro_rad_s=np.zeros(3), accel_m_s2=np.zeros(3))
             )
             nan_payload = np.array([np.nan, 0.0, 0.0, 0.0, 0.0, 9.8]).tobytes()
-            camera = session.declare_publisher(keys.camera_key("uav0"))
-            ranger = session.declare_publisher(keys.range_key("uav0"))
             for _ in range(5):
                 probe.put(b"\x00garbage", attachment=b"\x93not-a-header")
             probe.put(nan_payload, attachment=nan_header)
@@ -148,8 +137,18 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
             # still alive: the rest of the tail goes through
             for t, g, a in tail[20:]:
                 put_imu(t, g, a)
-            after = attitudes.get(timeout=20.0)
-            time.sleep(0.5)
+            after = attitudes.get(timeout=WAIT_S)
+
+            def refusals_counted() -> bool:  # the bad samples reach the service on its own threads
+                c = service.counters.counts()
+                return (
+                    c.get("malformed", 0) + c.get("bad_samples", 0) >= 6
+                    and all(c.get(k, 0) >= 1 for k in ("wrong_uav", "bad_frames"))
+                    and all(c.get(k, 0) >= 1 for k in ("refused_imu_stale", "refused_range_stale"))
+                    and c.get("poses_out", 0) >= N_FRAMES
+                )
+
+            assert wait_until(refusals_counted), service.counters.counts()
             for sub in subs:
                 sub.undeclare()
             for publisher in (probe, camera, ranger):
@@ -211,28 +210,24 @@ def test_sensor_samples_are_handed_off_in_the_order_they_were_published(flight: 
         initial_y_m=float(flight.p_world_body_m[0, 1]),
     )
     burst = list(flight_measurements(flight, 0, 8))
-    port = free_port()
-    service = _RecordingEstimator(
-        "burst", 0, TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000), settings
-    )
-    runner = threading.Thread(target=service.run, daemon=True)
-    runner.start()
-    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
-    try:
-        assert service.started.wait(20.0), "service did not start"
-        with open_session(client) as session:
-            probe = session.declare_publisher(keys.imu_key("uav0"))
-            deadline = time.monotonic() + 10.0
-            while not _matching(probe) and time.monotonic() < deadline:
-                time.sleep(0.02)
-            probe.undeclare()
-            time.sleep(0.3)  # the camera and range subscribers are declared with the IMU's
-            assert publish_measurements(session, "uav0", burst, speed=0.0, block=True) == len(burst)
-            deadline = time.monotonic() + 20.0
-            while len(service.seen) < len(burst) and time.monotonic() < deadline:
-                time.sleep(0.05)
-    finally:
-        service.request_stop()
-        runner.join(5.0)
+    with hub() as endpoint:
+        service = _RecordingEstimator("burst", 0, peer(endpoint), settings)
+        runner = threading.Thread(target=service.run, daemon=True)
+        runner.start()
+        try:
+            assert service.started.wait(WAIT_S), "service did not start"
+            with open_session(peer(endpoint)) as session:
+                probes = [
+                    session.declare_publisher(key("uav0"))
+                    for key in (keys.imu_key, keys.camera_key, keys.range_key)
+                ]
+                assert all(matched(p) for p in probes)  # each of the service's subscribers is routed
+                for probe in probes:
+                    probe.undeclare()
+                assert publish_measurements(session, "uav0", burst, speed=0.0, block=True) == len(burst)
+                assert wait_until(lambda: len(service.seen) >= len(burst))
+        finally:
+            service.request_stop()
+            runner.join(5.0)
     assert service.seen == [m.stamp_s for m in burst]
     assert service.counters.get("refused_frame_stale") == 0

@@ -16,10 +16,12 @@ from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService
+from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, Scatter
-from services.runtime.transport import Counters, TransportSettings, open_session, zbytes
-from services.up import free_port
+from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService
+from tests.services.fakes import FakeBytes, FakeChannel
+from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 
 def crops(value: int, n: int) -> np.ndarray:
@@ -41,18 +43,10 @@ def test_a_second_block_of_a_frame_still_finds_the_previous_frame() -> None:
     assert store.get("s", 6, np.array([], dtype=np.int64), (4, 4)).shape == (0, 4, 4)
 
 
-class _Bytes:
-    def __init__(self, data: bytes) -> None:
-        self._data = data
-
-    def to_bytes(self) -> bytes:
-        return self._data
-
-
 class _Reply:
     def __init__(self, payload: bytes, attachment: bytes) -> None:
         self.err = None
-        self.ok = type("Sample", (), {"payload": _Bytes(payload), "attachment": _Bytes(attachment)})()
+        self.ok = type("Sample", (), {"payload": FakeBytes(payload), "attachment": FakeBytes(attachment)})()
 
 
 class _Workers:
@@ -74,21 +68,9 @@ class _Workers:
         )  # fmt: skip
         reply = _Reply(*encode(result))
         if isinstance(handler, zenoh.handlers.FifoChannel):  # a solo request blocks on its own channel
-            return _Channel([reply])
+            return FakeChannel([reply])
         handler.callback(reply)
         return None
-
-
-class _Channel:
-    """A reply channel: hands out its replies, then raises like a closed zenoh channel."""
-
-    def __init__(self, replies: list[Any]) -> None:
-        self._replies = list(replies)
-
-    def recv(self) -> Any:
-        if not self._replies:
-            raise zenoh.ZError("channel is empty and closed")
-        return self._replies.pop(0)
 
 
 @pytest.mark.parametrize("source", list(SpeedSource))
@@ -114,22 +96,23 @@ def test_time_balancing_uses_the_chosen_speed_measure(source: SpeedSource) -> No
         assert 0 < speed <= 8 / 0.02
 
 
+@pytest.mark.zenoh
 def test_a_block_with_invalid_settings_is_rejected_before_any_worker_sees_it() -> None:
     """A block whose yaw settings do not parse is answered with an error by the foreman itself: its worker
     gets no query, so it is not blamed (suspended) for the master's mistake."""
-    port = free_port()
-    transport = TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000)
-    peer = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",), lease_ms=1000)
-    foreman = ForemanService("h", transport, DispatchSettings())
-    worker = WorkerService("h", 0, peer)
+    with hub() as endpoint:
+        _reject_a_block_with_invalid_settings(endpoint)
+
+
+def _reject_a_block_with_invalid_settings(endpoint: str) -> None:
+    foreman = ForemanService("h", peer(endpoint), DispatchSettings())
+    worker = WorkerService("h", 0, peer(endpoint))
     threads = [threading.Thread(target=s.run, daemon=True) for s in (foreman, worker)]
     for thread in threads:
         thread.start()
     try:
-        assert foreman.started.wait(20.0) and worker.started.wait(20.0)
-        deadline = time.monotonic() + 10.0
-        while foreman.counters.get("members_joined") < 1 and time.monotonic() < deadline:
-            time.sleep(0.02)
+        assert foreman.started.wait(WAIT_S) and worker.started.wait(WAIT_S)
+        assert wait_until(lambda: foreman.counters.get("members_joined") >= 1)
         assert foreman.counters.get("members_joined") == 1
         block = BlockJob(
             stream="s", seq=1, prev_seq=0, settings={"colour": 1}, indices=np.arange(4, dtype=np.int32),
@@ -137,11 +120,11 @@ def test_a_block_with_invalid_settings_is_rejected_before_any_worker_sees_it() -
             prev_crops=np.zeros((4, 32, 32), np.uint8),
         )  # fmt: skip
         payload, attachment = encode(block)
-        with open_session(peer) as session:
-            time.sleep(0.3)
-            reply = session.get(
-                keys.foreman_key("h"), payload=payload, attachment=attachment, timeout=5.0
-            ).recv()
+        with open_session(peer(endpoint)) as session:
+            querier = session.declare_querier(keys.foreman_key("h"), timeout=WAIT_S)
+            assert matched(querier)  # routing knows the foreman's queryable: the get is not lost
+            reply = querier.get(payload=payload, attachment=attachment).recv()
+            querier.undeclare()
         assert reply.err is not None
         assert "unknown yaw settings" in read_error_reply(zbytes(reply.err.payload))
         assert foreman.counters.get("rejected") == 1

@@ -5,21 +5,21 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
+from typing import Any
 
 import numpy as np
 import pytest
 
 from common import keys
 from common.geometry import quaternion_from_euler
-from common.localization.particle_filter import ParticleFilter, ParticleFilterConfig
-from common.localization.scoring import ScoringMethod, ScoringParams
+from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings
+from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.simulation import simulate_run
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate, decode, encode
 from services.localizer import LocalizerService, LocalizerSettings
-from services.runtime.transport import TransportSettings, open_session, zbytes
-from services.up import free_port
+from services.runtime.transport import open_session, zbytes
+from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 pytestmark = pytest.mark.zenoh
 
@@ -46,7 +46,7 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     pf = ParticleFilter(
         sim.scene,
         sim.camera,
-        ParticleFilterConfig(n_particles=PARTICLES, scoring=ScoringParams(ScoringMethod.NEAREST_EDGE_DT)),
+        ParticleFilterSettings(n_particles=PARTICLES, scoring=ScoringSettings(ScoringMethod.NEAREST_EDGE_DT)),
     )
     rng = np.random.default_rng(SEED)
     state = pf.initialize(sim.guess, rng)
@@ -56,30 +56,39 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
         state, estimate = localizer_step(pf, state, image, dt, rng)
         expected.append(estimate)
 
-    port = free_port()
-    service = LocalizerService(
-        "test",
-        0,
-        TransportSettings(listen=(f"tcp/127.0.0.1:{port}",), lease_ms=1000),
-        settings,
-        stats_period_s=0.2,
-    )
+    with hub() as endpoint:
+        service, received = _run_the_service(sim, settings, endpoint)
+    assert [p.seq for p in received] == list(range(N_FRAMES))
+    for pose, estimate in zip(received, expected, strict=True):
+        assert pose.source == "pf"
+        assert np.allclose(pose.p_world_body_m, estimate.mean[:3], atol=1e-9)
+        assert np.allclose(pose.q_world_body, quaternion_from_euler(*estimate.mean[3:]), atol=1e-9)
+        assert np.all(np.linalg.eigvalsh(pose.covariance) >= -1e-12)
+    counts = service.counters.counts()
+    assert counts.get("malformed") == 1
+    assert counts.get("wrong_uav") == 1
+    assert counts.get("bad_frames") == 1
+    assert counts.get("stale_frames") == 1
+    assert counts.get("poses_out") == N_FRAMES
+    assert counts.get("thread_crashes", 0) == 0
+
+
+def _run_the_service(
+    sim: Any, settings: LocalizerSettings, endpoint: str
+) -> tuple[LocalizerService, list[PoseEstimate]]:
+    service = LocalizerService("test", 0, peer(endpoint), settings, stats_period_s=0.2)
     runner = threading.Thread(target=service.run, daemon=True)
     runner.start()
     poses: queue.Queue[PoseEstimate] = queue.Queue()
-    client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
     try:
-        assert service.started.wait(20.0), "service did not start"
-        with open_session(client) as session:
+        assert service.started.wait(WAIT_S), "service did not start"
+        with open_session(peer(endpoint)) as session:
             subscriber = session.declare_subscriber(
                 keys.pose_pf_key("uav0"),
                 lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
             )
             publisher = session.declare_publisher(keys.camera_key("uav0"))
-            deadline = time.monotonic() + 10.0
-            while not publisher.matching_status.matching and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert publisher.matching_status.matching
+            assert matched(publisher) and matched(service._publisher)  # both directions are routed
 
             def put(message: Frame) -> None:
                 payload, attachment = encode(message)
@@ -94,8 +103,16 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
                     put(_frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
                     put(_frame(99, float(sim.flight.times_s[i - 1]), image))
                 put(_frame(i, stamp, image))
-                received.append(poses.get(timeout=20.0))  # one frame in flight: nothing dropped
-            time.sleep(0.3)
+                received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
+
+            def all_refused() -> bool:
+                counts = service.counters.counts()
+                return (
+                    sum(counts.get(k, 0) for k in ("malformed", "wrong_uav", "bad_frames", "stale_frames"))
+                    >= 4
+                )
+
+            assert wait_until(all_refused), service.counters.counts()
             assert poses.empty(), "a refused frame produced a pose"
             subscriber.undeclare()
             publisher.undeclare()
@@ -103,17 +120,4 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
         service.request_stop()
         runner.join(5.0)
     assert not runner.is_alive()
-
-    assert [p.seq for p in received] == list(range(N_FRAMES))
-    for pose, estimate in zip(received, expected, strict=True):
-        assert pose.source == "pf"
-        assert np.allclose(pose.p_world_body_m, estimate.mean[:3], atol=1e-9)
-        assert np.allclose(pose.q_world_body, quaternion_from_euler(*estimate.mean[3:]), atol=1e-9)
-        assert np.all(np.linalg.eigvalsh(pose.covariance) >= -1e-12)
-    counts = service.counters.counts()
-    assert counts.get("malformed") == 1
-    assert counts.get("wrong_uav") == 1
-    assert counts.get("bad_frames") == 1
-    assert counts.get("stale_frames") == 1
-    assert counts.get("poses_out") == N_FRAMES
-    assert counts.get("thread_crashes", 0) == 0
+    return service, received

@@ -12,14 +12,18 @@ import pytest
 import zenoh
 
 from common import keys
-from services.runtime.transport import TransportSettings, open_session
-from services.up import free_port
+from services.runtime.transport import open_session
+from tests.zenoh_helpers import WAIT_S, hub, peer
 
 pytestmark = pytest.mark.zenoh
 
 
 def test_localizer_process_stops_cleanly_on_sigterm() -> None:
-    port = free_port()
+    with hub() as endpoint:
+        _stops_cleanly_on_sigterm(endpoint)
+
+
+def _stops_cleanly_on_sigterm(endpoint: str) -> None:
     env = dict(os.environ, CAPATAZ_ZENOH_MULTICAST="0")
     process = subprocess.Popen(
         [
@@ -27,8 +31,8 @@ def test_localizer_process_stops_cleanly_on_sigterm() -> None:
             "-m",
             "services.cli",
             "localizer",
-            "--listen",
-            f"tcp/127.0.0.1:{port}",
+            "--connect",
+            endpoint,
             "--particles",
             "20",
         ],
@@ -43,12 +47,11 @@ def test_localizer_process_stops_cleanly_on_sigterm() -> None:
             alive.set()
 
     try:
-        client = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
-        with open_session(client) as session:
+        with open_session(peer(endpoint)) as session:
             watcher = session.liveliness().declare_subscriber(
                 keys.alive_role(keys.Role.LOCALIZER), on_token, history=True
             )
-            assert alive.wait(30.0), "the localizer never declared itself alive"
+            assert alive.wait(WAIT_S), "the localizer never declared itself alive"
             watcher.undeclare()
         process.send_signal(signal.SIGTERM)
         output, _ = process.communicate(timeout=10.0)

@@ -19,9 +19,12 @@ import zenoh
 from common.dispatch import SELF, Dispatcher, DispatchSettings
 from common.messages import PatchJob, PatchResult, decode, encode
 from common.yaw.patchwork import PatchMeasurement
+from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, RoundReport, Scatter
-from services.runtime.transport import Counters, TransportSettings, open_session, zbytes
-from services.up import free_port
+from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
+from tests.zenoh_helpers import matched, wait_until
+
+pytestmark = pytest.mark.zenoh
 
 N_PATCHES = 6
 KEY = "capataz/test/scatter/{member}"
@@ -29,12 +32,21 @@ KEY = "capataz/test/scatter/{member}"
 
 @pytest.fixture()
 def sessions() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
-    port = free_port()
-    listen = TransportSettings(listen=(f"tcp/127.0.0.1:{port}",))
-    connect = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",))
-    with open_session(listen) as member_side, open_session(connect) as dispatcher_side:
-        time.sleep(0.3)  # let the two peers connect
-        yield member_side, dispatcher_side
+    with open_session(TransportSettings(listen=("tcp/127.0.0.1:0",), admin_space=True)) as member_side:
+        endpoint = next(e for e in listening_endpoints(member_side) if e.startswith("tcp/127.0.0.1:"))
+        connect = TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(endpoint,))
+        with open_session(connect) as dispatcher_side:
+            assert wait_until(lambda: member_side.info.zid() in list(dispatcher_side.info.peers_zid()))
+            yield member_side, dispatcher_side
+
+
+def routed(session: zenoh.Session, member: str) -> bool:
+    """The dispatcher's session knows the route to ``member``'s queryable (zenoh's routing status)."""
+    querier = session.declare_querier(KEY.format(member=member))
+    try:
+        return matched(querier)
+    finally:
+        querier.undeclare()
 
 
 def answer(query: zenoh.Query) -> None:
@@ -85,7 +97,7 @@ def covered_by(report: RoundReport) -> dict[str, Any]:
 def test_a_solo_reply_completes_the_round(sessions: tuple[zenoh.Session, zenoh.Session]) -> None:
     member_side, dispatcher_side = sessions
     queryable = member_side.declare_queryable(KEY.format(member="w_0"), answer, complete=True)
-    time.sleep(0.2)
+    assert routed(dispatcher_side, "w_0")
     scatter, report = run_round(dispatcher_side, "w/0")
     assert covered_by(report) == {"w/0": N_PATCHES, "w/0>worker": N_PATCHES}
     assert np.all(report.parts[0].shift_px == 0.0)  # the member's answer, not the dispatcher's own
@@ -100,7 +112,7 @@ def test_a_frozen_solo_member_misses_its_deadline_and_self_takes_the_share(
     member_side, dispatcher_side = sessions
     held: list[zenoh.Query] = []  # a member that takes the query and never answers (a frozen process)
     queryable = member_side.declare_queryable(KEY.format(member="w_0"), held.append, complete=True)
-    time.sleep(0.2)
+    assert routed(dispatcher_side, "w_0")
     scatter, report = run_round(dispatcher_side, "w/0")  # deadline: the whole budget (speed unknown)
     assert covered_by(report) == {SELF: N_PATCHES}
     assert report.failures == ["w/0: deadline missed"]  # zenoh's timeout reply, read as the deadline
@@ -114,7 +126,7 @@ def test_a_solo_member_that_leaves_is_cancelled_at_once(
     member_side, dispatcher_side = sessions
     held: list[zenoh.Query] = []
     queryable = member_side.declare_queryable(KEY.format(member="w_0"), held.append, complete=True)
-    time.sleep(0.2)
+    assert routed(dispatcher_side, "w_0")
     scatters: list[Scatter] = []
     original = Scatter.run
 

@@ -1,12 +1,15 @@
-"""Transport settings (environment and overrides), zenoh config, and the non-blocking hand-off primitives."""
+"""Transport settings (environment and overrides), zenoh config, and the port a session really listens on."""
 
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import pytest
 
-from services.runtime.transport import Counters, LatestSlot, TransportError, TransportSettings, WorkQueue
+from services.router.service import RouterService
+from services.runtime.transport import TransportError, TransportSettings, listening_endpoints, open_session
+from tests.zenoh_helpers import WAIT_S, wait_until
 
 
 def test_settings_from_environment_and_overrides() -> None:
@@ -49,31 +52,35 @@ def test_settings_become_a_zenoh_config() -> None:
         TransportSettings(listen=("not an endpoint",)).to_config()
 
 
-def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
-    slot: LatestSlot[int] = LatestSlot()
-    assert not slot.put(1) and slot.put(2) and slot.put(3)
-    assert slot.dropped == 2 and slot.depth() == 1
-    assert slot.take(0.0) == 3 and slot.take(0.0) is None
-    got: list[int | None] = []
-    reader = threading.Thread(target=lambda: got.append(slot.take(5.0)))
-    reader.start()
-    slot.put(9)
-    reader.join()
-    assert got == [9]
+@pytest.mark.zenoh
+def test_a_session_on_port_zero_reports_the_port_it_listens_on_and_a_peer_reaches_it() -> None:
+    listener = TransportSettings(listen=("tcp/127.0.0.1:0",), admin_space=True)
+    with open_session(listener) as session:
+        endpoints = listening_endpoints(session)
+        assert endpoints and all(not e.endswith(":0") for e in endpoints), endpoints
+        tcp = next(e for e in endpoints if e.startswith("tcp/127.0.0.1:"))
+        with open_session(TransportSettings(connect=(tcp,))) as other:
+            assert wait_until(lambda: session.info.zid() in list(other.info.peers_zid()))
+    with (
+        open_session(TransportSettings()) as closed_admin,
+        pytest.raises(TransportError, match="admin_space"),
+    ):
+        listening_endpoints(closed_admin, timeout_s=1.0)
 
 
-def test_work_queue_refuses_when_full_and_never_blocks() -> None:
-    queue: WorkQueue[str] = WorkQueue(2)
-    assert queue.offer("a") and queue.offer("b") and not queue.offer("c")
-    assert queue.take(0.0) == "a" and queue.depth() == 1
-    assert queue.drain() == ["b"] and queue.take(0.0) is None
-    with pytest.raises(TransportError):
-        WorkQueue(0)
-
-
-def test_counters_and_timings() -> None:
-    counters = Counters(window=3)
-    assert counters.inc("x") == 1 and counters.inc("x", 4) == 5 and counters.get("y") == 0
-    for value in (1.0, 100.0, 2.0, 3.0):
-        counters.time_ms("t", value)
-    assert counters.counts() == {"x": 5} and counters.median_timings_ms() == {"t": 3.0}
+@pytest.mark.zenoh
+def test_the_router_started_on_port_zero_writes_its_endpoint_file(tmp_path: Path) -> None:
+    endpoint_file = tmp_path / "router.endpoint"
+    transport = TransportSettings(mode="router", listen=("tcp/127.0.0.1:0",), admin_space=True)
+    router = RouterService("r", 0, transport, endpoint_file=endpoint_file)
+    runner = threading.Thread(target=router.run, daemon=True)
+    runner.start()
+    try:
+        assert router.started.wait(WAIT_S)
+        (endpoint,) = [e for e in endpoint_file.read_text().split() if e.startswith("tcp/127.0.0.1:")]
+        assert int(endpoint.rpartition(":")[2]) > 0
+        assert not (tmp_path / "router.endpoint.partial").exists()
+    finally:
+        router.request_stop()
+        runner.join(10.0)
+    assert not runner.is_alive()

@@ -16,9 +16,17 @@ import zenoh
 
 from services.runtime import zconfig
 from services.runtime.transport import TransportError, TransportSettings, open_session
-from services.up import free_port
 
 REPO = Path(__file__).resolve().parents[2]
+
+
+def free_port() -> int:
+    """A port free right now (the router binds it a moment later; good enough on loopback in a test)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 def write(path: Path, config: dict[str, object]) -> Path:

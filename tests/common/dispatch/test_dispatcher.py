@@ -7,7 +7,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from common.dispatch import SELF, Balance, Dispatcher, DispatchError, DispatchSettings, largest_remainder
+from common.dispatch import (
+    SELF,
+    Balance,
+    Dispatcher,
+    DispatchError,
+    DispatchSettings,
+    SpeedSource,
+    largest_remainder,
+)
 from common.errors import InputError
 
 
@@ -60,30 +68,36 @@ def test_balance_none_splits_by_capacity_and_time_by_measured_speed() -> None:
     plan = d.plan(1, 0, 0.0)
     assert (len(plan.assignment["a"]), len(plan.assignment["b"])) == (20, 80)
 
-    t = Dispatcher(DispatchSettings(balance=Balance.TIME, ema_alpha=1.0), 100)
+    t = Dispatcher(
+        DispatchSettings(speed_source=SpeedSource.REPORTED, balance=Balance.TIME, ema_alpha=1.0), 100
+    )
     t.join("fast")
     t.join("slow")
     first = t.plan(1, 0, 0.0)
     assert len(first.assignment["fast"]) == len(first.assignment["slow"]) == 50
-    t.record_success("fast", 1, first.assignment["fast"], 0.05, speed=3000.0)
-    t.record_success("slow", 1, first.assignment["slow"], 0.05, speed=1000.0)
+    t.record_success("fast", 1, first.assignment["fast"], 0.05, reported_speed=3000.0)
+    t.record_success("slow", 1, first.assignment["slow"], 0.05, reported_speed=1000.0)
     second = t.plan(2, 1, 0.0)
     assert (len(second.assignment["fast"]), len(second.assignment["slow"])) == (75, 25)
 
 
 def test_assignment_is_sticky_and_moved_lists_only_new_indices() -> None:
-    d = Dispatcher(DispatchSettings(balance=Balance.TIME, ema_alpha=1.0), 60)
+    d = Dispatcher(
+        DispatchSettings(speed_source=SpeedSource.REPORTED, balance=Balance.TIME, ema_alpha=1.0), 60
+    )
     for name in ("a", "b", "c"):
         d.join(name)
     first = d.plan(1, 0, 0.0)
     for name, idx in first.assignment.items():
         assert np.array_equal(first.moved[name], idx)  # nobody holds frame 0
-        d.record_success(name, 1, idx, 0.01, speed=1000.0)
+        d.record_success(name, 1, idx, 0.01, reported_speed=1000.0)
     second = d.plan(2, 1, 0.0)
     for name in first.assignment:
         assert np.array_equal(second.assignment[name], first.assignment[name])
         assert second.moved[name].size == 0
-        d.record_success(name, 2, second.assignment[name], 0.01, speed=2000.0 if name == "a" else 1000.0)
+        d.record_success(
+            name, 2, second.assignment[name], 0.01, reported_speed=2000.0 if name == "a" else 1000.0
+        )
     third = d.plan(3, 2, 0.0)
     assert len(third.assignment["a"]) == 30
     # b and c each give 5 patches to a; they keep the rest, and only a's new ones need previous patches
@@ -96,12 +110,12 @@ def test_assignment_is_sticky_and_moved_lists_only_new_indices() -> None:
 
 
 def test_a_joiner_gets_a_share_in_the_next_plan_at_the_mean_speed() -> None:
-    d = Dispatcher(DispatchSettings(ema_alpha=1.0), 90)
+    d = Dispatcher(DispatchSettings(speed_source=SpeedSource.REPORTED, ema_alpha=1.0), 90)
     d.join("a")
     d.join("b")
     plan = d.plan(1, 0, 0.0)
     for name, idx in plan.assignment.items():
-        d.record_success(name, 1, idx, 0.01, speed=1000.0)
+        d.record_success(name, 1, idx, 0.01, reported_speed=1000.0)
     d.join("c")
     plan = d.plan(2, 1, 0.0)
     assert {k: len(v) for k, v in plan.assignment.items()} == {"a": 30, "b": 30, "c": 30}
@@ -160,14 +174,19 @@ def test_subset_plans_and_bad_indices() -> None:
 
 
 def test_deadline_scales_with_expected_time_and_a_miss_caps_the_speed() -> None:
-    d = Dispatcher(DispatchSettings(min_deadline_s=0.2, deadline_factor=4.0, ema_alpha=1.0), 100)
+    d = Dispatcher(
+        DispatchSettings(
+            speed_source=SpeedSource.REPORTED, min_deadline_s=0.2, deadline_factor=4.0, ema_alpha=1.0
+        ),
+        100,
+    )
     d.join("w")
-    assert d.deadline_s("w", 50, budget_s=5.0) == 5.0  # unknown speed: the whole budget
-    d.record_success("w", 1, np.arange(10), 1.0, speed=1000.0)
-    assert d.deadline_s("w", 50, budget_s=5.0) == 0.2
-    d.record_success("w", 2, np.arange(10), 1.0, speed=10.0)
-    assert d.deadline_s("w", 50, budget_s=30.0) == pytest.approx(20.0)
-    assert d.deadline_s("w", 50, budget_s=5.0) == 5.0
+    assert d.timeout_s("w", 50, budget_s=5.0) == 5.0  # unknown speed: the whole budget
+    d.record_success("w", 1, np.arange(10), 1.0, reported_speed=1000.0)
+    assert d.timeout_s("w", 50, budget_s=5.0) == 0.2
+    d.record_success("w", 2, np.arange(10), 1.0, reported_speed=10.0)
+    assert d.timeout_s("w", 50, budget_s=30.0) == pytest.approx(20.0)
+    assert d.timeout_s("w", 50, budget_s=5.0) == 5.0
     d.record_failure("w", now_s=0.0, n_patches=20, waited_s=4.0)
     assert d.speed("w") == pytest.approx(5.0)
 
@@ -183,7 +202,7 @@ def test_deadline_scales_with_expected_time_and_a_miss_caps_the_speed() -> None:
     st.integers(1, 80),
 )
 def test_every_plan_covers_every_index_exactly_once(events: list[tuple[str, str, float]], n: int) -> None:
-    d = Dispatcher(DispatchSettings(ema_alpha=0.5), n)
+    d = Dispatcher(DispatchSettings(speed_source=SpeedSource.REPORTED, ema_alpha=0.5), n)
     now = 0.0
     for seq, (kind, name, speed) in enumerate(events, start=1):
         now += 0.3
@@ -192,7 +211,7 @@ def test_every_plan_covers_every_index_exactly_once(events: list[tuple[str, str,
         assert covered(plan.assignment, n)
         if kind == "ok":
             for member, idx in plan.assignment.items():
-                d.record_success(member, seq, idx, 0.01, speed=speed)
+                d.record_success(member, seq, idx, 0.01, reported_speed=speed)
 
 
 @settings(max_examples=100, deadline=None)
@@ -212,8 +231,8 @@ def test_a_repeated_plan_equals_one_computed_from_scratch(
 ) -> None:
     """The steady state reuses the last assignment; it must be exactly what the full computation gives."""
     memo, fresh = (
-        Dispatcher(DispatchSettings(ema_alpha=0.5), n),
-        Dispatcher(DispatchSettings(ema_alpha=0.5), n),
+        Dispatcher(DispatchSettings(speed_source=SpeedSource.REPORTED, ema_alpha=0.5), n),
+        Dispatcher(DispatchSettings(speed_source=SpeedSource.REPORTED, ema_alpha=0.5), n),
     )
     now = 0.0
     for seq, (kind, name, speed) in enumerate(events, start=1):
@@ -229,4 +248,15 @@ def test_a_repeated_plan_equals_one_computed_from_scratch(
         if kind.startswith("ok"):
             for d, plan in ((memo, got), (fresh, want)):
                 for member, idx in plan.assignment.items():
-                    d.record_success(member, seq, idx, 0.01, speed=speed * (1 + len(member)))
+                    d.record_success(member, seq, idx, 0.01, reported_speed=speed * (1 + len(member)))
+
+
+@pytest.mark.parametrize("source", list(SpeedSource))
+def test_the_dispatcher_chooses_the_speed_measure_its_settings_name(source: SpeedSource) -> None:
+    """The scatter used to choose the speed source; the dispatcher owned the setting but never read it."""
+    d = Dispatcher(DispatchSettings(speed_source=source, ema_alpha=1.0), 10)
+    d.join("w")
+    d.record_success("w", 1, np.arange(10), 0.5, reported_speed=1000.0)
+    assert d.speed("w") == (1000.0 if source is SpeedSource.REPORTED else 20.0)
+    d.record_success("w", 2, np.arange(10), 0.5)  # nothing reported: patches / elapsed either way
+    assert d.speed("w") == 20.0

@@ -16,7 +16,7 @@ from common.localization.baseline import weigh_per_particle
 from common.localization.model import SceneModel
 from common.localization.particle_filter import (
     ParticleFilter,
-    ParticleFilterConfig,
+    ParticleFilterSettings,
     ParticleState,
     covariance_with_world_error_angles,
     euler_rate_matrix,
@@ -24,7 +24,7 @@ from common.localization.particle_filter import (
     normalise_log_weights,
     pose_statistics,
 )
-from common.localization.scoring import ScoringMethod, ScoringParams, extract_image_edges
+from common.localization.scoring import ScoringMethod, ScoringSettings, extract_image_edges
 from common.localization.tracking import noisy_odometry, track_accuracy, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight, render_scene
 
@@ -70,13 +70,13 @@ def test_prediction_follows_paper_b_motion_model_and_seeded_noise(
     quiet = ParticleFilter(
         office,
         small_camera,
-        ParticleFilterConfig(n_particles=5, position_noise_m=0.0, angle_noise_rad=(0, 0, 0)),
+        ParticleFilterSettings(n_particles=5, position_noise_m=0.0, angle_noise_rad=(0, 0, 0)),
     )
     state = quiet.initialize([5.0, 4.0, 1.5, 0.0, 0.0, 0.0], np.random.default_rng(1))
     moved = quiet.predict(state, 0.5, np.random.default_rng(2), velocity_world_m_s=[1.0, -2.0])
     assert np.allclose(moved.particles - state.particles, [0.5, -1.0, 0.0, 0.0, 0.0, 0.0])
     assert np.array_equal(moved.log_weights, state.log_weights)
-    noisy = ParticleFilter(office, small_camera, ParticleFilterConfig(n_particles=5))
+    noisy = ParticleFilter(office, small_camera, ParticleFilterSettings(n_particles=5))
     a = noisy.predict(state, 0.1, np.random.default_rng(3))
     b = noisy.predict(state, 0.1, np.random.default_rng(3))
     assert np.array_equal(a.particles, b.particles)
@@ -95,7 +95,7 @@ def test_vectorised_weighting_equals_the_per_particle_baseline(
     edges = extract_image_edges(render_scene(office, truth, small_camera, DEFAULT_FLIGHT_RENDER, rng))
     for method in ScoringMethod:
         pf = ParticleFilter(
-            office, small_camera, ParticleFilterConfig(n_particles=40, scoring=ScoringParams(method))
+            office, small_camera, ParticleFilterSettings(n_particles=40, scoring=ScoringSettings(method))
         )
         state = pf.initialize(truth, rng)
         fast, fast_score = pf.weigh(state, edges)
@@ -107,7 +107,7 @@ def test_vectorised_weighting_equals_the_per_particle_baseline(
 def test_resampling_happens_only_when_the_effective_sample_size_drops(
     office: SceneModel, small_camera: CameraModel
 ) -> None:
-    pf = ParticleFilter(office, small_camera, ParticleFilterConfig(n_particles=8))
+    pf = ParticleFilter(office, small_camera, ParticleFilterSettings(n_particles=8))
     rng = np.random.default_rng(5)
     state = pf.initialize([5.0, 4.0, 1.5, 0.0, 0.0, 0.0], rng)
     assert pf.resample_if_degenerate(state, rng) is state
@@ -120,7 +120,7 @@ def test_resampling_happens_only_when_the_effective_sample_size_drops(
 def test_collapsed_likelihood_reinitialises_around_the_estimate(
     office: SceneModel, small_camera: CameraModel
 ) -> None:
-    config = ParticleFilterConfig(n_particles=30, collapse_frames=3)
+    config = ParticleFilterSettings(n_particles=30, collapse_frames=3)
     pf = ParticleFilter(office, small_camera, config)
     rng = np.random.default_rng(6)
     state: ParticleState = pf.initialize([5.0, 4.0, 1.5, 0.0, 0.0, 0.0], rng, 0.01, 0.001)
@@ -139,7 +139,7 @@ def test_short_flight_converges_from_the_initial_uncertainty(
 ) -> None:
     rng = np.random.default_rng(7)
     flight = default_flight(n_frames=100)
-    pf = ParticleFilter(office, small_camera, ParticleFilterConfig(n_particles=200))
+    pf = ParticleFilter(office, small_camera, ParticleFilterSettings(n_particles=200))
     guess = flight.states[0] + np.array([0.4, -0.4, 0.3, 0.1, -0.1, np.radians(-9.0)])
     odometry = noisy_odometry(flight.velocities_world_m_s, flight.euler_rates_rad_s, rng)
     images = render_flight(office, flight, small_camera, DEFAULT_FLIGHT_RENDER, rng)

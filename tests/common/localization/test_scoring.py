@@ -15,7 +15,7 @@ from common.localization.projection import ProjectedSamples, project_samples, sa
 from common.localization.scoring import (
     ImageEdges,
     ScoringMethod,
-    ScoringParams,
+    ScoringSettings,
     extract_image_edges,
     klein_murray_log_weight,
     nearest_edge_log_weight,
@@ -88,7 +88,7 @@ def test_every_scoring_ranks_the_true_pose_above_perturbed_poses(
     edges = extract_image_edges(image)
     projected = project_samples(samples, states, small_camera, with_normals=True)
     for method in ScoringMethod:
-        result = score_particles(projected, edges, ScoringParams(method=method))
+        result = score_particles(projected, edges, ScoringSettings(method=method))
         assert np.all(result.log_weight[0] > result.log_weight[1:]), method
         assert np.all((result.fit >= 0.0) & (result.fit <= 1.0))
 
@@ -108,8 +108,8 @@ def test_distance_transform_fast_path_ranks_particles_like_the_normal_search(
     states = np.vstack([truth, cloud])
     edges = extract_image_edges(image)
     projected = project_samples(sample_edges(office), states, small_camera, with_normals=True)
-    exact = score_particles(projected, edges, ScoringParams(method=ScoringMethod.NEAREST_EDGE)).log_weight
-    fast = score_particles(projected, edges, ScoringParams(method=ScoringMethod.NEAREST_EDGE_DT)).log_weight
+    exact = score_particles(projected, edges, ScoringSettings(method=ScoringMethod.NEAREST_EDGE)).log_weight
+    fast = score_particles(projected, edges, ScoringSettings(method=ScoringMethod.NEAREST_EDGE_DT)).log_weight
     spearman = np.corrcoef(_ranks(exact), _ranks(fast))[0, 1]
     assert spearman > 0.9
     assert np.argmax(exact) == 0 and np.argmax(fast) == 0

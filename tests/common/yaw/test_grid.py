@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from common.errors import InputError
-from common.yaw import YawSettings, check_frame, make_patch_grid
+from common.images import check_grey_image
+from common.yaw import YawSettings, make_patch_grid
 from common.yaw.grid import level_shape, pyramid_image
 
 
@@ -50,9 +51,9 @@ def test_crop_is_the_patch_slice_of_the_level_image() -> None:
     ],
     ids=["empty", "float32", "uint16", "colour", "list"],
 )
-def test_check_frame_rejects_garbage(frame: object) -> None:
+def test_check_grey_image_rejects_garbage(frame: object) -> None:
     with pytest.raises(InputError):
-        check_frame(frame)
+        check_grey_image(frame)
 
 
 def test_grid_rejects_small_frames_bad_indices_and_wrong_shapes() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.dispatch import Dispatcher, DispatchSettings
+from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.sim.flight import hover_flight
 from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
 from common.yaw.patchwork import (
@@ -44,7 +44,9 @@ def test_sticky_shares_through_members_equal_the_in_process_tracker_bit_for_bit(
     tracker = YawTracker(settings, grid)
     reference = tracker.initial_state(frames[0])
     cluster = tracker.initial_state(frames[0], with_spectra=False)
-    dispatcher = Dispatcher(DispatchSettings(ema_alpha=1.0), grid.n_patches)
+    dispatcher = Dispatcher(
+        DispatchSettings(speed_source=SpeedSource.REPORTED, ema_alpha=1.0), grid.n_patches
+    )
     caches = {name: SpectrumCache() for name in ("a", "b", "c", "self")}
     for name in ("a", "b", "c"):
         dispatcher.join(name)
@@ -60,7 +62,7 @@ def test_sticky_shares_through_members_equal_the_in_process_tracker_bit_for_bit(
                 caches[member], settings, "uav", k, k - 1, idx, grid.crop_level(level, idx),
                 moved, grid.crop_level(prev_level, moved),
             ))  # fmt: skip
-            dispatcher.record_success(member, k, idx, 0.01, speed=1000.0 * (1 + len(member) + k % 2))
+            dispatcher.record_success(member, k, idx, 0.01, reported_speed=1000.0 * (1 + len(member) + k % 2))
         measurement = merge_measurements(parts, grid.all_indices)
         reference, expected = tracker.track(reference, frames[k])
         cluster, got = tracker.conclude(cluster, frames[k], measurement)

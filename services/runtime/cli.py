@@ -1,0 +1,63 @@
+"""Command-line options every service shares (transport, and the dispatcher's for master and foreman)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from common.dispatch import Balance, SpeedSource
+from services.runtime.transport import TransportSettings
+
+
+def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
+    """Options every service shares (environment ``CAPATAZ_ZENOH_*`` fills what is not given)."""
+    group = parser.add_argument_group("transport (defaults from CAPATAZ_ZENOH_* environment variables)")
+    group.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (default peer)")
+    group.add_argument("--listen", action="append", metavar="ENDPOINT", help="listen endpoint (repeatable)")
+    group.add_argument("--connect", action="append", metavar="ENDPOINT", help="connect endpoint (repeatable)")
+    group.add_argument(
+        "--multicast", action=argparse.BooleanOptionalAction, help="multicast scouting on/off (default off)"
+    )
+    group.add_argument(
+        "--shm", action=argparse.BooleanOptionalAction, help="zenoh shared memory on/off (default off)"
+    )
+    group.add_argument("--lease-ms", type=int, help="link lease in ms (default 2000)")
+    group.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="zenoh configuration file under these settings (access control, TLS, ...; env "
+        "CAPATAZ_ZENOH_CONFIG); credentials only from it or CAPATAZ_ZENOH_TLS_{CA,CERT,KEY}, "
+        "CAPATAZ_ZENOH_USRPWD_FILE",
+    )
+    group.add_argument("--node", default=node_default, help=f"node (host) name (default {node_default})")
+    group.add_argument("--index", type=int, default=0, help="instance index on the node (default 0)")
+    group.add_argument("--stats-period", type=float, default=1.0, help="seconds between stats messages")
+
+
+def transport_from_args(args: Any) -> TransportSettings:
+    return TransportSettings.from_env(
+        mode=args.mode,
+        listen=tuple(args.listen) if args.listen else None,
+        connect=tuple(args.connect) if args.connect else None,
+        multicast_scouting=args.multicast,
+        shared_memory=args.shm,
+        lease_ms=args.lease_ms,
+        zenoh_config=getattr(args, "zenoh_config", None),
+    )
+
+
+def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
+    """The dispatcher's options, shared by the master and the foreman."""
+    parser.add_argument(
+        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
+    )
+    parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
+    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+    parser.add_argument(
+        "--speed",
+        choices=[v.value for v in SpeedSource],
+        default=SpeedSource.ROUND_TRIP.value,
+        help="speed measure for time balancing: members' own figures, or round-trip patches/s",
+    )

@@ -1,0 +1,114 @@
+"""Hand-off primitives, so that zenoh callbacks never block: :class:`LatestSlot` (latest wins, drops
+counted), :class:`WorkQueue` (bounded FIFO, refusals counted) and :class:`Counters` (thread-safe counts and
+recent timings for a service's stats)."""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import Generic, TypeVar
+
+import numpy as np
+
+from common.errors import CapatazError
+
+T = TypeVar("T")
+
+
+class HandoffError(CapatazError):
+    """A hand-off primitive was built with an impossible size."""
+
+
+class LatestSlot(Generic[T]):
+    """Holds the newest item only: ``put`` never blocks, a replaced item is counted as dropped."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: T | None = None
+        self.dropped = 0
+
+    def put(self, item: T) -> bool:
+        """Store ``item``; returns True if it replaced an unread one."""
+        with self._cond:
+            replaced = self._item is not None
+            if replaced:
+                self.dropped += 1
+            self._item = item
+            self._cond.notify()
+            return replaced
+
+    def take(self, timeout_s: float) -> T | None:
+        with self._cond:
+            if self._item is None:
+                self._cond.wait(timeout_s)
+            item, self._item = self._item, None
+            return item
+
+    def depth(self) -> int:
+        return 0 if self._item is None else 1
+
+
+class WorkQueue(Generic[T]):
+    """Bounded FIFO: ``offer`` never blocks and returns False when full (the caller counts/refuses)."""
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 1:
+            raise HandoffError("queue capacity must be >= 1")
+        self._items: deque[T] = deque()
+        self._capacity = capacity
+        self._cond = threading.Condition()
+
+    def offer(self, item: T) -> bool:
+        with self._cond:
+            if len(self._items) >= self._capacity:
+                return False
+            self._items.append(item)
+            self._cond.notify()
+            return True
+
+    def take(self, timeout_s: float) -> T | None:
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            return self._items.popleft() if self._items else None
+
+    def drain(self) -> list[T]:
+        with self._cond:
+            items = list(self._items)
+            self._items.clear()
+            return items
+
+    def depth(self) -> int:
+        return len(self._items)
+
+
+class Counters:
+    """Thread-safe named counters and recent timings (for stats)."""
+
+    def __init__(self, window: int = 200) -> None:
+        self._lock = threading.Lock()
+        self._counts: dict[str, int] = {}
+        self._timings: dict[str, deque[float]] = {}
+        self._window = window
+
+    def inc(self, name: str, n: int = 1) -> int:
+        with self._lock:
+            value = self._counts.get(name, 0) + n
+            self._counts[name] = value
+            return value
+
+    def get(self, name: str) -> int:
+        with self._lock:
+            return self._counts.get(name, 0)
+
+    def time_ms(self, name: str, value_ms: float) -> None:
+        with self._lock:
+            self._timings.setdefault(name, deque(maxlen=self._window)).append(value_ms)
+
+    def counts(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._counts)
+
+    def median_timings_ms(self) -> dict[str, float]:
+        with self._lock:
+            return {k: float(np.median(v)) for k, v in self._timings.items() if v}
