@@ -25,7 +25,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
-from common.dispatch.trust import TrustMonitor
+from common.dispatch.trust import TrustMonitor, cap_plan, hold_weights
 from common.errors import CapatazError, InputError
 
 IndexArray = npt.NDArray[np.int32]
@@ -158,9 +158,8 @@ class Dispatcher:
         self._memo: tuple[tuple[object, ...], dict[str, IndexArray]] | None = None
         self._all = list(range(n_patches))
         self.last_plan: Plan | None = None
-        #: defence in depth (see :mod:`common.dispatch.trust`): suspensions, share cap, earned speed
+        #: defence in depth (common.dispatch.trust), and the frame's (size, patches per member) for its caps
         self.trust: TrustMonitor | None = None
-        #: the current frame's size and patches per member (the share caps count re-dispatched ones too)
         self._frame: tuple[int, dict[str, int]] = (0, {})
 
     # -- membership -------------------------------------------------------------------------------------
@@ -202,8 +201,7 @@ class Dispatcher:
         """Remote members not suspended, plus ``SELF`` when configured or alone (see TrustMonitor.screen)."""
         remote = [m for m in self.members if self._members[m].suspended_until_s <= now_s]
         if self.trust is not None:  # suspended for inconsistent results; new members tried a few at a time
-            fresh = {m for m in remote if self._members[m].speed_ema is None}
-            remote = self.trust.screen(remote, fresh, now_s, answered_only)
+            remote = self.trust.screen(remote, {m for m in remote if not self.speed(m)}, now_s, answered_only)
         if self.settings.self_compute or not remote:
             return [*remote, SELF]
         return remote
@@ -228,20 +226,14 @@ class Dispatcher:
             return capacity
         # a member without measurement starts at the mean speed per unit of capacity of the measured ones
         per_capacity = sum(known) / len(known)
-        weights = [
-            float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)
-        ]
-        if self.trust is None:
-            return weights
-        return self.trust.hold_weights(members, weights, capacity, trusted=SELF)
+        w = [float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)]
+        return hold_weights(self.trust, members, w, capacity, SELF)
 
     def _counts(self, members: list[str], total: int, redo: bool = False) -> tuple[list[str], list[int]]:
         """Counts per member under the trust share caps (a re-dispatch counts the frame's earlier shares)."""
         counts = _largest_remainder(self.weights(members), total)
-        if self.trust is None:
-            return members, counts
         frame, load = self._frame if redo and self._frame[0] else (total, {})
-        return self.trust.cap(members, counts, frame, load, len(self.members), SELF)
+        return cap_plan(self.trust, members, counts, frame, load, len(self.members), SELF)
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""

@@ -329,3 +329,29 @@ def capped_weights(
         return dict(weights)
     floor = min(per_capacity)
     return {m: w if credited.get(m, False) else min(w, floor * capacity[m]) for m, w in weights.items()}
+
+
+def hold_weights(
+    trust: TrustMonitor | None,
+    members: Sequence[str],
+    weights: list[float],
+    capacity: Sequence[float],
+    own: str,
+) -> list[float]:
+    """:meth:`TrustMonitor.hold_weights`, or ``weights`` unchanged without a monitor."""
+    return weights if trust is None else trust.hold_weights(members, weights, capacity, trusted=own)
+
+
+def cap_plan(
+    trust: TrustMonitor | None,
+    members: list[str],
+    counts: list[int],
+    frame_total: int,
+    load: Mapping[str, int],
+    joined: int,
+    own: str,
+) -> tuple[list[str], list[int]]:
+    """:meth:`TrustMonitor.cap`, or the counts unchanged without a monitor."""
+    if trust is None:
+        return members, counts
+    return trust.cap(members, counts, frame_total, load, joined, dispatcher=own)
