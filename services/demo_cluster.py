@@ -24,12 +24,17 @@ from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.demo_yaw import report_yaw, track_frames
 from services.master.service import Topology
+from services.observe import YawCollector
 from services.report import write_json
+from services.runtime.progress import bar as progress_bar
+from services.runtime.progress import quiet
 from services.runtime.transport import open_session
 from services.secure import SecureProfile
-from services.up import ClusterSpec, HostSpec, LocalCluster, YawCollector
+from services.up import ClusterSpec, HostSpec, LocalCluster
 
 logger = logging.getLogger(__name__)
+#: seconds between progress lines when no bar is drawn (not a terminal, or CI)
+PRINT_PERIOD_S = 10.0
 
 DEMO_CLUSTER = ClusterSpec(
     name="local2x2",
@@ -70,14 +75,20 @@ def run_cluster_flight(
             t0 = time.monotonic()
             last_print = t0
             timeout_s = 60.0 + n_frames * 0.5
-            while len(collector.estimates) < n_frames and time.monotonic() - t0 < timeout_s:
-                time.sleep(0.1)
-                camera_process = cluster.processes["camera/camera/0"]
-                if camera_process.poll() is not None and not collector.wait_for(n_frames, 2.0):
-                    break
-                if progress and time.monotonic() - last_print > 2.0:
-                    last_print = time.monotonic()
-                    _print_progress(collector, n_frames, last_print - t0)
+            with progress_bar(total=n_frames, desc=f"yaw cluster {spec.name}", unit="frame") as bar:
+                while len(collector.estimates) < n_frames and time.monotonic() - t0 < timeout_s:
+                    time.sleep(0.1)
+                    camera_process = cluster.processes["camera/camera/0"]
+                    if camera_process.poll() is not None and not collector.wait_for(n_frames, 2.0):
+                        break
+                    bar.set(len(collector.estimates))
+                    bar.note(_progress_text(collector))
+                    if progress and not bar.shown and time.monotonic() - last_print > PRINT_PERIOD_S:
+                        last_print = time.monotonic()
+                        print(
+                            f"  {len(collector.estimates)}/{n_frames} frames, {_progress_text(collector)}",
+                            flush=True,
+                        )
             wall_s = time.monotonic() - t0
             estimates = dict(collector.estimates)
             collector.close()
@@ -89,19 +100,15 @@ def run_cluster_flight(
     return estimates, wall_s, codes
 
 
-def _print_progress(collector: YawCollector, n_frames: int, elapsed_s: float) -> None:
-    done = len(collector.estimates)
+def _progress_text(collector: YawCollector) -> str:
     newest = collector.newest()
     if newest < 0:
-        print(f"  waiting for the first yaw ({elapsed_s:.0f} s)", flush=True)
-        return
+        return "waiting for the first yaw"
     estimate = collector.estimates[newest]
-    shares = {m: n for m, n in estimate.members.items() if ">" not in m}
-    print(
-        f"  {done}/{n_frames} frames, {done / elapsed_s:.1f} fps, frame {newest}: "
-        f"yaw {np.degrees(estimate.yaw_rad):+8.2f} deg, {estimate.timings_ms.get('total', 0):.1f} ms, "
-        f"shares {shares}",
-        flush=True,
+    shares = "/".join(str(n) for m, n in sorted(estimate.members.items()) if ">" not in m)
+    return (
+        f"yaw {np.degrees(estimate.yaw_rad):+7.2f} deg, {estimate.timings_ms.get('total', 0):.0f} ms, "
+        f"shares {shares}"
     )
 
 
@@ -134,37 +141,55 @@ def member_table(estimates: dict[int, Any]) -> list[dict[str, Any]]:
 
 
 def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict[str, Any]]) -> list[Path]:
+    """``cluster_yaw_shares.png`` (yaw on the same reference as ``yaw_cluster.png``: the flight's absolute
+    yaw over flight time) and ``cluster_timings.png`` (master time per frame, median and p99 marked)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     seqs = np.array(sorted(estimates))
-    yaw = np.array([estimates[s].yaw_rad for s in seqs])
-    truth = flight.yaw_rad[seqs] - flight.yaw_rad[0]
+    t_s = flight.frame_stamps_s[seqs]
+    truth_deg = np.degrees(flight.yaw_rad[seqs])
+    # the cluster integrates yaw from 0 at frame 0: put it on the truth's reference, as report_yaw does
+    yaw_deg = np.degrees(np.array([estimates[s].yaw_rad for s in seqs]) + flight.yaw_rad[0])
+    error_deg = np.degrees(wrap_angle_rad(np.radians(yaw_deg - truth_deg)))
     total_ms = np.array([estimates[s].timings_ms.get("total", np.nan) for s in seqs])
     paths = []
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
-    axes[0].plot(seqs, np.degrees(truth), label="truth", lw=1)
-    axes[0].plot(seqs, np.degrees(yaw), label="cluster", lw=1, ls="--")
+    axes[0].plot(t_s, truth_deg, color="black", lw=1.5, label="truth")
+    axes[0].plot(t_s, yaw_deg, color="tab:red", lw=1.0, ls="--", label="cluster")
     axes[0].set_ylabel("yaw [deg]")
-    axes[0].legend()
-    axes[1].plot(seqs, np.degrees(wrap_angle_rad(yaw - truth)), lw=0.8)
+    axes[0].set_title(f"yaw through the local cluster: {len(seqs)} frames, 2 foremen x 2 workers")
+    axes[0].legend(loc="best")
+    axes[1].plot(t_s, error_deg, color="tab:blue", lw=0.8)
     axes[1].set_ylabel("yaw error [deg]")
+    axes[1].set_title(f"error (cluster - truth): max |e| {np.max(np.abs(error_deg)):.3f} deg")
     top = [r["member"] for r in rows if ">" not in r["member"]]
     stack = np.array([[estimates[s].members.get(m, 0) for s in seqs] for m in top])
-    axes[2].stackplot(seqs, stack, labels=top)
+    axes[2].stackplot(t_s, stack, labels=top)
     axes[2].set_ylabel("patches per frame")
-    axes[2].set_xlabel("frame")
+    axes[2].set_xlabel("flight time [s]")
+    axes[2].set_title("share of each foreman (time balancing)")
     axes[2].legend(loc="upper right", fontsize=7)
+    for ax in axes:
+        ax.grid(alpha=0.3)
     fig.tight_layout()
     paths.append(out_dir / "cluster_yaw_shares.png")
     fig.savefig(paths[-1], dpi=110)
     plt.close(fig)
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.hist(total_ms[np.isfinite(total_ms)], bins=60)
-    ax.set_xlabel("master time per frame [ms]")
+    finite = total_ms[1:][np.isfinite(total_ms[1:])]  # frame 0 only primes the members' spectra
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    if finite.size:
+        median, p99 = np.median(finite), np.percentile(finite, 99)
+        ax.hist(finite, bins=60, color="tab:gray")
+        ax.axvline(median, color="tab:blue", lw=1.5, label=f"median {median:.1f} ms")
+        ax.axvline(p99, color="tab:red", lw=1.5, ls="--", label=f"p99 {p99:.1f} ms")
+        ax.legend(loc="upper right")
+    ax.set_xlabel("master time per frame, taken from its slot to yaw fitted [ms]")
     ax.set_ylabel("frames")
+    ax.set_title(f"yaw cluster timing per frame ({finite.size} frames, 752x480, 2 foremen x 2 workers)")
+    ax.grid(alpha=0.3)
     fig.tight_layout()
     paths.append(out_dir / "cluster_timings.png")
     fig.savefig(paths[-1], dpi=110)
@@ -184,7 +209,9 @@ def run_demo(out_dir: Path, n_frames: int = HOVER_FRAMES) -> dict[str, Any]:
         target=lambda: reference.update(run=track_frames(flight.frames(), YawSettings())), daemon=True
     )
     in_process.start()
-    estimates, wall_s, codes = run_cluster_flight(DEMO_CLUSTER, n_frames, cluster_dir / "logs")
+    estimates, wall_s, codes = run_cluster_flight(
+        DEMO_CLUSTER, n_frames, cluster_dir / "logs", progress=not quiet()
+    )
     in_process.join()
     seqs = np.array(sorted(estimates))
     yaw = np.array([estimates[s].yaw_rad for s in seqs])

@@ -9,11 +9,11 @@ SIGTERM (SIGKILL after a grace period). Tests, the demo and the benchmark use it
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -30,10 +30,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common import keys
 from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
-from common.messages import WireError, YawEstimate, decode
 from services.master.service import Topology
-from services.runtime.transport import TransportSettings, open_session, zbytes
-from services.secure import DEFAULT_DIR as SECURE_DIR
+from services.runtime.transport import TransportSettings, open_session
+from services.runtime.usage import condense_validation_error, one_line
 from services.secure import SecureProfile, participant_environment, process_common_name
 
 logger = logging.getLogger(__name__)
@@ -129,8 +128,23 @@ def load_cluster(path: Path) -> ClusterSpec:
     try:
         raw = yaml.safe_load(Path(path).read_text())
         return ClusterSpec.model_validate(raw)
-    except (OSError, yaml.YAMLError, ValidationError) as exc:
-        raise ClusterError(f"{path}: {exc}") from None
+    except ValidationError as exc:
+        raise ClusterError(f"{path}: {condense_validation_error(exc)}") from None
+    except (OSError, yaml.YAMLError) as exc:
+        raise ClusterError(f"{path}: {one_line(str(exc))}") from None
+
+
+def check_port_free(port: int, host: str = "127.0.0.1") -> None:
+    """ClusterError when something already listens on ``host:port`` (a router of another cluster)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # TIME_WAIT leftovers do not count
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            raise ClusterError(
+                f"the router cannot listen on tcp/{host}:{port}: {exc.strerror} (another router? "
+                f"choose --port, or --port 0 for any free port)"
+            ) from None
 
 
 def capataz_command(*args: str) -> list[str]:
@@ -164,6 +178,8 @@ class LocalCluster:
         self.master_args = tuple(master_args)
         self.lease_ms = lease_ms
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        #: ``time.monotonic()`` when each process was started (start-up times in ``capataz up``'s summary)
+        self.spawned_at: dict[str, float] = {}
         self._stopped: set[str] = set()
         self._taskset = shutil.which("taskset")
 
@@ -216,11 +232,14 @@ class LocalCluster:
         )
         log.close()
         self.processes[name] = process
+        self.spawned_at[name] = time.monotonic()
         return process
 
     def start_router(self, timeout_s: float = 30.0) -> None:
         """Start the router and wait until it listens; with no port given it picks a free one itself and
         reports it through an endpoint file (reserving a port first races with every other process)."""
+        if self.port is not None:
+            check_port_free(self.port)  # else the members would join whichever router holds the port
         endpoint_file = self.log_dir / "router.endpoint"
         endpoint_file.unlink(missing_ok=True)
         listen = f"{self.scheme}/127.0.0.1:{self.port or 0}"
@@ -282,9 +301,12 @@ class LocalCluster:
         if with_master:
             self.start_master()
 
-    def wait_alive(self, names: set[str], timeout_s: float = 60.0) -> None:
-        """Wait until every name has a liveliness token (observed from a session of our own)."""
+    def wait_alive(self, names: set[str], timeout_s: float = 60.0) -> dict[str, float]:
+        """Wait until every name has a liveliness token (observed from a session of our own); returns the
+        seconds each member took from its start to its token (as first seen here)."""
         seen: set[str] = set()
+        alive_after_s: dict[str, float] = {}
+        t0 = time.monotonic()
         lock = threading.Condition()
 
         def on_alive(sample: zenoh.Sample) -> None:
@@ -295,6 +317,7 @@ class LocalCluster:
             with lock:
                 if sample.kind == zenoh.SampleKind.PUT:
                     seen.add(member)
+                    alive_after_s.setdefault(member, time.monotonic() - self.spawned_at.get(member, t0))
                 else:
                     seen.discard(member)
                 lock.notify_all()
@@ -316,6 +339,7 @@ class LocalCluster:
                         raise ClusterError(f"not alive after {timeout_s:.0f} s: {sorted(names - seen)}")
                     lock.wait(min(left, 0.2))
             sub.undeclare()
+        return alive_after_s
 
     def signal(self, name: str, sig: int) -> None:
         process = self.processes[name]
@@ -355,183 +379,8 @@ class LocalCluster:
         self.stop()
 
 
-class YawCollector:
-    """Subscribes to a UAV's yaw and keeps every estimate by frame seq (for tests, the demo, benches)."""
-
-    def __init__(self, session: zenoh.Session, uav: str) -> None:
-        self.estimates: dict[int, YawEstimate] = {}
-        self.arrival_s: dict[int, float] = {}
-        self.malformed = 0
-        self._cond = threading.Condition()
-        self._sub = session.declare_subscriber(keys.yaw_key(uav), self._on_yaw)
-
-    def _on_yaw(self, sample: zenoh.Sample) -> None:
-        try:
-            estimate = decode(zbytes(sample.payload), zbytes(sample.attachment), YawEstimate)
-        except WireError:
-            self.malformed += 1
-            return
-        with self._cond:
-            self.estimates[estimate.seq] = estimate
-            self.arrival_s[estimate.seq] = time.monotonic()
-            self._cond.notify_all()
-
-    def wait_for(self, count: int, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while len(self.estimates) < count:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(min(left, 0.2))
-            return True
-
-    def newest(self) -> int:
-        with self._cond:
-            return max(self.estimates, default=-1)
-
-    def close(self) -> None:
-        self._sub.undeclare()
-
-
-def compose_from_cluster(spec: ClusterSpec, image: str = "capataz:0.1.0") -> dict[str, Any]:
-    """A docker-compose document for a described cluster (router, camera, master, foremen, workers).
-
-    The processes are rendered by :func:`cluster_commands`, as for ``capataz up``; a host's ``cpus`` list
-    becomes the containers' ``cpuset`` (the compose twin of ``taskset``).
-    """
-    env = {
-        "CAPATAZ_ZENOH_MODE": "peer",
-        "CAPATAZ_ZENOH_CONNECT": "tcp/router:7447",
-        "CAPATAZ_ZENOH_LISTEN": "tcp/0.0.0.0:0",
-        "CAPATAZ_ZENOH_MULTICAST": "false",
-        "CAPATAZ_ZENOH_SHM": "false",
-    }
-
-    def base() -> dict[str, Any]:
-        return {
-            "image": image,
-            "init": True,
-            "restart": "unless-stopped",
-            "depends_on": ["router"],
-            "environment": dict(env),
-        }
-
-    services: dict[str, Any] = {
-        "router": {
-            "image": image,
-            "init": True,
-            "command": ["router", "--listen", "tcp/0.0.0.0:7447", "--no-multicast", "--no-shm"],
-            "ports": ["7447:7447"],
-        },
-        "camera": {**base(), "command": ["camera", "--node", "camera", "--uav", spec.uav, "--loop"]},
-    }
-    for command in cluster_commands(spec):
-        role, node, index = command.name.split("/")
-        name = {"master": "master", "foreman": f"foreman-{node}"}.get(role, f"worker-{node}-{index}")
-        services[name] = {**base(), "command": list(command.args)}
-        if command.cpus:
-            services[name]["cpuset"] = command.cpus
-    return {"name": f"capataz-{spec.name}", "services": services}
-
-
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser("up", help="start a described cluster locally as processes")
-    parser.add_argument(
-        "--cluster", type=Path, required=True, help="cluster file, e.g. deploy/clusters/2h8n.yml"
-    )
-    parser.add_argument("--port", type=int, default=7447, help="router port on 127.0.0.1 (0 = any free port)")
-    parser.add_argument(
-        "--frames", type=int, default=0, help="also run a camera with this many frames (0 = none)"
-    )
-    parser.add_argument(
-        "--fps", type=float, default=20.0, help="camera frames per second (0 = as fast as possible)"
-    )
-    parser.add_argument(
-        "--in-flight", type=int, default=0, help="camera: max frames without a yaw (0 = free running)"
-    )
-    parser.add_argument(
-        "--duration", type=float, default=0.0, help="stop after this many seconds (0 = until ^C)"
-    )
-    parser.add_argument("--logs", type=Path, default=Path("out/up"), help="log folder")
-    parser.add_argument("--shm", action="store_true", help="zenoh shared memory on")
-    parser.add_argument("--compose", type=Path, help="write the cluster as a docker-compose file and exit")
-    parser.add_argument(
-        "--zenoh-config",
-        type=Path,
-        metavar="FILE",
-        help="zenoh configuration file for every process (env CAPATAZ_ZENOH_CONFIG)",
-    )
-    parser.add_argument(
-        "--secure",
-        type=Path,
-        nargs="?",
-        const=SECURE_DIR,
-        metavar="DIR",
-        help=f"secure profile: mutual TLS + access control, certificates and config in DIR "
-        f"(default {SECURE_DIR}; made when missing)",
-    )
-    parser.set_defaults(handler=run)
+    """The ``up`` command lives in :mod:`services.up_command`; this module holds the cluster itself."""
+    from services.up_command import register as register_command
 
-
-def run(args: argparse.Namespace) -> int:
-    spec = load_cluster(args.cluster)
-    if args.compose:
-        args.compose.parent.mkdir(parents=True, exist_ok=True)
-        args.compose.write_text(yaml.safe_dump(compose_from_cluster(spec), sort_keys=False))
-        print(f"wrote {args.compose}")
-        return 0
-    stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        secure = SecureProfile.ensure(args.secure, (spec.uav,)) if getattr(args, "secure", None) else None
-        with LocalCluster(
-            spec,
-            args.logs,
-            port=args.port or None,
-            shared_memory=args.shm,
-            secure=secure,
-            zenoh_config=getattr(args, "zenoh_config", None),
-        ) as cluster:
-            t0 = time.monotonic()
-            cluster.start()
-            cluster.wait_alive(cluster.expected_members())
-            print(
-                f"cluster {spec.name} up in {time.monotonic() - t0:.1f} s: router {cluster.router}, "
-                f"{len(spec.hosts)} hosts, {spec.n_workers} workers, logs in {args.logs}"
-            )
-            with open_session(cluster.observer_transport()) as session:
-                collector = YawCollector(session, spec.uav)
-                if args.frames:
-                    cluster.start_camera(
-                        [
-                            "--frames",
-                            str(args.frames),
-                            "--fps",
-                            str(args.fps),
-                            "--in-flight",
-                            str(args.in_flight),
-                        ]
-                    )
-                last = -1
-                while not stop.wait(1.0):
-                    newest = collector.newest()
-                    if newest != last:
-                        estimate = collector.estimates[newest]
-                        print(
-                            f"yaw frame {newest}: {estimate.yaw_rad:+.4f} rad, "
-                            f"{estimate.timings_ms.get('total', 0.0):.1f} ms, members {estimate.members}"
-                        )
-                        last = newest
-                    if args.duration and time.monotonic() - t0 > args.duration:
-                        break
-                    camera = cluster.processes.get("camera/camera/0")
-                    if args.frames and camera is not None and camera.poll() is not None:
-                        collector.wait_for(args.frames, 5.0)  # the yaw of the last frames (bounded)
-                        break
-                print(f"received {len(collector.estimates)} yaw estimates")
-                collector.close()
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    return 0
+    register_command(subparsers)

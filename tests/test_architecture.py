@@ -25,7 +25,6 @@ LONG_MODULE_EXCEPTIONS = {
     "common/estimation/vo.py",
     "common/messages.py",
     "services/bench/cluster.py",
-    "services/up.py",
 }
 
 

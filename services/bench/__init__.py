@@ -13,6 +13,7 @@ from types import ModuleType
 from typing import Any
 
 from services.report import print_table, write_json
+from services.runtime import progress
 
 #: One line per benchmark.
 BENCH_MODULES: tuple[str, ...] = (
@@ -42,7 +43,8 @@ def register(subparsers: Any) -> None:
 
 def _runner(module: ModuleType) -> Any:
     def handler(args: argparse.Namespace) -> int:
-        result = module.run(args)
+        with progress.bar(total=None, desc=f"bench {module.NAME}", unit="step"):
+            result = module.run(args)
         path = write_json(args.out / f"{module.NAME}.json", result)
         print_table(result.get("table", []), title=f"bench {module.NAME}")
         print(f"wrote {path}")

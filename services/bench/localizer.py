@@ -37,6 +37,7 @@ from common.localization.simulation import (
     track_run,
 )
 from common.localization.tracking import track_accuracy
+from services.runtime import progress
 
 logger = logging.getLogger(__name__)
 
@@ -178,44 +179,46 @@ def _measure(args: argparse.Namespace, core: str) -> dict[str, Any]:
         args.repeats,
     )
     per_method: dict[str, dict[str, Any]] = {}
-    for method in ScoringMethod:
-        config = configs[method.value]
-        timing = timings[method.value]
-        ms_200 = timing.cpu_ms
-        t0 = time.perf_counter()
-        rmse_cm, yaw_deg_runs, reinit = [], [], 0
-        for r in range(args.runs):
-            guess_rng = np.random.default_rng(1000 * args.seed + r)
-            error = guess_rng.uniform(-1.0, 1.0, 6) * np.array(
-                [INITIAL_POSITION_ERROR_M] * 3 + [INITIAL_ANGLE_ERROR_RAD] * 3
-            )
-            run_sim = replace(sim, guess=sim.flight.states[0] + error)
-            track = track_run(run_sim, config, seed=1000 * args.seed + r + 1)
-            accuracy = track_accuracy(
-                track.means, sim.flight.states, first_frame=min(args.settle, args.frames - 1)
-            )
-            rmse_cm.append(accuracy.position_rmse_m * 100.0)
-            yaw_deg_runs.append(float(np.degrees(accuracy.yaw_rmse_rad)))
-            reinit += track.reinitialisations
-        track_s = (time.perf_counter() - t0) / args.runs
-        # RMSE over all runs' converged frames (equal counts: root of the mean square), and the worst run
-        position_cm = float(np.sqrt(np.mean(np.square(rmse_cm))))
-        yaw_deg = float(np.sqrt(np.mean(np.square(yaw_deg_runs))))
-        worst_cm, worst_deg = max(rmse_cm), max(yaw_deg_runs)
-        per_method[method.value] = {
-            "ms_per_step_200": ms_200,
-            "wall_ms_per_step_200": timing.wall_ms,
-            "position_rmse_cm": position_cm,
-            "yaw_rmse_deg": yaw_deg,
-            "worst_run_position_rmse_cm": worst_cm,
-            "worst_run_yaw_rmse_deg": worst_deg,
-            "runs_position_rmse_cm": rmse_cm,
-            "runs_yaw_rmse_deg": yaw_deg_runs,
-            "meets_accuracy_goal": worst_cm <= GOAL_POSITION_RMSE_CM and worst_deg <= GOAL_YAW_RMSE_DEG,
-            "reinitialisations": reinit,
-            "flight_ms_per_frame": track_s / args.frames * 1e3,
-        }
-        logger.info("%s: %.2f ms/step, %.2f cm, %.3f deg", method.value, ms_200, position_cm, yaw_deg)
+    with progress.bar(len(ScoringMethod) * args.runs, "bench localizer: tracking runs", "run") as bar:
+        for method in ScoringMethod:
+            config = configs[method.value]
+            timing = timings[method.value]
+            ms_200 = timing.cpu_ms
+            t0 = time.perf_counter()
+            rmse_cm, yaw_deg_runs, reinit = [], [], 0
+            for r in range(args.runs):
+                guess_rng = np.random.default_rng(1000 * args.seed + r)
+                error = guess_rng.uniform(-1.0, 1.0, 6) * np.array(
+                    [INITIAL_POSITION_ERROR_M] * 3 + [INITIAL_ANGLE_ERROR_RAD] * 3
+                )
+                run_sim = replace(sim, guess=sim.flight.states[0] + error)
+                track = track_run(run_sim, config, seed=1000 * args.seed + r + 1)
+                accuracy = track_accuracy(
+                    track.means, sim.flight.states, first_frame=min(args.settle, args.frames - 1)
+                )
+                rmse_cm.append(accuracy.position_rmse_m * 100.0)
+                yaw_deg_runs.append(float(np.degrees(accuracy.yaw_rmse_rad)))
+                reinit += track.reinitialisations
+                bar.update()
+            track_s = (time.perf_counter() - t0) / args.runs
+            # RMSE over all runs' converged frames (equal counts: root of the mean square), and the worst run
+            position_cm = float(np.sqrt(np.mean(np.square(rmse_cm))))
+            yaw_deg = float(np.sqrt(np.mean(np.square(yaw_deg_runs))))
+            worst_cm, worst_deg = max(rmse_cm), max(yaw_deg_runs)
+            per_method[method.value] = {
+                "ms_per_step_200": ms_200,
+                "wall_ms_per_step_200": timing.wall_ms,
+                "position_rmse_cm": position_cm,
+                "yaw_rmse_deg": yaw_deg,
+                "worst_run_position_rmse_cm": worst_cm,
+                "worst_run_yaw_rmse_deg": worst_deg,
+                "runs_position_rmse_cm": rmse_cm,
+                "runs_yaw_rmse_deg": yaw_deg_runs,
+                "meets_accuracy_goal": worst_cm <= GOAL_POSITION_RMSE_CM and worst_deg <= GOAL_YAW_RMSE_DEG,
+                "reinitialisations": reinit,
+                "flight_ms_per_frame": track_s / args.frames * 1e3,
+            }
+            logger.info("%s: %.2f ms/step, %.2f cm, %.3f deg", method.value, ms_200, position_cm, yaw_deg)
 
     meeting = [name for name, row in per_method.items() if row["meets_accuracy_goal"]]
     best = min(meeting or per_method, key=lambda name: per_method[name]["ms_per_step_200"])

@@ -35,6 +35,7 @@ from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from services.camera.images import image_files
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
@@ -114,15 +115,6 @@ def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndar
     positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
     angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
     return flight.times_s, positions, angles
-
-
-def _image_files(folder: Path) -> list[Path]:
-    files = sorted(
-        p for p in folder.iterdir() if p.suffix.lower() in {".png", ".jpg", ".jpeg", ".pgm", ".bmp"}
-    )
-    if not files:
-        raise CapatazError(f"no images in {folder}")
-    return files
 
 
 class CameraService(ServiceRuntime):
@@ -210,7 +202,7 @@ class CameraService(ServiceRuntime):
             yield from self._preloaded
             return
         assert self.settings.images is not None
-        for path in _image_files(self.settings.images):
+        for path in image_files(self.settings.images):
             image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
             if image is None:
                 self.count_error("bad_images", "cannot read image", str(path))
@@ -398,6 +390,8 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.images is not None:
+        image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
     return CameraService(
         args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
     ).run()

@@ -311,7 +311,14 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
     parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
     parser.add_argument("--initial-yaw", type=float, default=0.0, help="initial yaw (rad)")
-    parser.add_argument("--initial-xy", type=float, nargs=2, default=(0.0, 0.0), metavar=("X", "Y"))
+    parser.add_argument(
+        "--initial-xy",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("X", "Y"),
+        help="initial horizontal position of the VO path (m)",
+    )
     parser.set_defaults(handler=run)
 
 

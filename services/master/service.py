@@ -304,7 +304,11 @@ class MasterService(ServiceRuntime):
 def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
     parser.add_argument(
-        "--topology", choices=[t.value for t in Topology], default=Topology.MASTER_FOREMAN_WORKER.value
+        "--topology",
+        choices=[t.value for t in Topology],
+        default=Topology.MASTER_FOREMAN_WORKER.value,
+        help="master-worker: the master splits frames among workers; master-foreman-worker: among foremen, "
+        "who split their block among their node's workers",
     )
     add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")

@@ -20,6 +20,7 @@ from common import keys
 from common.errors import CapatazError
 from common.messages import Health, Stats, WireError, WireModel, decode, encode, error_reply
 from services.runtime.handoff import Counters
+from services.runtime.presence import ConnectionMonitor, TokenWatch
 from services.runtime.transport import TransportSettings, open_session, zbytes
 
 logger = logging.getLogger(__name__)
@@ -230,18 +231,29 @@ class ServiceRuntime:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         with self._signals(), open_session(self.transport) as session:
             self.session = session
+            watch = TokenWatch(session, keys.alive_key(self.role, self.node, self.index))
             health = session.declare_queryable(
                 keys.health_key(self.role, self.node, self.index), self._on_health, complete=True
             )
             stats_pub = session.declare_publisher(keys.stats_key(self.role, self.node, self.index))
             token = None
             try:
+                watch.refuse_duplicate(self.name, self.transport.lease_ms, self.stop_event)
                 self.start(session)
                 # liveliness last: a member that is seen alive already answers its work and health keys
                 token = session.liveliness().declare_token(keys.alive_key(self.role, self.node, self.index))
                 self.started.set()
-                logger.info("%s: up (%s)", self.name, self.transport.mode)
+                logger.info(
+                    "%s: up (%s, zid %s), listen %s, connect %s",
+                    self.name,
+                    self.transport.mode,
+                    session.info.zid(),
+                    ", ".join(self.transport.listen) or "none",
+                    ", ".join(self.transport.connect) or "none",
+                )
+                monitor = ConnectionMonitor(self.name, self.transport.connect, self.role is keys.Role.ROUTER)
                 while not self.stop_event.wait(self.stats_period_s):
+                    monitor.check(session)
                     payload, attachment = encode(self.stats_message())
                     stats_pub.put(payload, attachment=attachment)
             finally:

@@ -19,10 +19,11 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.errors import CapatazError
 from services.runtime import zconfig
+from services.runtime.usage import condense_validation_error
 
 logger = logging.getLogger(__name__)
 
@@ -81,7 +82,7 @@ class TransportSettings(BaseModel):
                 return True
             if low in {"0", "false", "no", "off"}:
                 return False
-            raise TransportError(f"boolean environment value expected, got {text!r}")
+            raise ValueError("must be one of 1/0/true/false/yes/no/on/off")
 
         table: dict[str, tuple[str, Callable[[str], Any]]] = {
             "MODE": ("mode", str.strip),
@@ -108,8 +109,10 @@ class TransportSettings(BaseModel):
         values.update({k: v for k, v in overrides.items() if v is not None})
         try:
             return cls(**values)
-        except ValueError as exc:
-            raise TransportError(f"invalid transport settings: {exc}") from None
+        except ValidationError as exc:
+            names = {f: f"--{s.lower().replace('_', '-')} / {ENV_PREFIX}{s}" for s, (f, _) in table.items()}
+            text = condense_validation_error(exc, lambda field: names.get(field, field))
+            raise TransportError(f"invalid transport settings: {text}") from None
 
     def to_config(self) -> zenoh.Config:
         """Zenoh's configuration: the config file (if any), these settings over it, then credentials.

@@ -14,8 +14,9 @@ import zenoh
 
 from common import keys
 from common.messages import Health, ImuSample, PatchJob, decode, encode, read_error_reply
+from services.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
-from services.up import LocalCluster, YawCollector
+from services.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 from tests.zenoh_helpers import wait_until
 

@@ -4,6 +4,7 @@ image is non-root with a real init; each described cluster comes up locally with
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +13,8 @@ import pytest
 import yaml
 
 from services.cli import build_parser
-from services.up import LocalCluster, compose_from_cluster, load_cluster
+from services.compose import compose_from_cluster
+from services.up import LocalCluster, load_cluster
 
 ROOT = Path(__file__).resolve().parents[2]
 CLUSTERS = sorted((ROOT / "deploy" / "clusters").glob("*.yml"))
@@ -30,7 +32,7 @@ def check_compose(document: dict) -> None:
     commands = registered_commands()
     for name, service in document["services"].items():
         assert service.get("image") or service.get("build"), f"{name}: no image"
-        assert service.get("init") is True, f"{name}: needs init: true (signals reach the service)"
+        assert not service.get("init"), f"{name}: the image's tini is PID 1 (init: true nests a second init)"
         command = service["command"]
         assert isinstance(command, list) and all(isinstance(c, str) for c in command), name
         assert command[0] in commands, f"{name}: unknown command {command[0]!r}"
@@ -146,3 +148,42 @@ def test_zenoh_config_files_load_and_match_the_transport_settings(name: str) -> 
     assert config.get_json("transport/shared_memory/enabled") == "false"
     assert int(config.get_json("transport/link/tx/lease")) == defaults.lease_ms
     assert int(config.get_json("transport/link/tx/queue/size/data")) == defaults.tx_queue_batches
+
+
+COMPOSE_V1 = shutil.which("docker-compose")
+
+
+def compose_files(tmp_path: Path) -> list[Path]:
+    """docker-compose.yml and what `capataz up --compose` writes for every described cluster."""
+    from services.up_command import write_compose
+
+    generated = [
+        write_compose(load_cluster(p), tmp_path / "compose" / f"{p.stem}.yml", "127.0.0.1") for p in CLUSTERS
+    ]
+    return [ROOT / "docker-compose.yml", *generated]
+
+
+def test_compose_files_build_the_image_and_publish_on_loopback_only(tmp_path: Path) -> None:
+    for path in compose_files(tmp_path):
+        document = yaml.safe_load(path.read_text())
+        assert "name" not in document and "version" not in document, f"{path}: Compose v1 refuses 'name'"
+        router = document["services"]["router"]
+        assert router["build"]["dockerfile"] == "deploy/Dockerfile", path
+        assert (path.parent / router["build"]["context"] / "deploy" / "Dockerfile").is_file(), path
+        for name, service in document["services"].items():
+            for port in service.get("ports", []):
+                assert str(port).startswith(("127.0.0.1:", "${CAPATAZ_PUBLISH:-127.0.0.1}:")), (
+                    f"{path} {name}"
+                )
+
+
+@pytest.mark.skipif(COMPOSE_V1 is None, reason="docker-compose (Compose v1) is not installed")
+def test_compose_files_are_valid_for_compose_v1(tmp_path: Path) -> None:
+    for path in compose_files(tmp_path):
+        done = subprocess.run(
+            [COMPOSE_V1, "-f", str(path), "config", "-q"],
+            capture_output=True,
+            text=True,
+            timeout=60,  # type: ignore[list-item]
+        )
+        assert done.returncode == 0, f"{path}: {done.stderr}"

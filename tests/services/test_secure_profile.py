@@ -135,7 +135,7 @@ def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only(
     open_services = yaml.safe_load((ROOT / "docker-compose.yml").read_text())["services"]
     services = document["services"]
     assert set(services) == set(open_services)
-    assert services["router"]["ports"] == ["127.0.0.1:7447:7447"]
+    assert services["router"]["ports"] == ["127.0.0.1:${CAPATAZ_PORT:-7447}:7447"]
     for name, service in services.items():
         assert service["command"] == open_services[name]["command"] or name == "router", name
         env = service["environment"]
