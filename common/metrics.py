@@ -1,7 +1,9 @@
-"""Accuracy metrics of estimated angles against ground truth (paper A's eq. 8 and plain statistics)."""
+"""Accuracy metrics against ground truth: yaw errors (paper A's eq. 8 and plain statistics) and trajectory
+errors (evo's APE and RPE, translation part)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -76,4 +78,105 @@ def yaw_error_stats(
         final_deg=float(error_deg[-1]),
         max_ame_deg=float(np.max(ame)) if ame is not None else math.nan,
         ame_window=ame_window,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# Trajectory metrics (evo's APE and RPE, translation part).
+# --------------------------------------------------------------------------------------------------
+
+
+def check_positions(positions_m: npt.ArrayLike, name: str) -> FloatArray:
+    """A finite ``(N, D)`` position series, D in 2..3, N >= 1, else InputError."""
+    arr = np.asarray(positions_m, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] not in (2, 3):
+        raise InputError(f"{name} must have shape (N, 2) or (N, 3) with N >= 1, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name} must be finite")
+    return arr
+
+
+def _paired(estimated_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    est = check_positions(estimated_m, "estimated_m")
+    ref = check_positions(reference_m, "reference_m")
+    if est.shape != ref.shape:
+        raise InputError(f"estimated and reference positions differ in shape: {est.shape} vs {ref.shape}")
+    return est, ref
+
+
+def ate_rmse_m(estimated_m: npt.ArrayLike, reference_m: npt.ArrayLike) -> float:
+    """Absolute trajectory error, RMSE of ``|p_est_i - p_ref_i|`` over the synchronised samples (m).
+
+    This is evo's APE translation part (``evo_ape --pose_relation trans_part``) with evo's default of
+    **no alignment**: the estimator already expresses its positions in the reference's world frame (its
+    origin and initial yaw are given), so an alignment would hide the drift being measured.
+    """
+    est, ref = _paired(estimated_m, reference_m)
+    return float(np.sqrt(np.mean(np.sum((est - ref) ** 2, axis=1))))
+
+
+def path_pairs_by_distance(path_m: npt.ArrayLike, delta_m: float) -> list[tuple[int, int]]:
+    """Consecutive index pairs ``(i, j)`` whose travelled path between them first reaches ``delta_m``:
+    evo's ``filter_pairs_by_path`` (consecutive mode), on the reference path."""
+    path = check_positions(path_m, "path_m")
+    if not (math.isfinite(delta_m) and delta_m > 0.0):
+        raise InputError(f"delta_m must be a positive finite distance, got {delta_m}")
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1).tolist()
+    ids = [0]
+    travelled = 0.0
+    for i, step in enumerate(steps, start=1):
+        travelled += step
+        if travelled >= delta_m:
+            ids.append(i)
+            travelled = 0.0
+    return list(itertools.pairwise(ids))
+
+
+@dataclass(frozen=True)
+class RelativeError:
+    """Relative position error over pairs ``delta_m`` of path apart (evo's RPE, translation part)."""
+
+    delta_m: float
+    pairs: int
+    mean_m: float
+    rmse_m: float
+    max_m: float
+
+    @property
+    def mean_pct(self) -> float:
+        """Mean error per pair in percent of the distance travelled (nan without pairs)."""
+        return 100.0 * self.mean_m / self.delta_m if self.pairs else math.nan
+
+
+def rpe_translation(
+    estimated_m: npt.ArrayLike,
+    reference_m: npt.ArrayLike,
+    delta_m: float = 1.0,
+    reference_path_m: npt.ArrayLike | None = None,
+) -> RelativeError:
+    """Relative position error per ``delta_m`` travelled: for evo's consecutive pairs ``(i, j)`` (chosen on
+    ``reference_path_m``, default the reference), ``|(p_est_j - p_est_i) - (p_ref_j - p_ref_i)|``.
+
+    That is evo's RPE translation part (``evo_rpe --delta 1 --delta_unit m --pairs_from_reference``: the
+    pairs follow the true path, not the estimate's) on position-only trajectories
+    (identity orientations): the drift of the displacement in the world frame over each ``delta_m`` of path,
+    which is what paper C's "error in % of the path" expresses; the heading error's lever arm, which evo's
+    SE(3) RPE would add, is reported separately (yaw error). ``reference_path_m`` lets the pairs follow the
+    full 3-D path when the error is taken on the horizontal position only.
+    """
+    est, ref = _paired(estimated_m, reference_m)
+    path = ref if reference_path_m is None else check_positions(reference_path_m, "reference_path_m")
+    if path.shape[0] != ref.shape[0]:
+        raise InputError(f"reference_path_m must have {ref.shape[0]} samples, got {path.shape[0]}")
+    pairs = path_pairs_by_distance(path, delta_m)
+    if not pairs:
+        return RelativeError(float(delta_m), 0, math.nan, math.nan, math.nan)
+    i, j = np.array(pairs).T
+    err = np.linalg.norm((est[j] - est[i]) - (ref[j] - ref[i]), axis=1)
+    return RelativeError(
+        delta_m=float(delta_m),
+        pairs=len(pairs),
+        mean_m=float(np.mean(err)),
+        rmse_m=float(np.sqrt(np.mean(err**2))),
+        max_m=float(np.max(err)),
     )

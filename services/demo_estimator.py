@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from common.estimation.replay import EstimatorRun, RunErrors, evaluate
-from common.geometry import euler_from_quaternion
+from common.geometry import euler_from_quaternion, wrap_angle_rad
 from common.sim.flight import Flight
 from services.bench.estimator import compare_on_flight_b
 from services.report import write_json
@@ -21,15 +21,17 @@ logger = logging.getLogger(__name__)
 
 COLOURS = {
     "rectified": "tab:red",
+    "rectified_paper_c": "tab:orange",
     "traditional": "tab:blue",
     "raw_ekf_scale": "tab:purple",
     "gyro_yaw": "tab:green",
 }
 LABELS = {
-    "rectified": "VO on rectified frames (double coupling)",
+    "rectified": "VO on rectified frames, bias filter (double coupling)",
+    "rectified_paper_c": "VO on rectified frames, paper C's 5-state EKF",
     "traditional": "VO on raw frames, rangefinder scale (traditional)",
-    "raw_ekf_scale": "VO on raw frames, EKF altitude scale",
-    "gyro_yaw": "EKF without visual yaw (gyro only)",
+    "raw_ekf_scale": "VO on raw frames, filter altitude scale",
+    "gyro_yaw": "filter without visual yaw (gyro only)",
 }
 
 
@@ -38,42 +40,84 @@ def summarize(flight: Flight, runs: dict[str, EstimatorRun], errors: dict[str, R
     return {
         "frames": len(runs["rectified"].pose_stamps_s),
         "path_length_m": rect.path_length_m,
+        "ate_rmse_cm": 100.0 * rect.ate_rmse_m,
+        "ate_rmse_cm_unrectified": 100.0 * trad.ate_rmse_m,
+        "ate_rmse_cm_paper_c_filter": 100.0 * errors["rectified_paper_c"].ate_rmse_m,
+        "rpe_pct": rect.rpe_pct,
+        "rpe_pct_unrectified": trad.rpe_pct,
         "vo_final_error_cm": 100.0 * rect.vo_final_error_m,
         "vo_error_pct": rect.vo_error_pct,
         "vo_final_error_cm_unrectified": 100.0 * trad.vo_final_error_m,
         "vo_error_pct_unrectified": trad.vo_error_pct,
         "vo_final_error_cm_raw_frames_ekf_scale": 100.0 * errors["raw_ekf_scale"].vo_final_error_m,
         "att_rmse_deg_roll_pitch_yaw": rect.att_rmse_deg.tolist(),
+        "att_rmse_deg_paper_c_filter": errors["rectified_paper_c"].att_rmse_deg.tolist(),
         "alt_rmse_cm": 100.0 * rect.alt_rmse_m,
         "yaw_final_error_deg": float(abs(rect.yaw_error_deg[-1])),
         "yaw_final_error_deg_gyro_only": float(abs(gyro.yaw_error_deg[-1])),
-        "vo_ms_median": float(np.median(runs["rectified"].vo_ms[1:])),
     }
 
 
+def _roll_pitch_error_deg(run: EstimatorRun, flight: Flight) -> np.ndarray:
+    idx = np.searchsorted(flight.imu.stamps_s, run.attitude_stamps_s - 1e-9)
+    err = euler_from_quaternion(run.q_world_body) - euler_from_quaternion(flight.imu.true_q_world_body[idx])
+    return np.asarray(np.degrees(wrap_angle_rad(err))[:, :2], dtype=np.float64)
+
+
 def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict[str, RunErrors]) -> Path:
+    """Top-down path, VO error over the whole flight, roll / pitch errors, yaw, altitude."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig = plt.figure(figsize=(12, 15))
+    grid = fig.add_gridspec(6, 2, height_ratios=(2.2, 1.2, 1, 1, 1, 1))
+    ax_xy = fig.add_subplot(grid[0, 0])
+    ax_xy.plot(flight.p_world_body_m[:, 0], flight.p_world_body_m[:, 1], "k--", lw=1.2, label="truth")
+    for name in ("traditional", "rectified_paper_c", "rectified"):
+        p = runs[name].p_world_body_m
+        ax_xy.plot(p[:, 0], p[:, 1], color=COLOURS[name], lw=0.9, label=LABELS[name])
+    ax_xy.set_aspect("equal", adjustable="datalim")
+    ax_xy.set_xlabel("x (m)")
+    ax_xy.set_ylabel("y (m)")
+    ax_xy.set_title("top-down path", fontsize=9)
+    ax_zoom = fig.add_subplot(grid[0, 1])
+    for name in ("traditional", "rectified_paper_c", "rectified"):
+        run = runs[name]
+        frames = np.searchsorted(flight.frame_stamps_s, run.pose_stamps_s - 1e-9)
+        d = 100.0 * (run.p_world_body_m[:, :2] - flight.p_world_body_m[frames, :2])
+        ax_zoom.plot(d[:, 0], d[:, 1], color=COLOURS[name], lw=0.8, label=LABELS[name])
+    ax_zoom.plot([0.0], [0.0], "k+", ms=10)
+    ax_zoom.set_aspect("equal", adjustable="datalim")
+    ax_zoom.set_xlabel("x error (cm)")
+    ax_zoom.set_ylabel("y error (cm)")
+    ax_zoom.set_title("horizontal VO error over the flight (estimate - truth)", fontsize=9)
+    ax_err = fig.add_subplot(grid[1, :])
+    for name in ("traditional", "raw_ekf_scale", "rectified_paper_c", "rectified"):
+        e = errors[name]
+        ax_err.plot(runs[name].pose_stamps_s, 100.0 * e.vo_error_m, color=COLOURS[name], lw=1.0,
+                    label=f"{LABELS[name]}: ATE {100 * e.ate_rmse_m:.2f} cm, RPE {e.rpe_pct:.3f} %/m, "
+                    f"final {100 * e.vo_final_error_m:.2f} cm")  # fmt: skip
+    ax_err.set_ylabel("|VO error| (cm)")
     t_true = flight.frame_stamps_s
-    fig, axes = plt.subplots(5, 1, figsize=(10, 14), sharex=True)
-    for k, label in enumerate(("x (m)", "y (m)")):
-        ax = axes[k]
-        ax.plot(t_true, flight.p_world_body_m[:, k], "k--", lw=1.2, label="truth")
-        for name in ("traditional", "rectified"):
-            run = runs[name]
-            ax.plot(
-                run.pose_stamps_s, run.p_world_body_m[:, k], color=COLOURS[name], lw=1.0, label=LABELS[name]
-            )
+    axes = [fig.add_subplot(grid[k, :], sharex=ax_err) for k in (2, 3, 4, 5)]
+    for k, (ax, label) in enumerate(zip(axes[:2], ("roll error (deg)", "pitch error (deg)"), strict=True)):
+        for name in ("rectified_paper_c", "rectified"):
+            err = _roll_pitch_error_deg(runs[name], flight)
+            rms = float(np.sqrt(np.mean(err[:, k] ** 2)))
+            ax.plot(runs[name].attitude_stamps_s, err[:, k], color=COLOURS[name], lw=0.8,
+                    label=f"{LABELS[name]}: RMSE {rms:.3f} deg")  # fmt: skip
         ax.set_ylabel(label)
     ax = axes[2]
     ax.plot(t_true, np.degrees(flight.yaw_rad), "k--", lw=1.2, label="truth")
     for name in ("traditional", "rectified", "gyro_yaw"):
         run = runs[name]
         yaw = np.degrees(np.unwrap(euler_from_quaternion(run.q_world_body)[:, 2]))
-        ax.plot(run.attitude_stamps_s, yaw, color=COLOURS[name], lw=1.0, label=f"EKF yaw, {LABELS[name]}")
+        # the same turn count as the truth's unwrapped yaw at the run's first sample
+        true0 = float(np.degrees(np.interp(run.attitude_stamps_s[0], t_true, flight.yaw_rad)))
+        yaw += 360.0 * np.round((true0 - yaw[0]) / 360.0)
+        ax.plot(run.attitude_stamps_s, yaw, color=COLOURS[name], lw=1.0, label=f"yaw, {LABELS[name]}")
     ax.set_ylabel("yaw (deg)")
     inset = ax.inset_axes((0.55, 0.08, 0.42, 0.35))
     for name in ("rectified", "gyro_yaw"):
@@ -85,23 +129,20 @@ def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict
     ax.plot(
         flight.range.stamps_s, flight.range.range_m, ".", color="0.6", ms=1.5, label="rangefinder reading"
     )
-    ax.plot(runs["rectified"].attitude_stamps_s, runs["rectified"].pz_m, color="tab:red", lw=1.0, label="EKF")
+    ax.plot(
+        runs["rectified"].attitude_stamps_s, runs["rectified"].pz_m, color="tab:red", lw=1.0, label="filter"
+    )
     ax.set_ylabel("altitude (m)")
-    ax = axes[4]
-    for name in ("traditional", "raw_ekf_scale", "rectified"):
-        e = errors[name]
-        ax.plot(runs[name].pose_stamps_s, 100.0 * e.vo_error_m, color=COLOURS[name], lw=1.0,
-                label=f"{LABELS[name]}: final {100 * e.vo_final_error_m:.2f} cm ({e.vo_error_pct:.3f} % of "
-                f"{e.path_length_m:.1f} m)")  # fmt: skip
-    ax.set_ylabel("|VO error| (cm)")
     ax.set_xlabel("time (s)")
-    for ax in axes:
+    for ax in (ax_xy, ax_zoom, ax_err, *axes):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle("Flight (b): EKF + visual odometry with double coupling (paper C Figs. 13-14)")
+        ax.legend(fontsize=6.5, loc="upper left")
+    fig.suptitle(
+        f"Flight (b) seed {flight.seed}: filter + visual odometry with double coupling (paper C Figs. 13-14)"
+    )
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 
@@ -116,12 +157,13 @@ def run_demo(out_dir: Path) -> dict[str, Any]:
     s = summary
     print(
         f"estimator: flight (b) {s['path_length_m']:.2f} m, {s['frames']} frames\n"
+        f"  VO over the flight: rectified ATE {s['ate_rmse_cm']:.2f} cm, RPE {s['rpe_pct']:.3f} %/m; "
+        f"raw frames ATE {s['ate_rmse_cm_unrectified']:.2f} cm, RPE {s['rpe_pct_unrectified']:.3f} %/m\n"
         f"  VO final error: rectified {s['vo_final_error_cm']:.2f} cm ({s['vo_error_pct']:.3f} %), "
         f"raw frames {s['vo_final_error_cm_unrectified']:.2f} cm ({s['vo_error_pct_unrectified']:.3f} %)\n"
-        f"  EKF RMSE roll {r:.3f}, pitch {p:.3f}, yaw {y:.3f} deg; altitude {s['alt_rmse_cm']:.2f} cm\n"
+        f"  filter RMSE roll {r:.3f}, pitch {p:.3f}, yaw {y:.3f} deg; altitude {s['alt_rmse_cm']:.2f} cm\n"
         f"  final yaw error: visual yaw {summary['yaw_final_error_deg']:.2f} deg, "
         f"gyro only {summary['yaw_final_error_deg_gyro_only']:.2f} deg\n"
-        f"  VO incl. rectification: {summary['vo_ms_median']:.1f} ms median per frame\n"
         f"  wrote {png}"
     )
     return summary

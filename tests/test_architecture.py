@@ -15,14 +15,10 @@ MAX_LINES = 400
 
 #: cores that still import the simulator (the estimator and localizer work removes them)
 SIM_IMPORT_EXCEPTIONS = {
-    "common/estimation/replay.py",  # the simulated flight's measurements
     "common/localization/simulation.py",  # the localizer's simulated run
 }
 #: modules over MAX_LINES today (split them, then remove them here)
 LONG_MODULE_EXCEPTIONS = {
-    "common/estimation/coupling.py",
-    "common/estimation/ekf.py",
-    "common/estimation/vo.py",
     "common/messages.py",
     "services/bench/cluster.py",
 }

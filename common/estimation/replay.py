@@ -6,68 +6,126 @@ are rendered lazily, one at a time.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
-from common.estimation.coupling import (
+from common.camera import CameraModel
+from common.estimation.coupling import DoubleCouplingEstimator
+from common.estimation.coupling_types import (
     AttitudeOutput,
-    CameraModel,
     CouplingSettings,
-    DoubleCouplingEstimator,
+    FilterKind,
+    PoseOutput,
+    ScaleSource,
+)
+from common.estimation.measurements import (
+    SENSOR_ORDER,
     FrameMeasurement,
     ImuMeasurement,
     Measurement,
-    PoseOutput,
     RangeMeasurement,
-    ScaleSource,
+    Sensor,
 )
-from common.estimation.rectify import rectify_frame
-from common.estimation.vo import (
-    MotionModel,
-    VoPose,
-    VoSettings,
-    compose_pose,
-    estimate_relative_motion,
-    metric_translation,
-    prepare_frame,
+from common.estimation.vo import MotionModel, VoPose, VoSettings
+from common.estimation.vo_chain import (
+    VoChainSettings,
+    VoChainState,
+    advance_vo_chain,
+    prepare_view,
+    start_vo_chain,
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
-from common.sim.flight import Flight
+from common.metrics import ate_rmse_m, rpe_translation
 from common.types import FloatArray
 
-#: Order of sensors that share a stamp: range first (it initialises the altitude), then IMU, then camera.
-_RANGE, _IMU, _CAMERA = 0, 1, 2
+ImageU8 = npt.NDArray[np.uint8]
 
 
-def camera_model_of(flight: Flight) -> CameraModel:
-    """The estimator's camera model for a simulated flight."""
-    cam = flight.camera
-    return CameraModel(K=cam.K, width=cam.width, height=cam.height, R_body_camera=flight.R_body_camera)
+class ImuSeriesLike(Protocol):
+    """IMU samples with their truth (a recorded or simulated series)."""
+
+    @property
+    def stamps_s(self) -> FloatArray: ...
+    @property
+    def gyro_rad_s(self) -> FloatArray: ...
+    @property
+    def accel_m_s2(self) -> FloatArray: ...
+    @property
+    def true_q_world_body(self) -> FloatArray: ...
+    @property
+    def true_p_world_body_m(self) -> FloatArray: ...
+
+
+class RangeSeriesLike(Protocol):
+    """Rangefinder samples."""
+
+    @property
+    def stamps_s(self) -> FloatArray: ...
+    @property
+    def range_m(self) -> FloatArray: ...
+
+
+class FlightRecord(Protocol):
+    """What a replay needs of a flight with ground truth (``common.sim.flight.Flight`` is one): the sensor
+    series, frames on demand, and the true pose at the frame stamps. The cores never import the simulator."""
+
+    @property
+    def camera(self) -> CameraModel: ...
+    @property
+    def R_body_camera(self) -> FloatArray: ...
+    @property
+    def frame_stamps_s(self) -> FloatArray: ...
+    @property
+    def p_world_body_m(self) -> FloatArray: ...
+    @property
+    def q_world_body(self) -> FloatArray: ...
+    @property
+    def euler_rad(self) -> FloatArray: ...
+    @property
+    def R_world_body(self) -> FloatArray: ...
+    @property
+    def imu(self) -> ImuSeriesLike: ...
+    @property
+    def range(self) -> RangeSeriesLike: ...
+    @property
+    def n_frames(self) -> int: ...
+    @property
+    def yaw_rad(self) -> FloatArray: ...
+    def frame(self, i: int) -> ImageU8: ...
+
+
+def camera_model_of(flight: FlightRecord) -> CameraModel:
+    """The flight's camera model (intrinsics; the mount is ``flight.R_body_camera``)."""
+    return flight.camera
 
 
 def flight_measurements(
-    flight: Flight, start_frame: int = 0, stop_frame: int | None = None
+    flight: FlightRecord, start_frame: int = 0, stop_frame: int | None = None
 ) -> Iterator[Measurement]:
-    """IMU, range and camera samples of frames ``[start_frame, stop_frame)`` and between, in stamp order."""
+    """IMU, range and camera samples of frames ``[start_frame, stop_frame)`` and between, in stamp order
+    (equal stamps in :data:`~common.estimation.measurements.SENSOR_ORDER`)."""
     stop = flight.n_frames if stop_frame is None else min(int(stop_frame), flight.n_frames)
     t0 = float(flight.frame_stamps_s[start_frame])
     t1 = float(flight.frame_stamps_s[stop - 1])
     events: list[tuple[float, int, int]] = []
     imu, rng = flight.imu, flight.range
+    imu_rank, range_rank, camera_rank = (SENSOR_ORDER[s] for s in (Sensor.IMU, Sensor.RANGE, Sensor.CAMERA))
     for i in np.flatnonzero((imu.stamps_s >= t0 - 1e-9) & (imu.stamps_s <= t1 + 1e-9)).tolist():
-        events.append((float(imu.stamps_s[i]), _IMU, i))
+        events.append((float(imu.stamps_s[i]), imu_rank, i))
     for i in np.flatnonzero((rng.stamps_s >= t0 - 1e-9) & (rng.stamps_s <= t1 + 1e-9)).tolist():
-        events.append((float(rng.stamps_s[i]), _RANGE, i))
+        events.append((float(rng.stamps_s[i]), range_rank, i))
     for i in range(start_frame, stop):
-        events.append((float(flight.frame_stamps_s[i]), _CAMERA, i))
+        events.append((float(flight.frame_stamps_s[i]), camera_rank, i))
     events.sort()
     for stamp, kind, i in events:
-        if kind == _IMU:
+        if kind == imu_rank:
             yield ImuMeasurement(stamp, imu.gyro_rad_s[i], imu.accel_m_s2[i])
-        elif kind == _RANGE:
+        elif kind == range_rank:
             yield RangeMeasurement(stamp, float(rng.range_m[i]))
         else:
             yield FrameMeasurement(stamp, flight.frame(i))
@@ -83,7 +141,7 @@ class EstimatorRun:
     pose_stamps_s: FloatArray
     p_world_body_m: FloatArray  # (N, 3)
     vo_yaw_rad: FloatArray
-    vo_ms: FloatArray
+    rectification_weight: FloatArray
 
 
 def collect(outputs: list[AttitudeOutput | PoseOutput]) -> EstimatorRun:
@@ -97,7 +155,7 @@ def collect(outputs: list[AttitudeOutput | PoseOutput]) -> EstimatorRun:
         pose_stamps_s=np.array([o.stamp_s for o in pos]),
         p_world_body_m=np.array([o.p_world_body_m for o in pos]).reshape(-1, 3),
         vo_yaw_rad=np.array([o.vo_yaw_rad for o in pos]),
-        vo_ms=np.array([o.vo_ms for o in pos]),
+        rectification_weight=np.array([o.rectification_weight for o in pos]),
     )
 
 
@@ -116,48 +174,39 @@ def run_estimators(
 
 
 def vo_with_true_attitude(
-    flight: Flight,
+    flight: FlightRecord,
     start_frame: int,
     stop_frame: int,
     rectify: bool = True,
     model: MotionModel = MotionModel.LEVEL_FREE_YAW,
     settings: VoSettings | None = None,
     roll_pitch_error_rad: tuple[float, float] = (0.0, 0.0),
+    chain_settings: VoChainSettings | None = None,
 ) -> FloatArray:
     """VO alone on frames ``[start_frame, stop_frame)`` with the TRUE roll, pitch (plus an optional constant
     error) and altitude for rectification and scale, from the true initial pose: its camera positions
-    ``(N, 3)``. The diagnosis of the VO itself, free of any EKF error (rectify=False: raw frames and
-    the free decomposition)."""
+    ``(N, 3)``. The diagnosis of the VO itself, free of any filter error (rectify=False: raw frames and
+    the free decomposition). The same chain step as the estimator's
+    (:func:`~common.estimation.vo_chain.advance_vo_chain`)."""
     vo_settings = settings or VoSettings()
     K = flight.camera.K
     euler = flight.euler_rad
-    pose: VoPose | None = None
-    prev = None
-    h_prev = float("nan")
+    chain: VoChainState | None = None
     out = []
     for i in range(start_frame, stop_frame):
-        image = flight.frame(i)
-        if rectify:
-            roll = float(euler[i, 0]) + roll_pitch_error_rad[0]
-            pitch = float(euler[i, 1]) + roll_pitch_error_rad[1]
-            rect = rectify_frame(
-                image, K, roll, pitch, flight.R_body_camera, border_px=vo_settings.mask_margin_px
-            )
-            frame = prepare_frame(rect.image, rect.valid_mask, vo_settings)
-        else:
-            frame = prepare_frame(image, None, vo_settings)
+        rp = (float(euler[i, 0]) + roll_pitch_error_rad[0], float(euler[i, 1]) + roll_pitch_error_rad[1])
+        frame = prepare_view(flight.frame(i), K, flight.R_body_camera, rp if rectify else None, vo_settings)
         h = float(flight.p_world_body_m[i, 2])
-        if pose is None or prev is None:
+        if chain is None:
             R_world_body = flight.R_world_body[i] if not rectify else matrix_from_euler(0.0, 0.0, euler[i, 2])
             mount = R_BODY_CAMERA_DOWN if rectify else flight.R_body_camera
             pose = VoPose(R_n_camera=R_world_body @ mount, p_n_camera_m=flight.p_world_body_m[i].copy())
+            chain = start_vo_chain(frame, pose, h)
         else:
-            motion = estimate_relative_motion(
-                prev, frame, K, vo_settings, model=model if rectify else MotionModel.FREE
-            )
-            pose = compose_pose(pose, motion.R_k_km1, metric_translation(motion.t_over_d, h_prev))
-        prev, h_prev = frame, h
-        out.append(pose.p_n_camera_m.copy())
+            chain = advance_vo_chain(
+                chain, frame, h, K, vo_settings, model if rectify else MotionModel.FREE, chain_settings
+            ).state
+        out.append(chain.pose.p_n_camera_m.copy())
     return np.asarray(out, dtype=np.float64)
 
 
@@ -173,6 +222,9 @@ class RunErrors:
     path_length_m: float
     yaw_error_deg: FloatArray  # (M,) over the attitude stamps
     vo_error_m: FloatArray  # (N,) horizontal VO error over the frames
+    #: ATE RMSE and RPE per metre travelled of the horizontal VO position (:mod:`common.metrics`)
+    ate_rmse_m: float
+    rpe_pct: float
 
     @property
     def vo_error_pct(self) -> float:
@@ -181,13 +233,15 @@ class RunErrors:
         return 100.0 * self.vo_final_error_m / self.path_length_m
 
 
-def path_length_m(flight: Flight, start_frame: int = 0, stop_frame: int | None = None) -> float:
+def path_length_m(flight: FlightRecord, start_frame: int = 0, stop_frame: int | None = None) -> float:
     """Length of the true path over the frames (sum of the 3-D steps)."""
     p = flight.p_world_body_m[start_frame:stop_frame]
     return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
 
-def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: float = 0.0) -> RunErrors:
+def evaluate(
+    run: EstimatorRun, flight: FlightRecord, start_frame: int = 0, settle_s: float = 0.0
+) -> RunErrors:
     """Attitude, altitude and VO errors of ``run`` against ``flight`` (outputs at the sensors' stamps).
 
     Attitude and altitude errors skip the first ``settle_s`` (for runs started mid-manoeuvre).
@@ -201,7 +255,8 @@ def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: 
     err_deg = np.degrees(err)
     alt_err = run.pz_m[keep] - imu.true_p_world_body_m[idx, 2]
     frames = np.searchsorted(flight.frame_stamps_s, run.pose_stamps_s - 1e-9)
-    vo_err = np.linalg.norm(run.p_world_body_m[:, :2] - flight.p_world_body_m[frames, :2], axis=1)
+    est_xy, true_xy = run.p_world_body_m[:, :2], flight.p_world_body_m[frames, :2]
+    vo_err = np.linalg.norm(est_xy - true_xy, axis=1)
     first = int(frames[0]) if len(frames) else start_frame
     stop = int(frames[-1]) + 1 if len(frames) else start_frame + 1
     return RunErrors(
@@ -213,6 +268,10 @@ def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: 
         path_length_m=path_length_m(flight, first, stop),
         yaw_error_deg=err_deg[:, 2],
         vo_error_m=vo_err,
+        ate_rmse_m=ate_rmse_m(est_xy, true_xy) if len(frames) else math.nan,
+        rpe_pct=rpe_translation(est_xy, true_xy, 1.0, flight.p_world_body_m[frames]).mean_pct
+        if len(frames)
+        else math.nan,
     )
 
 
@@ -220,11 +279,20 @@ def evaluate(run: EstimatorRun, flight: Flight, start_frame: int = 0, settle_s: 
 #: from the first accelerometer sample; flight (b) hovers for its first 5 s).
 RECTIFIED_ORIGIN_DELAY_S = 4.0
 
-#: The configurations compared on flight (b): the paper's proposal (rectified frames, EKF altitude as
-#: scale), its "traditional" VO (raw frames, the rangefinder reading as scale: no inertial information),
+#: The configurations compared: the paper's proposal (rectified frames, filter altitude as scale) with the
+#: bias-estimating filter and uncertainty-aware rectification, the same with paper C's 5-state EKF, its
+#: "traditional" VO (raw frames, the rangefinder reading as scale: no inertial information),
 #: raw frames with the EKF altitude (only the rectification missing), and the EKF without visual yaw.
 CONFIGURATIONS: dict[str, dict[str, Any]] = {
     "rectified": {"rectify": True, "visual_yaw": True, "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S},
+    # paper C's 5-state EKF and the level model always trusted: the reference the bias filter improves on
+    "rectified_paper_c": {
+        "rectify": True,
+        "visual_yaw": True,
+        "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
+        "filter": FilterKind.PAPER_C,
+        "uncertainty_aware": False,
+    },
     "traditional": {"rectify": False, "visual_yaw": True, "scale_from": ScaleSource.RANGE},
     "raw_ekf_scale": {"rectify": False, "visual_yaw": True},
     "gyro_yaw": {"rectify": True, "visual_yaw": False, "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S},
@@ -232,7 +300,7 @@ CONFIGURATIONS: dict[str, dict[str, Any]] = {
 
 
 def standard_estimators(
-    flight: Flight, start_frame: int = 0, names: tuple[str, ...] = tuple(CONFIGURATIONS)
+    flight: FlightRecord, start_frame: int = 0, names: tuple[str, ...] = tuple(CONFIGURATIONS)
 ) -> dict[str, DoubleCouplingEstimator]:
     """Estimators of :data:`CONFIGURATIONS`, started at ``start_frame`` with the true initial yaw and the
     true position at their VO origin (the navigation frame n is the world frame), and the attitude from
@@ -257,5 +325,5 @@ def standard_estimators(
             vo_origin_delay_s=delay_s,
             **config,
         )
-        out[name] = DoubleCouplingEstimator(camera_model_of(flight), settings=settings)
+        out[name] = DoubleCouplingEstimator(flight.camera, flight.R_body_camera, settings=settings)
     return out

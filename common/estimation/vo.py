@@ -18,14 +18,21 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from common.errors import CapatazError, InputError
+from common.errors import InputError
+from common.estimation.homography import (
+    VoError,
+    calibrated_homography,
+    choose_decomposition,
+    decompose_with_known_normal,
+    level_motion_from_matches,
+    rotation_about_optical_axis,
+)
 from common.images import check_grey_image
 from common.types import FloatArray
 
@@ -49,10 +56,6 @@ class MotionModel(enum.Enum):
     #: shears the flow by ``|t|/h * d`` and biases the similarity's rotation by half of it on every pair
     #: (a yaw drift that builds up); the free decomposition models the plane normal and has no such bias.
     LEVEL_FREE_YAW = "level_free_yaw"
-
-
-class VoError(CapatazError):
-    """A pair of frames gave no usable motion (too few features, tracks or inliers, no valid solution)."""
 
 
 @dataclass(frozen=True)
@@ -173,22 +176,31 @@ def prepare_frame(image: npt.ArrayLike, mask: npt.ArrayLike | None, settings: Vo
 
 
 def track_features(
-    prev: PreparedFrame, curr: PreparedFrame, settings: VoSettings
+    prev: PreparedFrame, curr: PreparedFrame, settings: VoSettings, guess_H_px: FloatArray | None = None
 ) -> tuple[FloatArray, FloatArray]:
     """Pyramidal LK from k-1 to k and back; keeps tracks whose round trip closes within ``fb_max_error_px``
-    and that land inside frame k's (eroded) valid mask. Returns matched ``(N, 2)`` pixel arrays."""
+    and that land inside frame k's (eroded) valid mask. Returns matched ``(N, 2)`` pixel arrays.
+
+    ``guess_H_px`` (a homography k-1 -> k, e.g. the last one of a keyframe) starts the flow at the
+    features' predicted positions: large displacements from a keyframe stay within LK's reach."""
     pts0 = prev.features_px
     if len(pts0) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
+    flags = 0
+    guess = None
+    if guess_H_px is not None:
+        guess = np.asarray(cv2.perspectiveTransform(pts0, np.asarray(guess_H_px, dtype=np.float64)))
+        guess = guess.astype(np.float32)
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
     window = (settings.lk_window_px, settings.lk_window_px)
     criteria = (
         cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
         settings.lk_iterations,
         settings.lk_epsilon_px,
     )
-    pts1, st1, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
-        prev.image, curr.image, pts0, None,
-        winSize=window, maxLevel=settings.lk_levels, criteria=criteria,
+    pts1, st1, _ = cv2.calcOpticalFlowPyrLK(
+        prev.image, curr.image, pts0, guess,  # type: ignore[arg-type]
+        winSize=window, maxLevel=settings.lk_levels, criteria=criteria, flags=flags,
     )  # fmt: skip
     back, st2, _ = cv2.calcOpticalFlowPyrLK(
         curr.image, prev.image, pts1, pts0.copy(),
@@ -209,121 +221,6 @@ def track_features(
     return p0[ok], p1[ok]
 
 
-def choose_decomposition(
-    rotations: Sequence[npt.ArrayLike],
-    translations: Sequence[npt.ArrayLike],
-    normals: Sequence[npt.ArrayLike],
-    K: FloatArray,
-    points_km1_px: FloatArray,
-    points_k_px: FloatArray,
-    expected_normal: FloatArray,
-) -> int:
-    """Index of the physically valid solution of ``cv2.decomposeHomographyMat``.
-
-    Keeps the solutions for which every reference point is in front of both cameras
-    (``cv2.filterHomographyDecompByVisibleRefpoints`` on normalised coordinates), then the one whose
-    plane normal is closest to ``expected_normal`` (the camera's down axis for a downward camera).
-    When the translation is too small for the normal to be observable, the one with the smallest translation.
-    """
-    candidates = list(range(len(rotations)))
-    K_inv = np.linalg.inv(K)
-    m0 = (points_km1_px @ K_inv[:2, :2].T + K_inv[:2, 2]).astype(np.float32).reshape(-1, 1, 2)
-    m1 = (points_k_px @ K_inv[:2, :2].T + K_inv[:2, 2]).astype(np.float32).reshape(-1, 1, 2)
-    visible = cv2.filterHomographyDecompByVisibleRefpoints(
-        [np.asarray(r, dtype=np.float64) for r in rotations],
-        [np.asarray(n, dtype=np.float64) for n in normals],
-        m0,
-        m1,
-    )
-    if visible is not None and len(visible) > 0:
-        candidates = [int(i) for i in np.asarray(visible).ravel()]
-    scores = [float(np.asarray(normals[i]).ravel() @ expected_normal) for i in candidates]
-    best = int(np.argmax(scores))
-    if scores[best] > 0.0:
-        return candidates[best]
-    # Without translation the plane normal is unobservable (H is a pure rotation): every solution has the
-    # same R and t ~ 0, so the one with the smallest translation is as good as any.
-    norms = [float(np.linalg.norm(translations[i])) for i in candidates]
-    smallest = int(np.argmin(norms))
-    if norms[smallest] > 1e-3:
-        raise VoError("no homography decomposition has its plane normal towards the ground")
-    return candidates[smallest]
-
-
-def calibrated_homography(H_px: npt.ArrayLike, K: npt.ArrayLike) -> FloatArray:
-    """``K^-1 H K`` scaled so that its middle singular value is 1 and its determinant positive (the
-    normalisation under which ``H = R + t n^T / d``)."""
-    Km = np.asarray(K, dtype=np.float64)
-    Hc = np.linalg.inv(Km) @ np.asarray(H_px, dtype=np.float64) @ Km
-    sigma = np.linalg.svd(Hc, compute_uv=False)
-    Hc = Hc / sigma[1]
-    if np.linalg.det(Hc) < 0.0:
-        Hc = -Hc
-    return np.asarray(Hc, dtype=np.float64)
-
-
-def decompose_with_known_normal(Hc: npt.ArrayLike, normal: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """``R, T/d`` of a calibrated homography ``Hc = R + (T/d) n^T`` whose plane normal ``n`` is known.
-
-    ``Hc (I - n n^T) = R (I - n n^T)`` fixes ``R`` (orthogonal Procrustes on the plane directions), then
-    ``T/d = (Hc - R) n``. Used for the near-pure rotations that ``cv2.decomposeHomographyMat`` does not split.
-    """
-    H = np.asarray(Hc, dtype=np.float64)
-    n = np.asarray(normal, dtype=np.float64).reshape(3)
-    n = n / np.linalg.norm(n)
-    P = np.eye(3) - np.outer(n, n)
-    # R = argmin |R P - H P| over rotations = U diag(1, 1, det(U V^T)) V^T with U S V^T = H P (rank 2)
-    U, _, Vt = np.linalg.svd(H @ P)
-    D = np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    return np.asarray(R, dtype=np.float64), np.asarray((H - R) @ n, dtype=np.float64)
-
-
-def level_motion_from_matches(
-    points_km1_px: npt.ArrayLike, points_k_px: npt.ArrayLike, K: npt.ArrayLike
-) -> tuple[FloatArray, FloatArray]:
-    """``R_k_km1 = Rz(dpsi)`` and ``T/d`` between two level (rectified) views of the ground, by least squares.
-
-    For level cameras the plane normal is the optical axis ``e3`` and the rotation is about it, so the
-    calibrated homography ``R + (T/d) e3^T`` maps normalised points ``m -> (R2 m + t_xy) / (1 + t_z)``: a 2-D
-    similarity with scale ``s = 1 / (1 + t_z)`` and shift ``b = t_xy / (1 + t_z)``. Closed-form
-    (Umeyama) fit on the matches; ``t_z = 1/s - 1``, ``t_xy = b / s``.
-    """
-    Km = np.asarray(K, dtype=np.float64)
-    K_inv = np.linalg.inv(Km)
-    a = np.asarray(points_km1_px, dtype=np.float64) @ K_inv[:2, :2].T + K_inv[:2, 2]
-    b = np.asarray(points_k_px, dtype=np.float64) @ K_inv[:2, :2].T + K_inv[:2, 2]
-    if len(a) < 2:
-        raise VoError("a level-motion fit needs at least two matches")
-    mean_a = a.mean(axis=0)
-    mean_b = b.mean(axis=0)
-    a0 = a - mean_a
-    b0 = b - mean_b
-    var_a = float(np.sum(a0 * a0))
-    if var_a <= 1e-18:
-        raise VoError("matches are degenerate (all at one point)")
-    cross = b0.T @ a0  # sum b0 a0^T
-    # rotation angle maximising trace(R^T cross), scale = |.| / var_a
-    c = cross[0, 0] + cross[1, 1]
-    s_ = cross[1, 0] - cross[0, 1]
-    angle = math.atan2(s_, c)
-    scale = math.hypot(c, s_) / var_a
-    ca, sa = math.cos(angle), math.sin(angle)
-    R2 = np.array([[ca, -sa], [sa, ca]])
-    shift = mean_b - scale * (R2 @ mean_a)
-    t_over_d = np.array([shift[0] / scale, shift[1] / scale, 1.0 / scale - 1.0])
-    R = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
-    return R, t_over_d
-
-
-def rotation_about_optical_axis(R_k_km1: npt.ArrayLike) -> FloatArray:
-    """``Rz(angle)``: the in-plane (about the optical axis, the yaw of a level camera) part of a rotation."""
-    R = np.asarray(R_k_km1, dtype=np.float64)
-    angle = math.atan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1])
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def estimate_relative_motion(
     prev: PreparedFrame,
     curr: PreparedFrame,
@@ -331,13 +228,15 @@ def estimate_relative_motion(
     settings: VoSettings,
     expected_normal: npt.ArrayLike = (0.0, 0.0, 1.0),
     model: MotionModel = MotionModel.FREE,
+    guess_H_px: FloatArray | None = None,
 ) -> RelativeMotion:
     """Rotation, ``T/d`` and plane normal between frames k-1 and k (paper C Algorithm 2).
 
-    ``model`` selects the free decomposition (any pair) or the level ones (rectified pairs).
+    ``model`` selects the free decomposition (any pair) or the level ones (rectified pairs);
+    ``guess_H_px`` seeds the flow (:func:`track_features`).
     """
     Km = np.asarray(K, dtype=np.float64)
-    p0, p1 = track_features(prev, curr, settings)
+    p0, p1 = track_features(prev, curr, settings, guess_H_px)
     if len(p0) < settings.min_inliers:
         raise VoError(f"only {len(p0)} tracks survived (need {settings.min_inliers})")
     H, inliers = cv2.findHomography(p0, p1, cv2.RANSAC, settings.ransac_threshold_px)

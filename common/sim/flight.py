@@ -31,6 +31,7 @@ from common.sim.trajectory import (
     NOMINAL_HOVER_DURATION_S,
     AttitudeMode,
     Trajectory,
+    agile_trajectory,
     hover_trajectory,
     turns_trajectory,
 )
@@ -203,6 +204,28 @@ def turns_flight(
     trajectory = turns_trajectory(seed=seed, heading_follows_path=heading_follows_path)
     return simulate_flight(
         trajectory,
+        seed=seed,
+        camera=camera,
+        texture=texture,
+        degradation=degradation,
+        imu_noise=imu_noise,
+        range_noise=range_noise,
+    )
+
+
+def agile_flight(
+    seed: int = 0,
+    camera: CameraModel | None = None,
+    texture: GroundTexture | None = None,
+    degradation: ImageDegradation | None = None,
+    imu_noise: ImuNoise | None = None,
+    range_noise: RangeNoise | None = None,
+) -> Flight:
+    """A longer, faster, more tilted indoor flight than paper C's: 60 s (1201 frames at 20 fps), a figure of
+    eight with fast side-steps at 1-3 m, speed up to about 1.5 m/s, tilt up to about 20 deg, the heading
+    swinging +-70 deg; 4 s of hover at both ends. See :func:`common.sim.trajectory.agile_trajectory`."""
+    return simulate_flight(
+        agile_trajectory(seed=seed),
         seed=seed,
         camera=camera,
         texture=texture,

@@ -28,21 +28,16 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel as LensCamera
+from common.camera import CameraModel
 from common.errors import InputError
-from common.estimation.coupling import (
+from common.estimation.coupling import DoubleCouplingEstimator
+from common.estimation.coupling_types import (
     AttitudeOutput,
-    CameraModel,
     CouplingSettings,
-    DoubleCouplingEstimator,
-    Measurement,
+    FilterKind,
     PoseOutput,
-    check_frame,
-    check_imu,
-    check_range,
-    check_yaw,
 )
-from common.estimation.ekf import EkfSettings, error_angle_covariance_world
+from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
 from services.runtime.transport import (
     LatestSlot,
@@ -66,6 +61,8 @@ class EstimatorSettings(BaseModel):
     height: int = Field(default=480, gt=0)
     hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0)
     rectify: bool = True
+    #: the attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF
+    filter: FilterKind = FilterKind.BIAS
     visual_yaw: bool = True
     external_yaw: bool = False
     max_lag_s: float = Field(default=0.02, ge=0.0, le=1.0)
@@ -76,12 +73,12 @@ class EstimatorSettings(BaseModel):
     vo_drift_fraction: float = Field(default=0.001, gt=0.0)
 
     def camera(self) -> CameraModel:
-        cam = LensCamera.from_hfov(self.width, self.height, self.hfov_deg)
-        return CameraModel(K=cam.K, width=cam.width, height=cam.height)
+        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
 
     def coupling(self) -> CouplingSettings:
         return CouplingSettings(
             rectify=self.rectify,
+            filter=self.filter,
             visual_yaw=self.visual_yaw,
             external_yaw=self.external_yaw,
             max_lag_s=self.max_lag_s,
@@ -92,28 +89,26 @@ class EstimatorSettings(BaseModel):
 
 def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
     """The in-process estimator the service runs (also used to check the service against)."""
-    return DoubleCouplingEstimator(settings.camera(), EkfSettings(), settings=settings.coupling())
+    return DoubleCouplingEstimator(settings.camera(), settings=settings.coupling())
 
 
-def attitude_message(uav: str, seq: int, out: AttitudeOutput, covariance_q: np.ndarray) -> AttitudeEstimate:
-    """The ``attitude`` message of one EKF output."""
+def attitude_message(uav: str, seq: int, out: AttitudeOutput) -> AttitudeEstimate:
+    """The ``attitude`` message of one filter output, with that output's own covariance."""
     return AttitudeEstimate(
         uav=uav,
         seq=seq,
         stamp_s=out.stamp_s,
         q_world_body=out.q_world_body.copy(),
-        covariance=error_angle_covariance_world(out.q_world_body, covariance_q),
+        covariance=out.attitude_covariance_world.copy(),
     )
 
 
-def pose_message(
-    uav: str, seq: int, out: PoseOutput, covariance_q: np.ndarray, var_z: float, var_xy: float
-) -> PoseEstimate:
-    """The ``pose/vo`` message of one frame."""
+def pose_message(uav: str, seq: int, out: PoseOutput, var_xy: float) -> PoseEstimate:
+    """The ``pose/vo`` message of one frame (the filter's altitude and attitude covariance at that frame)."""
     cov = np.zeros((6, 6))
     cov[0, 0] = cov[1, 1] = var_xy
-    cov[2, 2] = var_z
-    cov[3:, 3:] = error_angle_covariance_world(out.q_world_body, covariance_q)
+    cov[2, 2] = out.altitude_var_m2
+    cov[3:, 3:] = out.attitude_covariance_world
     return PoseEstimate(
         uav=uav,
         seq=seq,
@@ -256,19 +251,19 @@ class EstimatorService(ServiceRuntime):
                 continue
             t0 = time.perf_counter()
             outputs = self.estimator.process_due()
-            self.counters.time_ms("process", (time.perf_counter() - t0) * 1e3)
+            process_ms = (time.perf_counter() - t0) * 1e3
+            self.counters.time_ms("process", process_ms)
+            if any(isinstance(out, PoseOutput) for out in outputs):
+                # a frame's VO step (rectification included) and the few IMU samples applied with it
+                self.counters.time_ms("vo", process_ms)
             self._publish(outputs)
             self._mirror_counters()
 
     def _publish(self, outputs: list[AttitudeOutput | PoseOutput]) -> None:
-        state = self.estimator.state
-        if state is None:
-            return
-        P = state.covariance
         for out in outputs:
             if isinstance(out, AttitudeOutput):
                 msg: AttitudeEstimate | PoseEstimate = attitude_message(
-                    self.settings.uav, self._attitude_seq, out, P[:4, :4]
+                    self.settings.uav, self._attitude_seq, out
                 )
                 self._attitude_seq += 1
                 publisher = self._attitude_pub
@@ -278,10 +273,9 @@ class EstimatorService(ServiceRuntime):
                     self._travelled_m += float(np.linalg.norm(xy - self._last_xy))
                 self._last_xy = xy
                 var_xy = (self.settings.vo_drift_fraction * self._travelled_m) ** 2 + 1e-6
-                msg = pose_message(self.settings.uav, self._pose_seq, out, P[:4, :4], float(P[4, 4]), var_xy)
+                msg = pose_message(self.settings.uav, self._pose_seq, out, var_xy)
                 self._pose_seq += 1
                 publisher = self._pose_pub
-                self.counters.time_ms("vo", out.vo_ms)
             payload, attachment = encode(msg)
             publisher.put(payload, attachment=attachment)
             self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")
@@ -307,6 +301,13 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
     )
+    parser.add_argument(
+        "--filter",
+        choices=[kind.value for kind in FilterKind],
+        default=FilterKind.BIAS.value,
+        help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
+        "paper_c (paper C's 5-state EKF)",
+    )
     parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
     parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
     parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
@@ -331,6 +332,7 @@ def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
             height=height,
             hfov_deg=args.hfov,
             rectify=not args.no_rectify,
+            filter=FilterKind(args.filter),
             visual_yaw=not args.no_visual_yaw,
             external_yaw=args.external_yaw,
             max_lag_s=args.max_lag,

@@ -10,7 +10,7 @@ import time
 import zenoh
 
 from common import keys
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.messages import Frame, ImuSample, RangeSample, WireModel, encode
 
 

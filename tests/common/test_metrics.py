@@ -61,3 +61,85 @@ def test_metrics_reject_bad_input() -> None:
         accumulated_mean_error(np.zeros(10), 10)
     with pytest.raises(InputError):
         accumulated_mean_error(np.zeros((3, 3)), 1)
+
+
+# ---- trajectory metrics, cross-checked against evo ---------------------------------------------------
+
+
+def _walk(seed: int, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """A reference path (random 3-D walk, steps ~5 cm) and an estimate drifting from it."""
+    rng = np.random.default_rng(seed)
+    ref = np.cumsum(rng.normal(0.0, 0.03, (n, 3)) + np.array([0.03, 0.01, 0.0]), axis=0)
+    est = ref + np.cumsum(rng.normal(0.0, 0.002, (n, 3)), axis=0)
+    return est, ref
+
+
+def _evo_trajectory(positions: np.ndarray):  # type: ignore[no-untyped-def]
+    from evo.core.trajectory import PoseTrajectory3D
+
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (len(positions), 1))
+    return PoseTrajectory3D(positions, quats, np.arange(len(positions), dtype=np.float64))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ate_and_rpe_match_evo(seed: int) -> None:
+    evo_metrics = pytest.importorskip("evo.core.metrics", reason="evo (dev extra) is not installed")
+    from common.metrics import ate_rmse_m, rpe_translation
+
+    est, ref = _walk(seed)
+    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    ape.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
+    assert ate_rmse_m(est, ref) == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9)
+    rpe = evo_metrics.RPE(
+        evo_metrics.PoseRelation.translation_part,
+        delta=1.0,
+        delta_unit=evo_metrics.Unit.meters,
+        pairs_from_reference=True,
+    )
+    rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
+    ours = rpe_translation(est, ref, delta_m=1.0)
+    assert ours.pairs == len(rpe.error)
+    assert ours.mean_m == pytest.approx(rpe.get_statistic(evo_metrics.StatisticsType.mean), rel=1e-9)
+    assert ours.rmse_m == pytest.approx(rpe.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9)
+    assert ours.mean_pct == pytest.approx(100.0 * ours.mean_m)
+
+
+def test_horizontal_rpe_with_3d_pairs_matches_evo_with_true_altitude() -> None:
+    """Error on x, y only with the pairs on the 3-D path = evo on 3-D with the estimate's z made true."""
+    evo_metrics = pytest.importorskip("evo.core.metrics", reason="evo (dev extra) is not installed")
+    from common.metrics import rpe_translation
+
+    est, ref = _walk(5)
+    est_true_z = np.c_[est[:, :2], ref[:, 2]]
+    rpe = evo_metrics.RPE(
+        evo_metrics.PoseRelation.translation_part,
+        delta=1.0,
+        delta_unit=evo_metrics.Unit.meters,
+        pairs_from_reference=True,
+    )
+    rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est_true_z)))
+    ours = rpe_translation(est[:, :2], ref[:, :2], 1.0, reference_path_m=ref)
+    assert ours.mean_m == pytest.approx(rpe.get_statistic(evo_metrics.StatisticsType.mean), rel=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), offset=arrays(np.float64, 3, elements=st.floats(-100, 100)))
+def test_rpe_ignores_a_constant_offset_and_ate_measures_it(seed: int, offset: np.ndarray) -> None:
+    from common.metrics import ate_rmse_m, rpe_translation
+
+    _, ref = _walk(seed, 120)
+    assert rpe_translation(ref + offset, ref).mean_m == pytest.approx(0.0, abs=1e-9)
+    assert ate_rmse_m(ref + offset, ref) == pytest.approx(float(np.linalg.norm(offset)), abs=1e-9)
+
+
+def test_trajectory_metrics_refuse_bad_input() -> None:
+    from common.metrics import ate_rmse_m, rpe_translation
+
+    ref = np.zeros((5, 3))
+    with pytest.raises(InputError):
+        ate_rmse_m(np.zeros((4, 3)), ref)
+    with pytest.raises(InputError):
+        ate_rmse_m(np.full((5, 3), math.nan), ref)
+    with pytest.raises(InputError):
+        rpe_translation(ref, ref, delta_m=0.0)
+    assert rpe_translation(ref, ref).pairs == 0  # never travels 1 m: no pairs, nan mean

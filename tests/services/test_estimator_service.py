@@ -13,7 +13,7 @@ import pytest
 import zenoh
 
 from common import keys
-from common.estimation.coupling import AttitudeOutput, PoseOutput
+from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.replay import flight_measurements
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, decode, encode
 from common.sim.flight import Flight, turns_flight

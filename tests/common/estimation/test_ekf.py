@@ -16,6 +16,8 @@ from common.estimation.ekf import (
     AttitudeAltitudeEkf,
     EkfSettings,
     EkfState,
+)
+from common.estimation.ekf_models import (
     accelerometer_model,
     chi_square_cdf,
     chi_square_quantile,

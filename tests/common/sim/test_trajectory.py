@@ -170,3 +170,30 @@ def test_invalid_trajectory_inputs() -> None:
         hover_trajectory(duration_s=-1.0)
     with pytest.raises(InputError):
         turns_trajectory(radius_m=0.0)
+
+
+def test_agile_trajectory_is_fast_tilted_and_hovers_at_both_ends() -> None:
+    from common.sim.trajectory import agile_trajectory
+
+    for seed in (0, 1, 2):
+        traj = agile_trajectory(seed=seed)
+        info = traj.info
+        assert 1.3 < info["max_speed_m_s"] < 1.7
+        assert 14.0 < info["max_tilt_deg"] < 26.0
+        assert info["min_altitude_m"] > 1.05 and info["max_altitude_m"] < 2.95
+        ends = traj.sample(np.array([0.0, 2.0, traj.duration_s - 2.0, traj.duration_s]))
+        assert np.allclose(ends.v_world_m_s, 0.0, atol=1e-12)
+        assert np.allclose(ends.p_world_body_m[:, 2], 2.0)
+
+
+def test_enveloped_path_derivatives_match_finite_differences() -> None:
+    from common.sim.trajectory import agile_trajectory
+
+    path = agile_trajectory(seed=3).path
+    t = np.linspace(3.0, 20.0, 7)
+    eps = 1e-5
+    derivs = path.derivatives(t)
+    plus, minus = path.derivatives(t + eps), path.derivatives(t - eps)
+    for order in range(3):
+        numeric = (plus[order] - minus[order]) / (2.0 * eps)
+        assert np.allclose(derivs[order + 1], numeric, atol=1e-5 * (1.0 + np.abs(numeric).max()))

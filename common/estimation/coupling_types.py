@@ -1,0 +1,133 @@
+"""Settings, camera model and outputs of the double-coupling estimator (:mod:`common.estimation.coupling`)."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from common.estimation.vo import MotionModel
+from common.types import FloatArray
+
+
+class FilterKind(enum.Enum):
+    """Which attitude/altitude filter the coupling runs."""
+
+    #: Paper C's 5-state EKF (quaternion + altitude), kept as the reference.
+    PAPER_C = "paper_c"
+    #: The error-state EKF with gyro and accelerometer bias states (:mod:`common.estimation.eskf`).
+    BIAS = "bias"
+
+
+class ScaleSource(enum.Enum):
+    """Where the visual odometry takes its metric scale (the camera's height) from."""
+
+    EKF = "ekf"
+    RANGE = "range"
+
+
+@dataclass(frozen=True)
+class CouplingSettings:
+    """How the two layers are coupled."""
+
+    #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's
+    #: "traditional" VO).
+    rectify: bool = True
+    #: Time constant (s) pulling the rectification attitude (gyro-propagated between frames) towards the
+    #: EKF's; 0 rectifies with the EKF attitude of each frame as it is.
+    rectification_smoothing_s: float = 0.0
+    #: Metric scale of the VO: the EKF altitude (coupled) or the last rangefinder reading as it is
+    #: (the uncoupled, traditional VO: longer than the height when tilted, and noisy).
+    scale_from: ScaleSource = ScaleSource.EKF
+    #: How rectified pairs are turned into a motion: the similarity of two level views for the
+    #: translation and the free decomposition's rotation about the optical axis for the yaw (the
+    #: default, :attr:`MotionModel.LEVEL_FREE_YAW`), or freely (``cv2.decomposeHomographyMat``), with the
+    #: known plane normal, or the similarity alone (:attr:`MotionModel.LEVEL`).
+    rectified_motion_model: MotionModel = MotionModel.LEVEL_FREE_YAW
+    #: The VO's position origin (``initial_position_m``) is the first frame at least this long after the
+    #: first IMU sample (frames before it already give the VO yaw). A rectified VO position is off by
+    #: ``h * d`` (``d``: the EKF's tilt error when the frame was rectified); these offsets telescope
+    #: along the chain, so the error is ``h_k d_k - h_0 d_0`` with ``0`` the origin frame. An origin
+    #: before the EKF's tilt has settled from the first accelerometer sample leaves that transient in
+    #: ``d_0`` for the whole flight.
+    vo_origin_delay_s: float = 0.0
+    #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
+    #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
+    #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
+    #: it was rectified with the known initial attitude, else from the latest estimate.
+    vision_tilt_correction: bool = True
+    #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
+    #: pairs) it needs before it is used.
+    vision_tilt_window_s: float = 5.0
+    vision_tilt_min_information: float = 1e-3
+    #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
+    visual_yaw: bool = True
+    #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
+    external_yaw: bool = False
+    vo_yaw_noise_rad: float = 0.005
+    external_yaw_noise_rad: float = 0.02
+    #: Samples are held until this much older than the newest stamp, then applied in order.
+    max_lag_s: float = 0.02
+    max_pending: int = 4096
+    #: Altitude assumed before the first range reading, and its std.
+    default_altitude_m: float = 1.0
+    default_altitude_std_m: float = 2.0
+    #: Compensate the accelerometer for the manoeuvre acceleration estimated from the VO positions (the
+    #: hover model of eq. 16 alone reads the coordinated tilt of a turn as level).
+    accel_compensation: bool = True
+    #: Time span of the VO positions fitted (cubic in time) for that acceleration.
+    accel_window_s: float = 0.6
+    #: After the start, skip the accelerometer for up to this long until the VO acceleration is available
+    #: (0: use the hover model meanwhile, right for a start at rest; > 0 for a start in mid-manoeuvre).
+    accel_wait_for_vo_s: float = 0.0
+    #: The attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF.
+    filter: FilterKind = FilterKind.BIAS
+    #: Uncertainty-aware rectification: the output position is the inverse-variance blend
+    #: ``w * level + (1 - w) * free`` of two chains over the same rectified pairs: the level model's (error
+    #: ``h_k d_k - h_0 d_0``, std ``sqrt((h_k s_k)^2 + (h_0 s_0)^2)`` from the filter's current tilt std
+    #: ``s_k`` and the origin's ``s_0``) and the free decomposition's (the traditional path, independent of
+    #: the filter's tilt; std ``free_drift_per_m`` times the path since the origin). An uncertain tilt
+    #: falls back to the free chain; False always trusts the level model (paper C's rectified VO).
+    uncertainty_aware: bool = True
+    #: Drift of the free chain per metre travelled (1-sigma, the traditional VO's RPE on the simulator).
+    free_drift_per_m: float = 0.004
+    #: With the bias filter: correct the VO origin's offset ``h_0 d_0`` with the tilt error its frame had,
+    #: re-estimated from how much the accelerometer-bias estimate changed since (at hover a bias error
+    #: ``db`` reads as a tilt error of ``db / g``).
+    origin_tilt_from_bias: bool = True
+    #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
+    initial_yaw_rad: float = 0.0
+    initial_position_m: tuple[float, float] = (0.0, 0.0)
+    #: Known initial attitude ``q_world_body`` (else roll and pitch from the first accelerometer sample).
+    initial_q_world_body: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class AttitudeOutput:
+    """Filter estimate after one IMU sample, with its own uncertainty (world-frame error angles, altitude)."""
+
+    stamp_s: float
+    q_world_body: FloatArray
+    pz_m: float
+    attitude_covariance_world: FloatArray  # (3, 3) rad^2
+    altitude_var_m2: float
+
+
+@dataclass(frozen=True)
+class PoseOutput:
+    """Visual-odometry pose after one frame: body position (x, y from VO, z from the filter) and attitude.
+
+    ``rectification_weight`` is the share of the level (rectified) model in the frame's translation
+    (0: the free decomposition, the traditional path; nan for raw frames)."""
+
+    stamp_s: float
+    p_world_body_m: FloatArray
+    q_world_body: FloatArray
+    attitude_covariance_world: FloatArray  # (3, 3) rad^2
+    altitude_var_m2: float
+    vo_yaw_rad: float
+    n_inliers: int
+    rectification_weight: float
+    ok: bool
+
+
+Output = AttitudeOutput | PoseOutput

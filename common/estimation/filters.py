@@ -1,0 +1,82 @@
+"""The two attitude/altitude filters behind one set of functions: paper C's 5-state EKF (the reference) and
+the error-state EKF with bias states. The coupling holds either; these dispatch on the pair it holds."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from common.estimation.coupling_types import FilterKind
+from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState
+from common.estimation.ekf_models import EkfError, propagate_quaternion
+from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
+from common.types import FloatArray
+
+AnyFilter = AttitudeAltitudeEkf | BiasAwareEkf
+AnyState = EkfState | BiasEkfState
+
+
+def make_filter(kind: FilterKind, settings: EkfSettings | None = None) -> AnyFilter:
+    """The filter of ``kind`` (``settings`` of the matching type, else its defaults)."""
+    if kind is FilterKind.BIAS:
+        return BiasAwareEkf(settings if isinstance(settings, BiasEkfSettings) else None)
+    return AttitudeAltitudeEkf(settings)
+
+
+def with_altitude(ekf: AnyFilter, state: AnyState, pz_m: float, std_m: float) -> AnyState:
+    """The state with its altitude replaced (uncorrelated, std ``std_m``)."""
+    if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
+        return ekf.with_altitude(state, pz_m, std_m)
+    if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
+        return ekf.with_altitude(state, pz_m, std_m)
+    raise EkfError("filter and state kinds differ")
+
+
+def attitude_covariance(ekf: AnyFilter, state: AnyState) -> FloatArray:
+    """3x3 covariance of world-frame error angles."""
+    if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
+        return ekf.attitude_covariance_world(state)
+    if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
+        return ekf.attitude_covariance_world(state)
+    raise EkfError("filter and state kinds differ")
+
+
+def altitude_variance(ekf: AnyFilter, state: AnyState) -> float:
+    if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
+        return ekf.altitude_variance(state)
+    if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
+        return ekf.altitude_variance(state)
+    raise EkfError("filter and state kinds differ")
+
+
+def filter_step(ekf: AnyFilter, state: AnyState, method: str, *args: Any) -> tuple[AnyState, bool]:
+    """One filter call (``predict`` or an ``update_*``; both filters share the names): the new state and
+    whether the update passed its gate."""
+    result = getattr(ekf, method)(state, *args)
+    if method == "predict":
+        return result, True
+    return result.state, bool(result.accepted)
+
+
+def tilt_std_rad(attitude_covariance_world: FloatArray) -> float:
+    """Largest standard deviation of the horizontal (tilt) error angles."""
+    C = np.asarray(attitude_covariance_world, dtype=np.float64)[:2, :2]
+    return float(math.sqrt(max(float(np.linalg.eigvalsh(C)[-1]), 0.0)))
+
+
+def smoothed_attitude(
+    q_prev: FloatArray, gyro_rad_s: FloatArray, dt_s: float, q_filter: FloatArray, tau_s: float
+) -> FloatArray:
+    """The gyro's rotation over ``dt_s`` (eq. 12) applied to ``q_prev``, pulled towards the filter's
+    ``q_filter`` with the time constant ``tau_s``: an attitude that rectifies consecutive frames
+    consistently (the accelerometer corrections would otherwise make them jitter against each other)."""
+    half = 0.5 * dt_s
+    r = q_prev.tolist()
+    w = gyro_rad_s
+    q = np.array(propagate_quaternion((r[0], r[1], r[2], r[3]), half * w[0], half * w[1], half * w[2]))
+    target = q_filter if float(np.dot(q, q_filter)) >= 0.0 else -q_filter
+    alpha = min(1.0, dt_s / tau_s)
+    q = (1.0 - alpha) * q + alpha * target
+    return np.asarray(q / np.linalg.norm(q), dtype=np.float64)

@@ -1,0 +1,198 @@
+"""Pieces of ``capataz bench estimator``: the seed sweep over the two flights and the step timings.
+
+- :func:`sweep`: each flight (paper C's turns, the agile flight) and seed through the rectified and the
+  traditional estimator (fed the same stream, frames rendered once); ATE RMSE and RPE per metre of the
+  horizontal VO position (:mod:`common.metrics`), final error, attitude RMSE; medians and maxima over seeds.
+- :func:`time_ekf_steps`, :func:`time_vo_steps`: one filter predict + accelerometer update and one VO step
+  (rectification included, rendering excluded) with warm-up and repetitions; median, p95 and the host's CPU
+  steal over the measurement (``/proc/stat``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.estimation.ekf import AttitudeAltitudeEkf
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.replay import evaluate, flight_measurements, run_estimators, standard_estimators
+from common.estimation.vo import MotionModel, VoPose, VoSettings
+from common.estimation.vo_chain import advance_vo_chain, prepare_view, start_vo_chain
+from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
+from common.sim.flight import Flight, agile_flight, turns_flight
+
+#: The flights of the sweep.
+FLIGHTS: dict[str, Callable[[int], Flight]] = {
+    "paper_c": lambda seed: turns_flight(seed=seed),
+    "agile": lambda seed: agile_flight(seed=seed),
+}
+
+#: Per-seed figures summarised by median and maximum.
+SEED_FIELDS = (
+    "ate_rmse_cm_rectified",
+    "ate_rmse_cm_traditional",
+    "rpe_pct_rectified",
+    "rpe_pct_traditional",
+    "final_error_cm_rectified",
+    "final_error_cm_traditional",
+    "att_rmse_deg",
+)
+
+
+def seed_figures(flight: Flight, names: tuple[str, ...] = ("rectified", "traditional")) -> dict[str, float]:
+    """One flight through the estimators: the per-seed figures of :data:`SEED_FIELDS` (and the reference
+    filter's, when ``rectified_paper_c`` is among ``names``)."""
+    runs = run_estimators(standard_estimators(flight, 0, names), flight_measurements(flight))
+    errors = {name: evaluate(run, flight) for name, run in runs.items()}
+    out: dict[str, float] = {}
+    for name, err in errors.items():
+        out[f"ate_rmse_cm_{name}"] = 100.0 * err.ate_rmse_m
+        out[f"rpe_pct_{name}"] = err.rpe_pct
+        out[f"final_error_cm_{name}"] = 100.0 * err.vo_final_error_m
+    out["att_rmse_deg"] = float(np.max(errors["rectified"].att_rmse_deg))
+    return out
+
+
+def summarize_seeds(rows: list[dict[str, float]]) -> dict[str, Any]:
+    """Medians and maxima over seeds, and the share of seeds where rectified ATE <= traditional ATE."""
+    summary: dict[str, Any] = {}
+    for key in rows[0]:
+        values = np.array([row[key] for row in rows], dtype=np.float64)
+        summary[key] = {"median": float(np.median(values)), "max": float(np.max(values))}
+    better = [row["ate_rmse_cm_rectified"] <= row["ate_rmse_cm_traditional"] for row in rows]
+    summary["rectified_better_share"] = float(np.mean(better))
+    summary["rectified_better_seeds"] = int(np.sum(better))
+    summary["per_seed"] = rows
+    return summary
+
+
+def sweep(
+    flights: tuple[str, ...], seeds: int, reference: bool, log: Callable[[str], None] | None = None
+) -> dict[str, Any]:
+    """Seeds ``0 .. seeds - 1`` of each flight; ``reference`` adds paper C's 5-state filter."""
+    names = ("rectified", "traditional") + (("rectified_paper_c",) if reference else ())
+    out: dict[str, Any] = {}
+    for flight_name in flights:
+        rows = []
+        for seed in range(seeds):
+            t0 = time.perf_counter()
+            row = {"seed": float(seed), **seed_figures(FLIGHTS[flight_name](seed), names)}
+            rows.append(row)
+            if log is not None:
+                log(
+                    f"{flight_name} seed {seed}: ATE rect {row['ate_rmse_cm_rectified']:.2f} cm, "
+                    f"trad {row['ate_rmse_cm_traditional']:.2f} cm, "
+                    f"RPE rect {row['rpe_pct_rectified']:.3f} %, "
+                    f"trad {row['rpe_pct_traditional']:.3f} %, att {row['att_rmse_deg']:.3f} deg "
+                    f"({time.perf_counter() - t0:.0f} s)"
+                )
+        out[flight_name] = summarize_seeds(rows)
+    return out
+
+
+# ---- timing ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Step times (median, p95, in the unit of the name) and the CPU steal share during the measurement."""
+
+    median: float
+    p90: float
+    p95: float
+    samples: int
+    steal_pct: float
+
+
+def cpu_times(stat_path: Path = Path("/proc/stat")) -> tuple[float, float]:
+    """``(steal, total)`` jiffies of all CPUs from ``/proc/stat`` (nan, nan where it does not exist)."""
+    try:
+        fields = stat_path.read_text().splitlines()[0].split()
+    except OSError:
+        return float("nan"), float("nan")
+    values = [float(v) for v in fields[1:]]
+    steal = values[7] if len(values) > 7 else 0.0
+    return steal, float(sum(values[:8]))
+
+
+def _timing(samples: list[float], before: tuple[float, float], after: tuple[float, float]) -> Timing:
+    total = after[1] - before[1]
+    steal = 100.0 * (after[0] - before[0]) / total if total > 0 else float("nan")
+    arr = np.asarray(samples, dtype=np.float64)
+    return Timing(
+        float(np.median(arr)),
+        float(np.percentile(arr, 90)),
+        float(np.percentile(arr, 95)),
+        int(arr.size),
+        steal,
+    )
+
+
+def time_ekf_steps(flight: Flight, filter_kind: str, n_steps: int, repeats: int, warmup: int = 500) -> Timing:
+    """Wall time (us) of one ``predict + update_accelerometer`` on the flight's IMU samples: ``repeats``
+    passes over ``n_steps`` samples, the first ``warmup`` steps of each pass not counted."""
+    ekf: AttitudeAltitudeEkf | BiasAwareEkf = (
+        BiasAwareEkf() if filter_kind == "bias" else AttitudeAltitudeEkf()
+    )
+    imu = flight.imu
+    n = min(n_steps, imu.n_samples - 1)
+    gyro = [imu.gyro_rad_s[k] for k in range(n + 1)]
+    accel = [imu.accel_m_s2[k] for k in range(n + 1)]
+    dts = np.diff(imu.stamps_s[: n + 1]).tolist()
+    clock = time.perf_counter_ns
+    samples: list[float] = []
+    before = cpu_times()
+    for _ in range(repeats):
+        state: Any = ekf.initial_state(imu.true_q_world_body[0], float(imu.true_p_world_body_m[0, 2]), 0.0)
+        for k in range(n):
+            t0 = clock()
+            state = ekf.predict(state, gyro[k + 1], dts[k])
+            state = ekf.update_accelerometer(state, accel[k + 1]).state
+            dt_ns = clock() - t0
+            if k >= warmup:
+                samples.append(dt_ns * 1e-3)
+    return _timing(samples, before, cpu_times())
+
+
+def time_vo_steps(
+    flight: Flight, start: int, frames: int, repeats: int, rectify: bool, settings: VoSettings | None = None
+) -> tuple[Timing, float]:
+    """Wall time (ms) of one VO step (rectification with the true roll and pitch, preparation, the pair,
+    the composition) over pre-rendered frames, the first pass a warm-up; and the final horizontal error
+    (cm) of that chain against the truth, for comparing settings on accuracy too."""
+    vo_settings = settings or VoSettings()
+    images = [flight.frame(i) for i in range(start, start + frames)]
+    K, R_bc = flight.camera.K, flight.R_body_camera
+    model = MotionModel.LEVEL_FREE_YAW if rectify else MotionModel.FREE
+    samples: list[float] = []
+    before = cpu_times()
+    final_cm = float("nan")
+    for rep in range(repeats + 1):
+        chain = None
+        for j, image in enumerate(images):
+            i = start + j
+            rp = (float(flight.euler_rad[i, 0]), float(flight.euler_rad[i, 1])) if rectify else None
+            h = float(flight.p_world_body_m[i, 2])
+            t0 = time.perf_counter_ns()
+            frame = prepare_view(image, K, R_bc, rp, vo_settings)
+            if chain is None:
+                R0 = flight.R_world_body[i] @ R_bc
+                if rectify:
+                    R0 = matrix_from_euler(0.0, 0.0, float(flight.euler_rad[i, 2])) @ R_BODY_CAMERA_DOWN
+                chain = start_vo_chain(frame, VoPose(R0, flight.p_world_body_m[i].copy()), h)
+                continue
+            chain = advance_vo_chain(chain, frame, h, K, vo_settings, model).state
+            dt_ns = time.perf_counter_ns() - t0
+            if rep > 0:
+                samples.append(dt_ns * 1e-6)
+        if chain is not None:
+            end = start + len(images) - 1
+            final_cm = 100.0 * float(
+                np.linalg.norm(chain.pose.p_n_camera_m[:2] - flight.p_world_body_m[end, :2])
+            )
+    return _timing(samples, before, cpu_times()), final_cm

@@ -1,0 +1,102 @@
+"""The VO chain step shared by the estimator and the truth-attitude replay, and the coupling's small
+explicit-state pieces (vision tilt, manoeuvre acceleration)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from common.errors import InputError
+from common.estimation.measurements import (
+    SENSOR_ORDER,
+    FrameMeasurement,
+    ImuMeasurement,
+    RangeMeasurement,
+    Sensor,
+    YawMeasurement,
+    sensor_of,
+)
+from common.estimation.replay import vo_with_true_attitude
+from common.estimation.tilt import ManoeuvreTrack, VisionTilt
+from common.estimation.vo import VoPose, VoSettings
+from common.estimation.vo_chain import VoChainSettings, prepare_view, shifted, start_vo_chain, with_pose
+from common.sim.flight import Flight
+
+
+def test_one_sensor_order_with_the_range_first() -> None:
+    assert sorted(SENSOR_ORDER, key=SENSOR_ORDER.__getitem__) == [
+        Sensor.RANGE, Sensor.IMU, Sensor.YAW, Sensor.CAMERA
+    ]  # fmt: skip
+    image = np.zeros((8, 8), dtype=np.uint8)
+    kinds = [
+        ImuMeasurement(0.0, np.zeros(3), np.zeros(3)),
+        RangeMeasurement(0.0, 1.0),
+        YawMeasurement(0.0, 0.0),
+        FrameMeasurement(0.0, image),
+    ]
+    assert [sensor_of(m) for m in kinds] == [Sensor.IMU, Sensor.RANGE, Sensor.YAW, Sensor.CAMERA]
+    with pytest.raises(InputError):
+        sensor_of("not a measurement")  # type: ignore[arg-type]
+
+
+def test_keyframe_chain_on_truth_rectified_frames_stays_within_millimetres(flight_b: Flight) -> None:
+    """A keyframe shared by frames (moved on beyond 30 px of flow) gives the same metric path as the
+    consecutive chain within millimetres over 2 s of the turn."""
+    start, stop = 400, 440
+    truth = flight_b.p_world_body_m[start:stop, :2]
+    consecutive = vo_with_true_attitude(flight_b, start, stop)
+    keyframes = vo_with_true_attitude(flight_b, start, stop, chain_settings=VoChainSettings(max_flow_px=30.0))
+    assert float(np.linalg.norm(consecutive[-1, :2] - truth[-1])) < 1e-3
+    assert float(np.linalg.norm(keyframes[-1, :2] - truth[-1])) < 3e-3
+    with pytest.raises(InputError):
+        VoChainSettings(max_flow_px=-1.0)
+
+
+def test_shifted_and_with_pose_keep_keyframe_and_newest_frame_consistent(flight_b: Flight) -> None:
+    frame = prepare_view(flight_b.frame(0), flight_b.camera.K, flight_b.R_body_camera, None, VoSettings())
+    pose = VoPose(np.eye(3), np.array([1.0, 2.0, 3.0]))
+    chain = start_vo_chain(frame, pose, 3.0)
+    moved = shifted(chain, np.array([0.5, -1.0, 0.0]))
+    assert np.allclose(moved.pose.p_n_camera_m, [1.5, 1.0, 3.0])
+    assert np.allclose(moved.keyframe.pose.p_n_camera_m, [1.5, 1.0, 3.0])
+    other = with_pose(chain, VoPose(np.eye(3), np.zeros(3)))
+    assert other.keyframe.pose is other.pose  # the newest frame is the keyframe: both move
+
+
+def test_vision_tilt_is_an_information_weighted_forgetting_mean() -> None:
+    tilt = VisionTilt()
+    assert tilt.normal_xy() is None
+    normal = np.array([0.01, -0.02, 1.0])
+    tilt = tilt.updated(0.0, np.array([0.01, 0.0, 0.0]), normal, window_s=5.0, min_information=1e-3)
+    assert tilt.normal_xy() is None  # 1e-4 of information: not yet
+    for k in range(1, 20):
+        tilt = tilt.updated(0.05 * k, np.array([0.01, 0.0, 0.0]), normal, window_s=5.0, min_information=1e-3)
+    assert np.allclose(tilt.normal_xy(), [0.01, -0.02])
+    forgotten = tilt.updated(50.0, np.zeros(3), normal, window_s=5.0, min_information=1e-3)
+    assert forgotten.information < 1e-4 * tilt.information
+
+
+def test_manoeuvre_track_fits_the_acceleration_of_its_window() -> None:
+    track = ManoeuvreTrack()
+    for k in range(20):
+        t = 0.05 * k
+        track = track.updated(t, 0.5 * 0.4 * t * t, -0.5 * 0.2 * t * t, window_s=0.6)
+    assert track.fitted and len(track.samples) in (12, 13)  # 0.6 s of 20 Hz samples, the edge by rounding
+    assert track.accel_world_m_s2 == pytest.approx((0.4, -0.2, 0.0), abs=1e-6)
+    cleared = track.cleared()
+    assert not cleared.fitted and cleared.accel_world_m_s2 == track.accel_world_m_s2
+    assert math.isfinite(cleared.accel_world_m_s2[0])
+
+
+def test_level_share_weighs_the_chains_and_distrusts_a_level_chain_that_disagrees() -> None:
+    from common.estimation.tilt import level_share
+
+    # at the origin the free chain has no drift yet: all free; far along with a certain tilt: mostly level
+    assert level_share(3.0, 0.001, 3.0, 0.001, 0.004, 0.0) == 0.0
+    far = level_share(3.0, math.radians(0.02), 3.0, math.radians(0.02), 0.004, 10.0)
+    assert far > 0.9
+    # the same, but the chains 10 cm apart while their stds allow a few centimetres: toward the free chain
+    assert level_share(3.0, math.radians(0.02), 3.0, math.radians(0.02), 0.004, 10.0, 0.1**2) < 0.3
+    assert level_share(3.0, 0.0, 3.0, 0.0, 0.0, 0.0) == 1.0

@@ -1,0 +1,23 @@
+"""The estimator demo's plot and summary on 40 frames of flight (b) (the whole flight: ``capataz run``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from common.estimation.replay import evaluate
+from services.bench.estimator import compare_on_flight_b
+from services.demo_estimator import plot, summarize
+
+
+def test_plot_and_summary_of_a_short_run(tmp_path: Path) -> None:
+    flight, runs = compare_on_flight_b(seed=0, frames=40, start_frame=400)
+    errors = {name: evaluate(run, flight, 400) for name, run in runs.items()}
+    summary = summarize(flight, runs, errors)
+    assert summary["frames"] == 40
+    for key in ("ate_rmse_cm", "ate_rmse_cm_unrectified", "vo_final_error_cm"):
+        assert math.isfinite(summary[key]) and summary[key] < 2.0, key
+    assert math.isfinite(summary["ate_rmse_cm_paper_c_filter"])
+    png = plot(tmp_path / "estimator.png", flight, runs, errors)
+    assert png.stat().st_size > 50_000
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
