@@ -40,6 +40,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.loadtest",
     "services.record",
     "services.view",
+    "services.secure",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.
@@ -51,6 +52,11 @@ EXAMPLES: dict[str, str] = {
     "bench yaw": "capataz bench yaw --frames 300 --quick",
     "bench estimator": "capataz bench estimator --frames 200",
     "bench all": "capataz bench all --out out/bench",
+    "bench security": "capataz bench security --overhead-repeats 5",
+    "secure": "capataz secure certs --out out/secure/certs --uav uav0 --uav uav1",
+    "secure certs": "capataz secure certs --out out/secure/certs --uav uav0 --uav uav1",
+    "secure config": "capataz secure config --out deploy/zenoh/secure.json5",
+    "secure table": "capataz secure table",
     "router": "capataz router --listen tcp/127.0.0.1:7447",
     "camera": "capataz camera --connect tcp/127.0.0.1:7447 --uav uav0 --fps 20 --frames 400",
     "master": "capataz master --connect tcp/127.0.0.1:7447 --uav uav0 --topology master-foreman-worker",

@@ -30,6 +30,7 @@ from services.report import write_json
 from services.runtime.progress import bar as progress_bar
 from services.runtime.progress import quiet
 from services.runtime.transport import open_session
+from services.secure import SecureProfile
 from services.trajectory import write_with_truth
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
@@ -55,9 +56,12 @@ def run_cluster_flight(
     camera_args: tuple[str, ...] = (),
     progress: bool = True,
     shared_memory: bool = False,
+    secure: SecureProfile | None = None,
 ) -> tuple[dict[int, Any], float, dict[str, int | None]]:
     """Run one flight through a fresh local cluster; returns (estimates by seq, wall seconds, exit codes)."""
-    with LocalCluster(spec, log_dir, shared_memory=shared_memory, master_args=master_args) as cluster:
+    with LocalCluster(
+        spec, log_dir, shared_memory=shared_memory, master_args=master_args, secure=secure
+    ) as cluster:
         t_start = time.monotonic()
         cluster.start()
         cluster.wait_alive(cluster.expected_members())

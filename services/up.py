@@ -33,6 +33,7 @@ from common.errors import CapatazError
 from services.master.service import Topology
 from services.runtime.transport import TransportSettings, open_session
 from services.runtime.usage import condense_validation_error, one_line
+from services.secure import SecureProfile, participant_environment, process_common_name
 
 logger = logging.getLogger(__name__)
 
@@ -161,11 +162,18 @@ class LocalCluster:
         shared_memory: bool = False,
         master_args: Sequence[str] = (),
         lease_ms: int = 2000,
+        secure: SecureProfile | None = None,
+        zenoh_config: Path | None = None,
     ) -> None:
         self.spec = spec
         self.log_dir = Path(log_dir)
         #: the router's port; None = any free port, chosen by the router itself (no reservation race)
         self.port = port or None
+        #: the secure profile: mutual TLS with per-role certificates and access control on every participant
+        self.secure = secure
+        self.scheme = "tls" if secure is not None else "tcp"
+        #: a zenoh configuration file every process (and our own sessions) loads (the secure one wins)
+        self.zenoh_config = Path(zenoh_config).resolve() if zenoh_config else None
         self.shared_memory = shared_memory
         self.master_args = tuple(master_args)
         self.lease_ms = lease_ms
@@ -180,7 +188,7 @@ class LocalCluster:
         """The router's endpoint (known once :meth:`start_router` returned)."""
         if self.port is None:
             raise ClusterError("the router's endpoint is known only after start_router()")
-        return f"tcp/127.0.0.1:{self.port}"
+        return f"{self.scheme}/127.0.0.1:{self.port}"
 
     # -- processes --------------------------------------------------------------------------------------
     def transport_args(self) -> list[str]:
@@ -188,7 +196,7 @@ class LocalCluster:
             "--connect",
             self.router,
             "--listen",
-            "tcp/127.0.0.1:0",
+            f"{self.scheme}/127.0.0.1:0",
             "--no-multicast",
             "--shm" if self.shared_memory else "--no-shm",
             "--lease-ms",
@@ -196,11 +204,18 @@ class LocalCluster:
         ]
 
     def observer_transport(self) -> TransportSettings:
-        return TransportSettings(
-            connect=(self.router,), shared_memory=self.shared_memory, lease_ms=self.lease_ms
+        """The transport of our own observing session (a read-only ``client`` in the secure profile)."""
+        return TransportSettings.from_env(
+            environ=participant_environment(self.secure, self.zenoh_config, "client"),
+            connect=(self.router,),
+            listen=(f"{self.scheme}/127.0.0.1:0",),
+            shared_memory=self.shared_memory,
+            lease_ms=self.lease_ms,
         )
 
-    def spawn(self, name: str, args: Sequence[str], cpus: str | None = None) -> subprocess.Popen[bytes]:
+    def spawn(
+        self, name: str, args: Sequence[str], cpus: str | None = None, common_name: str | None = None
+    ) -> subprocess.Popen[bytes]:
         if name in self.processes and self.processes[name].poll() is None:
             raise ClusterError(f"{name} is already running")
         command = capataz_command(*args)
@@ -208,7 +223,10 @@ class LocalCluster:
             command = [self._taskset, "-c", cpus, *command]
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log = (self.log_dir / f"{name.replace('/', '_')}.log").open("ab")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        cn = common_name or process_common_name(name, self.spec.uav)
+        env = dict(
+            os.environ, PYTHONUNBUFFERED="1", **participant_environment(self.secure, self.zenoh_config, cn)
+        )
         process = subprocess.Popen(
             command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
         )
@@ -224,7 +242,7 @@ class LocalCluster:
             check_port_free(self.port)  # else the members would join whichever router holds the port
         endpoint_file = self.log_dir / "router.endpoint"
         endpoint_file.unlink(missing_ok=True)
-        listen = f"tcp/127.0.0.1:{self.port or 0}"
+        listen = f"{self.scheme}/127.0.0.1:{self.port or 0}"
         self.spawn(
             "router",
             ["router", "--listen", listen, "--no-multicast", "--no-shm", "--lease-ms", str(self.lease_ms),
@@ -243,13 +261,13 @@ class LocalCluster:
             time.sleep(0.05)
         raise ClusterError(f"router did not start listening within {timeout_s:.0f} s")
 
-    @staticmethod
-    def _router_port(endpoints: list[str]) -> int:
+    def _router_port(self, endpoints: list[str]) -> int:
+        prefix = f"{self.scheme}/"
         for endpoint in endpoints:
-            host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
-            if endpoint.startswith("tcp/") and host == "127.0.0.1" and port.isdigit():
+            host, _, port = endpoint.removeprefix(prefix).rpartition(":")
+            if endpoint.startswith(prefix) and host == "127.0.0.1" and port.isdigit():
                 return int(port)
-        raise ClusterError(f"the router listens on no tcp/127.0.0.1 endpoint: {endpoints}")
+        raise ClusterError(f"the router listens on no {prefix}127.0.0.1 endpoint: {endpoints}")
 
     def start_command(self, command: ServiceCommand, extra: Sequence[str] = ()) -> str:
         self.spawn(command.name, [*command.args, *extra, *self.transport_args()], command.cpus)

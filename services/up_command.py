@@ -23,6 +23,8 @@ from services.observe import StatsWatch, YawCollector, member_rows
 from services.report import print_table
 from services.runtime.transport import open_session
 from services.runtime.usage import number_in
+from services.secure import DEFAULT_DIR as SECURE_DIR
+from services.secure import SecureProfile
 from services.up import ClusterSpec, LocalCluster, load_cluster
 
 
@@ -84,6 +86,21 @@ def register(subparsers: Any) -> None:
         default="",
         help='extra master options (yaw settings), e.g. "--grid 8x5 --patch-size 32"',
     )
+    parser.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="zenoh configuration file for every process (env CAPATAZ_ZENOH_CONFIG)",
+    )
+    parser.add_argument(
+        "--secure",
+        type=Path,
+        nargs="?",
+        const=SECURE_DIR,
+        metavar="DIR",
+        help=f"secure profile: mutual TLS + access control, certificates and config in DIR "
+        f"(default {SECURE_DIR}; made when missing)",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -112,12 +129,15 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
+        secure = SecureProfile.ensure(args.secure, (spec.uav,)) if args.secure else None
         with LocalCluster(
             spec,
             args.logs,
             port=args.port or None,
             shared_memory=args.shm,
             master_args=shlex.split(args.master_args),
+            secure=secure,
+            zenoh_config=args.zenoh_config,
         ) as cluster:
             t0 = time.monotonic()
             cluster.start()

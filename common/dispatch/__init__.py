@@ -10,6 +10,7 @@ from common.dispatch.dispatcher import (
     SpeedSource,
     largest_remainder,
 )
+from common.dispatch.trust import MemberOutcome, TrustMonitor, TrustSettings, Verdict, outcomes_of_fit
 
 __all__ = [
     "SELF",
@@ -17,7 +18,12 @@ __all__ = [
     "DispatchError",
     "DispatchSettings",
     "Dispatcher",
+    "MemberOutcome",
     "Plan",
     "SpeedSource",
+    "TrustMonitor",
+    "TrustSettings",
+    "Verdict",
     "largest_remainder",
+    "outcomes_of_fit",
 ]

@@ -25,6 +25,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
+from common.dispatch.trust import TrustMonitor, cap_plan, hold_weights
 from common.errors import CapatazError, InputError
 
 IndexArray = npt.NDArray[np.int32]
@@ -157,6 +158,9 @@ class Dispatcher:
         self._memo: tuple[tuple[object, ...], dict[str, IndexArray]] | None = None
         self._all = list(range(n_patches))
         self.last_plan: Plan | None = None
+        #: defence in depth (common.dispatch.trust), and the frame's (size, patches per member) for its caps
+        self.trust: TrustMonitor | None = None
+        self._frame: tuple[int, dict[str, int]] = (0, {})
 
     # -- membership -------------------------------------------------------------------------------------
     def join(self, member: str, capacity: float = 1.0) -> None:
@@ -193,9 +197,11 @@ class Dispatcher:
         """Remote members (without ``SELF``), sorted."""
         return tuple(sorted(m for m in self._members if m != SELF))
 
-    def active(self, now_s: float) -> list[str]:
-        """Members that get work now: remote members not suspended, plus ``SELF`` when configured or alone."""
+    def active(self, now_s: float, answered_only: bool = False) -> list[str]:
+        """Remote members not suspended, plus ``SELF`` when configured or alone (see TrustMonitor.screen)."""
         remote = [m for m in self.members if self._members[m].suspended_until_s <= now_s]
+        if self.trust is not None:  # suspended for inconsistent results; new members tried a few at a time
+            remote = self.trust.screen(remote, {m for m in remote if not self.speed(m)}, now_s, answered_only)
         if self.settings.self_compute or not remote:
             return [*remote, SELF]
         return remote
@@ -220,20 +226,25 @@ class Dispatcher:
             return capacity
         # a member without measurement starts at the mean speed per unit of capacity of the measured ones
         per_capacity = sum(known) / len(known)
-        return [
-            float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)
-        ]
+        w = [float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)]
+        return hold_weights(self.trust, members, w, capacity, SELF)
+
+    def _counts(self, members: list[str], total: int, redo: bool = False) -> tuple[list[str], list[int]]:
+        """Counts per member under the trust share caps (a re-dispatch counts the frame's earlier shares)."""
+        counts = _largest_remainder(self.weights(members), total)
+        frame, load = self._frame if redo and self._frame[0] else (total, {})
+        return cap_plan(self.trust, members, counts, frame, load, len(self.members), SELF)
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
         todo = self._all if indices is None else self._check_indices(indices)
-        members = self.active(now_s)
-        counts = _largest_remainder(self.weights(members), len(todo))
+        members, counts = self._counts(self.active(now_s), len(todo))
         key = (tuple(members), tuple(counts), tuple(todo))
         if self._memo is not None and self._memo[0] == key:
             repeated = dict(self._memo[1])
             missing = {m: self._missing(m, owned, prev_seq) for m, owned in repeated.items()}
             self.last_plan = Plan(seq=seq, prev_seq=prev_seq, assignment=repeated, moved=missing)
+            self._frame = (len(todo), {m: len(v) for m, v in repeated.items()})
             return self.last_plan
         targets = dict(zip(members, counts, strict=True))
         keep: dict[str, list[int]] = {m: [] for m in members}
@@ -264,6 +275,7 @@ class Dispatcher:
         self._memo = (key, assignment)
         plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
         self.last_plan = plan
+        self._frame = (len(todo), {m: len(v) for m, v in assignment.items()})
         return plan
 
     def _check_indices(self, indices: npt.ArrayLike) -> list[int]:
@@ -295,8 +307,8 @@ class Dispatcher:
         The receivers become the owners of those indices (sticky from the next frame on).
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
-        members = [m for m in self.active(now_s) if m not in exclude] or [SELF]
-        counts = _largest_remainder(self.weights(members), int(idx.size))
+        members = [m for m in self.active(now_s, answered_only=True) if m not in exclude] or [SELF]
+        members, counts = self._counts(members, int(idx.size), redo=True)
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}
         start = 0
@@ -310,6 +322,7 @@ class Dispatcher:
             self._memo = None
             assignment[m] = part
             moved[m] = self._missing(m, part, prev_seq)
+            self._frame[1][m] = self._frame[1].get(m, 0) + int(n)
         seq = self.last_plan.seq if self.last_plan else 0
         return Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
 

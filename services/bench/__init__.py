@@ -22,6 +22,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.bench.yaw",
     "services.bench.estimator",
     "services.bench.record",
+    "services.bench.security",
 )
 
 

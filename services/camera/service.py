@@ -182,7 +182,12 @@ class CameraService(ServiceRuntime):
 
     def _put(self, uav: str, topic: str, message: Any) -> None:
         payload, attachment = encode(message)
-        self._pub[uav][topic].put(payload, attachment=attachment)
+        publisher = self._pub[uav][topic]
+        if topic == "camera":  # declare the source: masters follow one camera per stream (SourceLock)
+            source = zenoh.SourceInfo(publisher.id, message.seq)
+            publisher.put(payload, attachment=attachment, source_info=source)
+            return
+        publisher.put(payload, attachment=attachment)
 
     def _wait_yaw(self, uav: str, seq: int) -> None:
         """Flow control: at most ``in_flight`` frames without a yaw."""

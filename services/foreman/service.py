@@ -19,7 +19,16 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, Plan, SpeedSource
+from common.dispatch import (
+    SELF,
+    Balance,
+    Dispatcher,
+    DispatchSettings,
+    Plan,
+    SpeedSource,
+    TrustMonitor,
+    TrustSettings,
+)
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.streams import StreamTable
@@ -58,10 +67,10 @@ class CropStore:
 
     def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
         frames = self._frames.setdefault(stream, {})
-        if frames and seq < min(frames) and len(frames) >= self._keep:
-            if min(frames) - seq <= self._keep:
-                return  # older than everything kept
-            frames.clear()  # far older: the stream restarted (a new epoch), the kept frames are void
+        if frames and seq + self._keep < min(frames):
+            frames.clear()  # the stream restarted (a new camera run counts from 0 again)
+        elif frames and seq < min(frames) and len(frames) >= self._keep:
+            return  # older than everything kept
         entry = frames.setdefault(seq, {})
         entry.update(zip(indices.tolist(), crops, strict=True))
         for old in sorted(frames)[: -self._keep]:
@@ -87,6 +96,8 @@ class _StreamState:
         self, session: zenoh.Session, dispatch: DispatchSettings, counters: Any, live: LiveMembers
     ) -> None:
         self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
+        # no fit here to vet workers against (the master vets the foreman's whole block): share caps only
+        self.dispatcher.trust = TrustMonitor(TrustSettings(earn_frames=0))
         self.scatter = Scatter(session, self.dispatcher, keys.work_key_of, PatchJob, PatchResult, counters)
         self.crops_prev = CropStore()
         # a copy of the node's roster (the roster itself is immutable; events are fed to every copy): one

@@ -42,6 +42,7 @@ from services.master.settings import (
     add_master_arguments,
     master_settings_from_args,
 )
+from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.stamps import InputStamps
@@ -97,6 +98,8 @@ class MasterService(ServiceRuntime):
         self.stream: _Stream | None = None
         self.scatter: Scatter | None = None
         self.live = LiveMembers(self.member_role)
+        #: defence in depth: trust vetting, one frame source, liveliness churn limited per key
+        self.guard = DispatchGuard(self.name, self.counters, settings.trust)
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_shares: dict[str, float] = {}
@@ -125,6 +128,7 @@ class MasterService(ServiceRuntime):
         event = self.member_event(sample)
         if event is not None:
             member, joined = event
+            self.guard.note_alive(member.name, joined)
             self.live.on_event(member, joined, self.counters, self.scatter)
 
     def stop(self) -> None:
@@ -133,6 +137,8 @@ class MasterService(ServiceRuntime):
             self.election.close()
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
+        if not self.guard.admit_frame(sample):
+            return
         frame = self.decode_sample(sample, Frame)
         if frame is None:
             return
@@ -171,6 +177,7 @@ class MasterService(ServiceRuntime):
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
         self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
+        self.guard.apply_quarantine(dispatcher.trust)  # members whose liveliness churns are paused
 
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
@@ -253,6 +260,7 @@ class MasterService(ServiceRuntime):
             tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad
         )
         dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
+        dispatcher.trust = self.guard.monitor()
         stream = _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher, epoch)
         job_type, result_type = self._job_types
         self.scatter = Scatter(
@@ -333,6 +341,10 @@ class MasterService(ServiceRuntime):
             measurement = compute_self(grid.all_indices, grid.all_indices)
             report = None
         t_round = time.perf_counter()
+        if report is not None:
+            self.guard.vet(
+                stream.dispatcher.trust, report.owners, report.parts, measurement, grid.centres_px, settings
+            )
         # a stamp that does not increase (a bad stamp file) leaves this pair untimed: no rate limit, no gyro
         previous_s = stream.state.stamp_s
         stamp: float | None = frame.stamp_s if previous_s is None or frame.stamp_s > previous_s else None

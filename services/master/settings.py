@@ -45,6 +45,8 @@ class MasterSettings(BaseModel):
     confirm_frames: int = Field(default=3, ge=1, le=100)
     #: lens model, gyro prior and physical yaw-rate limit of the central stage
     prior: YawPriorSettings = YawPriorSettings()
+    #: defence in depth: vet members' results against the robust fit, cap shares (see common.dispatch.trust)
+    trust: bool = True
 
     def gate_settings(self) -> FrameGateSettings:
         return FrameGateSettings(max_seq_jump=self.max_seq_jump, confirm_frames=self.confirm_frames)
@@ -81,6 +83,8 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
     parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
     add_yaw_prior_arguments(parser)
+    parser.add_argument("--trust", action=argparse.BooleanOptionalAction, default=True,
+                        help="vet members, cap shares, one frame source (default on)")  # fmt: skip
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
@@ -101,4 +105,5 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
         patch_size_px=args.patch_size,
         pyramid_level=args.pyramid_level,
         prior=yaw_prior_settings_from_args(args),
+        trust=args.trust,
     )

@@ -1,8 +1,14 @@
-"""The router: a Python zenoh session in router mode; peers connect to it and then talk directly."""
+"""The router: a Python zenoh session in router mode; peers connect to it and then talk directly.
+
+It honours a Zenoh configuration file (``--zenoh-config``, ``CAPATAZ_ZENOH_CONFIG`` or ``ZENOH_CONFIG``):
+access control, TLS and authentication come from there (credentials also from ``CAPATAZ_ZENOH_TLS_*``).
+Without ``--listen`` it listens where the file says, else on :data:`DEFAULT_ROUTER_ENDPOINT`.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -10,10 +16,12 @@ from typing import Any
 import zenoh
 
 from common import keys
-from services.runtime.cli import add_transport_arguments
+from services.runtime import zconfig
+from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.service import ServiceRuntime
-from services.runtime.transport import TransportSettings, listening_endpoints
+from services.runtime.transport import TransportError, TransportSettings, listening_endpoints
 
+logger = logging.getLogger(__name__)
 DEFAULT_ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
@@ -52,15 +60,33 @@ def register(subparsers: Any) -> None:
     parser.set_defaults(handler=run)
 
 
+def router_transport(args: argparse.Namespace) -> TransportSettings:
+    """The router's settings: mode router; the default endpoint only when neither options, environment
+    nor the config file say where to listen."""
+    args.mode = "router"
+    transport = transport_from_args(args)
+    if args.endpoint_file:
+        transport = transport.model_copy(update={"admin_space": True})
+    if "listen" in transport.model_fields_set:
+        return transport
+    try:
+        file_listens = transport.zenoh_config is not None and zconfig.file_sets(
+            zconfig.load_config(transport.zenoh_config), "listen/endpoints"
+        )
+    except zconfig.ZenohConfigError as exc:
+        raise TransportError(str(exc)) from None
+    if file_listens:
+        return transport
+    return transport.model_copy(update={"listen": (DEFAULT_ROUTER_ENDPOINT,)})
+
+
 def run(args: argparse.Namespace) -> int:
-    transport = TransportSettings.from_env(
-        mode="router",
-        listen=tuple(args.listen) if args.listen else (DEFAULT_ROUTER_ENDPOINT,),
-        connect=tuple(args.connect) if args.connect else None,
-        multicast_scouting=args.multicast,
-        shared_memory=args.shm,
-        lease_ms=args.lease_ms,
-        admin_space=True if args.endpoint_file else None,
+    transport = router_transport(args)
+    config = transport.to_config()
+    logger.info(
+        "router: listen %s, access control %s",
+        zconfig.get(config, "listen/endpoints"),
+        "on" if zconfig.access_control_enabled(config) else "off",
     )
     return RouterService(
         args.node, args.index, transport, args.stats_period, endpoint_file=args.endpoint_file

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from common.dispatch import Balance, SpeedSource
@@ -22,6 +23,14 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
         "--shm", action=argparse.BooleanOptionalAction, help="zenoh shared memory on/off (default off)"
     )
     group.add_argument("--lease-ms", type=int, help="link lease in ms (default 2000)")
+    group.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="zenoh configuration file under these settings (access control, TLS, ...; env "
+        "CAPATAZ_ZENOH_CONFIG); credentials only from it or CAPATAZ_ZENOH_TLS_{CA,CERT,KEY}, "
+        "CAPATAZ_ZENOH_USRPWD_FILE",
+    )
     group.add_argument("--node", default=node_default, help=f"node (host) name (default {node_default})")
     group.add_argument("--index", type=int, default=0, help="instance index on the node (default 0)")
     group.add_argument("--stats-period", type=float, default=1.0, help="seconds between stats messages")
@@ -35,6 +44,7 @@ def transport_from_args(args: Any) -> TransportSettings:
         multicast_scouting=args.multicast,
         shared_memory=args.shm,
         lease_ms=args.lease_ms,
+        zenoh_config=getattr(args, "zenoh_config", None),
     )
 
 

@@ -96,6 +96,8 @@ class RoundReport:
     """Outcome of one frame: the measured parts and who computed what."""
 
     parts: list[PatchMeasurement] = field(default_factory=list)
+    #: who computed each of ``parts`` (same order)
+    owners: list[str] = field(default_factory=list)
     members: dict[str, int] = field(default_factory=dict)
     speeds: dict[str, float] = field(default_factory=dict)
     redispatched: int = 0
@@ -192,6 +194,7 @@ class Round:
         reported = sum(result.speeds.values()) if result.speeds else None
         self.dispatcher.record_success(request.member, self.work.seq, request.indices, elapsed, reported)
         report.parts.append(measurement_of(result))
+        report.owners.append(request.member)
         n = int(request.indices.size)
         report.members[request.member] = report.members.get(request.member, 0) + n
         for sub, count in result.members.items():
@@ -215,6 +218,7 @@ class Round:
             elapsed = time.perf_counter() - t0
             report.self_s += elapsed
             report.parts.append(measurement)
+            report.owners.append(SELF)
             report.members[SELF] = report.members.get(SELF, 0) + int(indices.size)
             self.dispatcher.record_success(SELF, self.work.seq, indices, elapsed)
             self_speed = self.dispatcher.speed(SELF)

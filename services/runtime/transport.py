@@ -15,12 +15,14 @@ import json
 import logging
 import os
 from collections.abc import Callable
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, ClassVar, Literal
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.errors import CapatazError
+from services.runtime import zconfig
 from services.runtime.usage import condense_validation_error
 
 logger = logging.getLogger(__name__)
@@ -54,11 +56,19 @@ class TransportSettings(BaseModel):
     #: zenoh's admin space (``@/<zid>/...``): needed to read the port a ``tcp/...:0`` listener was given
     #: (:func:`listening_endpoints`); off by default.
     admin_space: bool = False
+    #: a Zenoh configuration file under these settings (see :mod:`services.runtime.zconfig`)
+    zenoh_config: Path | None = None
+    #: credentials: PEM files for mutual TLS, a ``user:password`` file; from the environment only
+    tls_ca: Path | None = None
+    tls_cert: Path | None = None
+    tls_key: Path | None = None
+    usrpwd_file: Path | None = None
 
     @classmethod
     def from_env(cls, environ: dict[str, str] | None = None, **overrides: Any) -> TransportSettings:
         """Settings from ``CAPATAZ_ZENOH_{MODE,LISTEN,CONNECT,MULTICAST,SHM,LEASE_MS,CONNECT_TIMEOUT_MS,
-        TX_QUEUE_BATCHES}``.
+        TX_QUEUE_BATCHES,CONFIG,TLS_CA,TLS_CERT,TLS_KEY,USRPWD_FILE}`` (``CONFIG`` falls back to zenoh's
+        ``ZENOH_CONFIG``).
 
         Endpoint lists are comma separated; booleans accept 1/0/true/false. ``overrides`` that are not
         None win over the environment.
@@ -83,7 +93,13 @@ class TransportSettings(BaseModel):
             "LEASE_MS": ("lease_ms", int),
             "CONNECT_TIMEOUT_MS": ("connect_timeout_ms", int),
             "TX_QUEUE_BATCHES": ("tx_queue_batches", int),
+            "TLS_CA": ("tls_ca", Path),
+            "TLS_CERT": ("tls_cert", Path),
+            "TLS_KEY": ("tls_key", Path),
+            "USRPWD_FILE": ("usrpwd_file", Path),
         }
+        if (config_path := zconfig.config_path_from_env(env)) is not None:
+            values["zenoh_config"] = config_path
         for suffix, (field, parse) in table.items():
             if (text := env.get(ENV_PREFIX + suffix)) is not None:
                 try:
@@ -99,7 +115,47 @@ class TransportSettings(BaseModel):
             raise TransportError(f"invalid transport settings: {text}") from None
 
     def to_config(self) -> zenoh.Config:
-        config = zenoh.Config()
+        """Zenoh's configuration: the config file (if any), these settings over it, then credentials.
+
+        A key the file sets is kept unless the setting was given explicitly (``model_fields_set``).
+        """
+        try:
+            config = zconfig.load_config(self.zenoh_config)
+            entries = self._entries(config)
+            entries.update(zconfig.tls_entries(self.tls_ca, self.tls_cert, self.tls_key))
+            entries.update(zconfig.usrpwd_entries(self.usrpwd_file))
+            for key, value in entries.items():
+                zconfig.insert(config, key, value)
+            zconfig.check_tls_ready(config, zconfig.get(config, "listen/endpoints") or [])
+        except zconfig.ZenohConfigError as exc:
+            raise TransportError(str(exc)) from None
+        return config
+
+    #: which setting decides which zenoh key (a file's value survives unless the setting was given)
+    _FIELD_OF_KEY: ClassVar[dict[str, str]] = {
+        "mode": "mode",
+        "listen/endpoints": "listen",
+        "connect/endpoints": "connect",
+        "scouting/multicast/enabled": "multicast_scouting",
+        "transport/shared_memory/enabled": "shared_memory",
+        "transport/link/tx/lease": "lease_ms",
+        "connect/timeout_ms": "connect_timeout_ms",
+        "transport/link/tx/queue/size/data": "tx_queue_batches",
+        "adminspace/enabled": "admin_space",
+    }
+
+    def _entries(self, base: zenoh.Config) -> dict[str, Any]:
+        entries = self._own_entries()
+        if self.zenoh_config is None:
+            return entries
+        explicit = self.model_fields_set
+        return {
+            key: value
+            for key, value in entries.items()
+            if self._FIELD_OF_KEY.get(key) in explicit or not zconfig.file_sets(base, key)
+        }
+
+    def _own_entries(self) -> dict[str, Any]:
         entries: dict[str, Any] = {
             "mode": self.mode,
             "listen/endpoints": list(self.listen),
@@ -113,12 +169,7 @@ class TransportSettings(BaseModel):
         }
         if self.mode == "client" or self.connect:
             entries["connect/timeout_ms"] = self.connect_timeout_ms
-        for key, value in entries.items():
-            try:
-                config.insert_json5(key, json.dumps(value))
-            except Exception as exc:  # zenoh raises ZError for bad values
-                raise TransportError(f"zenoh config {key}={value!r}: {exc}") from None
-        return config
+        return entries
 
 
 def open_session(settings: TransportSettings) -> zenoh.Session:
@@ -154,6 +205,17 @@ def listening_endpoints(session: zenoh.Session, timeout_s: float = 5.0) -> tuple
 def zbytes(value: Any) -> bytes | None:
     """``ZBytes | None`` -> ``bytes | None``."""
     return None if value is None else value.to_bytes()
+
+
+def source_of(sample: zenoh.Sample) -> str | None:
+    """The source a sample *declares* (``zid/eid`` of its publisher), None when it declares none.
+
+    Zenoh 1.10 gives a Python subscriber no transport-authenticated sender: this is what the publisher
+    chose to attach (the capataz camera does), so it separates senders but does not authenticate them.
+    """
+    info = sample.source_info
+    source = None if info is None else info.source_id
+    return None if source is None else f"{source.zid}/{source.eid}"
 
 
 #: names that moved out of this module in the split, and where they live now

@@ -1,0 +1,248 @@
+"""The least-privilege policy of capataz, per role, as a Zenoh 1.x ``access_control`` section.
+
+A participant is identified by the common name (CN) of its TLS certificate (mutual TLS): ``router``,
+``foreman``, ``worker``, ``client``, and, bound to one UAV, ``camera.{uav}``, ``master.{uav}``,
+``estimator.{uav}``, ``localizer.{uav}``. :data:`ROLE_TABLE` says what each may do; :func:`acl_section`
+turns it into ``rules`` / ``subjects`` / ``policies`` with ``default_permission: deny``:
+
+- ingress from a subject: what it may *send* (puts, subscriptions, queryables and their replies, queries,
+  liveliness tokens and liveliness watches);
+- egress to a subject: what it may *receive* (puts on keys it may subscribe to, queries on keys it may
+  serve, replies to keys it may query, tokens it may watch) and the declarations it needs to send.
+
+The same section goes into every participant's configuration (router and peers), since the data path is
+peer-to-peer: a peer that accepts a direct link from a foreign CN applies the same table. The router
+(CN ``router``) forwards for everybody, so peers accept from it whatever any role may send: the router
+enforces the table on each participant's ingress. Its key is therefore the one to guard most.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from common import keys
+
+ROOT = keys.ROOT
+#: message kinds of Zenoh 1.10's access control (all of them, for the router subject)
+ALL_MESSAGES = (
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+    "liveliness_query",
+    "declare_liveliness_subscriber",
+)
+FOREMAN_WORK = f"{ROOT}/node/*/foreman"
+WORKER_WORK = f"{ROOT}/node/*/worker/*"
+#: what a read-only client may see: the outputs of every UAV, stats, health and membership
+OUTPUTS = ("yaw", "attitude", "pose/vo", "pose/pf")
+DEFAULT_UAVS = ("uav0", "uav1")
+#: roles whose certificate is bound to one UAV (CN ``role.uav``) and the names that are not
+UAV_ROLES = (keys.Role.CAMERA, keys.Role.MASTER, keys.Role.ESTIMATOR, keys.Role.LOCALIZER)
+GLOBAL_NAMES = ("router", "foreman", "worker", "client")
+
+
+@dataclass(frozen=True)
+class RolePermissions:
+    """What one certificate common name may do (key expressions, Zenoh syntax)."""
+
+    common_name: str
+    put: tuple[str, ...] = ()
+    subscribe: tuple[str, ...] = ()
+    serve: tuple[str, ...] = ()
+    query: tuple[str, ...] = ()
+    token: tuple[str, ...] = ()
+    watch: tuple[str, ...] = ()
+    note: str = ""
+
+    def with_own_runtime(self, role: keys.Role) -> RolePermissions:
+        """Add what every service runtime does: stats, health queryable and liveliness token of its role."""
+        r = role.value
+        return RolePermissions(
+            common_name=self.common_name,
+            put=(*self.put, f"{ROOT}/stats/{r}/**"),
+            subscribe=self.subscribe,
+            serve=(*self.serve, f"{ROOT}/health/{r}/**"),
+            query=self.query,
+            token=(*self.token, f"{ROOT}/alive/{r}/**"),
+            watch=self.watch,
+            note=self.note,
+        )
+
+
+@dataclass(frozen=True)
+class PolicySettings:
+    """Which UAVs exist, and which of them get simulated odometry from their camera on ``pose/vo``."""
+
+    uavs: tuple[str, ...] = DEFAULT_UAVS
+    #: the office flight has no estimator: its camera publishes the simulator's odometry on pose/vo
+    camera_odometry_uavs: tuple[str, ...] = ("uav1",)
+    extra_client_names: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        for uav in (*self.uavs, *self.camera_odometry_uavs):
+            keys.check_name(uav, "uav")
+
+
+def uav_common_name(role: keys.Role, uav: str) -> str:
+    """CN of a UAV-bound role's certificate, e.g. ``camera.uav0``."""
+    return f"{role.value}.{keys.check_name(uav, 'uav')}"
+
+
+def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
+    """Every certificate common name and its permissions (the README's table, generated from here)."""
+    s = settings or PolicySettings()
+    Role = keys.Role
+    out: list[RolePermissions] = []
+    for uav in s.uavs:
+        sensors = (keys.camera_key(uav), keys.imu_key(uav), keys.range_key(uav))
+        odometry = (keys.pose_vo_key(uav),) if uav in s.camera_odometry_uavs else ()
+        out.append(
+            RolePermissions(
+                uav_common_name(Role.CAMERA, uav),
+                put=(*sensors, *odometry),
+                subscribe=(keys.yaw_key(uav),),
+                watch=(keys.alive_role(Role.MASTER),),
+                note="its UAV's camera, imu, range" + (" (+ simulated pose/vo)" if odometry else ""),
+            ).with_own_runtime(Role.CAMERA)
+        )
+        out.append(
+            RolePermissions(
+                uav_common_name(Role.MASTER, uav),
+                put=(keys.yaw_key(uav),),
+                subscribe=(keys.camera_key(uav),),
+                query=(FOREMAN_WORK, WORKER_WORK),
+                watch=(keys.ALIVE_ALL,),
+                note="its UAV's yaw; queries foremen and workers",
+            ).with_own_runtime(Role.MASTER)
+        )
+        out.append(
+            RolePermissions(
+                uav_common_name(Role.ESTIMATOR, uav),
+                put=(keys.attitude_key(uav), keys.pose_vo_key(uav)),
+                subscribe=(keys.camera_key(uav), keys.imu_key(uav), keys.range_key(uav), keys.yaw_key(uav)),
+                note="its UAV's attitude and pose/vo",
+            ).with_own_runtime(Role.ESTIMATOR)
+        )
+        out.append(
+            RolePermissions(
+                uav_common_name(Role.LOCALIZER, uav),
+                put=(keys.pose_pf_key(uav),),
+                subscribe=(keys.camera_key(uav), keys.pose_vo_key(uav)),
+                note="its UAV's pose/pf",
+            ).with_own_runtime(Role.LOCALIZER)
+        )
+    out.append(
+        RolePermissions(
+            Role.FOREMAN.value,
+            serve=(FOREMAN_WORK,),
+            query=(WORKER_WORK,),
+            watch=(f"{ROOT}/alive/{Role.WORKER.value}/*/*",),
+            note="serves blocks; queries workers",
+        ).with_own_runtime(Role.FOREMAN)
+    )
+    out.append(
+        RolePermissions(Role.WORKER.value, serve=(WORKER_WORK,), note="serves patches").with_own_runtime(
+            Role.WORKER
+        )
+    )
+    readable = tuple(f"{ROOT}/uav/*/{topic}" for topic in OUTPUTS)
+    for name in ("client", *s.extra_client_names):
+        out.append(
+            RolePermissions(
+                name,
+                subscribe=(*readable, keys.STATS_ALL),
+                query=(keys.HEALTH_ALL,),
+                watch=(keys.ALIVE_ALL,),
+                note="read-only: subscribes to outputs, stats; health; watches membership",
+            )
+        )
+    out.append(RolePermissions(Role.ROUTER.value, note="forwards for everybody (peers trust its filtering)"))
+    return out
+
+
+def _rule(rule_id: str, flow: str, messages: Sequence[str], key_exprs: Iterable[str]) -> dict[str, Any]:
+    return {
+        "id": rule_id,
+        "permission": "allow",
+        "flows": [flow],
+        "messages": list(messages),
+        "key_exprs": sorted(set(key_exprs)),
+    }
+
+
+def _rules_of(role: RolePermissions) -> list[dict[str, Any]]:
+    cn = role.common_name
+    wanted: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
+        # what it may send (ingress at its neighbours)
+        ("in-put", "ingress", ("put",), role.put),
+        ("in-sub", "ingress", ("declare_subscriber",), role.subscribe),
+        ("in-serve", "ingress", ("declare_queryable", "reply"), role.serve),
+        ("in-query", "ingress", ("query",), role.query),
+        ("in-token", "ingress", ("liveliness_token",), role.token),
+        ("in-watch", "ingress", ("declare_liveliness_subscriber", "liveliness_query"), role.watch),
+        # what it may receive, and the declarations its neighbours send it (egress at its neighbours)
+        ("out-put", "egress", ("put",), role.subscribe),
+        ("out-sub", "egress", ("declare_subscriber",), role.put),
+        ("out-query", "egress", ("query",), role.serve),
+        ("out-serve", "egress", ("declare_queryable", "reply"), role.query),
+        ("out-token", "egress", ("liveliness_token",), role.watch),
+        ("out-watch", "egress", ("declare_liveliness_subscriber", "liveliness_query"), role.token),
+    ]
+    return [_rule(f"{cn}:{suffix}", flow, messages, k) for suffix, flow, messages, k in wanted if k]
+
+
+def acl_section(settings: PolicySettings | None = None) -> dict[str, Any]:
+    """The ``access_control`` configuration of :func:`role_table` (deny by default)."""
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for role in role_table(settings):
+        cn = role.common_name
+        if cn == keys.Role.ROUTER.value:
+            flows = ("ingress", "egress")
+            own = [_rule(f"{cn}:{flow}", flow, ALL_MESSAGES, [f"{ROOT}/**"]) for flow in flows]
+        else:
+            own = _rules_of(role)
+        rules.extend(own)
+        subjects.append({"id": cn, "cert_common_names": [cn]})
+        policies.append({"id": cn, "rules": [r["id"] for r in own], "subjects": [cn]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def role_of_common_name(common_name: str) -> tuple[keys.Role | None, str | None]:
+    """``camera.uav0`` -> (CAMERA, "uav0"); ``worker`` -> (WORKER, None); ``client`` -> (None, None)."""
+    base, _, uav = common_name.partition(".")
+    try:
+        role = keys.Role(base)
+    except ValueError:
+        return None, None
+    return role, (uav or None)
+
+
+def markdown_table(settings: PolicySettings | None = None) -> str:
+    """The role-permission table for the README."""
+    lines = [
+        "| certificate CN | put | subscribe | serve (queryable) | query | liveliness token | watch |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for role in role_table(settings):
+        if role.common_name == keys.Role.ROUTER.value:
+            lines.append("| `router` | forwards all of `capataz/**` (the others' rules apply at its ingress) "
+                         "| | | | | |")  # fmt: skip
+            continue
+        cells = [role.put, role.subscribe, role.serve, role.query, role.token, role.watch]
+        text = [", ".join(f"`{k}`" for k in cell) or "-" for cell in cells]
+        lines.append(f"| `{role.common_name}` | " + " | ".join(text) + " |")
+    return "\n".join(lines)

@@ -1,0 +1,94 @@
+"""A dispatcher's defence in depth, wired to a service: trust vetting, one frame source, churn limit.
+
+Thin glue between the pure cores (:mod:`common.dispatch.trust`, :mod:`common.dispatch.vetting`,
+:mod:`common.dispatch.admission`) and a service's counters and log: the master calls
+:meth:`admit_frame` in its frame callback, :meth:`note_alive` in its liveliness callback (both hand off
+only), :meth:`quarantined` when it applies membership and :meth:`vet` after each frame's round.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common.dispatch import TrustMonitor, TrustSettings
+from common.dispatch.admission import ChurnLimiter, SourceLock
+from common.dispatch.vetting import round_outcomes
+from common.yaw import YawSettings
+from common.yaw.correlation import PatchMeasurement
+from services.runtime.handoff import Counters
+from services.runtime.transport import source_of
+
+logger = logging.getLogger(__name__)
+
+
+class DispatchGuard:
+    """Per service: the frame source lock, the churn limiter and the trust monitor."""
+
+    def __init__(self, name: str, counters: Counters, enabled: bool = True) -> None:
+        self.name = name
+        self.counters = counters
+        self.enabled = enabled
+        self.sources = SourceLock()
+        self.churn = ChurnLimiter()
+        self._lock = threading.Lock()
+        #: one for every dispatcher of the service: credit and suspensions outlive a stream's restart
+        self._monitor = TrustMonitor(TrustSettings(enabled=enabled))
+
+    def monitor(self) -> TrustMonitor:
+        """The service's trust monitor, for a new dispatcher (disabled when the guard is)."""
+        return self._monitor
+
+    def admit_frame(self, sample: zenoh.Sample) -> bool:
+        """Whether a frame sample is from the followed source; others are dropped, counted and logged."""
+        source = source_of(sample)
+        if not self.enabled or self.sources.admit(source, time.monotonic()):
+            return True
+        n = self.counters.inc("frames_foreign")
+        if n <= 5 or n % 100 == 0:
+            logger.warning(
+                "%s: dropping frames of another source %s (#%d)", self.name, source or "anonymous", n
+            )
+        return False
+
+    def note_alive(self, member: str, joined: bool) -> None:
+        with self._lock:
+            self.churn.allow(member, joined, time.monotonic())
+
+    def apply_quarantine(self, trust: TrustMonitor | None) -> None:
+        """Pause members whose liveliness churns (dispatching thread) until their quarantine ends."""
+        if not self.enabled or trust is None:
+            return
+        with self._lock:
+            ends = self.churn.quarantine_ends(time.monotonic())
+        for member, until_s in ends.items():
+            trust.suspend(member, until_s)
+
+    def vet(
+        self,
+        trust: TrustMonitor | None,
+        owners: Sequence[str],
+        parts: Sequence[PatchMeasurement],
+        merged: Any,
+        centres_px: np.ndarray,
+        settings: YawSettings,
+    ) -> None:
+        """Judge a frame's members against its robust fit; suspend, count and report inconsistent ones."""
+        if trust is None or not trust.settings.enabled:
+            return
+        now = time.monotonic()
+        for verdict in trust.observe(round_outcomes(owners, parts, merged, centres_px, settings), now):
+            self.counters.inc("trust_suspensions")
+            logger.warning(
+                "%s: suspending %s for %.0f s: %s",
+                self.name,
+                verdict.member,
+                verdict.until_s - now,
+                verdict.reason,
+            )
