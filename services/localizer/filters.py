@@ -66,12 +66,11 @@ def euler_odometry_between(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """World velocity (m/s) and Euler-angle rates (rad/s, wrapped) between two VO poses, as paper B's
     motion model takes them; None unless time advanced."""
-    dt = current.stamp_s - previous.stamp_s
-    if dt <= 0.0:
+    odometry = odometry_between(previous, current)
+    if odometry is None:
         return None
-    velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
     change = euler_from_quaternion(current.q_world_body) - euler_from_quaternion(previous.q_world_body)
-    return velocity, wrap_angle_rad(change) / dt
+    return odometry[0], wrap_angle_rad(change) / (current.stamp_s - previous.stamp_s)
 
 
 def pose_message(
