@@ -36,6 +36,7 @@ lint: $(STAMP)
 
 typecheck: $(STAMP)
 	$(BIN)/mypy common services
+	$(BIN)/mypy --strict common
 
 clean:
 	rm -rf out .pytest_cache .mypy_cache .ruff_cache

@@ -105,6 +105,21 @@ def health_key(role: str | Role, node: str, i: int) -> str:
 
 
 #: every liveliness token / every stats publication / every health queryable
+def master_candidate_key(uav: str, node: str, i: int) -> str:
+    """Liveliness token of a master that can serve ``uav`` (active or standby)."""
+    return f"{ROOT}/elect/{check_name(uav, 'uav')}/candidate/{check_name(node, 'node')}/{_index(i)}"
+
+
+def master_leader_key(uav: str, node: str, i: int) -> str:
+    """Liveliness token of the one active master of ``uav``."""
+    return f"{ROOT}/elect/{check_name(uav, 'uav')}/leader/{check_name(node, 'node')}/{_index(i)}"
+
+
+def election_all(uav: str) -> str:
+    """Every candidate and leader token of ``uav``'s masters."""
+    return f"{ROOT}/elect/{check_name(uav, 'uav')}/**"
+
+
 ALIVE_ALL = f"{ROOT}/alive/**"
 STATS_ALL = f"{ROOT}/stats/**"
 HEALTH_ALL = f"{ROOT}/health/**"

@@ -19,13 +19,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal, TypeVar
+from typing import Annotated, Any, ClassVar, Literal, TypeVar
 
 import msgpack
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from common.errors import CapatazError
+from common.provenance import Provenance
 
 #: Bump when a field changes meaning; decoders reject other versions.
 SCHEMA_VERSION = 1
@@ -37,6 +46,14 @@ WIRE_DTYPES: frozenset[str] = frozenset(
 _WIRE_NP_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in WIRE_DTYPES}
 #: Largest header accepted (bytes); arrays travel in the payload, so headers are small.
 MAX_HEADER_BYTES = 1 << 20
+#: Wire bounds: every count and size a sender chooses is bounded here, at the boundary.
+MAX_NAME_CHARS = 64  # UAV ids, stream names
+MAX_SEQ = (1 << 63) - 1  # msgpack's signed range
+MAX_FRAME_SIDE_PX = 8192
+MAX_JOB_PATCHES = 4096
+MAX_CROP_SIDE_PX = 512
+MAX_JOB_PIXELS = 1 << 24  # crops + previous crops of one job (16 MB)
+MAX_SETTINGS_ENTRIES = 64
 
 
 class WireError(CapatazError):
@@ -76,7 +93,7 @@ class ArraySpec:
             raise ValueError(f"{name}: expected shape {pattern}, got {value.shape}")
         if self._check_finite and value.size and not np.isfinite(value).all():  # type: ignore[attr-defined]
             raise ValueError(f"{name}: contains NaN or inf")
-        return value
+        return np.asarray(value)  # the array itself (typed)
 
 
 class WireModel(BaseModel):
@@ -111,7 +128,7 @@ class WireModel(BaseModel):
         return value
 
 
-Uav = str
+Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -120,10 +137,10 @@ class Frame(WireModel):
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
     uav: Uav
-    seq: int = Field(ge=0)
+    seq: int = Field(ge=0, le=MAX_SEQ)
     stamp_s: float
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
+    width: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
+    height: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     encoding: Literal["mono8"] = "mono8"
     pixels: np.ndarray
 
@@ -179,10 +196,17 @@ class YawEstimate(WireModel):
     members: dict[str, int] = Field(default_factory=dict)
     #: each member's speed as its dispatcher measured it (patches/s; ``foreman>worker`` for the second tier).
     speeds_patches_s: dict[str, float] = Field(default_factory=dict)
-    #: frames of this stream dropped so far by latest-frame-wins.
+    #: frames of this stream dropped so far by the master's bounded frame queue (oldest first), each once.
     dropped_frames: int = Field(ge=0, default=0)
     #: shares re-dispatched in this frame because a member failed.
     redispatched: int = Field(ge=0, default=0)
+    #: how ``delta_yaw_rad`` was obtained: measured by the camera, bridged by the gyro, or the held rate.
+    provenance: Provenance = Provenance.MEASURED
+    #: variance of ``yaw_rad`` (rad^2) and of this frame's ``delta_yaw_rad``; grows fastest while bridging.
+    yaw_variance_rad2: float = Field(ge=0.0, default=0.0)
+    delta_variance_rad2: float = Field(ge=0.0, default=0.0)
+    #: the camera's own delta when it measured one (also when not trusted), else None.
+    measured_delta_rad: float | None = None
 
 
 class AttitudeEstimate(WireModel):
@@ -235,10 +259,10 @@ class PatchJob(WireModel):
         "prev_indices": ArraySpec("<i4", (None,)),
         "prev_crops": ArraySpec("|u1", (None, None, None)),
     }
-    stream: str
-    seq: int = Field(ge=0)
-    prev_seq: int = Field(ge=-1)
-    settings: dict[str, Any]
+    stream: Uav
+    seq: int = Field(ge=0, le=MAX_SEQ)
+    prev_seq: int = Field(ge=-1, le=MAX_SEQ)
+    settings: dict[str, Any] = Field(max_length=MAX_SETTINGS_ENTRIES)
     indices: np.ndarray
     crops: np.ndarray
     prev_indices: np.ndarray
@@ -248,6 +272,13 @@ class PatchJob(WireModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> PatchJob:
+        if self.indices.shape[0] > MAX_JOB_PATCHES:
+            raise ValueError(f"indices: {self.indices.shape[0]} patches > {MAX_JOB_PATCHES}")
+        side = self.crops.shape[1:]
+        if side[0] != side[1] or not 0 < side[0] <= MAX_CROP_SIDE_PX:
+            raise ValueError(f"crops: {side} must be square, 1..{MAX_CROP_SIDE_PX} px")
+        if self.crops.size + self.prev_crops.size > MAX_JOB_PIXELS:
+            raise ValueError(f"crops: {self.crops.size + self.prev_crops.size} pixels > {MAX_JOB_PIXELS}")
         if self.crops.shape[0] != self.indices.shape[0]:
             raise ValueError(f"crops: {self.crops.shape[0]} crops for {self.indices.shape[0]} indices")
         if self.prev_crops.shape[0] != self.prev_indices.shape[0]:

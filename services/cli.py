@@ -37,6 +37,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.up",
     "services.localizer",
     "services.estimator",
+    "services.loadtest",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.

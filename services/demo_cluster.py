@@ -202,7 +202,7 @@ def run_demo(out_dir: Path, n_frames: int = HOVER_FRAMES) -> dict[str, Any]:
     print(f"cluster demo: router, camera, master, 2 foremen x 2 workers on 127.0.0.1; {n_frames} frames")
     reference: dict[str, Any] = {}
     in_process = threading.Thread(
-        target=lambda: reference.update(run=track_frames(flight.frames(), YawSettings())), daemon=True
+        target=lambda: reference.update(run=track_frames(flight.frames(), YawSettings(), flight)), daemon=True
     )
     in_process.start()
     estimates, wall_s, codes = run_cluster_flight(

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +17,16 @@ import numpy as np
 import numpy.typing as npt
 
 from common.metrics import accumulated_mean_error, yaw_error_rad, yaw_error_stats
-from common.sim.flight import hover_flight
+from common.sim.flight import Flight, hover_flight
 from common.types import FloatArray
-from common.yaw import EstimateMethod, YawSettings, YawTracker, make_patch_grid
+from common.yaw import (
+    EstimateMethod,
+    Provenance,
+    YawSettings,
+    YawTracker,
+    gyro_delta_yaw_rad,
+    make_patch_grid,
+)
 from services.report import write_json
 
 logger = logging.getLogger(__name__)
@@ -36,26 +43,40 @@ class TrackedRun:
     ms_per_frame: FloatArray
     low_confidence: npt.NDArray[np.bool_]
     methods: dict[str, int]
+    provenance: dict[str, int] = field(default_factory=dict)
 
 
-def track_frames(frames: Iterable[npt.NDArray[np.uint8]], settings: YawSettings) -> TrackedRun:
-    """Run ``YawTracker.track`` over frames; only the tracking calls are timed (not rendering)."""
+def track_frames(
+    frames: Iterable[npt.NDArray[np.uint8]], settings: YawSettings, flight: Flight | None = None
+) -> TrackedRun:
+    """Run ``YawTracker.track`` over frames; only the tracking calls are timed (not rendering).
+
+    With ``flight`` (whose frames these are) the tracker gets the frame stamps and the gyro prior from the
+    flight's IMU, as the master does from the camera's IMU samples.
+    """
     iterator = iter(frames)
     first = next(iterator)
     tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
-    state = tracker.initial_state(first)
+    stamps = flight.frame_stamps_s if flight is not None else None
+    state = tracker.initial_state(first, stamp_s=float(stamps[0]) if stamps is not None else None)
     yaw = [0.0]
     ms: list[float] = []
     low = [False]
     methods = {m.value: 0 for m in EstimateMethod}
-    for frame in iterator:
+    provenance = {p.value: 0 for p in Provenance}
+    for k, frame in enumerate(iterator, start=1):
         start = time.perf_counter()
-        state, estimate = tracker.track(state, frame)
+        stamp, gyro = None, None
+        if flight is not None and stamps is not None:
+            stamp = float(stamps[k])
+            gyro = gyro_delta_yaw_rad(flight.imu.stamps_s, flight.imu.gyro_rad_s, stamps[k - 1], stamp)
+        state, estimate = tracker.track(state, frame, stamp, gyro)
         ms.append((time.perf_counter() - start) * 1e3)
         yaw.append(estimate.yaw_rad)
         low.append(estimate.low_confidence)
         methods[estimate.method.value] += 1
-    return TrackedRun(np.asarray(yaw), np.asarray(ms), np.asarray(low, dtype=np.bool_), methods)
+        provenance[estimate.provenance.value] += 1
+    return TrackedRun(np.asarray(yaw), np.asarray(ms), np.asarray(low, dtype=np.bool_), methods, provenance)
 
 
 def _plot(
@@ -145,7 +166,7 @@ def run_demo(out_dir: Path) -> dict[str, Any]:
     flight = hover_flight(seed=0)
     settings = YawSettings()
     logger.info("yaw demo: %d frames of the simulated hover", flight.n_frames)
-    run = track_frames(flight.frames(), settings)
+    run = track_frames(flight.frames(), settings, flight)
     return report_yaw(
         out_dir,
         flight.frame_stamps_s,
@@ -154,5 +175,8 @@ def run_demo(out_dir: Path) -> dict[str, Any]:
         ms_per_frame=run.ms_per_frame,
         low_confidence=run.low_confidence,
         label="yaw core (in-process)",
-        extra={f"method_{k}": v for k, v in run.methods.items()},
+        extra={
+            **{f"method_{k}": v for k, v in run.methods.items()},
+            **{f"provenance_{k}": v for k, v in run.provenance.items()},
+        },
     )

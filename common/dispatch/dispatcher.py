@@ -363,7 +363,7 @@ class Dispatcher:
         if n_patches > 0 and waited_s is not None and waited_s > 0:
             bound = n_patches / waited_s
             state.speed_ema = bound if state.speed_ema is None else min(state.speed_ema, bound)
-        pause = min(self.settings.max_suspend_s, self.settings.suspend_s * 2 ** (state.failures - 1))
+        pause = float(min(self.settings.max_suspend_s, self.settings.suspend_s * 2.0 ** (state.failures - 1)))
         state.suspended_until_s = now_s + pause
         self._owner = {i: o for i, o in self._owner.items() if o != member}
         self._memo = None

@@ -311,7 +311,7 @@ def _inverse_spd(S: FloatArray) -> FloatArray:
         det = s00 * s11 - s01 * s01
         if not det > 0.0:
             raise EkfError(f"innovation covariance is not positive definite (det {det})")
-        return np.array([[s11, -s01], [-s01, s00]]) / det
+        return np.array([[s11, -s01], [-s01, s00]], dtype=np.float64) / float(det)
     (s00, s01, s02), (_, s11, s12), (_, _, s22) = S.tolist()
     c00 = s11 * s22 - s12 * s12
     c01 = s02 * s12 - s01 * s22
@@ -322,4 +322,4 @@ def _inverse_spd(S: FloatArray) -> FloatArray:
     c11 = s00 * s22 - s02 * s02
     c12 = s01 * s02 - s00 * s12
     c22 = s00 * s11 - s01 * s01
-    return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
+    return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], dtype=np.float64) / float(det)

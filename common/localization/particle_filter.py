@@ -21,12 +21,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, wrap_angle_rad
 from common.localization.model import SceneModel
 from common.localization.projection import (
     NEAR_PLANE_M,
-    CameraModel,
     EdgeSamples,
     check_states,
     project_samples,

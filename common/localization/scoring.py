@@ -191,7 +191,7 @@ def per_edge_sum(values: npt.NDArray[np.bool_] | Float32Array) -> Float32Array:
     through a uint8 view (exact while S < 256).
     """
     if values.dtype == np.bool_ and values.shape[-1] < 256:
-        return np.einsum("pes->pe", values.view(np.uint8)).astype(np.float32)
+        return np.asarray(np.einsum("pes->pe", values.view(np.uint8)), dtype=np.float32)
     return np.asarray(np.einsum("pes->pe", values.astype(np.float32, copy=False)), dtype=np.float32)
 
 

@@ -121,7 +121,7 @@ def beta_for_ess(loglik: FloatArray, fraction: float) -> float:
 
     def ess(beta: float) -> float:
         w = np.exp(beta * spread)
-        return float(w.sum() ** 2 / np.sum(w * w)) / w.size
+        return float(w.sum() ** 2 / np.sum(w * w)) / float(w.size)
 
     if ess(1.0) >= fraction:
         return 1.0

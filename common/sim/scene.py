@@ -125,7 +125,7 @@ def render_view(
         if rng is None:
             raise InputError("render_scene needs an rng when noise_sigma > 0")
         image = image + rng.normal(0.0, options.noise_sigma, size=image.shape)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return np.asarray(np.clip(np.rint(image), 0, 255), dtype=np.uint8)
 
 
 def _undistort_maps(camera: CameraModel) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:

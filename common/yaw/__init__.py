@@ -15,6 +15,7 @@ from common.yaw.correlation import (
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad, scale_of_homography
 from common.yaw.global_align import GlobalAlignment, estimate_global_alignment
 from common.yaw.grid import PatchGrid, make_patch_grid
+from common.yaw.honest import Provenance, gyro_delta_yaw_rad
 from common.yaw.settings import FftBackend, FitModel, YawError, YawSettings
 from common.yaw.tracker import (
     EstimateMethod,
@@ -34,6 +35,7 @@ __all__ = [
     "PatchGrid",
     "PatchMeasurement",
     "PatchSpectra",
+    "Provenance",
     "TrackerState",
     "YawError",
     "YawEstimate",
@@ -43,6 +45,7 @@ __all__ = [
     "estimate_global_alignment",
     "estimate_pair",
     "fit_correspondences",
+    "gyro_delta_yaw_rad",
     "make_patch_grid",
     "measure_patches",
     "merge_measurements",

@@ -16,8 +16,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-from common.types import Float32Array, FloatArray
-from common.yaw.grid import IntArray, PatchGrid, U8Array
+from common.types import Float32Array, FloatArray, U8Array
+from common.yaw.grid import IntArray, PatchGrid
 from common.yaw.settings import FftBackend, YawError, YawSettings
 
 ComplexArray = npt.NDArray[np.complex64]

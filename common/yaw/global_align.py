@@ -14,8 +14,7 @@ import cv2
 import numpy as np
 
 from common.images import check_grey_image
-from common.types import Float32Array, FloatArray
-from common.yaw.grid import U8Array
+from common.types import Float32Array, FloatArray, U8Array
 from common.yaw.settings import YawSettings
 
 
@@ -23,13 +22,16 @@ from common.yaw.settings import YawSettings
 class GlobalAlignment:
     """A similarity ``matrix`` (3, 3) mapping frame-a pixels to frame-b pixels, and its parameters.
 
-    ``response`` is the translation phase-correlation peak of the pre-aligned pair (0..1).
+    ``response`` is the translation phase-correlation peak of the pre-aligned pair (0..1). ``candidates``
+    holds every rotation the magnitude spectrum cannot tell apart (r, r + 90, r + 180, r + 270 deg: a
+    periodic floor makes them look alike) as ``(matrix, rotation_rad, response)``, best response first.
     """
 
     matrix: FloatArray
     rotation_rad: float
     scale: float
     response: float
+    candidates: tuple[tuple[FloatArray, float, float], ...] = ()
 
 
 @functools.lru_cache(maxsize=4)
@@ -102,8 +104,9 @@ def estimate_global_alignment(frame_a: U8Array, frame_b: U8Array, settings: YawS
     """Fourier-Mellin estimate of the similarity frame a -> frame b on downsampled whole frames.
 
     Rotation and scale come from phase correlation of the log-polar magnitude spectra of the central
-    squares (translation-invariant); the 180 deg ambiguity of a magnitude spectrum and the translation
-    come from phase correlation of frame a with frame b warped back by each candidate.
+    squares (translation-invariant); the 90/180 deg ambiguities (a magnitude spectrum is symmetric, a periodic
+    floor's is 90 deg symmetric too) and the translation come from phase correlation of frame a with frame b
+    warped back by each candidate r + k 90 deg; the best is the default, all are kept for disambiguation.
     """
     check_grey_image(frame_a, "frame_a")
     check_grey_image(frame_b, "frame_b")
@@ -136,8 +139,11 @@ def estimate_global_alignment(frame_a: U8Array, frame_b: U8Array, settings: YawS
     h, w = small_a.shape
     centre = ((w - 1) / 2.0, (h - 1) / 2.0)
     window = cv2.createHanningWindow((w, h), cv2.CV_64F)
-    best: tuple[float, FloatArray, float] | None = None
-    for candidate in (rotation, rotation + math.pi):
+    D = np.diag([factor, factor, 1.0])
+    D_inv = np.linalg.inv(D)
+    candidates: list[tuple[FloatArray, float, float]] = []
+    for quarter in range(4):
+        candidate = rotation + quarter * math.pi / 2.0
         S = _similarity_about(centre, candidate, scale)
         aligned = cv2.warpPerspective(
             small_b, S, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT
@@ -145,13 +151,12 @@ def estimate_global_alignment(frame_a: U8Array, frame_b: U8Array, settings: YawS
         (dx, dy), response = cv2.phaseCorrelate(
             small_a.astype(np.float64), aligned.astype(np.float64), window
         )
-        if best is None or response > best[0]:
-            shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
-            best = (float(response), S @ shift, candidate)
-    assert best is not None
-    response, matrix_small, rotation = best
-    # Small pixel x_s = f * x (pixel-centre offsets cancel in rotation and scale, shift < 1 px).
-    D = np.diag([factor, factor, 1.0])
-    matrix = np.linalg.inv(D) @ matrix_small @ D
-    wrapped = math.atan2(math.sin(rotation), math.cos(rotation))
-    return GlobalAlignment(matrix=matrix, rotation_rad=wrapped, scale=scale, response=response)
+        shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+        # Small pixel x_s = f * x (pixel-centre offsets cancel in rotation and scale, shift < 1 px).
+        matrix = D_inv @ (S @ shift) @ D
+        candidates.append((matrix, math.atan2(math.sin(candidate), math.cos(candidate)), float(response)))
+    candidates.sort(key=lambda c: -c[2])
+    matrix, wrapped, response = candidates[0]
+    return GlobalAlignment(
+        matrix=matrix, rotation_rad=wrapped, scale=scale, response=response, candidates=tuple(candidates)
+    )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
@@ -28,19 +29,47 @@ class PatchWorkError(CapatazError):
     """A job cannot be computed (missing previous spectra, inconsistent settings or crops)."""
 
 
+#: Settings only the central stage uses (the lens model): never sent to members.
+LOCAL_SETTINGS = frozenset({"camera"})
+
+
 def settings_to_wire(settings: YawSettings) -> dict[str, Any]:
-    """Yaw settings as a flat msgpack-able dict (enums by value)."""
+    """Yaw settings as a flat msgpack-able dict (enums by value), without :data:`LOCAL_SETTINGS`."""
     out: dict[str, Any] = {}
     for f in dataclasses.fields(settings):
+        if f.name in LOCAL_SETTINGS:
+            continue
         value = getattr(settings, f.name)
         out[f.name] = value.value if isinstance(value, enum.Enum) else value
     return out
 
 
+#: Bounds of the yaw settings a job may carry (a member allocates windows and spectra of these sizes):
+#: checked at the wire, before any allocation. The largest values in use are far below.
+WIRE_SETTING_BOUNDS: dict[str, tuple[float, float]] = {
+    "patch_size_px": (8, 256),
+    "grid_cols": (1, 64),
+    "grid_rows": (1, 64),
+    "margin_px": (0, 4096),
+    "pyramid_level": (0, 4),
+    "ransac_max_iters": (1, 10_000),
+    "min_inliers": (3, 4096),
+    "global_size_px": (64, 1024),
+    "global_angle_bins": (90, 4096),
+    "peak_sigma_px": (1e-3, 64.0),
+    "ransac_threshold_px": (1e-3, 1e3),
+    "max_residual_px": (1e-3, 1e3),
+    "overlap_correction": (0.0, 8.0),
+    "min_texture_std": (0.0, 255.0),
+    "min_peak_ratio": (0.0, 1e3),
+}
+
+
 def settings_from_wire(values: dict[str, Any]) -> YawSettings:
-    """Inverse of :func:`settings_to_wire`; unknown or invalid fields raise :class:`PatchWorkError`."""
+    """Inverse of :func:`settings_to_wire`; unknown, out-of-bounds (:data:`WIRE_SETTING_BOUNDS`) or invalid
+    fields raise :class:`PatchWorkError`."""
     defaults = YawSettings()
-    known = {f.name for f in dataclasses.fields(YawSettings)}
+    known = {f.name for f in dataclasses.fields(YawSettings)} - LOCAL_SETTINGS
     unknown = set(values) - known
     if unknown:
         raise PatchWorkError(f"unknown yaw settings {sorted(unknown)}")
@@ -62,6 +91,9 @@ def settings_from_wire(values: dict[str, Any]) -> YawSettings:
                 kwargs[name] = value
         except ValueError as exc:
             raise PatchWorkError(f"yaw setting {name}: {exc}") from None
+        bounds = WIRE_SETTING_BOUNDS.get(name)
+        if bounds is not None and not bounds[0] <= kwargs[name] <= bounds[1]:
+            raise PatchWorkError(f"yaw setting {name} = {kwargs[name]!r} outside {bounds[0]}..{bounds[1]}")
     try:
         return YawSettings(**kwargs)
     except (ValueError, TypeError) as exc:
@@ -94,15 +126,22 @@ class _StreamCache:
     spectra: dict[int, tuple[np.ndarray, np.floating[Any]]]
     #: the last share stored whole: a lookup of exactly its indices returns it without re-stacking
     last: PatchSpectra | None = None
+    stored_s: float = 0.0
 
 
 class SpectrumCache:
-    """Newest-frame spectra per (stream, patch index); thread-safe; bounded number of streams."""
+    """Newest-frame spectra per (stream, patch index); thread-safe; bounded number of streams (the least
+    recently stored beyond ``max_streams`` and any not stored to for ``max_age_s`` are evicted)."""
 
-    def __init__(self, max_streams: int = 16) -> None:
+    def __init__(self, max_streams: int = 64, max_age_s: float = 60.0, clock: Any = time.monotonic) -> None:
         self._streams: OrderedDict[str, _StreamCache] = OrderedDict()
         self._lock = threading.Lock()
         self._max_streams = max_streams
+        self._max_age_s = max_age_s
+        self._clock = clock
+
+    def __len__(self) -> int:
+        return len(self._streams)
 
     def held(self, stream: str) -> tuple[int, frozenset[int]]:
         with self._lock:
@@ -133,18 +172,23 @@ class SpectrumCache:
 
     def store(self, stream: str, seq: int, spectra: PatchSpectra) -> None:
         """Remember spectra of frame ``seq`` (frames older than the cached one are ignored)."""
+        now = self._clock()
         with self._lock:
             entry = self._streams.get(stream)
-            if entry is None or entry.seq < seq:
+            # a frame far older than the cached one is a restarted stream (new epoch): it replaces it
+            if entry is None or entry.seq < seq or entry.seq - seq > 2:
                 entry = _StreamCache(seq=seq, spectra={})
                 self._streams[stream] = entry
             elif entry.seq > seq:
                 return
+            entry.stored_s = now
             self._streams.move_to_end(stream)
             entry.last = spectra if not entry.spectra else None
             for row, index in enumerate(spectra.indices.tolist()):
                 entry.spectra[int(index)] = (spectra.spectra[row], spectra.texture_std[row])
             while len(self._streams) > self._max_streams:
+                self._streams.popitem(last=False)
+            while self._streams and now - next(iter(self._streams.values())).stored_s > self._max_age_s:
                 self._streams.popitem(last=False)
 
 

@@ -14,9 +14,9 @@ import numpy as np
 
 from common.errors import InputError
 from common.images import check_grey_image
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 from common.yaw.fit import ModelFit, fit_correspondences
-from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
+from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.settings import FitModel, YawSettings
 from common.yaw.tracker import delta_yaw_from_homography_rad
 

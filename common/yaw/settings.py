@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
+from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 
 
@@ -65,6 +67,24 @@ class YawSettings:
     global_angle_bins: int = 720
     #: Residual (full-resolution px, median over inliers) above which the estimate is low-confidence.
     max_residual_px: float = 1.5
+    #: Above this patch-fit rotation (deg) the patches are measured again on frame k turned back by it (the
+    #: window's pull of the shifts towards zero then acts on tiny shifts only); 180 = never.
+    refine_min_deg: float = 0.25
+    #: Physical limit: a delta implying a faster yaw rate between two stamped frames is refused.
+    max_yaw_rate_deg_s: float = 300.0
+    #: Physical limit on the yaw acceleration: how far a measured delta may leave the held yaw rate.
+    max_yaw_accel_deg_s2: float = 1500.0
+    #: A measured delta further than this from the gyro's is not trusted (the gyro bridges the pair).
+    gyro_gate_deg: float = 2.0
+    #: Standard deviation of the gyro's integrated yaw per second (bias and noise), for the bridge variance.
+    gyro_sigma_deg_s: float = 0.5
+    #: Global-stage candidates r + k 90 deg whose response reaches this fraction of the best look alike.
+    ambiguity_ratio: float = 0.8
+    #: Frame period assumed for the held rate when frames carry no stamps.
+    frame_period_s: float = 0.05
+    #: Intrinsics and lens distortion of the frames (None: an undistorted camera centred on the frame).
+    #: Only the central stage uses it (correspondences are undistorted before the fit); not on the wire.
+    camera: CameraModel | None = None
 
     def __post_init__(self) -> None:
         if self.patch_size_px < 8 or self.patch_size_px % 2:
@@ -91,6 +111,24 @@ class YawSettings:
             raise InputError(f"min_inliers must be >= 3, got {self.min_inliers}")
         if self.global_size_px < 64 or self.global_angle_bins < 90:
             raise InputError("global_size_px must be >= 64 and global_angle_bins >= 90")
+        limits = (
+            self.max_yaw_rate_deg_s,
+            self.max_yaw_accel_deg_s2,
+            self.gyro_gate_deg,
+            self.frame_period_s,
+        )
+        if not all(math.isfinite(v) and v > 0.0 for v in limits):
+            raise InputError(
+                "max_yaw_rate_deg_s, max_yaw_accel_deg_s2, gyro_gate_deg and frame_period_s must be positive"
+            )
+        if not (math.isfinite(self.refine_min_deg) and self.refine_min_deg >= 0.0):
+            raise InputError(f"refine_min_deg must be >= 0, got {self.refine_min_deg}")
+        if not (math.isfinite(self.gyro_sigma_deg_s) and self.gyro_sigma_deg_s >= 0.0):
+            raise InputError(f"gyro_sigma_deg_s must be >= 0, got {self.gyro_sigma_deg_s}")
+        if not 0.0 < self.ambiguity_ratio <= 1.0:
+            raise InputError(f"ambiguity_ratio must be in (0, 1], got {self.ambiguity_ratio}")
+        if self.camera is not None and not isinstance(self.camera, CameraModel):
+            raise InputError(f"camera must be a CameraModel, got {type(self.camera).__name__}")
 
     @property
     def scale(self) -> int:

@@ -8,14 +8,14 @@ workers and the second on the master produces the same yaw.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, replace
-from enum import Enum
 
 import numpy as np
 
 from common.errors import InputError
 from common.images import check_grey_image
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
     PatchMeasurement,
     PatchSpectra,
@@ -23,27 +23,16 @@ from common.yaw.correlation import (
     merge_measurements,
     patch_spectra,
 )
-from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
-from common.yaw.global_align import GlobalAlignment, estimate_global_alignment, warp_into
-from common.yaw.grid import PatchGrid, U8Array, make_patch_grid
+from common.yaw.fit import rotation_of_homography_rad
+from common.yaw.grid import PatchGrid, make_patch_grid
+from common.yaw.honest import PriorSource, Provenance, make_prior, measured_variance_rad2
 from common.yaw.settings import YawSettings
+from common.yaw.stages import EstimateMethod, PairResult, conclude_pair, lens_of
 
 logger = logging.getLogger(__name__)
 
 
-#: A frame whose grey-level std (0..255) is below this has nothing to correlate (black, saturated).
-_MIN_FRAME_STD = 2.0
-#: The global alignment is trusted alone (flagged low-confidence) above this correlation response.
-_MIN_GLOBAL_RESPONSE = 0.05
-
-
-class EstimateMethod(Enum):
-    """How a yaw estimate was obtained."""
-
-    PATCHES = "patches"  # patch fit on the raw pair
-    GLOBAL_PREALIGNED = "global_prealigned"  # Fourier-Mellin pre-alignment, then the patch fit
-    GLOBAL_ONLY = "global_only"  # patch fit failed even after pre-alignment; global estimate only
-    NONE = "none"  # nothing usable (textureless, garbage): delta yaw 0, low confidence
+__all__ = ["EstimateMethod", "TrackerState", "YawEstimate", "YawTracker", "estimate_pair"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,8 +40,12 @@ class YawEstimate:
     """Yaw of frame ``seq`` relative to frame ``seq - 1`` and integrated since frame 0.
 
     ``delta_yaw_rad`` is the change of the vehicle's yaw (ZYX yaw of q_world_body, CCW seen from above)
-    for a downward camera (``R_BODY_CAMERA_DOWN``); ``homography`` (3, 3) maps frame seq-1 pixels to
-    frame seq pixels. ``confidence`` in [0, 1] is the inlier fraction of the measured patches.
+    for a downward camera (``R_BODY_CAMERA_DOWN``) that was *integrated*: the measured one when
+    ``provenance`` is ``MEASURED``, else the gyro's (``BRIDGED``) or the held rate's (``HELD``);
+    ``measured_delta_rad`` is what the camera stage measured (NaN when nothing). ``homography`` (3, 3) maps
+    frame seq-1 pixels to frame seq pixels (undistorted pixels when the settings carry a lens model).
+    ``confidence`` in [0, 1] is the inlier fraction of the measured patches. ``yaw_variance_rad2`` is the
+    variance of ``yaw_rad`` (it grows with every pair, fastest while bridging or holding).
     """
 
     seq: int
@@ -66,11 +59,16 @@ class YawEstimate:
     method: EstimateMethod
     homography: FloatArray
     residual_px: float
+    provenance: Provenance = Provenance.MEASURED
+    measured_delta_rad: float = math.nan
+    delta_variance_rad2: float = 0.0
+    yaw_variance_rad2: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
 class TrackerState:
-    """Explicit tracker state: the last frame (needed only by the fallback) and, in-process, its spectra.
+    """Explicit tracker state: the last frame (needed only by the fallbacks), in-process its spectra, and
+    what the honest integration needs (stamp, held yaw rate, time since the last measured pair, variance).
 
     Frames are kept by reference: callers must not modify a frame after passing it in.
     """
@@ -79,6 +77,10 @@ class TrackerState:
     yaw_rad: float
     previous_frame: U8Array
     previous_spectra: PatchSpectra | None
+    stamp_s: float | None = None
+    rate_rad_s: float | None = None
+    since_measured_s: float = 0.0
+    yaw_variance_rad2: float = 0.0
 
 
 def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> float:
@@ -92,94 +94,6 @@ def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> fl
     return rotation_of_homography_rad(homography, ((width - 1) / 2.0, (height - 1) / 2.0))
 
 
-def _frame_is_flat(frame_u8: U8Array) -> bool:
-    small = frame_u8[::4, ::4]
-    return bool(float(np.std(small)) < _MIN_FRAME_STD)
-
-
-def _fit_measurement(grid: PatchGrid, measurement: PatchMeasurement, settings: YawSettings) -> ModelFit:
-    valid = measurement.valid
-    src = grid.centres_px[measurement.indices[valid]]
-    return fit_correspondences(src, src + measurement.shift_px[valid], settings)
-
-
-def _fit_is_good(fit: ModelFit, measurement: PatchMeasurement, settings: YawSettings) -> bool:
-    """Enough of the measured patches agree (few valid patches = the rotation outran the patches)."""
-    n_patches = measurement.indices.size
-    return bool(fit.ok and fit.inlier_count >= settings.min_inlier_fraction * n_patches)
-
-
-@dataclass(frozen=True, eq=False)
-class _PairResult:
-    homography: FloatArray
-    method: EstimateMethod
-    fit: ModelFit
-    measurement: PatchMeasurement
-    low_confidence: bool
-
-
-def _prealigned(
-    previous_frame: U8Array,
-    frame_u8: U8Array,
-    grid: PatchGrid,
-    settings: YawSettings,
-    alignment: GlobalAlignment,
-    previous_spectra: PatchSpectra | None,
-) -> _PairResult:
-    """Patch stage on frame k warped back by the global alignment, composed with it."""
-    aligned = warp_into(frame_u8, alignment.matrix, grid.frame_shape)
-    before = (
-        previous_spectra
-        if previous_spectra is not None
-        else patch_spectra(previous_frame, grid, None, settings)
-    )
-    measurement = measure_patches(before, patch_spectra(aligned, grid, before.indices, settings), settings)
-    # After a long gap the residual holds the perspective of the tilt change: fit a homography.
-    fit = _fit_measurement(grid, measurement, replace(settings, fit_model=settings.prealigned_fit_model))
-    if _fit_is_good(fit, measurement, settings):
-        low = fit.residual_px > settings.max_residual_px
-        return _PairResult(
-            alignment.matrix @ fit.homography, EstimateMethod.GLOBAL_PREALIGNED, fit, measurement, low
-        )
-    if alignment.response >= _MIN_GLOBAL_RESPONSE:
-        return _PairResult(alignment.matrix, EstimateMethod.GLOBAL_ONLY, fit, measurement, True)
-    return _PairResult(np.eye(3), EstimateMethod.NONE, fit, measurement, True)
-
-
-def _conclude_pair(
-    previous_frame: U8Array,
-    frame_u8: U8Array,
-    measurement: PatchMeasurement,
-    grid: PatchGrid,
-    settings: YawSettings,
-    previous_spectra: PatchSpectra | None,
-    check_global: bool,
-) -> _PairResult:
-    fit = _fit_measurement(grid, measurement, settings)
-    good = _fit_is_good(fit, measurement, settings)
-    patches = _PairResult(
-        fit.homography, EstimateMethod.PATCHES, fit, measurement, fit.residual_px > settings.max_residual_px
-    )
-    if good and not check_global:
-        return patches
-    if _frame_is_flat(previous_frame) or _frame_is_flat(frame_u8):
-        logger.debug("flat frame: no yaw")
-        return _PairResult(np.eye(3), EstimateMethod.NONE, fit, measurement, True)
-    alignment = estimate_global_alignment(previous_frame, frame_u8, settings)
-    if good and alignment.response < _MIN_GLOBAL_RESPONSE:
-        return patches
-    logger.debug(
-        "patch fit %s (%d/%d inliers): global pre-alignment",
-        "checked" if good else "poor",
-        fit.inlier_count,
-        measurement.indices.size,
-    )
-    prealigned = _prealigned(previous_frame, frame_u8, grid, settings, alignment, previous_spectra)
-    if good and prealigned.method is not EstimateMethod.GLOBAL_PREALIGNED:
-        return patches
-    return prealigned
-
-
 class YawTracker:
     """Integrates the yaw of a frame stream; explicit state in, state out."""
 
@@ -188,6 +102,7 @@ class YawTracker:
             raise InputError("grid was made with other settings (pyramid level / patch size differ)")
         self.settings = settings
         self.grid = grid
+        self.lens = lens_of(grid, settings)
 
     def _check(self, frame_u8: U8Array, name: str) -> U8Array:
         check_grey_image(frame_u8, name)
@@ -195,41 +110,83 @@ class YawTracker:
             raise InputError(f"{name} must have shape {self.grid.frame_shape}, got {frame_u8.shape}")
         return frame_u8
 
-    def initial_state(self, frame0_u8: U8Array, with_spectra: bool = True) -> TrackerState:
+    def initial_state(
+        self, frame0_u8: U8Array, with_spectra: bool = True, stamp_s: float | None = None
+    ) -> TrackerState:
         """State at frame 0 (yaw 0); ``with_spectra`` caches its patch spectra for in-process ``track``."""
         frame = self._check(frame0_u8, "frame0_u8")
         spectra = patch_spectra(frame, self.grid, None, self.settings) if with_spectra else None
-        return TrackerState(seq=0, yaw_rad=0.0, previous_frame=frame, previous_spectra=spectra)
+        return TrackerState(
+            seq=0, yaw_rad=0.0, previous_frame=frame, previous_spectra=spectra, stamp_s=_check_stamp(stamp_s)
+        )
 
     def conclude(
-        self, state: TrackerState, frame_u8: U8Array, measurement: PatchMeasurement
+        self,
+        state: TrackerState,
+        frame_u8: U8Array,
+        measurement: PatchMeasurement,
+        stamp_s: float | None = None,
+        gyro_delta_rad: float | None = None,
     ) -> tuple[TrackerState, YawEstimate]:
-        """Central stage: fit the measured shifts of frame k, fall back to the global alignment, integrate.
+        """Central stage: fit the measured shifts of frame k, fall back if untrusted, integrate honestly.
 
         ``measurement`` may cover any subset of the grid's patches (e.g. when a worker is missing), in
         any order (it is put in ascending index order first, so the fit does not depend on the order).
-        The returned state has no spectra; ``track`` adds them.
+        ``stamp_s`` (frame k's time) enables the physical rate limit; ``gyro_delta_rad`` (the gyro's
+        rotation since frame k-1, :func:`~common.yaw.honest.gyro_delta_yaw_rad`) is the prior and the
+        bridge over untrusted pairs. The returned state has no spectra; ``track`` adds them.
         """
         frame = self._check(frame_u8, "frame_u8")
+        stamp = _check_stamp(stamp_s)
+        if gyro_delta_rad is not None and not math.isfinite(gyro_delta_rad):
+            raise InputError(f"gyro_delta_rad must be finite, got {gyro_delta_rad}")
         if measurement.indices.size and np.any(np.diff(measurement.indices) <= 0):
             measurement = merge_measurements([measurement])
         if measurement.indices.size and measurement.indices.max() >= self.grid.n_patches:
             raise InputError(f"measurement indices exceed the grid's {self.grid.n_patches} patches")
-        result = _conclude_pair(
-            state.previous_frame, frame, measurement, self.grid, self.settings, state.previous_spectra, False
-        )
-        delta = (
-            0.0
-            if result.method is EstimateMethod.NONE
-            else delta_yaw_from_homography_rad(result.homography, self.grid)
-        )
+        dt = stamp - state.stamp_s if stamp is not None and state.stamp_s is not None else None
+        if dt is not None and dt <= 0.0:
+            raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
+        prior = make_prior(self.settings, dt, gyro_delta_rad, state.rate_rad_s, state.since_measured_s)
+        result = conclude_pair(
+            state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
+            state.previous_spectra, prior, False,
+        )  # fmt: skip
+        step_s = dt if dt is not None else self.settings.frame_period_s
+        rate: float | None
+        if result.trusted:
+            provenance, delta = Provenance.MEASURED, result.delta_rad
+            variance = measured_variance_rad2(
+                result.fit.residual_px, result.fit.inlier_count, self.lens.lever_px
+            )
+            rate, since = delta / step_s, 0.0
+        elif prior.source is PriorSource.GYRO:
+            provenance, delta, variance = Provenance.BRIDGED, prior.delta_rad, prior.variance_rad2
+            rate, since = delta / step_s, 0.0
+        else:
+            provenance, delta, variance = Provenance.HELD, prior.delta_rad, prior.variance_rad2
+            rate, since = state.rate_rad_s, state.since_measured_s + step_s
         yaw = state.yaw_rad + delta
-        estimate = _make_estimate(state.seq + 1, delta, yaw, result)
+        yaw_variance = state.yaw_variance_rad2 + variance
+        estimate = _make_estimate(state.seq + 1, delta, yaw, result, provenance, variance, yaw_variance)
         return TrackerState(
-            seq=state.seq + 1, yaw_rad=yaw, previous_frame=frame, previous_spectra=None
+            seq=state.seq + 1,
+            yaw_rad=yaw,
+            previous_frame=frame,
+            previous_spectra=None,
+            stamp_s=stamp,
+            rate_rad_s=rate,
+            since_measured_s=since,
+            yaw_variance_rad2=yaw_variance,
         ), estimate
 
-    def track(self, state: TrackerState, frame_u8: U8Array) -> tuple[TrackerState, YawEstimate]:
+    def track(
+        self,
+        state: TrackerState,
+        frame_u8: U8Array,
+        stamp_s: float | None = None,
+        gyro_delta_rad: float | None = None,
+    ) -> tuple[TrackerState, YawEstimate]:
         """In-process: spectra of all patches, ``measure_patches`` vs the cached ones, ``conclude``."""
         frame = self._check(frame_u8, "frame_u8")
         previous = state.previous_spectra
@@ -238,11 +195,25 @@ class YawTracker:
             state = replace(state, previous_spectra=previous)
         current = patch_spectra(frame, self.grid, previous.indices, self.settings)
         measurement = measure_patches(previous, current, self.settings)
-        state, estimate = self.conclude(state, frame, measurement)
+        state, estimate = self.conclude(state, frame, measurement, stamp_s, gyro_delta_rad)
         return replace(state, previous_spectra=current), estimate
 
 
-def _make_estimate(seq: int, delta: float, yaw: float, result: _PairResult) -> YawEstimate:
+def _check_stamp(stamp_s: float | None) -> float | None:
+    if stamp_s is not None and not math.isfinite(stamp_s):
+        raise InputError(f"stamp_s must be finite, got {stamp_s}")
+    return None if stamp_s is None else float(stamp_s)
+
+
+def _make_estimate(
+    seq: int,
+    delta: float,
+    yaw: float,
+    result: PairResult,
+    provenance: Provenance,
+    delta_variance: float,
+    yaw_variance: float,
+) -> YawEstimate:
     patch_count = int(result.measurement.indices.size)
     inliers = result.fit.inlier_count if result.method is not EstimateMethod.NONE else 0
     return YawEstimate(
@@ -253,16 +224,23 @@ def _make_estimate(seq: int, delta: float, yaw: float, result: _PairResult) -> Y
         patch_count=patch_count,
         valid_count=result.measurement.n_valid,
         confidence=inliers / patch_count if patch_count else 0.0,
-        low_confidence=bool(result.low_confidence or result.method is EstimateMethod.NONE),
+        low_confidence=bool(result.low_confidence or provenance is not Provenance.MEASURED),
         method=result.method,
         homography=result.homography,
         residual_px=float(result.fit.residual_px),
+        provenance=provenance,
+        measured_delta_rad=float(result.delta_rad) if result.method is not EstimateMethod.NONE else math.nan,
+        delta_variance_rad2=float(delta_variance),
+        yaw_variance_rad2=float(yaw_variance),
     )
 
 
-def estimate_pair(frame_a: U8Array, frame_b: U8Array, settings: YawSettings) -> YawEstimate:
+def estimate_pair(
+    frame_a: U8Array, frame_b: U8Array, settings: YawSettings, gyro_delta_rad: float | None = None
+) -> YawEstimate:
     """Yaw of one pair a -> b (any rotation): patch fit, checked against and if needed pre-aligned by
-    the global Fourier-Mellin estimate."""
+    the global Fourier-Mellin estimate; ``gyro_delta_rad`` disambiguates look-alike rotations. Without a
+    trusted measurement the delta is the prior's (0 without a gyro) and the estimate is not MEASURED."""
     check_grey_image(frame_a, "frame_a")
     check_grey_image(frame_b, "frame_b")
     if frame_a.shape != frame_b.shape:
@@ -270,12 +248,19 @@ def estimate_pair(frame_a: U8Array, frame_b: U8Array, settings: YawSettings) -> 
             f"frame_a and frame_b must have the same shape, got {frame_a.shape} and {frame_b.shape}"
         )
     grid = make_patch_grid(frame_a.shape, settings)
-    before = patch_spectra(frame_a, grid, None, settings)
+    tracker = YawTracker(settings, grid)
+    state = tracker.initial_state(frame_a)
+    before = state.previous_spectra
+    assert before is not None
     measurement = measure_patches(before, patch_spectra(frame_b, grid, None, settings), settings)
-    result = _conclude_pair(frame_a, frame_b, measurement, grid, settings, before, True)
-    delta = (
-        0.0
-        if result.method is EstimateMethod.NONE
-        else delta_yaw_from_homography_rad(result.homography, grid)
-    )
-    return _make_estimate(1, delta, delta, result)
+    prior = make_prior(settings, None, gyro_delta_rad, None, 0.0)
+    result = conclude_pair(frame_a, frame_b, measurement, grid, tracker.lens, settings, before, prior, True)
+    if result.trusted:
+        provenance, delta = Provenance.MEASURED, result.delta_rad
+        variance = measured_variance_rad2(
+            result.fit.residual_px, result.fit.inlier_count, tracker.lens.lever_px
+        )
+    else:
+        provenance = Provenance.BRIDGED if prior.source is PriorSource.GYRO else Provenance.HELD
+        delta, variance = prior.delta_rad, prior.variance_rad2
+    return _make_estimate(1, delta, delta, result, provenance, variance, variance)

@@ -44,8 +44,10 @@ def _runner(module: ModuleType) -> Any:
     def handler(args: argparse.Namespace) -> int:
         with progress.bar(total=None, desc=f"bench {module.NAME}", unit="step"):
             result = module.run(args)
-        name = result.pop("bench_name", module.NAME)  # a suite of a benchmark may name its own file
-        path = write_json(args.out / f"{name}.json", result)
+        # a suite may name its own file and payload (e.g. ``bench yaw --suite field`` -> yaw_field.json)
+        name = result.pop("json_name", None) or result.pop("bench_name", module.NAME)
+        payload = result.pop("json", result)
+        path = write_json(args.out / f"{name}.json", payload)
         print_table(result.get("table", []), title=f"bench {name}")
         print(f"wrote {path}")
         return 0

@@ -23,11 +23,13 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.errors import CapatazError
 from common.metrics import yaw_error_stats
 from common.sim.flight import hover_flight
 from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
 from common.yaw.correlation import forward_transform, inverse_transform, windowed_patches
 from common.yaw.reference import reference_pair, reference_settings
+from services.bench.yaw_field import run_field
 
 logger = logging.getLogger(__name__)
 
@@ -46,6 +48,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--drop-step", type=int, default=4, help="also run on every N-th frame (dropped frames); 0 = skip"
     )
+    parser.add_argument(
+        "--suite",
+        choices=["hover", "field"],
+        default="hover",
+        help="hover: the paper's flight (out/bench/yaw.json); field: every field scenario and the hover, "
+        "core (calibration + gyro prior) vs the paper's method (out/bench/yaw_field.json)",
+    )
+    parser.add_argument("--field-frames", type=int, default=600, help="frames per field scenario (>= 102)")
+    parser.add_argument("--hover-frames", type=int, default=2041, help="hover frames of the field suite")
 
 
 def _median_us(func: Callable[[], object], repeats: int = 300) -> float:
@@ -152,6 +163,10 @@ def _row(
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.suite == "field":
+        if args.field_frames < 102 or args.hover_frames < 102:
+            raise CapatazError("--field-frames and --hover-frames must be >= 102 (max AME needs N = 100)")
+        return run_field(args)
     cv2.setNumThreads(1)
     flight = hover_flight(seed=args.seed, n_frames=max(int(args.frames), 2))
     logger.info("rendering %d hover frames", flight.n_frames)

@@ -16,7 +16,6 @@ import argparse
 import threading
 import time
 from collections.abc import Iterator
-from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +25,17 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel
 from common.errors import CapatazError
 from common.geometry import quaternion_from_euler
-from common.localization.office import default_scene
-from common.localization.tracking import noisy_odometry
 from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
-from common.sim.flight import Flight, hover_flight, turns_flight
-from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
-from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from common.sim.flight import Flight
+from services.camera.flights import (
+    FlightName,
+    office_frames,
+    office_odometry_poses,
+    simulated_flight,
+    write_flight_calibration,
+)
 from services.camera.images import image_files
 from services.runtime.transport import (
     ServiceRuntime,
@@ -42,19 +43,6 @@ from services.runtime.transport import (
     add_transport_arguments,
     transport_from_args,
 )
-
-DEFAULT_HFOV_DEG = 90.0
-
-
-class FlightName(StrEnum):
-    """The simulated flights the camera can replay."""
-
-    #: paper A's hover over the ground (752x480)
-    HOVER = "hover"
-    #: paper C's turns over the ground
-    TURNS = "turns"
-    #: the localizer's default flight through the built-in office (320x240, forward camera)
-    OFFICE = "office"
 
 
 class CameraSettings(BaseModel):
@@ -78,43 +66,6 @@ class CameraSettings(BaseModel):
     wait_master_s: float = Field(default=10.0, ge=0.0)
     #: give up waiting for a yaw after this long (flow control only)
     yaw_timeout_s: float = Field(default=5.0, gt=0.0)
-
-
-def simulated_flight(settings: CameraSettings) -> Flight:
-    """The ground flight the camera replays (the in-process reference builds the same one)."""
-    camera = (
-        None
-        if settings.width is None or settings.height is None
-        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
-    )
-    if settings.flight is FlightName.TURNS:
-        return turns_flight(seed=settings.seed, camera=camera)
-    return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
-
-
-def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
-    """The localizer's default flight through the built-in office: the same frames as
-    ``common.sim.office_run.simulate_run(settings.frames, settings.seed)``."""
-    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
-    flight = default_flight(n_frames=settings.frames)
-    rng = np.random.default_rng(settings.seed)
-    images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
-    for i, image in enumerate(images):
-        yield i, float(flight.times_s[i]), image
-
-
-def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stamps (T,), positions (T, 3) and Euler angles (T, 3) whose frame-to-frame differences are the office
-    flight's noisy odometry (the localizer's in-process stand-in for VO), starting at the true first pose."""
-    flight = default_flight(n_frames=settings.frames)
-    odometry = noisy_odometry(
-        flight.velocities_world_m_s, flight.euler_rates_rad_s, np.random.default_rng(settings.seed + 1)
-    )
-    dt_s = np.diff(flight.times_s, prepend=flight.times_s[0])[:, None]
-    start = flight.states[0]
-    positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
-    angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
-    return flight.times_s, positions, angles
 
 
 class CameraService(ServiceRuntime):
@@ -338,7 +289,9 @@ def register(subparsers: Any) -> None:
         "--flight",
         choices=[f.value for f in FlightName],
         default=FlightName.HOVER.value,
-        help="simulated flight: paper A's hover, paper C's turns (ground camera), or the localizer's office",
+        help="simulated flight: paper A's hover, paper C's turns (ground camera), the localizer's office, "
+        "or a field scenario (checkerboard or tiled floor, distorted wide-angle lens, low altitude, blur; "
+        "'field' combines them; 320x240; --write-calibration gives the master its lens)",
     )
     parser.add_argument(
         "--frames", type=int, default=2041, help="frames of the hover or office flight (default 2041)"
@@ -356,6 +309,12 @@ def register(subparsers: Any) -> None:
         "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
     )
     parser.add_argument("--wait-master", type=float, default=10.0, help="seconds to wait for a master")
+    parser.add_argument(
+        "--write-calibration",
+        type=Path,
+        help="write the simulated flight's camera as an OpenCV YAML calibration (for the master's "
+        "--calibration) and exit",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -385,6 +344,8 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.write_calibration is not None:
+        return write_flight_calibration(args.write_calibration, camera_settings_from_args(args))
     if args.images is not None:
         image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
     return CameraService(

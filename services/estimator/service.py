@@ -9,8 +9,8 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
   z and attitude from the EKF), ``source = "vo"``.
 
 Callbacks only decode, validate and hand off, on zenoh's receiving thread in arrival order: IMU, range and
-yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a one-item slot (latest frame
-wins, ``dropped_frames``). One thread feeds them to
+yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a short FIFO (dropped only when
+it is full, ``dropped_frames``). One thread feeds them to
 :class:`~common.estimation.coupling.DoubleCouplingEstimator`, which applies them in stamp order within a
 bounded lag. Bad samples are refused with a log line and a counter, never a crash:
 undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong shape (``bad_samples``,
@@ -21,26 +21,21 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from common.camera import CameraModel
 from common.errors import InputError
-from common.estimation.coupling import DoubleCouplingEstimator
-from common.estimation.coupling_types import (
-    AttitudeOutput,
-    CouplingSettings,
-    FilterKind,
-    PoseOutput,
-)
+from common.estimation.buffer import Refusal
+from common.estimation.coupling_types import AttitudeOutput, FilterKind, PoseOutput
 from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate, encode
+from services.estimator.outputs import attitude_message, pose_message
+from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
+from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
-    LatestSlot,
     ServiceRuntime,
     TransportSettings,
     WorkQueue,
@@ -48,76 +43,29 @@ from services.runtime.transport import (
     transport_from_args,
 )
 
+T = TypeVar("T")
 SENSOR_QUEUE = 4096
+FRAME_QUEUE = 40
+#: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
+RESET_AFTER_STALE = 400
+#: seconds without an output, while inputs arrive, after which health reports degraded
+OUTPUT_SILENCE_S = 2.0
 
 
-class EstimatorSettings(BaseModel):
-    """What the estimator needs besides the transport."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    uav: str = "uav0"
-    width: int = Field(default=752, gt=0)
-    height: int = Field(default=480, gt=0)
-    hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0)
-    rectify: bool = True
-    #: the attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF
-    filter: FilterKind = FilterKind.BIAS
-    visual_yaw: bool = True
-    external_yaw: bool = False
-    max_lag_s: float = Field(default=0.02, ge=0.0, le=1.0)
-    initial_yaw_rad: float = 0.0
-    initial_x_m: float = 0.0
-    initial_y_m: float = 0.0
-    #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
-    vo_drift_fraction: float = Field(default=0.001, gt=0.0)
-
-    def camera(self) -> CameraModel:
-        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
-
-    def coupling(self) -> CouplingSettings:
-        return CouplingSettings(
-            rectify=self.rectify,
-            filter=self.filter,
-            visual_yaw=self.visual_yaw,
-            external_yaw=self.external_yaw,
-            max_lag_s=self.max_lag_s,
-            initial_yaw_rad=self.initial_yaw_rad,
-            initial_position_m=(self.initial_x_m, self.initial_y_m),
-        )
+#: queued frames up to which every frame is used (a short stall of the host is worked off, not thinned)
+THIN_AFTER = 6
 
 
-def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
-    """The in-process estimator the service runs (also used to check the service against)."""
-    return DoubleCouplingEstimator(settings.camera(), settings=settings.coupling())
-
-
-def attitude_message(uav: str, seq: int, out: AttitudeOutput) -> AttitudeEstimate:
-    """The ``attitude`` message of one filter output, with that output's own covariance."""
-    return AttitudeEstimate(
-        uav=uav,
-        seq=seq,
-        stamp_s=out.stamp_s,
-        q_world_body=out.q_world_body.copy(),
-        covariance=out.attitude_covariance_world.copy(),
-    )
-
-
-def pose_message(uav: str, seq: int, out: PoseOutput, var_xy: float) -> PoseEstimate:
-    """The ``pose/vo`` message of one frame (the filter's altitude and attitude covariance at that frame)."""
-    cov = np.zeros((6, 6))
-    cov[0, 0] = cov[1, 1] = var_xy
-    cov[2, 2] = out.altitude_var_m2
-    cov[3:, 3:] = out.attitude_covariance_world
-    return PoseEstimate(
-        uav=uav,
-        seq=seq,
-        stamp_s=out.stamp_s,
-        p_world_body_m=out.p_world_body_m.copy(),
-        q_world_body=out.q_world_body.copy(),
-        covariance=cov,
-        source="vo",
-    )
+def thin_frames(frames: list[T]) -> list[T]:
+    """The frames to use when ``frames`` queued up (the filter is behind): every one while no more than
+    :data:`THIN_AFTER` wait, else every second (up to twice that) or third, always the newest. Evenly thinned
+    frames keep VO pairs two or three frames apart, which the VO handles; dropping a burst (a full queue)
+    left pairs a second apart, which it did not (a busy host ended paper C's flight 0.4-1.9 m off)."""
+    n = len(frames)
+    if n <= THIN_AFTER:
+        return frames
+    stride = 2 if n <= 2 * THIN_AFTER else 3
+    return frames[n - 1 :: -stride][::-1]
 
 
 class EstimatorService(ServiceRuntime):
@@ -136,13 +84,19 @@ class EstimatorService(ServiceRuntime):
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
-        self._frames: LatestSlot[Measurement] = LatestSlot()
+        #: frames wait in a short FIFO (a busy moment costs latency, not frames: VO pairs stay one apart);
+        #: only when it is full are frames dropped (counted), and the VO pairs the frames it gets
+        self._frames: WorkQueue[Measurement] = WorkQueue(FRAME_QUEUE)
         self._entities: list[Any] = []
         self._mirrored: dict[str, int] = {}
         self._attitude_seq = 0
         self._pose_seq = 0
         self._travelled_m = 0.0
         self._last_xy: np.ndarray | None = None
+        self.stamps = InputStamps()
+        self._stale_run = 0
+        self._last_input_s = 0.0
+        self._last_output_s = time.monotonic()
 
     def start(self, session: zenoh.Session) -> None:
         uav = self.settings.uav
@@ -162,9 +116,18 @@ class EstimatorService(ServiceRuntime):
         self.spawn(self._estimate, "estimate")
 
     def stop(self) -> None:
-        self.undeclare_all(
-            [*self._entities, getattr(self, "_attitude_pub", None), getattr(self, "_pose_pub", None)]
-        )
+        # subscribers only: the estimate thread may still publish until it is joined (the session closes the
+        # publishers; undeclaring them here raced with it: "ZError: Undeclared publisher", exit 1)
+        self.undeclare_all(self._entities)
+
+    def healthy(self) -> tuple[bool, str]:
+        refused = self.stamps.recent_refusals()
+        if refused:
+            return False, f"degraded: {refused} inputs refused in the last {self.stamps.window_s:.0f} s"
+        now = time.monotonic()
+        if now - self._last_input_s < 1.0 and now - self._last_output_s > OUTPUT_SILENCE_S:
+            return False, f"degraded: inputs arrive but no output for {now - self._last_output_s:.1f} s"
+        return True, "ok"
 
     def queue_depths(self) -> dict[str, int]:
         return {
@@ -177,8 +140,19 @@ class EstimatorService(ServiceRuntime):
     def _own(self, uav: str, what: str, key: Any) -> bool:
         if uav != self.settings.uav:
             self.count_error("wrong_uav", f"{what} of another UAV refused", f"{uav!r} on {key}")
+            self.stamps.note_refusal()
             return False
         return True
+
+    def _admit(self, sensor: str, stamp_s: float) -> bool:
+        """The stamp guard: a stamp too far ahead of the sensor's recent ones or the wall clock is refused."""
+        self._last_input_s = time.monotonic()
+        admitted, reason, detail = self.stamps.check(sensor, stamp_s)
+        if not admitted:
+            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} sample refused", detail)
+        elif reason:
+            self.count_error("clock_jumps", f"{sensor} clock jump adopted", f"stamp {stamp_s}")
+        return admitted
 
     def _offer(self, measurement: Measurement) -> None:
         if not self._samples.offer(measurement):
@@ -186,7 +160,11 @@ class EstimatorService(ServiceRuntime):
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
         msg = self.decode_sample(sample, ImuSample)
-        if msg is None or not self._own(msg.uav, "IMU sample", sample.key_expr):
+        if (
+            msg is None
+            or not self._own(msg.uav, "IMU sample", sample.key_expr)
+            or not self._admit("imu", msg.stamp_s)
+        ):
             return
         try:
             self._offer(check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
@@ -197,6 +175,8 @@ class EstimatorService(ServiceRuntime):
         msg = self.decode_sample(sample, RangeSample)
         if msg is None or not self._own(msg.uav, "range sample", sample.key_expr):
             return
+        if not self._admit("range", msg.stamp_s):
+            return
         try:
             self._offer(check_range(msg.stamp_s, msg.range_m))
         except InputError as exc:
@@ -204,7 +184,11 @@ class EstimatorService(ServiceRuntime):
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
         msg = self.decode_sample(sample, YawEstimate)
-        if msg is None or not self._own(msg.uav, "yaw", sample.key_expr):
+        if (
+            msg is None
+            or not self._own(msg.uav, "yaw", sample.key_expr)
+            or not self._admit("yaw", msg.stamp_s)
+        ):
             return
         if msg.low_confidence:
             self.counters.inc("yaw_low_confidence")
@@ -218,50 +202,84 @@ class EstimatorService(ServiceRuntime):
         msg = self.decode_sample(sample, Frame)
         if msg is None or not self._own(msg.uav, "frame", sample.key_expr):
             return
+        if not self._admit("camera", msg.stamp_s):
+            return
         try:
             frame = check_frame(msg.stamp_s, msg.pixels, self._shape)
         except InputError as exc:
             self.count_error("bad_frames", "frame refused", exc)
             return
         self.counters.inc("frames_in")
-        if self._frames.put(frame):
-            self.counters.inc("dropped_frames")
+        if not self._frames.offer(frame):
+            self.count_error(
+                "dropped_frames", "frame dropped", "the frame queue is full (the filter is behind)"
+            )
 
     # -- the estimator thread ------------------------------------------------------------------------
     def _push(self, measurement: Measurement) -> None:
         refusal = self.estimator.push(measurement)
-        if refusal is not None:
-            name = type(measurement).__name__.removesuffix("Measurement").lower()
+        if refusal is None:
+            self._stale_run = 0
+            return
+        name = type(measurement).__name__.removesuffix("Measurement").lower()
+        self.count_error(
+            f"refused_{name}_{refusal.value}",
+            "sample refused",
+            f"{refusal.value} stamp {measurement.stamp_s}",
+        )
+        self.stamps.note_refusal()
+        self._stale_run = self._stale_run + 1 if refusal is Refusal.STALE else 0
+        if self._stale_run >= RESET_AFTER_STALE:
+            # the stream's clock went back for good (a restarted sensor stack): start a new filter
             self.count_error(
-                f"refused_{name}_{refusal.value}",
-                "sample refused",
-                f"{refusal.value} stamp {measurement.stamp_s}",
+                "estimator_resets", "filter rebuilt", f"{self._stale_run} stale samples in a row"
             )
+            self.estimator = build_estimator(self.settings)
+            self._stale_run = 0
+            self._last_xy, self._travelled_m = None, 0.0
 
     def _estimate(self) -> None:
         while not self.stop_event.is_set():
             first = self._samples.take(0.02)
+            # the frame before the drain: every sample published before it is then in this batch, so a queue
+            # that is behind never has the frame release the filter past samples still waiting (range samples
+            # were refused as stale so under load)
+            queued = self._frames.drain()
+            frames = thin_frames(queued)
+            if len(frames) < len(queued):
+                self.counters.inc("frames_thinned", len(queued) - len(frames))
             batch = [] if first is None else [first, *self._samples.drain()]
-            frame = self._frames.take(0.0)
-            for m in batch:
-                self._push(m)
-            if frame is not None:
-                self._push(frame)
-            if not batch and frame is None:
+            if not batch and not frames:
                 continue
-            t0 = time.perf_counter()
-            outputs = self.estimator.process_due()
-            process_ms = (time.perf_counter() - t0) * 1e3
-            self.counters.time_ms("process", process_ms)
-            if any(isinstance(out, PoseOutput) for out in outputs):
-                # a frame's VO step (rectification included) and the few IMU samples applied with it
-                self.counters.time_ms("vo", process_ms)
-            self._publish(outputs)
+            # in stamp order, the filter brought up to each frame before it is pushed: a frame pushed while an
+            # older one is still pending would supersede it
+            batch.sort(key=lambda m: m.stamp_s)
+            i = 0
+            for frame in frames:
+                if self.stop_event.is_set():
+                    return  # a long backlog is not worked off at shutdown (the session is closing)
+                while i < len(batch) and batch[i].stamp_s <= frame.stamp_s:
+                    self._push(batch[i])
+                    i += 1
+                self._process()
+                self._push(frame)
+            for m in batch[i:]:
+                self._push(m)
+            self._process()
             self._mirror_counters()
 
+    def _process(self) -> None:
+        t0 = time.perf_counter()
+        outputs = self.estimator.process_due()
+        self.counters.time_ms("process", (time.perf_counter() - t0) * 1e3)
+        self._publish(outputs)
+
     def _publish(self, outputs: list[AttitudeOutput | PoseOutput]) -> None:
+        if outputs:
+            self._last_output_s = time.monotonic()
         for out in outputs:
             if isinstance(out, AttitudeOutput):
+                # each output with its own uncertainty, not the batch's last state's (issue 9 section 5)
                 msg: AttitudeEstimate | PoseEstimate = attitude_message(
                     self.settings.uav, self._attitude_seq, out
                 )
@@ -277,7 +295,12 @@ class EstimatorService(ServiceRuntime):
                 self._pose_seq += 1
                 publisher = self._pose_pub
             payload, attachment = encode(msg)
-            publisher.put(payload, attachment=attachment)
+            try:
+                publisher.put(payload, attachment=attachment)
+            except zenoh.ZError:
+                if self.stop_event.is_set():
+                    return  # shutting down: the session is closing under us
+                raise
             self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")
 
     def _mirror_counters(self) -> None:
@@ -320,28 +343,13 @@ def register(subparsers: Any) -> None:
         metavar=("X", "Y"),
         help="initial horizontal position of the VO path (m)",
     )
+    parser.add_argument(
+        "--vo-origin-delay",
+        type=float,
+        default=0.0,
+        help="seconds before the VO sets its origin (at --initial-xy)",
+    )
     parser.set_defaults(handler=run)
-
-
-def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
-    try:
-        width, height = (int(v) for v in str(args.resolution).lower().split("x"))
-        return EstimatorSettings(
-            uav=args.uav,
-            width=width,
-            height=height,
-            hfov_deg=args.hfov,
-            rectify=not args.no_rectify,
-            filter=FilterKind(args.filter),
-            visual_yaw=not args.no_visual_yaw,
-            external_yaw=args.external_yaw,
-            max_lag_s=args.max_lag,
-            initial_yaw_rad=args.initial_yaw,
-            initial_x_m=args.initial_xy[0],
-            initial_y_m=args.initial_xy[1],
-        )
-    except ValueError as exc:
-        raise InputError(f"invalid estimator settings: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:

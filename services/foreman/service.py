@@ -10,6 +10,8 @@ an error reply and is counted).
 from __future__ import annotations
 
 import argparse
+import copy
+import threading
 import time
 from typing import Any
 
@@ -20,6 +22,7 @@ from common import keys
 from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, Plan, SpeedSource
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
+from common.streams import StreamTable
 from common.yaw.patchwork import (
     PatchWorkError,
     SettingsCache,
@@ -27,6 +30,7 @@ from common.yaw.patchwork import (
     measure_share,
     merge_measurements,
 )
+from services.runtime.cli import add_stream_bound_arguments
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 from services.runtime.transport import (
@@ -55,7 +59,9 @@ class CropStore:
     def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
         frames = self._frames.setdefault(stream, {})
         if frames and seq < min(frames) and len(frames) >= self._keep:
-            return  # older than everything kept
+            if min(frames) - seq <= self._keep:
+                return  # older than everything kept
+            frames.clear()  # far older: the stream restarted (a new epoch), the kept frames are void
         entry = frames.setdefault(seq, {})
         entry.update(zip(indices.tolist(), crops, strict=True))
         for old in sorted(frames)[: -self._keep]:
@@ -73,6 +79,21 @@ class CropStore:
             raise PatchWorkError(f"no crop of patch {exc} in frame {seq} of {stream}") from None
 
 
+class _StreamState:
+    """What a foreman keeps per stream: its own dispatcher (sticky shares, held history, suspensions), round,
+    crops, and the roster as applied to that dispatcher."""
+
+    def __init__(
+        self, session: zenoh.Session, dispatch: DispatchSettings, counters: Any, live: LiveMembers
+    ) -> None:
+        self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
+        self.scatter = Scatter(session, self.dispatcher, keys.work_key_of, PatchJob, PatchResult, counters)
+        self.crops_prev = CropStore()
+        # a copy of the node's roster (the roster itself is immutable; events are fed to every copy): one
+        # LiveMembers per dispatcher, so alternating streams never re-join (and un-suspend) members
+        self.live = copy.copy(live)
+
+
 class ForemanService(ServiceRuntime):
     role = keys.Role.FOREMAN
 
@@ -83,24 +104,24 @@ class ForemanService(ServiceRuntime):
         dispatch: DispatchSettings,
         stats_period_s: float = 1.0,
         queue_capacity: int = 2,
+        max_streams: int = 64,
+        stream_ttl_s: float = 60.0,
     ) -> None:
         super().__init__(node, 0, transport, stats_period_s)
         self.dispatch_settings = dispatch
-        self.dispatcher = Dispatcher(dispatch, MAX_PATCHES)
         self.queue_capacity = queue_capacity
         self._queryable: Any = None
-        self.cache = SpectrumCache()
-        self.crops_prev = CropStore()
-        self.live = LiveMembers(keys.Role.WORKER)  # the workers of this node (see the liveliness key)
+        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
+        #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
+        self.streams: StreamTable[_StreamState] = StreamTable(max_streams, stream_ttl_s)
+        self._streams_lock = threading.Lock()
+        #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
+        self.live = LiveMembers(keys.Role.WORKER)
         self.settings_cache = SettingsCache()
-        self.scatter: Scatter | None = None
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
 
     def start(self, session: zenoh.Session) -> None:
-        self.scatter = Scatter(
-            session, self.dispatcher, keys.work_key_of, PatchJob, PatchResult, self.counters
-        )
         self._entities.append(
             session.liveliness().declare_subscriber(
                 keys.alive_node_workers(self.node), self._on_alive, history=True
@@ -119,12 +140,29 @@ class ForemanService(ServiceRuntime):
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
-        if event is not None:
-            member, joined = event
-            self.live.on_event(member, joined, self.counters, self.scatter)
+        if event is None:
+            return
+        member, joined = event
+        with self._streams_lock:
+            self.live.on_event(member, joined, self.counters)
+            states = self.streams.values()
+        for state in states:
+            state.live.on_event(member, joined, None, state.scatter)
 
-    def _apply_membership(self) -> None:
-        self.live.update(self.dispatcher)
+    def _stream(self, stream: str) -> _StreamState:
+        assert self.session is not None
+        session = self.session
+        with self._streams_lock:
+            before = self.streams.evicted
+            state = self.streams.get(
+                stream,
+                time.monotonic(),
+                lambda: _StreamState(session, self.dispatch_settings, self.counters, self.live),
+            )
+            evicted = self.streams.evicted - before
+        if evicted:
+            self.counters.inc("streams_evicted", evicted)
+        return state
 
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
@@ -139,7 +177,7 @@ class ForemanService(ServiceRuntime):
             return
         self.reply(query, result)
         # bookkeeping after the reply is on its way: none of it is needed to answer this block
-        self.crops_prev.add(job.stream, job.seq, job.indices, job.crops)
+        self._stream(job.stream).crops_prev.add(job.stream, job.seq, job.indices, job.crops)
         self._last_shares = plan.shares()
         self.counters.inc("blocks")
         self.counters.inc("patches", int(job.indices.size))
@@ -149,12 +187,13 @@ class ForemanService(ServiceRuntime):
 
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""
-        assert self.scatter is not None
         t0 = time.perf_counter()
         # settings first: a block with invalid ones is rejected here, before any worker sees it (and fails)
         settings = self.settings_cache.parsed(job.settings)
+        stream = self._stream(job.stream)
+        dispatcher = stream.dispatcher
         if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)
-            self.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
+            stream.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
         crop_shape = tuple(job.crops.shape[1:])
         block_indices = job.indices
         rows: dict[int, int] = {}
@@ -167,7 +206,7 @@ class ForemanService(ServiceRuntime):
             return job.crops[[rows[i] for i in indices.tolist()]] if indices.size else job.crops[:0]
 
         def prev_crops(indices: np.ndarray) -> np.ndarray:
-            return self.crops_prev.get(job.stream, job.prev_seq, indices, crop_shape)
+            return stream.crops_prev.get(job.stream, job.prev_seq, indices, crop_shape)
 
         def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
             return measure_share(
@@ -182,7 +221,7 @@ class ForemanService(ServiceRuntime):
                 prev_crops(moved),
             )
 
-        self._apply_membership()
+        stream.live.update(dispatcher)
         # workers get most of the budget; the rest is for re-dispatching a failed share here
         work = FrameWork(
             stream=job.stream,
@@ -194,15 +233,15 @@ class ForemanService(ServiceRuntime):
             prev_crops=prev_crops,
             compute_self=compute_self,
         )
-        plan = self.dispatcher.plan(job.seq, job.prev_seq, time.monotonic(), job.indices)
+        plan = dispatcher.plan(job.seq, job.prev_seq, time.monotonic(), job.indices)
         t_plan = time.perf_counter()
-        report = self.scatter.run(work, plan)
+        report = stream.scatter.run(work, plan)
         self.counters.time_ms("prepare", (t_plan - t0) * 1e3)
         self.counters.time_ms("round", (time.perf_counter() - t_plan) * 1e3)
         measurement = merge_measurements(report.parts, job.indices)
         elapsed = time.perf_counter() - t0
-        active = set(self.dispatcher.active(time.monotonic()))
-        speeds = {m: s for m, s in self.dispatcher.speeds().items() if m in active}
+        active = set(dispatcher.active(time.monotonic()))
+        speeds = {m: s for m, s in dispatcher.speeds().items() if m in active}
         result = result_from_measurement(
             BlockResult, job, self.name, measurement, elapsed, report.members, speeds
         )
@@ -225,13 +264,17 @@ def register(subparsers: Any) -> None:
     add_dispatch_arguments(
         parser, compute_help="compute a share itself besides its members (the paper's configuration)"
     )
+    add_stream_bound_arguments(parser)
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.max_streams < 1 or not args.stream_ttl > 0:
+        raise CapatazError("--max-streams must be >= 1 and --stream-ttl > 0")
     return ForemanService(
-        args.node, transport_from_args(args), dispatch_from_args(args), args.stats_period
-    ).run()
+        args.node, transport_from_args(args), dispatch_from_args(args), args.stats_period,
+        max_streams=args.max_streams, stream_ttl_s=args.stream_ttl,
+    ).run()  # fmt: skip
 
 
 __all__ = ["SELF", "ForemanService", "register"]

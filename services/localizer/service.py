@@ -28,6 +28,7 @@ from common import keys
 from common.messages import Frame, PoseEstimate, encode
 from services.localizer.filters import LocalizationPath, make_path, odometry_between
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
+from services.runtime.stamps import InputStamps
 from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args
 
 
@@ -53,6 +54,20 @@ class LocalizerService(ServiceRuntime):
         self._vo_previous: PoseEstimate | None = None
         self._vo_pair: tuple[PoseEstimate, PoseEstimate] | None = None  # the last two, time advancing
         self._entities: list[Any] = []
+        #: future stamps refused before they can become the "previous" stamp (one would freeze the filter)
+        self.stamps = InputStamps()
+
+    def healthy(self) -> tuple[bool, str]:
+        refused = self.stamps.recent_refusals()
+        if refused:
+            return False, f"degraded: {refused} inputs refused in the last {self.stamps.window_s:.0f} s"
+        return True, "ok"
+
+    def _admit(self, sensor: str, stamp_s: float) -> bool:
+        admitted, reason, detail = self.stamps.check(sensor, stamp_s)
+        if not admitted:
+            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} input refused", detail)
+        return admitted
 
     def start(self, session: zenoh.Session) -> None:
         uav = self.settings.uav
@@ -85,6 +100,8 @@ class LocalizerService(ServiceRuntime):
                 f"size {frame.width}x{frame.height}, the camera is {self.camera.width}x{self.camera.height}",
             )
             return
+        if not self._admit("camera", frame.stamp_s):
+            return
         if self._last_received_s is not None and frame.stamp_s <= self._last_received_s:
             self.count_error(
                 "stale_frames", "frame refused", f"stamp {frame.stamp_s} not after {self._last_received_s}"
@@ -97,7 +114,7 @@ class LocalizerService(ServiceRuntime):
 
     def _on_vo(self, sample: zenoh.Sample) -> None:
         pose = self.decode_sample(sample, PoseEstimate)
-        if pose is None or pose.uav != self.settings.uav:
+        if pose is None or pose.uav != self.settings.uav or not self._admit("vo", pose.stamp_s):
             return
         with self._vo_lock:
             previous, self._vo_previous = self._vo_previous, pose

@@ -1,4 +1,9 @@
-"""The master of one UAV stream: latest frame -> shares -> merged measurement -> yaw.
+"""The master of one UAV stream: admitted frame -> shares -> merged measurement -> yaw.
+
+Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, seq and stamp jumps
+refused and counted; a confirmed restart is a new epoch whose yaw continues the last one) and waits in a
+short FIFO. Several masters may serve one UAV: one is active (:mod:`services.master.election`), the others
+stand by warm and take over from the last published yaw.
 
 Topology is a setting: ``master-worker`` (members = every worker) or ``master-foreman-worker``
 (members = foremen, each splitting its block among its workers). Balancing and self-compute are the
@@ -10,69 +15,42 @@ published yaw equals the in-process tracker's when no frame is dropped.
 from __future__ import annotations
 
 import argparse
+import threading
 import time
-from dataclasses import dataclass, field
-from enum import StrEnum
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict
 
 from common import keys
-from common.dispatch import SELF, Balance, Dispatcher, DispatchSettings, SpeedSource
+from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
-from common.yaw import PatchGrid, TrackerState, YawSettings, YawTracker, make_patch_grid
+from common.provenance import Provenance
+from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
+from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
+from services.master.election import Election
+from services.master.frames import FrameQueue
+from services.master.gyro import GyroPrior
+from services.master.settings import (
+    MasterSettings,
+    Topology,
+    add_master_arguments,
+    master_settings_from_args,
+)
 from services.runtime.membership import LiveMembers
-from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments
+from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
-    LatestSlot,
     ServiceRuntime,
     TransportSettings,
     add_transport_arguments,
     transport_from_args,
 )
-
-
-class Topology(StrEnum):
-    MASTER_WORKER = "master-worker"
-    MASTER_FOREMAN_WORKER = "master-foreman-worker"
-
-
-class MasterSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    uav: str = "uav0"
-    topology: Topology = Topology.MASTER_FOREMAN_WORKER
-    balance: Balance = Balance.TIME
-    self_compute: bool = False
-    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
-    #: time budget of one frame's round (s); shares that miss it are re-dispatched
-    budget_s: float = 1.0
-    min_deadline_s: float = 0.3
-    grid_cols: int = 8
-    grid_rows: int = 5
-    patch_size_px: int = 32
-    pyramid_level: int = 1
-
-    def yaw_settings(self) -> YawSettings:
-        return YawSettings(
-            grid_cols=self.grid_cols,
-            grid_rows=self.grid_rows,
-            patch_size_px=self.patch_size_px,
-            pyramid_level=self.pyramid_level,
-        )
-
-    def dispatch_settings(self) -> DispatchSettings:
-        return DispatchSettings(
-            balance=self.balance,
-            self_compute=self.self_compute,
-            min_deadline_s=self.min_deadline_s,
-            speed_source=self.speed_source,
-        )
 
 
 @dataclass
@@ -83,6 +61,7 @@ class _Stream:
     prev_seq: int
     prev_level: U8Array
     dispatcher: Dispatcher
+    epoch: int = 0
     cache: SpectrumCache = field(default_factory=SpectrumCache)
 
 
@@ -101,24 +80,40 @@ class MasterService(ServiceRuntime):
         self.settings = settings
         self.yaw_settings = settings.yaw_settings()
         self.wire_settings = settings_to_wire(self.yaw_settings)
-        self.slot: LatestSlot[Frame] = LatestSlot()
+        #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
+        #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
+        self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
+        self.gate_settings = settings.gate_settings()
+        self._gate = FrameGateState()
+        self._recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
+        self._recent_lock = threading.Lock()
+        #: yaw published for this UAV (by any master) by seq: (stamp, yaw), the newest few
+        self._published: OrderedDict[int, tuple[float, float]] = OrderedDict()
+        self.election: Election | None = None
+        #: recent refusals, for health
+        self._refusals = InputStamps()
+        self._job_types: tuple[type[PatchJob], type[PatchResult]] = (BlockJob, BlockResult)
         self.stream: _Stream | None = None
         self.scatter: Scatter | None = None
         self.live = LiveMembers(self.member_role)
         self._entities: list[Any] = []
         self._publisher: Any = None
-        self._last_seq = -1
-        self.gaps = 0
         self._last_shares: dict[str, float] = {}
+        self.gyro = GyroPrior(settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters)
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
         self._publisher = session.declare_publisher(keys.yaw_key(self.settings.uav))
         self._entities.append(self._publisher)
+        self._entities.append(session.declare_subscriber(keys.yaw_key(self.settings.uav), self._on_yaw))
+        if self.settings.election:
+            self.election = Election(session, self.settings.uav, self.node, self.index)
         self._entities.append(
             session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_alive, history=True)
         )
         self._entities.append(session.declare_subscriber(keys.camera_key(self.settings.uav), self._on_frame))
+        if self.gyro.enabled:
+            self._entities.append(session.declare_subscriber(keys.imu_key(self.settings.uav), self._on_imu))
         self.spawn(self._serve, "frames")
 
     @property
@@ -131,13 +126,47 @@ class MasterService(ServiceRuntime):
             member, joined = event
             self.live.on_event(member, joined, self.counters, self.scatter)
 
+    def stop(self) -> None:
+        # the publisher stays declared (the frames thread may still be publishing; the session closes it)
+        if self.election is not None:
+            self.election.close()
+
     def _on_frame(self, sample: zenoh.Sample) -> None:
         frame = self.decode_sample(sample, Frame)
         if frame is None:
             return
         self.counters.inc("frames_in")
-        if self.slot.put(frame):
+        key = FrameKey(frame.width, frame.height, frame.encoding)
+        with self._recent_lock:
+            self._gate, decision = admit_frame(
+                self._gate, self.gate_settings, self.settings.uav, frame.uav, frame.seq, frame.stamp_s, key,
+                time.monotonic(), time.time(),
+            )  # fmt: skip
+            if decision.verdict is Verdict.REFUSE:
+                self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
+                self._refusals.note_refusal()
+                return
+            if decision.verdict is Verdict.NEW_EPOCH:
+                self.counters.inc("epochs")
+                if self._gate.epoch > 0:
+                    self.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
+            self.counters.inc("frames_missing", decision.gap)
+            item = (self._gate.epoch, frame)
+            self._recent.append(item)
+        if (self.election is None or self.election.leading) and self.slot.put(item):
             self.counters.inc("frames_dropped")
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type))
+
+    def _on_yaw(self, sample: zenoh.Sample) -> None:
+        estimate = self.decode_sample(sample, YawEstimate)
+        if estimate is None or estimate.uav != self.settings.uav:
+            return
+        with self._recent_lock:
+            self._published[estimate.seq] = (estimate.stamp_s, estimate.yaw_rad)
+            while len(self._published) > 4 * self.settings.recent_frames:
+                self._published.popitem(last=False)
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
         self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
@@ -148,6 +177,13 @@ class MasterService(ServiceRuntime):
     def queue_depths(self) -> dict[str, int]:
         return {"frames": self.slot.depth()}
 
+    def healthy(self) -> tuple[bool, str]:
+        recent = self._refusals.recent_refusals()
+        if recent:
+            return False, f"degraded: {recent} frames refused in the last {self._refusals.window_s:.0f} s"
+        role = "active" if self.election is None or self.election.leading else "standby"
+        return True, role
+
     # -- frames -----------------------------------------------------------------------------------------
     def _serve(self) -> None:
         assert self.session is not None
@@ -155,59 +191,99 @@ class MasterService(ServiceRuntime):
         result_type: type[PatchResult] = (
             PatchResult if self.settings.topology is Topology.MASTER_WORKER else BlockResult
         )
+        self._job_types = (job_type, result_type)
         while not self.stop_event.is_set():
-            frame = self.slot.take(0.1)
-            if frame is None:
-                continue
-            t0 = time.perf_counter()
-            try:
-                estimate = self._estimate(frame, job_type, result_type, t0)
-            except (CapatazError, ValueError) as exc:
-                self.count_error("frame_errors", f"frame {frame.seq} failed", exc)
-                continue
-            payload, attachment = encode(estimate)
-            self._publisher.put(payload, attachment=attachment)
-            self.counters.inc("yaw_out")
-            self.counters.time_ms("frame", estimate.timings_ms["total"])
+            if self.election is not None:
+                if self.election.update():
+                    self._take_over()
+                if not self.election.leading:
+                    self.stop_event.wait(0.02)  # standby: frames go to the recent ones only
+                    continue
+            item = self.slot.take(0.05)
+            if item is not None:
+                self._process(*item)
 
-    def _new_stream(self, frame: Frame) -> _Stream:
-        grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
-        tracker = YawTracker(self.yaw_settings, grid)
-        state = tracker.initial_state(frame.pixels, with_spectra=False)
-        dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
-        return _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher)
+    def _process(self, epoch: int, frame: Frame) -> None:
+        t0 = time.perf_counter()
+        try:
+            estimate = self._estimate(epoch, frame, t0)
+        except (CapatazError, ValueError) as exc:
+            self.count_error("frame_errors", f"frame {frame.seq} failed", exc)
+            return
+        if estimate is None:
+            return
+        payload, attachment = encode(estimate)
+        self._publisher.put(payload, attachment=attachment)
+        self.counters.inc("yaw_out")
+        self.counters.time_ms("frame", estimate.timings_ms["total"])
 
-    def _estimate(
-        self, frame: Frame, job_type: type[PatchJob], result_type: type[PatchResult], t0: float
-    ) -> YawEstimate:
+    def _take_over(self) -> None:
+        """Continue from the last published yaw: anchor on the newest kept frame whose yaw was published,
+        then measure the kept frames after it (frames a failed master took but did not publish)."""
+        self.counters.inc("takeovers")
+        with self._recent_lock:
+            recent = list(self._recent)
+            published = dict(self._published)
+        for epoch, frame in reversed(recent):
+            known = published.get(frame.seq)
+            if known is not None and known[0] == frame.stamp_s:
+                self._start_stream(frame, epoch, known[1])
+                for later_epoch, later in recent:
+                    if later_epoch == epoch and later.seq > frame.seq:
+                        self._process(later_epoch, later)
+                return
+        # nothing to anchor on: the next frame starts a stream that continues the newest published yaw
+
+    def _last_yaw(self) -> float:
+        if self.stream is not None:
+            return float(self.stream.state.yaw_rad)
+        with self._recent_lock:
+            return self._published[next(reversed(self._published))][1] if self._published else 0.0
+
+    def _start_stream(self, frame: Frame, epoch: int, yaw_rad: float) -> _Stream:
         assert self.session is not None
-        if self._last_seq >= 0 and frame.seq > self._last_seq + 1:
-            self.gaps += frame.seq - self._last_seq - 1
+        grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
+        tracker = YawTracker(
+            self.settings.prior.tracker_settings(self.yaw_settings, frame.width, frame.height), grid
+        )
+        state = replace(
+            tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad
+        )
+        dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
+        stream = _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher, epoch)
+        job_type, result_type = self._job_types
+        self.scatter = Scatter(
+            self.session, dispatcher, keys.work_key_of, job_type, result_type, self.counters
+        )
+        self.stream = stream
+        return stream
+
+    def _estimate(self, epoch: int, frame: Frame, t0: float) -> YawEstimate | None:
+        """The yaw of one admitted frame (None: already measured, e.g. replayed at a take-over)."""
+        assert self.session is not None
         stream = self.stream
-        if (
-            stream is None
-            or stream.grid.frame_shape != (frame.height, frame.width)
-            or frame.seq <= stream.prev_seq
-        ):
-            stream = self.stream = self._new_stream(frame)
-            self.scatter = Scatter(
-                self.session, stream.dispatcher, keys.work_key_of, job_type, result_type, self.counters
-            )
-            self._last_seq = frame.seq
+        if stream is None or epoch != stream.epoch:
+            # a new epoch (first frame, camera restart, take-over without anchor): the yaw continues
+            yaw_rad = self._last_yaw()
+            stream = self._start_stream(frame, epoch, yaw_rad)
             return YawEstimate(
                 uav=self.settings.uav,
                 seq=frame.seq,
                 stamp_s=frame.stamp_s,
                 delta_yaw_rad=0.0,
-                yaw_rad=0.0,
+                yaw_rad=yaw_rad,
                 inlier_count=0,
                 patch_count=0,
                 confidence=0.0,
                 low_confidence=True,
                 method="initial",
+                provenance=Provenance.INITIAL,
                 timings_ms={"total": (time.perf_counter() - t0) * 1e3},
-                dropped_frames=self.slot.dropped + self.gaps,
+                dropped_frames=self.slot.dropped,
             )
+        if frame.seq <= stream.prev_seq:
+            self.counters.inc("frames_already_measured")
+            return None
         assert self.scatter is not None
         self._apply_membership(stream.dispatcher)
         grid, settings = stream.grid, self.yaw_settings
@@ -254,9 +330,14 @@ class MasterService(ServiceRuntime):
             measurement = compute_self(grid.all_indices, grid.all_indices)
             report = None
         t_round = time.perf_counter()
-        stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement)
+        # a stamp that does not increase (a bad stamp file) leaves this pair untimed: no rate limit, no gyro
+        previous_s = stream.state.stamp_s
+        stamp: float | None = frame.stamp_s if previous_s is None or frame.stamp_s > previous_s else None
+        if stamp is None:
+            self.counters.inc("stamps_not_increasing")
+        gyro = self.gyro.delta_rad(previous_s, stamp) if stamp is not None else None
+        stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement, stamp, gyro)
         stream.prev_level, stream.prev_seq = level, frame.seq
-        self._last_seq = frame.seq
         t_end = time.perf_counter()
         self._last_shares = plan.shares()
         members = report.members if report else {SELF: grid.n_patches}
@@ -282,45 +363,13 @@ class MasterService(ServiceRuntime):
             timings_ms=timings,
             members=members,
             speeds_patches_s=dict(report.speeds) if report else {},
-            dropped_frames=self.slot.dropped + self.gaps,
+            dropped_frames=self.slot.dropped,
             redispatched=report.redispatched if report else 0,
+            provenance=core.provenance,
+            yaw_variance_rad2=core.yaw_variance_rad2,
+            delta_variance_rad2=core.delta_variance_rad2,
+            measured_delta_rad=core.measured_delta_rad if np.isfinite(core.measured_delta_rad) else None,
         )
-
-
-def add_master_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
-    parser.add_argument(
-        "--topology",
-        choices=[t.value for t in Topology],
-        default=Topology.MASTER_FOREMAN_WORKER.value,
-        help="master-worker: the master splits frames among workers; master-foreman-worker: among foremen, "
-        "who split their block among their node's workers",
-    )
-    add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
-    parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
-    parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
-    parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
-    parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
-
-
-def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
-    try:
-        cols, rows = (int(v) for v in args.grid.lower().split("x"))
-    except ValueError:
-        raise CapatazError(f"--grid must look like 8x5, got {args.grid!r}") from None
-    return MasterSettings(
-        uav=args.uav,
-        topology=Topology(args.topology),
-        balance=Balance(args.balance),
-        self_compute=args.compute,
-        speed_source=SpeedSource(args.speed),
-        budget_s=args.budget_ms / 1e3,
-        min_deadline_s=args.min_deadline_ms / 1e3,
-        grid_cols=cols,
-        grid_rows=rows,
-        patch_size_px=args.patch_size,
-        pyramid_level=args.pyramid_level,
-    )
 
 
 def register(subparsers: Any) -> None:

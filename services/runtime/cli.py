@@ -51,3 +51,9 @@ def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -
         default=SpeedSource.ROUND_TRIP.value,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )
+
+
+def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
+    """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker."""
+    parser.add_argument("--max-streams", type=int, default=64, help="streams kept at most (LRU evicted)")
+    parser.add_argument("--stream-ttl", type=float, default=60.0, help="seconds an unused stream is kept")

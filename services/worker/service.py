@@ -13,7 +13,7 @@ from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
-from services.runtime.cli import add_transport_arguments, transport_from_args
+from services.runtime.cli import add_stream_bound_arguments, add_transport_arguments, transport_from_args
 from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
 from services.runtime.service import ServiceRuntime
@@ -43,6 +43,8 @@ class WorkerService(ServiceRuntime):
         stats_period_s: float = 1.0,
         cpu_factor: int = 1,
         handoff: Handoff | str = Handoff.CHANNEL,
+        max_streams: int = 64,
+        stream_ttl_s: float = 60.0,
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
         try:
@@ -57,7 +59,7 @@ class WorkerService(ServiceRuntime):
         #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
         self.cpu_factor = cpu_factor
         self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
-        self.cache = SpectrumCache()
+        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
         self.settings_cache = SettingsCache()
         self._queryable: Any = None
 
@@ -204,10 +206,13 @@ def register(subparsers: Any) -> None:
         default=Handoff.CHANNEL.value,
         help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue",
     )
+    add_stream_bound_arguments(parser)
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.max_streams < 1 or not args.stream_ttl > 0:
+        raise CapatazError("--max-streams must be >= 1 and --stream-ttl > 0")
     service = WorkerService(
         args.node,
         args.index,
@@ -216,5 +221,7 @@ def run(args: argparse.Namespace) -> int:
         args.stats_period,
         args.cpu_factor,
         args.handoff,
+        args.max_streams,
+        args.stream_ttl,
     )
     return service.run()

@@ -18,7 +18,7 @@ from common.estimation.replay import flight_measurements
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, decode, encode
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
-from services.estimator.sim_publisher import publish_measurements
+from services.estimator.sim_publisher import message_of, publish_measurements
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
@@ -76,11 +76,26 @@ def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpo
             probe = session.declare_publisher(
                 keys.imu_key("uav0"), congestion_control=zenoh.CongestionControl.BLOCK
             )
-            camera = session.declare_publisher(keys.camera_key("uav0"))
-            ranger = session.declare_publisher(keys.range_key("uav0"))
+            block = zenoh.CongestionControl.BLOCK
+            camera = session.declare_publisher(keys.camera_key("uav0"), congestion_control=block)
+            ranger = session.declare_publisher(keys.range_key("uav0"), congestion_control=block)
             # every subscriber of the service is routed (and it sees ours): nothing published is lost
             assert all(matched(p) for p in (probe, camera, ranger, service._attitude_pub, service._pose_pub))
-            assert publish_measurements(session, "uav0", stream, speed=0.5, block=True) == len(stream)
+            # in stamp order, with flow control instead of a pace: a frame goes out once the previous one has
+            # reached the estimator's thread (its latest-wins slot would drop it on a busy host otherwise)
+            publishers = {p.key_expr: p for p in (probe, camera, ranger)}
+            frames_sent = 0
+            for seq, measurement in enumerate(stream):
+                key, message = message_of("uav0", seq, measurement)
+                if isinstance(message, Frame):
+                    assert wait_until(
+                        lambda n=frames_sent: (
+                            service.counters.get("frames_in") == n and service._frames.depth() == 0
+                        )
+                    ), service.counters.counts()
+                    frames_sent += 1
+                payload, attachment = encode(message)
+                publishers[zenoh.KeyExpr(key)].put(payload, attachment=attachment)
 
             # the end of the stream is held back by the reordering lag: push it out with later IMU samples
             t_end = stream[-1].stamp_s

@@ -1,6 +1,6 @@
 """The localizer service over Zenoh on loopback: the same poses as the in-process tracker (the office with
 its defaults; the object flight from a model file, a calibration file and a camera-from-world initial pose),
-and it survives malformed, foreign, wrong-size and stale frames (refused and counted)."""
+and it survives malformed, foreign, wrong-size, stale and future-stamped frames (refused and counted)."""
 
 from __future__ import annotations
 
@@ -87,6 +87,7 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     assert counts.get("wrong_uav") == 1
     assert counts.get("bad_frames") == 1
     assert counts.get("stale_frames") == 1
+    assert counts.get("refused_camera_future_stamp") == 1
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
 
@@ -126,14 +127,27 @@ def _run_the_service(
                     put(_frame(99, stamp, image, uav="uav7"))
                     put(_frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
                     put(_frame(99, float(times_s[i - 1]), image))
+                if (
+                    bad_frames and i == 5
+                ):  # a frame 1e5 s in the future: refused, it must not freeze the filter
+                    put(_frame(99, stamp + 1e5, image))
                 put(_frame(i, stamp, image))
                 received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
 
             def all_refused() -> bool:
                 counts = service.counters.counts()
                 return (
-                    sum(counts.get(k, 0) for k in ("malformed", "wrong_uav", "bad_frames", "stale_frames"))
-                    >= 4
+                    sum(
+                        counts.get(k, 0)
+                        for k in (
+                            "malformed",
+                            "wrong_uav",
+                            "bad_frames",
+                            "stale_frames",
+                            "refused_camera_future_stamp",
+                        )
+                    )
+                    >= 5
                 )
 
             assert not bad_frames or wait_until(all_refused), service.counters.counts()

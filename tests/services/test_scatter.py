@@ -132,7 +132,12 @@ def test_a_solo_member_that_leaves_is_cancelled_at_once(
 
     def run_and_leave(self: Scatter, work: FrameWork, plan: Any) -> RoundReport:
         scatters.append(self)
-        threading.Timer(0.05, self.member_left, args=("w/0",)).start()  # liveliness lost mid-round
+
+        def leave_once_in_flight() -> None:  # liveliness lost mid-round (not before: that is in the plan)
+            assert wait_until(lambda: self._solo is not None)
+            self.member_left("w/0")
+
+        threading.Thread(target=leave_once_in_flight, daemon=True).start()
         return original(self, work, plan)
 
     Scatter.run = run_and_leave  # type: ignore[method-assign]

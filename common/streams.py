@@ -1,0 +1,316 @@
+"""Admission of a stream's samples at the wire: epochs, sequence and time-stamp jumps (pure, no I/O).
+
+Two gates, both state in, decision out:
+
+- :class:`FrameGate` for a camera stream: a frame whose UAV, size or encoding differs from the stream's, or
+  whose ``seq`` / ``stamp_s`` jumps beyond a bound (forward or backward), is **refused** and never adopted
+  on its own. Refused frames that agree with each other (one size, increasing seq and stamps) and arrive
+  ``confirm_frames`` in a row with no frame of the current epoch in between, or while the current epoch is
+  silent for ``silence_s``, start a **new epoch** (a camera restarted from seq 0, a reconfigured camera).
+  One hostile frame thus never moves the stream, and a real restart costs ``confirm_frames - 1`` frames.
+- :class:`StampGuard` for one sensor's time stamps: a stamp further in the future than the stream's recent
+  stamps plus the wall-clock time elapsed since (plus ``max_ahead_s``) is refused, as is a stamp ahead of
+  the wall clock itself when the stream runs on wall-clock time. The same confirmation rule adopts a real
+  clock jump. No single sample can move the guard, so no single sample can freeze a filter behind it.
+
+:class:`StreamTable` bounds per-stream state (foremen, workers) by count and age.
+
+Clocks in names: ``now_s`` is a monotonic reading of the receiver, ``wall_s`` its ``time.time()``.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Generic, TypeVar
+
+from common.errors import InputError
+
+#: Stamps within this many seconds of the wall clock are taken as wall-clock stamps (checked against it).
+WALL_CLOCK_WINDOW_S = 30 * 24 * 3600.0
+
+
+class Verdict(enum.Enum):
+    """What a gate decided about one sample."""
+
+    ACCEPT = "accept"  # continues the current epoch
+    NEW_EPOCH = "new_epoch"  # first sample, or a confirmed restart: the consumer re-initialises
+    REFUSE = "refuse"
+
+
+@dataclass(frozen=True)
+class Decision:
+    verdict: Verdict
+    #: counter name of a refusal (``foreign_uav``, ``wrong_size``, ``seq_jump``, ...); "" when admitted
+    reason: str = ""
+    detail: str = ""
+    #: frames between the previous admitted one and this one (seq gap, within one epoch)
+    gap: int = 0
+
+    @property
+    def admitted(self) -> bool:
+        return self.verdict is not Verdict.REFUSE
+
+
+def check_positive(settings: object, names: tuple[str, ...]) -> None:
+    """Each named field of ``settings`` must be finite and > 0 (else :class:`InputError` naming it)."""
+    for name in names:
+        value = getattr(settings, name)
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be finite and > 0, got {value}")
+
+
+@dataclass(frozen=True)
+class FrameGateSettings:
+    """Bounds of a camera stream."""
+
+    #: largest forward seq step accepted within an epoch (a longer gap is a jump)
+    max_seq_jump: int = 200
+    #: largest stamp advance beyond ``max_rate`` x the wall-clock time elapsed since the previous frame (s)
+    max_stamp_jump_s: float = 5.0
+    #: fastest a stream's clock may run against the wall clock (replays faster than real time)
+    max_rate: float = 4.0
+    #: refused frames that agree, in a row, needed to start a new epoch
+    confirm_frames: int = 3
+    #: after this long without a frame of the current epoch, one consistent frame starts a new epoch
+    silence_s: float = 1.0
+    #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
+    max_future_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.max_seq_jump < 1 or self.confirm_frames < 1:
+            raise InputError("max_seq_jump and confirm_frames must be >= 1")
+        check_positive(self, ("max_stamp_jump_s", "silence_s", "max_future_s", "max_rate"))
+
+
+@dataclass(frozen=True)
+class FrameKey:
+    """What must stay the same within a stream epoch."""
+
+    width: int
+    height: int
+    encoding: str
+
+
+@dataclass(frozen=True)
+class _Last:
+    seq: int
+    stamp_s: float
+    now_s: float
+
+
+@dataclass(frozen=True)
+class FrameGateState:
+    """The stream as the gate knows it (``None`` fields: nothing admitted yet)."""
+
+    epoch: int = -1
+    key: FrameKey | None = None
+    last: _Last | None = None
+    #: the refused frames that agree with each other so far (a candidate epoch)
+    candidate_key: FrameKey | None = None
+    candidate: _Last | None = None
+    candidate_count: int = 0
+    refused: dict[str, int] = field(default_factory=dict)
+
+
+def _follows(prev: _Last, seq: int, stamp_s: float, now_s: float, settings: FrameGateSettings) -> str:
+    """'' when (seq, stamp_s) plausibly follows ``prev``; else the reason it does not."""
+    step = seq - prev.seq
+    if step <= 0:
+        return "seq_backward"
+    if step > settings.max_seq_jump:
+        return "seq_jump"
+    if stamp_s <= prev.stamp_s:
+        return "stamp_backward"
+    if _ahead(stamp_s, prev.stamp_s, prev.now_s, now_s, settings.max_stamp_jump_s, settings.max_rate):
+        return "stamp_jump"
+    return ""
+
+
+def admit_frame(
+    state: FrameGateState,
+    settings: FrameGateSettings,
+    expected_uav: str,
+    uav: str,
+    seq: int,
+    stamp_s: float,
+    key: FrameKey,
+    now_s: float,
+    wall_s: float,
+) -> tuple[FrameGateState, Decision]:
+    """Decide about one frame of the stream ``expected_uav``; returns the new state and the decision."""
+
+    def refuse(
+        reason: str, detail: str, new: FrameGateState | None = None
+    ) -> tuple[FrameGateState, Decision]:
+        base = new if new is not None else state
+        counts = dict(base.refused)
+        counts[reason] = counts.get(reason, 0) + 1
+        return replace(base, refused=counts), Decision(Verdict.REFUSE, reason, detail)
+
+    if uav != expected_uav:
+        return refuse("foreign_uav", f"frame of {uav!r} on {expected_uav!r}'s stream")
+    if not math.isfinite(stamp_s):
+        return refuse("bad_stamp", f"stamp {stamp_s}")
+    if abs(stamp_s - wall_s) < WALL_CLOCK_WINDOW_S and stamp_s > wall_s + settings.max_future_s:
+        return refuse("future_stamp", f"stamp {stamp_s - wall_s:.3f} s ahead of the wall clock")
+    last = _Last(seq, stamp_s, now_s)
+    if state.last is None or state.key is None:
+        return FrameGateState(epoch=state.epoch + 1, key=key, last=last, refused=state.refused), Decision(
+            Verdict.NEW_EPOCH
+        )
+    if key == state.key:
+        why = _follows(state.last, seq, stamp_s, now_s, settings)
+        if not why:
+            gap = seq - state.last.seq - 1
+            return replace(state, last=last, candidate_key=None, candidate=None, candidate_count=0), Decision(
+                Verdict.ACCEPT, gap=gap
+            )
+        detail = f"seq {seq} stamp {stamp_s:.6f} after seq {state.last.seq} stamp {state.last.stamp_s:.6f}"
+    else:
+        why = (
+            "wrong_size"
+            if (key.width, key.height) != (state.key.width, state.key.height)
+            else "wrong_encoding"
+        )
+        detail = f"{key.width}x{key.height} {key.encoding} on a {state.key.width}x{state.key.height} stream"
+    # not the current epoch: a candidate for a new one?
+    agrees = (
+        state.candidate is not None
+        and state.candidate_key == key
+        and not _follows(state.candidate, seq, stamp_s, now_s, settings)
+    )
+    count = state.candidate_count + 1 if agrees else 1
+    silent = now_s - state.last.now_s > settings.silence_s
+    restart = why in ("seq_backward", "stamp_backward", "wrong_size", "wrong_encoding")
+    if count >= settings.confirm_frames or (silent and restart):
+        return FrameGateState(epoch=state.epoch + 1, key=key, last=last, refused=state.refused), Decision(
+            Verdict.NEW_EPOCH, why, detail
+        )
+    candidate = replace(state, candidate_key=key, candidate=last, candidate_count=count)
+    return refuse(why, detail, candidate)
+
+
+@dataclass(frozen=True)
+class StampGuardSettings:
+    """Bounds of one sensor's time stamps."""
+
+    #: a stamp may run ahead of the stream's previous stamp by the wall-clock time elapsed plus this (s)
+    max_ahead_s: float = 2.0
+    #: fastest the stream's clock may run against the wall clock (replays faster than real time)
+    max_rate: float = 4.0
+    #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
+    max_future_s: float = 1.0
+    #: refused stamps that agree with each other, in a row, needed to adopt a jumped clock
+    confirm_samples: int = 5
+
+    def __post_init__(self) -> None:
+        if self.confirm_samples < 1:
+            raise InputError("confirm_samples must be >= 1")
+        check_positive(self, ("max_ahead_s", "max_rate", "max_future_s"))
+
+
+@dataclass(frozen=True)
+class StampGuardState:
+    #: newest accepted stamp and the receiver's monotonic time then
+    stamp_s: float = -math.inf
+    now_s: float = 0.0
+    candidate_stamp_s: float = math.nan
+    candidate_now_s: float = 0.0
+    candidate_count: int = 0
+
+
+def _ahead(
+    stamp_s: float, ref_stamp_s: float, ref_now_s: float, now_s: float, bound_s: float, rate: float
+) -> bool:
+    """True when ``stamp_s`` runs ahead of ``ref_stamp_s`` by more than ``rate`` x the receiver's elapsed time
+    plus ``bound_s``."""
+    return stamp_s - ref_stamp_s > rate * max(0.0, now_s - ref_now_s) + bound_s
+
+
+def check_stamp(
+    state: StampGuardState, settings: StampGuardSettings, stamp_s: float, now_s: float, wall_s: float
+) -> tuple[StampGuardState, Decision]:
+    """Admit or refuse one sensor stamp; ``NEW_EPOCH`` when a jumped clock was confirmed."""
+    if not math.isfinite(stamp_s):
+        return state, Decision(Verdict.REFUSE, "bad_stamp", f"stamp {stamp_s}")
+    if abs(stamp_s - wall_s) < WALL_CLOCK_WINDOW_S and stamp_s > wall_s + settings.max_future_s:
+        return state, Decision(
+            Verdict.REFUSE, "future_stamp", f"{stamp_s - wall_s:.3f} s ahead of the wall clock"
+        )
+    ahead = _ahead(stamp_s, state.stamp_s, state.now_s, now_s, settings.max_ahead_s, settings.max_rate)
+    if state.stamp_s == -math.inf or not ahead:
+        newest = max(state.stamp_s, stamp_s)
+        return StampGuardState(stamp_s=newest, now_s=now_s if newest == stamp_s else state.now_s), Decision(
+            Verdict.ACCEPT
+        )
+    agrees = (
+        state.candidate_count > 0
+        and not _ahead(
+            stamp_s,
+            state.candidate_stamp_s,
+            state.candidate_now_s,
+            now_s,
+            settings.max_ahead_s,
+            settings.max_rate,
+        )
+        and stamp_s >= state.candidate_stamp_s
+    )
+    count = state.candidate_count + 1 if agrees else 1
+    if count >= settings.confirm_samples:
+        return StampGuardState(stamp_s=stamp_s, now_s=now_s), Decision(Verdict.NEW_EPOCH, "clock_jump")
+    detail = f"stamp {stamp_s:.6f} is {stamp_s - state.stamp_s:.3f} s after the stream's newest"
+    return replace(state, candidate_stamp_s=stamp_s, candidate_now_s=now_s, candidate_count=count), Decision(
+        Verdict.REFUSE, "future_stamp", detail
+    )
+
+
+V = TypeVar("V")
+
+
+class StreamTable(Generic[V]):
+    """Per-stream state bounded by count and age: the least recently used stream beyond ``max_streams``, and
+    every stream unused for ``max_age_s``, is evicted (so thousands of stream names cost bounded memory)."""
+
+    def __init__(self, max_streams: int, max_age_s: float) -> None:
+        if max_streams < 1 or not (math.isfinite(max_age_s) and max_age_s > 0):
+            raise InputError(f"max_streams must be >= 1 and max_age_s > 0, got {max_streams}, {max_age_s}")
+        self.max_streams = max_streams
+        self.max_age_s = max_age_s
+        self._items: OrderedDict[str, tuple[float, V]] = OrderedDict()
+        self.evicted = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __contains__(self, stream: object) -> bool:
+        return stream in self._items
+
+    def values(self) -> list[V]:
+        return [value for _, value in self._items.values()]
+
+    def get(self, stream: str, now_s: float, create: Callable[[], V]) -> V:
+        """The state of ``stream`` (created when absent), marked as used at ``now_s``."""
+        item = self._items.pop(stream, None)
+        value = create() if item is None else item[1]
+        self._items[stream] = (now_s, value)
+        self._evict(now_s)
+        return value
+
+    def peek(self, stream: str) -> V | None:
+        item = self._items.get(stream)
+        return None if item is None else item[1]
+
+    def _evict(self, now_s: float) -> None:
+        while len(self._items) > self.max_streams:
+            self._items.popitem(last=False)
+            self.evicted += 1
+        while self._items:
+            oldest = next(iter(self._items.values()))[0]
+            if now_s - oldest <= self.max_age_s:
+                break
+            self._items.popitem(last=False)
+            self.evicted += 1

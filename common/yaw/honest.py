@@ -1,0 +1,156 @@
+"""The honest yaw: which delta is integrated, how it was obtained, and how uncertain the yaw has become.
+
+A delta the core does not trust is never integrated as if measured. Each pair has a *prior*:
+
+- ``GYRO``: the gyro's integrated rotation about the camera axis between the two frame stamps
+  (:func:`gyro_delta_yaw_rad`); trusted to ``gyro_gate_deg``.
+- ``HOLD``: no gyro; the recent yaw rate held over the frame interval, trusted to what the physical yaw
+  acceleration limit allows since the last measured pair (``max_yaw_accel_deg_s2``); uninformative before
+  the first measurement.
+
+A measured delta is integrated (``Provenance.MEASURED``) only when the patch fit is good, it lies within the
+prior's tolerance and it implies a yaw rate within ``max_yaw_rate_deg_s``; otherwise the prior's delta is
+integrated instead (``BRIDGED`` by the gyro, ``HELD`` without), and the yaw's variance grows accordingly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.provenance import Provenance
+from common.yaw.settings import YawSettings
+
+__all__ = ["Prior", "PriorSource", "Provenance", "gyro_delta_yaw_rad", "make_prior"]
+
+#: The held rate's tolerance never drops below this (deg): measurement noise and rate estimation noise.
+MIN_HOLD_TOLERANCE_DEG = 5.0
+#: Variance of a measured pair's delta: (residual / lever)^2 * 2 / inliers, residual at least this (px).
+MIN_RESIDUAL_PX = 0.1
+
+
+class PriorSource(Enum):
+    GYRO = "gyro"
+    HOLD = "hold"
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Expected delta of a pair, how far a measurement may differ, and the variance the bridge would add."""
+
+    source: PriorSource
+    delta_rad: float
+    tolerance_rad: float
+    variance_rad2: float
+    dt_s: float | None  # None: the frames carry no stamps (no rate limit)
+
+    @property
+    def informative(self) -> bool:
+        """The prior can pick among rotations 90 deg apart."""
+        return self.tolerance_rad < math.radians(40.0)
+
+
+def gyro_delta_yaw_rad(
+    stamps_s: npt.ArrayLike,
+    gyro_rad_s: npt.ArrayLike,
+    start_s: float,
+    stop_s: float,
+    axis_body: npt.ArrayLike = (0.0, 0.0, 1.0),
+) -> float | None:
+    """Integrated body rotation about ``axis_body`` from ``start_s`` to ``stop_s`` (rad), or None without
+    coverage (no sample at or before ``start_s``, or the last sample more than 0.1 s before ``stop_s``).
+
+    Samples hold piecewise linearly between stamps (trapezoid), the last one is held to ``stop_s``. Only the
+    samples from the last one at or before ``start_s`` to the last one at or before ``stop_s`` are used, so
+    any buffer holding them gives the same bits. For a downward camera the vehicle's yaw rate is the body
+    z rate (``axis_body`` = +z, the image turns with +yaw).
+    """
+    t = np.asarray(stamps_s, dtype=np.float64)
+    w = np.asarray(gyro_rad_s, dtype=np.float64)
+    if t.ndim != 1 or w.shape != (t.size, 3):
+        raise InputError(f"need stamps (M,) and gyro (M, 3), got {t.shape} and {w.shape}")
+    if not (math.isfinite(start_s) and math.isfinite(stop_s)) or stop_s < start_s:
+        raise InputError(f"need finite start <= stop, got {start_s}, {stop_s}")
+    i0 = int(np.searchsorted(t, start_s, side="right")) - 1
+    i1 = int(np.searchsorted(t, stop_s, side="right")) - 1
+    if i0 < 0 or i1 < 0 or stop_s - t[i1] > 0.1:
+        return None
+    axis = np.asarray(axis_body, dtype=np.float64)
+    rate = w[i0 : i1 + 1] @ axis
+    ts = t[i0 : i1 + 1]
+    if not np.all(np.isfinite(rate)):
+        return None
+    if ts.size == 1:
+        return float(rate[0] * (stop_s - start_s))
+    # rate at start_s by linear interpolation, then trapezoids over the samples, then hold the last one
+    f = (start_s - ts[0]) / (ts[1] - ts[0]) if ts[1] > ts[0] else 0.0
+    rate_start = rate[0] + f * (rate[1] - rate[0])
+    total = 0.5 * (rate_start + rate[1]) * (ts[1] - start_s)
+    if ts.size > 2:
+        total += float(np.sum(0.5 * (rate[1:-1] + rate[2:]) * np.diff(ts[1:])))
+    total += rate[-1] * (stop_s - ts[-1])
+    return float(total)
+
+
+def make_prior(
+    settings: YawSettings,
+    dt_s: float | None,
+    gyro_delta_rad: float | None,
+    rate_rad_s: float | None,
+    since_measured_s: float,
+) -> Prior:
+    """The prior of a pair: the gyro's delta when given, else the held rate (``rate_rad_s`` None: unknown)."""
+    dt = dt_s if dt_s is not None else settings.frame_period_s
+    if gyro_delta_rad is not None:
+        sigma = math.radians(settings.gyro_sigma_deg_s) * dt
+        return Prior(PriorSource.GYRO, gyro_delta_rad, math.radians(settings.gyro_gate_deg), sigma**2, dt_s)
+    if rate_rad_s is None:
+        spread = math.radians(settings.max_yaw_rate_deg_s) * dt if dt_s is not None else math.pi
+        return Prior(PriorSource.HOLD, 0.0, spread, spread**2, dt_s)
+    accel = math.radians(settings.max_yaw_accel_deg_s2)
+    tolerance = max(accel * dt * (dt + since_measured_s), math.radians(MIN_HOLD_TOLERANCE_DEG))
+    tolerance = min(tolerance, math.pi)
+    # the held rate's error grows with the time since it was measured: a third of the tolerance is 1 sigma
+    return Prior(PriorSource.HOLD, rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
+
+
+def wrap_rad(angle: float) -> float:
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+def plausible(delta_rad: float, prior: Prior, settings: YawSettings) -> bool:
+    """Within the physical rate limit (when stamped) and the prior's tolerance."""
+    limit = math.radians(settings.max_yaw_rate_deg_s)
+    if prior.dt_s is not None and prior.dt_s > 0.0 and abs(delta_rad) > limit * prior.dt_s:
+        return False
+    return abs(wrap_rad(delta_rad - prior.delta_rad)) <= prior.tolerance_rad
+
+
+def choose_rotation(candidates: list[tuple[float, float]], prior: Prior, settings: YawSettings) -> int | None:
+    """Index of the candidate rotation ``(rotation_rad, response)`` to verify, or None when ambiguous.
+
+    Candidates that break the rate limit or the prior's tolerance are out; of those left, the ones whose
+    response reaches ``ambiguity_ratio`` of the best look alike (a periodic floor): an informative prior
+    picks the nearest, otherwise only a single look-alike is accepted.
+    """
+    kept = [i for i, (rotation, _) in enumerate(candidates) if plausible(rotation, prior, settings)]
+    if not kept:
+        return None
+    best = max(candidates[i][1] for i in kept)
+    alike = [i for i in kept if candidates[i][1] >= settings.ambiguity_ratio * best]
+    if len(alike) == 1:
+        return alike[0]
+    if not prior.informative:
+        return None
+    return min(alike, key=lambda i: abs(wrap_rad(candidates[i][0] - prior.delta_rad)))
+
+
+def measured_variance_rad2(residual_px: float, inliers: int, lever_px: float) -> float:
+    """Variance of a measured delta: an angle error of ``residual / lever`` averaged over the inliers."""
+    residual = max(residual_px if math.isfinite(residual_px) else 1.0, MIN_RESIDUAL_PX)
+    return float((residual / max(lever_px, 1.0)) ** 2 * 2.0 / max(inliers, 1))

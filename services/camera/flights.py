@@ -1,0 +1,111 @@
+"""The simulated flights the camera replays (``--flight``): the ground flights (paper A's hover, paper C's
+turns, the field scenarios of :mod:`common.sim.field`) and the localizer's office flight with its odometry."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from enum import StrEnum
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from common.camera import CameraModel
+from common.datasets.calibration import opencv_yaml_text
+from common.errors import CapatazError
+from common.localization.office import default_scene
+from common.localization.tracking import noisy_odometry
+from common.sim.field import FIELD_SCENARIOS, field_flight
+from common.sim.flight import Flight, hover_flight, turns_flight
+from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
+from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+
+DEFAULT_HFOV_DEG = 90.0
+
+
+class FlightName(StrEnum):
+    """The simulated flights the camera can replay."""
+
+    #: paper A's hover over the ground (752x480)
+    HOVER = "hover"
+    #: paper C's turns over the ground
+    TURNS = "turns"
+    #: the localizer's default flight through the built-in office (320x240, forward camera)
+    OFFICE = "office"
+    #: field scenarios (``common.sim.field.FIELD_SCENARIOS``, 320x240 over the ground): one effect each
+    CHECKERBOARD = "checkerboard"
+    TILES = "tiles"
+    WIDE_ANGLE = "wide_angle"
+    LOW_ALTITUDE = "low_altitude"
+    BLUR_EXPOSURE = "blur_exposure"
+    FAST_YAW = "fast_yaw"
+    #: all field effects together
+    FIELD = "field"
+
+
+class FlightSettings(Protocol):
+    """What a flight needs from the camera's settings."""
+
+    @property
+    def flight(self) -> FlightName: ...
+    @property
+    def frames(self) -> int: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def width(self) -> int | None: ...
+    @property
+    def height(self) -> int | None: ...
+    @property
+    def images(self) -> Path | None: ...
+
+
+def simulated_flight(settings: FlightSettings) -> Flight:
+    """The ground flight the camera replays (the in-process reference builds the same one)."""
+    camera = (
+        None
+        if settings.width is None or settings.height is None
+        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
+    )
+    if settings.flight is FlightName.TURNS:
+        return turns_flight(seed=settings.seed, camera=camera)
+    if settings.flight.value in FIELD_SCENARIOS:
+        return field_flight(
+            settings.flight.value, seed=settings.seed, n_frames=settings.frames, camera=camera
+        )
+    return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
+
+
+def office_frames(settings: FlightSettings) -> Iterator[tuple[int, float, np.ndarray]]:
+    """The localizer's default flight through the built-in office: the same frames as
+    ``common.sim.office_run.simulate_run(settings.frames, settings.seed)``."""
+    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
+    flight = default_flight(n_frames=settings.frames)
+    rng = np.random.default_rng(settings.seed)
+    images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
+    for i, image in enumerate(images):
+        yield i, float(flight.times_s[i]), image
+
+
+def office_odometry_poses(settings: FlightSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stamps (T,), positions (T, 3) and Euler angles (T, 3) whose frame-to-frame differences are the office
+    flight's noisy odometry (the localizer's in-process stand-in for VO), starting at the true first pose."""
+    flight = default_flight(n_frames=settings.frames)
+    odometry = noisy_odometry(
+        flight.velocities_world_m_s, flight.euler_rates_rad_s, np.random.default_rng(settings.seed + 1)
+    )
+    dt_s = np.diff(flight.times_s, prepend=flight.times_s[0])[:, None]
+    start = flight.states[0]
+    positions = start[:3] + np.cumsum(odometry.velocities_world_m_s * dt_s, axis=0)
+    angles = start[3:] + np.cumsum(odometry.euler_rates_rad_s * dt_s, axis=0)
+    return flight.times_s, positions, angles
+
+
+def write_flight_calibration(path: Path, settings: FlightSettings) -> int:
+    """``--write-calibration``: the simulated ground flight's camera as OpenCV YAML (for ``master
+    --calibration``); exit code 0."""
+    if settings.images is not None or settings.flight is FlightName.OFFICE:
+        raise CapatazError("--write-calibration needs a simulated ground flight (not --images or office)")
+    path.write_text(opencv_yaml_text(simulated_flight(settings).camera))
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,79 @@
+"""The estimator's settings, the in-process estimator they build, and their command-line form."""
+
+from __future__ import annotations
+
+import argparse
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from common.camera import CameraModel
+from common.errors import InputError
+from common.estimation.coupling import DoubleCouplingEstimator
+from common.estimation.coupling_types import CouplingSettings, FilterKind
+
+
+class EstimatorSettings(BaseModel):
+    """What the estimator needs besides the transport."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    uav: str = "uav0"
+    width: int = Field(default=752, gt=0)
+    height: int = Field(default=480, gt=0)
+    hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0)
+    rectify: bool = True
+    #: the attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF
+    filter: FilterKind = FilterKind.BIAS
+    visual_yaw: bool = True
+    external_yaw: bool = False
+    max_lag_s: float = Field(default=0.02, ge=0.0, le=1.0)
+    initial_yaw_rad: float = 0.0
+    initial_x_m: float = 0.0
+    initial_y_m: float = 0.0
+    #: seconds after the first frame at which the VO sets its origin (the filter's tilt settles first; paper
+    #: C's flight hovers 5 s, the bench uses 4 s); the initial x, y are the position at that moment
+    vo_origin_delay_s: float = Field(default=0.0, ge=0.0, le=60.0)
+    #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
+    vo_drift_fraction: float = Field(default=0.001, gt=0.0)
+
+    def camera(self) -> CameraModel:
+        return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
+
+    def coupling(self) -> CouplingSettings:
+        return CouplingSettings(
+            rectify=self.rectify,
+            filter=self.filter,
+            visual_yaw=self.visual_yaw,
+            external_yaw=self.external_yaw,
+            max_lag_s=self.max_lag_s,
+            initial_yaw_rad=self.initial_yaw_rad,
+            initial_position_m=(self.initial_x_m, self.initial_y_m),
+            vo_origin_delay_s=self.vo_origin_delay_s,
+        )
+
+
+def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
+    """The in-process estimator the service runs (also used to check the service against)."""
+    return DoubleCouplingEstimator(settings.camera(), settings=settings.coupling())
+
+
+def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
+    try:
+        width, height = (int(v) for v in str(args.resolution).lower().split("x"))
+        return EstimatorSettings(
+            uav=args.uav,
+            width=width,
+            height=height,
+            hfov_deg=args.hfov,
+            rectify=not args.no_rectify,
+            filter=FilterKind(args.filter),
+            visual_yaw=not args.no_visual_yaw,
+            external_yaw=args.external_yaw,
+            max_lag_s=args.max_lag,
+            initial_yaw_rad=args.initial_yaw,
+            initial_x_m=args.initial_xy[0],
+            initial_y_m=args.initial_xy[1],
+            vo_origin_delay_s=args.vo_origin_delay,
+        )
+    except ValueError as exc:
+        raise InputError(f"invalid estimator settings: {exc}") from None

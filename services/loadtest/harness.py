@@ -1,0 +1,274 @@
+"""The I/O of ``capataz loadtest``: a local cluster, N simulated UAV camera streams at their real rate with
+wall-clock stamps, the yaw of every frame collected with its arrival time, and the fault schedule applied.
+
+Frames are paper A's hover, rendered once (ping-pong over ``loop_frames`` frames, so the motion stays
+continuous) and shared by the streams at different phases; the publisher costs a few hundred microseconds
+per frame, so the cluster, not the harness, is what is measured.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common import keys
+from common.messages import Frame, PatchJob, WireError, YawEstimate, decode, encode
+from common.sim.flight import hover_flight
+from common.yaw import YawSettings
+from common.yaw.patchwork import settings_to_wire
+from services.loadtest.plan import Fault, FaultAction, FrameRecord
+from services.runtime.transport import zbytes
+from services.up import ClusterSpec, LocalCluster
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class RunSettings:
+    streams: int = 4
+    fps: float = 20.0
+    duration_s: float = 30.0
+    #: frames a stream may have without a yaw before it waits (0 = free-running camera)
+    in_flight: int = 0
+    standby_masters: bool = False
+    shared_memory: bool = False
+    loop_frames: int = 120
+    seed: int = 0
+    faults: tuple[Fault, ...] = ()
+    lease_ms: int = 2000
+
+
+class FrameLoop:
+    """Frames of the hover flight in ping-pong order, with their true yaw (shared by every stream)."""
+
+    def __init__(self, n_frames: int, seed: int) -> None:
+        flight = hover_flight(seed=seed, n_frames=n_frames)
+        self.frames = [flight.frame(k) for k in range(n_frames)]
+        self.yaw_rad = np.asarray(flight.yaw_rad, dtype=np.float64)[:n_frames]
+        self.order = list(range(n_frames)) + list(range(n_frames - 2, 0, -1))
+
+    def at(self, k: int) -> tuple[np.ndarray, float]:
+        index = self.order[k % len(self.order)]
+        return self.frames[index], float(self.yaw_rad[index])
+
+
+@dataclass
+class StreamLog:
+    uav: str
+    sent: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (stamp, true yaw)
+    received: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (arrival, yaw)
+    duplicates: int = 0
+    reported_dropped: int = 0
+
+    def records(self) -> list[FrameRecord]:
+        out = []
+        for seq, (stamp, true_yaw) in sorted(self.sent.items()):
+            got = self.received.get(seq)
+            out.append(FrameRecord(seq, stamp, got[0] if got else None, got[1] if got else None, true_yaw))
+        return out
+
+
+class YawLog:
+    """Every yaw of every stream with its arrival (wall clock, the frames' clock)."""
+
+    def __init__(self, session: zenoh.Session, logs: dict[str, StreamLog]) -> None:
+        self.logs = logs
+        self.lock = threading.Condition()
+        self.malformed = 0
+        self._sub = session.declare_subscriber(f"{keys.ROOT}/uav/*/yaw", self._on_yaw)
+
+    def _on_yaw(self, sample: zenoh.Sample) -> None:
+        arrival = time.time()
+        try:
+            estimate = decode(zbytes(sample.payload), zbytes(sample.attachment), YawEstimate)
+        except WireError:
+            self.malformed += 1
+            return
+        log = self.logs.get(estimate.uav)
+        if log is None or estimate.seq not in log.sent:
+            return
+        with self.lock:
+            if estimate.seq in log.received:
+                log.duplicates += 1
+            else:
+                log.received[estimate.seq] = (arrival, estimate.yaw_rad)
+            log.reported_dropped = max(log.reported_dropped, estimate.dropped_frames)
+            self.lock.notify_all()
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a process (Linux /proc), None when it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class LoadCluster:
+    """A :class:`LocalCluster` with one master per UAV (plus a standby each, when asked)."""
+
+    def __init__(self, spec: ClusterSpec, settings: RunSettings, log_dir: Path) -> None:
+        self.settings = settings
+        self.cluster = LocalCluster(
+            spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms
+        )
+        self.uavs = [f"uav{i}" for i in range(settings.streams)]
+        self._master_args: dict[str, list[str]] = {}
+        self.cpu: dict[str, float] = {}
+        self._cpu0: dict[str, float] = {}
+
+    def start(self) -> None:
+        cluster, spec = self.cluster, self.cluster.spec
+        cluster.start(with_master=False)
+        for i, uav in enumerate(self.uavs):
+            for role in ("m", "s") if self.settings.standby_masters else ("m",):
+                node = f"{role}{i}"
+                args = ["master", *cluster.transport_args(), "--node", node, "--uav", uav, "--topology",
+                        spec.topology, "--balance", spec.balance, "--speed", spec.speed,
+                        "--compute" if spec.master_computes else "--no-compute"]  # fmt: skip
+                name = f"master/{node}/0"
+                self._master_args[name] = args
+                cluster.spawn(name, args, spec.master_cpus)
+        members = cluster.expected_members() - {"master/master/0"} | set(self._master_args)
+        cluster.wait_alive(members, timeout_s=120.0)
+
+    def wait_leaders(self, session: zenoh.Session, timeout_s: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if all(self.leader(session, uav) for uav in self.uavs):
+                return
+            time.sleep(0.2)
+        raise TimeoutError("not every UAV has an active master")
+
+    @staticmethod
+    def leader(session: zenoh.Session, uav: str) -> str | None:
+        for reply in session.liveliness().get(keys.election_all(uav), timeout=2.0):
+            key = str(reply.ok.key_expr) if reply.ok is not None else ""
+            if "/leader/" in key:
+                node, index = key.split("/leader/", 1)[1].split("/")
+                return f"master/{node}/{index}"
+        return None
+
+    def mark_cpu(self) -> None:
+        for name, process in self.cluster.processes.items():
+            value = cpu_seconds(process.pid)
+            if value is not None:
+                self._cpu0[name] = value
+
+    def collect_cpu(self) -> None:
+        for name, process in self.cluster.processes.items():
+            value = cpu_seconds(process.pid)
+            if value is not None:
+                self.cpu[name] = round(value - self._cpu0.get(name, 0.0), 3)
+
+    def restart(self, name: str) -> None:
+        """Start ``name`` again, as a supervisor (compose's restart policy) would."""
+        cluster, spec = self.cluster, self.cluster.spec
+        if name == "router":
+            cluster.start_router()
+            return
+        role, node, index = name.split("/")
+        if role == "master":
+            cluster.spawn(name, self._master_args[name], spec.master_cpus)
+        elif role == "foreman":
+            cluster.start_foreman(next(h for h in spec.hosts if h.name == node))
+        elif role == "worker":
+            cluster.start_worker(next(h for h in spec.hosts if h.name == node), int(index))
+
+    def stop(self) -> dict[str, int | None]:
+        return self.cluster.stop()
+
+
+def apply_fault(
+    load: LoadCluster, session: zenoh.Session, fault: Fault, hostile: Callable[[str], None]
+) -> str:
+    """Carry out one fault now (a stop resumes itself after its duration); returns what was hit."""
+    if fault.action is FaultAction.HOSTILE:
+        hostile(fault.target)
+        return f"hostile {fault.target}"
+    spec = load.cluster.spec
+    if fault.target == "master":
+        name = load.leader(session, load.uavs[0]) or "master/m0/0"
+    elif fault.target == "router":
+        name = "router"
+    elif fault.target == "foreman":
+        name = f"foreman/{spec.hosts[-1].name}/0"
+    else:
+        name = f"worker/{spec.hosts[0].name}/0"
+    if fault.action is FaultAction.KILL:
+        load.cluster.signal(name, signal.SIGKILL)
+        load.cluster.processes[name].wait(5.0)
+        load.restart(name)
+    else:
+        load.cluster.signal(name, signal.SIGSTOP)
+        timer = threading.Timer(fault.duration_s, load.cluster.signal, (name, signal.SIGCONT))
+        timer.daemon = True
+        timer.start()
+    return name
+
+
+class Hostile:
+    """Hostile but valid messages on the first stream's keys and to a worker (``hostile:KIND@Ts``)."""
+
+    def __init__(self, session: zenoh.Session, camera: Any, spec: ClusterSpec, uav: str) -> None:
+        self.session, self.camera, self.spec, self.uav = session, camera, spec, uav
+        self.sent: dict[str, int] = {}
+
+    def __call__(self, kind: str) -> None:
+        rng = np.random.default_rng(len(self.sent))
+        now = time.time()
+        pixels = rng.integers(0, 255, (480, 752), dtype=np.uint8)
+        frames: list[Frame] = []
+        if kind == "seq":
+            frames.append(Frame(uav=self.uav, seq=2**53, stamp_s=now, width=752, height=480, pixels=pixels))
+        elif kind == "restart":  # two frames of a "restarted camera" (a third would confirm a new epoch)
+            frames += [
+                Frame(uav=self.uav, seq=s, stamp_s=now, width=752, height=480, pixels=pixels) for s in (0, 1)
+            ]
+        elif kind == "size":
+            for side in (64, 4096):
+                big = rng.integers(0, 255, (side, side), dtype=np.uint8)
+                frames.append(
+                    Frame(uav=self.uav, seq=10**6, stamp_s=now, width=side, height=side, pixels=big)
+                )
+        elif kind == "uav":
+            frames.append(Frame(uav="intruder", seq=10**6, stamp_s=now, width=752, height=480, pixels=pixels))
+        elif kind == "future":
+            frames.append(
+                Frame(uav=self.uav, seq=10**6, stamp_s=now + 1e5, width=752, height=480, pixels=pixels)
+            )
+        elif kind in ("settings", "streams"):
+            self._jobs(kind)
+        for frame in frames:
+            payload, attachment = encode(frame)
+            self.camera.put(payload, attachment=attachment)
+        self.sent[kind] = self.sent.get(kind, 0) + 1
+
+    def _jobs(self, kind: str) -> None:
+        host = self.spec.hosts[0].name
+        wire = settings_to_wire(YawSettings())
+        n = 1 if kind == "settings" else 2000
+        for i in range(n):
+            settings = dict(wire, patch_size_px=100_000) if kind == "settings" else wire
+            job = PatchJob.model_construct(
+                stream=f"hostile{i}", seq=1, prev_seq=0, settings=settings, indices=np.array([0], np.int32),
+                crops=np.zeros((1, 32, 32), np.uint8), prev_indices=np.array([0], np.int32),
+                prev_crops=np.zeros((1, 32, 32), np.uint8), budget_s=0.2,
+            )  # fmt: skip
+            payload, attachment = encode(job)
+            key = keys.worker_key(host, 0)
+            self.session.get(key, lambda _r: None, payload=payload, attachment=attachment, timeout=1.0)

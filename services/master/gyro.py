@@ -1,0 +1,105 @@
+"""The master's gyro prior: IMU samples of the stream (``capataz/uav/{uav}/imu``) in a bounded buffer, and the
+gyro's rotation between two frame stamps for the yaw core's honest integration.
+
+The delta is :func:`common.yaw.gyro_delta_yaw_rad` on the buffered samples: it uses only the samples from
+the last one at or before the earlier stamp to the last one at or before the later stamp, so when the buffer
+holds them the master's prior has the same bits as the in-process tracker's (fed the flight's IMU series).
+The camera publishes every IMU sample up to a frame's stamp before the frame; the master still waits a
+bounded time for samples that reach the later stamp (another route may deliver them a little later).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+import time
+
+import numpy as np
+
+from common.messages import ImuSample
+from common.yaw import gyro_delta_yaw_rad
+from services.runtime.transport import Counters
+
+#: Samples kept (10 s at 400 Hz): enough for any frame interval the master bridges.
+DEFAULT_CAPACITY = 4000
+
+
+class GyroBuffer:
+    """Thread-safe, bounded, time-ordered gyro samples of one stream (out-of-order samples are dropped)."""
+
+    def __init__(self, capacity: int = DEFAULT_CAPACITY, sample_period_tolerance_s: float = 0.01) -> None:
+        self._stamps: list[float] = []
+        self._gyro: list[np.ndarray] = []
+        self._capacity = capacity
+        self._cond = threading.Condition()
+        self._tolerance_s = sample_period_tolerance_s
+        self.out_of_order = 0
+
+    def add(self, sample: ImuSample) -> bool:
+        """Append a sample; False (and counted) when it is not newer than the newest held. A sample older
+        than everything held means the stream restarted: the buffer starts over."""
+        gyro = np.asarray(sample.gyro_rad_s, dtype=np.float64)
+        if gyro.shape != (3,) or not np.all(np.isfinite(gyro)) or not math.isfinite(sample.stamp_s):
+            return False
+        with self._cond:
+            if self._stamps and sample.stamp_s <= self._stamps[-1]:
+                if sample.stamp_s >= self._stamps[0]:
+                    self.out_of_order += 1
+                    return False
+                self._stamps.clear()
+                self._gyro.clear()
+            self._stamps.append(float(sample.stamp_s))
+            self._gyro.append(gyro)
+            if len(self._stamps) > 2 * self._capacity:  # trim in chunks: amortised O(1) per sample
+                del self._stamps[: -self._capacity]
+                del self._gyro[: -self._capacity]
+            self._cond.notify_all()
+        return True
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._stamps)
+
+    def delta_rad(self, start_s: float, stop_s: float, wait_s: float = 0.0) -> float | None:
+        """The gyro's yaw rotation from ``start_s`` to ``stop_s``, or None without coverage; waits up to
+        ``wait_s`` for samples reaching ``stop_s`` (not when no sample has arrived at all)."""
+        deadline = time.monotonic() + wait_s
+        with self._cond:
+            while self._stamps and self._stamps[-1] < stop_s - self._tolerance_s:
+                left = deadline - time.monotonic()
+                if left <= 0.0:
+                    break
+                self._cond.wait(left)
+            first = bisect.bisect_right(self._stamps, start_s) - 1
+            last = bisect.bisect_right(self._stamps, stop_s) - 1
+            if first < 0 or last < 0:
+                return None
+            stamps = np.array(self._stamps[first : last + 1], dtype=np.float64)
+            gyro = np.stack(self._gyro[first : last + 1])
+        return gyro_delta_yaw_rad(stamps, gyro, start_s, stop_s)
+
+
+class GyroPrior:
+    """The master's side of the yaw prior: IMU samples in, the gyro's delta between frame stamps out."""
+
+    message_type = ImuSample
+
+    def __init__(self, enabled: bool, wait_s: float, counters: Counters) -> None:
+        self.enabled = enabled
+        self.wait_s = wait_s
+        self.buffer = GyroBuffer()
+        self._counters = counters
+
+    def on_sample(self, imu: ImuSample | None) -> None:
+        """A decoded IMU sample (None: it failed to decode, already counted by the runtime)."""
+        if imu is not None:
+            self._counters.inc("imu_in" if self.buffer.add(imu) else "imu_refused")
+
+    def delta_rad(self, previous_stamp_s: float | None, stamp_s: float) -> float | None:
+        """The gyro's rotation since the previous frame (None without IMU coverage or when disabled)."""
+        if not self.enabled or previous_stamp_s is None:
+            return None
+        delta = self.buffer.delta_rad(previous_stamp_s, stamp_s, self.wait_s)
+        self._counters.inc("gyro_prior" if delta is not None else "no_gyro_prior")
+        return delta

@@ -1,0 +1,104 @@
+"""The master's settings and their command-line options."""
+
+from __future__ import annotations
+
+import argparse
+from enum import StrEnum
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from common.dispatch import Balance, DispatchSettings, SpeedSource
+from common.errors import CapatazError
+from common.streams import FrameGateSettings
+from common.yaw import YawSettings
+from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
+from services.runtime.scatter import add_dispatch_arguments
+
+
+class Topology(StrEnum):
+    MASTER_WORKER = "master-worker"
+    MASTER_FOREMAN_WORKER = "master-foreman-worker"
+
+
+class MasterSettings(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    uav: str = "uav0"
+    topology: Topology = Topology.MASTER_FOREMAN_WORKER
+    balance: Balance = Balance.TIME
+    self_compute: bool = False
+    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
+    #: time budget of one frame's round (s); shares that miss it are re-dispatched
+    budget_s: float = 1.0
+    min_deadline_s: float = 0.3
+    grid_cols: int = 8
+    grid_rows: int = 5
+    patch_size_px: int = 32
+    pyramid_level: int = 1
+    #: take part in the election of the UAV's active master (off: always active, the paper's single master)
+    election: bool = True
+    #: newest admitted frames kept (a standby taking over measures them against the last published one)
+    recent_frames: int = Field(default=8, ge=1, le=64)
+    #: frames waiting for the yaw stage at most (oldest dropped beyond)
+    frame_queue: int = Field(default=8, ge=1, le=256)
+    max_seq_jump: int = Field(default=200, ge=1)
+    confirm_frames: int = Field(default=3, ge=1, le=100)
+    #: lens model, gyro prior and physical yaw-rate limit of the central stage
+    prior: YawPriorSettings = YawPriorSettings()
+
+    def gate_settings(self) -> FrameGateSettings:
+        return FrameGateSettings(max_seq_jump=self.max_seq_jump, confirm_frames=self.confirm_frames)
+
+    def yaw_settings(self) -> YawSettings:
+        return YawSettings(
+            grid_cols=self.grid_cols,
+            grid_rows=self.grid_rows,
+            patch_size_px=self.patch_size_px,
+            pyramid_level=self.pyramid_level,
+        )
+
+    def dispatch_settings(self) -> DispatchSettings:
+        return DispatchSettings(
+            balance=self.balance,
+            self_compute=self.self_compute,
+            min_deadline_s=self.min_deadline_s,
+            speed_source=self.speed_source,
+        )
+
+
+def add_master_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
+    parser.add_argument(
+        "--topology",
+        choices=[t.value for t in Topology],
+        default=Topology.MASTER_FOREMAN_WORKER.value,
+        help="master-worker: the master splits frames among workers; master-foreman-worker: among foremen, "
+        "who split their block among their node's workers",
+    )
+    add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
+    parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
+    parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
+    parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
+    parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
+    add_yaw_prior_arguments(parser)
+
+
+def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
+    try:
+        cols, rows = (int(v) for v in args.grid.lower().split("x"))
+    except ValueError:
+        raise CapatazError(f"--grid must look like 8x5, got {args.grid!r}") from None
+    return MasterSettings(
+        uav=args.uav,
+        topology=Topology(args.topology),
+        balance=Balance(args.balance),
+        self_compute=args.compute,
+        speed_source=SpeedSource(args.speed),
+        budget_s=args.budget_ms / 1e3,
+        min_deadline_s=args.min_deadline_ms / 1e3,
+        grid_cols=cols,
+        grid_rows=rows,
+        patch_size_px=args.patch_size,
+        pyramid_level=args.pyramid_level,
+        prior=yaw_prior_settings_from_args(args),
+    )

@@ -1,0 +1,75 @@
+"""The master's frame path without a cluster: admission, the frame queue, the yaw of each frame, health."""
+
+from __future__ import annotations
+
+import time
+from typing import Any, cast
+
+import numpy as np
+
+from common.messages import Frame, encode
+from common.sim.flight import hover_flight
+from services.master import MasterService, MasterSettings
+from services.runtime.transport import TransportSettings
+
+
+class _Bytes:
+    def __init__(self, data: bytes) -> None:
+        self._data = data
+
+    def to_bytes(self) -> bytes:
+        return self._data
+
+
+class _Sample:
+    def __init__(self, frame: Frame) -> None:
+        payload, attachment = encode(frame)
+        self.payload, self.attachment, self.key_expr = (
+            _Bytes(payload),
+            _Bytes(attachment),
+            "capataz/uav/uav0/camera",
+        )
+
+
+def _master(frame_queue: int) -> MasterService:
+    master = MasterService(
+        "m", 0, TransportSettings(), MasterSettings(election=False, frame_queue=frame_queue)
+    )
+    master.session = cast(Any, object())  # no members: the master computes alone, no zenoh call is made
+    return master
+
+
+def test_dropped_frames_counts_each_drop_once() -> None:
+    """Regression: YawEstimate.dropped_frames added the latest-wins drops to the seq gaps they caused, so
+    every drop was counted twice."""
+    flight = hover_flight(seed=0, n_frames=8)
+    master = _master(frame_queue=2)
+    frames = [
+        Frame(uav="uav0", seq=k, stamp_s=k / 20, width=752, height=480, pixels=flight.frame(k))
+        for k in range(6)
+    ]
+    estimates = []
+    master._on_frame(_Sample(frames[0]))  # type: ignore[arg-type]
+    first = master.slot.take(0.0)
+    assert first is not None
+    estimates.append(master._estimate(*first, time.perf_counter()))
+    for frame in frames[1:]:  # five frames while the master is busy: a queue of two drops the three oldest
+        master._on_frame(_Sample(frame))  # type: ignore[arg-type]
+    while (item := master.slot.take(0.0)) is not None:
+        estimates.append(master._estimate(*item, time.perf_counter()))
+    assert [e.seq for e in estimates if e is not None] == [0, 4, 5]
+    assert [e.dropped_frames for e in estimates if e is not None] == [0, 3, 3]
+    assert master.counters.get("frames_dropped") == 3
+
+
+def test_a_foreign_or_resized_frame_never_reaches_the_yaw_stage() -> None:
+    master = _master(frame_queue=8)
+    pixels = np.zeros((480, 752), np.uint8)
+    master._on_frame(_Sample(Frame(uav="uav0", seq=0, stamp_s=0.0, width=752, height=480, pixels=pixels)))  # type: ignore[arg-type]
+    master._on_frame(_Sample(Frame(uav="uav1", seq=1, stamp_s=0.05, width=752, height=480, pixels=pixels)))  # type: ignore[arg-type]
+    small = np.zeros((64, 64), np.uint8)
+    master._on_frame(_Sample(Frame(uav="uav0", seq=1, stamp_s=0.05, width=64, height=64, pixels=small)))  # type: ignore[arg-type]
+    assert master.slot.depth() == 1
+    assert master.counters.get("refused_foreign_uav") == 1 and master.counters.get("refused_wrong_size") == 1
+    ok, detail = master.healthy()
+    assert not ok and "2 frames refused" in detail

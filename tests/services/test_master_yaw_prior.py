@@ -1,0 +1,101 @@
+"""The master's yaw options: calibration files (OpenCV YAML, ROS camera_info YAML) and explicit intrinsics
+into the yaw settings, and the gyro buffer that feeds the prior."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.camera import DistortionModel
+from common.datasets.calibration import opencv_yaml_text, ros_yaml_text
+from common.errors import InputError
+from common.messages import ImuSample
+from common.sim.field import wide_angle_camera
+from common.yaw import YawSettings, gyro_delta_yaw_rad
+from services.master.gyro import GyroBuffer
+from services.master.lens import add_yaw_prior_arguments, yaw_prior_settings_from_args
+
+
+def _parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_yaw_prior_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+@pytest.mark.parametrize("writer", [opencv_yaml_text, ros_yaml_text])
+def test_calibration_files_of_both_formats_load_into_the_yaw_settings(tmp_path: Path, writer: object) -> None:
+    camera = wide_angle_camera()
+    path = tmp_path / "camera.yaml"
+    path.write_text(writer(camera))  # type: ignore[operator]
+    prior = yaw_prior_settings_from_args(_parse("--calibration", str(path), "--max-yaw-rate", "200"))
+    settings = prior.tracker_settings(YawSettings(), 320, 240)
+    assert settings.camera is not None and settings.max_yaw_rate_deg_s == 200.0
+    assert settings.camera.distortion.model is DistortionModel.RADTAN
+    assert np.allclose(settings.camera.K, camera.K)
+    assert np.allclose(settings.camera.distortion.coeffs, camera.distortion.coeffs)
+
+
+def test_explicit_intrinsics_and_distortion_options() -> None:
+    prior = yaw_prior_settings_from_args(
+        _parse("--fx", "200", "--distortion", "fisheye", "--distortion-coeffs", "0.01,-0.002,0,0")
+    )
+    camera = prior.tracker_settings(YawSettings(), 320, 240).camera
+    assert camera is not None
+    assert camera.fy == 200.0 and camera.cx == 159.5 and camera.distortion.model is DistortionModel.FISHEYE
+    assert prior.tracker_settings(YawSettings(), 320, 240).camera == camera
+    assert yaw_prior_settings_from_args(_parse()).lens.camera() is None  # nothing set: no lens model
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ("--distortion", "radtan"),  # a model without intrinsics
+        ("--fx", "100", "--distortion", "radtan", "--distortion-coeffs", "0.1,0.2"),  # 2 of 5 coefficients
+        ("--fx", "100", "--distortion-coeffs", "a,b"),
+        ("--fx", "-3"),
+        ("--max-yaw-rate", "0"),
+    ],
+)
+def test_bad_lens_options_are_one_line_errors(argv: tuple[str, ...]) -> None:
+    with pytest.raises(InputError) as info:
+        yaw_prior_settings_from_args(_parse(*argv))
+    assert "\n" not in str(info.value)
+
+
+def test_a_calibration_file_that_is_not_one_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "notes.yaml"
+    path.write_text("just: some yaml\n")
+    with pytest.raises(InputError):
+        yaw_prior_settings_from_args(_parse("--calibration", str(path)))
+    with pytest.raises(InputError):
+        yaw_prior_settings_from_args(_parse("--calibration", str(tmp_path / "missing.yaml")))
+    calibrated = tmp_path / "c.yaml"
+    calibrated.write_text(opencv_yaml_text(wide_angle_camera()))
+    with pytest.raises(InputError):  # a file and explicit values: which one?
+        yaw_prior_settings_from_args(_parse("--calibration", str(calibrated), "--fx", "100"))
+
+
+def _imu(stamp_s: float, rate: float) -> ImuSample:
+    return ImuSample(
+        uav="uav0", stamp_s=stamp_s, gyro_rad_s=np.array([0.0, 0.0, rate]), accel_m_s2=np.zeros(3)
+    )
+
+
+def test_gyro_buffer_gives_the_in_process_bits_and_refuses_disorder() -> None:
+    stamps = np.arange(0.0, 1.0, 0.0025)
+    rates = np.sin(stamps * 7.0)
+    buffer = GyroBuffer(capacity=100)
+    for t, r in zip(stamps, rates, strict=True):
+        assert buffer.add(_imu(float(t), float(r)))
+    assert len(buffer) <= 200  # bounded
+    gyro = np.stack([np.zeros_like(rates), np.zeros_like(rates), rates], axis=1)
+    expected = gyro_delta_yaw_rad(stamps, gyro, 0.90, 0.95)
+    assert buffer.delta_rad(0.90, 0.95) == expected
+    assert buffer.delta_rad(0.10, 0.15) is None  # long gone
+    assert not buffer.add(_imu(0.95, 1.0))  # not newer than the newest
+    assert buffer.out_of_order == 1
+    assert buffer.add(_imu(0.0, 0.5))  # older than everything: the stream restarted
+    assert len(buffer) == 1
