@@ -154,7 +154,10 @@ def register_arguments(parser: Any) -> None:
     parser.add_argument("--mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body")
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
     parser.add_argument(
-        "--scoring", choices=[m.value for m in ScoringMethod], default=ScoringMethod.NEAREST_EDGE_DT.value
+        "--scoring",
+        choices=[m.value for m in ScoringMethod],
+        default=ScoringMethod.NEAREST_EDGE_DT.value,
+        help="paper B's image-closeness measure (nearest_edge_dt: nearest edge through a distance transform)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the filter's random numbers")
     parser.add_argument(
