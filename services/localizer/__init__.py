@@ -1,6 +1,15 @@
-"""``capataz localizer``: tracks a known 3D model in the camera frames (paper B, without odometry)."""
+"""``capataz localizer``: tracks a known 3D model in the camera frames (paper B's particle filter driven by
+VO odometry, or the model tracker, which needs none)."""
 
-from services.localizer.service import LocalizerService, odometry_between, pose_message, register
-from services.localizer.settings import LocalizerSettings
+from services.localizer.filters import odometry_between, pose_message
+from services.localizer.service import LocalizerService, register
+from services.localizer.settings import FilterKind, LocalizerSettings
 
-__all__ = ["LocalizerService", "LocalizerSettings", "odometry_between", "pose_message", "register"]
+__all__ = [
+    "FilterKind",
+    "LocalizerService",
+    "LocalizerSettings",
+    "odometry_between",
+    "pose_message",
+    "register",
+]

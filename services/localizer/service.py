@@ -1,11 +1,13 @@
-"""The localizer: tracks a known 3D model in a UAV's camera frames (paper B's particle filter, made to work
-without odometry: :mod:`common.localization.tracker`).
+"""The localizer: tracks a known 3D model in a UAV's camera frames with paper B's particle filter (driven by
+VO odometry) or the model tracker (no odometry needed: :mod:`common.localization.tracker`); ``--filter``
+chooses, ``auto`` takes the particle filter with ``--use-vo`` and the tracker without
+(:mod:`services.localizer.filters`).
 
 Subscribes to ``capataz/uav/{uav}/camera`` (and, with ``--use-vo``, to ``.../pose/vo``, whose successive poses
-give the prediction its velocity and angular rate instead of the tracker's own motion model) and publishes
-``.../pose/pf``: a :class:`PoseEstimate` of the body (the camera on its mount) with the 6x6 covariance
-(position, world-frame error angles), ``source = "pf"``, ``tracking_state`` (tracking / searching / lost),
-the frame's ``seq`` and ``stamp_s``. Settings and the command line: :mod:`services.localizer.settings`.
+give the prediction its velocity and angular rate) and publishes ``.../pose/pf``: a :class:`PoseEstimate` of
+the body (the camera on its mount) with the 6x6 covariance (position, world-frame error angles),
+``source = "pf"``, ``tracking_state`` (tracking / searching / lost), the frame's ``seq`` and ``stamp_s``.
+Settings and the command line: :mod:`services.localizer.settings`.
 
 Latest frame wins: the subscriber callback only decodes and hands the frame to a one-item slot; a frame
 replaced before the filter took it is counted (``dropped_frames``). Bad frames are refused with a log line
@@ -20,50 +22,15 @@ import threading
 import time
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from common import keys
-from common.geometry import matrix_from_quaternion, quaternion_from_matrix
-from common.localization.pose import rotation_vectors
-from common.localization.tracker import ModelTracker
-from common.localization.tracker_state import TrackerState
 from common.messages import Frame, PoseEstimate, encode
+from services.localizer.filters import LocalizationPath, make_path, odometry_between
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args
 from services.trajectory import add_trajectory_argument, run_with_trajectories
-
-
-def pose_message(
-    uav: str, seq: int, stamp_s: float, state: TrackerState, R_body_camera: np.ndarray
-) -> PoseEstimate:
-    """The ``pose/pf`` message of a tracker state: the body (``R_world_body = R_world_camera R_body_camera^T``
-    with the camera at the body origin), the covariance (camera centre, world-frame error angles), the
-    tracking state."""
-    R_world_body = state.pose.R_world_camera @ R_body_camera.T
-    covariance = np.nan_to_num(state.covariance, nan=0.0)
-    return PoseEstimate(
-        uav=uav,
-        seq=seq,
-        stamp_s=stamp_s,
-        p_world_body_m=state.pose.p_world_camera_m.copy(),
-        q_world_body=quaternion_from_matrix(R_world_body),
-        covariance=0.5 * (covariance + covariance.T),
-        source="pf",
-        tracking_state=state.status.value,
-    )
-
-
-def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.ndarray, np.ndarray] | None:
-    """World velocity (m/s) and world-frame angular rate (rad/s) between two VO poses; None unless time
-    advanced."""
-    dt = current.stamp_s - previous.stamp_s
-    if dt <= 0.0:
-        return None
-    velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
-    turn = matrix_from_quaternion(current.q_world_body) @ matrix_from_quaternion(previous.q_world_body).T
-    return velocity, rotation_vectors(turn[None])[0] / dt
 
 
 class LocalizerService(ServiceRuntime):
@@ -80,16 +47,13 @@ class LocalizerService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.camera = settings.camera()
-        self.tracker = ModelTracker(settings.load_scene(), self.camera, settings.tracker_settings())
-        self.rng = np.random.default_rng(settings.seed)
-        self.state: TrackerState = self.tracker.start(settings.start_pose())
+        self.path: LocalizationPath = make_path(settings)
         self._slot: LatestSlot[Frame] = LatestSlot()
         self._last_stamp_s: float | None = None  # of the last frame the filter used
         self._last_received_s: float | None = None  # of the last frame accepted by the subscriber
         self._vo_lock = threading.Lock()
         self._vo_previous: PoseEstimate | None = None
-        self._vo_velocity: np.ndarray | None = None
-        self._vo_rates: np.ndarray | None = None
+        self._vo_pair: tuple[PoseEstimate, PoseEstimate] | None = None  # the last two, time advancing
         self._entities: list[Any] = []
         #: future stamps refused before they can become the "previous" stamp (one would freeze the filter)
         self.stamps = InputStamps()
@@ -157,13 +121,12 @@ class LocalizerService(ServiceRuntime):
             previous, self._vo_previous = self._vo_previous, pose
             if previous is None:
                 return
-            rates = odometry_between(previous, pose)
-            if rates is None:
+            if odometry_between(previous, pose) is None:
                 self.count_error(
                     "stale_vo", "VO pose refused", f"stamp {pose.stamp_s} not after {previous.stamp_s}"
                 )
                 return
-            self._vo_velocity, self._vo_rates = rates
+            self._vo_pair = (previous, pose)
 
     # -- the filter thread ------------------------------------------------------------------------------
     def _localize(self) -> None:
@@ -174,16 +137,11 @@ class LocalizerService(ServiceRuntime):
             dt = 0.0 if self._last_stamp_s is None else frame.stamp_s - self._last_stamp_s
             self._last_stamp_s = frame.stamp_s
             with self._vo_lock:
-                velocity, rates = self._vo_velocity, self._vo_rates
+                vo = self._vo_pair
             t0 = time.perf_counter()
-            self.state = self.tracker.step(
-                self.state, self.tracker.edges(frame.pixels), dt, self.rng, velocity, rates
-            )
+            message = self.path.step(frame, dt, vo)
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
-            self.counters.inc(f"frames_{self.state.status.value}")
-            message = pose_message(
-                self.settings.uav, frame.seq, frame.stamp_s, self.state, self.settings.R_body_camera
-            )
+            self.counters.inc(f"frames_{message.tracking_state}")
             payload, attachment = encode(message)
             self._publisher.put(payload, attachment=attachment)
             if self.trajectory_tap is not None:
@@ -194,7 +152,8 @@ class LocalizerService(ServiceRuntime):
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "localizer",
-        help="tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames; publishes pose/pf",
+        help="tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames with paper B's particle "
+        "filter (--use-vo odometry) or the model tracker (--filter); publishes pose/pf",
     )
     register_arguments(parser)
     add_trajectory_argument(parser, "pose/pf")

@@ -1,5 +1,6 @@
 """Settings of ``capataz localizer``: the model file, the camera (calibration file or resolution + FOV), the
-initial pose, the tracker's knobs, and the command line that fills them.
+initial pose, which estimator (``--filter``: paper B's particle filter or the model tracker), the tracker's
+knobs, and the command line that fills them.
 
 ``--initial-pose`` is camera-from-world (:func:`common.localization.pose.parse_pose_numbers`): 6 numbers =
 OpenCV ``rvec`` (rad) then ``tvec`` (m), as ``cv2.solvePnP`` returns them; 16 numbers = the 4x4 matrix row by
@@ -9,6 +10,7 @@ row. ``--initial-state X Y Z ROLL PITCH YAW`` gives the body pose instead (the c
 from __future__ import annotations
 
 import argparse
+import enum
 from pathlib import Path
 from typing import Any, Literal
 
@@ -22,6 +24,7 @@ from common.errors import CapatazError
 from common.geometry import CameraMount
 from common.localization.model import SceneModel
 from common.localization.office import default_scene
+from common.localization.particle_filter import ParticleFilterSettings
 from common.localization.pose import CameraPose, parse_pose_numbers
 from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker_state import TrackerSettings
@@ -31,6 +34,16 @@ from services.runtime.transport import add_transport_arguments
 
 #: the body's camera mounts, plus "camera": the published pose is the camera's own (no body)
 _MOUNTS = {**{m.value: m.R_body_camera for m in CameraMount}, "camera": np.eye(3)}
+
+
+class FilterKind(enum.Enum):
+    """Which estimator the localizer runs: ``particle`` = paper B's particle filter driven by the VO
+    odometry, ``tracker`` = the model tracker (no odometry needed), ``auto`` = the particle filter when
+    ``use_vo`` supplies odometry, the tracker otherwise."""
+
+    AUTO = "auto"
+    PARTICLE = "particle"
+    TRACKER = "tracker"
 
 
 class LocalizerSettings(BaseModel):
@@ -66,6 +79,7 @@ class LocalizerSettings(BaseModel):
     angular_noise_deg_s: float = Field(default=25.0, gt=0.0)
     layers: int = Field(default=2, ge=1, le=10)
     use_vo: bool = False
+    filter: FilterKind = FilterKind.AUTO
 
     @field_validator("initial_pose")
     @classmethod
@@ -94,6 +108,20 @@ class LocalizerSettings(BaseModel):
             return parse_pose_numbers(self.initial_pose)
         state = default_flight(n_frames=2).states[0] if self.initial_state is None else self.initial_state
         return CameraPose.from_body_state(state, self.R_body_camera)
+
+    def resolved_filter(self) -> FilterKind:
+        """``filter`` with ``auto`` resolved: the particle filter with VO odometry, the tracker without."""
+        if self.filter is not FilterKind.AUTO:
+            return self.filter
+        return FilterKind.PARTICLE if self.use_vo else FilterKind.TRACKER
+
+    def particle_filter_settings(self) -> ParticleFilterSettings:
+        """Paper B's filter: ``particles``, ``scoring`` and the mount; its own noise and start spreads."""
+        return ParticleFilterSettings(
+            n_particles=self.particles,
+            scoring=ScoringSettings(method=self.scoring),
+            R_body_camera=self.R_body_camera.copy(),
+        )
 
     def tracker_settings(self) -> TrackerSettings:
         return TrackerSettings(
@@ -126,7 +154,10 @@ def register_arguments(parser: Any) -> None:
     parser.add_argument("--mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body")
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
     parser.add_argument(
-        "--scoring", choices=[m.value for m in ScoringMethod], default=ScoringMethod.NEAREST_EDGE_DT.value
+        "--scoring",
+        choices=[m.value for m in ScoringMethod],
+        default=ScoringMethod.NEAREST_EDGE_DT.value,
+        help="paper B's image-closeness measure (nearest_edge_dt: nearest edge through a distance transform)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the filter's random numbers")
     parser.add_argument(
@@ -144,17 +175,28 @@ def register_arguments(parser: Any) -> None:
         help="initial body pose (m, rad) instead; default: the simulated office flight's start",
     )
     parser.add_argument(
-        "--position-spread", type=float, help="start/recovery spread, m (default 0.1 x distance)"
+        "--position-spread", type=float, help="tracker: start/recovery spread, m (default 0.1 x distance)"
     )
     parser.add_argument(
-        "--angle-spread", type=float, default=8.0, help="start/recovery spread, deg (default 8)"
+        "--angle-spread", type=float, default=8.0, help="tracker: start/recovery spread, deg (default 8)"
     )
     parser.add_argument(
-        "--velocity-noise", type=float, help="process noise, m/s (default 0.2 x distance / s)"
+        "--velocity-noise", type=float, help="tracker: process noise, m/s (default 0.2 x distance / s)"
     )
-    parser.add_argument("--angular-noise", type=float, default=25.0, help="process noise, deg/s (default 25)")
-    parser.add_argument("--layers", type=int, default=2, help="annealing layers per frame (default 2)")
+    parser.add_argument(
+        "--angular-noise", type=float, default=25.0, help="tracker: process noise, deg/s (default 25)"
+    )
+    parser.add_argument(
+        "--layers", type=int, default=2, help="tracker: annealing layers per frame (default 2)"
+    )
     parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
+    parser.add_argument(
+        "--filter",
+        choices=[k.value for k in FilterKind],
+        default=FilterKind.AUTO.value,
+        help="particle: paper B's particle filter (predicted by pose/vo); tracker: the model tracker (no "
+        "odometry needed); auto (default): particle with --use-vo, tracker without",
+    )
 
 
 def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
@@ -183,6 +225,7 @@ def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
             angular_noise_deg_s=args.angular_noise,
             layers=args.layers,
             use_vo=args.use_vo,
+            filter=FilterKind(args.filter),
         )
     except ValueError as exc:
         raise CapatazError(f"invalid localizer settings: {exc}") from None

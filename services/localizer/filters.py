@@ -1,0 +1,175 @@
+"""The localizer's two estimators behind one interface: ``step(frame, dt_s, vo) -> PoseEstimate``.
+
+- :class:`ParticleFilterPath`: paper B's particle filter (:mod:`common.localization.particle_filter`) over the
+  body state ``(x, y, z, roll, pitch, yaw)``, initialised around the start guess, its prediction driven by the
+  VO velocity and Euler-angle rates. ``pose/pf`` carries the cloud's mean and covariance; its
+  ``tracking_state`` is ``tracking`` while the best particle fits (``best_fit >= collapse_fit``),
+  ``searching`` during a run of poorly fitting frames, ``lost`` on the frame the filter re-initialised after
+  the likelihood collapsed (the pose is then the centre of the fresh, wide cloud).
+- :class:`ModelTrackerPath`: the model tracker (:mod:`common.localization.tracker`), which needs no odometry
+  and uses the VO velocity and world-frame angular rate when given; ``tracking_state`` is its own status.
+
+The cores stay state in, state out; these wrappers only hold the current state and the random generator.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from common.geometry import (
+    euler_from_quaternion,
+    matrix_from_quaternion,
+    quaternion_from_euler,
+    quaternion_from_matrix,
+    wrap_angle_rad,
+)
+from common.localization.particle_filter import (
+    ParticleFilter,
+    ParticleState,
+    PoseStatistics,
+    covariance_with_world_error_angles,
+)
+from common.localization.pose import rotation_vectors
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerState, TrackingStatus
+from common.localization.tracking import localizer_step
+from common.messages import Frame, PoseEstimate
+from services.localizer.settings import FilterKind, LocalizerSettings
+
+#: two successive VO poses (previous, current) or None when there are not yet two
+VoPair = tuple[PoseEstimate, PoseEstimate] | None
+
+
+class LocalizationPath(Protocol):
+    """One frame in, the ``pose/pf`` message out."""
+
+    kind: FilterKind
+
+    def step(self, frame: Frame, dt_s: float, vo: VoPair) -> PoseEstimate: ...
+
+
+def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.ndarray, np.ndarray] | None:
+    """World velocity (m/s) and world-frame angular rate (rad/s) between two VO poses; None unless time
+    advanced."""
+    dt = current.stamp_s - previous.stamp_s
+    if dt <= 0.0:
+        return None
+    velocity = (current.p_world_body_m - previous.p_world_body_m) / dt
+    turn = matrix_from_quaternion(current.q_world_body) @ matrix_from_quaternion(previous.q_world_body).T
+    return velocity, rotation_vectors(turn[None])[0] / dt
+
+
+def euler_odometry_between(
+    previous: PoseEstimate, current: PoseEstimate
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """World velocity (m/s) and Euler-angle rates (rad/s, wrapped) between two VO poses, as paper B's
+    motion model takes them; None unless time advanced."""
+    odometry = odometry_between(previous, current)
+    if odometry is None:
+        return None
+    change = euler_from_quaternion(current.q_world_body) - euler_from_quaternion(previous.q_world_body)
+    return odometry[0], wrap_angle_rad(change) / (current.stamp_s - previous.stamp_s)
+
+
+def pose_message(
+    uav: str, seq: int, stamp_s: float, state: TrackerState, R_body_camera: np.ndarray
+) -> PoseEstimate:
+    """The ``pose/pf`` message of a tracker state: the body (``R_world_body = R_world_camera R_body_camera^T``
+    with the camera at the body origin), the covariance (camera centre, world-frame error angles), the
+    tracking state."""
+    R_world_body = state.pose.R_world_camera @ R_body_camera.T
+    covariance = np.nan_to_num(state.covariance, nan=0.0)
+    return PoseEstimate(
+        uav=uav,
+        seq=seq,
+        stamp_s=stamp_s,
+        p_world_body_m=state.pose.p_world_camera_m.copy(),
+        q_world_body=quaternion_from_matrix(R_world_body),
+        covariance=0.5 * (covariance + covariance.T),
+        source="pf",
+        tracking_state=state.status.value,
+    )
+
+
+def particle_tracking_state(state: ParticleState, collapse_fit: float) -> TrackingStatus:
+    """``lost`` right after a re-initialisation, ``searching`` while the best fit is below
+    ``collapse_fit``, ``tracking`` otherwise (see the module doc)."""
+    if state.frames == 0:
+        return TrackingStatus.LOST
+    if state.low_fit_frames > 0 or state.best_fit < collapse_fit:
+        return TrackingStatus.SEARCHING
+    return TrackingStatus.TRACKING
+
+
+def particle_pose_message(
+    uav: str, seq: int, stamp_s: float, estimate: PoseStatistics, status: TrackingStatus
+) -> PoseEstimate:
+    """The ``pose/pf`` message of a particle-cloud estimate: the mean body state, the covariance with
+    world-frame error angles."""
+    roll, pitch, yaw = estimate.mean[3:]
+    covariance = covariance_with_world_error_angles(estimate.mean, estimate.covariance)
+    return PoseEstimate(
+        uav=uav,
+        seq=seq,
+        stamp_s=stamp_s,
+        p_world_body_m=estimate.mean[:3].copy(),
+        q_world_body=quaternion_from_euler(roll, pitch, yaw),
+        covariance=0.5 * (covariance + covariance.T),
+        source="pf",
+        tracking_state=status.value,
+    )
+
+
+class ParticleFilterPath:
+    """Paper B's particle filter, predicted with the VO odometry (as the service did before the tracker)."""
+
+    kind = FilterKind.PARTICLE
+
+    def __init__(self, settings: LocalizerSettings) -> None:
+        self.settings = settings
+        self.filter = ParticleFilter(
+            settings.load_scene(), settings.camera(), settings.particle_filter_settings()
+        )
+        self.rng = np.random.default_rng(settings.seed)
+        guess = settings.start_pose().body_state(settings.R_body_camera)
+        self.state: ParticleState = self.filter.initialize(guess, self.rng)
+
+    def step(self, frame: Frame, dt_s: float, vo: VoPair) -> PoseEstimate:
+        odometry = None if vo is None else euler_odometry_between(*vo)
+        velocity, rates = (None, None) if odometry is None else odometry
+        self.state, estimate = localizer_step(
+            self.filter, self.state, frame.pixels, dt_s, self.rng, velocity, rates
+        )
+        status = particle_tracking_state(self.state, self.filter.config.collapse_fit)
+        return particle_pose_message(self.settings.uav, frame.seq, frame.stamp_s, estimate, status)
+
+
+class ModelTrackerPath:
+    """The model tracker (no odometry needed; uses the VO motion when given)."""
+
+    kind = FilterKind.TRACKER
+
+    def __init__(self, settings: LocalizerSettings) -> None:
+        self.settings = settings
+        self.tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_settings())
+        self.rng = np.random.default_rng(settings.seed)
+        self.state: TrackerState = self.tracker.start(settings.start_pose())
+
+    def step(self, frame: Frame, dt_s: float, vo: VoPair) -> PoseEstimate:
+        odometry = None if vo is None else odometry_between(*vo)
+        velocity, rates = (None, None) if odometry is None else odometry
+        self.state = self.tracker.step(
+            self.state, self.tracker.edges(frame.pixels), dt_s, self.rng, velocity, rates
+        )
+        return pose_message(
+            self.settings.uav, frame.seq, frame.stamp_s, self.state, self.settings.R_body_camera
+        )
+
+
+def make_path(settings: LocalizerSettings) -> LocalizationPath:
+    """The estimator ``settings.resolved_filter()`` names."""
+    if settings.resolved_filter() is FilterKind.PARTICLE:
+        return ParticleFilterPath(settings)
+    return ModelTrackerPath(settings)
