@@ -152,10 +152,10 @@ def rotation_vectors(R: npt.ArrayLike) -> FloatArray:
     )
     near_pi = angle > np.pi - 1e-3
     for i in np.flatnonzero(near_pi):  # axis from the symmetric part (rare)
-        B = (M[i] + np.eye(3)) / 2.0
-        j = int(np.argmax(np.diag(B)))
-        a = B[:, j] / np.sqrt(max(B[j, j], 1e-12))
-        a /= np.linalg.norm(a)
+        # (R + R^T) / 2 = cos(t) I + (1 - cos(t)) a a^T: its leading eigenvector is the axis exactly (the
+        # antisymmetric sin(t) K part, of order pi - t, is what made the old column pick 1e-5 off)
+        _, vectors = np.linalg.eigh((M[i] + M[i].T) / 2.0)
+        a = vectors[:, -1]
         if a @ axis[i] < 0.0:
             a = -a
         out[i] = a * angle[i]

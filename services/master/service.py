@@ -14,7 +14,6 @@ published yaw equals the in-process tracker's when no frame is dropped.
 
 from __future__ import annotations
 
-import argparse
 import threading
 import time
 from collections import OrderedDict, deque
@@ -39,8 +38,6 @@ from services.master.gyro import GyroPrior
 from services.master.settings import (
     MasterSettings,
     Topology,
-    add_master_arguments,
-    master_settings_from_args,
 )
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
@@ -49,10 +46,7 @@ from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
     ServiceRuntime,
     TransportSettings,
-    add_transport_arguments,
-    transport_from_args,
 )
-from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
 @dataclass
@@ -385,20 +379,3 @@ class MasterService(ServiceRuntime):
             delta_variance_rad2=core.delta_variance_rad2,
             measured_delta_rad=core.measured_delta_rad if np.isfinite(core.measured_delta_rad) else None,
         )
-
-
-def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
-        "master", help="a master: splits each frame of a UAV stream and publishes yaw"
-    )
-    add_transport_arguments(parser)
-    add_master_arguments(parser)
-    add_trajectory_argument(parser, "the published yaw (rotation about world z)")
-    parser.set_defaults(handler=run)
-
-
-def run(args: argparse.Namespace) -> int:
-    service = MasterService(
-        args.node, args.index, transport_from_args(args), master_settings_from_args(args), args.stats_period
-    )
-    return run_with_trajectories(service, {YawEstimate: args.trajectory})

@@ -213,7 +213,7 @@ def source_of(sample: zenoh.Sample) -> str | None:
     Zenoh 1.10 gives a Python subscriber no transport-authenticated sender: this is what the publisher
     chose to attach (the capataz camera does), so it separates senders but does not authenticate them.
     """
-    info = sample.source_info
+    info = getattr(sample, "source_info", None)  # a sample object without it declares nothing
     source = None if info is None else info.source_id
     return None if source is None else f"{source.zid}/{source.eid}"
 

@@ -145,8 +145,8 @@ def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_pat
     )
     lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
     # not a folder of images at all: a usage error (exit 2, services/camera/images.py); a folder that cannot
-    # be replayed (mixed sizes): ImageFolderError (exit 1)
-    expected = (1, "ImageFolderError") if kind == "mixed" else (2, "--images")
+    # be replayed (mixed sizes): a runtime error naming the problem (exit 1)
+    expected = (1, "mixed image sizes") if kind == "mixed" else (2, "--images")
     assert result.returncode == expected[0]
     assert len(lines) == 1 and expected[1] in lines[0], lines
     assert "Traceback" not in result.stderr

@@ -166,4 +166,5 @@ def test_camera_command_refuses_a_truncated_bag_in_one_line(
         capture_output=True, text=True, timeout=120, check=False,
     )  # fmt: skip
     lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
-    assert result.returncode == 1 and len(lines) == 1 and "BagError" in lines[0], lines
+    assert result.returncode == 1 and len(lines) == 1, lines
+    assert "not a readable ROS 1 or ROS 2 bag" in lines[0] and str(path) in lines[0], lines
