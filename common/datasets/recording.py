@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import struct
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -168,7 +168,8 @@ class RecordingWriter:
         with self._lock:
             if not self.closed:
                 self.closed = True
-                self._writer.finish()
+                finish: Callable[[], object] = self._writer.finish  # mcap's writer is untyped
+                finish()
                 self._file.close()
 
 
