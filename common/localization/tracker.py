@@ -44,13 +44,19 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel
+from common.localization.motion import (
+    MotionState,
+    motion_predict,
+    motion_rate_update,
+    motion_start,
+    motion_update,
+)
 from common.localization.particle_filter import low_variance_resample
 from common.localization.pose import (
     CameraPose,
     mean_rotation,
     perturb,
     rotation_angle_rad,
-    rotation_vectors,
 )
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
 from common.localization.refine import refine_best
@@ -65,6 +71,9 @@ from common.localization.search import (
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus, next_spread
 from common.localization.visibility import visible_points
 from common.types import FloatArray
+
+#: rows of the pose (centre, error angles) in the motion model's 12-D error state
+_POSE_ROWS = [0, 1, 2, 6, 7, 8]
 
 
 class ModelTracker:
@@ -142,11 +151,18 @@ class ModelTracker:
         positions = state.positions_m + v * dt_s + rng.normal(size=(n, 3)) * (noise_m_s * dt_s)
         turns = w * dt_s + rng.normal(size=(n, 3)) * (self.config.angular_noise_rad_s * dt_s)
         rotations = perturb(state.rotations, turns)
-        pose = CameraPose(
-            state.pose.p_world_camera_m + v * dt_s,
-            perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0],
-        )
-        return replace(state, positions_m=positions, rotations=rotations, pose=pose)
+        motion = state.motion
+        if motion is not None:
+            motion = motion_predict(
+                replace(motion, velocity_m_s=v, angular_rate_rad_s=w), dt_s, self.config.motion
+            )
+            pose = motion.pose
+        else:
+            pose = CameraPose(
+                state.pose.p_world_camera_m + v * dt_s,
+                perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0],
+            )
+        return replace(state, positions_m=positions, rotations=rotations, pose=pose, motion=motion)
 
     # -- weighting ------------------------------------------------------------------------------------
     def log_likelihood(
@@ -156,9 +172,16 @@ class ModelTracker:
         edges: ImageEdges,
         visible: npt.NDArray[np.bool_] | None,
         coarseness: float = 1.0,
+        expected_points: int = 0,
     ) -> FloatArray:
         """log W (P,) of the configured scoring for every pose, in blocks of ``chunk_particles``;
-        ``coarseness > 1`` widens its pixel scales (sigma, alignment, maximum normal) for a coarse search."""
+        ``coarseness > 1`` widens its pixel scales (sigma, alignment, maximum normal) for a coarse search.
+
+        Paper B's scorings are fractions of the visible sample points, so a pose that shows only a sliver of
+        the model (a few points, all on some edge) scores like one that shows all of it; a search over a wide
+        box finds such slivers first. With ``expected_points`` (what a good pose showed), a pose showing
+        fewer than ``visible_floor`` of them has its log weight scaled by ``shown / (floor x expected)``:
+        counted, not a fraction, below the floor."""
         chunk = max(1, self.config.chunk_particles)
         params = self.config.scoring
         if coarseness != 1.0:
@@ -181,7 +204,12 @@ class ModelTracker:
                 with_normals=params.method is ScoringMethod.NEAREST_EDGE,
                 visible=visible,
             )
-            out.append(score_particles(proj, edges, params).log_weight)
+            logw = score_particles(proj, edges, params).log_weight
+            floor = self.config.visible_floor * expected_points
+            if floor > 0.0:
+                shown = proj.valid.reshape(proj.valid.shape[0], -1).sum(axis=1)
+                logw = logw * np.minimum(shown / floor, 1.0)
+            out.append(logw)
         return np.concatenate(out)
 
     # -- one frame ------------------------------------------------------------------------------------
@@ -193,9 +221,11 @@ class ModelTracker:
         rng: np.random.Generator,
         velocity_m_s: npt.ArrayLike | None = None,
         angular_rate_rad_s: npt.ArrayLike | None = None,
+        gyro_rad_s: npt.ArrayLike | None = None,
     ) -> TrackerState:
         """Predict (unless a search is pending), weigh (annealed), refine, detect loss, update the motion
-        model."""
+        model. ``gyro_rad_s``: the camera-frame angular rate over the frame interval (a gyro's mean, turned
+        into the camera frame), a measurement of the motion model's rate (``gyro_sigma_rad_s``)."""
         if edges.width != self.camera.width or edges.height != self.camera.height:
             raise InputError(
                 f"image edges are {edges.width}x{edges.height}, "
@@ -204,22 +234,12 @@ class ModelTracker:
         if edges.gradient_x is None:
             raise InputError("the tracker needs edges with gradients (ModelTracker.edges)")
         cfg = self.config
-        previous = state.pose
         spread_m, noise_m_s = self.scales(state.distance_m)
         n = cfg.n_particles
         if state.search_pending:
-            centre = state.last_good if state.frames > 0 else state.pose
+            centre, positions, rotations = self._search_candidates(state, edges, spread_m, rng)
             pos_spread = spread_m * state.spread_factor
             ang_spread = cfg.angle_spread_rad * state.spread_factor
-            centre = self._image_shift_prior(centre, edges, ang_spread + pos_spread / state.distance_m)
-            positions, rotations = search_candidates(
-                centre,
-                int(cfg.search_candidates * max(state.spread_factor, 1.0)),
-                pos_spread,
-                ang_spread,
-                state.distance_m,
-                rng,
-            )
             visible = self._visible(centre)
             state = replace(state, visible=visible, visible_from=centre)
             positions, rotations, logw = anneal(
@@ -230,11 +250,14 @@ class ModelTracker:
                 rng,
                 cfg.search_layers,
                 (pos_spread, ang_spread),
-                n,
+                max(n, cfg.search_keep),
                 visible,
                 coarse=cfg.search_coarseness,
+                expected_points=state.expected_points,
             )
         else:
+            if gyro_rad_s is not None:
+                state, angular_rate_rad_s = self._gyro(state, gyro_rad_s), None
             state = self.predict(state, dt_s, rng, velocity_m_s, angular_rate_rad_s)
             state = self._refresh_visibility(state)
             visible = state.visible
@@ -250,6 +273,7 @@ class ModelTracker:
                 noise,
                 n,
                 visible,
+                expected_points=state.expected_points,
             )
         searching = state.search_pending
         refined, refined_pose = refine_best(
@@ -271,7 +295,12 @@ class ModelTracker:
         positions, rotations = positions[idx], rotations[idx]
         positions[0], rotations[0] = refined_pose.p_world_camera_m, refined_pose.R_world_camera
         expected = state.expected_points
+        matched = refined.match_fraction * refined.n_points
         good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
+        if searching and state.frames > 0:
+            # a search can fit the model to clutter: a recovery must match nearly as many points as the good
+            # frames before the loss did, not merely a fraction of what it shows
+            good = good and matched >= cfg.recover_ratio * state.expected_matched
         mean_R = mean_rotation(rotations, np.ones(n))
         covariance = cloud_covariance(
             positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R)
@@ -281,28 +310,30 @@ class ModelTracker:
             covariance = covariance + twist_covariance_to_world(refined.covariance, refined_pose)
         frames = state.frames + 1
         if good:
-            velocity, rate = state.velocity_m_s, state.angular_rate_rad_s
-            if not state.search_pending and dt_s > 0.0:
-                a = cfg.velocity_smoothing
-                measured_v = (pose.p_world_camera_m - previous.p_world_camera_m) / dt_s
-                measured_w = (
-                    rotation_vectors((pose.R_world_camera @ previous.R_world_camera.T)[None])[0] / dt_s
-                )
-                velocity = a * measured_v + (1.0 - a) * velocity
-                rate = a * measured_w + (1.0 - a) * rate
+            measured_cov = covariance
+            if np.all(np.isfinite(refined.covariance)):
+                measured_cov = twist_covariance_to_world(refined.covariance, refined_pose)
+            motion, rejected = self._fuse(state, refined_pose, measured_cov, searching)
+            pose = motion.pose
+            covariance = motion.covariance[np.ix_(_POSE_ROWS, _POSE_ROWS)]
+            positions[1], rotations[1] = pose.p_world_camera_m, pose.R_world_camera
             return replace(
                 state,
                 positions_m=positions,
                 rotations=rotations,
                 pose=pose,
                 covariance=covariance,
-                velocity_m_s=velocity,
-                angular_rate_rad_s=rate,
+                velocity_m_s=motion.velocity_m_s,
+                angular_rate_rad_s=motion.angular_rate_rad_s,
+                motion=motion,
+                rejected_frames=state.rejected_frames + 1 if rejected else 0,
                 status=TrackingStatus.TRACKING,
                 match=refined.match_fraction,
+                matched_points=int(matched),
                 last_good=pose,
                 # a slowly fading maximum: a pose that shows only a sliver of the model cannot talk it down
                 expected_points=max(int(0.95 * state.expected_points), refined.n_points),
+                expected_matched=max(0.95 * state.expected_matched, matched),
                 bad_frames=0,
                 search_pending=False,
                 spread_factor=1.0,
@@ -318,13 +349,59 @@ class ModelTracker:
             covariance=covariance,
             velocity_m_s=np.zeros(3),
             angular_rate_rad_s=np.zeros(3),
+            motion=None,
+            rejected_frames=0,
             status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
             match=refined.match_fraction,
+            matched_points=int(matched),
             bad_frames=bad,
             search_pending=True,
             spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
             frames=frames,
         )
+
+    def _gyro(self, state: TrackerState, gyro_rad_s: npt.ArrayLike) -> TrackerState:
+        """The state with its angular rate measured by the gyro (camera frame, rad/s)."""
+        gyro = np.asarray(gyro_rad_s, dtype=np.float64)
+        if gyro.shape != (3,) or not np.all(np.isfinite(gyro)):
+            raise InputError("gyro_rad_s must be 3 finite numbers")
+        rate_world = state.pose.R_world_camera @ gyro
+        if state.motion is None:
+            return replace(state, angular_rate_rad_s=rate_world)
+        motion = motion_rate_update(state.motion, rate_world, self.config.gyro_sigma_rad_s)
+        return replace(state, motion=motion, angular_rate_rad_s=motion.angular_rate_rad_s)
+
+    def _search_candidates(
+        self, state: TrackerState, edges: ImageEdges, spread_m: float, rng: np.random.Generator
+    ) -> tuple[CameraPose, FloatArray, FloatArray]:
+        """A search's centre and candidates: ``search_candidates x spread`` poses, half about the last good
+        pose, half about it turned by the chamfer shift (which clutter can mislead)."""
+        cfg = self.config
+        last = state.last_good if state.frames > 0 else state.pose
+        pos_spread = spread_m * state.spread_factor
+        ang_spread = cfg.angle_spread_rad * state.spread_factor
+        turned = self._image_shift_prior(last, edges, ang_spread + pos_spread / state.distance_m)
+        count = int(cfg.search_candidates * max(state.spread_factor, 1.0))
+        parts = [
+            search_candidates(c, k, pos_spread, ang_spread, state.distance_m, rng)
+            for c, k in ((turned, count - count // 2), (last, count // 2))
+        ]
+        positions = np.concatenate([p for p, _ in parts])
+        rotations = np.concatenate([r for _, r in parts])
+        return turned, positions, rotations
+
+    def _fuse(
+        self, state: TrackerState, measured: CameraPose, covariance: FloatArray, searching: bool
+    ) -> tuple[MotionState, bool]:
+        """The motion model updated with a good frame's pose (restarted there after a search, or after
+        ``max_rejections`` gated frames in a row: then the images, not the model, are right)."""
+        cfg = self.config
+        measured_cov = covariance * cfg.measurement_inflation
+        if state.motion is None or searching or state.rejected_frames >= cfg.max_rejections:
+            _, noise_m_s = self.scales(state.distance_m)
+            return motion_start(measured, measured_cov, noise_m_s, cfg.angular_noise_rad_s), False
+        update = motion_update(state.motion, measured, measured_cov, cfg.motion)
+        return update.state, update.rejected
 
     def _image_shift_prior(self, centre: CameraPose, edges: ImageEdges, turn_rad: float) -> CameraPose:
         """The search centre turned by :func:`~common.localization.search.chamfer_turn` (the model's

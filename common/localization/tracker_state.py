@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.localization.motion import MotionSettings, MotionState
 from common.localization.pose import CameraPose
 from common.localization.refine import RefineSettings
 from common.localization.scoring import ScoringSettings
@@ -41,6 +42,7 @@ class TrackerSettings:
     angular_noise_rad_s: float = float(np.radians(25.0))
     search_candidates: int = 3000
     search_layers: int = 7
+    search_keep: int = 800
     search_coarseness: float = 4.0
     refine_search: int = 8
     refine_tracking: int = 1
@@ -48,8 +50,13 @@ class TrackerSettings:
     tracking_search_px: int = 8
     visibility_refresh_rad: float = float(np.radians(5.0))
     min_point_ratio: float = 0.35
-    velocity_smoothing: float = 0.7
+    visible_floor: float = 0.5
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    measurement_inflation: float = 20.0
+    max_rejections: int = 3
+    gyro_sigma_rad_s: float = float(np.radians(0.5))
     lost_match: float = 0.4
+    recover_ratio: float = 0.6
     lost_frames: int = 10
     spread_growth: float = 1.4
     max_spread_factor: float = 4.0
@@ -82,12 +89,19 @@ class TrackerState:
     last_good: CameraPose
     #: sample points a good pose shows (a fading maximum of the good frames'; from the start pose at first)
     expected_points: int = 0
+    #: sample points with an oriented match at the estimate, and their fading maximum over good frames
+    matched_points: int = 0
+    expected_matched: float = 0.0
     distance_m: float = 1.0
     bad_frames: int = 0
     search_pending: bool = True
     spread_factor: float = 1.0
     frames: int = 0
     recoveries: int = 0
+    #: the constant-velocity Kalman filter (None until the first good frame and after a bad one)
+    motion: MotionState | None = None
+    #: good frames in a row whose pose the motion model's gate rejected
+    rejected_frames: int = 0
     #: hidden-line mask (E, S) of the sample points and the pose it was computed from
     visible: npt.NDArray[np.bool_] | None = None
     visible_from: CameraPose | None = None
