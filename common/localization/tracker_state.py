@@ -52,7 +52,9 @@ class TrackerSettings:
     min_point_ratio: float = 0.35
     visible_floor: float = 0.5
     motion: MotionSettings = field(default_factory=MotionSettings)
-    measurement_inflation: float = 20.0
+    measurement_inflation: float = 4.0
+    noise_adaptation: float = 0.1
+    max_noise_scale: float = 10.0
     max_rejections: int = 3
     gyro_sigma_rad_s: float = float(np.radians(0.5))
     lost_match: float = 0.4
@@ -100,6 +102,8 @@ class TrackerState:
     recoveries: int = 0
     #: the constant-velocity Kalman filter (None until the first good frame and after a bad one)
     motion: MotionState | None = None
+    #: adaptive scale of the refinement's covariance (see ModelTracker._fuse)
+    noise_scale: float = 1.0
     #: good frames in a row whose pose the motion model's gate rejected
     rejected_frames: int = 0
     #: hidden-line mask (E, S) of the sample points and the pose it was computed from
