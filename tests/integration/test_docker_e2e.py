@@ -48,6 +48,7 @@ COLLECT_S = 30.0
 
 pytestmark = [
     pytest.mark.docker,
+    pytest.mark.zenoh,
     pytest.mark.timeout(1800),
     pytest.mark.skipif(
         os.environ.get("CAPATAZ_DOCKER_TEST") != "1",
