@@ -4,7 +4,8 @@ attitude, pose/vo and pose/pf from a Zenoh client on the host, check them agains
 Opt-in (``make test-docker``, which sets CAPATAZ_DOCKER_TEST=1): it builds the image (minutes). It skips with
 the reason when no engine answers or no Compose is installed. Without Docker Hub, set BASE_IMAGE to a local
 base image (deploy/make-base-image.sh builds one; ``capataz-base:bookworm`` is used when it exists). The
-figures go to out/docker_e2e_v1.json / _v2.json (the README quotes them); CAPATAZ_COMPOSE=v1|v2 picks the Compose.
+figures go to out/docker_e2e_v1.json / _v2.json (the README quotes them); CAPATAZ_COMPOSE=v1|v2 picks the
+Compose.
 """
 
 from __future__ import annotations
