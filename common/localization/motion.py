@@ -116,24 +116,13 @@ def motion_update(
     H[np.arange(6), rows] = 1.0
     S = H @ state.covariance @ H.T + measured_covariance
     try:
-        S_inv = np.linalg.inv(S)
+        S_inv = np.asarray(np.linalg.inv(S), dtype=np.float64)
     except np.linalg.LinAlgError:
         return MotionUpdate(state, float("inf"), True)
     nis = float(residual @ S_inv @ residual)
     if not np.isfinite(nis) or nis > settings.gate:
         return MotionUpdate(state, nis, True)
-    K = state.covariance @ H.T @ S_inv
-    dx = K @ residual
-    I_KH = np.eye(12) - K @ H
-    cov = I_KH @ state.covariance @ I_KH.T + K @ measured_covariance @ K.T  # Joseph form
-    updated = MotionState(
-        state.p_world_camera_m + dx[0:3],
-        state.velocity_m_s + dx[3:6],
-        perturb(state.R_world_camera[None], dx[6:9][None])[0],
-        state.angular_rate_rad_s + dx[9:12],
-        0.5 * (cov + cov.T),
-    )
-    return MotionUpdate(updated, nis, False)
+    return MotionUpdate(_corrected(state, residual, H, S_inv, measured_covariance), nis, False)
 
 
 def motion_rate_update(
@@ -149,11 +138,18 @@ def motion_rate_update(
     H = np.zeros((3, 12))
     H[:, 9:12] = np.eye(3)
     R_meas = np.eye(3) * rate_sigma_rad_s**2
-    S = H @ state.covariance @ H.T + R_meas
-    K = state.covariance @ H.T @ np.linalg.inv(S)
-    dx = K @ (rate - state.angular_rate_rad_s)
+    S_inv = np.asarray(np.linalg.inv(H @ state.covariance @ H.T + R_meas), dtype=np.float64)
+    return _corrected(state, rate - state.angular_rate_rad_s, H, S_inv, R_meas)
+
+
+def _corrected(
+    state: MotionState, residual: FloatArray, H: FloatArray, S_inv: FloatArray, noise: FloatArray
+) -> MotionState:
+    """The Kalman correction with gain ``K = P H^T S^-1``; Joseph-form covariance."""
+    K = state.covariance @ H.T @ S_inv
+    dx = K @ residual
     I_KH = np.eye(12) - K @ H
-    cov = I_KH @ state.covariance @ I_KH.T + K @ R_meas @ K.T
+    cov = I_KH @ state.covariance @ I_KH.T + K @ noise @ K.T
     return MotionState(
         state.p_world_camera_m + dx[0:3],
         state.velocity_m_s + dx[3:6],
