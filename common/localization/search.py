@@ -93,13 +93,16 @@ def chamfer_turn(
     camera: CameraModel,
     turn_rad: float,
     cap_px: float,
+    bins: npt.ArrayLike | None = None,
 ) -> FloatArray | None:
     """The camera turn ``R`` (applied as ``R R_camera_world``) that moves projected model points ``(u, v)``
     by the 2D shift where the image's edges fit them best: mean distance-transform value (capped at
     ``cap_px``; points shifted out of the image count the cap) over a grid of shifts up to ``turn_rad x f``,
     coarse then fine. A camera moved sideways or turned moves a model seen from afar mostly as a whole; this
     finds that move whatever the search spread. None when the best shift is not clearly better (20 %) than
-    none."""
+    none. With ``bins`` (each point's orientation bin) the distances are the oriented ones
+    (:func:`~common.localization.scoring.with_oriented_distances`): clutter of other directions does not
+    attract the shift."""
     u = np.asarray(u_px, dtype=np.float32)
     v = np.asarray(v_px, dtype=np.float32)
     cap = np.float32(cap_px)
@@ -109,7 +112,11 @@ def chamfer_turn(
         sv = (v[None, :] + shifts[:, 1:].astype(np.float32) + np.float32(0.5)).astype(np.int32)
         inside = (su >= 0) & (su < edges.width) & (sv >= 0) & (sv < edges.height)
         index = np.where(inside, sv * np.int32(edges.width) + su, edges.width * edges.height)
-        d = np.minimum(np.take(edges.distance_lookup, index), cap)
+        if bins is not None and edges.oriented_lookup is not None:
+            offset = np.asarray(bins, dtype=np.int32) * np.int32(edges.oriented_lookup.shape[1])
+            d = np.minimum(np.take(edges.oriented_lookup.ravel(), index + offset[None, :]), cap)
+        else:
+            d = np.minimum(np.take(edges.distance_lookup, index), cap)
         return np.asarray(d.mean(axis=1), dtype=np.float64)
 
     reach = max(4.0, turn_rad * max(camera.fx, camera.fy))

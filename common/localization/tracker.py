@@ -21,8 +21,8 @@ Per frame:
    pose's log weight is scaled by the points it shows (a sliver of the model cannot win on fractions).
 3. **Local refinement** of the best particle (:mod:`~common.localization.refine`): Gauss-Newton on oriented
    point-to-edge offsets. Its pose, with its covariance inflated by ``measurement_inflation``, updates the
-   motion model (gated: a refinement that snapped to a parallel edge is ridden over, up to
-   ``max_rejections`` frames in a row); the filtered pose is the estimate.
+   motion model (gated: a refinement that snapped to a parallel edge is ridden over; ``max_rejections``
+   frames in a row make the frame bad, i.e. a search); the filtered pose is the estimate.
 4. **Loss detection**: the match fraction (same-direction edges within 2.5 px) of the refined pose; below
    ``lost_match`` (or fewer than ``min_point_ratio`` of the points seen at the last good pose) the frame is
    bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose with
@@ -64,7 +64,7 @@ from common.localization.pose import (
     perturb,
 )
 from common.localization.refine import refine_best
-from common.localization.scoring import ImageEdges
+from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
     anneal,
     cloud_covariance,
@@ -157,6 +157,8 @@ class ModelTracker(TrackerViews):
         spread_m, noise_m_s = self.scales(state.distance_m)
         n = cfg.n_particles
         if state.search_pending:
+            if cfg.oriented_search:
+                edges = with_oriented_distances(edges)
             centre, positions, rotations = self._search_candidates(state, edges, spread_m, rng)
             pos_spread = spread_m * state.spread_factor
             ang_spread = cfg.angle_spread_rad * state.spread_factor
@@ -229,11 +231,17 @@ class ModelTracker(TrackerViews):
         if good and np.all(np.isfinite(refined.covariance)):
             covariance = covariance + twist_covariance_to_world(refined.covariance, refined_pose)
         frames = state.frames + 1
+        fused = None
         if good:
             measured_cov = covariance
             if np.all(np.isfinite(refined.covariance)):
                 measured_cov = twist_covariance_to_world(refined.covariance, refined_pose)
-            motion, rejected, noise_scale = self._fuse(state, refined_pose, measured_cov, searching)
+            fused = self._fuse(state, refined_pose, measured_cov, searching)
+            # the images and the motion model disagreeing for max_rejections frames in a row: search (with
+            # the recovery test) rather than trust either
+            good = not (fused[1] and state.rejected_frames + 1 >= cfg.max_rejections)
+        if good and fused is not None:
+            motion, rejected, noise_scale = fused
             pose = motion.pose
             covariance = motion.covariance[np.ix_(_POSE_ROWS, _POSE_ROWS)]
             positions[1], rotations[1] = pose.p_world_camera_m, pose.R_world_camera
@@ -295,15 +303,15 @@ class ModelTracker(TrackerViews):
     def _fuse(
         self, state: TrackerState, measured: CameraPose, covariance: FloatArray, searching: bool
     ) -> tuple[MotionState, bool, float]:
-        """The motion model updated with a good frame's pose (restarted there after a search, or after
-        ``max_rejections`` gated frames in a row: then the images, not the model, are right), and the new
+        """The motion model updated with a good frame's pose (restarted there after a search), whether the
+        gate rejected it, and the new
         noise scale: the refinement's covariance is scaled by ``measurement_inflation x noise_scale``, where
         ``noise_scale`` follows the normalised innovations (their mean should be 6; geometric steps of
         ``noise_adaptation``, within [1, ``max_noise_scale``]): images whose edges mislead the refinement in
         ways its covariance does not show (repeated structure, low resolution) are trusted less."""
         cfg = self.config
         measured_cov = covariance * (cfg.measurement_inflation * state.noise_scale)
-        if state.motion is None or searching or state.rejected_frames >= cfg.max_rejections:
+        if state.motion is None or searching:
             # at rest, but the camera may move at up to 5x the velocity noise and turn at 2x the angular one
             _, noise_m_s = self.scales(state.distance_m)
             start = motion_start(measured, measured_cov, 5.0 * noise_m_s, 2.0 * cfg.angular_noise_rad_s)

@@ -43,6 +43,7 @@ class TrackerSettings:
     search_candidates: int = 3000
     search_layers: int = 7
     search_keep: int = 800
+    oriented_search: bool = True
     search_coarseness: float = 4.0
     refine_search: int = 8
     refine_tracking: int = 1

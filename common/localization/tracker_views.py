@@ -14,7 +14,13 @@ from common.camera import CameraModel
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
-from common.localization.scoring import ImageEdges, ScoringMethod, extract_image_edges, score_particles
+from common.localization.scoring import (
+    ImageEdges,
+    ScoringMethod,
+    extract_image_edges,
+    orientation_bins,
+    score_particles,
+)
 from common.localization.search import chamfer_turn, search_candidates
 from common.localization.tracker_state import TrackerSettings, TrackerState
 from common.localization.visibility import visible_points
@@ -93,7 +99,7 @@ class TrackerViews:
                 R_cw,
                 positions[s : s + chunk],
                 self.camera,
-                with_normals=params.method is ScoringMethod.NEAREST_EDGE,
+                with_normals=params.method is ScoringMethod.NEAREST_EDGE or edges.oriented_lookup is not None,
                 visible=visible,
             )
             logw = score_particles(proj, edges, params).log_weight
@@ -126,16 +132,22 @@ class TrackerViews:
     def _image_shift_prior(self, centre: CameraPose, edges: ImageEdges, turn_rad: float) -> CameraPose:
         """The search centre turned by :func:`~common.localization.search.chamfer_turn` (the model's
         projection shifted to where the image's edges fit it best), or unchanged."""
+        oriented = edges.oriented_lookup is not None
         projected = project_posed_samples(
             self.samples,
             centre.R_camera_world[None],
             centre.p_world_camera_m[None],
             self.camera,
+            with_normals=oriented,
             visible=self._visible(centre),
         )
         valid = projected.valid[0]
         if valid.sum() < 20:
             return centre
+        bins = None
+        if oriented:
+            assert projected.normal_u is not None and projected.normal_v is not None
+            bins = orientation_bins(projected.normal_u[0][valid], projected.normal_v[0][valid])
         turn = chamfer_turn(
             projected.u_px[0][valid],
             projected.v_px[0][valid],
@@ -143,6 +155,7 @@ class TrackerViews:
             self.camera,
             turn_rad,
             cap_px=6.0 * self.config.scoring.sigma_px,
+            bins=bins,
         )
         if turn is None:
             return centre
