@@ -171,8 +171,9 @@ def with_oriented_distances(edges: ImageEdges) -> ImageEdges:
 def orientation_bins(normal_u: npt.ArrayLike, normal_v: npt.ArrayLike) -> npt.NDArray[np.int32]:
     """The orientation bin (0 .. ORIENTATION_BINS - 1) of image normals (0 for undefined ones)."""
     angle = np.mod(np.arctan2(np.asarray(normal_v), np.asarray(normal_u)), np.pi)
+    angle = np.where(np.isfinite(angle), angle, 0.0)  # culled points carry nan normals
     b = np.minimum((angle / (np.pi / ORIENTATION_BINS)).astype(np.int32), ORIENTATION_BINS - 1)
-    return np.asarray(np.where(np.isfinite(angle), b, 0), dtype=np.int32)
+    return np.asarray(b, dtype=np.int32)
 
 
 def oriented_distances(projected: ProjectedSamples, edges: ImageEdges) -> Float32Array:

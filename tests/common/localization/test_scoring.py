@@ -223,3 +223,12 @@ def test_oriented_distances_see_only_edges_of_the_normal_direction() -> None:
     assert edges.oriented_lookup[y_bin, far] >= 25.0
     with pytest.raises(InputError):
         with_oriented_distances(extract_image_edges(image))  # no gradients
+
+
+def test_orientation_bins_of_culled_points_are_zero_without_warnings() -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bins = orientation_bins(np.array([np.nan, 1.0, 0.0]), np.array([np.nan, 0.0, -1.0]))
+    assert bins.tolist() == [0, 0, ORIENTATION_BINS // 2]
