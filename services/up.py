@@ -205,8 +205,13 @@ class LocalCluster:
 
     def observer_transport(self) -> TransportSettings:
         """The transport of our own observing session (a read-only ``client`` in the secure profile)."""
+        return self.participant_transport("client")
+
+    def participant_transport(self, common_name: str) -> TransportSettings:
+        """The transport of a session of our own holding ``common_name``'s certificate (secure profile),
+        e.g. ``camera.uav3`` for a harness that publishes that UAV's frames."""
         return TransportSettings.from_env(
-            environ=participant_environment(self.secure, self.zenoh_config, "client"),
+            environ=participant_environment(self.secure, self.zenoh_config, common_name),
             connect=(self.router,),
             listen=(f"{self.scheme}/127.0.0.1:0",),
             shared_memory=self.shared_memory,

@@ -6,6 +6,7 @@ import logging
 import sys
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -69,13 +70,13 @@ def run_once(spec: ClusterSpec, settings: RunSettings, log_dir: Path, live: bool
     t0 = 0.0
     try:
         load.start()
-        with open_session(load.cluster.observer_transport()) as session:
+        with open_session(load.cluster.observer_transport()) as session, ExitStack() as cameras:
             yaws = YawLog(session, logs)
             publishers = {
-                uav: session.declare_publisher(
+                uav: camera.declare_publisher(
                     keys.camera_key(uav), congestion_control=zenoh.CongestionControl.DROP
                 )
-                for uav in load.uavs
+                for uav, camera in load.camera_sessions(cameras, session).items()
             }
             load.wait_leaders(session)
             hostile = Hostile(session, publishers[load.uavs[0]], spec, load.uavs[0])
@@ -170,6 +171,7 @@ def _report(
         "in_flight": settings.in_flight,
         "shared_memory": settings.shared_memory,
         "standby_masters": settings.standby_masters,
+        "profile": "secure" if settings.secure_dir else "open",
         "per_stream": [
             {
                 "uav": s.uav,
