@@ -267,15 +267,21 @@ def frames_lost(watch: YawWatch, frames: int) -> int:
 
 
 def max_yaw_error_deg(watch: YawWatch, reference_rad: np.ndarray) -> float:
-    """Largest error of the flight's yaw against the reference, both taken relative to the flight's first
-    published frame: on a running cluster a new flight (the camera restarted from seq 0) is a new stream
-    epoch whose yaw continues the last published one (common.streams), not a reset to the reference's 0."""
-    seqs = [s for s in watch.yaw if s < reference_rad.size]
+    """:func:`max_yaw_error_deg_of` the yaw a watch saw."""
+    return max_yaw_error_deg_of(watch.yaw, reference_rad)
+
+
+def max_yaw_error_deg_of(yaw: dict[int, float], reference_rad: np.ndarray) -> float:
+    """Largest error of a flight's yaw by seq against the reference, both taken relative to the flight's
+    first published frame: on a running cluster a new flight (the camera restarted from seq 0) is a new
+    stream epoch whose yaw continues the last published one (common.streams), not a reset to the
+    reference's 0."""
+    seqs = [s for s in yaw if s < reference_rad.size]
     if not seqs:
         return float("nan")
     start = min(seqs)
-    offset = watch.yaw[start] - reference_rad[start]
-    return float(np.degrees(max(abs(watch.yaw[s] - offset - reference_rad[s]) for s in seqs)))
+    offset = yaw[start] - reference_rad[start]
+    return float(np.degrees(max(abs(yaw[s] - offset - reference_rad[s]) for s in seqs)))
 
 
 def reference_yaw_rad(frames: int) -> np.ndarray:
