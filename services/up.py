@@ -332,10 +332,11 @@ class LocalCluster:
             deadline = time.monotonic() + timeout_s
             with lock:
                 while not names <= seen:
+                    # a process awaited, or any that failed (a camera whose flight ended is not a failure)
                     dead = [
                         n
                         for n, p in self.processes.items()
-                        if p.poll() is not None and n not in self._stopped
+                        if p.poll() is not None and n not in self._stopped and (n in names or p.returncode)
                     ]
                     if dead:
                         raise ClusterError(f"{dead} exited during start-up; see logs in {self.log_dir}")

@@ -213,12 +213,15 @@ def wrong_shifts_answer(rotation_deg: float, frame_shape: tuple[int, int]) -> An
 
 
 class YawWatch:
-    """The published yaw of a UAV by seq (real frames only; ``measured``: not a stream's initial one)."""
+    """The published yaw of a UAV by seq (real frames only; ``measured``: not a stream's initial one). The
+    first yaw of a seq is kept: a forged one re-using a published seq comes later and is only counted."""
 
     def __init__(self, session: zenoh.Session, uav: str) -> None:
         self.yaw: dict[int, float] = {}
+        self.stamps: dict[int, float] = {}
         self.measured: set[int] = set()
         self.forged_seen = 0
+        self.repeated = 0
         self._sub = session.declare_subscriber(keys.yaw_key(uav), self._on)
 
     def _on(self, sample: zenoh.Sample) -> None:
@@ -228,8 +231,10 @@ class YawWatch:
             return
         if e.seq >= FORGED_SEQ0:
             self.forged_seen += 1
+        elif e.seq in self.yaw:
+            self.repeated += 1
         else:
-            self.yaw[e.seq] = e.yaw_rad
+            self.yaw[e.seq], self.stamps[e.seq] = e.yaw_rad, e.stamp_s
             if e.method != "initial":
                 self.measured.add(e.seq)
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from common.dispatch import Balance
-from services.bench import hostile, secure_system
+from services.bench import hostile, secure_system, takeover
 from services.bench.cluster import write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
@@ -56,7 +56,11 @@ def small_cluster() -> ClusterSpec:
     )
 
 
-ATTACKS = ("forged_outputs", "fake_worker_crops", "liveliness_flood", "forged_frame_flood", "fake_foreman")
+#: in this order: the last one kills the cluster's master (a standby takes over)
+ATTACKS = (
+    "forged_outputs", "fake_worker_crops", "liveliness_flood", "forged_frame_flood", "fake_foreman",
+    "forged_yaw_takeover",
+)  # fmt: skip
 
 
 def run_attacks(
@@ -89,6 +93,9 @@ def run_attacks(
                 frames = max(2, int(foreman_seconds * fps))
                 reference = hostile.reference_yaw_rad(frames)
                 result = hostile.attack_fake_foreman(cluster, profile, frames, fps, reference)
+            elif name == "forged_yaw_takeover":
+                reference = hostile.reference_yaw_rad(flood_frames)
+                result = takeover.attack_forged_yaw_takeover(cluster, profile, flood_frames, fps, reference)
             else:
                 raise ValueError(f"unknown attack {name!r}; known: {', '.join(ATTACKS)}")
             result.evidence["attack_seconds"] = round(time.monotonic() - t0, 1)
