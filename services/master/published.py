@@ -25,6 +25,11 @@ _K = TypeVar("_K")
 ANONYMOUS = "anonymous"
 
 
+def session_of(source: str | None) -> str:
+    """The zenoh session id of a declared source ``zid/eid`` (:data:`ANONYMOUS` when none is declared)."""
+    return source.split("/")[0] if source else ANONYMOUS
+
+
 class Verdict(Enum):
     TRUSTED = "trusted"
     #: from a session not resolved yet: kept, counted only once its session is resolved as a leader

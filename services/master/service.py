@@ -35,7 +35,7 @@ from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurement
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
-from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw
+from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, session_of
 from services.master.published import Verdict as YawVerdict
 from services.master.settings import (
     MasterSettings,
@@ -45,11 +45,7 @@ from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    source_of,
-)
+from services.runtime.transport import ServiceRuntime, TransportSettings, source_of
 
 
 @dataclass
@@ -170,16 +166,12 @@ class MasterService(ServiceRuntime):
         estimate = self.decode_sample(sample, YawEstimate)
         if estimate is None or estimate.uav != self.settings.uav:
             return
-        source = source_of(sample)
-        session = source.split("/", 1)[0] if source else ANONYMOUS
-        yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session)
+        yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
         with self._recent_lock:
             verdict = self.published.record(yaw, self._leaders_resolved)
         if verdict is YawVerdict.REFUSED:
             self.count_error(
-                "yaw_untrusted",
-                "yaw of a session that never led this UAV refused",
-                f"{session} seq {yaw.seq}",
+                "yaw_untrusted", "yaw of a session that never led refused", f"{yaw.session} {yaw.seq}"
             )
 
     def _trust_leaders(self) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, Verdict
+from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, Verdict, session_of
 
 LEADER, FORGER = "aa11", "ff99"
 
@@ -59,3 +59,7 @@ def test_no_forged_sequence_changes_what_a_take_over_starts_from(
     for seq, yaw, session, resolved in items:
         ledger.record(PublishedYaw(seq, seq / 10, yaw, session), leaders_resolved=resolved)
     assert (ledger.trusted_yaws(), ledger.newest_trusted()) == before
+
+
+def test_the_session_of_a_declared_source_is_its_zid() -> None:
+    assert session_of("aa11/7") == "aa11" and session_of(None) == ANONYMOUS
