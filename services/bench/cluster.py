@@ -28,9 +28,8 @@ import zenoh
 
 from common import keys
 from common.dispatch import Balance, SpeedSource
-from common.messages import PatchJob, PatchResult, decode, encode
+from common.messages import PatchJob, PatchResult, YawJobSettings, decode, encode
 from common.yaw import YawSettings, YawTracker, make_patch_grid
-from common.yaw.patchwork import settings_to_wire
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
 from services.master.service import Topology
@@ -491,7 +490,7 @@ def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6
     grid = make_patch_grid(flight.frame(0).shape, settings)
     idx = grid.all_indices.astype(np.int32)
     crops = [grid.crop(flight.frame(i), idx) for i in range(3)]
-    wire = settings_to_wire(settings)
+    wire = YawJobSettings.of(settings)
     spec = ClusterSpec(
         name="handoff", topology=Topology.MASTER_WORKER, hosts=(HostSpec(name="handoff", workers=1),)
     )

@@ -32,12 +32,11 @@ from common.dispatch import (
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.streams import StreamTable
+from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import (
     PatchWorkError,
-    SettingsCache,
     SpectrumCache,
     measure_share,
-    merge_measurements,
 )
 from services.runtime.cli import add_stream_bound_arguments
 from services.runtime.membership import LiveMembers
@@ -128,7 +127,6 @@ class ForemanService(ServiceRuntime):
         self._streams_lock = threading.Lock()
         #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
         self.live = LiveMembers(keys.Role.WORKER)
-        self.settings_cache = SettingsCache()
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
 
@@ -199,8 +197,7 @@ class ForemanService(ServiceRuntime):
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""
         t0 = time.perf_counter()
-        # settings first: a block with invalid ones is rejected here, before any worker sees it (and fails)
-        settings = self.settings_cache.parsed(job.settings)
+        settings = job.settings.yaw_settings  # valid: checked at decode, before any worker sees the block
         stream = self._stream(job.stream)
         dispatcher = stream.dispatcher
         if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)

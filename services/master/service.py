@@ -26,12 +26,22 @@ import zenoh
 from common import keys
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
+from common.messages import (
+    BlockJob,
+    BlockResult,
+    Frame,
+    PatchJob,
+    PatchResult,
+    YawEstimate,
+    YawJobSettings,
+    encode,
+)
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
+from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
-from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
+from common.yaw.patchwork import SpectrumCache, measure_share
 from services.master.election import Election
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
@@ -75,7 +85,7 @@ class MasterService(ServiceRuntime):
         super().__init__(node, index, transport, stats_period_s)
         self.settings = settings
         self.yaw_settings = settings.yaw_settings()
-        self.wire_settings = settings_to_wire(self.yaw_settings)
+        self.wire_settings = YawJobSettings.of(self.yaw_settings)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
         #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
         self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)

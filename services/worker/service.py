@@ -12,7 +12,7 @@ import zenoh
 from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
-from common.yaw.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
+from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 from services.runtime.cli import add_stream_bound_arguments, add_transport_arguments, transport_from_args
 from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
@@ -60,7 +60,6 @@ class WorkerService(ServiceRuntime):
         self.cpu_factor = cpu_factor
         self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
         self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
-        self.settings_cache = SettingsCache()
         self._queryable: Any = None
 
     def start(self, session: zenoh.Session) -> None:
@@ -155,7 +154,7 @@ class WorkerService(ServiceRuntime):
             return
         t0 = time.perf_counter()
         try:
-            settings = self.settings_cache.parsed(job.settings)
+            settings = job.settings.yaw_settings
             for _ in range(self.cpu_factor - 1):
                 measure_share(
                     SpectrumCache(), settings, job.stream, job.seq, job.seq,

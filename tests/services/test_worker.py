@@ -15,6 +15,7 @@ from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
 from services.worker.service import Handoff, WorkerService
+from tests.jobs import patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 
 #: how long the stand-in computation of a job takes (a lower bound, whatever the host's load)
@@ -27,12 +28,7 @@ class _Query:
     key_expr = "capataz/test/worker"
 
     def __init__(self, seq: int, budget_s: float) -> None:
-        job = PatchJob(
-            stream="s", seq=seq, prev_seq=seq - 1, settings={}, indices=np.arange(2, dtype=np.int32),
-            crops=np.zeros((2, 8, 8), np.uint8), prev_indices=np.zeros(0, np.int32),
-            prev_crops=np.zeros((0, 8, 8), np.uint8), budget_s=budget_s,
-        )  # fmt: skip
-        payload, attachment = encode(job)
+        payload, attachment = encode(patch_job(seq=seq, prev_seq=seq - 1, budget_s=budget_s))
         self.payload, self.attachment = FakeBytes(payload), FakeBytes(attachment)
         self.answer: str | None = None
 
