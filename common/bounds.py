@@ -58,8 +58,7 @@ def bounded(
 ) -> T:
     """A dataclass field with ``default`` whose value :func:`check_bounds` checks against the limits."""
     limits = Bounds(gt=gt, ge=ge, lt=lt, le=le, optional=optional)
-    field: Any = dataclasses.field(default=default, metadata={_KEY: limits})
-    return field  # type: ignore[no-any-return]
+    return dataclasses.field(default=default, metadata={_KEY: limits})
 
 
 def field_bounds(cls: Any) -> dict[str, Bounds]:
