@@ -52,11 +52,8 @@ from services.master.settings import (
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-)
 
 
 @dataclass
@@ -71,19 +68,11 @@ class _Stream:
     cache: SpectrumCache = field(default_factory=SpectrumCache)
 
 
-class MasterService(ServiceRuntime):
+class MasterService(ConfiguredService[MasterSettings]):
     role = keys.Role.MASTER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: MasterSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         self.yaw_settings = settings.yaw_settings()
         self.wire_settings = YawJobSettings.of(self.yaw_settings)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import argparse
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
 from common.dispatch import Balance, SpeedSource
 from services.runtime.transport import TransportSettings
+
+
+def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
+    """An option taking one of ``enum``'s values (the value string; the settings parse it to the member)."""
+    parser.add_argument(flag, choices=[member.value for member in enum], default=default.value, help=help)
 
 
 def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
@@ -50,17 +56,13 @@ def transport_from_args(args: Any) -> TransportSettings:
 
 def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
     """The dispatcher's options, shared by the master and the foreman."""
-    parser.add_argument(
-        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
-    )
+    add_enum_argument(parser, "--balance", Balance, Balance.TIME, help="share balancing")
     parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
     parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
-    parser.add_argument(
-        "--speed",
-        choices=[v.value for v in SpeedSource],
-        default=SpeedSource.ROUND_TRIP.value,
+    add_enum_argument(
+        parser, "--speed", SpeedSource, SpeedSource.ROUND_TRIP,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
-    )
+    )  # fmt: skip
 
 
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:

@@ -13,7 +13,12 @@ from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
-from services.runtime.cli import add_stream_bound_arguments, add_transport_arguments, transport_from_args
+from services.runtime.cli import (
+    add_enum_argument,
+    add_stream_bound_arguments,
+    add_transport_arguments,
+    transport_from_args,
+)
 from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
 from services.runtime.service import ServiceRuntime
@@ -199,12 +204,10 @@ def register(subparsers: Any) -> None:
         default=1,
         help="emulate a CPU this many times slower (repeat every computation); for benchmarks",
     )
-    parser.add_argument(
-        "--handoff",
-        choices=[h.value for h in Handoff],
-        default=Handoff.CHANNEL.value,
-        help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue",
-    )
+    add_enum_argument(
+        parser, "--handoff", Handoff, Handoff.CHANNEL,
+        help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue"
+    )  # fmt: skip
     add_stream_bound_arguments(parser)
     parser.set_defaults(handler=run)
 
