@@ -15,7 +15,7 @@ from hypothesis.extra import numpy as hnp
 from common import messages as m
 from common.messages import WireError, decode, encode
 from common.yaw import FftBackend, YawSettings
-from tests.jobs import JOB_SETTINGS, patch_job
+from tests.builders import JOB_SETTINGS, patch_job
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 names = st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789_-", min_size=1, max_size=12)

@@ -10,7 +10,7 @@ from common.streams import StreamTable
 from common.yaw import YawSettings
 from common.yaw.correlation import patch_spectra_from_crops
 from common.yaw.patchwork import SpectrumCache
-from tests.jobs import JOB_SETTINGS, patch_job
+from tests.builders import JOB_SETTINGS, patch_job
 
 
 @pytest.mark.parametrize(

@@ -17,8 +17,8 @@ from common.messages import Health, ImuSample, decode, encode, read_error_reply
 from services.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster
+from tests.builders import patch_job
 from tests.integration.cluster_helpers import two_by_two
-from tests.jobs import patch_job
 from tests.zenoh_helpers import wait_until
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

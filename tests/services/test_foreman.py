@@ -20,7 +20,7 @@ from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService
-from tests.jobs import JOB_SETTINGS, patch_job
+from tests.builders import JOB_SETTINGS, patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 

@@ -22,7 +22,7 @@ from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, RoundReport, Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
-from tests.jobs import JOB_SETTINGS
+from tests.builders import JOB_SETTINGS
 from tests.zenoh_helpers import matched, wait_until
 
 pytestmark = pytest.mark.zenoh

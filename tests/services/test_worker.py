@@ -15,7 +15,7 @@ from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
 from services.worker.service import Handoff, WorkerService
-from tests.jobs import patch_job
+from tests.builders import patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 
 #: how long the stand-in computation of a job takes (a lower bound, whatever the host's load)

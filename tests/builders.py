@@ -1,4 +1,4 @@
-"""Patch jobs as tests build them: the default yaw settings on the wire and a small valid job."""
+"""Messages as tests build them: a small valid patch job (default yaw settings) and a yaw estimate."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from common.messages import PatchJob, YawJobSettings
+from common.messages import PatchJob, YawEstimate, YawJobSettings
 from common.yaw import YawSettings
 
 #: the default yaw settings as every job carries them
@@ -38,3 +38,20 @@ def patch_job(
     }
     values.update(fields)
     return cls(**values) if validate else cls.model_construct(**values)
+
+
+def yaw_estimate(**fields: Any) -> YawEstimate:
+    """A measured yaw of frame 0 of ``u`` (40 patches, all inliers); ``fields`` override any field."""
+    values: dict[str, Any] = {
+        "uav": "u",
+        "seq": 0,
+        "stamp_s": 0.0,
+        "delta_yaw_rad": 0.0,
+        "yaw_rad": 0.0,
+        "inlier_count": 40,
+        "patch_count": 40,
+        "confidence": 1.0,
+        "low_confidence": False,
+        "method": "patch",
+    }
+    return YawEstimate(**{**values, **fields})
