@@ -131,13 +131,19 @@ def frame_id_field(default: str) -> Any:
 
 
 # ----------------------------------------------------------------------------------------------- sensors
-class Frame(WireModel):
+class UavMessage(WireModel):
+    """A message of one UAV's stream: its id, the sequence number and the stamp of what it carries."""
+
+    uav: Uav
+    seq: int = Field(ge=0, le=MAX_SEQ, default=0)
+    stamp_s: float
+
+
+class Frame(UavMessage):
     """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``)."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
-    uav: Uav
-    seq: int = Field(ge=0, le=MAX_SEQ)
-    stamp_s: float
+    seq: int = Field(ge=0, le=MAX_SEQ)  # required
     width: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     height: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     encoding: Literal["mono8"] = "mono8"
@@ -153,38 +159,30 @@ class Frame(WireModel):
         return self
 
 
-class ImuSample(WireModel):
+class ImuSample(UavMessage):
     """One IMU reading in the body frame (FLU): angular rate and specific force."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "gyro_rad_s": ArraySpec("<f8", (3,)),
         "accel_m_s2": ArraySpec("<f8", (3,)),
     }
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     gyro_rad_s: np.ndarray
     accel_m_s2: np.ndarray
     frame_id: str = frame_id_field("body")
 
 
-class RangeSample(WireModel):
+class RangeSample(UavMessage):
     """One rangefinder reading along body -z."""
 
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     range_m: float = Field(gt=0.0)
     frame_id: str = frame_id_field("body")
 
 
 # ----------------------------------------------------------------------------------------------- estimates
-class YawEstimate(WireModel):
+class YawEstimate(UavMessage):
     """The yaw of one frame, as published by the master on ``capataz/uav/{uav}/yaw``."""
 
-    uav: Uav
-    seq: int = Field(ge=0)
-    stamp_s: float
+    seq: int = Field(ge=0, le=MAX_SEQ)  # required
     delta_yaw_rad: float
     yaw_rad: float
     inlier_count: int = Field(ge=0)
@@ -213,22 +211,19 @@ class YawEstimate(WireModel):
     frame_id: str = frame_id_field("world")
 
 
-class AttitudeEstimate(WireModel):
+class AttitudeEstimate(UavMessage):
     """Attitude of the body in the world (Hamilton, scalar first) with its 3x3 error-angle covariance."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "q_world_body": ArraySpec("<f8", (4,)),
         "covariance": ArraySpec("<f8", (3, 3)),
     }
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     q_world_body: np.ndarray
     covariance: np.ndarray
     frame_id: str = frame_id_field("world")
 
 
-class PoseEstimate(WireModel):
+class PoseEstimate(UavMessage):
     """Position and attitude of the body in the world with a 6x6 covariance [position, error angles]."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
@@ -236,9 +231,6 @@ class PoseEstimate(WireModel):
         "q_world_body": ArraySpec("<f8", (4,)),
         "covariance": ArraySpec("<f8", (6, 6)),
     }
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     p_world_body_m: np.ndarray
     q_world_body: np.ndarray
     covariance: np.ndarray
