@@ -1,10 +1,11 @@
 """Declared bounds of the fields of frozen settings dataclasses: the bound stands beside its field, one check.
 
 ``hold_s: float = bounded(1.0, gt=0.0)`` declares the default and the bound together (as pydantic's
-``Field(default=1.0, gt=0.0)`` does at the wire); ``check_bounds(self)`` in ``__post_init__`` checks every
-declared bound and raises :class:`~common.errors.InputError` naming the class, the field, the bound and the
-value. A bounded value must be a finite real number (not a bool); ``optional=True`` also lets ``None`` pass
-(a value "scaled with the scene" or "off"). Relations between fields stay explicit code after the check.
+``Field(default=1.0, gt=0.0)`` does at the wire). A dataclass deriving from :class:`Bounded` checks every
+declared bound once constructed (:func:`check_bounds`) and raises :class:`~common.errors.InputError` naming
+the class, the field, the bound and the value. A bounded value must be a finite real number (not a bool);
+``optional=True`` also lets ``None`` pass (a value "scaled with the scene" or "off"). Rules between fields
+stay explicit code in the subclass's ``__post_init__``, after ``super().__post_init__()``.
 """
 
 from __future__ import annotations
@@ -72,3 +73,14 @@ def check_bounds(obj: Any) -> None:
         value = getattr(obj, name)
         if not limits.holds(value):
             raise InputError(f"{type(obj).__name__}.{name} must be {limits.describe()}, got {value!r}")
+
+
+class Bounded:
+    """Base of a frozen settings dataclass whose fields declare bounds: they are checked once constructed.
+
+    A subclass with rules between fields overrides ``__post_init__`` and calls ``super().__post_init__()``
+    first.
+    """
+
+    def __post_init__(self) -> None:
+        check_bounds(self)

@@ -20,23 +20,20 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from common.bounds import bounded, check_bounds
+from common.bounds import Bounded, bounded
 
 #: the source of samples that declare none
 ANONYMOUS = "anonymous"
 
 
 @dataclass(frozen=True)
-class AdmissionSettings:
+class AdmissionSettings(Bounded):
     hold_s: float = bounded(1.0, gt=0.0)
     max_changes: int = bounded(6, ge=1)
     window_s: float = bounded(10.0, gt=0.0)
     quarantine_s: float = bounded(30.0, gt=0.0)
     #: how many distinct sources / keys are remembered (bounded memory under a flood of new ids)
     max_tracked: int = bounded(1024, ge=1)
-
-    def __post_init__(self) -> None:
-        check_bounds(self)
 
 
 class SourceLock:

@@ -25,7 +25,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import bounded, check_bounds
+from common.bounds import Bounded, bounded
 from common.dispatch.trust import TrustMonitor, cap_plan, hold_weights
 from common.errors import CapatazError, InputError
 
@@ -62,7 +62,7 @@ class SpeedSource(StrEnum):
 
 
 @dataclass(frozen=True)
-class DispatchSettings:
+class DispatchSettings(Bounded):
     """Balancing and fault-handling parameters of a :class:`Dispatcher`."""
 
     balance: Balance = Balance.TIME
@@ -80,9 +80,6 @@ class DispatchSettings:
     deadline_factor: float = bounded(4.0, gt=0.0)
     #: which speed measurement balances (see :class:`SpeedSource`).
     speed_source: SpeedSource = SpeedSource.ROUND_TRIP
-
-    def __post_init__(self) -> None:
-        check_bounds(self)
 
 
 @dataclass

@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import bounded, check_bounds
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 
 
 @dataclass(frozen=True)
-class TrustSettings:
+class TrustSettings(Bounded):
     """Thresholds of :class:`TrustMonitor` and the share cap."""
 
     #: largest share of a frame one remote member may get (applied from two joined remote members on, so
@@ -59,7 +59,7 @@ class TrustSettings:
     enabled: bool = True
 
     def __post_init__(self) -> None:
-        check_bounds(self)
+        super().__post_init__()
         if self.probation_share > self.max_share:
             raise InputError(
                 f"need probation_share <= max_share, got {self.probation_share} > {self.max_share}"

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import bounded, check_bounds
+from common.bounds import Bounded, bounded
 from common.errors import CapatazError, InputError
 from common.sim.trajectory import Trajectory
 from common.types import FloatArray
@@ -81,7 +81,7 @@ class SensorError(CapatazError):
 
 
 @dataclass(frozen=True)
-class ImuNoise:
+class ImuNoise(Bounded):
     """IMU error model: white noise densities, constant biases (per-axis draw sigma), bias random walks."""
 
     gyro_noise_density_rad_s_sqrt_hz: float = bounded(float(np.radians(0.005)), ge=0.0)
@@ -91,9 +91,6 @@ class ImuNoise:
     accel_bias_sigma_m_s2: float = bounded(0.05, ge=0.0)
     accel_bias_walk_m_s3_sqrt_hz: float = bounded(0.0005, ge=0.0)
 
-    def __post_init__(self) -> None:
-        check_bounds(self)
-
     @classmethod
     def ideal(cls) -> ImuNoise:
         """No noise, no bias: the IMU reads the true body rate and specific force."""
@@ -101,14 +98,11 @@ class ImuNoise:
 
 
 @dataclass(frozen=True)
-class RangeNoise:
+class RangeNoise(Bounded):
     """Rangefinder error model: white noise sigma (m) and a constant offset (m)."""
 
     sigma_m: float = bounded(0.02, ge=0.0)
     offset_m: float = bounded(0.0)
-
-    def __post_init__(self) -> None:
-        check_bounds(self)
 
     @classmethod
     def ideal(cls) -> RangeNoise:
@@ -245,7 +239,7 @@ def simulate_range(trajectory: Trajectory, stamps_s: FloatArray, noise: RangeNoi
 
 
 @dataclass(frozen=True)
-class ImageDegradation:
+class ImageDegradation(Bounded):
     """Camera effects applied to a clean render, in this order: optical blur, exposure (gain, offset), noise.
 
     - ``blur_sigma_px``: Gaussian blur sigma (px), 0 = none.
@@ -263,9 +257,6 @@ class ImageDegradation:
     gain_period_s: float = bounded(30.0, gt=0.0)
     offset_amplitude_dn: float = bounded(3.0, ge=0.0)
     offset_period_s: float = bounded(41.0, gt=0.0)
-
-    def __post_init__(self) -> None:
-        check_bounds(self)
 
     @classmethod
     def clean(cls) -> ImageDegradation:

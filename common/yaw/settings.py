@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-from common.bounds import bounded, check_bounds
+from common.bounds import Bounded, bounded
 from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 
@@ -29,7 +29,7 @@ class FitModel(Enum):
 
 
 @dataclass(frozen=True)
-class YawSettings:
+class YawSettings(Bounded):
     """Every tunable of the yaw core; the defaults are the benchmarked configuration.
 
     The patch grid is laid out on the frame at pyramid level ``pyramid_level`` (each level halves
@@ -87,7 +87,7 @@ class YawSettings:
     camera: CameraModel | None = None
 
     def __post_init__(self) -> None:
-        check_bounds(self)
+        super().__post_init__()
         if self.patch_size_px % 2:
             raise InputError(f"patch_size_px must be an even integer >= 8, got {self.patch_size_px}")
         if self.grid_cols * self.grid_rows < 4:

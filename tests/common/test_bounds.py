@@ -9,20 +9,17 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from common.bounds import bounded, check_bounds, field_bounds
+from common.bounds import Bounded, bounded, field_bounds
 from common.errors import InputError
 
 
 @dataclass(frozen=True)
-class _Example:
+class _Example(Bounded):
     rate_hz: float = bounded(10.0, gt=0.0)
     fraction: float = bounded(0.5, ge=0.0, le=1.0)
     count: int = bounded(3, ge=1, lt=100)
     spread_m: float | None = bounded(None, gt=0.0, optional=True)
     label: str = "x"
-
-    def __post_init__(self) -> None:
-        check_bounds(self)
 
 
 def test_defaults_pass_and_only_bounded_fields_are_declared() -> None:
