@@ -420,28 +420,29 @@ class BlockResult(PatchResult):
 
 
 # ----------------------------------------------------------------------------------------------- service
-class Stats(WireModel):
-    """Periodic statistics of a service (``capataz/stats/{role}/{node}/{i}``)."""
+class ServiceMessage(WireModel):
+    """A message about one service instance ``{role}/{node}/{index}`` and how long it has been up."""
 
     role: str
     node: str
     index: int = Field(ge=0)
-    stamp_s: float
     uptime_s: float = Field(ge=0.0)
+
+
+class Stats(ServiceMessage):
+    """Periodic statistics of a service (``capataz/stats/{role}/{node}/{i}``)."""
+
+    stamp_s: float
     counters: dict[str, int] = Field(default_factory=dict)
     timings_ms: dict[str, float] = Field(default_factory=dict)
     queue_depths: dict[str, int] = Field(default_factory=dict)
     shares: dict[str, float] = Field(default_factory=dict)
 
 
-class Health(WireModel):
+class Health(ServiceMessage):
     """Answer of a service's health queryable."""
 
-    role: str
-    node: str
-    index: int = Field(ge=0)
     ok: bool
-    uptime_s: float = Field(ge=0.0)
     detail: str = ""
     counters: dict[str, int] = Field(default_factory=dict)
 
