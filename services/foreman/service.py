@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
+from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.dispatch import (
@@ -41,11 +42,9 @@ from common.yaw.patchwork import (
 from services.runtime.cli import add_stream_bound_arguments
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
+from services.runtime.service import ConfiguredService
 from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
     add_transport_arguments,
-    transport_from_args,
 )
 
 #: Upper bound of patch indices a foreman accepts.
@@ -104,26 +103,31 @@ class _StreamState:
         self.live = copy.copy(live)
 
 
-class ForemanService(ServiceRuntime):
+class ForemanSettings(BaseModel):
+    """A foreman's own settings (the runtime's come with the transport)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    #: how its dispatcher shares blocks among the node's workers
+    dispatch: DispatchSettings = Field(default_factory=DispatchSettings)
+    #: capacity of the blocks' zenoh FIFO channel
+    queue: int = Field(default=2, ge=1)
+    #: streams whose state is kept at most (the least recently used evicted), and for how long unused
+    max_streams: int = Field(default=64, ge=1)
+    stream_ttl_s: float = Field(default=60.0, gt=0.0)
+
+
+class ForemanService(ConfiguredService[ForemanSettings]):
     role = keys.Role.FOREMAN
 
-    def __init__(
-        self,
-        node: str,
-        transport: TransportSettings,
-        dispatch: DispatchSettings,
-        stats_period_s: float = 1.0,
-        queue_capacity: int = 2,
-        max_streams: int = 64,
-        stream_ttl_s: float = 60.0,
-    ) -> None:
-        super().__init__(node, 0, transport, stats_period_s)
-        self.dispatch_settings = dispatch
-        self.queue_capacity = queue_capacity
+    def setup(self) -> None:
+        settings = self.settings
+        self.dispatch_settings = settings.dispatch
+        self.queue_capacity = settings.queue
         self._queryable: Any = None
-        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
+        self.cache = SpectrumCache(max_streams=settings.max_streams, max_age_s=settings.stream_ttl_s)
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
-        self.streams: StreamTable[_StreamState] = StreamTable(max_streams, stream_ttl_s)
+        self.streams: StreamTable[_StreamState] = StreamTable(settings.max_streams, settings.stream_ttl_s)
         self._streams_lock = threading.Lock()
         #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
         self.live = LiveMembers(keys.Role.WORKER)
@@ -277,12 +281,10 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.max_streams < 1 or not args.stream_ttl > 0:
-        raise CapatazError("--max-streams must be >= 1 and --stream-ttl > 0")
-    return ForemanService(
-        args.node, transport_from_args(args), dispatch_from_args(args), args.stats_period,
-        max_streams=args.max_streams, stream_ttl_s=args.stream_ttl,
-    ).run()  # fmt: skip
+    settings = ForemanSettings(
+        dispatch=dispatch_from_args(args), max_streams=args.max_streams, stream_ttl_s=args.stream_ttl
+    )
+    return ForemanService.from_args(args, settings).run()
 
 
-__all__ = ["SELF", "ForemanService", "register"]
+__all__ = ["SELF", "ForemanService", "ForemanSettings", "register"]

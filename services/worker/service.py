@@ -8,6 +8,7 @@ from enum import StrEnum
 from typing import Any
 
 import zenoh
+from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.errors import CapatazError
@@ -17,12 +18,10 @@ from services.runtime.cli import (
     add_enum_argument,
     add_stream_bound_arguments,
     add_transport_arguments,
-    transport_from_args,
 )
 from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
-from services.runtime.service import ServiceRuntime
-from services.runtime.transport import TransportSettings
+from services.runtime.service import ConfiguredService
 
 
 class Handoff(StrEnum):
@@ -34,37 +33,33 @@ class Handoff(StrEnum):
     CALLBACK = "callback"
 
 
-class WorkerService(ServiceRuntime):
+class WorkerSettings(BaseModel):
+    """A worker's own settings (the runtime's come with the transport)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    #: capacity of the bounded hand-off (zenoh FIFO channel or job queue)
+    queue: int = Field(default=8, ge=1)
+    #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
+    cpu_factor: int = Field(default=1, ge=1)
+    handoff: Handoff = Handoff.CHANNEL
+    #: streams whose spectra are kept at most (the least recently used evicted), and for how long unused
+    max_streams: int = Field(default=64, ge=1)
+    stream_ttl_s: float = Field(default=60.0, gt=0.0)
+
+
+class WorkerService(ConfiguredService[WorkerSettings]):
     """One worker process: a queryable, a bounded job queue, one compute thread."""
 
     role = keys.Role.WORKER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        queue_capacity: int = 8,
-        stats_period_s: float = 1.0,
-        cpu_factor: int = 1,
-        handoff: Handoff | str = Handoff.CHANNEL,
-        max_streams: int = 64,
-        stream_ttl_s: float = 60.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        try:
-            self.handoff = Handoff(handoff)
-        except ValueError:
-            raise CapatazError(
-                f"handoff must be one of {[h.value for h in Handoff]}, got {handoff!r}"
-            ) from None
-        self.queue_capacity = queue_capacity
-        if cpu_factor < 1:
-            raise CapatazError(f"cpu_factor must be >= 1, got {cpu_factor}")
-        #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
-        self.cpu_factor = cpu_factor
-        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
-        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
+    def setup(self) -> None:
+        settings = self.settings
+        self.handoff = settings.handoff
+        self.queue_capacity = settings.queue
+        self.cpu_factor = settings.cpu_factor
+        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(settings.queue)
+        self.cache = SpectrumCache(max_streams=settings.max_streams, max_age_s=settings.stream_ttl_s)
         self._queryable: Any = None
 
     def start(self, session: zenoh.Session) -> None:
@@ -213,17 +208,8 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.max_streams < 1 or not args.stream_ttl > 0:
-        raise CapatazError("--max-streams must be >= 1 and --stream-ttl > 0")
-    service = WorkerService(
-        args.node,
-        args.index,
-        transport_from_args(args),
-        args.queue,
-        args.stats_period,
-        args.cpu_factor,
-        args.handoff,
-        args.max_streams,
-        args.stream_ttl,
-    )
-    return service.run()
+    settings = WorkerSettings(
+        queue=args.queue, cpu_factor=args.cpu_factor, handoff=args.handoff,
+        max_streams=args.max_streams, stream_ttl_s=args.stream_ttl,
+    )  # fmt: skip
+    return WorkerService.from_args(args, settings).run()

@@ -15,11 +15,11 @@ from common import keys
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchWorkError
-from services.foreman.service import CropStore, ForemanService
+from services.foreman.service import CropStore, ForemanService, ForemanSettings
 from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.transport import open_session, zbytes
-from services.worker.service import WorkerService
+from services.worker.service import WorkerService, WorkerSettings
 from tests.builders import JOB_SETTINGS, patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
@@ -106,8 +106,8 @@ def test_a_block_with_invalid_settings_is_rejected_before_any_worker_sees_it() -
 
 
 def _reject_a_block_with_invalid_settings(endpoint: str) -> None:
-    foreman = ForemanService("h", peer(endpoint), DispatchSettings())
-    worker = WorkerService("h", 0, peer(endpoint))
+    foreman = ForemanService("h", 0, peer(endpoint), ForemanSettings())
+    worker = WorkerService("h", 0, peer(endpoint), WorkerSettings())
     threads = [threading.Thread(target=s.run, daemon=True) for s in (foreman, worker)]
     for thread in threads:
         thread.start()

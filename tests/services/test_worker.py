@@ -8,13 +8,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
-from common.errors import CapatazError
 from common.messages import PatchJob, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
-from services.worker.service import Handoff, WorkerService
+from services.worker.service import Handoff, WorkerService, WorkerSettings
 from tests.builders import patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 
@@ -45,7 +45,7 @@ class _Query:
 @pytest.fixture()
 def slow_worker(monkeypatch: pytest.MonkeyPatch) -> tuple[WorkerService, list[int]]:
     """A worker whose computation takes ``COMPUTE_S``; records its job-queue depth during each one."""
-    worker = WorkerService("h", 0, TransportSettings())
+    worker = WorkerService("h", 0, TransportSettings(), WorkerSettings())
     depths: list[int] = []
 
     def measure_share(*args: Any) -> PatchMeasurement:
@@ -114,6 +114,7 @@ def test_a_malformed_query_in_the_channel_is_answered_and_the_rest_computed(
 
 
 def test_the_handoff_is_an_enum_and_a_bad_one_is_one_clear_error() -> None:
-    assert WorkerService("h", 0, TransportSettings(), handoff="callback").handoff is Handoff.CALLBACK
-    with pytest.raises(CapatazError, match="handoff must be one of"):
-        WorkerService("h", 0, TransportSettings(), handoff="pigeon")
+    worker = WorkerService("h", 0, TransportSettings(), WorkerSettings(handoff="callback"))  # type: ignore[arg-type]
+    assert worker.handoff is Handoff.CALLBACK
+    with pytest.raises(ValidationError, match="handoff"):
+        WorkerSettings(handoff="pigeon")  # type: ignore[arg-type]
