@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from common import keys
 from common.dispatch import (
@@ -39,7 +39,7 @@ from common.yaw.patchwork import (
     SpectrumCache,
     measure_share,
 )
-from services.runtime.cli import add_stream_bound_arguments
+from services.runtime.cli import StreamBoundSettings, add_stream_bound_arguments, stream_bounds_from_args
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 from services.runtime.service import ConfiguredService
@@ -103,31 +103,26 @@ class _StreamState:
         self.live = copy.copy(live)
 
 
-class ForemanSettings(BaseModel):
+class ForemanSettings(StreamBoundSettings):
     """A foreman's own settings (the runtime's come with the transport)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     #: how its dispatcher shares blocks among the node's workers
     dispatch: DispatchSettings = Field(default_factory=DispatchSettings)
     #: capacity of the blocks' zenoh FIFO channel
     queue: int = Field(default=2, ge=1)
-    #: streams whose state is kept at most (the least recently used evicted), and for how long unused
-    max_streams: int = Field(default=64, ge=1)
-    stream_ttl_s: float = Field(default=60.0, gt=0.0)
 
 
 class ForemanService(ConfiguredService[ForemanSettings]):
     role = keys.Role.FOREMAN
 
     def setup(self) -> None:
-        settings = self.settings
-        self.dispatch_settings = settings.dispatch
-        self.queue_capacity = settings.queue
+        self.dispatch_settings = self.settings.dispatch
+        self.queue_capacity = self.settings.queue
         self._queryable: Any = None
-        self.cache = SpectrumCache(max_streams=settings.max_streams, max_age_s=settings.stream_ttl_s)
+        max_streams, ttl_s = self.settings.max_streams, self.settings.stream_ttl_s
+        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=ttl_s)
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
-        self.streams: StreamTable[_StreamState] = StreamTable(settings.max_streams, settings.stream_ttl_s)
+        self.streams: StreamTable[_StreamState] = StreamTable(max_streams, ttl_s)
         self._streams_lock = threading.Lock()
         #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
         self.live = LiveMembers(keys.Role.WORKER)
@@ -281,9 +276,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = ForemanSettings(
-        dispatch=dispatch_from_args(args), max_streams=args.max_streams, stream_ttl_s=args.stream_ttl
-    )
+    settings = ForemanSettings(dispatch=dispatch_from_args(args), **stream_bounds_from_args(args))
     return ForemanService.from_args(args, settings).run()
 
 

@@ -7,6 +7,8 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel, ConfigDict, Field
+
 from common.dispatch import Balance, SpeedSource
 from services.runtime.transport import TransportSettings
 
@@ -63,6 +65,21 @@ def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -
         parser, "--speed", SpeedSource, SpeedSource.ROUND_TRIP,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )  # fmt: skip
+
+
+class StreamBoundSettings(BaseModel):
+    """Bounds of a member's per-stream state (spectra, dispatchers, crops): the worker's and foreman's."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    #: streams kept at most (the least recently used evicted), and how long an unused one is kept
+    max_streams: int = Field(default=64, ge=1)
+    stream_ttl_s: float = Field(default=60.0, gt=0.0)
+
+
+def stream_bounds_from_args(args: Any) -> dict[str, Any]:
+    """The :class:`StreamBoundSettings` fields given by :func:`add_stream_bound_arguments`' options."""
+    return {"max_streams": args.max_streams, "stream_ttl_s": args.stream_ttl}
 
 
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:

@@ -8,16 +8,18 @@ from enum import StrEnum
 from typing import Any
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 from services.runtime.cli import (
+    StreamBoundSettings,
     add_enum_argument,
     add_stream_bound_arguments,
     add_transport_arguments,
+    stream_bounds_from_args,
 )
 from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
@@ -33,19 +35,14 @@ class Handoff(StrEnum):
     CALLBACK = "callback"
 
 
-class WorkerSettings(BaseModel):
+class WorkerSettings(StreamBoundSettings):
     """A worker's own settings (the runtime's come with the transport)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     #: capacity of the bounded hand-off (zenoh FIFO channel or job queue)
     queue: int = Field(default=8, ge=1)
     #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
     cpu_factor: int = Field(default=1, ge=1)
     handoff: Handoff = Handoff.CHANNEL
-    #: streams whose spectra are kept at most (the least recently used evicted), and for how long unused
-    max_streams: int = Field(default=64, ge=1)
-    stream_ttl_s: float = Field(default=60.0, gt=0.0)
 
 
 class WorkerService(ConfiguredService[WorkerSettings]):
@@ -54,12 +51,13 @@ class WorkerService(ConfiguredService[WorkerSettings]):
     role = keys.Role.WORKER
 
     def setup(self) -> None:
-        settings = self.settings
-        self.handoff = settings.handoff
-        self.queue_capacity = settings.queue
-        self.cpu_factor = settings.cpu_factor
-        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(settings.queue)
-        self.cache = SpectrumCache(max_streams=settings.max_streams, max_age_s=settings.stream_ttl_s)
+        self.handoff = self.settings.handoff
+        self.queue_capacity = self.settings.queue
+        self.cpu_factor = self.settings.cpu_factor
+        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(self.queue_capacity)
+        self.cache = SpectrumCache(
+            max_streams=self.settings.max_streams, max_age_s=self.settings.stream_ttl_s
+        )
         self._queryable: Any = None
 
     def start(self, session: zenoh.Session) -> None:
@@ -209,7 +207,6 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = WorkerSettings(
-        queue=args.queue, cpu_factor=args.cpu_factor, handoff=args.handoff,
-        max_streams=args.max_streams, stream_ttl_s=args.stream_ttl,
-    )  # fmt: skip
+        queue=args.queue, cpu_factor=args.cpu_factor, handoff=args.handoff, **stream_bounds_from_args(args)
+    )
     return WorkerService.from_args(args, settings).run()
