@@ -48,11 +48,8 @@ from services.camera.sources import (
     source_settings_from_args,
 )
 from services.estimator.sim_publisher import message_of
-from services.runtime.cli import add_enum_argument
+from services.runtime.cli import add_enum_argument, add_transport_arguments
 from services.runtime.service import ConfiguredService
-from services.runtime.transport import (
-    add_transport_arguments,
-)
 
 
 class CameraSettings(BaseModel):

@@ -39,13 +39,15 @@ from common.yaw.patchwork import (
     SpectrumCache,
     measure_share,
 )
-from services.runtime.cli import StreamBoundSettings, add_stream_bound_arguments, stream_bounds_from_args
+from services.runtime.cli import (
+    StreamBoundSettings,
+    add_stream_bound_arguments,
+    add_transport_arguments,
+    stream_bounds_from_args,
+)
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
 from services.runtime.service import ConfiguredService
-from services.runtime.transport import (
-    add_transport_arguments,
-)
 
 #: Upper bound of patch indices a foreman accepts.
 MAX_PATCHES = 1 << 16
