@@ -89,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
     from services.loadtest.frames import recorded_frames
     from services.loadtest.runner import capacity_search, judge, run_once
 
+    # a replay is checked before any process starts: a file that is not a recording is one clear error
+    recorded = recorded_frames(args.replay, args.replay_uav, 8).recorded_fps if args.replay else math.nan
     if args.fps is None:
-        recorded = recorded_frames(args.replay, args.replay_uav, 8).recorded_fps if args.replay else 20.0
         args.fps = recorded if math.isfinite(recorded) else 20.0
     if args.streams < 1 or args.max_streams < 1 or not 0 < args.fps <= 200 or not 0 < args.duration <= 3600:
         raise LoadtestError(

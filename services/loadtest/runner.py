@@ -66,13 +66,15 @@ def frame_loop(settings: RunSettings) -> FrameLoop:
     return simulated_frames(settings.loop_frames, settings.seed)
 
 
-def run_once(spec: ClusterSpec, settings: RunSettings, log_dir: Path, live: bool = True) -> dict[str, Any]:
+def run_once(
+    spec: ClusterSpec, settings: RunSettings, log_dir: Path, live: bool = True, loop: FrameLoop | None = None
+) -> dict[str, Any]:
     """Run one load test; returns the report (without objectives).
 
     Every stream first sends ``warmup_s`` of frames (the streams join one after another over its first
     half); the clock (``t0``: faults, statistics) starts after it, with the same seq numbers going on, so the
     masters, foremen and workers meet the measured frames warm. Warm-up frames are reported apart."""
-    loop = frame_loop(settings)
+    loop = loop or frame_loop(settings)
     load = LoadCluster(spec, settings, log_dir)
     applied: list[tuple[float, str, str]] = []
     logs = {uav: StreamLog(uav) for uav in load.uavs}
@@ -292,10 +294,11 @@ def capacity_search(
     """The most streams that meet the objectives (doubling, then bisection); every trial's report kept."""
     tried: dict[int, bool] = {}
     trials: dict[int, dict[str, Any]] = {}
+    loop = frame_loop(settings)
     while (n := next_capacity(tried, limit)) is not None:
         logger.info("capacity search: %d streams", n)
         trial = RunSettings(**{**settings.__dict__, "streams": n})
-        report = run_once(spec, trial, log_dir / f"streams{n}")
+        report = run_once(spec, trial, log_dir / f"streams{n}", loop=loop)
         tried[n] = judge(report, objectives)
         report.pop("timeline", None)
         trials[n] = report

@@ -22,13 +22,18 @@ def test_a_short_run_with_faults_writes_the_report_and_judges_the_objectives(
         "loadtest", "--cluster", str(cluster), "--streams", "1", "--fps", "10", "--duration", "8",
         "--fault", "hostile:seq@2s", "--fault", "hostile:size@2.5s", "--fault", "kill:worker@4s",
         "--slo", "lost_pct<=100", "--slo", "p99_ms<=0.001", "--out", str(tmp_path / "out"), "--name", "t",
+        "--warmup", "1",
     ])  # fmt: skip
     assert code == 2  # p99 <= 1 us cannot be met: breached, exit 2
     report = json.loads((tmp_path / "out" / "t.json").read_text())
     assert (tmp_path / "out" / "t.png").is_file()
     assert {"streams", "fps", "duration_s", "slo_passed", "per_stream", "faults", "cpu_s"} <= set(report)
     (stream,) = report["per_stream"]
-    assert {"published", "received", "lost", "reported_dropped", "latency_ms"} <= set(stream)
+    assert {"published", "received", "lost", "reported_dropped", "latency_ms", "warmup"} <= set(stream)
+    assert stream["warmup"]["published"] == 10  # 1 s at 10 fps before the clock, reported apart
+    # who computed the frames: the cluster's share of the patches and the frames the master did alone
+    assert 0.0 <= stream["cluster_share"] <= 1.0 and 0 <= stream["frames_master_alone"] <= stream["received"]
+    assert report["counters"]["master/m0/0"]["frames_in"] >= 80  # the services' counters of the run
     assert set(stream["latency_ms"]) == {"p50", "p95", "p99", "max"}
     assert stream["published"] == 80 and stream["received"] >= 70  # the cluster served through the faults
     assert [f["fault"] for f in report["faults"]] == ["hostile:seq@2s", "hostile:size@2.5s", "kill:worker@4s"]
