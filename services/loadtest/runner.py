@@ -35,6 +35,7 @@ from services.loadtest.plan import (
     metric_values,
     next_capacity,
     summarise,
+    yaw_jumps_deg,
 )
 from services.runtime.transport import open_session
 from services.up import ClusterSpec
@@ -167,12 +168,15 @@ def _stream(
                 with yaws.lock:
                     yaws.lock.wait_for(lambda: awaited in log.received, IN_FLIGHT_WAIT_S)  # noqa: B023
             pixels, true_yaw = loop.at(k + 37 * i)
-            stamp = time.time()
+            sent = time.time()
+            # stamped with its capture time (when it was due): a harness that fell behind and sends a burst
+            # must not make the frames look 1 ms apart (the yaw's rate limit trusts stamps); the latency
+            # runs from the send, so the harness's own delay is not charged to the cluster
             payload, attachment = encode(
-                Frame(uav=uav, seq=k, stamp_s=stamp, width=pixels.shape[1], height=pixels.shape[0],
+                Frame(uav=uav, seq=k, stamp_s=min(due, sent), width=pixels.shape[1], height=pixels.shape[0],
                       pixels=pixels)
             )  # fmt: skip
-            (log.sent if k >= n_warm else log.warm)[k] = (stamp, true_yaw)
+            (log.sent if k >= n_warm else log.warm)[k] = (sent, true_yaw)
             publisher = publishers[uav]
             publisher.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(publisher.id, k))
         if live and time.time() >= next_progress:
@@ -233,6 +237,11 @@ def _report(
                 },
                 "max_gap_s": s.max_gap_s,
                 "max_yaw_jump_deg": s.max_yaw_jump_deg,
+                # the three largest, to find them in the timeline: [seconds since the clock, deg]
+                "worst_yaw_jumps": [
+                    [round(t - t0, 3), round(j, 3)]
+                    for t, j in sorted(yaw_jumps_deg(logs[s.uav].records()), key=lambda tj: -tj[1])[:3]
+                ],
                 **_computed(logs[s.uav]),
             }
             for s in summaries
@@ -267,7 +276,7 @@ def _warmup(log: StreamLog) -> dict[str, int]:
 
 
 def _computed(log: StreamLog) -> dict[str, Any]:
-    share = compute_share(log.computed.values())
+    share = compute_share(v for seq, v in log.computed.items() if seq in log.sent)  # the measured frames
     return {
         "computed_frames": share.frames,
         "frames_master_alone": share.frames_alone,
@@ -305,7 +314,17 @@ def capacity_search(
         verdicts = ", ".join(f"{v['objective']}: {v['value']:.3g}" for v in report["objectives"])
         logger.info("capacity search: %d streams %s (%s)", n, "met" if tried[n] else "missed", verdicts)
     capacity = capacity_of(tried)
-    best = dict(trials[capacity]) if capacity in trials else {"streams": 0, "metrics": {}}
+    best = (
+        dict(trials[capacity])
+        if capacity in trials
+        else {
+            "streams": 0,
+            "fps": settings.fps,
+            "duration_s": settings.duration_s,
+            "warmup_s": settings.warmup_s,
+            "metrics": {},
+        }
+    )
     best["capacity_streams"] = capacity
     best["capacity_trials"] = {
         str(k): {"met": tried[k], "metrics": v["metrics"]} for k, v in sorted(trials.items())
