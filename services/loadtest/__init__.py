@@ -66,7 +66,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--fault", action="append", default=[], metavar="FAULT",
         help="kill:worker@20s, stop:foreman@30s+6s, kill:router@40s, kill:master@50s, hostile:seq@10s "
-        "(hostile kinds: seq, restart, size, uav, future, settings, streams); repeatable",
+        "(hostile kinds: seq, restart, size, uav, future, settings, streams, sender); repeatable",
     )  # fmt: skip
     parser.add_argument("--schedule", type=Path, help="a file of faults (one or more per line, # comments)")
     parser.add_argument(

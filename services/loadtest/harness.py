@@ -269,13 +269,25 @@ def apply_fault(
 
 
 class Hostile:
-    """Hostile but valid messages on the first stream's keys and to a worker (``hostile:KIND@Ts``)."""
+    """Hostile but valid messages on the first stream's keys and to a worker (``hostile:KIND@Ts``).
+
+    Frames declare the camera's own sender (a forger that copies its id), so that the master's stream gate,
+    not its sender check, has to refuse them; ``sender`` frames come from a second publisher instead, with
+    the seq the camera sends next and a current stamp (they continue the stream but for their sender)."""
 
     def __init__(
-        self, session: zenoh.Session, camera: Any, spec: ClusterSpec, uav: str, shape: tuple[int, int]
+        self,
+        session: zenoh.Session,
+        camera: Any,
+        spec: ClusterSpec,
+        uav: str,
+        shape: tuple[int, int],
+        next_seq: Callable[[], int],
     ) -> None:
         self.session, self.camera, self.spec, self.uav = session, camera, spec, uav
         self.height, self.width = shape
+        #: the seq the stream's camera sends next (a second sender forges it)
+        self.next_seq = next_seq
         self.sent: dict[str, int] = {}
 
     def __call__(self, kind: str) -> None:
@@ -302,10 +314,24 @@ class Hostile:
             frames.append(Frame(uav=self.uav, seq=10**6, stamp_s=now + 1e5, width=w, height=h, pixels=pixels))
         elif kind in ("settings", "streams"):
             self._jobs(kind)
+        elif kind == "sender":
+            self._second_sender(pixels)
         for frame in frames:
             payload, attachment = encode(frame)
-            self.camera.put(payload, attachment=attachment)
+            self.camera.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(self.camera.id, 0))
         self.sent[kind] = self.sent.get(kind, 0) + 1
+
+    def _second_sender(self, pixels: np.ndarray) -> None:
+        publisher = self.session.declare_publisher(keys.camera_key(self.uav))
+        try:
+            seq = self.next_seq()
+            for k in range(3):  # three that agree: a restart would be confirmed, another sender is not
+                frame = Frame(uav=self.uav, seq=seq + k, stamp_s=time.time(), width=self.width,
+                              height=self.height, pixels=pixels)  # fmt: skip
+                payload, attachment = encode(frame)
+                publisher.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(publisher.id, k))
+        finally:
+            publisher.undeclare()
 
     def _jobs(self, kind: str) -> None:
         host = self.spec.hosts[0].name

@@ -26,7 +26,7 @@ class FaultAction(enum.Enum):
 
 
 TARGETS = ("worker", "foreman", "router", "master")
-HOSTILE_KINDS = ("seq", "restart", "size", "uav", "future", "settings", "streams")
+HOSTILE_KINDS = ("seq", "restart", "size", "uav", "future", "settings", "streams", "sender")
 
 _FAULT = re.compile(
     r"^(?P<action>kill|stop|hostile):(?P<target>[a-z]+)@(?P<at>[0-9.]+)s(?:\+(?P<dur>[0-9.]+)s)?$"

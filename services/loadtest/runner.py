@@ -93,7 +93,11 @@ def run_once(
                 for uav in load.uavs
             }
             load.wait_leaders(session)
-            hostile = Hostile(session, publishers[load.uavs[0]], spec, load.uavs[0], loop.shape)
+            first = logs[load.uavs[0]]
+            hostile = Hostile(
+                session, publishers[load.uavs[0]], spec, load.uavs[0], loop.shape,
+                lambda: max([*first.sent, *first.warm], default=-1) + 1,
+            )  # fmt: skip
             load.mark_cpu()
             stats.mark()
             t_start = time.time() + 0.2
