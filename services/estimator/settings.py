@@ -57,6 +57,41 @@ def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
     return DoubleCouplingEstimator(settings.camera(), settings=settings.coupling())
 
 
+def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
+    """The estimator's own command-line options (the transport's are added by the service)."""
+    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
+    parser.add_argument("--resolution", default="752x480", help="camera WIDTHxHEIGHT (default 752x480)")
+    parser.add_argument("--hfov", type=float, default=90.0, help="horizontal field of view (deg)")
+    parser.add_argument(
+        "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
+    )
+    parser.add_argument(
+        "--filter",
+        choices=[kind.value for kind in FilterKind],
+        default=FilterKind.BIAS.value,
+        help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
+        "paper_c (paper C's 5-state EKF)",
+    )
+    parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
+    parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
+    parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
+    parser.add_argument("--initial-yaw", type=float, default=0.0, help="initial yaw (rad)")
+    parser.add_argument(
+        "--initial-xy",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("X", "Y"),
+        help="initial horizontal position of the VO path (m)",
+    )
+    parser.add_argument(
+        "--vo-origin-delay",
+        type=float,
+        default=0.0,
+        help="seconds before the VO sets its origin (at --initial-xy)",
+    )
+
+
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
     try:
         width, height = (int(v) for v in str(args.resolution).lower().split("x"))

@@ -5,7 +5,6 @@ loaded."""
 from __future__ import annotations
 
 import contextlib
-import itertools
 import os
 import queue
 import signal
@@ -18,8 +17,6 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 import zenoh
-from hypothesis import given
-from hypothesis import strategies as st
 
 from common import keys
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
@@ -27,7 +24,6 @@ from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measuremen
 from common.messages import AttitudeEstimate, ImuSample, PoseEstimate, decode, encode
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings
-from services.estimator.service import THIN_AFTER, thin_frames
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import capataz_command
@@ -225,15 +221,3 @@ def test_paper_c_flight_under_a_busy_host_ends_within_2_cm(flight: Flight) -> No
     assert k >= flight.n_frames - 3
     assert not any(name.startswith("refused_range") for name in counts), counts
     assert error_m <= 0.02, f"{100 * error_m:.2f} cm; {counts}"
-
-
-@given(st.integers(0, 40))
-def test_queued_frames_are_thinned_evenly_and_the_newest_is_kept(n: int) -> None:
-    frames = list(range(n))
-    kept = thin_frames(frames)
-    if n <= THIN_AFTER:
-        assert kept == frames
-        return
-    assert kept[-1] == n - 1 and kept == sorted(kept)
-    steps = {b - a for a, b in itertools.pairwise(kept)}
-    assert steps <= {2, 3} and kept[0] <= 2  # never a gap of more than three frames
