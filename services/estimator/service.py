@@ -291,27 +291,35 @@ class EstimatorService(ServiceRuntime):
 
     def _estimate(self) -> None:
         while not self.stop_event.is_set():
-            if not self._held and self._frames.depth() == 0:
-                first = self._samples.take(0.02)
-                if first is not None:
-                    self._hold([first])
-            # the samples before the frame: a frame still queued after the drain arrived before the samples
-            # newer than it (they are held until it is pushed), one arriving later is newer than them all
-            self._hold(self._samples.drain())
-            taken = self._frames.take()
-            if taken is None:
-                self._push_held(math.inf)
-                self._process()
-                continue
-            frame, spacing = taken
-            # the filter brought up to the frame before it is pushed (a frame pushed while an older one is
-            # still pending would supersede it); every IMU and range sample is applied, frames or not
-            self._push_held(frame.stamp_s)
-            self._process()
-            if self._push(frame):
-                self._count_frame(spacing)
+            self.step(0.02)
+
+    def step(self, timeout_s: float) -> bool:
+        """One turn of the estimator thread: the queued samples, then the oldest queued frame with the
+        samples before it (waits up to ``timeout_s`` for a sample when nothing is queued); True when a
+        frame was taken."""
+        if not self._held and self._frames.depth() == 0:
+            first = self._samples.take(timeout_s)
+            if first is not None:
+                self._hold([first])
+        # the samples before the frame: a frame still queued after the drain arrived before the samples
+        # newer than it (they are held until it is pushed), one arriving later is newer than them all
+        self._hold(self._samples.drain())
+        taken = self._frames.take()
+        if taken is None:
+            self._push_held(math.inf)
             self._process()
             self._mirror_counters()
+            return False
+        frame, spacing = taken
+        # the filter brought up to the frame before it is pushed (a frame pushed while an older one is
+        # still pending would supersede it); every IMU and range sample is applied, frames or not
+        self._push_held(frame.stamp_s)
+        self._process()
+        if self._push(frame):
+            self._count_frame(spacing)
+        self._process()
+        self._mirror_counters()
+        return True
 
     def _hold(self, samples: list[Measurement]) -> None:
         if not samples:
