@@ -10,7 +10,7 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
 
 Callbacks only decode, validate and hand off, on zenoh's receiving thread in arrival order: IMU, range and
 yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a short
-:class:`~services.estimator.frames.SpacedFrameQueue`. One thread feeds them to
+:class:`~services.estimator.backlog.SpacedFrameQueue`. One thread feeds them to
 :class:`~common.estimation.coupling.DoubleCouplingEstimator` in stamp order, one frame at a time, each after
 the samples before it. When the filter is behind, every IMU and range sample is still applied and the
 frame queue skips frames evenly (``frames_skipped``; ``vo_spacing_<n>`` counts the pairs ``n`` frames
@@ -24,7 +24,6 @@ NaN/inf or a wrong shape (``bad_samples``, ``bad_frames``), stale or duplicate s
 from __future__ import annotations
 
 import argparse
-import bisect
 import math
 import time
 from collections import deque
@@ -55,7 +54,7 @@ from common.messages import (
     YawEstimate,
     encode,
 )
-from services.estimator.frames import SpacedFrameQueue
+from services.estimator.backlog import HeldSamples, SpacedFrameQueue
 from services.estimator.outputs import (
     VoPath,
     advance_path,
@@ -87,8 +86,9 @@ FRAME_QUEUE = 6
 RESET_AFTER_STALE = 400
 #: seconds without an output, while inputs arrive, after which health reports degraded
 OUTPUT_SILENCE_S = 2.0
-#: seconds over which skipped frames keep health degraded
+#: seconds over which skipped frames keep health degraded, and the lag behind the inputs that degrades it
 BEHIND_WINDOW_S = 5.0
+BEHIND_LAG_MS = 1000
 #: pair spacings (frames) counted one by one; wider ones as ``vo_spacing_<n>_plus``
 SPACING_BINS = 4
 
@@ -113,7 +113,7 @@ class EstimatorService(ServiceRuntime):
         #: a longer backlog skips frames evenly, and the VO pairs the frames it gets
         self._frames: SpacedFrameQueue[FrameMeasurement] = SpacedFrameQueue(FRAME_QUEUE)
         #: samples drained but held back until the frames queued before them are pushed (stamp order)
-        self._held: list[Measurement] = []
+        self._held: HeldSamples[Measurement] = HeldSamples(SENSOR_QUEUE)
         #: (monotonic time, spacing) of the recent frames taken after skipped ones
         self._skips: deque[tuple[float, int]] = deque(maxlen=1024)
         self._newest_in_s = -math.inf
@@ -162,6 +162,8 @@ class EstimatorService(ServiceRuntime):
                 f"{BEHIND_WINDOW_S:.0f} s (VO pairs up to {max(recent)} frames apart; "
                 f"{c.get('frames_used')} of {c.get('frames_in')} frames used)"
             )
+        if (lag_ms := self.lag_ms()) > BEHIND_LAG_MS:
+            return False, f"degraded: behind, the filter is {lag_ms / 1e3:.1f} s behind the newest input"
         now = time.monotonic()
         if now - self._last_input_s < 1.0 and now - self._last_output_s > OUTPUT_SILENCE_S:
             return False, f"degraded: inputs arrive but no output for {now - self._last_output_s:.1f} s"
@@ -300,20 +302,20 @@ class EstimatorService(ServiceRuntime):
         if not self._held and self._frames.depth() == 0:
             first = self._samples.take(timeout_s)
             if first is not None:
-                self._hold([first])
+                self._push_all(self._held.add([first]))
         # the samples before the frame: a frame still queued after the drain arrived before the samples
         # newer than it (they are held until it is pushed), one arriving later is newer than them all
-        self._hold(self._samples.drain())
+        self._push_all(self._held.add(self._samples.drain()))
         taken = self._frames.take()
         if taken is None:
-            self._push_held(math.inf)
+            self._push_all(self._held.until(math.inf))
             self._process()
             self._mirror_counters()
             return False
         frame, spacing = taken
         # the filter brought up to the frame before it is pushed (a frame pushed while an older one is
         # still pending would supersede it); every IMU and range sample is applied, frames or not
-        self._push_held(frame.stamp_s)
+        self._push_all(self._held.until(frame.stamp_s))
         self._process()
         if self._push(frame):
             self._count_frame(spacing)
@@ -321,23 +323,9 @@ class EstimatorService(ServiceRuntime):
         self._mirror_counters()
         return True
 
-    def _hold(self, samples: list[Measurement]) -> None:
-        if not samples:
-            return
-        self._held.extend(samples)
-        self._held.sort(key=lambda m: m.stamp_s)
-        excess = len(self._held) - SENSOR_QUEUE
-        if excess > 0:  # bounded: the oldest go to the filter (older queued frames are then refused)
-            for m in self._held[:excess]:
-                self._push(m)
-            del self._held[:excess]
-
-    def _push_held(self, until_s: float) -> None:
-        """Push the held samples stamped up to ``until_s``, in stamp order."""
-        n = bisect.bisect_right(self._held, until_s, key=lambda m: m.stamp_s)
-        for m in self._held[:n]:
+    def _push_all(self, samples: list[Measurement]) -> None:
+        for m in samples:
             self._push(m)
-        del self._held[:n]
 
     def _count_frame(self, spacing: int) -> None:
         self.counters.inc("frames_used")
