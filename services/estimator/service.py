@@ -264,7 +264,7 @@ class EstimatorService(ServiceRuntime):
         self.counters.inc("frames_in")
         skipped = self._frames.offer(frame)
         if skipped is not None:
-            self.counters.inc("frames_skipped")  # the pair spacing says it (counters, health)
+            self.count_error("frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out")
 
     # -- the estimator thread ------------------------------------------------------------------------
     def _push(self, measurement: Measurement) -> bool:
