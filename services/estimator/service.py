@@ -79,9 +79,6 @@ from services.runtime.transport import (
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 SENSOR_QUEUE = 4096
-#: frames queued before the queue skips one (evenly, :class:`SpacedFrameQueue`): a stall of the host of up to
-#: this many frames is worked off frame by frame; a longer backlog spaces the VO pairs further apart
-FRAME_QUEUE = 6
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
 RESET_AFTER_STALE = 400
 #: seconds without an output, while inputs arrive, after which health reports degraded
@@ -111,7 +108,9 @@ class EstimatorService(ServiceRuntime):
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
         #: frames wait in a short queue (a busy moment costs latency, not frames: VO pairs stay one apart);
         #: a longer backlog skips frames evenly, and the VO pairs the frames it gets
-        self._frames: SpacedFrameQueue[FrameMeasurement] = SpacedFrameQueue(FRAME_QUEUE)
+        self._frames: SpacedFrameQueue[FrameMeasurement] = SpacedFrameQueue(
+            settings.frame_queue, settings.max_pair_s, settings.max_backlog_s
+        )
         #: samples drained but held back until the frames queued before them are pushed (stamp order)
         self._held: HeldSamples[Measurement] = HeldSamples(SENSOR_QUEUE)
         #: (monotonic time, spacing) of the recent frames taken after skipped ones

@@ -35,6 +35,13 @@ class EstimatorSettings(BaseModel):
     vo_origin_delay_s: float = Field(default=0.0, ge=0.0, le=60.0)
     #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
     vo_drift_fraction: float = Field(default=0.001, gt=0.0)
+    #: the frame backlog when the filter is behind (:class:`~services.estimator.backlog.SpacedFrameQueue`):
+    #: frames queued before one is skipped, the widest VO pair made by skipping (s; every 5th frame of
+    #: paper C's 20 fps flight keeps its accuracy), and how far behind the queue may grow to keep pairs that
+    #: close (s; the attitude waits for the VO too, so this bounds the latency of every output)
+    frame_queue: int = Field(default=6, ge=2, le=128)
+    max_pair_s: float = Field(default=0.25, gt=0.0, le=10.0)
+    max_backlog_s: float = Field(default=3.0, ge=0.0, le=10.0)
 
     def camera(self) -> CameraModel:
         return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
@@ -90,6 +97,21 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
         default=0.0,
         help="seconds before the VO sets its origin (at --initial-xy)",
     )
+    parser.add_argument(
+        "--frame-queue", type=int, default=6, help="frames queued before one is skipped (default 6)"
+    )
+    parser.add_argument(
+        "--max-pair",
+        type=float,
+        default=0.25,
+        help="widest VO pair (s) made by skipping frames when behind (default 0.25)",
+    )
+    parser.add_argument(
+        "--max-backlog",
+        type=float,
+        default=3.0,
+        help="how far behind (s) the frame queue grows to keep pairs within --max-pair (default 3)",
+    )
 
 
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
@@ -109,6 +131,9 @@ def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
             initial_x_m=args.initial_xy[0],
             initial_y_m=args.initial_xy[1],
             vo_origin_delay_s=args.vo_origin_delay,
+            frame_queue=args.frame_queue,
+            max_pair_s=args.max_pair,
+            max_backlog_s=args.max_backlog,
         )
     except ValueError as exc:
         raise InputError(f"invalid estimator settings: {exc}") from None

@@ -19,10 +19,12 @@ class _Frame:
     stamp_s: float
 
 
-def _run(capacity: int, schedule: list[bool]) -> tuple[list[tuple[int, int]], list[int], list[int], int]:
+def _run(
+    capacity: int, schedule: list[bool], max_pair_s: float = math.inf, max_backlog_s: float = 0.0
+) -> tuple[list[tuple[int, int]], list[int], list[int], int]:
     """Offer frame i (stamp i / 20) at each False and take one at each True; returns the taken frames with
     their spacing, the skipped and the still queued frame numbers, and the most ever queued."""
-    queue: SpacedFrameQueue[_Frame] = SpacedFrameQueue(capacity)
+    queue: SpacedFrameQueue[_Frame] = SpacedFrameQueue(capacity, max_pair_s, max_backlog_s)
     taken: list[tuple[int, int]] = []
     skipped: list[int] = []
     deepest = 0
@@ -80,9 +82,21 @@ def test_a_short_stall_is_worked_off_frame_by_frame() -> None:
     assert not skipped and [s for _, s in taken] == [1] * 6
 
 
-def test_a_queue_needs_room_for_two_frames() -> None:
-    with pytest.raises(InputError, match="at least 2"):
-        SpacedFrameQueue(1)
+def test_a_stall_queues_frames_rather_than_pairing_frames_too_far_apart_until_the_backlog_bound() -> None:
+    """Pairs up to 0.2 s (4 frames) apart: a 2 s stall of the filter is absorbed as latency (the queue
+    grows, every pair stays within 4 frames); a stall longer than the 3 s backlog widens the pairs."""
+    stall = [False] * 40 + [True] * 60  # 2 s of frames while the filter is stalled, then it catches up
+    taken, skipped, _, deepest = _run(6, stall, max_pair_s=0.2, max_backlog_s=3.0)
+    assert max(s for _, s in taken) <= 4 and 6 < deepest < 40 and len(taken) + len(skipped) == 40
+    long_stall = [False] * 100 + [True] * 100  # 5 s
+    taken, _, _, deepest = _run(6, long_stall, max_pair_s=0.2, max_backlog_s=3.0)
+    assert max(s for _, s in taken) > 4 and deepest <= 25  # 3 s of frames at most 4 apart, not 100
+
+
+@pytest.mark.parametrize("capacity", [1, SpacedFrameQueue.HARD_CAPACITY + 1])
+def test_a_queue_needs_room_for_two_frames_and_is_bounded(capacity: int) -> None:
+    with pytest.raises(InputError, match="capacity of 2 to"):
+        SpacedFrameQueue(capacity)
 
 
 @given(
