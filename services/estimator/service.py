@@ -87,7 +87,7 @@ OUTPUT_SILENCE_S = 2.0
 BEHIND_WINDOW_S = 5.0
 BEHIND_LAG_MS = 1000
 #: pair spacings (frames) counted one by one; wider ones as ``vo_spacing_<n>_plus``
-SPACING_BINS = 4
+SPACING_BINS = 6
 
 
 class EstimatorService(ServiceRuntime):
@@ -351,7 +351,7 @@ class EstimatorService(ServiceRuntime):
                 self._attitude_seq += 1
                 publisher = self._attitude_pub
             else:
-                self._path = advance_path(self._path, out)
+                self._path = advance_path(self._path, out, self.settings.max_pair_s)
                 var_xy = horizontal_variance(self._path, self.settings.vo_drift_fraction)
                 msg = pose_message(self.settings.uav, self._pose_seq, out, var_xy)
                 self._pose_seq += 1

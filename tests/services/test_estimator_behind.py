@@ -20,18 +20,10 @@ from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import message_of
 from services.runtime.transport import TransportSettings
-from tests.services.fakes import FakeBytes
+from tests.services.fakes import FakeBytes, FakePublisher
 
 #: frames of the flight replayed (12 s: the VO origin at 4 s, then 8 s of turns)
 N_FRAMES = 240
-
-
-class _Recorder:
-    def __init__(self) -> None:
-        self.puts: list[tuple[bytes, bytes]] = []
-
-    def put(self, payload: bytes, attachment: bytes) -> None:
-        self.puts.append((payload, attachment))
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +60,7 @@ def _replay_behind(flight: Flight, stream: list[Measurement], every: int) -> Est
     """The stream through the service's callbacks; its estimator thread's turns are run by hand: one
     frame taken for every ``every`` that arrive (the samples queued before it with it), then the rest."""
     service = EstimatorService("behind", 0, TransportSettings(), _settings(flight))
-    service._attitude_pub, service._pose_pub = _Recorder(), _Recorder()  # type: ignore[assignment]
+    service._attitude_pub, service._pose_pub = FakePublisher(), FakePublisher()  # type: ignore[assignment]
     frames = 0
     for seq, m in enumerate(stream):
         key, message = message_of("uav0", seq, m)

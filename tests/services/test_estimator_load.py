@@ -28,6 +28,7 @@ from services.estimator import EstimatorService, EstimatorSettings
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.up import capataz_command
+from tests.services.fakes import FakePublisher
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 #: the two long runs under busy loops (about 4 minutes together) run on request
@@ -63,18 +64,10 @@ def busy_host(n: int | None = None) -> Iterator[None]:
             p.wait()
 
 
-class _Recorder:
-    def __init__(self) -> None:
-        self.puts: list[tuple[bytes, bytes]] = []
-
-    def put(self, payload: bytes, attachment: bytes) -> None:
-        self.puts.append((payload, attachment))
-
-
 def test_each_output_of_a_batch_carries_its_own_covariance(flight: Flight) -> None:
     """Regression (issue 9 section 5): the batch's last covariance was attached to every output of a batch."""
     service = EstimatorService("cov", 0, TransportSettings(), settings_of(flight))
-    service._attitude_pub, service._pose_pub = _Recorder(), _Recorder()  # type: ignore[assignment]
+    service._attitude_pub, service._pose_pub = FakePublisher(), FakePublisher()  # type: ignore[assignment]
     for m in flight_measurements(flight, 0, 6):
         service.estimator.push(m)
     outputs = service.estimator.process_due()  # one batch: many IMU steps and some frames

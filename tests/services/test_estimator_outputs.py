@@ -9,7 +9,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.estimation.coupling_types import PoseOutput
-from services.estimator.outputs import MIN_VAR_XY_M2, VoPath, advance_path, horizontal_variance, pose_message
+from services.estimator.outputs import (
+    MIN_VAR_XY_M2,
+    WIDE_PAIR_FRACTION,
+    VoPath,
+    advance_path,
+    horizontal_variance,
+    pose_message,
+)
 
 
 def _pose(stamp_s: float, x_m: float, ok: bool = True) -> PoseOutput:
@@ -52,3 +59,11 @@ def test_the_horizontal_variance_never_shrinks(steps: list[tuple[float, bool]]) 
         var = horizontal_variance(path, 0.001)
         assert var >= last - 1e-15
         last = var
+
+
+def test_a_pair_wider_than_the_trusted_spacing_adds_a_share_of_its_step() -> None:
+    path = advance_path(VoPath(), _pose(0.0, 0.0))
+    close = advance_path(path, _pose(0.2, 0.1), max_pair_s=0.25)
+    wide = advance_path(path, _pose(0.4, 0.1), max_pair_s=0.25)
+    assert close.unseen_var_m2 == 0.0
+    assert wide.unseen_var_m2 == pytest.approx((WIDE_PAIR_FRACTION * 0.1) ** 2)
