@@ -52,10 +52,10 @@ def settings_of(flight: Flight) -> EstimatorSettings:
 
 @contextlib.contextmanager
 def busy_host(n: int | None = None) -> Iterator[None]:
-    """Busy-loop processes on every core for the duration (the test's own load)."""
-    procs = [
-        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n or os.cpu_count() or 2)
-    ]
+    """Busy-loop processes on every core for the duration (the test's own load; ``CAPATAZ_LOAD_BUSY=N`` runs
+    N of them instead, e.g. twice the cores for a harsher run)."""
+    n = n or int(os.environ.get("CAPATAZ_LOAD_BUSY", "0")) or os.cpu_count() or 2
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
     try:
         yield
     finally:
