@@ -93,6 +93,17 @@ def test_a_stall_queues_frames_rather_than_pairing_frames_too_far_apart_until_th
     assert max(s for _, s in taken) > 4 and deepest <= 25  # 3 s of frames at most 4 apart, not 100
 
 
+def test_a_clock_that_goes_back_keeps_the_queue_bounded() -> None:
+    queue: SpacedFrameQueue[_Frame] = SpacedFrameQueue(4, max_pair_s=0.2, max_backlog_s=3.0)
+    for i in range(10):
+        queue.offer(_Frame(100.0 + i / 20))
+    assert queue.take() is not None
+    for i in range(200):  # a restarted camera: stamps from 0 again, far behind the frame taken last
+        queue.offer(_Frame(i / 20))
+        assert queue.depth() <= 3.0 * 20 / 2  # 3 s of frames, as with a stream that never restarted
+    assert queue.take() is not None
+
+
 @pytest.mark.parametrize("capacity", [1, SpacedFrameQueue.HARD_CAPACITY + 1])
 def test_a_queue_needs_room_for_two_frames_and_is_bounded(capacity: int) -> None:
     with pytest.raises(InputError, match="capacity of 2 to"):
