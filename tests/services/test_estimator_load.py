@@ -246,7 +246,8 @@ def test_paper_c_flight_under_a_busy_host_ends_within_2_cm(flight: Flight) -> No
     error_m = float(np.linalg.norm(last.p_world_body_m[:2] - flight.p_world_body_m[k, :2]))
     spacings = {name: n for name, n in counts.items() if name.startswith("vo_spacing_")}
     print(
-        f"busy host: final VO error {100 * error_m:.2f} cm at frame {k}; frames used "
+        f"busy host: final VO error {100 * error_m:.2f} cm at frame {k} (reported sigma "
+        f"{100 * np.sqrt(last.covariance[0, 0]):.2f} cm, {last.tracking_state}); frames used "
         f"{counts.get('frames_used')} of {counts.get('frames_in')}, pair spacings {spacings}; "
         f"counters {counts}; deepest queues "
         f"{ {q: max(s.queue_depths.get(q, 0) for s in stats) for q in stats[-1].queue_depths} }"
