@@ -41,7 +41,7 @@ class EstimatorSettings(BaseModel):
     #: close (s; the attitude waits for the VO too, so this bounds the latency of every output)
     frame_queue: int = Field(default=6, ge=2, le=128)
     max_pair_s: float = Field(default=0.25, gt=0.0, le=10.0)
-    max_backlog_s: float = Field(default=3.0, ge=0.0, le=10.0)
+    max_backlog_s: float = Field(default=3.0, ge=0.0, le=8.0)  # the held samples (4096) span about 9 s
 
     def camera(self) -> CameraModel:
         return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)

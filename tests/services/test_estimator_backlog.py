@@ -9,9 +9,11 @@ from dataclasses import dataclass
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from common.errors import InputError
 from services.estimator.backlog import HeldSamples, SpacedFrameQueue
+from services.estimator.settings import EstimatorSettings
 
 
 @dataclass(frozen=True)
@@ -131,3 +133,11 @@ def test_held_samples_come_out_in_stamp_order_up_to_the_frame_and_stay_bounded(
     released += [m.stamp_s for m in held.until(math.inf)]
     added = batches[: len(frames)]
     assert sorted(released) == sorted(float(t) for batch in added for t in batch)
+
+
+@pytest.mark.parametrize(
+    "field", [{"frame_queue": 1}, {"frame_queue": 129}, {"max_pair_s": 0.0}, {"max_backlog_s": 9.0}]
+)
+def test_backlog_settings_out_of_range_are_refused(field: dict[str, float]) -> None:
+    with pytest.raises(ValidationError, match=next(iter(field))):
+        EstimatorSettings(**field)  # type: ignore[arg-type]
