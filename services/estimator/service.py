@@ -14,11 +14,11 @@ yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a 
 :class:`~common.estimation.coupling.DoubleCouplingEstimator` in stamp order, one frame at a time, each after
 the samples before it. When the filter is behind, every IMU and range sample is still applied and the
 frame queue skips frames evenly (``frames_skipped``; ``vo_spacing_<n>`` counts the pairs ``n`` frames
-apart), so the VO pairs the frames it gets; health reports degraded while frames are skipped. A pose whose
-pair failed is published as ``lost`` with the unseen motion in its covariance. Bad samples are refused
-with a log line and a counter, never a crash: undecodable (``malformed``), another UAV's (``wrong_uav``),
-NaN/inf or a wrong shape (``bad_samples``, ``bad_frames``), stale or duplicate stamps
-(``refused_<sensor>_<stale|duplicate|overflow>``).
+apart), so the VO pairs the frames it gets; health reports degraded while frames are skipped or the
+filter lags (``lag_ms`` in the stats). A pose whose pair failed is published as ``lost`` with the unseen
+motion in its covariance. Bad samples are refused with a log line and a counter, never a crash:
+undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong shape (``bad_samples``,
+``bad_frames``), stale or duplicate stamps (``refused_<sensor>_<stale|duplicate|overflow>``).
 """
 
 from __future__ import annotations
