@@ -51,7 +51,8 @@ from services.master.settings import (
 )
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
-from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.round import FrameWork
+from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 

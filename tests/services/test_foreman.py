@@ -17,7 +17,8 @@ from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, rea
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService, ForemanSettings
 from services.runtime.handoff import Counters
-from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.round import FrameWork
+from services.runtime.scatter import Scatter
 from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService, WorkerSettings
 from tests.builders import JOB_SETTINGS, patch_job
