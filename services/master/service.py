@@ -1,9 +1,9 @@
 """The master of one UAV stream: admitted frame -> shares -> merged measurement -> yaw.
 
-Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, seq and stamp jumps
-refused and counted; a confirmed restart is a new epoch whose yaw continues the last one) and waits in a
-short FIFO. Several masters may serve one UAV: one is active (:mod:`services.master.election`), the others
-stand by warm and take over from the last published yaw.
+Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, a second sender
+within an epoch, seq and stamp jumps refused and counted; a confirmed restart is a new epoch whose yaw
+continues the last one) and waits in a short FIFO. Several masters may serve one UAV: one is active
+(:mod:`services.master.election`), the others stand by warm and take over from the last published yaw.
 
 Topology is a setting: ``master-worker`` (members = every worker) or ``master-foreman-worker``
 (members = foremen, each splitting its block among its workers). Balancing and self-compute are the
@@ -55,6 +55,7 @@ from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
+from services.runtime.transport import source_of
 
 
 @dataclass
@@ -141,7 +142,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         with self._recent_lock:
             self._gate, decision = admit_frame(
                 self._gate, self.gate_settings, self.settings.uav, frame.uav, frame.seq, frame.stamp_s, key,
-                time.monotonic(), time.time(),
+                time.monotonic(), time.time(), source_of(sample),
             )  # fmt: skip
             if decision.verdict is Verdict.REFUSE:
                 self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
