@@ -28,30 +28,20 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import encode
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, FilterKind, PoseOutput
 from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
-from common.messages import (
-    AttitudeEstimate,
-    Frame,
-    ImuSample,
-    PoseEstimate,
-    RangeSample,
-    WireModel,
-    YawEstimate,
-    encode,
-)
+from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate
+from common.wire import WireModel
 from services.estimator.outputs import attitude_message, pose_message
 from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
+from services.runtime.cli import add_transport_arguments, transport_from_args
+from services.runtime.handoff import WorkQueue
+from services.runtime.service import ServiceRuntime
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    WorkQueue,
-    add_transport_arguments,
-    transport_from_args,
-)
+from services.runtime.transport import TransportSettings
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 T = TypeVar("T")

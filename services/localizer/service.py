@@ -25,11 +25,15 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.messages import Frame, PoseEstimate, encode
+from common.codec import encode
+from common.messages import Frame, PoseEstimate
 from services.localizer.filters import LocalizationPath, make_path, odometry_between
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
+from services.runtime.cli import transport_from_args
+from services.runtime.handoff import LatestSlot
+from services.runtime.service import ServiceRuntime
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args
+from services.runtime.transport import TransportSettings
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 

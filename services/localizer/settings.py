@@ -30,7 +30,7 @@ from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker_state import TrackerSettings
 from common.sim.office_run import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
 from common.sim.scene import default_flight
-from services.runtime.transport import add_transport_arguments
+from services.runtime.cli import add_transport_arguments
 
 #: the body's camera mounts, plus "camera": the published pose is the camera's own (no body)
 _MOUNTS = {**{m.value: m.R_body_camera for m in CameraMount}, "camera": np.eye(3)}

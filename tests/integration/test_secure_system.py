@@ -18,8 +18,10 @@ import pytest
 import zenoh
 
 from common import keys
-from common.messages import AttitudeEstimate, PoseEstimate, WireError, decode
+from common.codec import decode
+from common.messages import AttitudeEstimate, PoseEstimate
 from common.sim.scene import default_flight
+from common.wire import WireError
 from services.bench import hostile
 from services.runtime.transport import open_session, zbytes
 from services.secure import SecureProfile

@@ -22,9 +22,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common import keys
+from common.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
-from common.messages import AttitudeEstimate, ImuSample, PoseEstimate, decode, encode
+from common.messages import AttitudeEstimate, ImuSample, PoseEstimate
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings
 from services.estimator.service import THIN_AFTER, thin_frames

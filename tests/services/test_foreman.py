@@ -12,8 +12,9 @@ import pytest
 import zenoh
 
 from common import keys
+from common.codec import decode, encode, read_error_reply
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
-from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
+from common.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService, ForemanSettings
 from services.runtime.handoff import Counters

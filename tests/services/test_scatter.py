@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.codec import decode, encode
 from common.dispatch import SELF, Dispatcher, DispatchSettings
-from common.messages import PatchJob, PatchResult, decode, encode
+from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters
 from services.runtime.round import FrameWork, RoundReport
