@@ -86,10 +86,6 @@ class ParticleFilterSettings:
             raise InputError("noise levels must be non-negative")
 
 
-#: the old name, kept while other branches still use it (remove once they are merged)
-ParticleFilterConfig = ParticleFilterSettings
-
-
 @dataclass(frozen=True)
 class ParticleState:
     """Particles (P, 6), their normalised log weights (P,), the last best fit and collapse bookkeeping.

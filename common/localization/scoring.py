@@ -61,10 +61,6 @@ class ScoringSettings:
     max_normal_px: int = 10
 
 
-#: the old name, kept while other branches still use it (remove once they are merged)
-ScoringParams = ScoringSettings
-
-
 @dataclass(frozen=True)
 class ImageEdges:
     """Edges of one image: ``edge_map`` (H, W) uint8 (1 on an edge) and ``distance_px`` (H, W) float32.

@@ -28,7 +28,7 @@ from common.localization.particle_filter import ParticleFilterSettings
 from common.localization.pose import CameraPose, parse_pose_numbers
 from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker_state import TrackerSettings
-from common.sim.office_run import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
+from common.sim.office_run import OFFICE_HEIGHT_PX, OFFICE_HFOV_DEG, OFFICE_WIDTH_PX
 from common.sim.scene import default_flight
 from services.runtime.cli import add_transport_arguments
 
@@ -58,9 +58,9 @@ class LocalizerSettings(BaseModel):
     model_scale: float = Field(default=1.0, gt=0.0)
     #: camera calibration (OpenCV YAML or ROS camera_info YAML); None = width x height with hfov_deg
     calibration: Path | None = None
-    width: int = Field(default=DEFAULT_WIDTH_PX, gt=0)
-    height: int = Field(default=DEFAULT_HEIGHT_PX, gt=0)
-    hfov_deg: float = Field(default=DEFAULT_HFOV_DEG, gt=0.0, lt=180.0)
+    width: int = Field(default=OFFICE_WIDTH_PX, gt=0)
+    height: int = Field(default=OFFICE_HEIGHT_PX, gt=0)
+    hfov_deg: float = Field(default=OFFICE_HFOV_DEG, gt=0.0, lt=180.0)
     #: how the camera sits on the body that pose/pf reports ("camera": the camera itself)
     camera_mount: Literal["forward", "down", "camera"] = "forward"
     particles: int = Field(default=200, ge=2)
@@ -147,10 +147,10 @@ def register_arguments(parser: Any) -> None:
     )
     parser.add_argument(
         "--resolution",
-        default=f"{DEFAULT_WIDTH_PX}x{DEFAULT_HEIGHT_PX}",
+        default=f"{OFFICE_WIDTH_PX}x{OFFICE_HEIGHT_PX}",
         help="camera WIDTHxHEIGHT (no file)",
     )
-    parser.add_argument("--hfov", type=float, default=DEFAULT_HFOV_DEG, help="horizontal FOV (deg; no file)")
+    parser.add_argument("--hfov", type=float, default=OFFICE_HFOV_DEG, help="horizontal FOV (deg; no file)")
     parser.add_argument("--mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body")
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
     parser.add_argument(
