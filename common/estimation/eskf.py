@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import bounded
 from common.errors import InputError
 from common.estimation.ekf import (
     EkfSettings,
@@ -52,23 +53,11 @@ class BiasEkfSettings(EkfSettings):
     """:class:`EkfSettings` plus the bias states' priors and random walks."""
 
     #: The gyro bias state replaces most of the attitude random walk that absorbs it in the 5-state filter.
-    attitude_random_walk_rad_sqrt_s: float = 0.0005
-    initial_gyro_bias_std_rad_s: float = 0.01
-    initial_accel_bias_std_m_s2: float = 0.1
-    gyro_bias_walk_rad_s_sqrt_s: float = 2e-5
-    accel_bias_walk_m_s2_sqrt_s: float = 2e-4
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name in (
-            "initial_gyro_bias_std_rad_s",
-            "initial_accel_bias_std_m_s2",
-            "gyro_bias_walk_rad_s_sqrt_s",
-            "accel_bias_walk_m_s2_sqrt_s",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise InputError(f"BiasEkfSettings.{name} must be finite and >= 0, got {value}")
+    attitude_random_walk_rad_sqrt_s: float = bounded(0.0005, ge=0.0)
+    initial_gyro_bias_std_rad_s: float = bounded(0.01, ge=0.0)
+    initial_accel_bias_std_m_s2: float = bounded(0.1, ge=0.0)
+    gyro_bias_walk_rad_s_sqrt_s: float = bounded(2e-5, ge=0.0)
+    accel_bias_walk_m_s2_sqrt_s: float = bounded(2e-4, ge=0.0)
 
 
 @dataclass(frozen=True)
