@@ -25,6 +25,7 @@ from common.estimation.ekf_models import (
     STANDARD_GRAVITY_M_S2,
     EkfError,
     accelerometer_model,
+    check_initial,
     chi_square_quantile,
     error_angle_covariance_world,
     normalized_quaternion,
@@ -35,7 +36,6 @@ from common.estimation.ekf_models import (
     transition_matrix,
     yaw_model,
 )
-from common.geometry import check_quaternion
 from common.types import FloatArray
 
 __all__ = [
@@ -119,12 +119,7 @@ class AttitudeAltitudeEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> EkfState:
         """A state at ``stamp_s`` with the settings' initial uncertainty."""
-        q = check_quaternion(q_world_body, "q_world_body")
-        if q.shape != (4,):
-            raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
-        if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
-            raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = normalized_quaternion(*(float(v) for v in q))
+        qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
         P = np.zeros((5, 5))
         # attitude angle std theta gives quaternion std theta/2 in the three directions orthogonal to q

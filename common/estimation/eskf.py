@@ -33,6 +33,7 @@ from common.estimation.ekf import (
 from common.estimation.ekf_models import (
     EkfError,
     accelerometer_model,
+    check_initial,
     chi_square_quantile,
     normalized_quaternion,
     propagate_quaternion,
@@ -40,7 +41,7 @@ from common.estimation.ekf_models import (
     three_floats,
     yaw_model,
 )
-from common.geometry import check_quaternion, matrix_from_quaternion
+from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
@@ -106,12 +107,7 @@ class BiasAwareEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> BiasEkfState:
         """A state at ``stamp_s``, zero biases, the settings' initial uncertainty."""
-        q = check_quaternion(q_world_body, "q_world_body")
-        if q.shape != (4,):
-            raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
-        if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
-            raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = normalized_quaternion(*(float(v) for v in q))
+        qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
         diag = np.r_[
             np.full(3, s.initial_attitude_std_rad**2),
