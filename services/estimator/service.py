@@ -37,11 +37,10 @@ from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, Ra
 from common.wire import WireModel
 from services.estimator.outputs import attitude_message, pose_message
 from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
-from services.runtime.cli import add_transport_arguments, transport_from_args
+from services.runtime.cli import add_enum_argument, add_transport_arguments
 from services.runtime.handoff import WorkQueue
-from services.runtime.service import ServiceRuntime
+from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import TransportSettings
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 T = TypeVar("T")
@@ -69,19 +68,11 @@ def thin_frames(frames: list[T]) -> list[T]:
     return frames[n - 1 :: -stride][::-1]
 
 
-class EstimatorService(ServiceRuntime):
+class EstimatorService(ConfiguredService[EstimatorSettings]):
     role = keys.Role.ESTIMATOR
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: EstimatorSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
@@ -327,13 +318,11 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
     )
-    parser.add_argument(
-        "--filter",
-        choices=[kind.value for kind in FilterKind],
-        default=FilterKind.BIAS.value,
+    add_enum_argument(
+        parser, "--filter", FilterKind, FilterKind.BIAS,
         help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
         "paper_c (paper C's 5-state EKF)",
-    )
+    )  # fmt: skip
     parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
     parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
     parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
@@ -358,9 +347,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    service = EstimatorService(
-        args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
-    )
+    service = EstimatorService.from_args(args, settings_from_args(args))
     paths: dict[type[WireModel], Path | None] = {
         PoseEstimate: args.trajectory,
         AttitudeEstimate: args.attitude_trajectory,

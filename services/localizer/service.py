@@ -29,27 +29,17 @@ from common.codec import encode
 from common.messages import Frame, PoseEstimate
 from services.localizer.filters import LocalizationPath, make_path, odometry_between
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
-from services.runtime.cli import transport_from_args
 from services.runtime.handoff import LatestSlot
-from services.runtime.service import ServiceRuntime
+from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import TransportSettings
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
-class LocalizerService(ServiceRuntime):
+class LocalizerService(ConfiguredService[LocalizerSettings]):
     role = keys.Role.LOCALIZER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: LocalizerSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         self.camera = settings.camera()
         self.path: LocalizationPath = make_path(settings)
         self._slot: LatestSlot[Frame] = LatestSlot()
@@ -165,7 +155,5 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    service = LocalizerService(
-        args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
-    )
+    service = LocalizerService.from_args(args, settings_from_args(args))
     return run_with_trajectories(service, {PoseEstimate: args.trajectory})
