@@ -28,6 +28,7 @@ from common.estimation.ekf_models import (
     check_initial,
     chi_square_quantile,
     error_angle_covariance_world,
+    expected_specific_force,
     normalized_quaternion,
     propagate_quaternion,
     rangefinder_model,
@@ -193,13 +194,10 @@ class AttitudeAltitudeEkf:
         """
         ax, ay, az = three_floats(accel_m_s2)
         s = self.settings
-        mx, my, mz = motion_accel_world_m_s2
-        f_world = (mx, my, mz + s.gravity_m_s2)
-        norm = math.sqrt(ax * ax + ay * ay + az * az)
-        if not math.isfinite(norm):
-            raise InputError(f"accel_m_s2 must be finite, got {(ax, ay, az)}")
-        expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
-        if abs(norm - expected) > s.accel_norm_tolerance_m_s2:
+        f_world = expected_specific_force(
+            (ax, ay, az), motion_accel_world_m_s2, s.gravity_m_s2, s.accel_norm_tolerance_m_s2
+        )
+        if f_world is None:
             return UpdateResult(state=state, accepted=False, nis=math.nan)
         q = state.q_world_body.tolist()
         h, Hq = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)

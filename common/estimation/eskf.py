@@ -35,6 +35,7 @@ from common.estimation.ekf_models import (
     accelerometer_model,
     check_initial,
     chi_square_quantile,
+    expected_specific_force,
     normalized_quaternion,
     propagate_quaternion,
     rangefinder_model,
@@ -194,13 +195,10 @@ class BiasAwareEkf:
         bax, bay, baz = state.accel_bias_m_s2.tolist()
         cx, cy, cz = ax - bax, ay - bay, az - baz
         s = self.settings
-        mx, my, mz = motion_accel_world_m_s2
-        f_world = (mx, my, mz + s.gravity_m_s2)
-        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if not math.isfinite(norm):
-            raise InputError(f"accel_m_s2 must be finite, got {(ax, ay, az)}")
-        expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
-        if abs(norm - expected) > s.accel_norm_tolerance_m_s2:
+        f_world = expected_specific_force(
+            (cx, cy, cz), motion_accel_world_m_s2, s.gravity_m_s2, s.accel_norm_tolerance_m_s2
+        )
+        if f_world is None:
             return BiasUpdateResult(state, False, math.nan)
         q = state.q_world_body.tolist()
         h, _ = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)
