@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -33,7 +34,15 @@ from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, FilterKind, PoseOutput
 from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
-from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate
+from common.messages import (
+    AttitudeEstimate,
+    Frame,
+    ImuSample,
+    PoseEstimate,
+    RangeSample,
+    UavMessage,
+    YawEstimate,
+)
 from common.wire import WireModel
 from services.estimator.outputs import attitude_message, pose_message
 from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
@@ -44,6 +53,7 @@ from services.runtime.stamps import InputStamps
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 T = TypeVar("T")
+S = TypeVar("S", bound=UavMessage)
 SENSOR_QUEUE = 4096
 FRAME_QUEUE = 40
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
@@ -150,51 +160,45 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         if not self._samples.offer(measurement):
             self.count_error("queue_full", "sample refused", "the sensor queue is full")
 
-    def _on_imu(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, ImuSample)
+    def _admitted(self, sample: zenoh.Sample, expected: type[S], what: str, sensor: str) -> S | None:
+        """The sample decoded, of this UAV, and with a stamp the guard admits; else None (counted)."""
+        msg = self.decode_sample(sample, expected)
         if (
             msg is None
-            or not self._own(msg.uav, "IMU sample", sample.key_expr)
-            or not self._admit("imu", msg.stamp_s)
+            or not self._own(msg.uav, what, sample.key_expr)
+            or not self._admit(sensor, msg.stamp_s)
         ):
-            return
+            return None
+        return msg
+
+    def _offer_checked(self, what: str, check: Callable[[], Measurement]) -> None:
         try:
-            self._offer(check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
+            self._offer(check())
         except InputError as exc:
-            self.count_error("bad_samples", "IMU sample refused", exc)
+            self.count_error("bad_samples", f"{what} refused", exc)
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        msg = self._admitted(sample, ImuSample, "IMU sample", "imu")
+        if msg is not None:
+            self._offer_checked("IMU sample", lambda: check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
 
     def _on_range(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, RangeSample)
-        if msg is None or not self._own(msg.uav, "range sample", sample.key_expr):
-            return
-        if not self._admit("range", msg.stamp_s):
-            return
-        try:
-            self._offer(check_range(msg.stamp_s, msg.range_m))
-        except InputError as exc:
-            self.count_error("bad_samples", "range sample refused", exc)
+        msg = self._admitted(sample, RangeSample, "range sample", "range")
+        if msg is not None:
+            self._offer_checked("range sample", lambda: check_range(msg.stamp_s, msg.range_m))
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, YawEstimate)
-        if (
-            msg is None
-            or not self._own(msg.uav, "yaw", sample.key_expr)
-            or not self._admit("yaw", msg.stamp_s)
-        ):
+        msg = self._admitted(sample, YawEstimate, "yaw", "yaw")
+        if msg is None:
             return
         if msg.low_confidence:
             self.counters.inc("yaw_low_confidence")
             return
-        try:
-            self._offer(check_yaw(msg.stamp_s, msg.yaw_rad))
-        except InputError as exc:
-            self.count_error("bad_samples", "yaw refused", exc)
+        self._offer_checked("yaw", lambda: check_yaw(msg.stamp_s, msg.yaw_rad))
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, Frame)
-        if msg is None or not self._own(msg.uav, "frame", sample.key_expr):
-            return
-        if not self._admit("camera", msg.stamp_s):
+        msg = self._admitted(sample, Frame, "frame", "camera")
+        if msg is None:
             return
         try:
             frame = check_frame(msg.stamp_s, msg.pixels, self._shape)
