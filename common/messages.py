@@ -6,6 +6,7 @@ Their base and bounds: :mod:`common.wire`; the one codec that carries them: :mod
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -183,8 +184,8 @@ class YawJobSettings(BaseModel):
     @model_validator(mode="after")
     def _valid_yaw_settings(self) -> YawJobSettings:
         try:
-            self._yaw_settings = YawSettings(
-                **{name: getattr(self, name) for name in type(self).model_fields}
+            self._yaw_settings = _yaw_settings(
+                tuple((name, getattr(self, name)) for name in type(self).model_fields)
             )
         except InputError as exc:
             raise ValueError(f"invalid yaw settings: {exc}") from None
@@ -200,6 +201,12 @@ class YawJobSettings(BaseModel):
     def yaw_settings(self) -> YawSettings:
         """The core's settings object (no lens model)."""
         return self._yaw_settings
+
+
+@functools.lru_cache(maxsize=16)
+def _yaw_settings(values: tuple[tuple[str, object], ...]) -> YawSettings:
+    """A job's core settings: jobs carry the same few, so each is built and checked once, then looked up."""
+    return YawSettings(**dict(values))  # type: ignore[arg-type]
 
 
 #: Yaw settings only the central stage uses (the lens model): never sent to members.
