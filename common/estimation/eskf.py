@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import bounded
 from common.errors import InputError
 from common.estimation.ekf import (
     EkfSettings,
@@ -32,14 +33,16 @@ from common.estimation.ekf import (
 from common.estimation.ekf_models import (
     EkfError,
     accelerometer_model,
+    check_initial,
     chi_square_quantile,
+    expected_specific_force,
     normalized_quaternion,
     propagate_quaternion,
     rangefinder_model,
     three_floats,
     yaw_model,
 )
-from common.geometry import check_quaternion, matrix_from_quaternion
+from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
@@ -52,23 +55,11 @@ class BiasEkfSettings(EkfSettings):
     """:class:`EkfSettings` plus the bias states' priors and random walks."""
 
     #: The gyro bias state replaces most of the attitude random walk that absorbs it in the 5-state filter.
-    attitude_random_walk_rad_sqrt_s: float = 0.0005
-    initial_gyro_bias_std_rad_s: float = 0.01
-    initial_accel_bias_std_m_s2: float = 0.1
-    gyro_bias_walk_rad_s_sqrt_s: float = 2e-5
-    accel_bias_walk_m_s2_sqrt_s: float = 2e-4
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name in (
-            "initial_gyro_bias_std_rad_s",
-            "initial_accel_bias_std_m_s2",
-            "gyro_bias_walk_rad_s_sqrt_s",
-            "accel_bias_walk_m_s2_sqrt_s",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise InputError(f"BiasEkfSettings.{name} must be finite and >= 0, got {value}")
+    attitude_random_walk_rad_sqrt_s: float = bounded(0.0005, ge=0.0)
+    initial_gyro_bias_std_rad_s: float = bounded(0.01, ge=0.0)
+    initial_accel_bias_std_m_s2: float = bounded(0.1, ge=0.0)
+    gyro_bias_walk_rad_s_sqrt_s: float = bounded(2e-5, ge=0.0)
+    accel_bias_walk_m_s2_sqrt_s: float = bounded(2e-4, ge=0.0)
 
 
 @dataclass(frozen=True)
@@ -117,12 +108,7 @@ class BiasAwareEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> BiasEkfState:
         """A state at ``stamp_s``, zero biases, the settings' initial uncertainty."""
-        q = check_quaternion(q_world_body, "q_world_body")
-        if q.shape != (4,):
-            raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
-        if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
-            raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = normalized_quaternion(*(float(v) for v in q))
+        qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
         diag = np.r_[
             np.full(3, s.initial_attitude_std_rad**2),
@@ -209,13 +195,10 @@ class BiasAwareEkf:
         bax, bay, baz = state.accel_bias_m_s2.tolist()
         cx, cy, cz = ax - bax, ay - bay, az - baz
         s = self.settings
-        mx, my, mz = motion_accel_world_m_s2
-        f_world = (mx, my, mz + s.gravity_m_s2)
-        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if not math.isfinite(norm):
-            raise InputError(f"accel_m_s2 must be finite, got {(ax, ay, az)}")
-        expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
-        if abs(norm - expected) > s.accel_norm_tolerance_m_s2:
+        f_world = expected_specific_force(
+            (cx, cy, cz), motion_accel_world_m_s2, s.gravity_m_s2, s.accel_norm_tolerance_m_s2
+        )
+        if f_world is None:
             return BiasUpdateResult(state, False, math.nan)
         q = state.q_world_body.tolist()
         h, _ = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)

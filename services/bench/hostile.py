@@ -22,18 +22,17 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import decode, encode
 from common.messages import (
     AttitudeEstimate,
     BlockJob,
     BlockResult,
     Frame,
     PoseEstimate,
-    WireError,
     YawEstimate,
     YawJobSettings,
-    decode,
-    encode,
 )
+from common.wire import WireError
 from common.yaw import YawSettings, make_patch_grid
 from services.runtime.transport import TransportError, TransportSettings, open_session, zbytes
 from services.up import LocalCluster

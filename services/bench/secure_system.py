@@ -23,9 +23,11 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import decode
 from common.geometry import euler_from_quaternion, wrap_angle_rad
-from common.messages import AttitudeEstimate, PoseEstimate, WireError, decode
+from common.messages import AttitudeEstimate, PoseEstimate
 from common.sim.scene import default_flight
+from common.wire import WireError
 from services.bench import hostile
 from services.camera import CameraSettings, simulated_flight
 from services.runtime.transport import open_session, zbytes

@@ -17,7 +17,9 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.messages import Health, WireError, YawEstimate, decode, encode
+from common.codec import decode, encode
+from common.messages import Health, YawEstimate
+from common.wire import WireError
 from services.bench.hostile import AttackResult, attacker, fly, frames_lost, max_yaw_error_deg, watching
 from services.runtime.transport import zbytes
 from services.up import LocalCluster

@@ -23,10 +23,11 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import decode, encode
 from common.dispatch import SELF
-from common.messages import Frame, PatchJob, Stats, WireError, YawEstimate, decode, encode
+from common.messages import Frame, PatchJob, Stats, YawEstimate, YawJobSettings
+from common.wire import WireError
 from common.yaw import YawSettings
-from common.yaw.patchwork import settings_to_wire
 from services.loadtest.plan import Fault, FaultAction, FrameRecord
 from services.runtime.transport import open_session, zbytes
 from services.secure import SecureProfile
@@ -356,7 +357,7 @@ class Hostile:
 
     def _jobs(self, kind: str) -> None:
         host = self.spec.hosts[0].name
-        wire = settings_to_wire(YawSettings())
+        wire = YawJobSettings.of(YawSettings()).model_dump(mode="json")  # a hostile copy is sent unchecked
         n = 1 if kind == "settings" else 2000
         for i in range(n):
             settings = dict(wire, patch_size_px=100_000) if kind == "settings" else wire

@@ -14,7 +14,8 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.messages import Frame, encode
+from common.codec import encode
+from common.messages import Frame
 from services.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
 from services.loadtest.harness import (
     Hostile,

@@ -24,18 +24,10 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import encode
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.messages import (
-    BlockJob,
-    BlockResult,
-    Frame,
-    PatchJob,
-    PatchResult,
-    YawEstimate,
-    YawJobSettings,
-    encode,
-)
+from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
@@ -53,7 +45,8 @@ from services.master.settings import (
 )
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
-from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.round import FrameWork
+from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import source_of

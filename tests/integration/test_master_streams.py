@@ -17,7 +17,8 @@ import pytest
 import zenoh
 
 from common import keys
-from common.messages import Frame, Health, YawEstimate, decode, encode
+from common.codec import decode, encode
+from common.messages import Frame, Health, YawEstimate
 from common.sim.flight import hover_flight
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
