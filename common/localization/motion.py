@@ -20,24 +20,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.localization.pose import CameraPose, perturb, rotation_vectors
 from common.types import FloatArray
 
 
 @dataclass(frozen=True)
-class MotionSettings:
+class MotionSettings(Bounded):
     """Process noise (physical units) and the innovation gate (chi-square, 6 degrees of freedom)."""
 
-    acceleration_m_s2: float = 2.0
-    angular_acceleration_rad_s2: float = float(np.radians(60.0))
-    gate: float = 40.0
-
-    def __post_init__(self) -> None:
-        for name in ("acceleration_m_s2", "angular_acceleration_rad_s2", "gate"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise InputError(f"{name} must be positive, got {value}")
+    acceleration_m_s2: float = bounded(2.0, gt=0.0)
+    angular_acceleration_rad_s2: float = bounded(float(np.radians(60.0)), gt=0.0)
+    gate: float = bounded(40.0, gt=0.0)
 
 
 @dataclass(frozen=True)
