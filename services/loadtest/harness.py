@@ -338,9 +338,19 @@ class Hostile:
             self._jobs(kind)
         elif kind == "sender":
             self._second_sender(pixels)
-        for frame in frames:
-            payload, attachment = encode(frame)
-            self.camera.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(self.camera.id, 0))
+        if frames:
+            # a publisher of its own that blocks rather than drops: the stream's camera publisher drops under
+            # congestion, and a 16 MB forged frame lost on a busy host would test the transport, not the gate
+            forger = self.session.declare_publisher(
+                keys.camera_key(self.uav), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            copied = zenoh.SourceInfo(self.camera.id, 0)  # the camera's own sender id, forged
+            try:
+                for frame in frames:
+                    payload, attachment = encode(frame)
+                    forger.put(payload, attachment=attachment, source_info=copied)
+            finally:
+                forger.undeclare()
         self.sent[kind] = self.sent.get(kind, 0) + 1
 
     def _second_sender(self, pixels: np.ndarray) -> None:
