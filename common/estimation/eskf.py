@@ -1,13 +1,23 @@
 """Error-state EKF with gyro and accelerometer bias states: paper C's observation models, EKF2-style state.
 
-Nominal state: ``q_world_body`` (unit, q0 >= 0), altitude ``pz_m``, gyro bias ``b_g`` (rad/s, body) and
-accelerometer bias ``b_a`` (m/s^2, body). Error state (10): body-frame attitude error ``dtheta``
-(``q_true = q * [1, dtheta/2]``), ``dpz``, ``db_g``, ``db_a``, with a 10x10 covariance.
+Nominal state: ``q_world_body`` (unit, q0 >= 0), altitude ``pz_m``, gyro bias ``b_g`` (rad/s, body),
+accelerometer bias ``b_a`` (m/s^2, body), the horizontal position ``p_xy_m`` and the velocity
+``v_xy_m_s``, ``vz_m_s`` (navigation frame). Error state (15): body-frame attitude error ``dtheta``
+(``q_true = q * [1, dtheta/2]``), ``dpz``, ``db_g``, ``db_a``, ``dp_xy``, ``dv_xy``, ``dvz``;
+15x15 covariance.
 
 - Predict: the bias-corrected gyro through paper C's quaternion kinematics (eq. 12,
   :func:`~common.estimation.ekf.propagate_quaternion`); the error dynamics ``dtheta' = -[w]x dtheta - db_g``,
   constant altitude and bias random walks.
-- Updates: the accelerometer (eq. 16) plus ``b_a``, the yaw ``[cos psi, sin psi]`` (eq. 19) and the
+- Predict with the accelerometer too: velocity and position (altitude included) integrate the bias-corrected
+  specific force rotated to the navigation frame, minus gravity (strapdown inertial navigation, as PX4's
+  EKF2 and ArduPilot's EKF3); ``dv' = -(R [f]x) dtheta - R db_a``. Paper C's constant-altitude model
+  locks the rangefinder out when the vehicle climbs faster than its random walk allows.
+- Position update (:meth:`BiasAwareEkf.update_position`) with the visual odometry's horizontal position:
+  aided this way, a tilt error shows as a growing velocity and position error, so the tilt stays observable
+  during manoeuvres, when the accelerometer alone is no tilt reference.
+- Updates: the accelerometer (eq. 16) plus ``b_a``, with its noise raised by the uncertainty of the
+  manoeuvre acceleration it is compensated for, the yaw ``[cos psi, sin psi]`` (eq. 19) and the
   rangefinder (eq. 21), each from the paper-C model function of :mod:`common.estimation.ekf`; their
   quaternion Jacobians become error-state Jacobians through ``dq/dtheta = 1/2 Xi(q)``. The same chi-square
   gates and accelerometer norm check as :class:`~common.estimation.ekf.AttitudeAltitudeEkf`.
@@ -20,7 +30,7 @@ separate as soon as the vehicle yaws, which is what these states let the filter 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -30,7 +40,6 @@ from common.estimation.ekf import (
     EkfSettings,
 )
 from common.estimation.ekf_models import (
-    EkfError,
     accelerometer_model,
     chi_square_quantile,
     normalized_quaternion,
@@ -39,12 +48,18 @@ from common.estimation.ekf_models import (
     three_floats,
     yaw_model,
 )
+from common.estimation.eskf_math import error_jacobian, inject_attitude, inverse_spd, rotation_rows
 from common.geometry import check_quaternion, matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
-THETA, PZ, BG, BA = slice(0, 3), 3, slice(4, 7), slice(7, 10)
-N_ERROR = 10
+THETA, PZ, BG, BA, PXY, VXY, VZ = slice(0, 3), 3, slice(4, 7), slice(7, 10), slice(10, 12), slice(12, 14), 14
+N_ERROR = 15
+
+__all__ = ["BiasAwareEkf", "BiasEkfSettings", "BiasEkfState", "BiasUpdateResult", "error_jacobian"]
+
+#: kept for the tests that import it from here
+_inverse_spd = inverse_spd
 
 
 @dataclass(frozen=True)
@@ -57,6 +72,14 @@ class BiasEkfSettings(EkfSettings):
     initial_accel_bias_std_m_s2: float = 0.1
     gyro_bias_walk_rad_s_sqrt_s: float = 2e-5
     accel_bias_walk_m_s2_sqrt_s: float = 2e-4
+    #: Horizontal velocity: initial std and random walk (the accelerometer's white noise integrated).
+    initial_velocity_std_m_s: float = 0.5
+    velocity_random_walk_m_s_sqrt_s: float = 0.01
+    #: Std of the horizontal position measurement (the visual odometry's free chain) per frame.
+    position_noise_m: float = 0.01
+    #: The accelerometer's noise grows by this share of the manoeuvre acceleration it is compensated for
+    #: (that estimate, fitted to VO positions, is about as uncertain as it is large in fast manoeuvres).
+    motion_accel_noise_share: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -65,6 +88,10 @@ class BiasEkfSettings(EkfSettings):
             "initial_accel_bias_std_m_s2",
             "gyro_bias_walk_rad_s_sqrt_s",
             "accel_bias_walk_m_s2_sqrt_s",
+            "initial_velocity_std_m_s",
+            "velocity_random_walk_m_s_sqrt_s",
+            "position_noise_m",
+            "motion_accel_noise_share",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -73,7 +100,7 @@ class BiasEkfSettings(EkfSettings):
 
 @dataclass(frozen=True)
 class BiasEkfState:
-    """Nominal state at ``stamp_s`` and the 10x10 error-state covariance (layout :data:`THETA` ...)."""
+    """Nominal state at ``stamp_s`` and the 15x15 error-state covariance (layout :data:`THETA` ...)."""
 
     q_world_body: FloatArray
     pz_m: float
@@ -81,6 +108,9 @@ class BiasEkfState:
     accel_bias_m_s2: FloatArray
     covariance: FloatArray
     stamp_s: float
+    p_xy_m: FloatArray = field(default_factory=lambda: np.zeros(2))
+    v_xy_m_s: FloatArray = field(default_factory=lambda: np.zeros(2))
+    vz_m_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -90,12 +120,6 @@ class BiasUpdateResult:
     state: BiasEkfState
     accepted: bool
     nis: float
-
-
-def error_jacobian(q: tuple[float, float, float, float]) -> FloatArray:
-    """``dq/dtheta`` (4x3) of ``q * [1, dtheta/2]`` at ``dtheta = 0``: ``1/2 [-q_v^T; q0 I + [q_v]x]``."""
-    q0, q1, q2, q3 = q
-    return 0.5 * np.array([[-q1, -q2, -q3], [q0, -q3, q2], [q3, q0, -q1], [-q2, q1, q0]])
 
 
 class BiasAwareEkf:
@@ -129,6 +153,8 @@ class BiasAwareEkf:
             s.initial_altitude_std_m**2,
             np.full(3, s.initial_gyro_bias_std_rad_s**2),
             np.full(3, s.initial_accel_bias_std_m_s2**2),
+            np.zeros(2),
+            np.full(3, s.initial_velocity_std_m_s**2),
         ]
         return BiasEkfState(
             np.array(qn), float(pz_m), np.zeros(3), np.zeros(3), np.diag(diag), float(stamp_s)
@@ -140,9 +166,16 @@ class BiasAwareEkf:
         P[PZ, :] = 0.0
         P[:, PZ] = 0.0
         P[PZ, PZ] = std_m**2
-        return BiasEkfState(
-            state.q_world_body, float(pz_m), state.gyro_bias_rad_s, state.accel_bias_m_s2, P, state.stamp_s
-        )
+        return replace(state, pz_m=float(pz_m), covariance=P)
+
+    def with_position(self, state: BiasEkfState, p_xy_m: FloatArray, std_m: float) -> BiasEkfState:
+        """The state with the horizontal position replaced (uncorrelated, std ``std_m``): the first visual
+        position, or a reset after the position updates were refused for too long."""
+        P = state.covariance.copy()
+        P[PXY, :] = 0.0
+        P[:, PXY] = 0.0
+        P[PXY, PXY] = np.eye(2) * std_m**2
+        return replace(state, p_xy_m=np.array(p_xy_m, dtype=np.float64).reshape(2), covariance=P)
 
     # ---- read-outs ------------------------------------------------------------------------------------
 
@@ -157,9 +190,17 @@ class BiasAwareEkf:
 
     # ---- predict --------------------------------------------------------------------------------------
 
-    def predict(self, state: BiasEkfState, gyro_rad_s: npt.ArrayLike, dt_s: float) -> BiasEkfState:
+    def predict(
+        self,
+        state: BiasEkfState,
+        gyro_rad_s: npt.ArrayLike,
+        dt_s: float,
+        accel_m_s2: npt.ArrayLike | None = None,
+    ) -> BiasEkfState:
         """Bias-corrected gyro over ``dt_s``: nominal by eq. 12, covariance ``F P F^T + Q`` with
-        ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``."""
+        ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``. With ``accel_m_s2`` the horizontal velocity
+        and position integrate ``a = R (f - b_a)`` (``F_v_theta = -(R [f - b_a]x) dt``,
+        ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a constant velocity."""
         if not (dt_s >= 0.0 and math.isfinite(dt_s)):
             raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
         gx, gy, gz = three_floats(gyro_rad_s)
@@ -167,16 +208,55 @@ class BiasAwareEkf:
         wx, wy, wz = gx - bx, gy - by, gz - bz
         half = 0.5 * dt_s
         q = state.q_world_body.tolist()
-        q0, q1, q2, q3 = propagate_quaternion((q[0], q[1], q[2], q[3]), half * wx, half * wy, half * wz)
+        qt = (q[0], q[1], q[2], q[3])
+        q0, q1, q2, q3 = propagate_quaternion(qt, half * wx, half * wy, half * wz)
         qn, _ = normalized_quaternion(q0, q1, q2, q3)
         F = self._F
         ax, ay, az = wx * dt_s, wy * dt_s, wz * dt_s
         F[0, 1], F[0, 2], F[1, 0], F[1, 2], F[2, 0], F[2, 1] = az, -ay, -az, ax, ay, -ax
         F[0, 4] = F[1, 5] = F[2, 6] = -dt_s
+        F[10, 12] = F[11, 13] = F[3, 14] = dt_s
+        vx, vy = state.v_xy_m_s.tolist()
+        vz = state.vz_m_s
+        px, py = state.p_xy_m.tolist()
+        if accel_m_s2 is None:
+            F[12:15, 0:3] = 0.0
+            F[12:15, 7:10] = 0.0
+            nx, ny, nz = vx, vy, vz
+        else:
+            fx, fy, fz = three_floats(accel_m_s2)
+            cbx, cby, cbz = state.accel_bias_m_s2.tolist()
+            fx, fy, fz = fx - cbx, fy - cby, fz - cbz
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_rows(qt)
+            a_x = r00 * fx + r01 * fy + r02 * fz
+            a_y = r10 * fx + r11 * fy + r12 * fz
+            a_z = r20 * fx + r21 * fy + r22 * fz - self.settings.gravity_m_s2
+            # -(R [f]x) dt, rows x and y; [f]x = [[0, -fz, fy], [fz, 0, -fx], [-fy, fx, 0]]
+            F[12, 0] = -(r01 * fz - r02 * fy) * dt_s
+            F[12, 1] = -(r02 * fx - r00 * fz) * dt_s
+            F[12, 2] = -(r00 * fy - r01 * fx) * dt_s
+            F[13, 0] = -(r11 * fz - r12 * fy) * dt_s
+            F[13, 1] = -(r12 * fx - r10 * fz) * dt_s
+            F[13, 2] = -(r10 * fy - r11 * fx) * dt_s
+            F[12, 7], F[12, 8], F[12, 9] = -r00 * dt_s, -r01 * dt_s, -r02 * dt_s
+            F[13, 7], F[13, 8], F[13, 9] = -r10 * dt_s, -r11 * dt_s, -r12 * dt_s
+            F[14, 0] = -(r21 * fz - r22 * fy) * dt_s
+            F[14, 1] = -(r22 * fx - r20 * fz) * dt_s
+            F[14, 2] = -(r20 * fy - r21 * fx) * dt_s
+            F[14, 7], F[14, 8], F[14, 9] = -r20 * dt_s, -r21 * dt_s, -r22 * dt_s
+            nx, ny, nz = vx + a_x * dt_s, vy + a_y * dt_s, vz + a_z * dt_s
         P = F @ state.covariance @ F.T
         P += self._process_noise(dt_s)
         return BiasEkfState(
-            np.array(qn), state.pz_m, state.gyro_bias_rad_s, state.accel_bias_m_s2, P, state.stamp_s + dt_s
+            np.array(qn),
+            state.pz_m + half * (vz + nz),
+            state.gyro_bias_rad_s,
+            state.accel_bias_m_s2,
+            P,
+            state.stamp_s + dt_s,
+            np.array((px + half * (vx + nx), py + half * (vy + ny))),
+            np.array((nx, ny)),
+            nz,
         )
 
     def _process_noise(self, dt_s: float) -> FloatArray:
@@ -190,6 +270,8 @@ class BiasAwareEkf:
             dt_s * s.altitude_random_walk_m_sqrt_s**2,
             np.full(3, dt_s * s.gyro_bias_walk_rad_s_sqrt_s**2),
             np.full(3, dt_s * s.accel_bias_walk_m_s2_sqrt_s**2),
+            np.zeros(2),
+            np.full(3, dt_s * s.velocity_random_walk_m_s_sqrt_s**2),
         ]
         self._Q = np.diag(diag)
         self._q_dt_s = dt_s
@@ -224,9 +306,30 @@ class BiasAwareEkf:
         hx, hy, hz = h
         Ht = np.array([[0.0, hz, -hy], [-hz, 0.0, hx], [hy, -hx, 0.0]])  # ([h]x)^T
         P = state.covariance
-        PHt = P[:, THETA] @ Ht + P[:, BA]  # (10, 3)
+        PHt = P[:, THETA] @ Ht + P[:, BA]  # (15, 3)
         S = Ht.T @ PHt[THETA] + PHt[BA] + self._accel_R
+        extra = s.motion_accel_noise_share**2 * (mx * mx + my * my + mz * mz)
+        if extra > 0.0:
+            S = S + np.eye(3) * extra
         return self._correct(state, PHt, S, (cx - hx, cy - hy, cz - hz))
+
+    def update_position(
+        self, state: BiasEkfState, p_xy_m: npt.ArrayLike, noise_m: float | None = None
+    ) -> BiasUpdateResult:
+        """Horizontal position ``p_xy_m`` (navigation frame, e.g. the visual odometry's), std ``noise_m``
+        (default ``settings.position_noise_m``)."""
+        p = np.asarray(p_xy_m, dtype=np.float64).reshape(-1)
+        if p.shape != (2,) or not np.all(np.isfinite(p)):
+            raise InputError(f"p_xy_m must be 2 finite numbers, got {p_xy_m!r}")
+        std = self.settings.position_noise_m if noise_m is None else float(noise_m)
+        if not (math.isfinite(std) and std > 0.0):
+            raise InputError(f"position noise must be finite and > 0, got {std}")
+        P = state.covariance
+        PHt = P[:, PXY]
+        S = PHt[PXY] + np.eye(2) * std**2
+        px, py = state.p_xy_m.tolist()
+        mx, my = p.tolist()
+        return self._correct(state, PHt, S, (mx - px, my - py))
 
     def update_yaw(
         self, state: BiasEkfState, yaw_rad: float, yaw_noise_rad: float | None = None
@@ -264,7 +367,7 @@ class BiasAwareEkf:
         self, state: BiasEkfState, PHt: FloatArray, S: FloatArray, y: tuple[float, ...]
     ) -> BiasUpdateResult:
         """Gate, gain, ``(I - K H) P`` and injection of the error state (closed-form ``S^-1``, m <= 3)."""
-        Sinv = _inverse_spd(S)
+        Sinv = inverse_spd(S)
         m = len(y)
         yv = np.array(y)
         Sy = Sinv @ yv
@@ -276,15 +379,8 @@ class BiasAwareEkf:
         K = PHt @ Sinv
         dx = (PHt @ Sy).tolist()
         P_new = state.covariance - K @ PHt.T
-        q0, q1, q2, q3 = state.q_world_body.tolist()
-        a, b, c = 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2]
-        # q * [1, dtheta/2] (right product, body-frame error)
-        qn, _ = normalized_quaternion(
-            q0 - q1 * a - q2 * b - q3 * c,
-            q1 + q0 * a + q2 * c - q3 * b,
-            q2 + q0 * b + q3 * a - q1 * c,
-            q3 + q0 * c + q1 * b - q2 * a,
-        )
+        q = state.q_world_body.tolist()
+        qn = inject_attitude((q[0], q[1], q[2], q[3]), dx[0], dx[1], dx[2])
         dxa = np.array(dx)
         new = BiasEkfState(
             q_world_body=np.array(qn),
@@ -293,33 +389,8 @@ class BiasAwareEkf:
             accel_bias_m_s2=state.accel_bias_m_s2 + dxa[BA],
             covariance=P_new,
             stamp_s=state.stamp_s,
+            p_xy_m=state.p_xy_m + dxa[PXY],
+            v_xy_m_s=state.v_xy_m_s + dxa[VXY],
+            vz_m_s=state.vz_m_s + dx[VZ],
         )
         return BiasUpdateResult(new, True, nis)
-
-
-def _inverse_spd(S: FloatArray) -> FloatArray:
-    """Closed-form inverse of a 1x1, 2x2 or 3x3 innovation covariance (EkfError if not positive definite)."""
-    m = S.shape[0]
-    if m == 1:
-        s00 = float(S[0, 0])
-        if not s00 > 0.0:
-            raise EkfError(f"innovation variance {s00} is not positive")
-        return np.array([[1.0 / s00]])
-    if m == 2:
-        (s00, s01), (s10, s11) = S.tolist()
-        s01 = 0.5 * (s01 + s10)
-        det = s00 * s11 - s01 * s01
-        if not det > 0.0:
-            raise EkfError(f"innovation covariance is not positive definite (det {det})")
-        return np.array([[s11, -s01], [-s01, s00]], dtype=np.float64) / float(det)
-    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S.tolist()
-    c00 = s11 * s22 - s12 * s12
-    c01 = s02 * s12 - s01 * s22
-    c02 = s01 * s12 - s02 * s11
-    det = s00 * c00 + s01 * c01 + s02 * c02
-    if not det > 0.0:
-        raise EkfError(f"innovation covariance is not positive definite (det {det})")
-    c11 = s00 * s22 - s02 * s02
-    c12 = s01 * s02 - s00 * s12
-    c22 = s00 * s11 - s01 * s01
-    return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], dtype=np.float64) / float(det)

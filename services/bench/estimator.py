@@ -23,6 +23,7 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -54,6 +55,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--reference", action="store_true", help="also run paper C's 5-state filter in the sweep"
+    )
+    parser.add_argument("--jobs", type=int, default=1, help="processes running sweep seeds side by side")
+    parser.add_argument(
+        "--seed-cache",
+        type=Path,
+        default=Path("out/bench/estimator_seeds"),
+        help="per-seed results, reused while the code is unchanged ('' to disable)",
     )
     parser.add_argument("--ekf-steps", type=int, default=8000, help="EKF steps timed per pass")
     parser.add_argument("--ekf-repeats", type=int, default=3, help="EKF timing passes")
@@ -205,9 +213,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         unknown = [name for name in flights if name not in FLIGHTS]
         if unknown:
             raise SystemExit(f"unknown flight(s) {unknown}; known: {', '.join(FLIGHTS)}")
+        if args.jobs < 1:
+            raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
+        cache = args.seed_cache if str(args.seed_cache) not in ("", ".") else None
         result.update(
-            sweep(flights, args.seeds, args.reference, log=lambda line: print(line, file=sys.stderr))
-        )
+            sweep(
+                flights, args.seeds, args.reference, log=lambda line: print(line, file=sys.stderr),
+                jobs=args.jobs, cache_dir=cache,
+            )
+        )  # fmt: skip
         rows.extend(_sweep_rows({name: result[name] for name in flights}))
     result["wall_s"] = time.perf_counter() - t0
     result["table"] = rows
