@@ -22,6 +22,9 @@ accelerometer bias ``b_a`` (m/s^2, body), the horizontal position ``p_xy_m`` and
   quaternion Jacobians become error-state Jacobians through ``dq/dtheta = 1/2 Xi(q)``. The same chi-square
   gates and accelerometer norm check as :class:`~common.estimation.ekf.AttitudeAltitudeEkf`.
 
+The steps run compiled (:mod:`common.estimation.eskf_kernels`): one call per predict or update, the
+nominal state one vector; the tests hold them to a plain NumPy reference.
+
 Why: a constant accelerometer bias ``b`` reads as a tilt of ``b/g`` to paper C's 5-state filter (0.05 m/s^2
 is 0.3 deg), and that tilt error feeds the rectification. A body-fixed bias and a world-fixed tilt error
 separate as soon as the vehicle yaws, which is what these states let the filter use.
@@ -30,36 +33,35 @@ separate as soon as the vehicle yaws, which is what these states let the filter 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-from common.estimation.ekf import (
-    EkfSettings,
-)
+from common.estimation import eskf_kernels as kernels
+from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import (
-    accelerometer_model,
+    EkfError,
     chi_square_quantile,
     normalized_quaternion,
-    propagate_quaternion,
     rangefinder_model,
-    three_floats,
     yaw_model,
 )
-from common.estimation.eskf_math import error_jacobian, inject_attitude, inverse_spd, rotation_rows
+from common.estimation.eskf_math import error_jacobian, inverse_spd
 from common.geometry import check_quaternion, matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
 THETA, PZ, BG, BA, PXY, VXY, VZ = slice(0, 3), 3, slice(4, 7), slice(7, 10), slice(10, 12), slice(12, 14), 14
-N_ERROR = 15
+N_ERROR = kernels.N_ERR
 
 __all__ = ["BiasAwareEkf", "BiasEkfSettings", "BiasEkfState", "BiasUpdateResult", "error_jacobian"]
 
 #: kept for the tests that import it from here
 _inverse_spd = inverse_spd
+
+_ZERO3 = np.zeros(3)
 
 
 @dataclass(frozen=True)
@@ -100,17 +102,70 @@ class BiasEkfSettings(EkfSettings):
 
 @dataclass(frozen=True)
 class BiasEkfState:
-    """Nominal state at ``stamp_s`` and the 15x15 error-state covariance (layout :data:`THETA` ...)."""
+    """Nominal state at ``stamp_s`` as one vector (layout of :mod:`~common.estimation.eskf_kernels`, read
+    through the named properties; never modified in place) and the 15x15 error-state covariance (layout
+    :data:`THETA` ...)."""
 
-    q_world_body: FloatArray
-    pz_m: float
-    gyro_bias_rad_s: FloatArray
-    accel_bias_m_s2: FloatArray
+    nominal: FloatArray
     covariance: FloatArray
     stamp_s: float
-    p_xy_m: FloatArray = field(default_factory=lambda: np.zeros(2))
-    v_xy_m_s: FloatArray = field(default_factory=lambda: np.zeros(2))
-    vz_m_s: float = 0.0
+
+    @classmethod
+    def from_parts(
+        cls,
+        q_world_body: npt.ArrayLike,
+        pz_m: float,
+        gyro_bias_rad_s: npt.ArrayLike,
+        accel_bias_m_s2: npt.ArrayLike,
+        covariance: npt.ArrayLike,
+        stamp_s: float,
+        p_xy_m: npt.ArrayLike = (0.0, 0.0),
+        v_xy_m_s: npt.ArrayLike = (0.0, 0.0),
+        vz_m_s: float = 0.0,
+    ) -> BiasEkfState:
+        nominal = np.concatenate(
+            [
+                np.asarray(q_world_body, dtype=np.float64).reshape(4),
+                [float(pz_m)],
+                np.asarray(gyro_bias_rad_s, dtype=np.float64).reshape(3),
+                np.asarray(accel_bias_m_s2, dtype=np.float64).reshape(3),
+                np.asarray(p_xy_m, dtype=np.float64).reshape(2),
+                np.asarray(v_xy_m_s, dtype=np.float64).reshape(2),
+                [float(vz_m_s)],
+            ]
+        )
+        P = np.array(covariance, dtype=np.float64)
+        if P.shape != (N_ERROR, N_ERROR):
+            raise InputError(f"covariance must have shape ({N_ERROR}, {N_ERROR}), got {P.shape}")
+        return cls(nominal, P, float(stamp_s))
+
+    @property
+    def q_world_body(self) -> FloatArray:
+        return self.nominal[0:4]
+
+    @property
+    def pz_m(self) -> float:
+        return float(self.nominal[4])
+
+    @property
+    def gyro_bias_rad_s(self) -> FloatArray:
+        return self.nominal[5:8]
+
+    @property
+    def accel_bias_m_s2(self) -> FloatArray:
+        return self.nominal[8:11]
+
+    @property
+    def p_xy_m(self) -> FloatArray:
+        return self.nominal[11:13]
+
+    @property
+    def v_xy_m_s(self) -> FloatArray:
+        return self.nominal[13:15]
+
+    @property
+    def vz_m_s(self) -> float:
+        return float(self.nominal[15])
 
 
 @dataclass(frozen=True)
@@ -122,6 +177,25 @@ class BiasUpdateResult:
     nis: float
 
 
+def _vector3(v: npt.ArrayLike, name: str) -> FloatArray:
+    """A float64 3-vector (no copy when it already is one)."""
+    if isinstance(v, np.ndarray) and v.shape == (3,) and v.dtype == np.float64:
+        return v
+    arr = np.asarray(v, dtype=np.float64)
+    if arr.shape != (3,):
+        raise InputError(f"{name} must be a 3-vector, got shape {arr.shape}")
+    return arr
+
+
+def _raise_for(status: int, what: str) -> None:
+    if status == kernels.NOT_FINITE:
+        raise InputError(f"{what}: the innovation is not finite")
+    if status == kernels.NOT_POSITIVE:
+        raise EkfError(f"{what}: the innovation covariance is not positive definite")
+    if status == kernels.DEGENERATE:
+        raise EkfError(f"{what}: the quaternion norm degenerated")
+
+
 class BiasAwareEkf:
     """The error-state filter. Immutable: every method takes a :class:`BiasEkfState` and returns a new one."""
 
@@ -129,18 +203,21 @@ class BiasAwareEkf:
         self.settings = settings or BiasEkfSettings()
         s = self.settings
         self._gate = {dof: chi_square_quantile(s.gate_probability, dof) for dof in (1, 2, 3)}
-        self._accel_R = np.eye(3) * s.accel_noise_m_s2**2
+        self._accel_var = s.accel_noise_m_s2**2
         self._range_var = s.range_noise_m**2
         self._yaw_var = s.yaw_noise_rad**2
-        # preallocated work arrays of the predict step (the filter is single-threaded)
-        self._F = np.eye(N_ERROR)
-        self._Q = np.zeros((N_ERROR, N_ERROR))
+        self._q_diag = np.zeros(N_ERROR)
         self._q_dt_s = math.nan
+        # plain attributes for the 400 Hz calls
+        self._gravity = s.gravity_m_s2
+        self._motion_share = s.motion_accel_noise_share
+        self._norm_tolerance = s.accel_norm_tolerance_m_s2
+        self._gate3 = self._gate[3]
 
     # ---- construction and resets --------------------------------------------------------------------
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> BiasEkfState:
-        """A state at ``stamp_s``, zero biases, the settings' initial uncertainty."""
+        """A state at ``stamp_s``, at rest, zero biases, the settings' initial uncertainty."""
         q = check_quaternion(q_world_body, "q_world_body")
         if q.shape != (4,):
             raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
@@ -156,9 +233,7 @@ class BiasAwareEkf:
             np.zeros(2),
             np.full(3, s.initial_velocity_std_m_s**2),
         ]
-        return BiasEkfState(
-            np.array(qn), float(pz_m), np.zeros(3), np.zeros(3), np.diag(diag), float(stamp_s)
-        )
+        return BiasEkfState.from_parts(qn, pz_m, _ZERO3, _ZERO3, np.diag(diag), stamp_s)
 
     def with_altitude(self, state: BiasEkfState, pz_m: float, std_m: float) -> BiasEkfState:
         """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
@@ -166,16 +241,20 @@ class BiasAwareEkf:
         P[PZ, :] = 0.0
         P[:, PZ] = 0.0
         P[PZ, PZ] = std_m**2
-        return replace(state, pz_m=float(pz_m), covariance=P)
+        x = state.nominal.copy()
+        x[kernels.PZ_X] = float(pz_m)
+        return BiasEkfState(x, P, state.stamp_s)
 
-    def with_position(self, state: BiasEkfState, p_xy_m: FloatArray, std_m: float) -> BiasEkfState:
+    def with_position(self, state: BiasEkfState, p_xy_m: npt.ArrayLike, std_m: float) -> BiasEkfState:
         """The state with the horizontal position replaced (uncorrelated, std ``std_m``): the first visual
         position, or a reset after the position updates were refused for too long."""
         P = state.covariance.copy()
         P[PXY, :] = 0.0
         P[:, PXY] = 0.0
         P[PXY, PXY] = np.eye(2) * std_m**2
-        return replace(state, p_xy_m=np.array(p_xy_m, dtype=np.float64).reshape(2), covariance=P)
+        x = state.nominal.copy()
+        x[kernels.PXY_X : kernels.PXY_X + 2] = np.asarray(p_xy_m, dtype=np.float64).reshape(2)
+        return BiasEkfState(x, P, state.stamp_s)
 
     # ---- read-outs ------------------------------------------------------------------------------------
 
@@ -198,74 +277,30 @@ class BiasAwareEkf:
         accel_m_s2: npt.ArrayLike | None = None,
     ) -> BiasEkfState:
         """Bias-corrected gyro over ``dt_s``: nominal by eq. 12, covariance ``F P F^T + Q`` with
-        ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``. With ``accel_m_s2`` the horizontal velocity
-        and position integrate ``a = R (f - b_a)`` (``F_v_theta = -(R [f - b_a]x) dt``,
-        ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a constant velocity."""
+        ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``. With ``accel_m_s2`` the velocity and the
+        position (altitude included) integrate ``a = R (f - b_a) - g e_z``
+        (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a
+        constant velocity."""
         if not (dt_s >= 0.0 and math.isfinite(dt_s)):
             raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
-        gx, gy, gz = three_floats(gyro_rad_s)
-        bx, by, bz = state.gyro_bias_rad_s.tolist()
-        wx, wy, wz = gx - bx, gy - by, gz - bz
-        half = 0.5 * dt_s
-        q = state.q_world_body.tolist()
-        qt = (q[0], q[1], q[2], q[3])
-        q0, q1, q2, q3 = propagate_quaternion(qt, half * wx, half * wy, half * wz)
-        qn, _ = normalized_quaternion(q0, q1, q2, q3)
-        F = self._F
-        ax, ay, az = wx * dt_s, wy * dt_s, wz * dt_s
-        F[0, 1], F[0, 2], F[1, 0], F[1, 2], F[2, 0], F[2, 1] = az, -ay, -az, ax, ay, -ax
-        F[0, 4] = F[1, 5] = F[2, 6] = -dt_s
-        F[10, 12] = F[11, 13] = F[3, 14] = dt_s
-        vx, vy = state.v_xy_m_s.tolist()
-        vz = state.vz_m_s
-        px, py = state.p_xy_m.tolist()
-        if accel_m_s2 is None:
-            F[12:15, 0:3] = 0.0
-            F[12:15, 7:10] = 0.0
-            nx, ny, nz = vx, vy, vz
-        else:
-            fx, fy, fz = three_floats(accel_m_s2)
-            cbx, cby, cbz = state.accel_bias_m_s2.tolist()
-            fx, fy, fz = fx - cbx, fy - cby, fz - cbz
-            r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_rows(qt)
-            a_x = r00 * fx + r01 * fy + r02 * fz
-            a_y = r10 * fx + r11 * fy + r12 * fz
-            a_z = r20 * fx + r21 * fy + r22 * fz - self.settings.gravity_m_s2
-            # -(R [f]x) dt, rows x and y; [f]x = [[0, -fz, fy], [fz, 0, -fx], [-fy, fx, 0]]
-            F[12, 0] = -(r01 * fz - r02 * fy) * dt_s
-            F[12, 1] = -(r02 * fx - r00 * fz) * dt_s
-            F[12, 2] = -(r00 * fy - r01 * fx) * dt_s
-            F[13, 0] = -(r11 * fz - r12 * fy) * dt_s
-            F[13, 1] = -(r12 * fx - r10 * fz) * dt_s
-            F[13, 2] = -(r10 * fy - r11 * fx) * dt_s
-            F[12, 7], F[12, 8], F[12, 9] = -r00 * dt_s, -r01 * dt_s, -r02 * dt_s
-            F[13, 7], F[13, 8], F[13, 9] = -r10 * dt_s, -r11 * dt_s, -r12 * dt_s
-            F[14, 0] = -(r21 * fz - r22 * fy) * dt_s
-            F[14, 1] = -(r22 * fx - r20 * fz) * dt_s
-            F[14, 2] = -(r20 * fy - r21 * fx) * dt_s
-            F[14, 7], F[14, 8], F[14, 9] = -r20 * dt_s, -r21 * dt_s, -r22 * dt_s
-            nx, ny, nz = vx + a_x * dt_s, vy + a_y * dt_s, vz + a_z * dt_s
-        P = F @ state.covariance @ F.T
-        P += self._process_noise(dt_s)
-        return BiasEkfState(
-            np.array(qn),
-            state.pz_m + half * (vz + nz),
-            state.gyro_bias_rad_s,
-            state.accel_bias_m_s2,
-            P,
-            state.stamp_s + dt_s,
-            np.array((px + half * (vx + nx), py + half * (vy + ny))),
-            np.array((nx, ny)),
-            nz,
+        gyro = _vector3(gyro_rad_s, "gyro_rad_s")
+        use_accel = accel_m_s2 is not None
+        accel = _vector3(accel_m_s2, "accel_m_s2") if accel_m_s2 is not None else _ZERO3
+        q_diag = self._q_diag if dt_s == self._q_dt_s else self._process_noise(dt_s)
+        status, x, P = kernels.predict_step(
+            state.nominal, state.covariance, gyro, accel, use_accel, float(dt_s), q_diag, self._gravity
         )
+        if status != kernels.OK:
+            _raise_for(status, "predict")
+        return BiasEkfState(x, P, state.stamp_s + dt_s)
 
     def _process_noise(self, dt_s: float) -> FloatArray:
-        """Diagonal ``Q`` over ``dt_s`` (cached for the last ``dt_s``: the IMU's rate is steady)."""
+        """Diagonal of ``Q`` over ``dt_s`` (cached for the last ``dt_s``: the IMU's rate is steady)."""
         if dt_s == self._q_dt_s:
-            return self._Q
+            return self._q_diag
         s = self.settings
         q_theta = dt_s * dt_s * s.gyro_noise_rad_s**2 + dt_s * s.attitude_random_walk_rad_sqrt_s**2
-        diag = np.r_[
+        self._q_diag = np.r_[
             np.full(3, q_theta),
             dt_s * s.altitude_random_walk_m_sqrt_s**2,
             np.full(3, dt_s * s.gyro_bias_walk_rad_s_sqrt_s**2),
@@ -273,9 +308,8 @@ class BiasAwareEkf:
             np.zeros(2),
             np.full(3, dt_s * s.velocity_random_walk_m_s_sqrt_s**2),
         ]
-        self._Q = np.diag(diag)
         self._q_dt_s = dt_s
-        return self._Q
+        return self._q_diag
 
     # ---- updates --------------------------------------------------------------------------------------
 
@@ -285,33 +319,21 @@ class BiasAwareEkf:
         accel_m_s2: npt.ArrayLike,
         motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> BiasUpdateResult:
-        """Accelerometer: eq. 16 plus the bias, ``h = R^T (a + g e_z) + b_a``; skipped like the 5-state
-        filter's when the bias-corrected specific force is far from the expected norm."""
-        ax, ay, az = three_floats(accel_m_s2)
-        bax, bay, baz = state.accel_bias_m_s2.tolist()
-        cx, cy, cz = ax - bax, ay - bay, az - baz
-        s = self.settings
+        """Accelerometer: eq. 16 plus the bias, ``h = R^T (a + g e_z) + b_a`` (``dh/dtheta = [h]x``,
+        ``dh/db_a = I``), its noise raised by ``motion_accel_noise_share`` times the compensated manoeuvre
+        acceleration ``a``; skipped like the 5-state filter's when the bias-corrected specific force is
+        far from the expected norm."""
+        accel = _vector3(accel_m_s2, "accel_m_s2")
         mx, my, mz = motion_accel_world_m_s2
-        f_world = (mx, my, mz + s.gravity_m_s2)
-        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if not math.isfinite(norm):
-            raise InputError(f"accel_m_s2 must be finite, got {(ax, ay, az)}")
-        expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
-        if abs(norm - expected) > s.accel_norm_tolerance_m_s2:
-            return BiasUpdateResult(state, False, math.nan)
-        q = state.q_world_body.tolist()
-        h, _ = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)
-        # dh/dtheta of R^T f for q * [1, dtheta/2] is [h]x (the cross-product matrix of eq. 16's h;
-        # the tests check it against the quaternion Jacobian times dq/dtheta); dh/db_a = I
-        hx, hy, hz = h
-        Ht = np.array([[0.0, hz, -hy], [-hz, 0.0, hx], [hy, -hx, 0.0]])  # ([h]x)^T
-        P = state.covariance
-        PHt = P[:, THETA] @ Ht + P[:, BA]  # (15, 3)
-        S = Ht.T @ PHt[THETA] + PHt[BA] + self._accel_R
-        extra = s.motion_accel_noise_share**2 * (mx * mx + my * my + mz * mz)
-        if extra > 0.0:
-            S = S + np.eye(3) * extra
-        return self._correct(state, PHt, S, (cx - hx, cy - hy, cz - hz))
+        status, nis, x, P = kernels.accelerometer_step(
+            state.nominal, state.covariance, accel, float(mx), float(my), float(mz), self._gravity,
+            self._accel_var, self._motion_share, self._norm_tolerance, self._gate3,
+        )  # fmt: skip
+        if status == kernels.OK:
+            return BiasUpdateResult(BiasEkfState(x, P, state.stamp_s), True, nis)
+        if status == kernels.NOT_FINITE:
+            raise InputError(f"accel_m_s2 must be finite, got {accel.tolist()}")
+        return self._result(state, status, nis, x, P, "accelerometer update")
 
     def update_position(
         self, state: BiasEkfState, p_xy_m: npt.ArrayLike, noise_m: float | None = None
@@ -324,12 +346,9 @@ class BiasAwareEkf:
         std = self.settings.position_noise_m if noise_m is None else float(noise_m)
         if not (math.isfinite(std) and std > 0.0):
             raise InputError(f"position noise must be finite and > 0, got {std}")
-        P = state.covariance
-        PHt = P[:, PXY]
+        PHt = np.ascontiguousarray(state.covariance[:, PXY])
         S = PHt[PXY] + np.eye(2) * std**2
-        px, py = state.p_xy_m.tolist()
-        mx, my = p.tolist()
-        return self._correct(state, PHt, S, (mx - px, my - py))
+        return self._correct(state, PHt, S, p - state.p_xy_m, "position update")
 
     def update_yaw(
         self, state: BiasEkfState, yaw_rad: float, yaw_noise_rad: float | None = None
@@ -344,7 +363,8 @@ class BiasAwareEkf:
         H[:, THETA] = np.array(Hq) @ error_jacobian(qt)
         var = self._yaw_var if yaw_noise_rad is None else float(yaw_noise_rad) ** 2
         y = np.array([math.cos(yaw_rad) - h[0], math.sin(yaw_rad) - h[1]])
-        return self._update(state, y, H, np.eye(2) * var)
+        PHt = state.covariance @ H.T
+        return self._correct(state, PHt, H @ PHt + np.eye(2) * var, y, "yaw update")
 
     def update_range(self, state: BiasEkfState, range_m: float) -> BiasUpdateResult:
         """Rangefinder with the tilt model of eq. 21."""
@@ -356,41 +376,27 @@ class BiasAwareEkf:
         H = np.zeros((1, N_ERROR))
         H[0, THETA] = np.array(Hrow[:4]) @ error_jacobian(qt)
         H[0, PZ] = Hrow[4]
-        return self._update(state, np.array([range_m - h]), H, np.array([[self._range_var]]))
-
-    def _update(self, state: BiasEkfState, y: FloatArray, H: FloatArray, R: FloatArray) -> BiasUpdateResult:
-        """Update with a dense ``H`` (range, yaw)."""
         PHt = state.covariance @ H.T
-        return self._correct(state, PHt, H @ PHt + R, tuple(float(v) for v in y))
+        S = H @ PHt + np.array([[self._range_var]])
+        return self._correct(state, PHt, S, np.array([range_m - h]), "range update")
 
     def _correct(
-        self, state: BiasEkfState, PHt: FloatArray, S: FloatArray, y: tuple[float, ...]
+        self, state: BiasEkfState, PHt: FloatArray, S: FloatArray, y: FloatArray, what: str
     ) -> BiasUpdateResult:
         """Gate, gain, ``(I - K H) P`` and injection of the error state (closed-form ``S^-1``, m <= 3)."""
-        Sinv = inverse_spd(S)
-        m = len(y)
-        yv = np.array(y)
-        Sy = Sinv @ yv
-        nis = float(yv @ Sy)
-        if not math.isfinite(nis):
-            raise InputError("innovation is not finite")
-        if nis > self._gate[m]:
+        status, nis, x, P = kernels.correct_step(
+            state.nominal, state.covariance, np.ascontiguousarray(PHt), np.ascontiguousarray(S),
+            np.ascontiguousarray(y, dtype=np.float64), self._gate[y.shape[0]],
+        )  # fmt: skip
+        return self._result(state, status, nis, x, P, what)
+
+    @staticmethod
+    def _result(
+        state: BiasEkfState, status: int, nis: float, x: FloatArray, P: FloatArray, what: str
+    ) -> BiasUpdateResult:
+        if status == kernels.OK:
+            return BiasUpdateResult(BiasEkfState(x, P, state.stamp_s), True, nis)
+        if status in (kernels.GATED, kernels.SKIPPED):
             return BiasUpdateResult(state, False, nis)
-        K = PHt @ Sinv
-        dx = (PHt @ Sy).tolist()
-        P_new = state.covariance - K @ PHt.T
-        q = state.q_world_body.tolist()
-        qn = inject_attitude((q[0], q[1], q[2], q[3]), dx[0], dx[1], dx[2])
-        dxa = np.array(dx)
-        new = BiasEkfState(
-            q_world_body=np.array(qn),
-            pz_m=state.pz_m + dx[3],
-            gyro_bias_rad_s=state.gyro_bias_rad_s + dxa[BG],
-            accel_bias_m_s2=state.accel_bias_m_s2 + dxa[BA],
-            covariance=P_new,
-            stamp_s=state.stamp_s,
-            p_xy_m=state.p_xy_m + dxa[PXY],
-            v_xy_m_s=state.v_xy_m_s + dxa[VXY],
-            vz_m_s=state.vz_m_s + dx[VZ],
-        )
-        return BiasUpdateResult(new, True, nis)
+        _raise_for(status, what)
+        raise EkfError(f"{what}: unexpected status {status}")
