@@ -128,8 +128,9 @@ def sweep(
     fingerprint = code_fingerprint()
     todo: list[tuple[str, int, tuple[str, ...]]] = []
     done: dict[tuple[str, int], dict[str, float]] = {}
-    for flight_name in flights:
-        for seed in range(seeds):
+    # seeds interleaved across flights: a sweep cut short still covers every flight
+    for seed in range(seeds):
+        for flight_name in flights:
             cached = _load_seed(cache_dir, fingerprint, flight_name, seed, names)
             if cached is not None:
                 done[(flight_name, seed)] = cached
