@@ -253,12 +253,11 @@ def time_ekf_steps(flight: Flight, filter_kind: str, n_steps: int, repeats: int,
     clock = time.perf_counter_ns
     samples: list[float] = []
     before = cpu_times()
-    inertial = isinstance(ekf, BiasAwareEkf)  # its predict integrates the accelerometer too
     for _ in range(repeats):
         state: Any = ekf.initial_state(imu.true_q_world_body[0], float(imu.true_p_world_body_m[0, 2]), 0.0)
         for k in range(n):
             t0 = clock()
-            if inertial:
+            if isinstance(ekf, BiasAwareEkf):  # its predict integrates the accelerometer too
                 state = ekf.predict(state, gyro[k + 1], dts[k], accel[k + 1])
             else:
                 state = ekf.predict(state, gyro[k + 1], dts[k])
