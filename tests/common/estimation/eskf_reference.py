@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -22,7 +22,6 @@ from common.estimation.ekf_models import (
 )
 from common.estimation.eskf import BiasEkfSettings
 from common.estimation.eskf_math import error_jacobian, inverse_spd
-from common.geometry import check_quaternion, matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
@@ -102,57 +101,6 @@ class ReferenceEskf:
         self._q_dt_s = math.nan
 
     # ---- construction and resets --------------------------------------------------------------------
-
-    def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> ReferenceState:
-        """A state at ``stamp_s``, zero biases, the settings' initial uncertainty."""
-        q = check_quaternion(q_world_body, "q_world_body")
-        if q.shape != (4,):
-            raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
-        if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
-            raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = normalized_quaternion(*(float(v) for v in q))
-        s = self.settings
-        diag = np.r_[
-            np.full(3, s.initial_attitude_std_rad**2),
-            s.initial_altitude_std_m**2,
-            np.full(3, s.initial_gyro_bias_std_rad_s**2),
-            np.full(3, s.initial_accel_bias_std_m_s2**2),
-            np.zeros(2),
-            np.full(3, s.initial_velocity_std_m_s**2),
-        ]
-        return ReferenceState(
-            np.array(qn), float(pz_m), np.zeros(3), np.zeros(3), np.diag(diag), float(stamp_s)
-        )
-
-    def with_altitude(self, state: ReferenceState, pz_m: float, std_m: float) -> ReferenceState:
-        """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
-        P = state.covariance.copy()
-        P[PZ, :] = 0.0
-        P[:, PZ] = 0.0
-        P[PZ, PZ] = std_m**2
-        return replace(state, pz_m=float(pz_m), covariance=P)
-
-    def with_position(self, state: ReferenceState, p_xy_m: FloatArray, std_m: float) -> ReferenceState:
-        """The state with the horizontal position replaced (uncorrelated, std ``std_m``): the first visual
-        position, or a reset after the position updates were refused for too long."""
-        P = state.covariance.copy()
-        P[PXY, :] = 0.0
-        P[:, PXY] = 0.0
-        P[PXY, PXY] = np.eye(2) * std_m**2
-        return replace(state, p_xy_m=np.array(p_xy_m, dtype=np.float64).reshape(2), covariance=P)
-
-    # ---- read-outs ------------------------------------------------------------------------------------
-
-    def attitude_covariance_world(self, state: ReferenceState) -> FloatArray:
-        """3x3 covariance of world-frame error angles (``R dtheta_body``)."""
-        R = matrix_from_quaternion(state.q_world_body)
-        C = R @ state.covariance[THETA, THETA] @ R.T
-        return np.asarray(0.5 * (C + C.T), dtype=np.float64)
-
-    def altitude_variance(self, state: ReferenceState) -> float:
-        return float(state.covariance[PZ, PZ])
-
-    # ---- predict --------------------------------------------------------------------------------------
 
     def predict(
         self,
