@@ -24,6 +24,8 @@ from common.estimation.ekf_models import (
     STANDARD_GRAVITY_M_S2,
     EkfError,
     accelerometer_model,
+    check_settings_numbers,
+    checked_initial_attitude,
     chi_square_quantile,
     error_angle_covariance_world,
     normalized_quaternion,
@@ -32,9 +34,9 @@ from common.estimation.ekf_models import (
     three_floats,
     transition_floats,
     transition_matrix,
+    with_reset_block,
     yaw_model,
 )
-from common.geometry import check_quaternion
 from common.types import FloatArray
 
 __all__ = [
@@ -73,23 +75,20 @@ class EkfSettings:
     initial_altitude_std_m: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in (
-            "gravity_m_s2",
-            "gyro_noise_rad_s",
-            "accel_noise_m_s2",
-            "accel_norm_tolerance_m_s2",
-            "yaw_noise_rad",
-            "range_noise_m",
-            "initial_attitude_std_rad",
-            "initial_altitude_std_m",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise InputError(f"EkfSettings.{name} must be a positive finite number, got {value}")
-        for name in ("attitude_random_walk_rad_sqrt_s", "altitude_random_walk_m_sqrt_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise InputError(f"EkfSettings.{name} must be >= 0, got {value}")
+        check_settings_numbers(
+            self,
+            positive=(
+                "gravity_m_s2",
+                "gyro_noise_rad_s",
+                "accel_noise_m_s2",
+                "accel_norm_tolerance_m_s2",
+                "yaw_noise_rad",
+                "range_noise_m",
+                "initial_attitude_std_rad",
+                "initial_altitude_std_m",
+            ),
+            non_negative=("attitude_random_walk_rad_sqrt_s", "altitude_random_walk_m_sqrt_s"),
+        )
         if not 0.5 < self.gate_probability < 1.0:
             raise InputError(f"EkfSettings.gate_probability must be in (0.5, 1), got {self.gate_probability}")
 
@@ -139,12 +138,7 @@ class AttitudeAltitudeEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> EkfState:
         """A state at ``stamp_s`` with the settings' initial uncertainty."""
-        q = check_quaternion(q_world_body, "q_world_body")
-        if q.shape != (4,):
-            raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
-        if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
-            raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = normalized_quaternion(*(float(v) for v in q))
+        qn = checked_initial_attitude(q_world_body, pz_m, stamp_s)
         s = self.settings
         P = np.zeros((5, 5))
         # attitude angle std theta gives quaternion std theta/2 in the three directions orthogonal to q
@@ -155,10 +149,7 @@ class AttitudeAltitudeEkf:
 
     def with_altitude(self, state: EkfState, pz_m: float, std_m: float) -> EkfState:
         """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
-        P = state.covariance.copy()
-        P[4, :] = 0.0
-        P[:, 4] = 0.0
-        P[4, 4] = std_m**2
+        P = with_reset_block(state.covariance, 4, std_m**2)
         return EkfState(state.q_world_body, float(pz_m), P, state.stamp_s)
 
     def attitude_covariance_world(self, state: EkfState) -> FloatArray:

@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import CapatazError, InputError
+from common.geometry import check_quaternion
 from common.types import FloatArray
 
 #: Standard gravity used by the accelerometer model (m/s^2).
@@ -257,3 +258,41 @@ def normalized_quaternion(
     if q0 < 0.0:
         return (-q0 * inv, -q1 * inv, -q2 * inv, -q3 * inv), True
     return (q0 * inv, q1 * inv, q2 * inv, q3 * inv), False
+
+
+def check_settings_numbers(
+    settings: object, positive: tuple[str, ...], non_negative: tuple[str, ...]
+) -> None:
+    """Settings fields that must be finite and > 0, or finite and >= 0 (InputError naming the field)."""
+    kind = type(settings).__name__
+    for names, low_ok in ((positive, False), (non_negative, True)):
+        for name in names:
+            value = getattr(settings, name)
+            if not (math.isfinite(value) and (value >= 0.0 if low_ok else value > 0.0)):
+                bound = ">= 0" if low_ok else "> 0"
+                raise InputError(f"{kind}.{name} must be finite and {bound}, got {value}")
+
+
+def checked_initial_attitude(
+    q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float
+) -> tuple[float, float, float, float]:
+    """The filters' initial-state inputs checked: a (4,) quaternion (normalised, q0 >= 0), finite altitude
+    and stamp."""
+    q = check_quaternion(q_world_body, "q_world_body")
+    if q.shape != (4,):
+        raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
+    if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
+        raise InputError("pz_m and stamp_s must be finite")
+    qn, _ = normalized_quaternion(*(float(v) for v in q))
+    return qn
+
+
+def with_reset_block(covariance: FloatArray, index: int | slice, variance: float) -> FloatArray:
+    """A copy of ``covariance`` with the states at ``index`` uncorrelated from the rest and ``variance``
+    on their diagonal (a state replaced by a fresh measurement)."""
+    P = np.array(covariance, dtype=np.float64)
+    P[index, :] = 0.0
+    P[:, index] = 0.0
+    rows = np.arange(P.shape[0])[index]
+    P[rows, rows] = variance
+    return P

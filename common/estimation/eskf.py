@@ -43,13 +43,15 @@ from common.estimation import eskf_kernels as kernels
 from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import (
     EkfError,
+    check_settings_numbers,
+    checked_initial_attitude,
     chi_square_quantile,
-    normalized_quaternion,
     rangefinder_model,
+    with_reset_block,
     yaw_model,
 )
 from common.estimation.eskf_math import error_jacobian, inverse_spd
-from common.geometry import check_quaternion, matrix_from_quaternion
+from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
@@ -85,19 +87,20 @@ class BiasEkfSettings(EkfSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in (
-            "initial_gyro_bias_std_rad_s",
-            "initial_accel_bias_std_m_s2",
-            "gyro_bias_walk_rad_s_sqrt_s",
-            "accel_bias_walk_m_s2_sqrt_s",
-            "initial_velocity_std_m_s",
-            "velocity_random_walk_m_s_sqrt_s",
-            "position_noise_m",
-            "motion_accel_noise_share",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise InputError(f"BiasEkfSettings.{name} must be finite and >= 0, got {value}")
+        check_settings_numbers(
+            self,
+            positive=(),
+            non_negative=(
+                "initial_gyro_bias_std_rad_s",
+                "initial_accel_bias_std_m_s2",
+                "gyro_bias_walk_rad_s_sqrt_s",
+                "accel_bias_walk_m_s2_sqrt_s",
+                "initial_velocity_std_m_s",
+                "velocity_random_walk_m_s_sqrt_s",
+                "position_noise_m",
+                "motion_accel_noise_share",
+            ),
+        )
 
 
 @dataclass(frozen=True)
@@ -218,12 +221,7 @@ class BiasAwareEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> BiasEkfState:
         """A state at ``stamp_s``, at rest, zero biases, the settings' initial uncertainty."""
-        q = check_quaternion(q_world_body, "q_world_body")
-        if q.shape != (4,):
-            raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
-        if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
-            raise InputError("pz_m and stamp_s must be finite")
-        qn, _ = normalized_quaternion(*(float(v) for v in q))
+        qn = checked_initial_attitude(q_world_body, pz_m, stamp_s)
         s = self.settings
         diag = np.r_[
             np.full(3, s.initial_attitude_std_rad**2),
@@ -237,10 +235,7 @@ class BiasAwareEkf:
 
     def with_altitude(self, state: BiasEkfState, pz_m: float, std_m: float) -> BiasEkfState:
         """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
-        P = state.covariance.copy()
-        P[PZ, :] = 0.0
-        P[:, PZ] = 0.0
-        P[PZ, PZ] = std_m**2
+        P = with_reset_block(state.covariance, PZ, std_m**2)
         x = state.nominal.copy()
         x[kernels.PZ_X] = float(pz_m)
         return BiasEkfState(x, P, state.stamp_s)
@@ -248,10 +243,7 @@ class BiasAwareEkf:
     def with_position(self, state: BiasEkfState, p_xy_m: npt.ArrayLike, std_m: float) -> BiasEkfState:
         """The state with the horizontal position replaced (uncorrelated, std ``std_m``): the first visual
         position, or a reset after the position updates were refused for too long."""
-        P = state.covariance.copy()
-        P[PXY, :] = 0.0
-        P[:, PXY] = 0.0
-        P[PXY, PXY] = np.eye(2) * std_m**2
+        P = with_reset_block(state.covariance, PXY, std_m**2)
         x = state.nominal.copy()
         x[kernels.PXY_X : kernels.PXY_X + 2] = np.asarray(p_xy_m, dtype=np.float64).reshape(2)
         return BiasEkfState(x, P, state.stamp_s)
