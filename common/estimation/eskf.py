@@ -209,8 +209,16 @@ class BiasAwareEkf:
         self._accel_var = s.accel_noise_m_s2**2
         self._range_var = s.range_noise_m**2
         self._yaw_var = s.yaw_noise_rad**2
-        self._q_diag = np.zeros(N_ERROR)
-        self._q_dt_s = math.nan
+        # diagonal process noise Q = dt q_rate + dt^2 q_rate2 (random walks; the gyro's white noise)
+        self._q_rate = np.r_[
+            np.full(3, s.attitude_random_walk_rad_sqrt_s**2),
+            s.altitude_random_walk_m_sqrt_s**2,
+            np.full(3, s.gyro_bias_walk_rad_s_sqrt_s**2),
+            np.full(3, s.accel_bias_walk_m_s2_sqrt_s**2),
+            np.zeros(2),
+            np.full(3, s.velocity_random_walk_m_s_sqrt_s**2),
+        ]
+        self._q_rate2 = np.r_[np.full(3, s.gyro_noise_rad_s**2), np.zeros(N_ERROR - 3)]
         # plain attributes for the 400 Hz calls
         self._gravity = s.gravity_m_s2
         self._motion_share = s.motion_accel_noise_share
@@ -278,30 +286,13 @@ class BiasAwareEkf:
         gyro = _vector3(gyro_rad_s, "gyro_rad_s")
         use_accel = accel_m_s2 is not None
         accel = _vector3(accel_m_s2, "accel_m_s2") if accel_m_s2 is not None else _ZERO3
-        q_diag = self._q_diag if dt_s == self._q_dt_s else self._process_noise(dt_s)
         status, x, P = kernels.predict_step(
-            state.nominal, state.covariance, gyro, accel, use_accel, float(dt_s), q_diag, self._gravity
-        )
+            state.nominal, state.covariance, gyro, accel, use_accel, float(dt_s), self._q_rate, self._q_rate2,
+            self._gravity,
+        )  # fmt: skip
         if status != kernels.OK:
             _raise_for(status, "predict")
         return BiasEkfState(x, P, state.stamp_s + dt_s)
-
-    def _process_noise(self, dt_s: float) -> FloatArray:
-        """Diagonal of ``Q`` over ``dt_s`` (cached for the last ``dt_s``: the IMU's rate is steady)."""
-        if dt_s == self._q_dt_s:
-            return self._q_diag
-        s = self.settings
-        q_theta = dt_s * dt_s * s.gyro_noise_rad_s**2 + dt_s * s.attitude_random_walk_rad_sqrt_s**2
-        self._q_diag = np.r_[
-            np.full(3, q_theta),
-            dt_s * s.altitude_random_walk_m_sqrt_s**2,
-            np.full(3, dt_s * s.gyro_bias_walk_rad_s_sqrt_s**2),
-            np.full(3, dt_s * s.accel_bias_walk_m_s2_sqrt_s**2),
-            np.zeros(2),
-            np.full(3, dt_s * s.velocity_random_walk_m_s_sqrt_s**2),
-        ]
-        self._q_dt_s = dt_s
-        return self._q_diag
 
     # ---- updates --------------------------------------------------------------------------------------
 

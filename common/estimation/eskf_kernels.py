@@ -35,8 +35,11 @@ _accelerometer_model = njit(cache=True)(ekf_models.accelerometer_model)
 
 
 @njit(cache=True)
-def _sandwich_plus_diagonal(F: FloatArray, P: FloatArray, diag: FloatArray) -> FloatArray:
-    """``F P F^T + diag(diag)`` for a sparse ``F`` and symmetric ``P`` (upper triangle, mirrored)."""
+def _sandwich_plus_noise(
+    F: FloatArray, P: FloatArray, dt: float, q_rate: FloatArray, q_rate2: FloatArray
+) -> FloatArray:
+    """``F P F^T + Q`` for a sparse ``F`` and symmetric ``P`` (upper triangle, mirrored); ``Q`` diagonal,
+    ``dt q_rate + dt^2 q_rate2`` (random walks and white noise integrated over ``dt``)."""
     n = P.shape[0]
     FP = np.zeros((n, n))
     for i in range(n):
@@ -55,7 +58,7 @@ def _sandwich_plus_diagonal(F: FloatArray, P: FloatArray, diag: FloatArray) -> F
                     s += FP[i, k] * f
             out[i, j] = s
             out[j, i] = s
-        out[i, i] += diag[i]
+        out[i, i] += dt * q_rate[i] + dt * dt * q_rate2[i]
     return out
 
 
@@ -67,7 +70,8 @@ def predict_step(
     accel: FloatArray,
     use_accel: bool,
     dt: float,
-    q_diag: FloatArray,
+    q_rate: FloatArray,
+    q_rate2: FloatArray,
     gravity: float,
 ) -> tuple[int, FloatArray, FloatArray]:
     """One predict (the documentation is :meth:`common.estimation.eskf.BiasAwareEkf.predict`'s)."""
@@ -115,7 +119,7 @@ def predict_step(
     xn[11] = x[11] + half * (vx + nx)
     xn[12] = x[12] + half * (vy + ny)
     xn[13], xn[14], xn[15] = nx, ny, nz
-    return OK, xn, _sandwich_plus_diagonal(F, P, q_diag)
+    return OK, xn, _sandwich_plus_noise(F, P, dt, q_rate, q_rate2)
 
 
 @njit(cache=True)
