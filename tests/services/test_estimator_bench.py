@@ -51,6 +51,7 @@ def test_bench_reports_every_field_on_a_short_flight() -> None:
     runs = {row["run"] for row in result["table"]}
     assert {"rectified", "rectified_paper_c", "traditional", "raw_ekf_scale", "gyro_yaw"} <= runs
     assert {"ekf_step_bias (us)", "ekf_step_paper_c (us)", "vo_step_rectified (ms)"} <= runs
+    assert result["vo_ms_median_lk_window_15"] > 0.0
 
 
 def test_seed_summary_counts_where_rectified_is_better() -> None:
