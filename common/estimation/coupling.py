@@ -11,7 +11,8 @@ bounded lag and applies them in stamp order:
 - external yaw: yaw update (eq. 19);
 - frame: (optionally) rectify with the EKF's roll and pitch (section III-C), visual odometry against the
   previous frame with the EKF altitude as scale (Algorithms 1-2, eqs. 9-10), then the VO yaw as a yaw
-  update (eq. 19).
+  update (eq. 19) and, with the bias filter, the free-decomposition chain's position as a position update
+  (its inertial navigation; refused too long, the position or the altitude is reset to the measurement).
 
 The visual-odometry side (rectification, the chain, its output) is
 :class:`~common.estimation.coupled_vo.CoupledVo`.
@@ -41,9 +42,7 @@ from common.estimation.coupling_types import (
     PoseOutput,
     ScaleSource,
 )
-from common.estimation.ekf import (
-    EkfSettings,
-)
+from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import (
     EkfError,
     altitude_from_range,
@@ -71,9 +70,7 @@ from common.estimation.measurements import (
     sensor_of,
 )
 from common.estimation.vo import VoSettings
-from common.estimation.vo_chain import (
-    VoChainSettings,
-)
+from common.estimation.vo_chain import VoChainSettings
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
     check_rotation_matrix,
