@@ -1,40 +1,46 @@
 # Every target that needs Python creates .venv and installs the project first,
 # so `make run` or `make test` alone does all set-up on a fresh machine.
+# `make run` needs the runtime dependencies only; tests, lint and type checks add the dev tools.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+STAMP  := $(VENV)/.installed-runtime
+DEV    := $(VENV)/.installed
 
 .PHONY: run test test-loaded test-docker bench lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --quiet -e .
 	touch $(STAMP)
+
+$(DEV): $(STAMP)
+	$(BIN)/python -m pip install --quiet --quiet -e '.[dev]'
+	touch $(DEV)
 
 run: $(STAMP)
 	$(BIN)/capataz run
 
-test: $(STAMP)
+test: $(DEV)
 	$(BIN)/python -m pytest -q
 
 # the compose deployment on a real Docker engine (builds the image; BASE_IMAGE=... without Docker Hub)
-test-docker: $(STAMP)
+test-docker: $(DEV)
 	CAPATAZ_DOCKER_TEST=1 $(BIN)/python -m pytest -q -s -m docker tests/integration/test_docker_e2e.py
 
 # the suite on a host whose cores are all busy (busy-loop processes for the whole run)
-test-loaded: $(STAMP)
+test-loaded: $(DEV)
 	$(BIN)/python -m tests.under_load -q
 
-bench: $(STAMP)
+bench: $(DEV)
 	$(BIN)/capataz bench all
 
-lint: $(STAMP)
+lint: $(DEV)
 	$(BIN)/ruff check common services tests
 	$(BIN)/ruff format --check common services tests
 
-typecheck: $(STAMP)
+typecheck: $(DEV)
 	$(BIN)/mypy common services
 	$(BIN)/mypy --strict common
 

@@ -17,6 +17,7 @@ dtype or shape mismatch, NaN/inf.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Literal, TypeVar
@@ -27,14 +28,15 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     StringConstraints,
     ValidationError,
-    field_validator,
     model_validator,
 )
 
-from common.errors import CapatazError
+from common.errors import CapatazError, InputError
 from common.provenance import Provenance
+from common.yaw.settings import FftBackend, FitModel, YawSettings
 
 #: Bump when a field changes meaning; decoders reject other versions.
 SCHEMA_VERSION = 1
@@ -43,7 +45,7 @@ WIRE_DTYPES: frozenset[str] = frozenset(
     {"|u1", "|b1", "<i4", "<i8", "<u4", "<f4", "<f8", "<c8", "<c16"},
 )
 #: Parsed wire dtypes (a dtype string parsed for every array of every message costs more than the check).
-_WIRE_NP_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in WIRE_DTYPES}
+WIRE_NP_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in WIRE_DTYPES}
 #: Largest header accepted (bytes); arrays travel in the payload, so headers are small.
 MAX_HEADER_BYTES = 1 << 20
 #: Wire bounds: every count and size a sender chooses is bounded here, at the boundary.
@@ -53,7 +55,6 @@ MAX_FRAME_SIDE_PX = 8192
 MAX_JOB_PATCHES = 4096
 MAX_CROP_SIDE_PX = 512
 MAX_JOB_PIXELS = 1 << 24  # crops + previous crops of one job (16 MB)
-MAX_SETTINGS_ENTRIES = 64
 
 
 class WireError(CapatazError):
@@ -117,16 +118,6 @@ class WireModel(BaseModel):
                         raise ValueError(str(exc)) from None
         return data
 
-    @field_validator("settings", mode="after", check_fields=False)
-    @classmethod
-    def _finite_settings(cls, value: Any) -> Any:
-        # dict[str, Any] fields are not covered by allow_inf_nan
-        if isinstance(value, dict):
-            for key, item in value.items():
-                if isinstance(item, float) and not math.isfinite(item):
-                    raise ValueError(f"entry {key!r} must be finite (NaN or inf given)")
-        return value
-
 
 Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
 #: Frames of reference (``frame_id``; README "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
@@ -140,13 +131,19 @@ def frame_id_field(default: str) -> Any:
 
 
 # ----------------------------------------------------------------------------------------------- sensors
-class Frame(WireModel):
+class UavMessage(WireModel):
+    """A message of one UAV's stream: its id, the sequence number and the stamp of what it carries."""
+
+    uav: Uav
+    seq: int = Field(ge=0, le=MAX_SEQ, default=0)
+    stamp_s: float
+
+
+class Frame(UavMessage):
     """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``)."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
-    uav: Uav
-    seq: int = Field(ge=0, le=MAX_SEQ)
-    stamp_s: float
+    seq: int = Field(ge=0, le=MAX_SEQ)  # required
     width: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     height: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     encoding: Literal["mono8"] = "mono8"
@@ -162,38 +159,30 @@ class Frame(WireModel):
         return self
 
 
-class ImuSample(WireModel):
+class ImuSample(UavMessage):
     """One IMU reading in the body frame (FLU): angular rate and specific force."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "gyro_rad_s": ArraySpec("<f8", (3,)),
         "accel_m_s2": ArraySpec("<f8", (3,)),
     }
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     gyro_rad_s: np.ndarray
     accel_m_s2: np.ndarray
     frame_id: str = frame_id_field("body")
 
 
-class RangeSample(WireModel):
+class RangeSample(UavMessage):
     """One rangefinder reading along body -z."""
 
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     range_m: float = Field(gt=0.0)
     frame_id: str = frame_id_field("body")
 
 
 # ----------------------------------------------------------------------------------------------- estimates
-class YawEstimate(WireModel):
+class YawEstimate(UavMessage):
     """The yaw of one frame, as published by the master on ``capataz/uav/{uav}/yaw``."""
 
-    uav: Uav
-    seq: int = Field(ge=0)
-    stamp_s: float
+    seq: int = Field(ge=0, le=MAX_SEQ)  # required
     delta_yaw_rad: float
     yaw_rad: float
     inlier_count: int = Field(ge=0)
@@ -222,22 +211,19 @@ class YawEstimate(WireModel):
     frame_id: str = frame_id_field("world")
 
 
-class AttitudeEstimate(WireModel):
+class AttitudeEstimate(UavMessage):
     """Attitude of the body in the world (Hamilton, scalar first) with its 3x3 error-angle covariance."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "q_world_body": ArraySpec("<f8", (4,)),
         "covariance": ArraySpec("<f8", (3, 3)),
     }
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     q_world_body: np.ndarray
     covariance: np.ndarray
     frame_id: str = frame_id_field("world")
 
 
-class PoseEstimate(WireModel):
+class PoseEstimate(UavMessage):
     """Position and attitude of the body in the world with a 6x6 covariance [position, error angles]."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
@@ -245,9 +231,6 @@ class PoseEstimate(WireModel):
         "q_world_body": ArraySpec("<f8", (4,)),
         "covariance": ArraySpec("<f8", (6, 6)),
     }
-    uav: Uav
-    seq: int = Field(ge=0, default=0)
-    stamp_s: float
     p_world_body_m: np.ndarray
     q_world_body: np.ndarray
     covariance: np.ndarray
@@ -260,12 +243,78 @@ class PoseEstimate(WireModel):
 
 
 # ----------------------------------------------------------------------------------------------- work
+class YawJobSettings(BaseModel):
+    """The yaw settings a job carries (every member measures with the dispatcher's), bounded at the wire.
+
+    The same fields as :class:`~common.yaw.settings.YawSettings` but the lens model (only the central stage
+    uses it). Each count and size a member allocates windows and spectra by is bounded here, before any
+    allocation; the largest values in use are far below. A decoded value is also a valid ``YawSettings``
+    (checked once, at decode): :attr:`yaw_settings` is that object.
+    """
+
+    # strict: no bool or string for a number; enums (by value on the wire) stay lax
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False, strict=True)
+    patch_size_px: int = Field(ge=8, le=256)
+    grid_cols: int = Field(ge=1, le=64)
+    grid_rows: int = Field(ge=1, le=64)
+    margin_px: int = Field(ge=0, le=4096)
+    pyramid_level: int = Field(ge=0, le=4)
+    fft_backend: FftBackend = Field(strict=False)
+    peak_sigma_px: float = Field(ge=1e-3, le=64.0)
+    window_taper: float = Field(ge=0.0, le=1.0)
+    overlap_correction: float = Field(ge=0.0, le=8.0)
+    min_texture_std: float = Field(ge=0.0, le=255.0)
+    min_peak_ratio: float = Field(ge=0.0, le=1e3)
+    fit_model: FitModel = Field(strict=False)
+    prealigned_fit_model: FitModel = Field(strict=False)
+    ransac_threshold_px: float = Field(ge=1e-3, le=1e3)
+    ransac_max_iters: int = Field(ge=1, le=10_000)
+    min_inliers: int = Field(ge=3, le=4096)
+    min_inlier_fraction: float = Field(ge=0.0, le=1.0)
+    global_size_px: int = Field(ge=64, le=1024)
+    global_angle_bins: int = Field(ge=90, le=4096)
+    max_residual_px: float = Field(ge=1e-3, le=1e3)
+    refine_min_deg: float = Field(ge=0.0, le=180.0)
+    max_yaw_rate_deg_s: float = Field(gt=0.0, le=1e5)
+    max_yaw_accel_deg_s2: float = Field(gt=0.0, le=1e7)
+    gyro_gate_deg: float = Field(gt=0.0, le=180.0)
+    gyro_sigma_deg_s: float = Field(ge=0.0, le=1e3)
+    ambiguity_ratio: float = Field(gt=0.0, le=1.0)
+    frame_period_s: float = Field(gt=0.0, le=60.0)
+    _yaw_settings: YawSettings = PrivateAttr()
+
+    @model_validator(mode="after")
+    def _valid_yaw_settings(self) -> YawJobSettings:
+        try:
+            self._yaw_settings = YawSettings(
+                **{name: getattr(self, name) for name in type(self).model_fields}
+            )
+        except InputError as exc:
+            raise ValueError(f"invalid yaw settings: {exc}") from None
+        return self
+
+    @classmethod
+    def of(cls, settings: YawSettings) -> YawJobSettings:
+        """The wire form of ``settings`` (its lens model stays behind: :data:`LOCAL_YAW_SETTINGS`)."""
+        values = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
+        return cls.model_validate({k: v for k, v in values.items() if k not in LOCAL_YAW_SETTINGS})
+
+    @property
+    def yaw_settings(self) -> YawSettings:
+        """The core's settings object (no lens model)."""
+        return self._yaw_settings
+
+
+#: Yaw settings only the central stage uses (the lens model): never sent to members.
+LOCAL_YAW_SETTINGS = frozenset({"camera"})
+
+
 class PatchJob(WireModel):
     """Measure the shifts of patches ``indices`` of frame ``seq`` against frame ``prev_seq``.
 
     ``crops`` are the patches of the new frame; ``prev_crops`` are previous-frame patches for indices the
     member does not hold yet (moved assignment, new member); the member keeps the others' spectra.
-    ``settings`` are the yaw settings (a flat dict), so every member measures with the same settings.
+    ``settings`` are the dispatcher's yaw settings, so every member measures with the same settings.
     """
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
@@ -277,7 +326,7 @@ class PatchJob(WireModel):
     stream: Uav
     seq: int = Field(ge=0, le=MAX_SEQ)
     prev_seq: int = Field(ge=-1, le=MAX_SEQ)
-    settings: dict[str, Any] = Field(max_length=MAX_SETTINGS_ENTRIES)
+    settings: YawJobSettings
     indices: np.ndarray
     crops: np.ndarray
     prev_indices: np.ndarray
@@ -371,28 +420,29 @@ class BlockResult(PatchResult):
 
 
 # ----------------------------------------------------------------------------------------------- service
-class Stats(WireModel):
-    """Periodic statistics of a service (``capataz/stats/{role}/{node}/{i}``)."""
+class ServiceMessage(WireModel):
+    """A message about one service instance ``{role}/{node}/{index}`` and how long it has been up."""
 
     role: str
     node: str
     index: int = Field(ge=0)
-    stamp_s: float
     uptime_s: float = Field(ge=0.0)
+
+
+class Stats(ServiceMessage):
+    """Periodic statistics of a service (``capataz/stats/{role}/{node}/{i}``)."""
+
+    stamp_s: float
     counters: dict[str, int] = Field(default_factory=dict)
     timings_ms: dict[str, float] = Field(default_factory=dict)
     queue_depths: dict[str, int] = Field(default_factory=dict)
     shares: dict[str, float] = Field(default_factory=dict)
 
 
-class Health(WireModel):
+class Health(ServiceMessage):
     """Answer of a service's health queryable."""
 
-    role: str
-    node: str
-    index: int = Field(ge=0)
     ok: bool
-    uptime_s: float = Field(ge=0.0)
     detail: str = ""
     counters: dict[str, int] = Field(default_factory=dict)
 
@@ -426,7 +476,6 @@ MESSAGE_TYPES: dict[str, type[WireModel]] = {
 M = TypeVar("M", bound=WireModel)
 
 
-# ----------------------------------------------------------------------------------------------- codec
 def encode(message: WireModel) -> tuple[bytes, bytes]:
     """Return ``(payload, attachment)``: raw array bytes and the msgpack header."""
     name = type(message).__name__
@@ -435,7 +484,9 @@ def encode(message: WireModel) -> tuple[bytes, bytes]:
     fields: dict[str, Any] = {}
     for key in type(message).model_fields:
         if key not in message.ARRAYS:
-            fields[key] = getattr(message, key)
+            value = getattr(message, key)
+            # a nested model (a job's settings) travels as a map, its enums by value
+            fields[key] = value.model_dump(mode="json") if isinstance(value, BaseModel) else value
     descriptors = []
     chunks = []
     for key in message.ARRAYS:
@@ -509,7 +560,7 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
             raise WireError(f"{name}: unknown array field {key!r}")
         if key in values:
             raise WireError(f"{name}: field {key!r} given twice")
-        np_dtype = _WIRE_NP_DTYPES.get(dtype) if isinstance(dtype, str) else None
+        np_dtype = WIRE_NP_DTYPES.get(dtype) if isinstance(dtype, str) else None
         if np_dtype is None:
             raise WireError(f"{name}.{key}: dtype {dtype!r} not allowed on the wire")
         if not (

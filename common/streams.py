@@ -2,11 +2,13 @@
 
 Two gates, both state in, decision out:
 
-- :class:`FrameGate` for a camera stream: a frame whose UAV, size or encoding differs from the stream's, or
-  whose ``seq`` / ``stamp_s`` jumps beyond a bound (forward or backward), is **refused** and never adopted
-  on its own. Refused frames that agree with each other (one size, increasing seq and stamps) and arrive
-  ``confirm_frames`` in a row with no frame of the current epoch in between, or while the current epoch is
-  silent for ``silence_s``, start a **new epoch** (a camera restarted from seq 0, a reconfigured camera).
+- :class:`FrameGate` for a camera stream: a frame whose UAV, size or encoding differs from the stream's, whose
+  sender differs from the one that opened the epoch (where the transport tells the sender: zenoh's
+  ``source_info``, ``None`` = declared none), or whose ``seq`` / ``stamp_s`` jumps beyond a bound (forward
+  or backward), is **refused** and never adopted on its own. Refused frames that agree with each other (one
+  sender, one size, increasing seq and stamps) and arrive ``confirm_frames`` in a row with no frame of the
+  current epoch in between, or while the current epoch is silent for ``silence_s``, start a **new epoch**
+  (a camera restarted from seq 0, a reconfigured camera); another sender's frames only the latter way.
   One hostile frame thus never moves the stream, and a real restart costs ``confirm_frames - 1`` frames.
 - :class:`StampGuard` for one sensor's time stamps: a stamp further in the future than the stream's recent
   stamps plus the wall-clock time elapsed since (plus ``max_ahead_s``) is refused, as is a stamp ahead of
@@ -109,8 +111,11 @@ class FrameGateState:
     epoch: int = -1
     key: FrameKey | None = None
     last: _Last | None = None
+    #: the sender that opened the epoch (None: it declared none)
+    source: str | None = None
     #: the refused frames that agree with each other so far (a candidate epoch)
     candidate_key: FrameKey | None = None
+    candidate_source: str | None = None
     candidate: _Last | None = None
     candidate_count: int = 0
     refused: dict[str, int] = field(default_factory=dict)
@@ -140,8 +145,14 @@ def admit_frame(
     key: FrameKey,
     now_s: float,
     wall_s: float,
+    source: str | None = None,
 ) -> tuple[FrameGateState, Decision]:
-    """Decide about one frame of the stream ``expected_uav``; returns the new state and the decision."""
+    """Decide about one frame of the stream ``expected_uav`` sent by ``source`` (the sender as the transport
+    tells it, None when it does not); returns the new state and the decision.
+
+    A second sender within an epoch is refused (``foreign_sender``); its frame starts a new epoch only once
+    the epoch's sender has been silent for ``silence_s`` (a camera restarted in a new session), never by
+    ``confirm_frames`` in a row: frames that agree with each other are what a flooding forger sends."""
 
     def refuse(
         reason: str, detail: str, new: FrameGateState | None = None
@@ -159,16 +170,20 @@ def admit_frame(
         return refuse("future_stamp", f"stamp {stamp_s - wall_s:.3f} s ahead of the wall clock")
     last = _Last(seq, stamp_s, now_s)
     if state.last is None or state.key is None:
-        return FrameGateState(epoch=state.epoch + 1, key=key, last=last, refused=state.refused), Decision(
-            Verdict.NEW_EPOCH
-        )
-    if key == state.key:
+        return FrameGateState(
+            epoch=state.epoch + 1, key=key, last=last, source=source, refused=state.refused
+        ), Decision(Verdict.NEW_EPOCH)
+    if source != state.source:
+        why = "foreign_sender"
+        detail = f"frame of sender {source or 'anonymous'} in the epoch of {state.source or 'anonymous'}"
+    elif key == state.key:
         why = _follows(state.last, seq, stamp_s, now_s, settings)
         if not why:
             gap = seq - state.last.seq - 1
-            return replace(state, last=last, candidate_key=None, candidate=None, candidate_count=0), Decision(
-                Verdict.ACCEPT, gap=gap
+            accepted = replace(
+                state, last=last, candidate_key=None, candidate_source=None, candidate=None, candidate_count=0
             )
+            return accepted, Decision(Verdict.ACCEPT, gap=gap)
         detail = f"seq {seq} stamp {stamp_s:.6f} after seq {state.last.seq} stamp {state.last.stamp_s:.6f}"
     else:
         why = (
@@ -181,16 +196,21 @@ def admit_frame(
     agrees = (
         state.candidate is not None
         and state.candidate_key == key
+        and state.candidate_source == source
         and not _follows(state.candidate, seq, stamp_s, now_s, settings)
     )
     count = state.candidate_count + 1 if agrees else 1
     silent = now_s - state.last.now_s > settings.silence_s
-    restart = why in ("seq_backward", "stamp_backward", "wrong_size", "wrong_encoding")
-    if count >= settings.confirm_frames or (silent and restart):
-        return FrameGateState(epoch=state.epoch + 1, key=key, last=last, refused=state.refused), Decision(
-            Verdict.NEW_EPOCH, why, detail
-        )
-    candidate = replace(state, candidate_key=key, candidate=last, candidate_count=count)
+    restart = why in ("seq_backward", "stamp_backward", "wrong_size", "wrong_encoding", "foreign_sender")
+    # another sender's frames agreeing with each other is what a flooding forger sends: only silence counts
+    confirmed = count >= settings.confirm_frames and why != "foreign_sender"
+    if confirmed or (silent and restart):
+        return FrameGateState(
+            epoch=state.epoch + 1, key=key, last=last, source=source, refused=state.refused
+        ), Decision(Verdict.NEW_EPOCH, why, detail)
+    candidate = replace(
+        state, candidate_key=key, candidate_source=source, candidate=last, candidate_count=count
+    )
     return refuse(why, detail, candidate)
 
 

@@ -6,17 +6,31 @@ rectification, and the EKF with gyro-only yaw; writes ``estimator.png`` (like pa
 from __future__ import annotations
 
 import logging
+import multiprocessing
+import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from common.datasets.tum import Trajectory
-from common.estimation.replay import EstimatorRun, RunErrors, evaluate
+from common.estimation.measurements import FrameMeasurement, Measurement
+from common.estimation.replay import (
+    CONFIGURATIONS,
+    EstimatorRun,
+    RunErrors,
+    evaluate,
+    flight_measurements,
+    run_estimators,
+    standard_estimators,
+)
 from common.geometry import euler_from_quaternion, wrap_angle_rad
-from common.sim.flight import Flight
-from services.bench.estimator import compare_on_flight_b
+from common.sim.flight import Flight, turns_flight
 from services.report import write_json
+from services.runtime import progress
 from services.trajectory import truth_at, write_with_truth
 
 logger = logging.getLogger(__name__)
@@ -167,8 +181,68 @@ def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict
     return path
 
 
+#: processes the configurations are spread over (this machine has two cores)
+PROCESSES = 2
+
+_frames_done: Any = None  # a shared counter in each worker process (set by _init_worker)
+
+
+def _init_worker(counter: Any) -> None:
+    global _frames_done
+    _frames_done = counter
+
+
+def _counted(measurements: Iterator[Measurement], weight: int) -> Iterator[Measurement]:
+    """The measurements, adding ``weight`` (the estimators fed) to the shared frame counter per frame."""
+    for m in measurements:
+        yield m
+        if isinstance(m, FrameMeasurement) and _frames_done is not None:
+            with _frames_done.get_lock():
+                _frames_done.value += weight
+
+
+def _run_group(
+    seed: int, names: tuple[str, ...], start_frame: int, stop_frame: int
+) -> dict[str, EstimatorRun]:
+    """One process's share: the flight rebuilt (deterministic by seed), its frames rendered once."""
+    cv2.setNumThreads(1)
+    flight = turns_flight(seed=seed)
+    measurements = flight_measurements(flight, start_frame, stop_frame)
+    return run_estimators(standard_estimators(flight, start_frame, names), _counted(measurements, len(names)))
+
+
+def run_configurations(
+    seed: int = 0, frames: int | None = None, start_frame: int = 0
+) -> tuple[Flight, dict[str, EstimatorRun]]:
+    """Flight (b) through every configuration of :data:`CONFIGURATIONS`, the groups in parallel processes
+    (spawned: the parent may hold zenoh's threads from an earlier step), with a progress bar over the frames.
+    The results equal a single-process run: each configuration sees the same deterministic stream."""
+    names = list(CONFIGURATIONS)
+    groups = [tuple(names[k::PROCESSES]) for k in range(PROCESSES)]
+    flight = turns_flight(seed=seed)
+    context = multiprocessing.get_context("spawn")
+    counter = context.Value("l", 0)
+    stop_frame = flight.n_frames if frames is None else min(flight.n_frames, start_frame + frames)
+    total = (stop_frame - start_frame) * len(names)
+    runs: dict[str, EstimatorRun] = {}
+    with (
+        ProcessPoolExecutor(
+            PROCESSES, mp_context=context, initializer=_init_worker, initargs=(counter,)
+        ) as pool,
+        progress.bar(total=total, desc="estimator configurations", unit="frame") as bar,
+    ):
+        futures = [pool.submit(_run_group, seed, group, start_frame, stop_frame) for group in groups]
+        while not all(f.done() for f in futures):
+            bar.set(counter.value)
+            time.sleep(0.2)
+        bar.set(counter.value)
+        for future in futures:
+            runs.update(future.result())
+    return flight, {name: runs[name] for name in CONFIGURATIONS}
+
+
 def run_demo(out_dir: Path) -> dict[str, Any]:
-    flight, runs = compare_on_flight_b()
+    flight, runs = run_configurations()
     errors = {name: evaluate(run, flight) for name, run in runs.items()}
     summary = summarize(flight, runs, errors)
     summary["tum"] = write_estimator_tum(out_dir / "tum", flight, runs["rectified"])

@@ -10,11 +10,12 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Mapping
+from typing import TypeVar
 
 import zenoh
 
 from common import keys
-from common.messages import Stats, WireError, YawEstimate, decode
+from common.messages import Stats, WireError, WireModel, YawEstimate, decode
 from services.runtime.transport import zbytes
 
 #: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service
@@ -26,7 +27,23 @@ REFUSED_COUNTERS = frozenset(
 DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames"})
 
 
-class YawCollector:
+M = TypeVar("M", bound=WireModel)
+
+
+class _Watch:
+    """A subscriber's decoding: a message that does not decode is counted in :attr:`malformed`, not raised."""
+
+    malformed = 0
+
+    def _decoded(self, sample: zenoh.Sample, expected: type[M]) -> M | None:
+        try:
+            return decode(zbytes(sample.payload), zbytes(sample.attachment), expected)
+        except WireError:
+            self.malformed += 1
+            return None
+
+
+class YawCollector(_Watch):
     """Subscribes to a UAV's yaw and keeps every estimate by frame seq (for tests, the demo, benches)."""
 
     def __init__(self, session: zenoh.Session, uav: str) -> None:
@@ -37,10 +54,8 @@ class YawCollector:
         self._sub = session.declare_subscriber(keys.yaw_key(uav), self._on_yaw)
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
-        try:
-            estimate = decode(zbytes(sample.payload), zbytes(sample.attachment), YawEstimate)
-        except WireError:
-            self.malformed += 1
+        estimate = self._decoded(sample, YawEstimate)
+        if estimate is None:
             return
         with self._cond:
             self.estimates[estimate.seq] = estimate
@@ -65,7 +80,7 @@ class YawCollector:
         self._sub.undeclare()
 
 
-class StatsWatch:
+class StatsWatch(_Watch):
     """The latest stats message of every member (``role/node/i``), from ``capataz/stats/**``."""
 
     def __init__(self, session: zenoh.Session) -> None:
@@ -75,10 +90,8 @@ class StatsWatch:
         self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
 
     def _on_stats(self, sample: zenoh.Sample) -> None:
-        try:
-            stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
-        except WireError:
-            self.malformed += 1
+        stats = self._decoded(sample, Stats)
+        if stats is None:
             return
         with self._lock:
             self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = stats

@@ -18,7 +18,6 @@ SIM_IMPORT_EXCEPTIONS: set[str] = set()
 #: modules over MAX_LINES today (split them, then remove them here)
 LONG_MODULE_EXCEPTIONS = {
     "common/messages.py",
-    "services/bench/cluster.py",
 }
 
 

@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from common.camera import CameraModel, Distortion, DistortionModel
+from common.datasets.files import read_text_file
 from common.errors import InputError
 
 #: the largest calibration file read (a calibration is a few hundred bytes; anything larger is not one).
@@ -52,15 +53,7 @@ class CalibrationError(InputError):
 def load_calibration(path: str | os.PathLike[str]) -> CameraModel:
     """The camera described by the calibration file at ``path`` (OpenCV YAML or ROS camera_info YAML)."""
     p = Path(path)
-    if not p.is_file():
-        raise CalibrationError(f"calibration file {p}: not a file")
-    size = p.stat().st_size
-    if size > MAX_CALIBRATION_BYTES:
-        raise CalibrationError(f"calibration file {p}: {size} bytes is too large for a calibration")
-    try:
-        text = p.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise CalibrationError(f"calibration file {p}: not text ({exc.reason} at byte {exc.start})") from None
+    text = read_text_file(p, MAX_CALIBRATION_BYTES, "calibration file", CalibrationError)
     try:
         return parse_calibration(text)
     except CalibrationError as exc:

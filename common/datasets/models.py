@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from common.datasets.files import read_text_file
 from common.localization.cad import CadError, scene_from_cao, scene_from_obj
 from common.localization.model import SceneModel, SceneModelError, scene_from_json
 
@@ -24,17 +25,7 @@ class ModelFileError(SceneModelError):
 
 
 def _read_text(path: Path) -> str:
-    if not path.is_file():
-        raise ModelFileError(f"model file {path}: not a file")
-    size = path.stat().st_size
-    if size > MAX_MODEL_BYTES:
-        raise ModelFileError(f"model file {path}: {size} bytes is larger than {MAX_MODEL_BYTES}")
-    try:
-        return path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ModelFileError(f"model file {path}: not text ({exc.reason} at byte {exc.start})") from None
-    except OSError as exc:
-        raise ModelFileError(f"model file {path}: {exc.strerror}") from None
+    return read_text_file(path, MAX_MODEL_BYTES, "model file", ModelFileError)
 
 
 def load_model(path: str | os.PathLike[str], scale: float = 1.0) -> SceneModel:

@@ -20,28 +20,20 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from common.errors import InputError
+from common.bounds import Bounded, bounded
 
 #: the source of samples that declare none
 ANONYMOUS = "anonymous"
 
 
 @dataclass(frozen=True)
-class AdmissionSettings:
-    hold_s: float = 1.0
-    max_changes: int = 6
-    window_s: float = 10.0
-    quarantine_s: float = 30.0
+class AdmissionSettings(Bounded):
+    hold_s: float = bounded(1.0, gt=0.0)
+    max_changes: int = bounded(6, ge=1)
+    window_s: float = bounded(10.0, gt=0.0)
+    quarantine_s: float = bounded(30.0, gt=0.0)
     #: how many distinct sources / keys are remembered (bounded memory under a flood of new ids)
-    max_tracked: int = 1024
-
-    def __post_init__(self) -> None:
-        if (
-            min(self.hold_s, self.window_s, self.quarantine_s) <= 0
-            or self.max_changes < 1
-            or self.max_tracked < 1
-        ):
-            raise InputError("admission settings must be positive")
+    max_tracked: int = bounded(1024, ge=1)
 
 
 class SourceLock:

@@ -25,6 +25,7 @@ from enum import StrEnum
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.dispatch.trust import TrustMonitor, cap_plan, hold_weights
 from common.errors import CapatazError, InputError
 
@@ -61,30 +62,24 @@ class SpeedSource(StrEnum):
 
 
 @dataclass(frozen=True)
-class DispatchSettings:
+class DispatchSettings(Bounded):
     """Balancing and fault-handling parameters of a :class:`Dispatcher`."""
 
     balance: Balance = Balance.TIME
     #: weight of the newest speed measurement in the moving average.
-    ema_alpha: float = 0.3
+    ema_alpha: float = bounded(0.3, gt=0.0, le=1.0)
     #: the dispatcher computes a share itself (the paper's configuration) even when members exist.
     self_compute: bool = False
     #: capacity of the dispatcher itself (weight under ``balance=none``).
-    self_capacity: float = 1.0
+    self_capacity: float = bounded(1.0, gt=0.0)
     #: first suspension after a missed deadline; doubles per consecutive failure up to ``max_suspend_s``.
-    suspend_s: float = 1.0
-    max_suspend_s: float = 8.0
+    suspend_s: float = bounded(1.0, gt=0.0)
+    max_suspend_s: float = bounded(8.0, gt=0.0)
     #: per-request deadline = max(min_deadline_s, deadline_factor * expected time at the member's speed).
-    min_deadline_s: float = 0.3
-    deadline_factor: float = 4.0
+    min_deadline_s: float = bounded(0.3, gt=0.0)
+    deadline_factor: float = bounded(4.0, gt=0.0)
     #: which speed measurement balances (see :class:`SpeedSource`).
     speed_source: SpeedSource = SpeedSource.ROUND_TRIP
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.ema_alpha <= 1.0:
-            raise InputError(f"ema_alpha must be in (0, 1], got {self.ema_alpha}")
-        if self.self_capacity <= 0 or self.suspend_s <= 0 or self.min_deadline_s <= 0:
-            raise InputError("self_capacity, suspend_s and min_deadline_s must be positive")
 
 
 @dataclass

@@ -28,44 +28,44 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 
 
 @dataclass(frozen=True)
-class TrustSettings:
+class TrustSettings(Bounded):
     """Thresholds of :class:`TrustMonitor` and the share cap."""
 
     #: largest share of a frame one remote member may get (applied from two joined remote members on, so
     #: it holds while the others are suspended); 1 = off
-    max_share: float = 0.5
+    max_share: float = bounded(0.5, gt=0.0, le=1.0)
     #: the same for a member that has not earned credit yet (new, or inconsistent lately) while others
     #: have: the dispatcher computes the rest itself, so a newcomer alone never outvotes it
-    probation_share: float = 1.0 / 3.0
+    probation_share: float = bounded(1.0 / 3.0, gt=0.0)
     #: frames of history per member
-    window: int = 30
+    window: int = bounded(30, ge=1)
     #: a member is judged once its window holds this many valid patches
-    min_patches: int = 40
+    min_patches: int = bounded(40, ge=1)
     #: suspended when its outlier rate exceeds the others' by more than this
-    outlier_margin: float = 0.35
+    outlier_margin: float = bounded(0.35, gt=0.0, lt=1.0)
     #: how long a suspension lasts (s); it doubles for each repeated suspension
-    suspend_s: float = 30.0
-    max_suspend_s: float = 600.0
+    suspend_s: float = bounded(30.0, gt=0.0)
+    max_suspend_s: float = bounded(600.0, gt=0.0)
     #: consistent frames before a member's speed may buy more than its capacity share
-    earn_frames: int = 10
+    earn_frames: int = bounded(10, ge=0)
     #: members that never answered yet which get work in one frame (a flood of fake tokens is tried a few
     #: at a time; each that fails is paused by the dispatcher)
-    max_untested: int = 4
+    max_untested: int = bounded(4, ge=1)
     enabled: bool = True
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.max_share <= 1.0 or not 0.0 < self.probation_share <= self.max_share:
+        super().__post_init__()
+        if self.probation_share > self.max_share:
             raise InputError(
-                f"need 0 < probation_share <= max_share <= 1, got {self.probation_share}, {self.max_share}"
+                f"need probation_share <= max_share, got {self.probation_share} > {self.max_share}"
             )
-        if self.window < 1 or self.min_patches < 1 or self.earn_frames < 0 or self.max_untested < 1:
-            raise InputError("window, min_patches and max_untested must be >= 1, earn_frames >= 0")
-        if not 0.0 < self.outlier_margin < 1.0 or self.suspend_s <= 0 or self.max_suspend_s < self.suspend_s:
-            raise InputError("outlier_margin must be in (0, 1); 0 < suspend_s <= max_suspend_s")
+        if self.max_suspend_s < self.suspend_s:
+            raise InputError(f"need suspend_s <= max_suspend_s, got {self.suspend_s} > {self.max_suspend_s}")
 
 
 @dataclass(frozen=True)

@@ -72,11 +72,15 @@ class VisionTilt:
         return np.asarray(self.weighted_sum, dtype=np.float64) / self.information
 
 
+#: positions the cubic fit of :func:`motion_acceleration` needs
+MIN_TRACK_SAMPLES = 5
+
+
 def motion_acceleration(stamps_s: npt.ArrayLike, positions_m: npt.ArrayLike) -> FloatArray:
     """Acceleration at the last stamp of a cubic fit in time to positions ``(N, D)`` (N >= 5), else zeros."""
     t = np.asarray(stamps_s, dtype=np.float64)
     p = np.asarray(positions_m, dtype=np.float64)
-    if len(t) < 5:
+    if len(t) < MIN_TRACK_SAMPLES:
         return np.zeros(p.shape[1] if p.ndim == 2 else 3)
     tau = t - t[-1]
     scale = max(float(-tau[0]), 1e-6)
@@ -94,7 +98,12 @@ class ManoeuvreTrack:
     accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def updated(self, stamp_s: float, x_m: float, y_m: float, window_s: float) -> ManoeuvreTrack:
-        kept = (*(s for s in self.samples if s[0] >= stamp_s - window_s), (stamp_s, x_m, y_m))
+        """The track with one more position: those of the last ``window_s``, but at least the last
+        :data:`MIN_TRACK_SAMPLES` (sparse frames, e.g. a busy host's, would leave the fit too few and
+        the turn's acceleration at zero)."""
+        samples = (*self.samples, (stamp_s, x_m, y_m))
+        recent = sum(1 for s in samples if s[0] >= stamp_s - window_s)
+        kept = samples[-max(recent, MIN_TRACK_SAMPLES) :]
         track = np.array(kept)
         ax, ay = motion_acceleration(track[:, 0], track[:, 1:])
         return ManoeuvreTrack(kept, (float(ax), float(ay), 0.0))
@@ -105,7 +114,7 @@ class ManoeuvreTrack:
 
     @property
     def fitted(self) -> bool:
-        return len(self.samples) >= 5
+        return len(self.samples) >= MIN_TRACK_SAMPLES
 
 
 def rectified_axis_offset(

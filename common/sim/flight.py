@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TypedDict, Unpack
 
 import numpy as np
 import numpy.typing as npt
@@ -155,16 +156,22 @@ def simulate_flight(
     )
 
 
+class FlightOptions(TypedDict, total=False):
+    """What a named flight passes on to :func:`simulate_flight` (see there; None = its default)."""
+
+    camera: CameraModel | None
+    texture: GroundTexture | None
+    degradation: ImageDegradation | None
+    imu_noise: ImuNoise | None
+    range_noise: RangeNoise | None
+
+
 def hover_flight(
     seed: int = 0,
     n_frames: int = HOVER_FRAMES,
     altitude_m: float = 1.5,
-    camera: CameraModel | None = None,
-    texture: GroundTexture | None = None,
-    degradation: ImageDegradation | None = None,
-    imu_noise: ImuNoise | None = None,
-    range_noise: RangeNoise | None = None,
     mode: AttitudeMode = AttitudeMode.PRESCRIBED,
+    **options: Unpack[FlightOptions],
 ) -> Flight:
     """Paper A's hover: 2041 frames at 20 fps (102 s) at 1.5 m, yaw rates up to +-45 deg/s.
 
@@ -175,26 +182,11 @@ def hover_flight(
         raise InputError(f"n_frames must be an integer >= 2, got {n_frames}")
     duration_s = max((n_frames - 1) / CAMERA_RATE_HZ, NOMINAL_HOVER_DURATION_S)
     trajectory = hover_trajectory(seed=seed, duration_s=duration_s, altitude_m=altitude_m, mode=mode)
-    return simulate_flight(
-        trajectory,
-        seed=seed,
-        n_frames=n_frames,
-        camera=camera,
-        texture=texture,
-        degradation=degradation,
-        imu_noise=imu_noise,
-        range_noise=range_noise,
-    )
+    return simulate_flight(trajectory, seed=seed, n_frames=n_frames, **options)
 
 
 def turns_flight(
-    seed: int = 0,
-    camera: CameraModel | None = None,
-    texture: GroundTexture | None = None,
-    degradation: ImageDegradation | None = None,
-    imu_noise: ImuNoise | None = None,
-    range_noise: RangeNoise | None = None,
-    heading_follows_path: bool = True,
+    seed: int = 0, heading_follows_path: bool = True, **options: Unpack[FlightOptions]
 ) -> Flight:
     """Paper C's flight: 5 s hover at 3.5 m, two climbing turns of radius 1.1 m in 40 s to 4.0 m, 5 s hover.
 
@@ -202,34 +194,11 @@ def turns_flight(
     See :func:`common.sim.trajectory.turns_trajectory`.
     """
     trajectory = turns_trajectory(seed=seed, heading_follows_path=heading_follows_path)
-    return simulate_flight(
-        trajectory,
-        seed=seed,
-        camera=camera,
-        texture=texture,
-        degradation=degradation,
-        imu_noise=imu_noise,
-        range_noise=range_noise,
-    )
+    return simulate_flight(trajectory, seed=seed, **options)
 
 
-def agile_flight(
-    seed: int = 0,
-    camera: CameraModel | None = None,
-    texture: GroundTexture | None = None,
-    degradation: ImageDegradation | None = None,
-    imu_noise: ImuNoise | None = None,
-    range_noise: RangeNoise | None = None,
-) -> Flight:
+def agile_flight(seed: int = 0, **options: Unpack[FlightOptions]) -> Flight:
     """A longer, faster, more tilted indoor flight than paper C's: 60 s (1201 frames at 20 fps), a figure of
     eight with fast side-steps at 1-3 m, speed up to about 1.5 m/s, tilt up to about 20 deg, the heading
     swinging +-70 deg; 4 s of hover at both ends. See :func:`common.sim.trajectory.agile_trajectory`."""
-    return simulate_flight(
-        agile_trajectory(seed=seed),
-        seed=seed,
-        camera=camera,
-        texture=texture,
-        degradation=degradation,
-        imu_noise=imu_noise,
-        range_noise=range_noise,
-    )
+    return simulate_flight(agile_trajectory(seed=seed), seed=seed, **options)

@@ -27,7 +27,7 @@ from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad
-from common.sim.scene import RenderOptions, render_view
+from common.sim.scene import RenderOptions, SampledFlight, render_view
 from common.types import FloatArray
 
 UInt8Array = npt.NDArray[np.uint8]
@@ -160,16 +160,11 @@ def tabletop_scene(with_part: bool = True) -> SceneModel:
 
 
 @dataclass(frozen=True)
-class CameraFlight:
+class CameraFlight(SampledFlight):
     """Exact camera poses at ``times_s`` (T,): centres (T, 3) and ``R_world_camera`` (T, 3, 3)."""
 
-    times_s: FloatArray
     p_world_camera_m: FloatArray
     R_world_camera: FloatArray
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.times_s.size)
 
 
 def _look_at(eye: FloatArray, target: FloatArray, roll_rad: FloatArray) -> FloatArray:

@@ -142,18 +142,24 @@ DEFAULT_FLIGHT_RENDER = RenderOptions(texture_amplitude=6.0, noise_sigma=2.0, bl
 
 
 @dataclass(frozen=True)
-class SceneFlight:
-    """Ground truth of a flight: ``states`` (T, 6) body poses, ``velocities_world_m_s`` (T, 3) and
-    ``euler_rates_rad_s`` (T, 3) (time derivatives of roll, pitch, yaw) at ``times_s`` (T,)."""
+class SampledFlight:
+    """Ground truth sampled at ``times_s`` (T,), one frame per stamp (subclasses add what is sampled)."""
 
     times_s: FloatArray
-    states: FloatArray
-    velocities_world_m_s: FloatArray
-    euler_rates_rad_s: FloatArray
 
     @property
     def n_frames(self) -> int:
         return int(self.times_s.size)
+
+
+@dataclass(frozen=True)
+class SceneFlight(SampledFlight):
+    """Ground truth of a flight: ``states`` (T, 6) body poses, ``velocities_world_m_s`` (T, 3) and
+    ``euler_rates_rad_s`` (T, 3) (time derivatives of roll, pitch, yaw) at ``times_s`` (T,)."""
+
+    states: FloatArray
+    velocities_world_m_s: FloatArray
+    euler_rates_rad_s: FloatArray
 
 
 def default_flight(

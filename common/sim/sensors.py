@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.errors import CapatazError, InputError
 from common.sim.trajectory import Trajectory
 from common.types import FloatArray
@@ -79,25 +80,16 @@ class SensorError(CapatazError):
     """A sensor cannot be simulated with the given settings."""
 
 
-def _check_non_negative(**values: float) -> None:
-    for name, value in values.items():
-        if not (np.isfinite(value) and value >= 0.0):
-            raise InputError(f"{name} must be finite and >= 0, got {value}")
-
-
 @dataclass(frozen=True)
-class ImuNoise:
+class ImuNoise(Bounded):
     """IMU error model: white noise densities, constant biases (per-axis draw sigma), bias random walks."""
 
-    gyro_noise_density_rad_s_sqrt_hz: float = float(np.radians(0.005))
-    gyro_bias_sigma_rad_s: float = float(np.radians(0.3))
-    gyro_bias_walk_rad_s2_sqrt_hz: float = float(np.radians(0.0005))
-    accel_noise_density_m_s2_sqrt_hz: float = 400e-6 * 9.80665
-    accel_bias_sigma_m_s2: float = 0.05
-    accel_bias_walk_m_s3_sqrt_hz: float = 0.0005
-
-    def __post_init__(self) -> None:
-        _check_non_negative(**{k: float(v) for k, v in self.__dict__.items()})
+    gyro_noise_density_rad_s_sqrt_hz: float = bounded(float(np.radians(0.005)), ge=0.0)
+    gyro_bias_sigma_rad_s: float = bounded(float(np.radians(0.3)), ge=0.0)
+    gyro_bias_walk_rad_s2_sqrt_hz: float = bounded(float(np.radians(0.0005)), ge=0.0)
+    accel_noise_density_m_s2_sqrt_hz: float = bounded(400e-6 * 9.80665, ge=0.0)
+    accel_bias_sigma_m_s2: float = bounded(0.05, ge=0.0)
+    accel_bias_walk_m_s3_sqrt_hz: float = bounded(0.0005, ge=0.0)
 
     @classmethod
     def ideal(cls) -> ImuNoise:
@@ -106,16 +98,11 @@ class ImuNoise:
 
 
 @dataclass(frozen=True)
-class RangeNoise:
+class RangeNoise(Bounded):
     """Rangefinder error model: white noise sigma (m) and a constant offset (m)."""
 
-    sigma_m: float = 0.02
-    offset_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        _check_non_negative(sigma_m=self.sigma_m)
-        if not np.isfinite(self.offset_m):
-            raise InputError(f"offset_m must be finite, got {self.offset_m}")
+    sigma_m: float = bounded(0.02, ge=0.0)
+    offset_m: float = bounded(0.0)
 
     @classmethod
     def ideal(cls) -> RangeNoise:
@@ -252,7 +239,7 @@ def simulate_range(trajectory: Trajectory, stamps_s: FloatArray, noise: RangeNoi
 
 
 @dataclass(frozen=True)
-class ImageDegradation:
+class ImageDegradation(Bounded):
     """Camera effects applied to a clean render, in this order: optical blur, exposure (gain, offset), noise.
 
     - ``blur_sigma_px``: Gaussian blur sigma (px), 0 = none.
@@ -263,26 +250,13 @@ class ImageDegradation:
       fresh for every frame (256-level quantised normal), then rounded and clipped to uint8.
     """
 
-    read_noise_dn: float = 1.5
-    shot_noise_dn2_per_dn: float = (2.5**2 - 1.5**2) / 255.0
-    blur_sigma_px: float = 0.0
-    gain_amplitude: float = 0.03
-    gain_period_s: float = 30.0
-    offset_amplitude_dn: float = 3.0
-    offset_period_s: float = 41.0
-
-    def __post_init__(self) -> None:
-        _check_non_negative(
-            read_noise_dn=self.read_noise_dn,
-            shot_noise_dn2_per_dn=self.shot_noise_dn2_per_dn,
-            blur_sigma_px=self.blur_sigma_px,
-            gain_amplitude=self.gain_amplitude,
-            offset_amplitude_dn=self.offset_amplitude_dn,
-        )
-        if self.gain_amplitude >= 1.0:
-            raise InputError(f"gain_amplitude must be < 1, got {self.gain_amplitude}")
-        if not (self.gain_period_s > 0.0 and self.offset_period_s > 0.0):
-            raise InputError("exposure drift periods must be positive")
+    read_noise_dn: float = bounded(1.5, ge=0.0)
+    shot_noise_dn2_per_dn: float = bounded((2.5**2 - 1.5**2) / 255.0, ge=0.0)
+    blur_sigma_px: float = bounded(0.0, ge=0.0)
+    gain_amplitude: float = bounded(0.03, ge=0.0, lt=1.0)
+    gain_period_s: float = bounded(30.0, gt=0.0)
+    offset_amplitude_dn: float = bounded(3.0, ge=0.0)
+    offset_period_s: float = bounded(41.0, gt=0.0)
 
     @classmethod
     def clean(cls) -> ImageDegradation:

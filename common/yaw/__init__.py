@@ -19,8 +19,8 @@ from common.yaw.honest import Provenance, gyro_delta_yaw_rad
 from common.yaw.settings import FftBackend, FitModel, YawError, YawSettings
 from common.yaw.tracker import (
     EstimateMethod,
+    FrameYaw,
     TrackerState,
-    YawEstimate,
     YawTracker,
     delta_yaw_from_homography_rad,
     estimate_pair,
@@ -30,6 +30,7 @@ __all__ = [
     "EstimateMethod",
     "FftBackend",
     "FitModel",
+    "FrameYaw",
     "GlobalAlignment",
     "ModelFit",
     "PatchGrid",
@@ -38,7 +39,6 @@ __all__ = [
     "Provenance",
     "TrackerState",
     "YawError",
-    "YawEstimate",
     "YawSettings",
     "YawTracker",
     "delta_yaw_from_homography_rad",

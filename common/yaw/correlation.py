@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -60,26 +61,46 @@ class PatchMeasurement:
         return int(np.count_nonzero(self.valid))
 
 
-def merge_measurements(parts: list[PatchMeasurement]) -> PatchMeasurement:
-    """One measurement from per-worker parts, in ascending patch index (the order ``conclude`` uses)."""
-    if not parts:
+def merge_measurements(
+    parts: Sequence[PatchMeasurement], expected: npt.ArrayLike | None = None
+) -> PatchMeasurement:
+    """One measurement from disjoint per-member parts, in ascending patch index (the order ``conclude`` uses).
+
+    With ``expected``, the parts must cover each of those indices exactly once (a dispatcher's round), else
+    no patch index may appear twice; either violation raises :class:`YawError`.
+    """
+    want = None if expected is None else np.sort(np.asarray(expected, dtype=np.intp))
+    if len(parts) == 1 and want is not None and np.array_equal(np.asarray(parts[0].indices, np.intp), want):
+        only = parts[0]  # one member computed everything, in order (the usual case): no concatenation
         return PatchMeasurement(
-            np.zeros((0,), dtype=np.intp),
-            np.zeros((0, 2)),
-            np.zeros((0,)),
-            np.zeros((0,)),
-            np.zeros((0,), dtype=np.bool_),
+            indices=want,
+            shift_px=np.asarray(only.shift_px, dtype=np.float64).reshape(-1, 2),
+            confidence=np.asarray(only.confidence, dtype=np.float64),
+            peak=np.asarray(only.peak, dtype=np.float64),
+            valid=np.asarray(only.valid, dtype=np.bool_),
         )
-    indices = np.concatenate([p.indices for p in parts]).astype(np.intp)
-    if np.unique(indices).size != indices.size:
-        raise YawError("measurement parts overlap (a patch index appears twice)")
+    indices = (
+        np.concatenate([np.asarray(p.indices, dtype=np.intp) for p in parts])
+        if parts
+        else np.zeros(0, np.intp)
+    )
     order = np.argsort(indices, kind="stable")
+    if want is not None and not np.array_equal(indices[order], want):
+        raise YawError(f"parts cover {indices.size} indices, expected each of {want.size} exactly once")
+    if want is None and np.unique(indices).size != indices.size:
+        raise YawError("measurement parts overlap (a patch index appears twice)")
     return PatchMeasurement(
         indices=indices[order],
-        shift_px=np.concatenate([p.shift_px for p in parts])[order],
-        confidence=np.concatenate([p.confidence for p in parts])[order],
-        peak=np.concatenate([p.peak for p in parts])[order],
-        valid=np.concatenate([p.valid for p in parts])[order],
+        shift_px=np.concatenate(
+            [np.asarray(p.shift_px, dtype=np.float64).reshape(-1, 2) for p in parts] or [np.zeros((0, 2))]
+        )[order],
+        confidence=np.concatenate(
+            [np.asarray(p.confidence, dtype=np.float64) for p in parts] or [np.zeros(0)]
+        )[order],
+        peak=np.concatenate([np.asarray(p.peak, dtype=np.float64) for p in parts] or [np.zeros(0)])[order],
+        valid=np.concatenate([np.asarray(p.valid, dtype=np.bool_) for p in parts] or [np.zeros(0, np.bool_)])[
+            order
+        ],
     )
 
 

@@ -10,7 +10,6 @@ from the cache, so only the new frame travels. The arithmetic is the yaw core's 
 from __future__ import annotations
 
 import dataclasses
-import enum
 import threading
 import time
 from collections import OrderedDict
@@ -29,95 +28,12 @@ class PatchWorkError(CapatazError):
     """A job cannot be computed (missing previous spectra, inconsistent settings or crops)."""
 
 
-#: Settings only the central stage uses (the lens model): never sent to members.
-LOCAL_SETTINGS = frozenset({"camera"})
-
-
 def settings_to_wire(settings: YawSettings) -> dict[str, Any]:
-    """Yaw settings as a flat msgpack-able dict (enums by value), without :data:`LOCAL_SETTINGS`."""
-    out: dict[str, Any] = {}
-    for f in dataclasses.fields(settings):
-        if f.name in LOCAL_SETTINGS:
-            continue
-        value = getattr(settings, f.name)
-        out[f.name] = value.value if isinstance(value, enum.Enum) else value
-    return out
+    """Deprecated: the typed :meth:`common.messages.YawJobSettings.of` replaces it (the load-test harness
+    still calls this until it moves; remove then)."""
+    from common.messages import YawJobSettings
 
-
-#: Bounds of the yaw settings a job may carry (a member allocates windows and spectra of these sizes):
-#: checked at the wire, before any allocation. The largest values in use are far below.
-WIRE_SETTING_BOUNDS: dict[str, tuple[float, float]] = {
-    "patch_size_px": (8, 256),
-    "grid_cols": (1, 64),
-    "grid_rows": (1, 64),
-    "margin_px": (0, 4096),
-    "pyramid_level": (0, 4),
-    "ransac_max_iters": (1, 10_000),
-    "min_inliers": (3, 4096),
-    "global_size_px": (64, 1024),
-    "global_angle_bins": (90, 4096),
-    "peak_sigma_px": (1e-3, 64.0),
-    "ransac_threshold_px": (1e-3, 1e3),
-    "max_residual_px": (1e-3, 1e3),
-    "overlap_correction": (0.0, 8.0),
-    "min_texture_std": (0.0, 255.0),
-    "min_peak_ratio": (0.0, 1e3),
-}
-
-
-def settings_from_wire(values: dict[str, Any]) -> YawSettings:
-    """Inverse of :func:`settings_to_wire`; unknown, out-of-bounds (:data:`WIRE_SETTING_BOUNDS`) or invalid
-    fields raise :class:`PatchWorkError`."""
-    defaults = YawSettings()
-    known = {f.name for f in dataclasses.fields(YawSettings)} - LOCAL_SETTINGS
-    unknown = set(values) - known
-    if unknown:
-        raise PatchWorkError(f"unknown yaw settings {sorted(unknown)}")
-    kwargs: dict[str, Any] = {}
-    for name, value in values.items():
-        default = getattr(defaults, name)
-        try:
-            if isinstance(default, enum.Enum):
-                kwargs[name] = type(default)(value)
-            elif isinstance(default, float):
-                if isinstance(value, bool) or not isinstance(value, (int, float)):
-                    raise ValueError(f"expected a number, got {value!r}")
-                kwargs[name] = float(value)
-            elif isinstance(default, int) and not isinstance(default, bool):
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise ValueError(f"expected an integer, got {value!r}")
-                kwargs[name] = value
-            else:
-                kwargs[name] = value
-        except ValueError as exc:
-            raise PatchWorkError(f"yaw setting {name}: {exc}") from None
-        bounds = WIRE_SETTING_BOUNDS.get(name)
-        if bounds is not None and not bounds[0] <= kwargs[name] <= bounds[1]:
-            raise PatchWorkError(f"yaw setting {name} = {kwargs[name]!r} outside {bounds[0]}..{bounds[1]}")
-    try:
-        return YawSettings(**kwargs)
-    except (ValueError, TypeError) as exc:
-        raise PatchWorkError(f"invalid yaw settings: {exc}") from None
-
-
-class SettingsCache:
-    """Parsed yaw settings by their wire form: every job carries them, and parsing each time costs more than
-    a lookup. Bounded: a handful of distinct settings at most are in use at once."""
-
-    def __init__(self, max_entries: int = 8) -> None:
-        self._parsed: dict[tuple[tuple[str, Any], ...], YawSettings] = {}
-        self._max_entries = max_entries
-
-    def parsed(self, values: dict[str, Any]) -> YawSettings:
-        """``settings_from_wire(values)``, cached; invalid settings raise :class:`PatchWorkError`."""
-        key = tuple(sorted(values.items()))
-        settings = self._parsed.get(key)
-        if settings is None:
-            settings = settings_from_wire(values)
-            if len(self._parsed) > self._max_entries:
-                self._parsed.clear()
-            self._parsed[key] = settings
-        return settings
+    return YawJobSettings.of(settings).model_dump(mode="json")
 
 
 @dataclasses.dataclass
@@ -235,34 +151,3 @@ def measure_share(
         texture_std=np.array([rows[int(i)][1] for i in idx], dtype=np.float32),
     )
     return measure_patches(previous, current, settings)
-
-
-def merge_measurements(parts: Sequence[PatchMeasurement], expected: npt.ArrayLike) -> PatchMeasurement:
-    """One measurement in ascending index order from disjoint parts that cover ``expected`` exactly."""
-    want = np.sort(np.asarray(expected, dtype=np.intp))
-    if len(parts) == 1 and np.array_equal(np.asarray(parts[0].indices, dtype=np.intp), want):
-        only = parts[0]  # one member computed everything, in order (the usual case): no concatenation
-        return PatchMeasurement(
-            indices=want,
-            shift_px=np.asarray(only.shift_px, dtype=np.float64).reshape(-1, 2),
-            confidence=np.asarray(only.confidence, dtype=np.float64),
-            peak=np.asarray(only.peak, dtype=np.float64),
-            valid=np.asarray(only.valid, dtype=np.bool_),
-        )
-    indices = (
-        np.concatenate([np.asarray(p.indices, dtype=np.intp) for p in parts])
-        if parts
-        else np.zeros(0, np.intp)
-    )
-    order = np.argsort(indices, kind="stable")
-    if not np.array_equal(indices[order], want):
-        raise PatchWorkError(f"parts cover {indices.size} indices, expected each of {want.size} exactly once")
-    return PatchMeasurement(
-        indices=indices[order],
-        shift_px=np.concatenate([np.asarray(p.shift_px, dtype=np.float64).reshape(-1, 2) for p in parts])[
-            order
-        ],
-        confidence=np.concatenate([np.asarray(p.confidence, dtype=np.float64) for p in parts])[order],
-        peak=np.concatenate([np.asarray(p.peak, dtype=np.float64) for p in parts])[order],
-        valid=np.concatenate([np.asarray(p.valid, dtype=np.bool_) for p in parts])[order],
-    )

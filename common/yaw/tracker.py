@@ -32,11 +32,11 @@ from common.yaw.stages import EstimateMethod, PairResult, conclude_pair, lens_of
 logger = logging.getLogger(__name__)
 
 
-__all__ = ["EstimateMethod", "TrackerState", "YawEstimate", "YawTracker", "estimate_pair"]
+__all__ = ["EstimateMethod", "FrameYaw", "TrackerState", "YawTracker", "estimate_pair"]
 
 
 @dataclass(frozen=True, eq=False)
-class YawEstimate:
+class FrameYaw:
     """Yaw of frame ``seq`` relative to frame ``seq - 1`` and integrated since frame 0.
 
     ``delta_yaw_rad`` is the change of the vehicle's yaw (ZYX yaw of q_world_body, CCW seen from above)
@@ -127,7 +127,7 @@ class YawTracker:
         measurement: PatchMeasurement,
         stamp_s: float | None = None,
         gyro_delta_rad: float | None = None,
-    ) -> tuple[TrackerState, YawEstimate]:
+    ) -> tuple[TrackerState, FrameYaw]:
         """Central stage: fit the measured shifts of frame k, fall back if untrusted, integrate honestly.
 
         ``measurement`` may cover any subset of the grid's patches (e.g. when a worker is missing), in
@@ -186,7 +186,7 @@ class YawTracker:
         frame_u8: U8Array,
         stamp_s: float | None = None,
         gyro_delta_rad: float | None = None,
-    ) -> tuple[TrackerState, YawEstimate]:
+    ) -> tuple[TrackerState, FrameYaw]:
         """In-process: spectra of all patches, ``measure_patches`` vs the cached ones, ``conclude``."""
         frame = self._check(frame_u8, "frame_u8")
         previous = state.previous_spectra
@@ -213,10 +213,10 @@ def _make_estimate(
     provenance: Provenance,
     delta_variance: float,
     yaw_variance: float,
-) -> YawEstimate:
+) -> FrameYaw:
     patch_count = int(result.measurement.indices.size)
     inliers = result.fit.inlier_count if result.method is not EstimateMethod.NONE else 0
-    return YawEstimate(
+    return FrameYaw(
         seq=seq,
         delta_yaw_rad=float(delta),
         yaw_rad=float(yaw),
@@ -237,7 +237,7 @@ def _make_estimate(
 
 def estimate_pair(
     frame_a: U8Array, frame_b: U8Array, settings: YawSettings, gyro_delta_rad: float | None = None
-) -> YawEstimate:
+) -> FrameYaw:
     """Yaw of one pair a -> b (any rotation): patch fit, checked against and if needed pre-aligned by
     the global Fourier-Mellin estimate; ``gyro_delta_rad`` disambiguates look-alike rotations. Without a
     trusted measurement the delta is the prior's (0 without a gyro) and the estimate is not MEASURED."""

@@ -16,32 +16,24 @@ from __future__ import annotations
 
 import argparse
 import logging
-import queue
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-import zenoh
 
-from common import keys
 from common.dispatch import Balance, SpeedSource
-from common.messages import PatchJob, PatchResult, decode, encode
-from common.yaw import YawSettings, YawTracker, make_patch_grid
-from common.yaw.patchwork import settings_to_wire
+from common.yaw import YawSettings
+from services.bench.cluster_overhead import OVERHEAD_WARMUP, overhead_752x480, reply_handoff
+from services.bench.cluster_workload import in_process_ms, stats_ms, write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
 from services.master.service import Topology
-from services.runtime.transport import open_session, zbytes
-from services.up import ClusterSpec, HostSpec, LocalCluster
+from services.up import ClusterSpec, HostSpec
 
 NAME = "cluster"
 logger = logging.getLogger(__name__)
 
-#: frames of each 752x480 overhead run left out of its median (the dispatcher's speeds settle)
-OVERHEAD_WARMUP = 10
 BIG_GRID = ("16x12", 128, 0)  # grid, patch size, pyramid level -> 192 patches of 128 px at full resolution
 
 
@@ -125,29 +117,6 @@ def _yaw_settings(grid: str, patch: int, level: int) -> YawSettings:
     return YawSettings(grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level)
 
 
-def in_process_ms(
-    frames: list[np.ndarray], settings: YawSettings, warmup: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame ms of the in-process tracker and its yaw (frame 0 = 0)."""
-    tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
-    state = tracker.initial_state(frames[0])
-    times, yaw = [], [0.0]
-    for frame in frames[1:]:
-        t0 = time.perf_counter()
-        state, estimate = tracker.track(state, frame)
-        times.append((time.perf_counter() - t0) * 1e3)
-        yaw.append(estimate.yaw_rad)
-    return np.array(times[warmup:]), np.array(yaw)
-
-
-def _stats(ms: np.ndarray) -> dict[str, float]:
-    return {
-        "median_ms": float(np.median(ms)),
-        "p99_ms": float(np.percentile(ms, 99)),
-        "mean_ms": float(np.mean(ms)),
-    }
-
-
 def shares_and_speeds(estimates: dict[int, Any], last: int = 20) -> dict[str, dict[str, float]]:
     """Mean share of the top-level members over the last frames, and their mean measured speed (patches/s)."""
     seqs = sorted(s for s, e in estimates.items() if e.patch_count)[-last:]
@@ -179,15 +148,6 @@ def share_speed_error(members: dict[str, dict[str, float]]) -> float:
     return float(np.max(np.abs(shares - ideal) / ideal))
 
 
-def write_frame_folder(frame_dir: Path, frames: list[np.ndarray]) -> None:
-    """The frames the camera replays (``--images``): exactly these, stale frames of a longer run removed."""
-    frame_dir.mkdir(parents=True, exist_ok=True)
-    for old in frame_dir.glob("*.pgm"):
-        old.unlink()
-    for i, frame in enumerate(frames):
-        cv2.imwrite(str(frame_dir / f"{i:05d}.pgm"), frame)
-
-
 def run(args: argparse.Namespace) -> dict[str, Any]:
     out_dir = Path(args.out)
     width, height = (int(v) for v in args.resolution.lower().split("x"))
@@ -199,7 +159,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     grid, patch, level = BIG_GRID
     settings = _yaw_settings(grid, patch, level)
     seq_ms, seq_yaw = in_process_ms(frames, settings, args.warmup)
-    sequential = _stats(seq_ms)
+    sequential = stats_ms(seq_ms)
     print(f"in-process sequential: median {sequential['median_ms']:.1f} ms/frame", flush=True)
     master_args = (
         "--grid",
@@ -270,7 +230,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     for (topology, balance), rows in runs.items():
         pooled = np.concatenate([r["ms"] for r in rows])
         stats = (
-            _stats(pooled)
+            stats_ms(pooled)
             if pooled.size
             else {"median_ms": float("nan"), "p99_ms": float("nan"), "mean_ms": float("nan")}
         )
@@ -381,169 +341,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         )
     result["plot"] = str(plot(out_dir / "cluster.png", configs, gain_mfw))
     return result
-
-
-OVERHEAD_PATHS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
-    ("master-worker 1", "master-worker", (1,)),
-    ("master-foreman-worker 1x1", "master-foreman-worker", (1,)),
-    ("master-foreman-worker 2x2", "master-foreman-worker", (2, 2)),
-)
-
-
-def overhead_752x480(out_dir: Path, n_frames: int, shm: bool, repeats: int = 1) -> dict[str, Any]:
-    """Median master time per frame of local cluster paths minus the in-process median, at 752x480.
-
-    The machine is shared, so each repeat measures the in-process median before and after its cluster runs
-    and takes their mean as that repeat's baseline; the reported overhead of a path is the median over
-    repeats of (its median ms per frame - the repeat's baseline). Each run also records the share of CPU
-    time the hypervisor stole (a busy host shows there) and the frames the master computed itself (a path
-    that lost its members measures nothing but the master).
-    """
-    settings = YawSettings()
-    flight = simulated_flight(CameraSettings(frames=n_frames))
-    frames = [flight.frame(i) for i in range(n_frames)]
-    frame_dir = out_dir / "cluster_frames_752"
-    write_frame_folder(frame_dir, frames)
-    warmup = OVERHEAD_WARMUP
-    runs: dict[str, list[dict[str, float]]] = {label: [] for label, _t, _w in OVERHEAD_PATHS}
-    extras: dict[str, dict[str, float]] = {}
-    baselines: list[list[float]] = []
-    for repeat in range(repeats):
-        before = float(np.median(in_process_ms(frames, settings, warmup)[0]))
-        medians: dict[str, tuple[float, int]] = {}
-        for label, topology, workers in OVERHEAD_PATHS:
-            spec = ClusterSpec(
-                name=label.replace(" ", "-"),
-                topology=topology,  # type: ignore[arg-type]
-                hosts=tuple(HostSpec(name=f"h{i + 1}", workers=w) for i, w in enumerate(workers)),
-            )
-            steal_before = cpu_steal_ticks()
-            estimates, _wall, _codes = run_cluster_flight(
-                spec, n_frames, out_dir / "cluster_logs" / f"{spec.name}-{repeat}", fps=0.0, in_flight=1,
-                camera_args=("--images", str(frame_dir), "--preload", "--no-sensors"), progress=False,
-                shared_memory=shm,
-            )  # fmt: skip
-            ms = np.array([estimates[s].timings_ms["total"] for s in sorted(estimates) if s > warmup])
-            medians[label] = (float(np.median(ms)) if ms.size else float("nan"), n_frames - len(estimates))
-            extras[label] = {
-                "host_steal_pct": steal_percent(steal_before, cpu_steal_ticks()),
-                "frames_computed_by_master": float(
-                    sum(1 for s, e in estimates.items() if s > warmup and "self" in e.members)
-                ),
-            }
-        after = float(np.median(in_process_ms(frames, settings, warmup)[0]))
-        baseline = 0.5 * (before + after)
-        baselines.append([before, after])
-        for label, (median, lost) in medians.items():
-            runs[label].append(
-                {"cluster_median_ms": median, "overhead_ms": median - baseline, "frames_lost": float(lost),
-                 **extras[label]}
-            )  # fmt: skip
-            print(f"752x480 [{repeat + 1}/{repeats}] {label}: {median:.2f} ms vs in-process "
-                  f"{baseline:.2f} ms (+{median - baseline:.2f} ms); host steal "
-                  f"{extras[label]['host_steal_pct']:.1f} %, frames computed by the master "
-                  f"{extras[label]['frames_computed_by_master']:.0f}", flush=True)  # fmt: skip
-    paths: dict[str, dict[str, Any]] = {
-        label: {
-            "overhead_ms": float(np.median([r["overhead_ms"] for r in rows])),
-            "cluster_median_ms": float(np.median([r["cluster_median_ms"] for r in rows])),
-            "run_overheads_ms": [r["overhead_ms"] for r in rows],
-            "run_host_steal_pct": [r["host_steal_pct"] for r in rows],
-            "frames_lost": float(sum(r["frames_lost"] for r in rows)),
-            "frames_computed_by_master": float(sum(r["frames_computed_by_master"] for r in rows)),
-        }
-        for label, rows in runs.items()
-    }
-    return {
-        "in_process_median_ms": float(np.median(baselines)),
-        "in_process_before_after_ms": baselines,
-        "paths": paths,
-        "overhead_ms": paths["master-foreman-worker 1x1"]["overhead_ms"],
-        "frames": n_frames,
-        "repeats": repeats,
-    }
-
-
-def cpu_steal_ticks() -> tuple[int, int] | None:
-    """(steal, total) jiffies of all CPUs from ``/proc/stat``; None where there is no such file."""
-    try:
-        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
-    except OSError:
-        return None
-    values = [int(v) for v in fields]
-    return (values[7] if len(values) > 7 else 0), sum(values)
-
-
-def steal_percent(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float:
-    """Share of CPU time stolen by the hypervisor between two readings (NaN when unknown)."""
-    if before is None or after is None or after[1] <= before[1]:
-        return float("nan")
-    return 100.0 * (after[0] - before[0]) / (after[1] - before[1])
-
-
-def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6) -> dict[str, Any]:
-    """What decided the scatter's solo path: the round trip of one 752x480 job (40 patches) to a real worker
-    process, its reply handed over by a callback on zenoh's thread and a queue (how replies arrive when
-    several requests are in flight) or received from the query's own FIFO channel (a request alone in
-    flight). Alternating blocks of each; the requester pauses 2 ms between requests, as between frames."""
-    settings = YawSettings()
-    flight = simulated_flight(CameraSettings(frames=3))
-    grid = make_patch_grid(flight.frame(0).shape, settings)
-    idx = grid.all_indices.astype(np.int32)
-    crops = [grid.crop(flight.frame(i), idx) for i in range(3)]
-    wire = settings_to_wire(settings)
-    spec = ClusterSpec(
-        name="handoff", topology=Topology.MASTER_WORKER, hosts=(HostSpec(name="handoff", workers=1),)
-    )
-    times: dict[str, list[float]] = {"callback": [], "channel": []}
-    seq = 0
-    with LocalCluster(spec, out_dir / "cluster_logs" / "handoff", shared_memory=shm) as cluster:
-        cluster.start()
-        cluster.wait_alive(cluster.expected_members())
-        with open_session(cluster.observer_transport()) as session:
-            key = zenoh.KeyExpr(keys.worker_key("handoff", 0))
-            events: queue.SimpleQueue[Any] = queue.SimpleQueue()
-            options: dict[str, Any] = {
-                "timeout": 5.0,
-                "consolidation": zenoh.ConsolidationMode.NONE,
-                "congestion_control": zenoh.CongestionControl.BLOCK,
-            }
-            for block in range(2 * blocks):
-                mode = ("callback", "channel")[block % 2]
-                for _ in range(requests // blocks):
-                    seq += 1
-                    job = PatchJob(
-                        stream="handoff", seq=seq, prev_seq=seq - 1, settings=wire, indices=idx,
-                        crops=crops[seq % 3], prev_indices=idx, prev_crops=crops[(seq - 1) % 3], budget_s=5.0,
-                    )  # fmt: skip
-                    payload, attachment = encode(job)
-                    time.sleep(0.002)
-                    t0 = time.perf_counter()
-                    if mode == "callback":
-                        on_done = lambda: events.put(None)  # noqa: E731
-                        handler = zenoh.handlers.Callback(events.put, on_done, indirect=False)
-                        session.get(key, handler, payload=payload, attachment=attachment, **options)
-                        reply = events.get(timeout=10.0)
-                    else:
-                        channel = session.get(key, zenoh.handlers.FifoChannel(2), payload=payload,
-                                              attachment=attachment, **options)  # fmt: skip
-                        reply = channel.recv()
-                    times[mode].append((time.perf_counter() - t0) * 1e3)
-                    if mode == "callback":
-                        events.get(timeout=10.0)  # the query's end
-                    if reply is None or reply.ok is None:
-                        raise RuntimeError(f"the hand-off benchmark's worker did not answer job {seq}")
-                    decode(zbytes(reply.ok.payload), zbytes(reply.ok.attachment), PatchResult)
-    callback_ms = float(np.median(times["callback"]))
-    channel_ms = float(np.median(times["channel"]))
-    print(f"752x480 job round trip to a worker: reply via callback + queue {callback_ms:.3f} ms, "
-          f"via its own channel {channel_ms:.3f} ms", flush=True)  # fmt: skip
-    return {
-        "callback_ms": callback_ms,
-        "channel_ms": channel_ms,
-        "saved_ms": callback_ms - channel_ms,
-        "requests_per_mode": len(times["channel"]),
-    }
 
 
 def _short(name: str) -> str:

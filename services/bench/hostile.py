@@ -30,11 +30,11 @@ from common.messages import (
     PoseEstimate,
     WireError,
     YawEstimate,
+    YawJobSettings,
     decode,
     encode,
 )
 from common.yaw import YawSettings, make_patch_grid
-from common.yaw.patchwork import settings_from_wire
 from services.runtime.transport import TransportError, TransportSettings, open_session, zbytes
 from services.up import LocalCluster
 
@@ -192,13 +192,12 @@ def wrong_shifts_answer(rotation_deg: float, frame_shape: tuple[int, int]) -> An
     """A fake foreman's reply: every patch valid, shifts of a rotation by ``rotation_deg`` per frame."""
     theta = np.radians(rotation_deg)
     rot = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
-    grids: dict[tuple[Any, ...], Any] = {}
+    grids: dict[YawJobSettings, Any] = {}
 
     def answer(job: BlockJob) -> BlockResult:
-        key = tuple(sorted(job.settings.items()))
-        if key not in grids:
-            grids[key] = make_patch_grid(frame_shape, settings_from_wire(job.settings))
-        centres = grids[key].centres_px[job.indices]
+        if job.settings not in grids:
+            grids[job.settings] = make_patch_grid(frame_shape, job.settings.yaw_settings)
+        centres = grids[job.settings].centres_px[job.indices]
         middle = np.array([frame_shape[1] / 2.0, frame_shape[0] / 2.0])
         shift = (centres - middle) @ rot.T + middle - centres
         n = int(job.indices.size)

@@ -22,7 +22,7 @@ import numpy as np
 
 from common.dispatch import Balance
 from services.bench import hostile
-from services.bench.cluster import write_frame_folder
+from services.bench.cluster_workload import write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
 from services.master.service import Topology

@@ -48,12 +48,8 @@ from services.camera.sources import (
     source_settings_from_args,
 )
 from services.estimator.sim_publisher import message_of
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    add_transport_arguments,
-    transport_from_args,
-)
+from services.runtime.cli import add_enum_argument, add_transport_arguments
+from services.runtime.service import ConfiguredService
 
 
 class CameraSettings(BaseModel):
@@ -95,19 +91,11 @@ class CameraSettings(BaseModel):
     yaw_timeout_s: float = Field(default=5.0, gt=0.0)
 
 
-class CameraService(ServiceRuntime):
+class CameraService(ConfiguredService[CameraSettings]):
     role = keys.Role.CAMERA
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: CameraSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         # a recorded input is opened and checked before anything is published (one clear error otherwise)
         self.source = open_camera_source(settings)
         if self.source is not None and settings.preload:
@@ -301,14 +289,12 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("camera", help="publish a simulated flight (or images) for UAV streams")
     add_transport_arguments(parser, node_default="camera")
     parser.add_argument("--uav", action="append", help="UAV stream id (repeatable; default uav0)")
-    parser.add_argument(
-        "--flight",
-        choices=[f.value for f in FlightName],
-        default=FlightName.HOVER.value,
+    add_enum_argument(
+        parser, "--flight", FlightName, FlightName.HOVER,
         help="simulated flight: paper A's hover, paper C's turns (ground camera), the localizer's office, "
         "or a field scenario (checkerboard or tiled floor, distorted wide-angle lens, low altitude, blur; "
-        "'field' combines them; 320x240; --write-calibration gives the master its lens)",
-    )
+        "'field' combines them; 320x240; --write-calibration gives the master its lens)"
+    )  # fmt: skip
     parser.add_argument(
         "--frames", type=int, default=2041, help="frames of the hover or office flight (default 2041)"
     )
@@ -368,6 +354,4 @@ def run(args: argparse.Namespace) -> int:
         return write_flight_calibration(args.write_calibration, camera_settings_from_args(args))
     if args.images is not None:
         image_files(args.images)  # a wrong --images fails here, in one line, not in the publishing thread
-    return CameraService(
-        args.node, args.index, transport_from_args(args), camera_settings_from_args(args), args.stats_period
-    ).run()
+    return CameraService.from_args(args, camera_settings_from_args(args)).run()

@@ -1,12 +1,57 @@
 """The estimator's output messages: one attitude per IMU step, one VO pose per frame, each with its own
-uncertainty."""
+uncertainty, and the horizontal uncertainty of the VO path (which grows for good where the chain broke)."""
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.messages import AttitudeEstimate, PoseEstimate
+from common.types import FloatArray
+
+#: the floor of the horizontal variance (m^2)
+MIN_VAR_XY_M2 = 1e-6
+#: 1-sigma error of a VO pair wider than the service's ``max_pair_s``, as a share of its displacement: every
+#: 8th frame of paper C's flight (125 pairs of about 12 cm, 0.4 s apart) ended 26 cm off
+WIDE_PAIR_FRACTION = 0.2
+
+
+@dataclass(frozen=True)
+class VoPath:
+    """What the service knows of the VO path for its uncertainty: the last pose, the distance travelled
+    (the nominal drift grows with it), the speed of the last good pair and the variance of the motion the
+    VO did not see (pairs that failed: the chain restarted at the previous pose)."""
+
+    last_xy_m: FloatArray | None = None
+    last_stamp_s: float = math.nan
+    travelled_m: float = 0.0
+    speed_m_s: float = 0.0
+    unseen_var_m2: float = 0.0
+
+
+def advance_path(path: VoPath, out: PoseOutput, max_pair_s: float = math.inf) -> VoPath:
+    """The path after the pose ``out``. A failed pair (``out.ok`` False) adds the variance of the motion it
+    missed, ``(v dt)^2`` with ``v`` the speed of the last good pair and ``dt`` since the previous frame; a
+    pair wider than ``max_pair_s`` adds ``(WIDE_PAIR_FRACTION * step)^2``."""
+    xy = np.asarray(out.p_world_body_m[:2], dtype=np.float64)
+    if path.last_xy_m is None:
+        return VoPath(xy, out.stamp_s)
+    dt_s = out.stamp_s - path.last_stamp_s
+    step_m = float(np.linalg.norm(xy - path.last_xy_m))
+    if not out.ok:
+        unseen = path.unseen_var_m2 + (path.speed_m_s * dt_s) ** 2
+        return VoPath(xy, out.stamp_s, path.travelled_m + step_m, path.speed_m_s, unseen)
+    speed = step_m / dt_s if dt_s > 0.0 else path.speed_m_s
+    unseen = path.unseen_var_m2 + ((WIDE_PAIR_FRACTION * step_m) ** 2 if dt_s > max_pair_s else 0.0)
+    return VoPath(xy, out.stamp_s, path.travelled_m + step_m, speed, unseen)
+
+
+def horizontal_variance(path: VoPath, drift_fraction: float) -> float:
+    """Variance (m^2) of x and y: the nominal drift over the distance travelled and the unseen motion."""
+    return (drift_fraction * path.travelled_m) ** 2 + path.unseen_var_m2 + MIN_VAR_XY_M2
 
 
 def attitude_message(uav: str, seq: int, out: AttitudeOutput) -> AttitudeEstimate:
@@ -21,7 +66,8 @@ def attitude_message(uav: str, seq: int, out: AttitudeOutput) -> AttitudeEstimat
 
 
 def pose_message(uav: str, seq: int, out: PoseOutput, var_xy: float) -> PoseEstimate:
-    """The ``pose/vo`` message of one frame (the filter's altitude and attitude covariance at that frame)."""
+    """The ``pose/vo`` message of one frame (the filter's altitude and attitude covariance at that frame).
+    A frame whose pair failed is ``lost``: its position is the previous one, not a measurement."""
     cov = np.zeros((6, 6))
     cov[0, 0] = cov[1, 1] = var_xy
     cov[2, 2] = out.altitude_var_m2
@@ -34,4 +80,5 @@ def pose_message(uav: str, seq: int, out: PoseOutput, var_xy: float) -> PoseEsti
         q_world_body=out.q_world_body.copy(),
         covariance=cov,
         source="vo",
+        tracking_state="tracking" if out.ok else "lost",
     )

@@ -9,10 +9,14 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
   z and attitude from the EKF), ``source = "vo"``.
 
 Callbacks only decode, validate and hand off, on zenoh's receiving thread in arrival order: IMU, range and
-yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a short FIFO (dropped only when
-it is full, ``dropped_frames``). One thread feeds them to
-:class:`~common.estimation.coupling.DoubleCouplingEstimator`, which applies them in stamp order within a
-bounded lag. Bad samples are refused with a log line and a counter, never a crash:
+yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a short
+:class:`~services.estimator.backlog.SpacedFrameQueue`. One thread feeds them to
+:class:`~common.estimation.coupling.DoubleCouplingEstimator` in stamp order, one frame at a time, each after
+the samples before it. When the filter is behind, every IMU and range sample is still applied and the
+frame queue skips frames evenly (``frames_skipped``; ``vo_spacing_<n>`` counts the pairs ``n`` frames
+apart), so the VO pairs the frames it gets; health reports degraded while frames are skipped or the
+filter lags (``lag_ms`` in the stats). A pose whose pair failed is published as ``lost`` with the unseen
+motion in its covariance. Bad samples are refused with a log line and a counter, never a crash:
 undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong shape (``bad_samples``,
 ``bad_frames``), stale or duplicate stamps (``refused_<sensor>_<stale|duplicate|overflow>``).
 """
@@ -20,18 +24,26 @@ undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong s
 from __future__ import annotations
 
 import argparse
+import math
 import time
+from collections import deque
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
-import numpy as np
 import zenoh
 
 from common import keys
 from common.errors import InputError
 from common.estimation.buffer import Refusal
-from common.estimation.coupling_types import AttitudeOutput, FilterKind, PoseOutput
-from common.estimation.measurements import Measurement, check_frame, check_imu, check_range, check_yaw
+from common.estimation.coupling_types import AttitudeOutput, PoseOutput
+from common.estimation.measurements import (
+    FrameMeasurement,
+    Measurement,
+    check_frame,
+    check_imu,
+    check_range,
+    check_yaw,
+)
 from common.messages import (
     AttitudeEstimate,
     Frame,
@@ -42,8 +54,20 @@ from common.messages import (
     YawEstimate,
     encode,
 )
-from services.estimator.outputs import attitude_message, pose_message
-from services.estimator.settings import EstimatorSettings, build_estimator, settings_from_args
+from services.estimator.backlog import HeldSamples, SpacedFrameQueue
+from services.estimator.outputs import (
+    VoPath,
+    advance_path,
+    attitude_message,
+    horizontal_variance,
+    pose_message,
+)
+from services.estimator.settings import (
+    EstimatorSettings,
+    add_estimator_arguments,
+    build_estimator,
+    settings_from_args,
+)
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import (
     ServiceRuntime,
@@ -54,29 +78,16 @@ from services.runtime.transport import (
 )
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
-T = TypeVar("T")
 SENSOR_QUEUE = 4096
-FRAME_QUEUE = 40
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
 RESET_AFTER_STALE = 400
 #: seconds without an output, while inputs arrive, after which health reports degraded
 OUTPUT_SILENCE_S = 2.0
-
-
-#: queued frames up to which every frame is used (a short stall of the host is worked off, not thinned)
-THIN_AFTER = 6
-
-
-def thin_frames(frames: list[T]) -> list[T]:
-    """The frames to use when ``frames`` queued up (the filter is behind): every one while no more than
-    :data:`THIN_AFTER` wait, else every second (up to twice that) or third, always the newest. Evenly thinned
-    frames keep VO pairs two or three frames apart, which the VO handles; dropping a burst (a full queue)
-    left pairs a second apart, which it did not (a busy host ended paper C's flight 0.4-1.9 m off)."""
-    n = len(frames)
-    if n <= THIN_AFTER:
-        return frames
-    stride = 2 if n <= 2 * THIN_AFTER else 3
-    return frames[n - 1 :: -stride][::-1]
+#: seconds over which skipped frames keep health degraded, and the lag behind the inputs that degrades it
+BEHIND_WINDOW_S = 5.0
+BEHIND_LAG_MS = 1000
+#: pair spacings (frames) counted one by one; wider ones as ``vo_spacing_<n>_plus``
+SPACING_BINS = 6
 
 
 class EstimatorService(ServiceRuntime):
@@ -95,15 +106,21 @@ class EstimatorService(ServiceRuntime):
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
-        #: frames wait in a short FIFO (a busy moment costs latency, not frames: VO pairs stay one apart);
-        #: only when it is full are frames dropped (counted), and the VO pairs the frames it gets
-        self._frames: WorkQueue[Measurement] = WorkQueue(FRAME_QUEUE)
+        #: frames wait in a short queue (a busy moment costs latency, not frames: VO pairs stay one apart);
+        #: a longer backlog skips frames evenly, and the VO pairs the frames it gets
+        self._frames: SpacedFrameQueue[FrameMeasurement] = SpacedFrameQueue(
+            settings.frame_queue, settings.max_pair_s, settings.max_backlog_s
+        )
+        #: samples drained but held back until the frames queued before them are pushed (stamp order)
+        self._held: HeldSamples[Measurement] = HeldSamples(SENSOR_QUEUE)
+        #: (monotonic time, spacing) of the recent frames taken after skipped ones
+        self._skips: deque[tuple[float, int]] = deque(maxlen=1024)
+        self._newest_in_s = -math.inf
         self._entities: list[Any] = []
         self._mirrored: dict[str, int] = {}
         self._attitude_seq = 0
         self._pose_seq = 0
-        self._travelled_m = 0.0
-        self._last_xy: np.ndarray | None = None
+        self._path = VoPath()
         self.stamps = InputStamps()
         self._stale_run = 0
         self._last_input_s = 0.0
@@ -135,6 +152,17 @@ class EstimatorService(ServiceRuntime):
         refused = self.stamps.recent_refusals()
         if refused:
             return False, f"degraded: {refused} inputs refused in the last {self.stamps.window_s:.0f} s"
+        cutoff = time.monotonic() - BEHIND_WINDOW_S
+        recent = [spacing for t, spacing in list(self._skips) if t >= cutoff]
+        if recent:
+            c = self.counters
+            return False, (
+                f"degraded: behind, {sum(recent) - len(recent)} frames skipped in the last "
+                f"{BEHIND_WINDOW_S:.0f} s (VO pairs up to {max(recent)} frames apart; "
+                f"{c.get('frames_used')} of {c.get('frames_in')} frames used)"
+            )
+        if (lag_ms := self.lag_ms()) > BEHIND_LAG_MS:
+            return False, f"degraded: behind, the filter is {lag_ms / 1e3:.1f} s behind the newest input"
         now = time.monotonic()
         if now - self._last_input_s < 1.0 and now - self._last_output_s > OUTPUT_SILENCE_S:
             return False, f"degraded: inputs arrive but no output for {now - self._last_output_s:.1f} s"
@@ -144,8 +172,17 @@ class EstimatorService(ServiceRuntime):
         return {
             "samples": self._samples.depth(),
             "frames": self._frames.depth(),
+            "held": len(self._held),
             "buffer": len(self.estimator.buffer),
+            "lag_ms": self.lag_ms(),
         }
+
+    def lag_ms(self) -> int:
+        """How far the filter is behind the newest input (stamps, ms)."""
+        released_s = self.estimator.buffer.released_until_s
+        if not (math.isfinite(released_s) and math.isfinite(self._newest_in_s)):
+            return 0
+        return max(0, round(1e3 * (self._newest_in_s - released_s)))
 
     # -- callbacks: decode, check, hand off ----------------------------------------------------------
     def _own(self, uav: str, what: str, key: Any) -> bool:
@@ -163,6 +200,9 @@ class EstimatorService(ServiceRuntime):
             self.count_error(f"refused_{sensor}_{reason}", f"{sensor} sample refused", detail)
         elif reason:
             self.count_error("clock_jumps", f"{sensor} clock jump adopted", f"stamp {stamp_s}")
+            self._newest_in_s = stamp_s
+        else:
+            self._newest_in_s = max(self._newest_in_s, stamp_s)
         return admitted
 
     def _offer(self, measurement: Measurement) -> None:
@@ -221,17 +261,17 @@ class EstimatorService(ServiceRuntime):
             self.count_error("bad_frames", "frame refused", exc)
             return
         self.counters.inc("frames_in")
-        if not self._frames.offer(frame):
-            self.count_error(
-                "dropped_frames", "frame dropped", "the frame queue is full (the filter is behind)"
-            )
+        skipped = self._frames.offer(frame)
+        if skipped is not None:
+            self.count_error("frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out")
 
     # -- the estimator thread ------------------------------------------------------------------------
-    def _push(self, measurement: Measurement) -> None:
+    def _push(self, measurement: Measurement) -> bool:
+        """Push one sample to the filter; False (counted) when it refused it."""
         refusal = self.estimator.push(measurement)
         if refusal is None:
             self._stale_run = 0
-            return
+            return True
         name = type(measurement).__name__.removesuffix("Measurement").lower()
         self.count_error(
             f"refused_{name}_{refusal.value}",
@@ -247,37 +287,51 @@ class EstimatorService(ServiceRuntime):
             )
             self.estimator = build_estimator(self.settings)
             self._stale_run = 0
-            self._last_xy, self._travelled_m = None, 0.0
+            self._path = VoPath()
+        return False
 
     def _estimate(self) -> None:
         while not self.stop_event.is_set():
-            first = self._samples.take(0.02)
-            # the frame before the drain: every sample published before it is then in this batch, so a queue
-            # that is behind never has the frame release the filter past samples still waiting (range samples
-            # were refused as stale so under load)
-            queued = self._frames.drain()
-            frames = thin_frames(queued)
-            if len(frames) < len(queued):
-                self.counters.inc("frames_thinned", len(queued) - len(frames))
-            batch = [] if first is None else [first, *self._samples.drain()]
-            if not batch and not frames:
-                continue
-            # in stamp order, the filter brought up to each frame before it is pushed: a frame pushed while an
-            # older one is still pending would supersede it
-            batch.sort(key=lambda m: m.stamp_s)
-            i = 0
-            for frame in frames:
-                if self.stop_event.is_set():
-                    return  # a long backlog is not worked off at shutdown (the session is closing)
-                while i < len(batch) and batch[i].stamp_s <= frame.stamp_s:
-                    self._push(batch[i])
-                    i += 1
-                self._process()
-                self._push(frame)
-            for m in batch[i:]:
-                self._push(m)
+            self.step(0.02)
+
+    def step(self, timeout_s: float) -> bool:
+        """One turn of the estimator thread: the queued samples, then the oldest queued frame with the
+        samples before it (waits up to ``timeout_s`` for a sample when nothing is queued); True when a
+        frame was taken."""
+        if not self._held and self._frames.depth() == 0:
+            first = self._samples.take(timeout_s)
+            if first is not None:
+                self._push_all(self._held.add([first]))
+        # the samples before the frame: a frame still queued after the drain arrived before the samples
+        # newer than it (they are held until it is pushed), one arriving later is newer than them all
+        self._push_all(self._held.add(self._samples.drain()))
+        taken = self._frames.take()
+        if taken is None:
+            self._push_all(self._held.until(math.inf))
             self._process()
             self._mirror_counters()
+            return False
+        frame, spacing = taken
+        # the filter brought up to the frame before it is pushed (a frame pushed while an older one is
+        # still pending would supersede it); every IMU and range sample is applied, frames or not
+        self._push_all(self._held.until(frame.stamp_s))
+        self._process()
+        if self._push(frame):
+            self._count_frame(spacing)
+        self._process()
+        self._mirror_counters()
+        return True
+
+    def _push_all(self, samples: list[Measurement]) -> None:
+        for m in samples:
+            self._push(m)
+
+    def _count_frame(self, spacing: int) -> None:
+        self.counters.inc("frames_used")
+        if spacing > 1:
+            self._skips.append((time.monotonic(), spacing))
+        wide = spacing >= SPACING_BINS
+        self.counters.inc(f"vo_spacing_{SPACING_BINS}_plus" if wide else f"vo_spacing_{spacing}")
 
     def _process(self) -> None:
         t0 = time.perf_counter()
@@ -297,11 +351,8 @@ class EstimatorService(ServiceRuntime):
                 self._attitude_seq += 1
                 publisher = self._attitude_pub
             else:
-                xy = out.p_world_body_m[:2]
-                if self._last_xy is not None:
-                    self._travelled_m += float(np.linalg.norm(xy - self._last_xy))
-                self._last_xy = xy
-                var_xy = (self.settings.vo_drift_fraction * self._travelled_m) ** 2 + 1e-6
+                self._path = advance_path(self._path, out, self.settings.max_pair_s)
+                var_xy = horizontal_variance(self._path, self.settings.vo_drift_fraction)
                 msg = pose_message(self.settings.uav, self._pose_seq, out, var_xy)
                 self._pose_seq += 1
                 publisher = self._pose_pub
@@ -331,37 +382,7 @@ def register(subparsers: Any) -> None:
         "estimator", help="EKF + visual odometry with double coupling (paper C); publishes attitude, pose/vo"
     )
     add_transport_arguments(parser, node_default="estimator")
-    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
-    parser.add_argument("--resolution", default="752x480", help="camera WIDTHxHEIGHT (default 752x480)")
-    parser.add_argument("--hfov", type=float, default=90.0, help="horizontal field of view (deg)")
-    parser.add_argument(
-        "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
-    )
-    parser.add_argument(
-        "--filter",
-        choices=[kind.value for kind in FilterKind],
-        default=FilterKind.BIAS.value,
-        help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
-        "paper_c (paper C's 5-state EKF)",
-    )
-    parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
-    parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
-    parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
-    parser.add_argument("--initial-yaw", type=float, default=0.0, help="initial yaw (rad)")
-    parser.add_argument(
-        "--initial-xy",
-        type=float,
-        nargs=2,
-        default=(0.0, 0.0),
-        metavar=("X", "Y"),
-        help="initial horizontal position of the VO path (m)",
-    )
-    parser.add_argument(
-        "--vo-origin-delay",
-        type=float,
-        default=0.0,
-        help="seconds before the VO sets its origin (at --initial-xy)",
-    )
+    add_estimator_arguments(parser)
     add_trajectory_argument(parser, "pose/vo")
     add_trajectory_argument(parser, "the attitude (position 0)", flag="--attitude-trajectory")
     parser.set_defaults(handler=run)

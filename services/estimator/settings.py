@@ -35,6 +35,13 @@ class EstimatorSettings(BaseModel):
     vo_origin_delay_s: float = Field(default=0.0, ge=0.0, le=60.0)
     #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
     vo_drift_fraction: float = Field(default=0.001, gt=0.0)
+    #: the frame backlog when the filter is behind (:class:`~services.estimator.backlog.SpacedFrameQueue`):
+    #: frames queued before one is skipped, the widest VO pair made by skipping (s; every 5th frame of
+    #: paper C's 20 fps flight keeps its accuracy), and how far behind the queue may grow to keep pairs that
+    #: close (s; the attitude waits for the VO too, so this bounds the latency of every output)
+    frame_queue: int = Field(default=6, ge=2, le=128)
+    max_pair_s: float = Field(default=0.25, gt=0.0, le=10.0)
+    max_backlog_s: float = Field(default=3.0, ge=0.0, le=8.0)  # the held samples (4096) span about 9 s
 
     def camera(self) -> CameraModel:
         return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
@@ -57,6 +64,56 @@ def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
     return DoubleCouplingEstimator(settings.camera(), settings=settings.coupling())
 
 
+def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
+    """The estimator's own command-line options (the transport's are added by the service)."""
+    parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
+    parser.add_argument("--resolution", default="752x480", help="camera WIDTHxHEIGHT (default 752x480)")
+    parser.add_argument("--hfov", type=float, default=90.0, help="horizontal field of view (deg)")
+    parser.add_argument(
+        "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
+    )
+    parser.add_argument(
+        "--filter",
+        choices=[kind.value for kind in FilterKind],
+        default=FilterKind.BIAS.value,
+        help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
+        "paper_c (paper C's 5-state EKF)",
+    )
+    parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
+    parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
+    parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")
+    parser.add_argument("--initial-yaw", type=float, default=0.0, help="initial yaw (rad)")
+    parser.add_argument(
+        "--initial-xy",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("X", "Y"),
+        help="initial horizontal position of the VO path (m)",
+    )
+    parser.add_argument(
+        "--vo-origin-delay",
+        type=float,
+        default=0.0,
+        help="seconds before the VO sets its origin (at --initial-xy)",
+    )
+    parser.add_argument(
+        "--frame-queue", type=int, default=6, help="frames queued before one is skipped (default 6)"
+    )
+    parser.add_argument(
+        "--max-pair",
+        type=float,
+        default=0.25,
+        help="widest VO pair (s) made by skipping frames when behind (default 0.25)",
+    )
+    parser.add_argument(
+        "--max-backlog",
+        type=float,
+        default=3.0,
+        help="how far behind (s) the frame queue grows to keep pairs within --max-pair (default 3)",
+    )
+
+
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
     try:
         width, height = (int(v) for v in str(args.resolution).lower().split("x"))
@@ -74,6 +131,9 @@ def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
             initial_x_m=args.initial_xy[0],
             initial_y_m=args.initial_xy[1],
             vo_origin_delay_s=args.vo_origin_delay,
+            frame_queue=args.frame_queue,
+            max_pair_s=args.max_pair,
+            max_backlog_s=args.max_backlog,
         )
     except ValueError as exc:
         raise InputError(f"invalid estimator settings: {exc}") from None

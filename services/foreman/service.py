@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
+from pydantic import Field
 
 from common import keys
 from common.dispatch import (
@@ -32,22 +33,21 @@ from common.dispatch import (
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.streams import StreamTable
+from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import (
     PatchWorkError,
-    SettingsCache,
     SpectrumCache,
     measure_share,
-    merge_measurements,
 )
-from services.runtime.cli import add_stream_bound_arguments
+from services.runtime.cli import (
+    StreamBoundSettings,
+    add_stream_bound_arguments,
+    add_transport_arguments,
+    stream_bounds_from_args,
+)
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    add_transport_arguments,
-    transport_from_args,
-)
+from services.runtime.service import ConfiguredService
 
 #: Upper bound of patch indices a foreman accepts.
 MAX_PATCHES = 1 << 16
@@ -105,30 +105,29 @@ class _StreamState:
         self.live = copy.copy(live)
 
 
-class ForemanService(ServiceRuntime):
+class ForemanSettings(StreamBoundSettings):
+    """A foreman's own settings (the runtime's come with the transport)."""
+
+    #: how its dispatcher shares blocks among the node's workers
+    dispatch: DispatchSettings = Field(default_factory=DispatchSettings)
+    #: capacity of the blocks' zenoh FIFO channel
+    queue: int = Field(default=2, ge=1)
+
+
+class ForemanService(ConfiguredService[ForemanSettings]):
     role = keys.Role.FOREMAN
 
-    def __init__(
-        self,
-        node: str,
-        transport: TransportSettings,
-        dispatch: DispatchSettings,
-        stats_period_s: float = 1.0,
-        queue_capacity: int = 2,
-        max_streams: int = 64,
-        stream_ttl_s: float = 60.0,
-    ) -> None:
-        super().__init__(node, 0, transport, stats_period_s)
-        self.dispatch_settings = dispatch
-        self.queue_capacity = queue_capacity
+    def setup(self) -> None:
+        self.dispatch_settings = self.settings.dispatch
+        self.queue_capacity = self.settings.queue
         self._queryable: Any = None
-        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
+        max_streams, ttl_s = self.settings.max_streams, self.settings.stream_ttl_s
+        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=ttl_s)
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
-        self.streams: StreamTable[_StreamState] = StreamTable(max_streams, stream_ttl_s)
+        self.streams: StreamTable[_StreamState] = StreamTable(max_streams, ttl_s)
         self._streams_lock = threading.Lock()
         #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
         self.live = LiveMembers(keys.Role.WORKER)
-        self.settings_cache = SettingsCache()
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
 
@@ -199,8 +198,7 @@ class ForemanService(ServiceRuntime):
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""
         t0 = time.perf_counter()
-        # settings first: a block with invalid ones is rejected here, before any worker sees it (and fails)
-        settings = self.settings_cache.parsed(job.settings)
+        settings = job.settings.yaw_settings  # valid: checked at decode, before any worker sees the block
         stream = self._stream(job.stream)
         dispatcher = stream.dispatcher
         if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)
@@ -280,12 +278,8 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.max_streams < 1 or not args.stream_ttl > 0:
-        raise CapatazError("--max-streams must be >= 1 and --stream-ttl > 0")
-    return ForemanService(
-        args.node, transport_from_args(args), dispatch_from_args(args), args.stats_period,
-        max_streams=args.max_streams, stream_ttl_s=args.stream_ttl,
-    ).run()  # fmt: skip
+    settings = ForemanSettings(dispatch=dispatch_from_args(args), **stream_bounds_from_args(args))
+    return ForemanService.from_args(args, settings).run()
 
 
-__all__ = ["SELF", "ForemanService", "register"]
+__all__ = ["SELF", "ForemanService", "ForemanSettings", "register"]

@@ -5,13 +5,15 @@ Examples::
     capataz loadtest --streams 4 --duration 60 --name four
     capataz loadtest --streams 1 --standby --fault kill:worker@20s --fault stop:foreman@30s+6s \\
         --fault kill:router@40s --fault kill:master@50s --duration 70 --name faults
-    capataz loadtest --capacity --max-streams 12 --duration 30 --name capacity
+    capataz loadtest --capacity --max-streams 10 --duration 30 --name capacity
+    capataz loadtest --replay out/flight.mcap --streams 4 --duration 30 --name replay
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +44,20 @@ def register(subparsers: Any) -> None:
         "--cluster", type=Path, default=Path("deploy/clusters/loadtest.yml"), help="cluster file"
     )
     parser.add_argument("--streams", type=int, default=4, help="UAV streams (752x480 camera each)")
-    parser.add_argument("--fps", type=float, default=20.0, help="frames per second of each stream")
-    parser.add_argument("--duration", type=float, default=30.0, help="seconds of streaming")
+    parser.add_argument(
+        "--fps", type=float, help="frames per second of each stream (default 20, a replay: its recorded rate)"
+    )
+    parser.add_argument("--duration", type=float, default=30.0, help="seconds of streaming (measured)")
+    parser.add_argument(
+        "--warmup", type=float, default=4.0,
+        help="seconds every stream sends before the clock starts, joining one after another over its first "
+        "half (reported apart, not in the statistics; 0: measure from the first frame)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--replay", type=Path, metavar="FILE.mcap",
+        help="send the frames of a recording (capataz record) on every stream, stamped with the wall clock",
+    )  # fmt: skip
+    parser.add_argument("--replay-uav", help="the recording's UAV stream (default: its only one)")
     parser.add_argument(
         "--in-flight", type=int, default=0, help="frames a stream may have without a yaw (0: free-running)"
     )
@@ -52,7 +66,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--fault", action="append", default=[], metavar="FAULT",
         help="kill:worker@20s, stop:foreman@30s+6s, kill:router@40s, kill:master@50s, hostile:seq@10s "
-        "(hostile kinds: seq, restart, size, uav, future, settings, streams); repeatable",
+        "(hostile kinds: seq, restart, size, uav, future, settings, streams, sender); repeatable",
     )  # fmt: skip
     parser.add_argument("--schedule", type=Path, help="a file of faults (one or more per line, # comments)")
     parser.add_argument(
@@ -72,12 +86,19 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Exit code 0 when every objective is met, 2 when one is breached (1: the run itself failed)."""
+    from services.loadtest.frames import recorded_frames
     from services.loadtest.runner import capacity_search, judge, run_once
 
+    # a replay is checked before any process starts: a file that is not a recording is one clear error
+    recorded = recorded_frames(args.replay, args.replay_uav, 8).recorded_fps if args.replay else math.nan
+    if args.fps is None:
+        args.fps = recorded if math.isfinite(recorded) else 20.0
     if args.streams < 1 or args.max_streams < 1 or not 0 < args.fps <= 200 or not 0 < args.duration <= 3600:
         raise LoadtestError(
             "--streams/--max-streams must be >= 1, --fps in (0, 200], --duration in (0, 3600]"
         )
+    if not 0 <= args.warmup <= 600:
+        raise LoadtestError("--warmup must be in [0, 600] s")
     if args.in_flight < 0:
         raise LoadtestError("--in-flight must be >= 0")
     items = list(args.fault)
@@ -95,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     settings = RunSettings(
         streams=args.streams, fps=args.fps, duration_s=args.duration, in_flight=args.in_flight,
         standby_masters=args.standby or any(f.target == "master" for f in faults), shared_memory=args.shm,
-        seed=args.seed, faults=faults,
+        seed=args.seed, faults=faults, warmup_s=args.warmup, replay=args.replay, replay_uav=args.replay_uav,
     )  # fmt: skip
     log_dir = args.out / f"{args.name}-logs"
     if args.capacity:

@@ -22,8 +22,8 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.messages import Frame, PatchJob, WireError, YawEstimate, decode, encode
-from common.sim.flight import hover_flight
+from common.dispatch import SELF
+from common.messages import Frame, PatchJob, Stats, WireError, YawEstimate, decode, encode
 from common.yaw import YawSettings
 from common.yaw.patchwork import settings_to_wire
 from services.loadtest.plan import Fault, FaultAction, FrameRecord
@@ -46,33 +46,39 @@ class RunSettings:
     seed: int = 0
     faults: tuple[Fault, ...] = ()
     lease_ms: int = 2000
+    #: seconds every stream sends before the clock starts (not measured; reported apart); the streams
+    #: join one after another over its first half, like a ramp
+    warmup_s: float = 4.0
+    #: replay this recording's frames instead of the simulated hover (``capataz record``)
+    replay: Path | None = None
+    replay_uav: str | None = None
 
+    @property
+    def warmup_frames(self) -> int:
+        return round(self.warmup_s * self.fps)
 
-class FrameLoop:
-    """Frames of the hover flight in ping-pong order, with their true yaw (shared by every stream)."""
-
-    def __init__(self, n_frames: int, seed: int) -> None:
-        flight = hover_flight(seed=seed, n_frames=n_frames)
-        self.frames = [flight.frame(k) for k in range(n_frames)]
-        self.yaw_rad = np.asarray(flight.yaw_rad, dtype=np.float64)[:n_frames]
-        self.order = list(range(n_frames)) + list(range(n_frames - 2, 0, -1))
-
-    def at(self, k: int) -> tuple[np.ndarray, float]:
-        index = self.order[k % len(self.order)]
-        return self.frames[index], float(self.yaw_rad[index])
+    def first_frame(self, stream: int) -> int:
+        """The warm-up frame stream ``stream`` starts with (the ramp: stream 0 at once, the last one half-way
+        through the warm-up)."""
+        return (stream * self.warmup_frames) // (2 * self.streams)
 
 
 @dataclass
 class StreamLog:
     uav: str
     sent: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (stamp, true yaw)
+    #: frames of the warm-up (before the clock starts), as ``sent``
+    warm: dict[int, tuple[float, float]] = field(default_factory=dict)
     received: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (arrival, yaw)
+    #: seq -> (patches the master computed itself, patches of the frame) from the yaw's ``members``
+    computed: dict[int, tuple[int, int]] = field(default_factory=dict)
     duplicates: int = 0
     reported_dropped: int = 0
 
-    def records(self) -> list[FrameRecord]:
+    def records(self, warm_up: bool = False) -> list[FrameRecord]:
+        """The measured frames (``warm_up``: those of the warm-up) and what came of each."""
         out = []
-        for seq, (stamp, true_yaw) in sorted(self.sent.items()):
+        for seq, (stamp, true_yaw) in sorted((self.warm if warm_up else self.sent).items()):
             got = self.received.get(seq)
             out.append(FrameRecord(seq, stamp, got[0] if got else None, got[1] if got else None, true_yaw))
         return out
@@ -95,15 +101,56 @@ class YawLog:
             self.malformed += 1
             return
         log = self.logs.get(estimate.uav)
-        if log is None or estimate.seq not in log.sent:
+        if log is None or (estimate.seq not in log.sent and estimate.seq not in log.warm):
             return
         with self.lock:
             if estimate.seq in log.received:
                 log.duplicates += 1
             else:
                 log.received[estimate.seq] = (arrival, estimate.yaw_rad)
+                top = {m: n for m, n in estimate.members.items() if ">" not in m}  # not foreman>worker
+                log.computed[estimate.seq] = (top.get(SELF, 0), sum(top.values()))
             log.reported_dropped = max(log.reported_dropped, estimate.dropped_frames)
             self.lock.notify_all()
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class StatsLog:
+    """The newest counters each service published (``capataz/stats/**``), to tell where frames were lost."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.latest: dict[str, dict[str, int]] = {}
+        self._base: dict[str, dict[str, int]] = {}
+        self._lock = threading.Lock()
+        self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
+
+    def _on_stats(self, sample: zenoh.Sample) -> None:
+        try:
+            stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
+        except WireError:
+            return
+        with self._lock:
+            self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = dict(stats.counters)
+
+    def mark(self) -> None:
+        """Counters from now on (a service's counts before the run are subtracted)."""
+        with self._lock:
+            self._base = {name: dict(counts) for name, counts in self.latest.items()}
+
+    def since_mark(self) -> dict[str, dict[str, int]]:
+        """Each service's non-zero counter changes since :meth:`mark` (a restarted one: since its start)."""
+        out = {}
+        with self._lock:
+            for name, counts in sorted(self.latest.items()):
+                base = self._base.get(name, {})
+                if any(v < base.get(k, 0) for k, v in counts.items()):
+                    base = {}  # restarted during the run: its counters started again from 0
+                changed = {k: v - base.get(k, 0) for k, v in sorted(counts.items()) if v != base.get(k, 0)}
+                if changed:
+                    out[name] = changed
+        return out
 
     def close(self) -> None:
         self._sub.undeclare()
@@ -222,22 +269,38 @@ def apply_fault(
 
 
 class Hostile:
-    """Hostile but valid messages on the first stream's keys and to a worker (``hostile:KIND@Ts``)."""
+    """Hostile but valid messages on the first stream's keys and to a worker (``hostile:KIND@Ts``).
 
-    def __init__(self, session: zenoh.Session, camera: Any, spec: ClusterSpec, uav: str) -> None:
+    Frames declare the camera's own sender (a forger that copies its id), so that the master's stream gate,
+    not its sender check, has to refuse them; ``sender`` frames come from a second publisher instead, with
+    the seq the camera sends next and a current stamp (they continue the stream but for their sender)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        camera: Any,
+        spec: ClusterSpec,
+        uav: str,
+        shape: tuple[int, int],
+        next_seq: Callable[[], int],
+    ) -> None:
         self.session, self.camera, self.spec, self.uav = session, camera, spec, uav
+        self.height, self.width = shape
+        #: the seq the stream's camera sends next (a second sender forges it)
+        self.next_seq = next_seq
         self.sent: dict[str, int] = {}
 
     def __call__(self, kind: str) -> None:
         rng = np.random.default_rng(len(self.sent))
         now = time.time()
-        pixels = rng.integers(0, 255, (480, 752), dtype=np.uint8)
+        h, w = self.height, self.width
+        pixels = rng.integers(0, 255, (h, w), dtype=np.uint8)
         frames: list[Frame] = []
         if kind == "seq":
-            frames.append(Frame(uav=self.uav, seq=2**53, stamp_s=now, width=752, height=480, pixels=pixels))
+            frames.append(Frame(uav=self.uav, seq=2**53, stamp_s=now, width=w, height=h, pixels=pixels))
         elif kind == "restart":  # two frames of a "restarted camera" (a third would confirm a new epoch)
             frames += [
-                Frame(uav=self.uav, seq=s, stamp_s=now, width=752, height=480, pixels=pixels) for s in (0, 1)
+                Frame(uav=self.uav, seq=s, stamp_s=now, width=w, height=h, pixels=pixels) for s in (0, 1)
             ]
         elif kind == "size":
             for side in (64, 4096):
@@ -246,17 +309,29 @@ class Hostile:
                     Frame(uav=self.uav, seq=10**6, stamp_s=now, width=side, height=side, pixels=big)
                 )
         elif kind == "uav":
-            frames.append(Frame(uav="intruder", seq=10**6, stamp_s=now, width=752, height=480, pixels=pixels))
+            frames.append(Frame(uav="intruder", seq=10**6, stamp_s=now, width=w, height=h, pixels=pixels))
         elif kind == "future":
-            frames.append(
-                Frame(uav=self.uav, seq=10**6, stamp_s=now + 1e5, width=752, height=480, pixels=pixels)
-            )
+            frames.append(Frame(uav=self.uav, seq=10**6, stamp_s=now + 1e5, width=w, height=h, pixels=pixels))
         elif kind in ("settings", "streams"):
             self._jobs(kind)
+        elif kind == "sender":
+            self._second_sender(pixels)
         for frame in frames:
             payload, attachment = encode(frame)
-            self.camera.put(payload, attachment=attachment)
+            self.camera.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(self.camera.id, 0))
         self.sent[kind] = self.sent.get(kind, 0) + 1
+
+    def _second_sender(self, pixels: np.ndarray) -> None:
+        publisher = self.session.declare_publisher(keys.camera_key(self.uav))
+        try:
+            seq = self.next_seq()
+            for k in range(3):  # three that agree: a restart would be confirmed, another sender is not
+                frame = Frame(uav=self.uav, seq=seq + k, stamp_s=time.time(), width=self.width,
+                              height=self.height, pixels=pixels)  # fmt: skip
+                payload, attachment = encode(frame)
+                publisher.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(publisher.id, k))
+        finally:
+            publisher.undeclare()
 
     def _jobs(self, kind: str) -> None:
         host = self.spec.hosts[0].name

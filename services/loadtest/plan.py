@@ -26,7 +26,7 @@ class FaultAction(enum.Enum):
 
 
 TARGETS = ("worker", "foreman", "router", "master")
-HOSTILE_KINDS = ("seq", "restart", "size", "uav", "future", "settings", "streams")
+HOSTILE_KINDS = ("seq", "restart", "size", "uav", "future", "settings", "streams", "sender")
 
 _FAULT = re.compile(
     r"^(?P<action>kill|stop|hostile):(?P<target>[a-z]+)@(?P<at>[0-9.]+)s(?:\+(?P<dur>[0-9.]+)s)?$"
@@ -181,8 +181,13 @@ def _wrap(angle: float) -> float:
 
 
 def yaw_jumps_deg(records: Sequence[FrameRecord]) -> list[tuple[float, float]]:
-    """(send time, |published - true yaw change| in deg) for each pair of consecutive received yaws."""
-    got = [r for r in records if r.received_s is not None and r.yaw_rad is not None]
+    """(send time, |published - true yaw change| in deg) for each pair of consecutive received yaws whose
+    truth is known."""
+    got = [
+        r
+        for r in records
+        if r.received_s is not None and r.yaw_rad is not None and math.isfinite(r.true_yaw_rad)
+    ]
     out = []
     for a, b in itertools.pairwise(got):
         assert a.yaw_rad is not None and b.yaw_rad is not None
@@ -218,6 +223,8 @@ def analyse_fault(records: Sequence[FrameRecord], fault: Fault, t0_s: float, unt
     recovery = max(troubled, default=0.0)
     gap = max((g for t, g in gaps_s(window) if t >= start), default=0.0)
     jump = max((j for t, j in yaw_jumps_deg(window) if t >= start), default=0.0)
+    if not any(math.isfinite(r.true_yaw_rad) for r in window):
+        jump = math.nan  # no truth (a replayed recording): not judged
     return FaultOutcome(fault, lost, gap, recovery, jump)
 
 
@@ -236,12 +243,14 @@ class StreamSummary:
 def summarise(
     uav: str, records: Sequence[FrameRecord], reported_dropped: int, settle_s: float
 ) -> StreamSummary:
-    """Counts, latency (frames sent after ``settle_s`` of the run: the warm-up is excluded) and continuity."""
-    if records:
-        t0 = records[0].sent_s
-        steady = [r for r in records if r.sent_s >= t0 + settle_s]
-    else:
-        steady = []
+    """Counts (all frames), latency and continuity (frames sent after ``settle_s``; the load test's warm-up
+    comes before its records, so it passes 0).
+
+    ``max_yaw_jump_deg`` is NaN when the truth is unknown (a replayed recording): continuity is not judged."""
+    end_settle_s = records[0].sent_s + settle_s if records else 0.0
+    steady = [r for r in records if r.sent_s >= end_settle_s]
+    jumps = [j for _, j in yaw_jumps_deg(steady)]
+    truth = any(math.isfinite(r.true_yaw_rad) for r in records)
     latencies = [1e3 * (r.received_s - r.sent_s) for r in steady if r.received_s is not None]
     received = sum(1 for r in records if r.received_s is not None)
     return StreamSummary(
@@ -252,8 +261,13 @@ def summarise(
         reported_dropped=reported_dropped,
         latency=latency_stats(latencies),
         max_gap_s=max((g for _, g in gaps_s(steady)), default=0.0),
-        max_yaw_jump_deg=max((j for _, j in yaw_jumps_deg(steady)), default=0.0),
+        max_yaw_jump_deg=max(jumps, default=0.0) if truth else math.nan,
     )
+
+
+def _finite_max(values: Sequence[float]) -> float:
+    """The largest finite value; NaN when there is none (nothing was judged)."""
+    return max((v for v in values if math.isfinite(v)), default=math.nan)
 
 
 def metric_values(
@@ -271,8 +285,8 @@ def metric_values(
         Metric.P99_MS: max((s.latency.p99 for s in streams), default=nan),
         Metric.LOST_PCT: 100.0 * lost / published if published else nan,
         Metric.GAP_S: max([s.max_gap_s for s in streams] + [o.gap_s for o in outcomes], default=nan),
-        Metric.YAW_JUMP_DEG: max(
-            [s.max_yaw_jump_deg for s in streams] + [o.yaw_discontinuity_deg for o in outcomes], default=nan
+        Metric.YAW_JUMP_DEG: _finite_max(
+            [s.max_yaw_jump_deg for s in streams] + [o.yaw_discontinuity_deg for o in outcomes]
         ),
         Metric.LOST_PER_FAULT: float(max((o.lost for o in outcomes), default=0)),
     }
@@ -316,3 +330,28 @@ def capacity_of(tried: dict[int, bool]) -> int:
     failed = [n for n, ok in tried.items() if not ok]
     ceiling = min(failed, default=10**9)
     return max((n for n, ok in tried.items() if ok and n < ceiling), default=0)
+
+
+@dataclass(frozen=True)
+class ComputeShare:
+    """Who computed a stream's frames: the cluster (foremen and their workers) or the master alone."""
+
+    #: frames with a measurement (a new epoch's first frame has none)
+    frames: int
+    #: frames the master computed entirely itself
+    frames_alone: int
+    #: patches the cluster computed / all patches (0 when nothing was measured)
+    cluster_share: float
+
+
+def compute_share(computed: Iterable[tuple[int, int]]) -> ComputeShare:
+    """From each frame's (patches the master computed itself, patches of the frame)."""
+    frames = alone = own = total = 0
+    for self_patches, all_patches in computed:
+        if all_patches <= 0:
+            continue
+        frames += 1
+        alone += self_patches >= all_patches
+        own += self_patches
+        total += all_patches
+    return ComputeShare(frames, alone, 1.0 - own / total if total else 0.0)

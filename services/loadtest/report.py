@@ -31,14 +31,29 @@ def _f(value: Any, digits: int = 1) -> str:
     return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
 
 
+def _pct(share: Any) -> str:
+    return "-" if share is None else f"{100 * share:.0f} %"
+
+
+def _warm(warmup: Any) -> str:
+    return "-" if not warmup else f"{warmup['lost']}/{warmup['published']}"
+
+
 def table(report: dict[str, Any]) -> str:
-    """The run as text: one row per stream, one per fault, one per objective."""
+    """The run as text: one row per stream, one per fault, one per objective.
+
+    Per stream ``cluster`` is the share of patches the foremen and workers computed, ``alone`` the frames
+    the master computed entirely itself, ``warm-up lost`` the frames of the warm-up (before the clock,
+    not in the statistics) lost of those sent."""
+    warm = f", warm-up {report['warmup_s']:g} s before the clock" if report.get("warmup_s") else ""
     lines = [
         f"load test: {report.get('streams')} streams at {report.get('fps')} fps"
         f" for {report.get('duration_s')} s (in flight {report.get('in_flight') or 'free-running'},"
-        f" shared memory {'on' if report.get('shared_memory') else 'off'})",
+        f" shared memory {'on' if report.get('shared_memory') else 'off'}{warm})",
+        f"frames: {report.get('frames_source', 'simulated')}",
         f"{'stream':8} {'published':>9} {'received':>8} {'lost':>5} {'dropped':>7} {'p50 ms':>7}"
-        f" {'p95 ms':>7} {'p99 ms':>7} {'max ms':>7} {'gap s':>6} {'yaw jump':>8}",
+        f" {'p95 ms':>7} {'p99 ms':>7} {'max ms':>7} {'gap s':>6} {'yaw jump':>8} {'cluster':>7}"
+        f" {'alone':>5} {'warm-up lost':>12}",
     ]
     for s in report.get("per_stream", []):
         lat = s["latency_ms"]
@@ -46,6 +61,8 @@ def table(report: dict[str, Any]) -> str:
             f"{s['uav']:8} {s['published']:9d} {s['received']:8d} {s['lost']:5d} {s['reported_dropped']:7d}"
             f" {_f(lat['p50']):>7} {_f(lat['p95']):>7} {_f(lat['p99']):>7} {_f(lat['max']):>7}"
             f" {_f(s['max_gap_s'], 2):>6} {_f(s['max_yaw_jump_deg'], 2):>8}"
+            f" {_pct(s.get('cluster_share')):>7} {s.get('frames_master_alone', '-'):>5}"
+            f" {_warm(s.get('warmup')):>12}"
         )
     for f in report.get("faults", []):
         lines.append(

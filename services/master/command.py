@@ -8,7 +8,7 @@ from typing import Any
 from common.messages import YawEstimate
 from services.master.service import MasterService
 from services.master.settings import add_master_arguments, master_settings_from_args
-from services.runtime.transport import add_transport_arguments, transport_from_args
+from services.runtime.cli import add_transport_arguments
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
@@ -23,7 +23,5 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    service = MasterService(
-        args.node, args.index, transport_from_args(args), master_settings_from_args(args), args.stats_period
-    )
+    service = MasterService.from_args(args, master_settings_from_args(args))
     return run_with_trajectories(service, {YawEstimate: args.trajectory})

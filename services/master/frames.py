@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
-import threading
-from collections import deque
-from typing import Generic, TypeVar
+from typing import TypeVar
+
+from services.runtime.handoff import WorkQueue
 
 T = TypeVar("T")
 
 
-class FrameQueue(Generic[T]):
-    """A bounded FIFO that drops its oldest item when full (``dropped`` counts each drop once)."""
+class FrameQueue(WorkQueue[T]):
+    """A bounded FIFO that drops its oldest item when full (``dropped`` counts each drop once); the rest
+    (``take``, ``depth``, ``drain``) is the :class:`WorkQueue`'s."""
 
     def __init__(self, capacity: int) -> None:
-        self._items: deque[T] = deque()
-        self._capacity = capacity
-        self._cond = threading.Condition()
+        super().__init__(capacity)
         self.dropped = 0
 
     def put(self, item: T) -> bool:
@@ -28,12 +27,3 @@ class FrameQueue(Generic[T]):
             self._items.append(item)
             self._cond.notify()
             return full
-
-    def take(self, timeout_s: float) -> T | None:
-        with self._cond:
-            if not self._items:
-                self._cond.wait(timeout_s)
-            return self._items.popleft() if self._items else None
-
-    def depth(self) -> int:
-        return len(self._items)

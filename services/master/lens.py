@@ -20,6 +20,7 @@ from common.camera import CameraModel, Distortion, DistortionModel
 from common.datasets.calibration import load_calibration
 from common.errors import InputError
 from common.yaw.settings import YawSettings
+from services.runtime.cli import add_enum_argument
 
 
 class LensModel(StrEnum):
@@ -112,9 +113,7 @@ def add_yaw_prior_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--fy", type=float, help="focal length y (px); default --fx")
     group.add_argument("--cx", type=float, help="principal point x (px); default the frame centre")
     group.add_argument("--cy", type=float, help="principal point y (px); default the frame centre")
-    group.add_argument(
-        "--distortion", choices=[m.value for m in LensModel], default="none", help="lens distortion model"
-    )
+    add_enum_argument(group, "--distortion", LensModel, LensModel.NONE, help="lens distortion model")
     group.add_argument(
         "--distortion-coeffs",
         default="",

@@ -1,9 +1,9 @@
 """The master of one UAV stream: admitted frame -> shares -> merged measurement -> yaw.
 
-Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, seq and stamp jumps
-refused and counted; a confirmed restart is a new epoch whose yaw continues the last one) and waits in a
-short FIFO. Several masters may serve one UAV: one is active (:mod:`services.master.election`), the others
-stand by warm and take over from the last published yaw.
+Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, a second sender
+within an epoch, seq and stamp jumps refused and counted; a confirmed restart is a new epoch whose yaw
+continues the last one) and waits in a short FIFO. Several masters may serve one UAV: one is active
+(:mod:`services.master.election`), the others stand by warm and take over from the last published yaw.
 
 Topology is a setting: ``master-worker`` (members = every worker) or ``master-foreman-worker``
 (members = foremen, each splitting its block among its workers). Balancing and self-compute are the
@@ -26,12 +26,22 @@ import zenoh
 from common import keys
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, encode
+from common.messages import (
+    BlockJob,
+    BlockResult,
+    Frame,
+    PatchJob,
+    PatchResult,
+    YawEstimate,
+    YawJobSettings,
+    encode,
+)
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
+from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
-from common.yaw.patchwork import SpectrumCache, measure_share, merge_measurements, settings_to_wire
+from common.yaw.patchwork import SpectrumCache, measure_share
 from services.master.election import Election
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
@@ -42,11 +52,9 @@ from services.master.settings import (
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-)
+from services.runtime.transport import source_of
 
 
 @dataclass
@@ -61,21 +69,13 @@ class _Stream:
     cache: SpectrumCache = field(default_factory=SpectrumCache)
 
 
-class MasterService(ServiceRuntime):
+class MasterService(ConfiguredService[MasterSettings]):
     role = keys.Role.MASTER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: MasterSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         self.yaw_settings = settings.yaw_settings()
-        self.wire_settings = settings_to_wire(self.yaw_settings)
+        self.wire_settings = YawJobSettings.of(self.yaw_settings)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
         #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
         self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
@@ -141,7 +141,7 @@ class MasterService(ServiceRuntime):
         with self._recent_lock:
             self._gate, decision = admit_frame(
                 self._gate, self.gate_settings, self.settings.uav, frame.uav, frame.seq, frame.stamp_s, key,
-                time.monotonic(), time.time(),
+                time.monotonic(), time.time(), source_of(sample),
             )  # fmt: skip
             if decision.verdict is Verdict.REFUSE:
                 self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)

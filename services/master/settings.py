@@ -12,6 +12,7 @@ from common.errors import CapatazError
 from common.streams import FrameGateSettings
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
+from services.runtime.cli import add_enum_argument
 from services.runtime.scatter import add_dispatch_arguments
 
 
@@ -70,13 +71,11 @@ class MasterSettings(BaseModel):
 
 def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--uav", default="uav0", help="UAV stream id (default uav0)")
-    parser.add_argument(
-        "--topology",
-        choices=[t.value for t in Topology],
-        default=Topology.MASTER_FOREMAN_WORKER.value,
+    add_enum_argument(
+        parser, "--topology", Topology, Topology.MASTER_FOREMAN_WORKER,
         help="master-worker: the master splits frames among workers; master-foreman-worker: among foremen, "
-        "who split their block among their node's workers",
-    )
+        "who split their block among their node's workers"
+    )  # fmt: skip
     add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")

@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import argparse
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel, ConfigDict, Field
+
 from common.dispatch import Balance, SpeedSource
 from services.runtime.transport import TransportSettings
+
+
+def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
+    """An option taking one of ``enum``'s values (the value string; the settings parse it to the member)."""
+    parser.add_argument(flag, choices=[member.value for member in enum], default=default.value, help=help)
 
 
 def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
@@ -50,17 +58,28 @@ def transport_from_args(args: Any) -> TransportSettings:
 
 def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
     """The dispatcher's options, shared by the master and the foreman."""
-    parser.add_argument(
-        "--balance", choices=[b.value for b in Balance], default="time", help="share balancing"
-    )
+    add_enum_argument(parser, "--balance", Balance, Balance.TIME, help="share balancing")
     parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
     parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
-    parser.add_argument(
-        "--speed",
-        choices=[v.value for v in SpeedSource],
-        default=SpeedSource.ROUND_TRIP.value,
+    add_enum_argument(
+        parser, "--speed", SpeedSource, SpeedSource.ROUND_TRIP,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
-    )
+    )  # fmt: skip
+
+
+class StreamBoundSettings(BaseModel):
+    """Bounds of a member's per-stream state (spectra, dispatchers, crops): the worker's and foreman's."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    #: streams kept at most (the least recently used evicted), and how long an unused one is kept
+    max_streams: int = Field(default=64, ge=1)
+    stream_ttl_s: float = Field(default=60.0, gt=0.0)
+
+
+def stream_bounds_from_args(args: Any) -> dict[str, Any]:
+    """The :class:`StreamBoundSettings` fields given by :func:`add_stream_bound_arguments`' options."""
+    return {"max_streams": args.max_streams, "stream_ttl_s": args.stream_ttl}
 
 
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 import zenoh
 
 from common.dispatch import SELF, Plan
-from common.messages import PatchResult
+from common.messages import PatchResult, YawJobSettings
 from common.yaw.correlation import PatchMeasurement
 from services.runtime.results import measurement_of
 
@@ -81,7 +81,7 @@ class FrameWork:
     stream: str
     seq: int
     prev_seq: int
-    settings: dict[str, Any]
+    settings: YawJobSettings
     budget_s: float
     #: level crops (n, s, s) of the new frame for indices
     crops: Callable[[np.ndarray], np.ndarray]

@@ -12,13 +12,14 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any, Generic, Self, TypeVar
 
 import zenoh
 
 from common import keys
 from common.errors import CapatazError
 from common.messages import Health, Stats, WireError, WireModel, decode, encode, error_reply
+from services.runtime.cli import transport_from_args
 from services.runtime.handoff import Counters
 from services.runtime.presence import ConnectionMonitor, TokenWatch
 from services.runtime.transport import TransportSettings, open_session, zbytes
@@ -274,3 +275,29 @@ class ServiceRuntime:
                 timings = {k: round(v, 3) for k, v in self.counters.median_timings_ms().items()}
                 logger.info("%s: stopped %s, median ms %s", self.name, self.counters.counts(), timings)
         return 1 if self.counters.get("thread_crashes") else 0
+
+
+S = TypeVar("S")
+
+
+class ConfiguredService(ServiceRuntime, Generic[S]):
+    """A service built from its settings: ``Service(node, index, transport, settings, stats_period_s)``.
+
+    The runtime part is the base's; :attr:`settings` holds the service's own, and :meth:`setup` (called once,
+    at the end of construction) builds what the service derives from them.
+    """
+
+    def __init__(
+        self, node: str, index: int, transport: TransportSettings, settings: S, stats_period_s: float = 1.0
+    ) -> None:
+        super().__init__(node, index, transport, stats_period_s)
+        self.settings = settings
+        self.setup()
+
+    def setup(self) -> None:
+        """Build the service's own state from :attr:`settings` (cores, queues, sources); no I/O yet."""
+
+    @classmethod
+    def from_args(cls, args: Any, settings: S) -> Self:
+        """The service as its command line asks for: runtime options from ``args``, its own ``settings``."""
+        return cls(args.node, args.index, transport_from_args(args), settings, args.stats_period)

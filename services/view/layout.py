@@ -34,36 +34,22 @@ def layout_json(uav: str = "uav0") -> str:
             show_legend=True,
         ),
     )
-    left = fl.SplitContainer(
-        direction="column",
-        items=[
-            fl.SplitItem(
-                proportion=2,
-                content=fl.ImagePanel(
-                    title="camera",
-                    config=fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic=f"{base}/camera")),
-                ),
-            ),
-            fl.SplitItem(proportion=1, content=yaw),
-        ],
+    camera = fl.ImagePanel(
+        title="camera", config=fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic=f"{base}/camera"))
     )
-    right = fl.SplitContainer(
-        direction="column",
-        items=[
-            fl.SplitItem(
-                proportion=2,
-                content=fl.ThreeDeePanel(
-                    title="poses", config=fl.ThreeDeeConfig(fixed_frame="world", topics=poses)
-                ),
-            ),
-            fl.SplitItem(
-                proportion=1,
-                content=fl.RawMessagesPanel(
-                    title="cluster shares", config=fl.RawMessagesConfig(topic_path=f"{base}/cluster")
-                ),
-            ),
-        ],
+    pose_view = fl.ThreeDeePanel(title="poses", config=fl.ThreeDeeConfig(fixed_frame="world", topics=poses))
+    shares = fl.RawMessagesPanel(
+        title="cluster shares", config=fl.RawMessagesConfig(topic_path=f"{base}/cluster")
     )
+
+    def column(top: Any, bottom: Any) -> Any:
+        """Two panels one above the other, the top one twice as tall."""
+        return fl.SplitContainer(
+            direction="column",
+            items=[fl.SplitItem(proportion=2, content=top), fl.SplitItem(proportion=1, content=bottom)],
+        )
+
+    left, right = column(camera, yaw), column(pose_view, shares)
     layout = fl.Layout(
         content=fl.SplitContainer(
             direction="row", items=[fl.SplitItem(content=left), fl.SplitItem(content=right)]

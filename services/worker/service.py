@@ -8,16 +8,22 @@ from enum import StrEnum
 from typing import Any
 
 import zenoh
+from pydantic import Field
 
 from common import keys
 from common.errors import CapatazError
 from common.messages import PatchJob, PatchResult
-from common.yaw.patchwork import PatchWorkError, SettingsCache, SpectrumCache, measure_share
-from services.runtime.cli import add_stream_bound_arguments, add_transport_arguments, transport_from_args
+from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
+from services.runtime.cli import (
+    StreamBoundSettings,
+    add_enum_argument,
+    add_stream_bound_arguments,
+    add_transport_arguments,
+    stream_bounds_from_args,
+)
 from services.runtime.handoff import WorkQueue
 from services.runtime.scatter import result_from_measurement
-from services.runtime.service import ServiceRuntime
-from services.runtime.transport import TransportSettings
+from services.runtime.service import ConfiguredService
 
 
 class Handoff(StrEnum):
@@ -29,38 +35,29 @@ class Handoff(StrEnum):
     CALLBACK = "callback"
 
 
-class WorkerService(ServiceRuntime):
+class WorkerSettings(StreamBoundSettings):
+    """A worker's own settings (the runtime's come with the transport)."""
+
+    #: capacity of the bounded hand-off (zenoh FIFO channel or job queue)
+    queue: int = Field(default=8, ge=1)
+    #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
+    cpu_factor: int = Field(default=1, ge=1)
+    handoff: Handoff = Handoff.CHANNEL
+
+
+class WorkerService(ConfiguredService[WorkerSettings]):
     """One worker process: a queryable, a bounded job queue, one compute thread."""
 
     role = keys.Role.WORKER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        queue_capacity: int = 8,
-        stats_period_s: float = 1.0,
-        cpu_factor: int = 1,
-        handoff: Handoff | str = Handoff.CHANNEL,
-        max_streams: int = 64,
-        stream_ttl_s: float = 60.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        try:
-            self.handoff = Handoff(handoff)
-        except ValueError:
-            raise CapatazError(
-                f"handoff must be one of {[h.value for h in Handoff]}, got {handoff!r}"
-            ) from None
-        self.queue_capacity = queue_capacity
-        if cpu_factor < 1:
-            raise CapatazError(f"cpu_factor must be >= 1, got {cpu_factor}")
-        #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
-        self.cpu_factor = cpu_factor
-        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(queue_capacity)
-        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=stream_ttl_s)
-        self.settings_cache = SettingsCache()
+    def setup(self) -> None:
+        self.handoff = self.settings.handoff
+        self.queue_capacity = self.settings.queue
+        self.cpu_factor = self.settings.cpu_factor
+        self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(self.queue_capacity)
+        self.cache = SpectrumCache(
+            max_streams=self.settings.max_streams, max_age_s=self.settings.stream_ttl_s
+        )
         self._queryable: Any = None
 
     def start(self, session: zenoh.Session) -> None:
@@ -155,7 +152,7 @@ class WorkerService(ServiceRuntime):
             return
         t0 = time.perf_counter()
         try:
-            settings = self.settings_cache.parsed(job.settings)
+            settings = job.settings.yaw_settings
             for _ in range(self.cpu_factor - 1):
                 measure_share(
                     SpectrumCache(), settings, job.stream, job.seq, job.seq,
@@ -200,28 +197,16 @@ def register(subparsers: Any) -> None:
         default=1,
         help="emulate a CPU this many times slower (repeat every computation); for benchmarks",
     )
-    parser.add_argument(
-        "--handoff",
-        choices=[h.value for h in Handoff],
-        default=Handoff.CHANNEL.value,
-        help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue",
-    )
+    add_enum_argument(
+        parser, "--handoff", Handoff, Handoff.CHANNEL,
+        help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue"
+    )  # fmt: skip
     add_stream_bound_arguments(parser)
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.max_streams < 1 or not args.stream_ttl > 0:
-        raise CapatazError("--max-streams must be >= 1 and --stream-ttl > 0")
-    service = WorkerService(
-        args.node,
-        args.index,
-        transport_from_args(args),
-        args.queue,
-        args.stats_period,
-        args.cpu_factor,
-        args.handoff,
-        args.max_streams,
-        args.stream_ttl,
+    settings = WorkerSettings(
+        queue=args.queue, cpu_factor=args.cpu_factor, handoff=args.handoff, **stream_bounds_from_args(args)
     )
-    return service.run()
+    return WorkerService.from_args(args, settings).run()

@@ -14,6 +14,8 @@ from hypothesis.extra import numpy as hnp
 
 from common import messages as m
 from common.messages import WireError, decode, encode
+from common.yaw import FftBackend, YawSettings
+from tests.builders import JOB_SETTINGS, patch_job
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 names = st.text(alphabet="abcdefghijklmnopqrstuvwxyz0123456789_-", min_size=1, max_size=12)
@@ -47,7 +49,7 @@ def jobs(cls: type[m.PatchJob]) -> st.SearchStrategy[m.PatchJob]:
             stream=data.draw(names),
             seq=data.draw(st.integers(0, 10**6)),
             prev_seq=data.draw(st.integers(-1, 10**6)),
-            settings={"patch_size_px": 32, "fft_backend": "opencv", "peak_sigma_px": 1.0},
+            settings=m.YawJobSettings.of(YawSettings(patch_size_px=32, fft_backend=FftBackend.OPENCV)),
             indices=indices,
             crops=data.draw(hnp.arrays(np.uint8, (n, s, s))),
             prev_indices=prev,
@@ -259,11 +261,7 @@ def test_expected_type_is_enforced_and_subclasses_are_distinct() -> None:
     payload, attachment = _frame()
     with pytest.raises(WireError, match="expected ImuSample"):
         decode(payload, attachment, m.ImuSample)
-    job = m.BlockJob(
-        stream="a", seq=1, prev_seq=0, settings={}, indices=np.zeros(0, np.int32),
-        crops=np.zeros((0, 8, 8), np.uint8), prev_indices=np.zeros(0, np.int32),
-        prev_crops=np.zeros((0, 8, 8), np.uint8),
-    )  # fmt: skip
+    job = patch_job(0, cls=m.BlockJob)
     with pytest.raises(WireError, match="expected PatchJob"):
         decode(*encode(job), m.PatchJob)
 
@@ -271,11 +269,9 @@ def test_expected_type_is_enforced_and_subclasses_are_distinct() -> None:
 def test_job_consistency_is_checked() -> None:
     crops = np.zeros((2, 8, 8), np.uint8)
     with pytest.raises(ValueError, match="subset"):
-        m.PatchJob(stream="a", seq=1, prev_seq=0, settings={}, indices=np.array([1, 2]), crops=crops,
-                   prev_indices=np.array([5]), prev_crops=crops[:1])  # fmt: skip
+        patch_job(indices=np.array([1, 2]), crops=crops, prev_indices=np.array([5]), prev_crops=crops[:1])
     with pytest.raises(ValueError, match="distinct"):
-        m.PatchJob(stream="a", seq=1, prev_seq=0, settings={}, indices=np.array([1, 1]), crops=crops,
-                   prev_indices=np.array([], np.int32), prev_crops=crops[:0])  # fmt: skip
+        patch_job(indices=np.array([1, 1]), crops=crops)
 
 
 @settings(max_examples=300, deadline=None)
@@ -306,9 +302,9 @@ def test_job_indices_are_accepted_iff_distinct_and_non_negative_in_any_order(val
     indices = np.array(values, np.int32)
     crops = np.zeros((indices.size, 4, 4), np.uint8)
     good = len(set(values)) == len(values) and min(values) >= 0
-    job = {"stream": "a", "seq": 1, "prev_seq": 0, "settings": {}, "indices": indices, "crops": crops,
-           "prev_indices": np.zeros(0, np.int32), "prev_crops": crops[:0]}  # fmt: skip
-    payload, attachment = encode(m.PatchJob.model_construct(**job))
+    payload, attachment = encode(
+        patch_job(validate=False, indices=indices, crops=crops, prev_crops=crops[:0])
+    )
     if good:
         assert np.array_equal(decode(payload, attachment, m.PatchJob).indices, indices)
     else:
@@ -331,9 +327,7 @@ def test_nan_or_inf_in_scalar_and_dict_fields_is_a_wire_error(field: str, value:
 
 def test_nan_in_job_settings_is_a_wire_error() -> None:
     crops = np.zeros((1, 4, 4), np.uint8)
-    job = m.PatchJob.model_construct(
-        stream="a", seq=1, prev_seq=0, settings={"peak_sigma_px": math.nan}, indices=np.array([0], np.int32),
-        crops=crops, prev_indices=np.zeros(0, np.int32), prev_crops=crops[:0],
-    )  # fmt: skip
+    settings = {**JOB_SETTINGS.model_dump(mode="json"), "peak_sigma_px": math.nan}
+    job = patch_job(1, 4, validate=False, settings=settings, crops=crops, prev_crops=crops[:0])
     with pytest.raises(WireError, match="finite"):
         decode(*encode(job), m.PatchJob)

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -81,6 +82,18 @@ def _evo_trajectory(positions: np.ndarray):  # type: ignore[no-untyped-def]
     return PoseTrajectory3D(positions, quats, np.arange(len(positions), dtype=np.float64))
 
 
+def _evo_rpe_1m(evo_metrics: Any, ref: np.ndarray, est: np.ndarray) -> Any:
+    """evo's translational RPE over 1 m of the reference path, computed for ``est``."""
+    rpe = evo_metrics.RPE(
+        evo_metrics.PoseRelation.translation_part,
+        delta=1.0,
+        delta_unit=evo_metrics.Unit.meters,
+        pairs_from_reference=True,
+    )
+    rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
+    return rpe
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_ate_and_rpe_match_evo(seed: int) -> None:
     evo_metrics = pytest.importorskip("evo.core.metrics", reason="evo (dev extra) is not installed")
@@ -90,13 +103,7 @@ def test_ate_and_rpe_match_evo(seed: int) -> None:
     ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
     ape.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
     assert ate_rmse_m(est, ref) == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9)
-    rpe = evo_metrics.RPE(
-        evo_metrics.PoseRelation.translation_part,
-        delta=1.0,
-        delta_unit=evo_metrics.Unit.meters,
-        pairs_from_reference=True,
-    )
-    rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est)))
+    rpe = _evo_rpe_1m(evo_metrics, ref, est)
     ours = rpe_translation(est, ref, delta_m=1.0)
     assert ours.pairs == len(rpe.error)
     assert ours.mean_m == pytest.approx(rpe.get_statistic(evo_metrics.StatisticsType.mean), rel=1e-9)
@@ -111,13 +118,7 @@ def test_horizontal_rpe_with_3d_pairs_matches_evo_with_true_altitude() -> None:
 
     est, ref = _walk(5)
     est_true_z = np.c_[est[:, :2], ref[:, 2]]
-    rpe = evo_metrics.RPE(
-        evo_metrics.PoseRelation.translation_part,
-        delta=1.0,
-        delta_unit=evo_metrics.Unit.meters,
-        pairs_from_reference=True,
-    )
-    rpe.process_data((_evo_trajectory(ref), _evo_trajectory(est_true_z)))
+    rpe = _evo_rpe_1m(evo_metrics, ref, est_true_z)
     ours = rpe_translation(est[:, :2], ref[:, :2], 1.0, reference_path_m=ref)
     assert ours.mean_m == pytest.approx(rpe.get_statistic(evo_metrics.StatisticsType.mean), rel=1e-9)
 

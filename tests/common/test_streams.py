@@ -150,3 +150,52 @@ def test_a_real_clock_jump_is_adopted_after_confirmation() -> None:
         state, decision = check_stamp(state, guard, 1000.0 + k / 400, 0.1 + k / 400, WALL)
         verdicts.append(decision.verdict)
     assert verdicts[-1] is Verdict.NEW_EPOCH and set(verdicts[:-1]) == {Verdict.REFUSE}
+
+
+CAMERA = "c0f38f87c807831a60afb7eff97c3938/6"
+OTHER = "9d0c3e5a5b1f4e0f8a1b2c3d4e5f6a7b/6"
+
+
+def run_sender(state: FrameGateState, seqs: range, source: str | None, t0: float = 0.0) -> FrameGateState:
+    for k in seqs:
+        t = t0 + k / FPS
+        state, decision = admit_frame(state, GATE, "uav0", "uav0", k, t, KEY, t, WALL, source)
+        assert decision.admitted, decision
+    return state
+
+
+@settings(max_examples=200, deadline=None)
+@given(at=st.integers(5, 40), n=st.integers(1, 6), other=st.sampled_from([OTHER, None]))
+def test_a_second_sender_within_an_epoch_is_refused_and_counted(at: int, n: int, other: str | None) -> None:
+    """Frames of another sender that look exactly like the camera's next ones (same seq, stamp, size, UAV)
+    are refused and counted, one at a time between the camera's, and never move the epoch."""
+    state = run_sender(FrameGateState(), range(0, at), CAMERA)
+    assert state.source == CAMERA
+    for k in range(at, at + n):
+        t = k / FPS
+        state, decision = admit_frame(state, GATE, "uav0", "uav0", k, t, KEY, t, WALL, other)
+        assert decision.verdict is Verdict.REFUSE and decision.reason == "foreign_sender"
+        state = run_sender(state, range(k, k + 1), CAMERA)
+    assert state.epoch == 0 and state.source == CAMERA and state.refused == {"foreign_sender": n}
+
+
+def test_a_camera_restarted_in_a_new_session_is_a_new_epoch_once_the_old_one_is_silent() -> None:
+    state = run_sender(FrameGateState(), range(0, 100), CAMERA)
+    last_s = 99 / FPS
+    # the new session counts from 0 at once: refused (counted) however many agree, until the old sender
+    # has been silent for silence_s; then its next frame starts the epoch
+    verdicts = []
+    k = 0
+    while True:
+        t = last_s + 0.05 + k / FPS
+        state, decision = admit_frame(state, GATE, "uav0", "uav0", k, t, KEY, t, WALL, OTHER)
+        verdicts.append(decision.verdict)
+        if decision.admitted:
+            break
+        k += 1
+    assert verdicts[-1] is Verdict.NEW_EPOCH and set(verdicts[:-1]) == {Verdict.REFUSE}
+    assert t - last_s > GATE.silence_s and t - last_s <= GATE.silence_s + 1 / FPS + 0.05
+    assert state.epoch == 1 and state.source == OTHER and state.refused == {"foreign_sender": k}
+    # the old session's frames are now another sender's
+    state, decision = admit_frame(state, GATE, "uav0", "uav0", 100, t, KEY, t, WALL, CAMERA)
+    assert decision.reason == "foreign_sender"

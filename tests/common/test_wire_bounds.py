@@ -9,7 +9,8 @@ from common.messages import MAX_JOB_PATCHES, PatchJob, WireError, decode, encode
 from common.streams import StreamTable
 from common.yaw import YawSettings
 from common.yaw.correlation import patch_spectra_from_crops
-from common.yaw.patchwork import PatchWorkError, SpectrumCache, settings_from_wire, settings_to_wire
+from common.yaw.patchwork import SpectrumCache
+from tests.builders import JOB_SETTINGS, patch_job
 
 
 @pytest.mark.parametrize(
@@ -18,19 +19,15 @@ from common.yaw.patchwork import PatchWorkError, SpectrumCache, settings_from_wi
      ("ransac_max_iters", 10**9), ("global_angle_bins", 10**7)],
 )  # fmt: skip
 def test_oversized_yaw_settings_in_a_job_are_refused_before_any_allocation(name: str, value: int) -> None:
-    wire = settings_to_wire(YawSettings())
-    wire[name] = value
-    with pytest.raises(PatchWorkError, match=name):
-        settings_from_wire(wire)
-    assert settings_from_wire(settings_to_wire(YawSettings())) == YawSettings()
+    settings = {**JOB_SETTINGS.model_dump(mode="json"), name: value}
+    payload, header = encode(patch_job(validate=False, settings=settings))
+    with pytest.raises(WireError, match=f"settings.{name}"):
+        decode(payload, header, PatchJob)
+    assert decode(*encode(patch_job()), PatchJob).settings.yaw_settings == YawSettings()
 
 
 def _job(n: int, side: int = 32, stream: str = "uav0") -> PatchJob:
-    return PatchJob.model_construct(
-        stream=stream, seq=1, prev_seq=0, settings={}, indices=np.arange(n, dtype=np.int32),
-        crops=np.zeros((n, side, side), np.uint8), prev_indices=np.zeros(0, np.int32),
-        prev_crops=np.zeros((0, side, side), np.uint8), budget_s=1.0,
-    )  # fmt: skip
+    return patch_job(n, side, validate=False, stream=stream)
 
 
 @pytest.mark.parametrize(

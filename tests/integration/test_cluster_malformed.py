@@ -13,10 +13,11 @@ import pytest
 import zenoh
 
 from common import keys
-from common.messages import Health, ImuSample, PatchJob, decode, encode, read_error_reply
+from common.messages import Health, ImuSample, decode, encode, read_error_reply
 from services.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster
+from tests.builders import patch_job
 from tests.integration.cluster_helpers import two_by_two
 from tests.zenoh_helpers import wait_until
 
@@ -28,11 +29,7 @@ N_FRAMES = 4000  # to the master's camera subscription
 
 def malformed(i: int, rng: np.random.Generator) -> tuple[bytes, bytes | None]:
     """The i-th bad message: garbage, truncation, wrong version/type, NaN, shape or nbytes mismatch."""
-    job = PatchJob(
-        stream="uav0", seq=5, prev_seq=4, settings={}, indices=np.array([0, 1], np.int32),
-        crops=np.zeros((2, 32, 32), np.uint8), prev_indices=np.zeros(0, np.int32),
-        prev_crops=np.zeros((0, 32, 32), np.uint8),
-    )  # fmt: skip
+    job = patch_job(2, 32, stream="uav0", seq=5, prev_seq=4)
     payload, header = encode(job)
     kind = i % 8
     if kind == 0:

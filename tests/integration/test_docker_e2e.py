@@ -4,7 +4,8 @@ attitude, pose/vo and pose/pf from a Zenoh client on the host, check them agains
 Opt-in (``make test-docker``, which sets CAPATAZ_DOCKER_TEST=1): it builds the image (minutes). It skips with
 the reason when no engine answers or no Compose is installed. Without Docker Hub, set BASE_IMAGE to a local
 base image (deploy/make-base-image.sh builds one; ``capataz-base:bookworm`` is used when it exists). The
-figures go to out/docker_e2e.json (the README quotes them).
+figures go to out/docker_e2e_v1.json / _v2.json (the README quotes them); CAPATAZ_COMPOSE=v1|v2 picks the
+Compose.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ COLLECT_S = 30.0
 
 pytestmark = [
     pytest.mark.docker,
+    pytest.mark.zenoh,
     pytest.mark.timeout(1800),
     pytest.mark.skipif(
         os.environ.get("CAPATAZ_DOCKER_TEST") != "1",
@@ -70,11 +72,17 @@ def _run(*command: str, env: dict[str, str] | None = None, timeout: float = 1200
 
 
 def _compose() -> list[str]:
-    if shutil.which("docker-compose"):
-        return ["docker-compose"]
-    if subprocess.run(["docker", "compose", "version"], capture_output=True).returncode == 0:
+    """Compose v1 (``docker-compose``) or v2 (``docker compose``): CAPATAZ_COMPOSE=v1|v2 chooses, otherwise
+    whichever is installed (v2 first)."""
+    wanted = os.environ.get("CAPATAZ_COMPOSE", "").strip().lower()
+    if wanted not in {"", "v1", "v2"}:
+        pytest.fail(f"CAPATAZ_COMPOSE={wanted!r}: expected v1 or v2")
+    has_v2 = subprocess.run(["docker", "compose", "version"], capture_output=True).returncode == 0
+    if wanted in {"", "v2"} and has_v2:
         return ["docker", "compose"]
-    pytest.skip("no Docker Compose (neither docker-compose nor the docker compose plugin)")
+    if wanted in {"", "v1"} and shutil.which("docker-compose"):
+        return ["docker-compose"]
+    pytest.skip(f"no Docker Compose {wanted or ''} (docker-compose for v1, the docker compose plugin for v2)")
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +207,9 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
         for n, v in samples.items()
     }
     accuracy = _accuracy(samples)
+    version = _run(*compose, "version", "--short").strip()
     figures = {
+        "compose": f"{' '.join(compose)} {version}",
         "image_size_mb": size_mb,
         "build_s": build_s,
         "base_image": base or "python:3.11-slim-bookworm",
@@ -209,7 +219,7 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
         "counts": {n: len(v) for n, v in samples.items()},
         **accuracy,
     }
-    write_json(ROOT / "out" / "docker_e2e.json", figures)
+    write_json(ROOT / "out" / f"docker_e2e_{'v2' if compose[0] == 'docker' else 'v1'}.json", figures)
     print(json.dumps(figures, indent=2))
     assert (
         rates["yaw"] > 5.0 and rates["attitude"] > 100.0 and rates["pose/pf"] > 1.0 and rates["pose/vo"] > 1.0

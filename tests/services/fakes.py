@@ -30,3 +30,13 @@ class FakeChannel:
 
     def try_recv(self) -> Any:
         return self._items.pop(0) if self._items else None
+
+
+class FakePublisher:
+    """A publisher that records what is put on it."""
+
+    def __init__(self) -> None:
+        self.puts: list[tuple[bytes, bytes]] = []
+
+    def put(self, payload: bytes, attachment: bytes) -> None:
+        self.puts.append((payload, attachment))

@@ -9,13 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from services.bench.cluster import (
-    add_arguments,
-    cpu_steal_ticks,
-    reply_handoff,
-    steal_percent,
-    write_frame_folder,
-)
+from services.bench.cluster import add_arguments
+from services.bench.cluster_overhead import cpu_steal_ticks, reply_handoff, steal_percent
+from services.bench.cluster_workload import write_frame_folder
 
 
 def test_frame_folder_holds_only_this_runs_frames(tmp_path: Path) -> None:

@@ -5,9 +5,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 from common.estimation.replay import evaluate
 from services.bench.estimator import compare_on_flight_b
-from services.demo_estimator import plot, summarize
+from services.demo_estimator import plot, run_configurations, summarize
 
 
 def test_plot_and_summary_of_a_short_run(tmp_path: Path) -> None:
@@ -21,3 +23,18 @@ def test_plot_and_summary_of_a_short_run(tmp_path: Path) -> None:
     png = plot(tmp_path / "estimator.png", flight, runs, errors)
     assert png.stat().st_size > 50_000
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_configurations_in_parallel_processes_equal_one_process() -> None:
+    """``capataz run`` spreads the configurations over processes: each must see exactly the stream a
+    single-process run feeds it (same outputs to the bit)."""
+    _, serial = compare_on_flight_b(seed=0, frames=12, start_frame=400)
+    _, parallel = run_configurations(seed=0, frames=12, start_frame=400)
+    assert list(parallel) == list(serial)
+    for name, run in serial.items():
+        other = parallel[name]
+        assert run.pose_stamps_s.size > 0, name
+        for field in ("attitude_stamps_s", "q_world_body", "pz_m", "pose_stamps_s", "p_world_body_m"):
+            np.testing.assert_array_equal(
+                getattr(other, field), getattr(run, field), err_msg=f"{name}.{field}"
+            )

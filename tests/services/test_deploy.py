@@ -153,6 +153,19 @@ def test_zenoh_config_files_load_and_match_the_transport_settings(name: str) -> 
 COMPOSE_V1 = shutil.which("docker-compose")
 
 
+def _compose_v2() -> list[str] | None:
+    """``docker compose`` (the v2 CLI plugin) when installed: it validates files without an engine."""
+    if shutil.which("docker") is None:
+        return None
+    done = subprocess.run(["docker", "compose", "version"], capture_output=True, text=True, timeout=60)
+    # "Docker Compose version v2.29.1" (Docker's build) or "Docker Compose version 2.26.1-4" (Debian's)
+    is_v2 = done.returncode == 0 and re.search(r"version v?2\.", done.stdout) is not None
+    return ["docker", "compose"] if is_v2 else None
+
+
+COMPOSE_V2 = _compose_v2()
+
+
 def compose_files(tmp_path: Path) -> list[Path]:
     """docker-compose.yml and what `capataz up --compose` writes for every described cluster."""
     from services.up_command import write_compose
@@ -177,13 +190,22 @@ def test_compose_files_build_the_image_and_publish_on_loopback_only(tmp_path: Pa
                 )
 
 
+def _assert_valid(command: list[str], paths: list[Path]) -> None:
+    for path in paths:
+        done = subprocess.run([*command, "-f", str(path), "config", "-q"], capture_output=True, text=True,
+                              timeout=60)  # fmt: skip
+        assert done.returncode == 0, f"{' '.join(command)} {path}: {done.stderr}"
+
+
 @pytest.mark.skipif(COMPOSE_V1 is None, reason="docker-compose (Compose v1) is not installed")
 def test_compose_files_are_valid_for_compose_v1(tmp_path: Path) -> None:
-    for path in compose_files(tmp_path):
-        done = subprocess.run(
-            [COMPOSE_V1, "-f", str(path), "config", "-q"],
-            capture_output=True,
-            text=True,
-            timeout=60,  # type: ignore[list-item]
-        )
-        assert done.returncode == 0, f"{path}: {done.stderr}"
+    assert COMPOSE_V1 is not None
+    _assert_valid([COMPOSE_V1], [*compose_files(tmp_path), ROOT / "docker-compose.secure.yml"])
+
+
+@pytest.mark.skipif(
+    COMPOSE_V2 is None, reason="the docker compose v2 plugin is not installed (deploy/install-compose-v2.sh)"
+)
+def test_compose_files_are_valid_for_compose_v2(tmp_path: Path) -> None:
+    assert COMPOSE_V2 is not None
+    _assert_valid(COMPOSE_V2, [*compose_files(tmp_path), ROOT / "docker-compose.secure.yml"])

@@ -15,11 +15,12 @@ from common import keys
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchWorkError
-from services.foreman.service import CropStore, ForemanService
+from services.foreman.service import CropStore, ForemanService, ForemanSettings
 from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, Scatter
 from services.runtime.transport import open_session, zbytes
-from services.worker.service import WorkerService
+from services.worker.service import WorkerService, WorkerSettings
+from tests.builders import JOB_SETTINGS, patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
@@ -81,7 +82,7 @@ def test_time_balancing_uses_the_chosen_speed_measure(source: SpeedSource) -> No
         _Workers(reported=1e6, delay_s=0.02), dispatcher, str, PatchJob, PatchResult, Counters()
     )  # type: ignore[arg-type]
     work = FrameWork(
-        stream="s", seq=1, prev_seq=0, settings={}, budget_s=1.0,
+        stream="s", seq=1, prev_seq=0, settings=JOB_SETTINGS, budget_s=1.0,
         crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
         prev_crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
         compute_self=lambda idx, moved: pytest.fail("nothing is computed locally"),
@@ -105,8 +106,8 @@ def test_a_block_with_invalid_settings_is_rejected_before_any_worker_sees_it() -
 
 
 def _reject_a_block_with_invalid_settings(endpoint: str) -> None:
-    foreman = ForemanService("h", peer(endpoint), DispatchSettings())
-    worker = WorkerService("h", 0, peer(endpoint))
+    foreman = ForemanService("h", 0, peer(endpoint), ForemanSettings())
+    worker = WorkerService("h", 0, peer(endpoint), WorkerSettings())
     threads = [threading.Thread(target=s.run, daemon=True) for s in (foreman, worker)]
     for thread in threads:
         thread.start()
@@ -114,10 +115,10 @@ def _reject_a_block_with_invalid_settings(endpoint: str) -> None:
         assert foreman.started.wait(WAIT_S) and worker.started.wait(WAIT_S)
         assert wait_until(lambda: foreman.counters.get("members_joined") >= 1)
         assert foreman.counters.get("members_joined") == 1
-        block = BlockJob(
-            stream="s", seq=1, prev_seq=0, settings={"colour": 1}, indices=np.arange(4, dtype=np.int32),
-            crops=np.zeros((4, 32, 32), np.uint8), prev_indices=np.arange(4, dtype=np.int32),
-            prev_crops=np.zeros((4, 32, 32), np.uint8),
+        settings = {**JOB_SETTINGS.model_dump(mode="json"), "colour": 1}
+        block = patch_job(
+            4, 32, cls=BlockJob, validate=False, settings=settings,
+            prev_indices=np.arange(4, dtype=np.int32), prev_crops=np.zeros((4, 32, 32), np.uint8),
         )  # fmt: skip
         payload, attachment = encode(block)
         with open_session(peer(endpoint)) as session:
@@ -126,8 +127,8 @@ def _reject_a_block_with_invalid_settings(endpoint: str) -> None:
             reply = querier.get(payload=payload, attachment=attachment).recv()
             querier.undeclare()
         assert reply.err is not None
-        assert "unknown yaw settings" in read_error_reply(zbytes(reply.err.payload))
-        assert foreman.counters.get("rejected") == 1
+        assert "malformed: BlockJob: settings.colour" in read_error_reply(zbytes(reply.err.payload))
+        assert foreman.counters.get("malformed") == 1
         assert worker.counters.get("queries") == 0  # never asked
         assert foreman.counters.get("redispatched") == 0
     finally:

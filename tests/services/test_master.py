@@ -11,22 +11,15 @@ from common.messages import Frame, encode
 from common.sim.flight import hover_flight
 from services.master import MasterService, MasterSettings
 from services.runtime.transport import TransportSettings
-
-
-class _Bytes:
-    def __init__(self, data: bytes) -> None:
-        self._data = data
-
-    def to_bytes(self) -> bytes:
-        return self._data
+from tests.services.fakes import FakeBytes
 
 
 class _Sample:
     def __init__(self, frame: Frame) -> None:
         payload, attachment = encode(frame)
         self.payload, self.attachment, self.key_expr = (
-            _Bytes(payload),
-            _Bytes(attachment),
+            FakeBytes(payload),
+            FakeBytes(attachment),
             "capataz/uav/uav0/camera",
         )
 

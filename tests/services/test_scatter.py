@@ -22,6 +22,7 @@ from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters
 from services.runtime.scatter import FrameWork, RoundReport, Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
+from tests.builders import JOB_SETTINGS
 from tests.zenoh_helpers import matched, wait_until
 
 pytestmark = pytest.mark.zenoh
@@ -80,7 +81,7 @@ def run_round(session: zenoh.Session, member: str, budget_s: float = 0.4) -> tup
         return PatchMeasurement(indices, np.full((n, 2), 7.0), np.ones(n), np.ones(n), np.ones(n, bool))
 
     work = FrameWork(
-        stream="s", seq=1, prev_seq=0, settings={}, budget_s=budget_s,
+        stream="s", seq=1, prev_seq=0, settings=JOB_SETTINGS, budget_s=budget_s,
         crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
         prev_crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
         compute_self=compute_self,

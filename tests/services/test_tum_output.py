@@ -17,6 +17,7 @@ from services.bench.estimator import compare_on_flight_b
 from services.demo_estimator import write_estimator_tum
 from services.demo_localizer import run_demo as localizer_demo
 from services.trajectory import TrajectoryTap
+from tests.builders import yaw_estimate
 
 
 def assert_evo_agrees(entry: dict[str, Any]) -> None:
@@ -61,20 +62,7 @@ def test_services_trajectory_tap_writes_each_estimate_once(tmp_path: Path) -> No
         {YawEstimate: tmp_path / "yaw.tum", PoseEstimate: tmp_path / "pose.tum", AttitudeEstimate: None}
     )
     q = np.array([np.cos(0.25), 0.0, 0.0, np.sin(0.25)])
-    tap.write(
-        YawEstimate(
-            uav="u",
-            seq=0,
-            stamp_s=1.5,
-            delta_yaw_rad=0.0,
-            yaw_rad=0.5,
-            inlier_count=0,
-            patch_count=0,
-            confidence=1.0,
-            low_confidence=False,
-            method="patch",
-        )
-    )
+    tap.write(yaw_estimate(stamp_s=1.5, yaw_rad=0.5, inlier_count=0, patch_count=0))
     tap.write(
         PoseEstimate(
             uav="u",

@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from common import keys
-from common.messages import AttitudeEstimate, Frame, PoseEstimate, Stats, WireModel, YawEstimate, encode
+from common.messages import AttitudeEstimate, Frame, PoseEstimate, Stats, WireModel, encode
 from common.sim.flight import hover_flight
 from services.runtime.transport import open_session
 from services.view import ViewService, ViewSettings
+from tests.builders import yaw_estimate
 from tests.zenoh_helpers import hub, peer
 
 pytestmark = pytest.mark.zenoh
@@ -39,6 +40,8 @@ def _messages(k: int, flight: Any) -> list[tuple[str, WireModel]]:
     stamp = float(flight.frame_stamps_s[k % flight.n_frames])
     q = flight.q_world_body[0]
     pose = {"uav": UAV, "seq": k, "stamp_s": stamp, "p_world_body_m": [1.0, 2.0, 3.0], "q_world_body": q}
+    yaw = {"uav": UAV, "seq": k, "stamp_s": stamp, "delta_yaw_rad": 0.01, "yaw_rad": 0.25, "inlier_count": 30,
+           "confidence": 0.9, "timings_ms": {"total": 3.5}, "members": {"worker/h1/0": 40}}  # fmt: skip
     return [
         (
             keys.camera_key(UAV),
@@ -48,20 +51,7 @@ def _messages(k: int, flight: Any) -> list[tuple[str, WireModel]]:
         ),
         (
             keys.yaw_key(UAV),
-            YawEstimate(
-                uav=UAV,
-                seq=k,
-                stamp_s=stamp,
-                delta_yaw_rad=0.01,
-                yaw_rad=0.25,
-                inlier_count=30,
-                patch_count=40,
-                confidence=0.9,
-                low_confidence=False,
-                method="patch",
-                timings_ms={"total": 3.5},
-                members={"worker/h1/0": 40},
-            ),
+            yaw_estimate(**yaw),
         ),
         (
             keys.attitude_key(UAV),

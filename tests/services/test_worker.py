@@ -8,13 +8,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
-from common.errors import CapatazError
 from common.messages import PatchJob, decode, encode, read_error_reply
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
-from services.worker.service import Handoff, WorkerService
+from services.worker.service import Handoff, WorkerService, WorkerSettings
+from tests.builders import patch_job
 from tests.services.fakes import FakeBytes, FakeChannel
 
 #: how long the stand-in computation of a job takes (a lower bound, whatever the host's load)
@@ -27,12 +28,7 @@ class _Query:
     key_expr = "capataz/test/worker"
 
     def __init__(self, seq: int, budget_s: float) -> None:
-        job = PatchJob(
-            stream="s", seq=seq, prev_seq=seq - 1, settings={}, indices=np.arange(2, dtype=np.int32),
-            crops=np.zeros((2, 8, 8), np.uint8), prev_indices=np.zeros(0, np.int32),
-            prev_crops=np.zeros((0, 8, 8), np.uint8), budget_s=budget_s,
-        )  # fmt: skip
-        payload, attachment = encode(job)
+        payload, attachment = encode(patch_job(seq=seq, prev_seq=seq - 1, budget_s=budget_s))
         self.payload, self.attachment = FakeBytes(payload), FakeBytes(attachment)
         self.answer: str | None = None
 
@@ -49,7 +45,7 @@ class _Query:
 @pytest.fixture()
 def slow_worker(monkeypatch: pytest.MonkeyPatch) -> tuple[WorkerService, list[int]]:
     """A worker whose computation takes ``COMPUTE_S``; records its job-queue depth during each one."""
-    worker = WorkerService("h", 0, TransportSettings())
+    worker = WorkerService("h", 0, TransportSettings(), WorkerSettings())
     depths: list[int] = []
 
     def measure_share(*args: Any) -> PatchMeasurement:
@@ -118,6 +114,7 @@ def test_a_malformed_query_in_the_channel_is_answered_and_the_rest_computed(
 
 
 def test_the_handoff_is_an_enum_and_a_bad_one_is_one_clear_error() -> None:
-    assert WorkerService("h", 0, TransportSettings(), handoff="callback").handoff is Handoff.CALLBACK
-    with pytest.raises(CapatazError, match="handoff must be one of"):
-        WorkerService("h", 0, TransportSettings(), handoff="pigeon")
+    worker = WorkerService("h", 0, TransportSettings(), WorkerSettings(handoff="callback"))  # type: ignore[arg-type]
+    assert worker.handoff is Handoff.CALLBACK
+    with pytest.raises(ValidationError, match="handoff"):
+        WorkerSettings(handoff="pigeon")  # type: ignore[arg-type]

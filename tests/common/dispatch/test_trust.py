@@ -185,13 +185,19 @@ def test_redispatch_counts_the_frames_earlier_shares_against_the_cap_regression(
     assert held <= 13
 
 
-def test_a_flood_of_new_members_is_tried_a_few_at_a_time() -> None:
+def _flooded(n_fakes: int) -> Dispatcher:
+    """A dispatcher with one honest member that answered, then ``n_fakes`` new members that never did."""
     d = Dispatcher(DispatchSettings(), 40)
     d.trust = TrustMonitor(TrustSettings(max_untested=4))
     d.join("foreman/a/0")
     d.record_success("foreman/a/0", 0, np.arange(40), 0.01)
-    for i in range(100):
+    for i in range(n_fakes):
         d.join(f"foreman/flood{i:03d}/0")
+    return d
+
+
+def test_a_flood_of_new_members_is_tried_a_few_at_a_time() -> None:
+    d = _flooded(100)
     tried = [m for m in d.active(now_s=0.0) if "flood" in m]
     assert len(tried) == 4 and "foreman/a/0" in d.active(now_s=0.0)
     for m in tried:  # they fail and are paused: the next ones are tried
@@ -202,12 +208,7 @@ def test_a_flood_of_new_members_is_tried_a_few_at_a_time() -> None:
 def test_a_failed_share_is_not_re_dispatched_to_members_that_never_answered_regression() -> None:
     """Seen in the hostile suite: each fake member's failure re-dispatched to the next untried fake, so one
     frame cascaded through all 100 fake liveliness tokens (650 failures a second, 9-18 % frames lost)."""
-    d = Dispatcher(DispatchSettings(), 40)
-    d.trust = TrustMonitor(TrustSettings(max_untested=4))
-    d.join("foreman/a/0")
-    d.record_success("foreman/a/0", 0, np.arange(40), 0.01)
-    for i in range(10):
-        d.join(f"foreman/flood{i}/0")
+    d = _flooded(10)
     plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
     victim = next(m for m in plan.assignment if "flood" in m)
     d.record_failure(victim, now_s=0.0)

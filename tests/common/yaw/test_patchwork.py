@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
+from common.camera import CameraModel
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
+from common.messages import LOCAL_YAW_SETTINGS, YawJobSettings
 from common.sim.flight import hover_flight
-from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
-from common.yaw.patchwork import (
-    PatchWorkError,
-    SpectrumCache,
-    measure_share,
-    merge_measurements,
-    settings_from_wire,
-    settings_to_wire,
-)
+from common.yaw import FftBackend, YawError, YawSettings, YawTracker, make_patch_grid
+from common.yaw.correlation import merge_measurements
+from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 
 
 @pytest.fixture(scope="module")
@@ -26,13 +25,20 @@ def frames() -> list[np.ndarray]:
 
 def test_settings_round_trip_and_rejects_unknown_or_wrong_types() -> None:
     settings = YawSettings(grid_cols=10, fft_backend=FftBackend.NUMPY, peak_sigma_px=1.5)
-    assert settings_from_wire(settings_to_wire(settings)) == settings
-    with pytest.raises(PatchWorkError, match="unknown"):
-        settings_from_wire({"colour": 1})
-    with pytest.raises(PatchWorkError, match="grid_cols"):
-        settings_from_wire({"grid_cols": "ten"})
-    with pytest.raises(PatchWorkError, match="fft_backend"):
-        settings_from_wire({"fft_backend": "cuda"})
+    wire = YawJobSettings.of(settings)
+    assert YawJobSettings.model_validate(wire.model_dump(mode="json")).yaw_settings == settings
+    for name, value in [("colour", 1), ("grid_cols", "ten"), ("grid_cols", True), ("fft_backend", "cuda"),
+                        ("peak_sigma_px", "1.5"), ("patch_size_px", 30.0)]:  # fmt: skip
+        with pytest.raises(ValidationError, match=name):
+            YawJobSettings.model_validate({**wire.model_dump(mode="json"), name: value})
+    with pytest.raises(ValidationError, match="invalid yaw settings"):  # bounded, but not a valid YawSettings
+        YawJobSettings.model_validate({**wire.model_dump(mode="json"), "patch_size_px": 9})
+
+
+def test_the_job_settings_carry_every_yaw_setting_but_the_lens() -> None:
+    core = {f.name for f in dataclasses.fields(YawSettings)}
+    assert set(YawJobSettings.model_fields) == core - LOCAL_YAW_SETTINGS
+    assert YawJobSettings.of(YawSettings(camera=CameraModel.default())).yaw_settings == YawSettings()
 
 
 @pytest.mark.parametrize("backend", [FftBackend.OPENCV, FftBackend.NUMPY])
@@ -88,9 +94,9 @@ def test_merge_rejects_gaps_and_overlaps(frames: list[np.ndarray]) -> None:
     part = measure_share(
         cache, settings, "s", 1, 0, idx, grid.crop(frames[1], idx), idx, grid.crop(frames[0], idx)
     )
-    with pytest.raises(PatchWorkError):
+    with pytest.raises(YawError):
         merge_measurements([part], np.arange(3))
-    with pytest.raises(PatchWorkError):
+    with pytest.raises(YawError):
         merge_measurements([part, part], np.arange(2))
 
 

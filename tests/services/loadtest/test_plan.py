@@ -17,6 +17,7 @@ from services.loadtest.plan import (
     Metric,
     analyse_fault,
     capacity_of,
+    compute_share,
     evaluate,
     latency_stats,
     metric_values,
@@ -136,3 +137,33 @@ def test_capacity_search_finds_the_largest_passing_count(capacity: int, limit: i
     else:
         raise AssertionError(f"search did not end: {tried}")
     assert capacity_of(tried) == min(capacity, limit)
+
+
+def test_without_a_truth_yaw_continuity_is_not_judged() -> None:
+    """A replayed recording has no true yaw: the yaw jump is NaN (unknown), never a reassuring 0, and an
+    objective on it is not met."""
+    records = [FrameRecord(r.seq, r.sent_s, r.received_s, r.yaw_rad, math.nan) for r in _stream(jump_at=120)]
+    summary = summarise("uav0", records, 0, 0.0)
+    assert math.isnan(summary.max_yaw_jump_deg) and summary.received == 200
+    outcome = analyse_fault(records, parse_fault("kill:master@5s"), 100.0, 110.0)
+    assert math.isnan(outcome.yaw_discontinuity_deg)
+    values = metric_values([summary], [[outcome]])
+    assert math.isnan(values[Metric.YAW_JUMP_DEG])
+    (verdict,) = evaluate([parse_objective("yaw_jump_deg<=1")], values)
+    assert not verdict.met
+
+
+@given(st.lists(st.tuples(st.integers(0, 40), st.integers(0, 40)), max_size=50))
+def test_the_cluster_share_counts_patches_and_frames_the_master_did_alone(
+    frames: list[tuple[int, int]],
+) -> None:
+    computed = [(min(own, total), total) for own, total in frames]
+    share = compute_share(computed)
+    measured = [(own, total) for own, total in computed if total > 0]  # an epoch's first frame has none
+    assert share.frames == len(measured)
+    assert share.frames_alone == sum(1 for own, total in measured if own == total)
+    assert 0.0 <= share.cluster_share <= 1.0
+    if measured:
+        own = sum(o for o, _ in measured)
+        total = sum(t for _, t in measured)
+        assert share.cluster_share == pytest.approx(1 - own / total)

@@ -1,0 +1,86 @@
+"""Declared bounds of the fields of frozen settings dataclasses: the bound stands beside its field, one check.
+
+``hold_s: float = bounded(1.0, gt=0.0)`` declares the default and the bound together (as pydantic's
+``Field(default=1.0, gt=0.0)`` does at the wire). A dataclass deriving from :class:`Bounded` checks every
+declared bound once constructed (:func:`check_bounds`) and raises :class:`~common.errors.InputError` naming
+the class, the field, the bound and the value. A bounded value must be a finite real number (not a bool);
+``optional=True`` also lets ``None`` pass (a value "scaled with the scene" or "off"). Rules between fields
+stay explicit code in the subclass's ``__post_init__``, after ``super().__post_init__()``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, TypeVar
+
+from common.errors import InputError
+
+T = TypeVar("T")
+_KEY = "bounds"
+
+
+@dataclasses.dataclass(frozen=True)
+class Bounds:
+    """Open (``gt``, ``lt``) and closed (``ge``, ``le``) limits of one field; None = no limit that side."""
+
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    optional: bool = False
+
+    def describe(self) -> str:
+        limits = ((">", self.gt), (">=", self.ge), ("<", self.lt), ("<=", self.le))
+        parts = [f"{op} {limit:g}" for op, limit in limits if limit is not None]
+        return "a finite number" + (" " + " and ".join(parts) if parts else "")
+
+    def holds(self, value: object) -> bool:
+        if value is None:
+            return self.optional
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            return False
+        return (
+            (self.gt is None or value > self.gt)
+            and (self.ge is None or value >= self.ge)
+            and (self.lt is None or value < self.lt)
+            and (self.le is None or value <= self.le)
+        )
+
+
+def bounded(
+    default: T,
+    *,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    optional: bool = False,
+) -> T:
+    """A dataclass field with ``default`` whose value :func:`check_bounds` checks against the limits."""
+    limits = Bounds(gt=gt, ge=ge, lt=lt, le=le, optional=optional)
+    return dataclasses.field(default=default, metadata={_KEY: limits})
+
+
+def field_bounds(cls: Any) -> dict[str, Bounds]:
+    """The declared bounds of a dataclass (or instance), by field name."""
+    return {f.name: f.metadata[_KEY] for f in dataclasses.fields(cls) if _KEY in f.metadata}
+
+
+def check_bounds(obj: Any) -> None:
+    """Raise :class:`InputError` naming the first field of ``obj`` outside its declared bounds."""
+    for name, limits in field_bounds(obj).items():
+        value = getattr(obj, name)
+        if not limits.holds(value):
+            raise InputError(f"{type(obj).__name__}.{name} must be {limits.describe()}, got {value!r}")
+
+
+class Bounded:
+    """Base of a frozen settings dataclass whose fields declare bounds: they are checked once constructed.
+
+    A subclass with rules between fields overrides ``__post_init__`` and calls ``super().__post_init__()``
+    first.
+    """
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
