@@ -1,133 +1,31 @@
-"""Every message on the wire, and the ONE codec that carries them.
+"""Every message on the wire: sensors, estimates, work and service messages, and their registry.
 
-Encoding (schema version :data:`SCHEMA_VERSION`): a message becomes two byte strings,
-
-- ``attachment`` = a msgpack map ``{"v": version, "t": type, "f": {scalar fields}, "a": [[name, dtype,
-  shape, nbytes], ...]}`` (the header), and
-- ``payload`` = the raw bytes of the message's arrays, concatenated in header order (pixels, crops).
-
-Zenoh carries the header as the sample/query attachment and the raw bytes as the payload, so images
-never pass through msgpack. A message without arrays may also travel as the header alone in the payload
-(``attachment=None``), which is how error replies travel (``reply_err`` has no attachment).
-
-:func:`decode` validates everything once, at the boundary, and raises :class:`WireError` naming what is
-wrong: not msgpack, wrong version, unknown type, unknown or missing field, truncated or oversized payload,
-dtype or shape mismatch, NaN/inf.
+Their base and bounds: :mod:`common.wire`; the one codec that carries them: :mod:`common.codec`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar, Literal, TypeVar
+import functools
+from typing import ClassVar, Literal
 
-import msgpack
 import numpy as np
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    PrivateAttr,
-    StringConstraints,
-    ValidationError,
-    model_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
-from common.errors import CapatazError, InputError
+from common.errors import InputError
 from common.provenance import Provenance
-from common.yaw.settings import FftBackend, FitModel, YawSettings
-
-#: Bump when a field changes meaning; decoders reject other versions.
-SCHEMA_VERSION = 1
-#: Array dtypes allowed on the wire (little-endian, fixed size).
-WIRE_DTYPES: frozenset[str] = frozenset(
-    {"|u1", "|b1", "<i4", "<i8", "<u4", "<f4", "<f8", "<c8", "<c16"},
+from common.wire import (
+    MAX_CROP_SIDE_PX,
+    MAX_FRAME_SIDE_PX,
+    MAX_JOB_PATCHES,
+    MAX_JOB_PIXELS,
+    MAX_SEQ,
+    ArraySpec,
+    Uav,
+    WireModel,
+    frame_id_field,
 )
-#: Parsed wire dtypes (a dtype string parsed for every array of every message costs more than the check).
-WIRE_NP_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in WIRE_DTYPES}
-#: Largest header accepted (bytes); arrays travel in the payload, so headers are small.
-MAX_HEADER_BYTES = 1 << 20
-#: Wire bounds: every count and size a sender chooses is bounded here, at the boundary.
-MAX_NAME_CHARS = 64  # UAV ids, stream names
-MAX_SEQ = (1 << 63) - 1  # msgpack's signed range
-MAX_FRAME_SIDE_PX = 8192
-MAX_JOB_PATCHES = 4096
-MAX_CROP_SIDE_PX = 512
-MAX_JOB_PIXELS = 1 << 24  # crops + previous crops of one job (16 MB)
-
-
-class WireError(CapatazError):
-    """A message could not be encoded or decoded (the text names what is wrong)."""
-
-
-@dataclass(frozen=True)
-class ArraySpec:
-    """What an array field must look like: dtype and shape (``None`` = any length on that axis)."""
-
-    dtype: str
-    shape: tuple[int | None, ...]
-    finite: bool = True
-
-    def __post_init__(self) -> None:
-        # resolved once: this check runs for every array of every decoded message
-        object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
-        fixed = tuple((axis, n) for axis, n in enumerate(self.shape) if n is not None)
-        object.__setattr__(self, "_fixed", fixed)
-        object.__setattr__(self, "_check_finite", self.finite and np.dtype(self.dtype).kind in "fc")
-
-    def check(self, name: str, value: Any) -> np.ndarray:
-        want: np.dtype[Any] = self._np_dtype  # type: ignore[attr-defined]
-        if not isinstance(value, np.ndarray):
-            try:
-                value = np.asarray(value, dtype=want)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"{name}: cannot convert to {self.dtype} array: {exc}") from exc
-        if value.dtype != want:
-            if value.dtype.kind in "fciub" and np.can_cast(value.dtype, want, casting="same_kind"):
-                value = value.astype(want)
-            else:
-                raise ValueError(f"{name}: expected dtype {self.dtype}, got {value.dtype.str}")
-        shape = value.shape
-        if len(shape) != len(self.shape) or any(shape[axis] != n for axis, n in self._fixed):  # type: ignore[attr-defined]
-            pattern = tuple("n" if s is None else s for s in self.shape)
-            raise ValueError(f"{name}: expected shape {pattern}, got {value.shape}")
-        if self._check_finite and value.size and not np.isfinite(value).all():  # type: ignore[attr-defined]
-            raise ValueError(f"{name}: contains NaN or inf")
-        return np.asarray(value)  # the array itself (typed)
-
-
-class WireModel(BaseModel):
-    """Base of every message: frozen, no unknown fields, numpy arrays for :attr:`ARRAYS`."""
-
-    # allow_inf_nan=False: pydantic-core rejects NaN/inf in float fields and dict[str, float] values itself
-    model_config = ConfigDict(frozen=True, extra="forbid", arbitrary_types_allowed=True, allow_inf_nan=False)
-    #: field name -> spec; these fields travel as raw bytes in the payload.
-    ARRAYS: ClassVar[dict[str, ArraySpec]] = {}
-
-    @model_validator(mode="before")
-    @classmethod
-    def _check_arrays(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            data = dict(data)
-            for name, spec in cls.ARRAYS.items():
-                if name in data:
-                    try:
-                        data[name] = spec.check(name, data[name])
-                    except ValueError as exc:
-                        raise ValueError(str(exc)) from None
-        return data
-
-
-Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
-#: Frames of reference (``frame_id``; README "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
-#: ``body`` (FLU: x forward, y left, z up), ``camera`` (OpenCV optical: x right, y down, z along the axis).
-FRAME_ID_PATTERN = r"^[A-Za-z0-9_./-]{1,64}$"
-
-
-def frame_id_field(default: str) -> Any:
-    """The ``frame_id`` of a message: the frame its data is expressed in (estimates: their parent frame)."""
-    return Field(default=default, pattern=FRAME_ID_PATTERN)
+from common.yaw.settings import FftBackend, FitModel, YawSettings
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -286,8 +184,8 @@ class YawJobSettings(BaseModel):
     @model_validator(mode="after")
     def _valid_yaw_settings(self) -> YawJobSettings:
         try:
-            self._yaw_settings = YawSettings(
-                **{name: getattr(self, name) for name in type(self).model_fields}
+            self._yaw_settings = _yaw_settings(
+                tuple((name, getattr(self, name)) for name in type(self).model_fields)
             )
         except InputError as exc:
             raise ValueError(f"invalid yaw settings: {exc}") from None
@@ -303,6 +201,12 @@ class YawJobSettings(BaseModel):
     def yaw_settings(self) -> YawSettings:
         """The core's settings object (no lens model)."""
         return self._yaw_settings
+
+
+@functools.lru_cache(maxsize=16)
+def _yaw_settings(values: tuple[tuple[str, object], ...]) -> YawSettings:
+    """A job's core settings: jobs carry the same few, so each is built and checked once, then looked up."""
+    return YawSettings(**dict(values))  # type: ignore[arg-type]
 
 
 #: Yaw settings only the central stage uses (the lens model): never sent to members.
@@ -472,131 +376,3 @@ MESSAGE_TYPES: dict[str, type[WireModel]] = {
         ErrorReply,
     )
 }
-
-M = TypeVar("M", bound=WireModel)
-
-
-def encode(message: WireModel) -> tuple[bytes, bytes]:
-    """Return ``(payload, attachment)``: raw array bytes and the msgpack header."""
-    name = type(message).__name__
-    if MESSAGE_TYPES.get(name) is not type(message):
-        raise WireError(f"cannot encode {name}: not a registered message type")
-    fields: dict[str, Any] = {}
-    for key in type(message).model_fields:
-        if key not in message.ARRAYS:
-            value = getattr(message, key)
-            # a nested model (a job's settings) travels as a map, its enums by value
-            fields[key] = value.model_dump(mode="json") if isinstance(value, BaseModel) else value
-    descriptors = []
-    chunks = []
-    for key in message.ARRAYS:
-        arr = np.ascontiguousarray(getattr(message, key))
-        descriptors.append([key, arr.dtype.str, list(arr.shape), arr.nbytes])
-        chunks.append(arr.tobytes())
-    try:
-        header = msgpack.packb(
-            {"v": SCHEMA_VERSION, "t": name, "f": fields, "a": descriptors}, use_bin_type=True
-        )
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise WireError(f"cannot encode {name}: {exc}") from exc
-    return b"".join(chunks), header
-
-
-def encode_header_only(message: WireModel) -> bytes:
-    """Encode an array-free message as one byte string (for ``reply_err`` and plain puts)."""
-    payload, header = encode(message)
-    if payload:
-        raise WireError(f"{type(message).__name__} has arrays; it needs payload and attachment")
-    return header
-
-
-def _unpack_header(attachment: bytes) -> dict[str, Any]:
-    if len(attachment) > MAX_HEADER_BYTES:
-        raise WireError(f"header too large: {len(attachment)} bytes > {MAX_HEADER_BYTES}")
-    try:
-        header = msgpack.unpackb(attachment, raw=False, strict_map_key=True)
-    except Exception as exc:  # msgpack raises several unrelated types for garbage
-        raise WireError(f"header is not valid msgpack ({type(exc).__name__}: {exc})") from None
-    if not isinstance(header, dict):
-        raise WireError(f"header must be a map, got {type(header).__name__}")
-    unknown = set(header) - {"v", "t", "f", "a"}
-    if unknown:
-        raise WireError(f"header has unknown keys {sorted(map(str, unknown))}")
-    if header.get("v") != SCHEMA_VERSION:
-        raise WireError(f"wrong schema version {header.get('v')!r}, expected {SCHEMA_VERSION}")
-    return header
-
-
-def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | None = None) -> M:
-    """Decode and validate one message; raise :class:`WireError` naming the problem.
-
-    ``attachment=None`` means the payload is the header alone (array-free messages).
-    ``expected`` restricts the type (a subclass such as :class:`BlockJob` is not a :class:`PatchJob`).
-    """
-    if attachment is None:
-        if payload is None:
-            raise WireError("empty message: no payload and no attachment")
-        attachment, payload = payload, b""
-    payload = payload or b""
-    header = _unpack_header(attachment)
-    name = header.get("t")
-    cls = MESSAGE_TYPES.get(name) if isinstance(name, str) else None
-    if cls is None:
-        raise WireError(f"unknown message type {name!r}")
-    if expected is not None and cls is not expected:
-        raise WireError(f"expected {expected.__name__}, got {name}")
-    fields = header.get("f")
-    descriptors = header.get("a")
-    if not isinstance(fields, dict) or not isinstance(descriptors, list):
-        raise WireError(f"{name}: header fields must be a map and arrays a list")
-    values: dict[str, Any] = dict(fields)
-    offset = 0
-    view = memoryview(payload)
-    for item in descriptors:
-        if not (isinstance(item, list) and len(item) == 4):
-            raise WireError(f"{name}: array descriptor must be [name, dtype, shape, nbytes], got {item!r}")
-        key, dtype, shape, nbytes = item
-        if key not in cls.ARRAYS:
-            raise WireError(f"{name}: unknown array field {key!r}")
-        if key in values:
-            raise WireError(f"{name}: field {key!r} given twice")
-        np_dtype = WIRE_NP_DTYPES.get(dtype) if isinstance(dtype, str) else None
-        if np_dtype is None:
-            raise WireError(f"{name}.{key}: dtype {dtype!r} not allowed on the wire")
-        if not (
-            isinstance(shape, list)
-            and len(shape) <= 8
-            and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape)
-        ):
-            raise WireError(f"{name}.{key}: bad shape {shape!r}")
-        if not isinstance(nbytes, int) or nbytes != math.prod(shape) * np_dtype.itemsize:
-            raise WireError(f"{name}.{key}: shape {shape} of {dtype} does not match nbytes {nbytes!r}")
-        if offset + nbytes > len(view):
-            raise WireError(
-                f"{name}.{key}: truncated payload ({len(view)} bytes, arrays need at least {offset + nbytes})"
-            )
-        values[key] = np.frombuffer(view[offset : offset + nbytes], dtype=np_dtype).reshape(shape)
-        offset += nbytes
-    if offset != len(view):
-        raise WireError(f"{name}: payload has {len(view) - offset} bytes more than its arrays declare")
-    try:
-        return cls.model_validate(values)  # type: ignore[return-value]
-    except ValidationError as exc:
-        problems = "; ".join(
-            f"{'.'.join(map(str, err['loc'])) or 'message'}: {err['msg']}" for err in exc.errors()[:5]
-        )
-        raise WireError(f"{name}: {problems}") from None
-
-
-def error_reply(kind: str, error: str) -> bytes:
-    """The one-string body of an error reply."""
-    return encode_header_only(ErrorReply(kind=kind, error=error[:2000]))
-
-
-def read_error_reply(payload: bytes) -> str:
-    """Text of an error reply body (also when it is not a well-formed :class:`ErrorReply`)."""
-    try:
-        reply = decode(payload, None, ErrorReply)
-    except WireError:
-        return payload[:200].decode("utf-8", "replace")
-    return f"{reply.kind}: {reply.error}"

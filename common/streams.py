@@ -29,6 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Generic, TypeVar
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 
 #: Stamps within this many seconds of the wall clock are taken as wall-clock stamps (checked against it).
@@ -57,35 +58,22 @@ class Decision:
         return self.verdict is not Verdict.REFUSE
 
 
-def check_positive(settings: object, names: tuple[str, ...]) -> None:
-    """Each named field of ``settings`` must be finite and > 0 (else :class:`InputError` naming it)."""
-    for name in names:
-        value = getattr(settings, name)
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"{name} must be finite and > 0, got {value}")
-
-
 @dataclass(frozen=True)
-class FrameGateSettings:
+class FrameGateSettings(Bounded):
     """Bounds of a camera stream."""
 
     #: largest forward seq step accepted within an epoch (a longer gap is a jump)
-    max_seq_jump: int = 200
+    max_seq_jump: int = bounded(200, ge=1)
     #: largest stamp advance beyond ``max_rate`` x the wall-clock time elapsed since the previous frame (s)
-    max_stamp_jump_s: float = 5.0
+    max_stamp_jump_s: float = bounded(5.0, gt=0.0)
     #: fastest a stream's clock may run against the wall clock (replays faster than real time)
-    max_rate: float = 4.0
+    max_rate: float = bounded(4.0, gt=0.0)
     #: refused frames that agree, in a row, needed to start a new epoch
-    confirm_frames: int = 3
+    confirm_frames: int = bounded(3, ge=1)
     #: after this long without a frame of the current epoch, one consistent frame starts a new epoch
-    silence_s: float = 1.0
+    silence_s: float = bounded(1.0, gt=0.0)
     #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
-    max_future_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.max_seq_jump < 1 or self.confirm_frames < 1:
-            raise InputError("max_seq_jump and confirm_frames must be >= 1")
-        check_positive(self, ("max_stamp_jump_s", "silence_s", "max_future_s", "max_rate"))
+    max_future_s: float = bounded(1.0, gt=0.0)
 
 
 @dataclass(frozen=True)
@@ -215,22 +203,17 @@ def admit_frame(
 
 
 @dataclass(frozen=True)
-class StampGuardSettings:
+class StampGuardSettings(Bounded):
     """Bounds of one sensor's time stamps."""
 
     #: a stamp may run ahead of the stream's previous stamp by the wall-clock time elapsed plus this (s)
-    max_ahead_s: float = 2.0
+    max_ahead_s: float = bounded(2.0, gt=0.0)
     #: fastest the stream's clock may run against the wall clock (replays faster than real time)
-    max_rate: float = 4.0
+    max_rate: float = bounded(4.0, gt=0.0)
     #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
-    max_future_s: float = 1.0
+    max_future_s: float = bounded(1.0, gt=0.0)
     #: refused stamps that agree with each other, in a row, needed to adopt a jumped clock
-    confirm_samples: int = 5
-
-    def __post_init__(self) -> None:
-        if self.confirm_samples < 1:
-            raise InputError("confirm_samples must be >= 1")
-        check_positive(self, ("max_ahead_s", "max_rate", "max_future_s"))
+    confirm_samples: int = bounded(5, ge=1)
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,9 @@ from typing import TypeVar
 import zenoh
 
 from common import keys
-from common.messages import Stats, WireError, WireModel, YawEstimate, decode
+from common.codec import decode
+from common.messages import Stats, YawEstimate
+from common.wire import WireError, WireModel
 from services.runtime.transport import zbytes
 
 #: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service

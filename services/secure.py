@@ -119,6 +119,25 @@ def participant_environment(
     return {"CAPATAZ_ZENOH_CONFIG": str(zenoh_config)} if zenoh_config else {}
 
 
+def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--zenoh-config FILE`` and ``--secure [DIR]`` of the commands that start a local cluster."""
+    parser.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="zenoh configuration file for every process (env CAPATAZ_ZENOH_CONFIG)",
+    )
+    parser.add_argument(
+        "--secure",
+        type=Path,
+        nargs="?",
+        const=DEFAULT_DIR,
+        metavar="DIR",
+        help=f"secure profile: mutual TLS + access control, certificates and config in DIR "
+        f"(default {DEFAULT_DIR}; made when missing)",
+    )
+
+
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("secure", help="secure profile: certificates, access-control config")
     sub = parser.add_subparsers(dest="secure_command", required=True, metavar="WHAT")

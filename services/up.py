@@ -205,8 +205,13 @@ class LocalCluster:
 
     def observer_transport(self) -> TransportSettings:
         """The transport of our own observing session (a read-only ``client`` in the secure profile)."""
+        return self.participant_transport("client")
+
+    def participant_transport(self, common_name: str) -> TransportSettings:
+        """The transport of a session of our own holding ``common_name``'s certificate (secure profile),
+        e.g. ``camera.uav3`` for a harness that publishes that UAV's frames."""
         return TransportSettings.from_env(
-            environ=participant_environment(self.secure, self.zenoh_config, "client"),
+            environ=participant_environment(self.secure, self.zenoh_config, common_name),
             connect=(self.router,),
             listen=(f"{self.scheme}/127.0.0.1:0",),
             shared_memory=self.shared_memory,
@@ -327,10 +332,11 @@ class LocalCluster:
             deadline = time.monotonic() + timeout_s
             with lock:
                 while not names <= seen:
+                    # a process awaited, or any that failed (a camera whose flight ended is not a failure)
                     dead = [
                         n
                         for n, p in self.processes.items()
-                        if p.poll() is not None and n not in self._stopped
+                        if p.poll() is not None and n not in self._stopped and (n in names or p.returncode)
                     ]
                     if dead:
                         raise ClusterError(f"{dead} exited during start-up; see logs in {self.log_dir}")

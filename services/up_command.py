@@ -23,8 +23,7 @@ from services.observe import StatsWatch, YawCollector, member_rows
 from services.report import print_table
 from services.runtime.transport import open_session
 from services.runtime.usage import number_in
-from services.secure import DEFAULT_DIR as SECURE_DIR
-from services.secure import SecureProfile
+from services.secure import SecureProfile, add_profile_arguments
 from services.up import ClusterSpec, LocalCluster, load_cluster
 
 
@@ -86,21 +85,7 @@ def register(subparsers: Any) -> None:
         default="",
         help='extra master options (yaw settings), e.g. "--grid 8x5 --patch-size 32"',
     )
-    parser.add_argument(
-        "--zenoh-config",
-        type=Path,
-        metavar="FILE",
-        help="zenoh configuration file for every process (env CAPATAZ_ZENOH_CONFIG)",
-    )
-    parser.add_argument(
-        "--secure",
-        type=Path,
-        nargs="?",
-        const=SECURE_DIR,
-        metavar="DIR",
-        help=f"secure profile: mutual TLS + access control, certificates and config in DIR "
-        f"(default {SECURE_DIR}; made when missing)",
-    )
+    add_profile_arguments(parser)
     parser.set_defaults(handler=run)
 
 

@@ -25,7 +25,8 @@ from pydantic.json_schema import GenerateJsonSchema
 from common.datasets.source import in_stamp_order
 from common.errors import InputError
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, WireModel
+from common.messages import Frame, ImuSample, PoseEstimate, RangeSample
+from common.wire import WireModel
 
 #: suffix of the derived PoseInFrame channel of a pose key
 IN_FRAME = "/in_frame"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from common.bounds import Bounded, bounded
 from common.estimation.vo import MotionModel
 from common.types import FloatArray
 
@@ -26,7 +27,7 @@ class ScaleSource(enum.Enum):
 
 
 @dataclass(frozen=True)
-class CouplingSettings:
+class CouplingSettings(Bounded):
     """How the two layers are coupled."""
 
     #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's
@@ -34,7 +35,7 @@ class CouplingSettings:
     rectify: bool = True
     #: Time constant (s) pulling the rectification attitude (gyro-propagated between frames) towards the
     #: EKF's; 0 rectifies with the EKF attitude of each frame as it is.
-    rectification_smoothing_s: float = 0.0
+    rectification_smoothing_s: float = bounded(0.0, ge=0.0)
     #: Metric scale of the VO: the EKF altitude (coupled) or the last rangefinder reading as it is
     #: (the uncoupled, traditional VO: longer than the height when tilted, and noisy).
     scale_from: ScaleSource = ScaleSource.EKF
@@ -49,7 +50,7 @@ class CouplingSettings:
     #: along the chain, so the error is ``h_k d_k - h_0 d_0`` with ``0`` the origin frame. An origin
     #: before the EKF's tilt has settled from the first accelerometer sample leaves that transient in
     #: ``d_0`` for the whole flight.
-    vo_origin_delay_s: float = 0.0
+    vo_origin_delay_s: float = bounded(0.0, ge=0.0)
     #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
     #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
     #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
@@ -57,28 +58,28 @@ class CouplingSettings:
     vision_tilt_correction: bool = True
     #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
     #: pairs) it needs before it is used.
-    vision_tilt_window_s: float = 5.0
-    vision_tilt_min_information: float = 1e-3
+    vision_tilt_window_s: float = bounded(5.0, gt=0.0)
+    vision_tilt_min_information: float = bounded(1e-3, ge=0.0)
     #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
     visual_yaw: bool = True
     #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
     external_yaw: bool = False
-    vo_yaw_noise_rad: float = 0.005
-    external_yaw_noise_rad: float = 0.02
+    vo_yaw_noise_rad: float = bounded(0.005, gt=0.0)
+    external_yaw_noise_rad: float = bounded(0.02, gt=0.0)
     #: Samples are held until this much older than the newest stamp, then applied in order.
-    max_lag_s: float = 0.02
-    max_pending: int = 4096
+    max_lag_s: float = bounded(0.02, ge=0.0)
+    max_pending: int = bounded(4096, ge=1)
     #: Altitude assumed before the first range reading, and its std.
-    default_altitude_m: float = 1.0
-    default_altitude_std_m: float = 2.0
+    default_altitude_m: float = bounded(1.0, ge=0.0)
+    default_altitude_std_m: float = bounded(2.0, gt=0.0)
     #: Compensate the accelerometer for the manoeuvre acceleration estimated from the VO positions (the
     #: hover model of eq. 16 alone reads the coordinated tilt of a turn as level).
     accel_compensation: bool = True
     #: Time span of the VO positions fitted (cubic in time) for that acceleration.
-    accel_window_s: float = 0.6
+    accel_window_s: float = bounded(0.6, gt=0.0)
     #: After the start, skip the accelerometer for up to this long until the VO acceleration is available
     #: (0: use the hover model meanwhile, right for a start at rest; > 0 for a start in mid-manoeuvre).
-    accel_wait_for_vo_s: float = 0.0
+    accel_wait_for_vo_s: float = bounded(0.0, ge=0.0)
     #: The attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF.
     filter: FilterKind = FilterKind.BIAS
     #: Uncertainty-aware rectification: the output position is the inverse-variance blend
@@ -89,7 +90,7 @@ class CouplingSettings:
     #: falls back to the free chain; False always trusts the level model (paper C's rectified VO).
     uncertainty_aware: bool = True
     #: Drift of the free chain per metre travelled (1-sigma, the traditional VO's RPE on the simulator).
-    free_drift_per_m: float = 0.004
+    free_drift_per_m: float = bounded(0.004, ge=0.0)
     #: With the bias filter: correct the VO origin's offset ``h_0 d_0`` with the tilt error its frame had,
     #: re-estimated from how much the accelerometer-bias estimate changed since (at hover a bias error
     #: ``db`` reads as a tilt error of ``db / g``).
@@ -100,7 +101,7 @@ class CouplingSettings:
     #: Range updates refused this many samples in a row restart the altitude from the reading.
     range_reset_samples: int = 25
     #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
-    initial_yaw_rad: float = 0.0
+    initial_yaw_rad: float = bounded(0.0)
     initial_position_m: tuple[float, float] = (0.0, 0.0)
     #: Known initial attitude ``q_world_body`` (else roll and pitch from the first accelerometer sample).
     initial_q_world_body: tuple[float, float, float, float] | None = None

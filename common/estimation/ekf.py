@@ -19,15 +19,16 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.estimation.ekf_models import (
     STANDARD_GRAVITY_M_S2,
     EkfError,
     accelerometer_model,
-    check_settings_numbers,
-    checked_initial_attitude,
+    check_initial,
     chi_square_quantile,
     error_angle_covariance_world,
+    expected_specific_force,
     normalized_quaternion,
     propagate_quaternion,
     rangefinder_model,
@@ -50,47 +51,29 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class EkfSettings:
+class EkfSettings(Bounded):
     """Noise parameters and gates of the EKF (all standard deviations, SI units)."""
 
-    gravity_m_s2: float = STANDARD_GRAVITY_M_S2
+    gravity_m_s2: float = bounded(STANDARD_GRAVITY_M_S2, gt=0.0)
     #: Gyro white noise per sample (rad/s); enters Q through the quaternion kinematics.
-    gyro_noise_rad_s: float = 0.01
+    gyro_noise_rad_s: float = bounded(0.01, gt=0.0)
     #: Extra attitude random walk (rad/sqrt(s)) that absorbs the unmodelled gyro bias.
-    attitude_random_walk_rad_sqrt_s: float = 0.003
+    attitude_random_walk_rad_sqrt_s: float = bounded(0.003, ge=0.0)
     #: Altitude random walk (m/sqrt(s)) of the constant-altitude model (F_s = 1).
-    altitude_random_walk_m_sqrt_s: float = 0.03
+    altitude_random_walk_m_sqrt_s: float = bounded(0.03, ge=0.0)
     #: Accelerometer noise (m/s^2) of the hover model, including unmodelled manoeuvre accelerations.
-    accel_noise_m_s2: float = 0.5
+    accel_noise_m_s2: float = bounded(0.5, gt=0.0)
     #: Skip the accelerometer update when | |a| - g | exceeds this (the vehicle is accelerating).
-    accel_norm_tolerance_m_s2: float = 1.0
+    accel_norm_tolerance_m_s2: float = bounded(1.0, gt=0.0)
     #: Noise of each component of the yaw observation ``[cos psi, sin psi]`` (about rad for small errors).
-    yaw_noise_rad: float = 0.01
+    yaw_noise_rad: float = bounded(0.01, gt=0.0)
     #: Rangefinder noise (m).
-    range_noise_m: float = 0.02
+    range_noise_m: float = bounded(0.02, gt=0.0)
     #: Probability mass inside the chi-square gate; innovations outside it are refused.
-    gate_probability: float = 0.9999
+    gate_probability: float = bounded(0.9999, gt=0.5, lt=1.0)
     #: Initial standard deviations.
-    initial_attitude_std_rad: float = 0.05
-    initial_altitude_std_m: float = 0.1
-
-    def __post_init__(self) -> None:
-        check_settings_numbers(
-            self,
-            positive=(
-                "gravity_m_s2",
-                "gyro_noise_rad_s",
-                "accel_noise_m_s2",
-                "accel_norm_tolerance_m_s2",
-                "yaw_noise_rad",
-                "range_noise_m",
-                "initial_attitude_std_rad",
-                "initial_altitude_std_m",
-            ),
-            non_negative=("attitude_random_walk_rad_sqrt_s", "altitude_random_walk_m_sqrt_s"),
-        )
-        if not 0.5 < self.gate_probability < 1.0:
-            raise InputError(f"EkfSettings.gate_probability must be in (0.5, 1), got {self.gate_probability}")
+    initial_attitude_std_rad: float = bounded(0.05, gt=0.0)
+    initial_altitude_std_m: float = bounded(0.1, gt=0.0)
 
 
 @dataclass(frozen=True)
@@ -138,7 +121,7 @@ class AttitudeAltitudeEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> EkfState:
         """A state at ``stamp_s`` with the settings' initial uncertainty."""
-        qn = checked_initial_attitude(q_world_body, pz_m, stamp_s)
+        qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
         P = np.zeros((5, 5))
         # attitude angle std theta gives quaternion std theta/2 in the three directions orthogonal to q
@@ -209,13 +192,10 @@ class AttitudeAltitudeEkf:
         """
         ax, ay, az = three_floats(accel_m_s2)
         s = self.settings
-        mx, my, mz = motion_accel_world_m_s2
-        f_world = (mx, my, mz + s.gravity_m_s2)
-        norm = math.sqrt(ax * ax + ay * ay + az * az)
-        if not math.isfinite(norm):
-            raise InputError(f"accel_m_s2 must be finite, got {(ax, ay, az)}")
-        expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
-        if abs(norm - expected) > s.accel_norm_tolerance_m_s2:
+        f_world = expected_specific_force(
+            (ax, ay, az), motion_accel_world_m_s2, s.gravity_m_s2, s.accel_norm_tolerance_m_s2
+        )
+        if f_world is None:
             return UpdateResult(state=state, accepted=False, nis=math.nan)
         q = state.q_world_body.tolist()
         h, Hq = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)

@@ -260,31 +260,36 @@ def normalized_quaternion(
     return (q0 * inv, q1 * inv, q2 * inv, q3 * inv), False
 
 
-def check_settings_numbers(
-    settings: object, positive: tuple[str, ...], non_negative: tuple[str, ...]
-) -> None:
-    """Settings fields that must be finite and > 0, or finite and >= 0 (InputError naming the field)."""
-    kind = type(settings).__name__
-    for names, low_ok in ((positive, False), (non_negative, True)):
-        for name in names:
-            value = getattr(settings, name)
-            if not (math.isfinite(value) and (value >= 0.0 if low_ok else value > 0.0)):
-                bound = ">= 0" if low_ok else "> 0"
-                raise InputError(f"{kind}.{name} must be finite and {bound}, got {value}")
-
-
-def checked_initial_attitude(
+def check_initial(
     q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float
-) -> tuple[float, float, float, float]:
-    """The filters' initial-state inputs checked: a (4,) quaternion (normalised, q0 >= 0), finite altitude
-    and stamp."""
+) -> tuple[tuple[float, float, float, float], float, float]:
+    """A filter's starting point checked: the unit quaternion ``q_world_body`` (q0 >= 0), altitude and stamp
+    as floats; a malformed quaternion or a non-finite altitude or stamp raises :class:`InputError`."""
     q = check_quaternion(q_world_body, "q_world_body")
     if q.shape != (4,):
         raise InputError(f"q_world_body must have shape (4,), got {q.shape}")
     if not (math.isfinite(pz_m) and math.isfinite(stamp_s)):
         raise InputError("pz_m and stamp_s must be finite")
     qn, _ = normalized_quaternion(*(float(v) for v in q))
-    return qn
+    return qn, float(pz_m), float(stamp_s)
+
+
+def expected_specific_force(
+    measured_m_s2: tuple[float, float, float],
+    motion_accel_world_m_s2: tuple[float, float, float],
+    gravity_m_s2: float,
+    tolerance_m_s2: float,
+) -> tuple[float, float, float] | None:
+    """The specific force the accelerometer should read, in the world (``a + g e_z``), or None when the
+    measured one's norm is further than ``tolerance_m_s2`` from it (the vehicle accelerates beyond the model:
+    the update is skipped). A non-finite measurement raises :class:`InputError`."""
+    mx, my, mz = motion_accel_world_m_s2
+    f_world = (mx, my, mz + gravity_m_s2)
+    norm = math.sqrt(sum(v * v for v in measured_m_s2))
+    if not math.isfinite(norm):
+        raise InputError(f"accel_m_s2 must be finite, got {measured_m_s2}")
+    expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
+    return None if abs(norm - expected) > tolerance_m_s2 else f_world
 
 
 def with_reset_block(covariance: FloatArray, index: int | slice, variance: float) -> FloatArray:

@@ -38,13 +38,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import bounded
 from common.errors import InputError
 from common.estimation import eskf_kernels as kernels
 from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import (
     EkfError,
-    check_settings_numbers,
-    checked_initial_attitude,
+    check_initial,
     chi_square_quantile,
     rangefinder_model,
     with_reset_block,
@@ -68,39 +68,22 @@ _ZERO3 = np.zeros(3)
 
 @dataclass(frozen=True)
 class BiasEkfSettings(EkfSettings):
-    """:class:`EkfSettings` plus the bias states' priors and random walks."""
+    """:class:`EkfSettings` plus the bias states' priors and random walks, and the inertial navigation's."""
 
     #: The gyro bias state replaces most of the attitude random walk that absorbs it in the 5-state filter.
-    attitude_random_walk_rad_sqrt_s: float = 0.0005
-    initial_gyro_bias_std_rad_s: float = 0.01
-    initial_accel_bias_std_m_s2: float = 0.1
-    gyro_bias_walk_rad_s_sqrt_s: float = 2e-5
-    accel_bias_walk_m_s2_sqrt_s: float = 2e-4
+    attitude_random_walk_rad_sqrt_s: float = bounded(0.0005, ge=0.0)
+    initial_gyro_bias_std_rad_s: float = bounded(0.01, ge=0.0)
+    initial_accel_bias_std_m_s2: float = bounded(0.1, ge=0.0)
+    gyro_bias_walk_rad_s_sqrt_s: float = bounded(2e-5, ge=0.0)
+    accel_bias_walk_m_s2_sqrt_s: float = bounded(2e-4, ge=0.0)
     #: Horizontal velocity: initial std and random walk (the accelerometer's white noise integrated).
-    initial_velocity_std_m_s: float = 0.5
-    velocity_random_walk_m_s_sqrt_s: float = 0.01
+    initial_velocity_std_m_s: float = bounded(0.5, ge=0.0)
+    velocity_random_walk_m_s_sqrt_s: float = bounded(0.01, ge=0.0)
     #: Std of the horizontal position measurement (the visual odometry's free chain) per frame.
-    position_noise_m: float = 0.01
+    position_noise_m: float = bounded(0.01, gt=0.0)
     #: The accelerometer's noise grows by this share of the manoeuvre acceleration it is compensated for
     #: (that estimate, fitted to VO positions, is about as uncertain as it is large in fast manoeuvres).
-    motion_accel_noise_share: float = 1.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_settings_numbers(
-            self,
-            positive=(),
-            non_negative=(
-                "initial_gyro_bias_std_rad_s",
-                "initial_accel_bias_std_m_s2",
-                "gyro_bias_walk_rad_s_sqrt_s",
-                "accel_bias_walk_m_s2_sqrt_s",
-                "initial_velocity_std_m_s",
-                "velocity_random_walk_m_s_sqrt_s",
-                "position_noise_m",
-                "motion_accel_noise_share",
-            ),
-        )
+    motion_accel_noise_share: float = bounded(1.0, ge=0.0)
 
 
 @dataclass(frozen=True)
@@ -229,7 +212,7 @@ class BiasAwareEkf:
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> BiasEkfState:
         """A state at ``stamp_s``, at rest, zero biases, the settings' initial uncertainty."""
-        qn = checked_initial_attitude(q_world_body, pz_m, stamp_s)
+        qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
         diag = np.r_[
             np.full(3, s.initial_attitude_std_rad**2),

@@ -4,7 +4,7 @@ the error-state EKF with bias states. The coupling holds either; these dispatch 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -25,30 +25,28 @@ def make_filter(kind: FilterKind, settings: EkfSettings | None = None) -> AnyFil
     return AttitudeAltitudeEkf(settings)
 
 
+def _call(ekf: AnyFilter, state: AnyState, method: str, *args: Any) -> Any:
+    """``ekf.method(state, *args)`` (both filters share the names) once the state is the filter's kind."""
+    if not (
+        (isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf))
+        or (isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf))
+    ):
+        raise EkfError("filter and state kinds differ")
+    return getattr(ekf, method)(state, *args)
+
+
 def with_altitude(ekf: AnyFilter, state: AnyState, pz_m: float, std_m: float) -> AnyState:
     """The state with its altitude replaced (uncorrelated, std ``std_m``)."""
-    if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
-        return ekf.with_altitude(state, pz_m, std_m)
-    if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
-        return ekf.with_altitude(state, pz_m, std_m)
-    raise EkfError("filter and state kinds differ")
+    return cast(AnyState, _call(ekf, state, "with_altitude", pz_m, std_m))
 
 
 def attitude_covariance(ekf: AnyFilter, state: AnyState) -> FloatArray:
     """3x3 covariance of world-frame error angles."""
-    if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
-        return ekf.attitude_covariance_world(state)
-    if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
-        return ekf.attitude_covariance_world(state)
-    raise EkfError("filter and state kinds differ")
+    return cast(FloatArray, _call(ekf, state, "attitude_covariance_world"))
 
 
 def altitude_variance(ekf: AnyFilter, state: AnyState) -> float:
-    if isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf):
-        return ekf.altitude_variance(state)
-    if isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf):
-        return ekf.altitude_variance(state)
-    raise EkfError("filter and state kinds differ")
+    return float(_call(ekf, state, "altitude_variance"))
 
 
 def filter_step(ekf: AnyFilter, state: AnyState, method: str, *args: Any) -> tuple[AnyState, bool]:

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.estimation.homography import (
     VoError,
@@ -59,24 +60,24 @@ class MotionModel(enum.Enum):
 
 
 @dataclass(frozen=True)
-class VoSettings:
+class VoSettings(Bounded):
     """Feature, flow and homography parameters (pixels unless named otherwise)."""
 
-    max_features: int = 200
-    quality_level: float = 0.01
-    min_distance_px: float = 15.0
+    max_features: int = bounded(200, ge=8)
+    quality_level: float = bounded(0.01, gt=0.0)
+    min_distance_px: float = bounded(15.0, gt=0.0)
     block_size_px: int = 7
     #: Lucas-Kanade window (px). 11 instead of 15: VO step -21 % (paper C seed 0) to -29 % (agile seed 1) in
     #: thread time, truth-attitude chain RPE per metre 0.260 vs 0.236 % (paper C, 500 frames) and 0.028
     #: vs 0.030 % (agile, 500 frames), measured on the same shared host in one run.
-    lk_window_px: int = 11
-    lk_levels: int = 2
+    lk_window_px: int = bounded(11, ge=5)
+    lk_levels: int = bounded(2, ge=0)
     lk_iterations: int = 20
     lk_epsilon_px: float = 0.01
     #: Forward-backward check: a track is kept if tracking back lands within this of its start.
-    fb_max_error_px: float = 0.3
-    ransac_threshold_px: float = 1.0
-    min_inliers: int = 12
+    fb_max_error_px: float = bounded(0.3, gt=0.0)
+    ransac_threshold_px: float = bounded(1.0, gt=0.0)
+    min_inliers: int = bounded(12, ge=4)
     #: Gaussian pre-smoothing (sigma, px) of each frame before features and flow; it reduces the
     #: "pixel locking" bias of Lucas-Kanade's interpolation on sub-pixel motions (0 = none).
     presmooth_sigma_px: float = 0.0
@@ -87,15 +88,9 @@ class VoSettings:
     mask_margin_px: int = 8
 
     def __post_init__(self) -> None:
-        if self.max_features < 8 or self.min_inliers < 4 or self.lk_levels < 0:
-            raise InputError(
-                "VoSettings: max_features >= 8, min_inliers >= 4 and lk_levels >= 0 are required"
-            )
-        if self.lk_window_px < 5 or self.lk_window_px % 2 == 0:
+        super().__post_init__()
+        if self.lk_window_px % 2 == 0:
             raise InputError(f"VoSettings.lk_window_px must be odd and >= 5, got {self.lk_window_px}")
-        for name in ("quality_level", "min_distance_px", "fb_max_error_px", "ransac_threshold_px"):
-            if not getattr(self, name) > 0.0:
-                raise InputError(f"VoSettings.{name} must be > 0")
 
 
 @dataclass(frozen=True)

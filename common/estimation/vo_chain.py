@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from common.errors import InputError
+from common.bounds import Bounded, bounded
 from common.estimation.homography import VoError
 from common.estimation.rectify import rectify_frame
 from common.estimation.vo import (
@@ -36,17 +36,13 @@ ImageU8 = npt.NDArray[np.uint8]
 
 
 @dataclass(frozen=True)
-class VoChainSettings:
+class VoChainSettings(Bounded):
     """When the keyframe moves on."""
 
     #: Median flow (px) from the keyframe beyond which the newest frame becomes the keyframe (0: always).
-    max_flow_px: float = 0.0
+    max_flow_px: float = bounded(0.0, ge=0.0)
     #: ... or when fewer than this share of the keyframe's features are inliers.
-    min_inlier_share: float = 0.5
-
-    def __post_init__(self) -> None:
-        if not (self.max_flow_px >= 0.0 and 0.0 <= self.min_inlier_share <= 1.0):
-            raise InputError("VoChainSettings: max_flow_px >= 0 and min_inlier_share in [0, 1] are required")
+    min_inlier_share: float = bounded(0.5, ge=0.0, le=1.0)
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, wrap_angle_rad
@@ -49,7 +50,7 @@ class ParticleFilterError(CapatazError):
 
 
 @dataclass(frozen=True)
-class ParticleFilterSettings:
+class ParticleFilterSettings(Bounded):
     """Settings of :class:`ParticleFilter`.
 
     Noise is a random walk added at every prediction: standard deviation ``noise * sqrt(dt_s)`` per
@@ -60,34 +61,27 @@ class ParticleFilterSettings:
     ``chunk_particles`` (cache-sized temporaries).
     """
 
-    n_particles: int = 200
-    points_per_edge: int = 8
+    n_particles: int = bounded(200, ge=2)
+    points_per_edge: int = bounded(8, ge=1)
     scoring: ScoringSettings = field(default_factory=ScoringSettings)
-    position_noise_m: float = 0.04
+    position_noise_m: float = bounded(0.04, ge=0.0)
     angle_noise_rad: tuple[float, float, float] = (0.015, 0.015, 0.02)
-    good_fit: float = 0.75
-    search_gain: float = 3.0
-    resample_ess_fraction: float = 0.5
-    init_candidates: int = 4000
-    collapse_fit: float = 0.15
-    collapse_frames: int = 5
-    init_position_spread_m: float = 0.5
-    init_angle_spread_rad: float = float(np.radians(10.0))
-    near_m: float = NEAR_PLANE_M
-    chunk_particles: int = 256
+    good_fit: float = bounded(0.75)
+    search_gain: float = bounded(3.0, ge=0.0)
+    resample_ess_fraction: float = bounded(0.5, gt=0.0, le=1.0)
+    init_candidates: int = bounded(4000, ge=0)
+    collapse_fit: float = bounded(0.15)
+    collapse_frames: int = bounded(5, ge=1)
+    init_position_spread_m: float = bounded(0.5, ge=0.0)
+    init_angle_spread_rad: float = bounded(float(np.radians(10.0)), ge=0.0)
+    near_m: float = bounded(NEAR_PLANE_M, gt=0.0)
+    chunk_particles: int = bounded(256, ge=1)
     R_body_camera: FloatArray = field(default_factory=lambda: R_BODY_CAMERA_FORWARD.copy())
 
     def __post_init__(self) -> None:
-        if self.n_particles < 2:
-            raise InputError(f"n_particles must be >= 2, got {self.n_particles}")
-        if not 0.0 < self.resample_ess_fraction <= 1.0:
-            raise InputError(f"resample_ess_fraction must lie in (0, 1], got {self.resample_ess_fraction}")
-        if self.position_noise_m < 0.0 or min(self.angle_noise_rad) < 0.0:
+        super().__post_init__()
+        if min(self.angle_noise_rad) < 0.0:
             raise InputError("noise levels must be non-negative")
-
-
-#: the old name, kept while other branches still use it (remove once they are merged)
-ParticleFilterConfig = ParticleFilterSettings
 
 
 @dataclass(frozen=True)

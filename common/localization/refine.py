@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.camera import CameraModel
 from common.localization.pose import CameraPose, rotation_matrices
 from common.localization.projection import EdgeSamples, project_posed_samples
@@ -31,15 +32,15 @@ CANNY_OFFSET_PX = 0.5
 
 
 @dataclass(frozen=True)
-class RefineSettings:
+class RefineSettings(Bounded):
     """Settings of :func:`refine_pose` and :func:`match_fraction`."""
 
-    iterations: int = 5
-    search_px: int = 12
-    max_angle_deg: float = 25.0
-    match_px: float = 2.5
-    tukey_px: float = 4.0
-    min_points: int = 12
+    iterations: int = bounded(5, ge=1)
+    search_px: int = bounded(12, ge=1)
+    max_angle_deg: float = bounded(25.0, gt=0.0)
+    match_px: float = bounded(2.5, gt=0.0)
+    tukey_px: float = bounded(4.0, gt=0.0)
+    min_points: int = bounded(12, ge=1)
 
 
 @dataclass(frozen=True)

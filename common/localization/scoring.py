@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.images import check_grey_image
 from common.localization.projection import ProjectedSamples
@@ -49,20 +50,16 @@ class ScoringMethod(enum.Enum):
 
 
 @dataclass(frozen=True)
-class ScoringSettings:
+class ScoringSettings(Bounded):
     """Constants of the scorings (paper B's ``k``, ``lambda``, ``alpha``, ``sigma``, max normal length)."""
 
     method: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
-    k: float = 30.0
-    lambda_per_edge: float = 10.0
-    alpha: float = 1.0
-    align_px: float = 2.0
-    sigma_px: float = 2.0
-    max_normal_px: int = 10
-
-
-#: the old name, kept while other branches still use it (remove once they are merged)
-ScoringParams = ScoringSettings
+    k: float = bounded(30.0, gt=0.0)
+    lambda_per_edge: float = bounded(10.0, ge=0.0)
+    alpha: float = bounded(1.0, ge=0.0)
+    align_px: float = bounded(2.0, gt=0.0)
+    sigma_px: float = bounded(2.0, gt=0.0)
+    max_normal_px: int = bounded(10, ge=1)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.localization.pose import CameraPose
 from common.localization.refine import RefineSettings
@@ -27,44 +28,39 @@ class TrackingStatus(enum.Enum):
 
 
 @dataclass(frozen=True)
-class TrackerSettings:
+class TrackerSettings(Bounded):
     """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring)."""
 
-    n_particles: int = 200
-    points_per_edge: int = 8
-    layers: int = 2
+    n_particles: int = bounded(200, ge=2)
+    points_per_edge: int = bounded(8, ge=1)
+    layers: int = bounded(2, ge=1)
     scoring: ScoringSettings = field(default_factory=ScoringSettings)
     refine: RefineSettings = field(default_factory=RefineSettings)
-    position_spread_m: float | None = None
-    angle_spread_rad: float = float(np.radians(8.0))
-    velocity_noise_m_s: float | None = None
-    angular_noise_rad_s: float = float(np.radians(25.0))
-    search_candidates: int = 3000
-    search_layers: int = 7
-    search_coarseness: float = 4.0
-    refine_search: int = 8
-    refine_tracking: int = 1
-    tracking_iterations: int = 3
-    tracking_search_px: int = 8
-    visibility_refresh_rad: float = float(np.radians(5.0))
-    min_point_ratio: float = 0.35
-    velocity_smoothing: float = 0.7
-    lost_match: float = 0.4
-    lost_frames: int = 10
-    spread_growth: float = 1.4
-    max_spread_factor: float = 4.0
+    position_spread_m: float | None = bounded(None, gt=0.0, optional=True)
+    angle_spread_rad: float = bounded(float(np.radians(8.0)), ge=0.0)
+    velocity_noise_m_s: float | None = bounded(None, gt=0.0, optional=True)
+    angular_noise_rad_s: float = bounded(float(np.radians(25.0)), ge=0.0)
+    search_candidates: int = bounded(3000, ge=1)
+    search_layers: int = bounded(7, ge=1)
+    search_coarseness: float = bounded(4.0, gt=0.0)
+    refine_search: int = bounded(8, ge=0)
+    refine_tracking: int = bounded(1, ge=0)
+    tracking_iterations: int = bounded(3, ge=0)
+    tracking_search_px: int = bounded(8, ge=1)
+    visibility_refresh_rad: float = bounded(float(np.radians(5.0)), ge=0.0)
+    min_point_ratio: float = bounded(0.35, ge=0.0, le=1.0)
+    velocity_smoothing: float = bounded(0.7, ge=0.0, le=1.0)
+    lost_match: float = bounded(0.4, ge=0.0, le=1.0)
+    lost_frames: int = bounded(10, ge=1)
+    spread_growth: float = bounded(1.4, gt=0.0)
+    max_spread_factor: float = bounded(4.0, gt=0.0)
     hidden_line_removal: bool = True
-    chunk_particles: int = 256
+    chunk_particles: int = bounded(256, ge=1)
 
     def __post_init__(self) -> None:
-        if self.n_particles < 2 or self.layers < 1 or self.search_layers < 1:
-            raise InputError("need n_particles >= 2, layers >= 1 and search_layers >= 1")
+        super().__post_init__()
         if self.search_candidates < self.n_particles:
             raise InputError("search_candidates must be >= n_particles")
-        for name in ("position_spread_m", "velocity_noise_m_s"):
-            value = getattr(self, name)
-            if value is not None and not (np.isfinite(value) and value > 0.0):
-                raise InputError(f"{name} must be positive, got {value}")
 
 
 @dataclass(frozen=True)

@@ -22,16 +22,16 @@ from common.types import FloatArray
 UInt8Array = npt.NDArray[np.uint8]
 
 #: The localizer's default camera: 320 x 240 px, 70 deg horizontal field of view, forward-looking.
-DEFAULT_WIDTH_PX = 320
-DEFAULT_HEIGHT_PX = 240
-DEFAULT_HFOV_DEG = 70.0
+OFFICE_WIDTH_PX = 320
+OFFICE_HEIGHT_PX = 240
+OFFICE_HFOV_DEG = 70.0
 #: Initial uncertainty of the default run (each position axis, each angle).
 INITIAL_POSITION_ERROR_M = 0.5
 INITIAL_ANGLE_ERROR_RAD = float(np.radians(10.0))
 
 
 def default_camera() -> CameraModel:
-    return CameraModel.from_hfov(DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG)
+    return CameraModel.from_hfov(OFFICE_WIDTH_PX, OFFICE_HEIGHT_PX, OFFICE_HFOV_DEG)
 
 
 @dataclass(frozen=True)

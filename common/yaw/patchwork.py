@@ -28,14 +28,6 @@ class PatchWorkError(CapatazError):
     """A job cannot be computed (missing previous spectra, inconsistent settings or crops)."""
 
 
-def settings_to_wire(settings: YawSettings) -> dict[str, Any]:
-    """Deprecated: the typed :meth:`common.messages.YawJobSettings.of` replaces it (the load-test harness
-    still calls this until it moves; remove then)."""
-    from common.messages import YawJobSettings
-
-    return YawJobSettings.of(settings).model_dump(mode="json")
-
-
 @dataclasses.dataclass
 class _StreamCache:
     seq: int

@@ -12,7 +12,8 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.messages import PatchJob, PatchResult, YawJobSettings, decode, encode
+from common.codec import decode, encode
+from common.messages import PatchJob, PatchResult, YawJobSettings
 from common.yaw import YawSettings, make_patch_grid
 from services.bench.cluster_workload import in_process_ms, write_frame_folder
 from services.camera import CameraSettings, simulated_flight

@@ -22,18 +22,17 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import decode, encode
 from common.messages import (
     AttitudeEstimate,
     BlockJob,
     BlockResult,
     Frame,
     PoseEstimate,
-    WireError,
     YawEstimate,
     YawJobSettings,
-    decode,
-    encode,
 )
+from common.wire import WireError
 from common.yaw import YawSettings, make_patch_grid
 from services.runtime.transport import TransportError, TransportSettings, open_session, zbytes
 from services.up import LocalCluster
@@ -212,12 +211,15 @@ def wrong_shifts_answer(rotation_deg: float, frame_shape: tuple[int, int]) -> An
 
 
 class YawWatch:
-    """The published yaw of a UAV by seq (real frames only; ``measured``: not a stream's initial one)."""
+    """The published yaw of a UAV by seq (real frames only; ``measured``: not a stream's initial one). The
+    first yaw of a seq is kept: a forged one re-using a published seq comes later and is only counted."""
 
     def __init__(self, session: zenoh.Session, uav: str) -> None:
         self.yaw: dict[int, float] = {}
+        self.stamps: dict[int, float] = {}
         self.measured: set[int] = set()
         self.forged_seen = 0
+        self.repeated = 0
         self._sub = session.declare_subscriber(keys.yaw_key(uav), self._on)
 
     def _on(self, sample: zenoh.Sample) -> None:
@@ -227,8 +229,10 @@ class YawWatch:
             return
         if e.seq >= FORGED_SEQ0:
             self.forged_seen += 1
+        elif e.seq in self.yaw:
+            self.repeated += 1
         else:
-            self.yaw[e.seq] = e.yaw_rad
+            self.yaw[e.seq], self.stamps[e.seq] = e.yaw_rad, e.stamp_s
             if e.method != "initial":
                 self.measured.add(e.seq)
 
@@ -266,15 +270,21 @@ def frames_lost(watch: YawWatch, frames: int) -> int:
 
 
 def max_yaw_error_deg(watch: YawWatch, reference_rad: np.ndarray) -> float:
-    """Largest error of the flight's yaw against the reference, both taken relative to the flight's first
-    published frame: on a running cluster a new flight (the camera restarted from seq 0) is a new stream
-    epoch whose yaw continues the last published one (common.streams), not a reset to the reference's 0."""
-    seqs = [s for s in watch.yaw if s < reference_rad.size]
+    """:func:`max_yaw_error_deg_of` the yaw a watch saw."""
+    return max_yaw_error_deg_of(watch.yaw, reference_rad)
+
+
+def max_yaw_error_deg_of(yaw: dict[int, float], reference_rad: np.ndarray) -> float:
+    """Largest error of a flight's yaw by seq against the reference, both taken relative to the flight's
+    first published frame: on a running cluster a new flight (the camera restarted from seq 0) is a new
+    stream epoch whose yaw continues the last published one (common.streams), not a reset to the
+    reference's 0."""
+    seqs = [s for s in yaw if s < reference_rad.size]
     if not seqs:
         return float("nan")
     start = min(seqs)
-    offset = watch.yaw[start] - reference_rad[start]
-    return float(np.degrees(max(abs(watch.yaw[s] - offset - reference_rad[s]) for s in seqs)))
+    offset = yaw[start] - reference_rad[start]
+    return float(np.degrees(max(abs(yaw[s] - offset - reference_rad[s]) for s in seqs)))
 
 
 def reference_yaw_rad(frames: int) -> np.ndarray:

@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 
 from common import keys
+from common.codec import decode
 from common.datasets.recording import open_recording
 from common.dispatch import Balance
-from common.messages import Frame, YawEstimate, decode
+from common.messages import Frame, YawEstimate
 from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster

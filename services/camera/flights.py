@@ -10,7 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
-from common.camera import CameraModel
+from common.camera import DEFAULT_HFOV_DEG, CameraModel
 from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.localization.office import default_scene
@@ -18,10 +18,8 @@ from common.localization.tracking import noisy_odometry
 from common.messages import PoseEstimate
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
-from common.sim.office_run import DEFAULT_HFOV_DEG as OFFICE_HFOV_DEG
+from common.sim.office_run import OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
-
-DEFAULT_HFOV_DEG = 90.0
 
 
 class FlightName(StrEnum):

@@ -25,10 +25,11 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
+from common.codec import encode
 from common.errors import CapatazError
 from common.estimation.measurements import ImuMeasurement
 from common.geometry import quaternion_from_euler
-from common.messages import Frame, PoseEstimate, YawEstimate, encode
+from common.messages import Frame, PoseEstimate, YawEstimate
 from common.sim.flight import Flight
 from services.camera.flights import (
     FlightName,

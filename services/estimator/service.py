@@ -27,12 +27,14 @@ import argparse
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
 from common import keys
+from common.codec import encode
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
@@ -50,10 +52,10 @@ from common.messages import (
     ImuSample,
     PoseEstimate,
     RangeSample,
-    WireModel,
+    UavMessage,
     YawEstimate,
-    encode,
 )
+from common.wire import WireModel
 from services.estimator.backlog import HeldSamples, SpacedFrameQueue
 from services.estimator.outputs import (
     VoPath,
@@ -68,16 +70,13 @@ from services.estimator.settings import (
     build_estimator,
     settings_from_args,
 )
+from services.runtime.cli import add_transport_arguments
+from services.runtime.handoff import WorkQueue
+from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import (
-    ServiceRuntime,
-    TransportSettings,
-    WorkQueue,
-    add_transport_arguments,
-    transport_from_args,
-)
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
+S = TypeVar("S", bound=UavMessage)
 SENSOR_QUEUE = 4096
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
 RESET_AFTER_STALE = 400
@@ -90,19 +89,11 @@ BEHIND_LAG_MS = 1000
 SPACING_BINS = 6
 
 
-class EstimatorService(ServiceRuntime):
+class EstimatorService(ConfiguredService[EstimatorSettings]):
     role = keys.Role.ESTIMATOR
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: EstimatorSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
@@ -209,51 +200,45 @@ class EstimatorService(ServiceRuntime):
         if not self._samples.offer(measurement):
             self.count_error("queue_full", "sample refused", "the sensor queue is full")
 
-    def _on_imu(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, ImuSample)
+    def _admitted(self, sample: zenoh.Sample, expected: type[S], what: str, sensor: str) -> S | None:
+        """The sample decoded, of this UAV, and with a stamp the guard admits; else None (counted)."""
+        msg = self.decode_sample(sample, expected)
         if (
             msg is None
-            or not self._own(msg.uav, "IMU sample", sample.key_expr)
-            or not self._admit("imu", msg.stamp_s)
+            or not self._own(msg.uav, what, sample.key_expr)
+            or not self._admit(sensor, msg.stamp_s)
         ):
-            return
+            return None
+        return msg
+
+    def _offer_checked(self, what: str, check: Callable[[], Measurement]) -> None:
         try:
-            self._offer(check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
+            self._offer(check())
         except InputError as exc:
-            self.count_error("bad_samples", "IMU sample refused", exc)
+            self.count_error("bad_samples", f"{what} refused", exc)
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        msg = self._admitted(sample, ImuSample, "IMU sample", "imu")
+        if msg is not None:
+            self._offer_checked("IMU sample", lambda: check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
 
     def _on_range(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, RangeSample)
-        if msg is None or not self._own(msg.uav, "range sample", sample.key_expr):
-            return
-        if not self._admit("range", msg.stamp_s):
-            return
-        try:
-            self._offer(check_range(msg.stamp_s, msg.range_m))
-        except InputError as exc:
-            self.count_error("bad_samples", "range sample refused", exc)
+        msg = self._admitted(sample, RangeSample, "range sample", "range")
+        if msg is not None:
+            self._offer_checked("range sample", lambda: check_range(msg.stamp_s, msg.range_m))
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, YawEstimate)
-        if (
-            msg is None
-            or not self._own(msg.uav, "yaw", sample.key_expr)
-            or not self._admit("yaw", msg.stamp_s)
-        ):
+        msg = self._admitted(sample, YawEstimate, "yaw", "yaw")
+        if msg is None:
             return
         if msg.low_confidence:
             self.counters.inc("yaw_low_confidence")
             return
-        try:
-            self._offer(check_yaw(msg.stamp_s, msg.yaw_rad))
-        except InputError as exc:
-            self.count_error("bad_samples", "yaw refused", exc)
+        self._offer_checked("yaw", lambda: check_yaw(msg.stamp_s, msg.yaw_rad))
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
-        msg = self.decode_sample(sample, Frame)
-        if msg is None or not self._own(msg.uav, "frame", sample.key_expr):
-            return
-        if not self._admit("camera", msg.stamp_s):
+        msg = self._admitted(sample, Frame, "frame", "camera")
+        if msg is None:
             return
         try:
             frame = check_frame(msg.stamp_s, msg.pixels, self._shape)
@@ -389,9 +374,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    service = EstimatorService(
-        args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
-    )
+    service = EstimatorService.from_args(args, settings_from_args(args))
     paths: dict[type[WireModel], Path | None] = {
         PoseEstimate: args.trajectory,
         AttitudeEstimate: args.attitude_trajectory,

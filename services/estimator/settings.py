@@ -10,6 +10,7 @@ from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import CouplingSettings, FilterKind
+from services.runtime.cli import add_enum_argument
 
 
 class EstimatorSettings(BaseModel):
@@ -72,13 +73,11 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
     )
-    parser.add_argument(
-        "--filter",
-        choices=[kind.value for kind in FilterKind],
-        default=FilterKind.BIAS.value,
+    add_enum_argument(
+        parser, "--filter", FilterKind, FilterKind.BIAS,
         help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
         "paper_c (paper C's 5-state EKF)",
-    )
+    )  # fmt: skip
     parser.add_argument("--no-visual-yaw", action="store_true", help="do not feed the VO yaw to the EKF")
     parser.add_argument("--external-yaw", action="store_true", help="also use capataz/uav/{uav}/yaw")
     parser.add_argument("--max-lag", type=float, default=0.02, help="reordering lag of the input (s)")

@@ -10,8 +10,10 @@ import time
 import zenoh
 
 from common import keys
+from common.codec import encode
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-from common.messages import Frame, ImuSample, RangeSample, WireModel, encode
+from common.messages import Frame, ImuSample, RangeSample
+from common.wire import WireModel
 
 
 def message_of(uav: str, seq: int, measurement: Measurement) -> tuple[str, WireModel]:

@@ -41,12 +41,15 @@ from common.yaw.patchwork import (
 )
 from services.runtime.cli import (
     StreamBoundSettings,
+    add_dispatch_arguments,
     add_stream_bound_arguments,
     add_transport_arguments,
     stream_bounds_from_args,
 )
 from services.runtime.membership import LiveMembers
-from services.runtime.scatter import FrameWork, Scatter, add_dispatch_arguments, result_from_measurement
+from services.runtime.results import result_from_measurement
+from services.runtime.round import FrameWork
+from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 
 #: Upper bound of patch indices a foreman accepts.

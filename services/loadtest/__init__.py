@@ -7,6 +7,7 @@ Examples::
         --fault kill:router@40s --fault kill:master@50s --duration 70 --name faults
     capataz loadtest --capacity --max-streams 10 --duration 30 --name capacity
     capataz loadtest --replay out/flight.mcap --streams 4 --duration 30 --name replay
+    capataz loadtest --streams 2 --standby --fault kill:master@10s --duration 20 --secure --name secure
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from services.loadtest.plan import (
     parse_schedule,
 )
 from services.loadtest.report import plot, table, write_json
+from services.secure import add_profile_arguments
 from services.up import load_cluster
 
 logger = logging.getLogger(__name__)
@@ -81,6 +83,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--name", default="loadtest", help="report name: out/loadtest/<name>.json/.png")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated flight")
+    add_profile_arguments(parser)
     parser.set_defaults(handler=run)
 
 
@@ -117,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         streams=args.streams, fps=args.fps, duration_s=args.duration, in_flight=args.in_flight,
         standby_masters=args.standby or any(f.target == "master" for f in faults), shared_memory=args.shm,
         seed=args.seed, faults=faults, warmup_s=args.warmup, replay=args.replay, replay_uav=args.replay_uav,
+        secure_dir=args.secure, zenoh_config=args.zenoh_config,
     )  # fmt: skip
     log_dir = args.out / f"{args.name}-logs"
     if args.capacity:

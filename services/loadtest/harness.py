@@ -14,6 +14,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,12 +23,14 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import decode, encode
 from common.dispatch import SELF
-from common.messages import Frame, PatchJob, Stats, WireError, YawEstimate, decode, encode
+from common.messages import Frame, PatchJob, Stats, YawEstimate, YawJobSettings
+from common.wire import WireError
 from common.yaw import YawSettings
-from common.yaw.patchwork import settings_to_wire
 from services.loadtest.plan import Fault, FaultAction, FrameRecord
-from services.runtime.transport import zbytes
+from services.runtime.transport import open_session, zbytes
+from services.secure import SecureProfile
 from services.up import ClusterSpec, LocalCluster
 
 logger = logging.getLogger(__name__)
@@ -52,6 +55,10 @@ class RunSettings:
     #: replay this recording's frames instead of the simulated hover (``capataz record``)
     replay: Path | None = None
     replay_uav: str | None = None
+    #: the secure profile's folder (``capataz loadtest --secure``): mutual TLS + access control; None = open
+    secure_dir: Path | None = None
+    #: a zenoh configuration file every process and the harness's sessions load (``--zenoh-config``)
+    zenoh_config: Path | None = None
 
     @property
     def warmup_frames(self) -> int:
@@ -170,11 +177,14 @@ class LoadCluster:
 
     def __init__(self, spec: ClusterSpec, settings: RunSettings, log_dir: Path) -> None:
         self.settings = settings
-        self.cluster = LocalCluster(
-            spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms
-        )
         self.uavs = [f"uav{i}" for i in range(settings.streams)]
+        secure = SecureProfile.ensure(settings.secure_dir, tuple(self.uavs)) if settings.secure_dir else None
+        self.cluster = LocalCluster(
+            spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms, secure=secure,
+            zenoh_config=settings.zenoh_config,
+        )  # fmt: skip
         self._master_args: dict[str, list[str]] = {}
+        self._master_uav: dict[str, str] = {}
         self.cpu: dict[str, float] = {}
         self._cpu0: dict[str, float] = {}
 
@@ -189,9 +199,20 @@ class LoadCluster:
                         "--compute" if spec.master_computes else "--no-compute"]  # fmt: skip
                 name = f"master/{node}/0"
                 self._master_args[name] = args
-                cluster.spawn(name, args, spec.master_cpus)
+                self._master_uav[name] = uav
+                cluster.spawn(name, args, spec.master_cpus, common_name=f"master.{uav}")
         members = cluster.expected_members() - {"master/master/0"} | set(self._master_args)
         cluster.wait_alive(members, timeout_s=120.0)
+
+    def camera_sessions(self, stack: ExitStack, observer: zenoh.Session) -> dict[str, zenoh.Session]:
+        """The session that publishes each UAV's frames: the observer's own in the open profile; in the
+        secure profile one per UAV holding that UAV's camera certificate (only it may put the frames)."""
+        if self.cluster.secure is None:
+            return dict.fromkeys(self.uavs, observer)
+        return {
+            uav: stack.enter_context(open_session(self.cluster.participant_transport(f"camera.{uav}")))
+            for uav in self.uavs
+        }
 
     def wait_leaders(self, session: zenoh.Session, timeout_s: float = 30.0) -> None:
         deadline = time.monotonic() + timeout_s
@@ -230,7 +251,8 @@ class LoadCluster:
             return
         role, node, index = name.split("/")
         if role == "master":
-            cluster.spawn(name, self._master_args[name], spec.master_cpus)
+            uav = self._master_uav[name]
+            cluster.spawn(name, self._master_args[name], spec.master_cpus, common_name=f"master.{uav}")
         elif role == "foreman":
             cluster.start_foreman(next(h for h in spec.hosts if h.name == node))
         elif role == "worker":
@@ -335,7 +357,7 @@ class Hostile:
 
     def _jobs(self, kind: str) -> None:
         host = self.spec.hosts[0].name
-        wire = settings_to_wire(YawSettings())
+        wire = YawJobSettings.of(YawSettings()).model_dump(mode="json")  # a hostile copy is sent unchecked
         n = 1 if kind == "settings" else 2000
         for i in range(n):
             settings = dict(wire, patch_size_px=100_000) if kind == "settings" else wire

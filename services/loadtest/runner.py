@@ -6,6 +6,7 @@ import logging
 import sys
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,8 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.messages import Frame, encode
+from common.codec import encode
+from common.messages import Frame
 from services.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
 from services.loadtest.harness import (
     Hostile,
@@ -83,14 +85,14 @@ def run_once(
     counters: dict[str, dict[str, int]] = {}
     try:
         load.start()
-        with open_session(load.cluster.observer_transport()) as session:
+        with open_session(load.cluster.observer_transport()) as session, ExitStack() as cameras:
             yaws = YawLog(session, logs)
             stats = StatsLog(session)
             publishers = {
-                uav: session.declare_publisher(
+                uav: camera.declare_publisher(
                     keys.camera_key(uav), congestion_control=zenoh.CongestionControl.DROP
                 )
-                for uav in load.uavs
+                for uav, camera in load.camera_sessions(cameras, session).items()
             }
             load.wait_leaders(session)
             first = logs[load.uavs[0]]
@@ -224,6 +226,7 @@ def _report(
         "warmup_ramp_s": settings.first_frame(settings.streams - 1) / settings.fps,
         "shared_memory": settings.shared_memory,
         "standby_masters": settings.standby_masters,
+        "profile": "secure" if settings.secure_dir else "open",
         "per_stream": [
             {
                 "uav": s.uav,

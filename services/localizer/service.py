@@ -25,27 +25,21 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.messages import Frame, PoseEstimate, encode
+from common.codec import encode
+from common.messages import Frame, PoseEstimate
 from services.localizer.filters import LocalizationPath, make_path, odometry_between
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
+from services.runtime.handoff import LatestSlot
+from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.runtime.transport import LatestSlot, ServiceRuntime, TransportSettings, transport_from_args
 from services.trajectory import add_trajectory_argument, run_with_trajectories
 
 
-class LocalizerService(ServiceRuntime):
+class LocalizerService(ConfiguredService[LocalizerSettings]):
     role = keys.Role.LOCALIZER
 
-    def __init__(
-        self,
-        node: str,
-        index: int,
-        transport: TransportSettings,
-        settings: LocalizerSettings,
-        stats_period_s: float = 1.0,
-    ) -> None:
-        super().__init__(node, index, transport, stats_period_s)
-        self.settings = settings
+    def setup(self) -> None:
+        settings = self.settings
         self.camera = settings.camera()
         self.path: LocalizationPath = make_path(settings)
         self._slot: LatestSlot[Frame] = LatestSlot()
@@ -161,7 +155,5 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    service = LocalizerService(
-        args.node, args.index, transport_from_args(args), settings_from_args(args), args.stats_period
-    )
+    service = LocalizerService.from_args(args, settings_from_args(args))
     return run_with_trajectories(service, {PoseEstimate: args.trajectory})

@@ -28,9 +28,9 @@ from common.localization.particle_filter import ParticleFilterSettings
 from common.localization.pose import CameraPose, parse_pose_numbers
 from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker_state import TrackerSettings
-from common.sim.office_run import DEFAULT_HEIGHT_PX, DEFAULT_HFOV_DEG, DEFAULT_WIDTH_PX
+from common.sim.office_run import OFFICE_HEIGHT_PX, OFFICE_HFOV_DEG, OFFICE_WIDTH_PX
 from common.sim.scene import default_flight
-from services.runtime.transport import add_transport_arguments
+from services.runtime.cli import add_enum_argument, add_transport_arguments
 
 #: the body's camera mounts, plus "camera": the published pose is the camera's own (no body)
 _MOUNTS = {**{m.value: m.R_body_camera for m in CameraMount}, "camera": np.eye(3)}
@@ -58,9 +58,9 @@ class LocalizerSettings(BaseModel):
     model_scale: float = Field(default=1.0, gt=0.0)
     #: camera calibration (OpenCV YAML or ROS camera_info YAML); None = width x height with hfov_deg
     calibration: Path | None = None
-    width: int = Field(default=DEFAULT_WIDTH_PX, gt=0)
-    height: int = Field(default=DEFAULT_HEIGHT_PX, gt=0)
-    hfov_deg: float = Field(default=DEFAULT_HFOV_DEG, gt=0.0, lt=180.0)
+    width: int = Field(default=OFFICE_WIDTH_PX, gt=0)
+    height: int = Field(default=OFFICE_HEIGHT_PX, gt=0)
+    hfov_deg: float = Field(default=OFFICE_HFOV_DEG, gt=0.0, lt=180.0)
     #: how the camera sits on the body that pose/pf reports ("camera": the camera itself)
     camera_mount: Literal["forward", "down", "camera"] = "forward"
     particles: int = Field(default=200, ge=2)
@@ -147,18 +147,16 @@ def register_arguments(parser: Any) -> None:
     )
     parser.add_argument(
         "--resolution",
-        default=f"{DEFAULT_WIDTH_PX}x{DEFAULT_HEIGHT_PX}",
+        default=f"{OFFICE_WIDTH_PX}x{OFFICE_HEIGHT_PX}",
         help="camera WIDTHxHEIGHT (no file)",
     )
-    parser.add_argument("--hfov", type=float, default=DEFAULT_HFOV_DEG, help="horizontal FOV (deg; no file)")
+    parser.add_argument("--hfov", type=float, default=OFFICE_HFOV_DEG, help="horizontal FOV (deg; no file)")
     parser.add_argument("--mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body")
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
-    parser.add_argument(
-        "--scoring",
-        choices=[m.value for m in ScoringMethod],
-        default=ScoringMethod.NEAREST_EDGE_DT.value,
+    add_enum_argument(
+        parser, "--scoring", ScoringMethod, ScoringMethod.NEAREST_EDGE_DT,
         help="paper B's image-closeness measure (nearest_edge_dt: nearest edge through a distance transform)",
-    )
+    )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of the filter's random numbers")
     parser.add_argument(
         "--initial-pose",
@@ -190,13 +188,11 @@ def register_arguments(parser: Any) -> None:
         "--layers", type=int, default=2, help="tracker: annealing layers per frame (default 2)"
     )
     parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
-    parser.add_argument(
-        "--filter",
-        choices=[k.value for k in FilterKind],
-        default=FilterKind.AUTO.value,
+    add_enum_argument(
+        parser, "--filter", FilterKind, FilterKind.AUTO,
         help="particle: paper B's particle filter (predicted by pose/vo); tracker: the model tracker (no "
         "odometry needed); auto (default): particle with --use-vo, tracker without",
-    )
+    )  # fmt: skip
 
 
 def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:

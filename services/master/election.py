@@ -17,8 +17,10 @@ or undeclares the leader token from the master's own thread.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
@@ -78,6 +80,11 @@ class Election:
             else:
                 group.discard(name)
 
+    def leaders(self) -> set[str]:
+        """The other masters holding the leader token now (``node/index``)."""
+        with self._lock:
+            return self._leaders - {self.me}
+
     def _on_token(self, sample: zenoh.Sample) -> None:
         self._record(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
@@ -115,3 +122,46 @@ class Election:
                     logger.debug("election undeclare: %s", exc)
         self._token = None
         self.leading = False
+
+
+class LeaderSessions:
+    """The zenoh session id of each alive leader (``node/index``), from the ``replier_id`` of its health
+    reply (set by the replying session's zenoh runtime; see :mod:`services.master.published`)."""
+
+    def __init__(self, name: str, count_error: Callable[[str, str, str], None], retry_s: float = 0.5) -> None:
+        self.name = name
+        self._count_error = count_error
+        self.retry_s = retry_s
+        self.sessions: dict[str, str] = {}
+        self._tried: dict[str, float] = {}
+        #: every alive leader's session is known
+        self.resolved = False
+
+    def update(self, session: zenoh.Session, leaders: set[str]) -> list[str]:
+        """Query the leaders not resolved yet (each at most once per ``retry_s``); the newly resolved
+        session ids. A leader that left is forgotten (restarted, it has a new session id)."""
+        for name in set(self.sessions) - leaders:
+            del self.sessions[name]
+        now = time.monotonic()
+        found: list[str] = []
+        for name in sorted(leaders - set(self.sessions)):
+            if now - self._tried.get(name, -math.inf) < self.retry_s:
+                continue
+            self._tried[name] = now
+            node, index = name.rsplit("/", 1)
+            key = keys.health_key(keys.Role.MASTER, node, int(index))
+            answered = {
+                str(reply.replier_id.zid)
+                for reply in session.get(key, timeout=self.retry_s)
+                if reply.ok is not None and reply.replier_id is not None
+            }
+            if len(answered) == 1:
+                self.sessions[name] = answered.pop()
+                found.append(self.sessions[name])
+                logger.info("%s: the active master %s is session %s", self.name, name, self.sessions[name])
+            elif answered:
+                self._count_error(
+                    "leader_ambiguous", f"several sessions answer as master {name}", str(answered)
+                )
+        self.resolved = leaders <= set(self.sessions)
+        return found

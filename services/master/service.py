@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -24,34 +24,29 @@ import numpy as np
 import zenoh
 
 from common import keys
+from common.codec import encode
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.messages import (
-    BlockJob,
-    BlockResult,
-    Frame,
-    PatchJob,
-    PatchResult,
-    YawEstimate,
-    YawJobSettings,
-    encode,
-)
+from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
 from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share
-from services.master.election import Election
+from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
+from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, session_of
+from services.master.published import Verdict as YawVerdict
 from services.master.settings import (
     MasterSettings,
     Topology,
 )
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
-from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.round import FrameWork
+from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import source_of
@@ -83,8 +78,10 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._gate = FrameGateState()
         self._recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
         self._recent_lock = threading.Lock()
-        #: yaw published for this UAV (by any master) by seq: (stamp, yaw), the newest few
-        self._published: OrderedDict[int, tuple[float, float]] = OrderedDict()
+        #: yaw published for this UAV by seq, from sessions that led it (a take-over starts there)
+        self.published = PublishedLedger(ANONYMOUS, 4 * settings.recent_frames)
+        self.leader_sessions = LeaderSessions(self.name, self.count_error)
+        self._leaders_resolved = False
         self.election: Election | None = None
         #: recent refusals, for health
         self._refusals = InputStamps()
@@ -101,6 +98,7 @@ class MasterService(ConfiguredService[MasterSettings]):
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
+        self.published.own_session = str(session.info.zid())
         self._publisher = session.declare_publisher(keys.yaw_key(self.settings.uav))
         self._entities.append(self._publisher)
         self._entities.append(session.declare_subscriber(keys.yaw_key(self.settings.uav), self._on_yaw))
@@ -164,10 +162,19 @@ class MasterService(ConfiguredService[MasterSettings]):
         estimate = self.decode_sample(sample, YawEstimate)
         if estimate is None or estimate.uav != self.settings.uav:
             return
+        yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
         with self._recent_lock:
-            self._published[estimate.seq] = (estimate.stamp_s, estimate.yaw_rad)
-            while len(self._published) > 4 * self.settings.recent_frames:
-                self._published.popitem(last=False)
+            verdict = self.published.record(yaw, self._leaders_resolved)
+        if verdict is YawVerdict.REFUSED:
+            self.count_error("yaw_untrusted", "refused yaw of a session that never led", yaw.session)
+
+    def _trust_leaders(self) -> None:
+        """Trust the yaw of the sessions answering as the other alive leaders (none while this one leads)."""
+        assert self.election is not None and self.session is not None
+        for session in self.leader_sessions.update(self.session, self.election.leaders()):
+            with self._recent_lock:
+                self.published.trust(session)
+        self._leaders_resolved = self.leader_sessions.resolved
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
         self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
@@ -196,6 +203,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._job_types = (job_type, result_type)
         while not self.stop_event.is_set():
             if self.election is not None:
+                self._trust_leaders()
                 if self.election.update():
                     self._take_over()
                 if not self.election.leading:
@@ -215,7 +223,10 @@ class MasterService(ConfiguredService[MasterSettings]):
         if estimate is None:
             return
         payload, attachment = encode(estimate)
-        self._publisher.put(payload, attachment=attachment)
+        # the declared source: standbys keep only yaw of sessions that led (services.master.published)
+        self._publisher.put(
+            payload, attachment=attachment, source_info=zenoh.SourceInfo(self._publisher.id, estimate.seq)
+        )
         if self.trajectory_tap is not None:
             self.trajectory_tap.write(estimate)
         self.counters.inc("yaw_out")
@@ -227,7 +238,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self.counters.inc("takeovers")
         with self._recent_lock:
             recent = list(self._recent)
-            published = dict(self._published)
+            published = self.published.trusted_yaws()
         for epoch, frame in reversed(recent):
             known = published.get(frame.seq)
             if known is not None and known[0] == frame.stamp_s:
@@ -242,7 +253,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         if self.stream is not None:
             return float(self.stream.state.yaw_rad)
         with self._recent_lock:
-            return self._published[next(reversed(self._published))][1] if self._published else 0.0
+            newest = self.published.newest_trusted()
+        return 0.0 if newest is None else newest
 
     def _start_stream(self, frame: Frame, epoch: int, yaw_rad: float) -> _Stream:
         assert self.session is not None

@@ -12,8 +12,7 @@ from common.errors import CapatazError
 from common.streams import FrameGateSettings
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
-from services.runtime.cli import add_enum_argument
-from services.runtime.scatter import add_dispatch_arguments
+from services.runtime.cli import add_dispatch_arguments, add_enum_argument
 
 
 class Topology(StrEnum):

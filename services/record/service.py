@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.datasets.recording import RecordingWriter
-from common.messages import WireModel
+from common.wire import WireModel
 from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.tap import KeyTap
 from services.runtime.transport import TransportSettings

@@ -22,6 +22,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import zenoh
+
 from common import keys
 
 ROOT = keys.ROOT
@@ -115,10 +117,13 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
             RolePermissions(
                 uav_common_name(Role.MASTER, uav),
                 put=(keys.yaw_key(uav),),
-                subscribe=(keys.camera_key(uav),),
-                query=(FOREMAN_WORK, WORKER_WORK),
-                watch=(keys.ALIVE_ALL,),
-                note="its UAV's yaw; queries foremen and workers",
+                # its own UAV's yaw: a standby continues from the active master's; imu: the gyro prior
+                subscribe=(keys.camera_key(uav), keys.imu_key(uav), keys.yaw_key(uav)),
+                # the other masters' health: a standby learns the active master's session id there
+                query=(FOREMAN_WORK, WORKER_WORK, f"{ROOT}/health/{Role.MASTER.value}/**"),
+                token=(keys.election_all(uav),),
+                watch=(keys.ALIVE_ALL, keys.election_all(uav)),
+                note="its UAV's yaw and election; queries foremen and workers",
             ).with_own_runtime(Role.MASTER)
         )
         out.append(
@@ -158,8 +163,8 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
                 name,
                 subscribe=(*readable, keys.STATS_ALL),
                 query=(keys.HEALTH_ALL,),
-                watch=(keys.ALIVE_ALL,),
-                note="read-only: subscribes to outputs, stats; health; watches membership",
+                watch=(keys.ALIVE_ALL, f"{ROOT}/elect/**"),
+                note="read-only: subscribes to outputs, stats; health; watches membership and elections",
             )
         )
     out.append(RolePermissions(Role.ROUTER.value, note="forwards for everybody (peers trust its filtering)"))
@@ -176,8 +181,20 @@ def _rule(rule_id: str, flow: str, messages: Sequence[str], key_exprs: Iterable[
     }
 
 
-def _rules_of(role: RolePermissions) -> list[dict[str, Any]]:
+def _declared_to(own: Sequence[str], patterns: Iterable[str]) -> tuple[str, ...]:
+    """The declarations a participant with keys ``own`` may receive: its own keys and every other role's
+    pattern that intersects one of them. Zenoh matches a declaration by *inclusion* in a rule, so without
+    the patterns a client's ``capataz/uav/*/yaw`` subscription never reaches the master that puts
+    ``capataz/uav/uav0/yaw`` and the client receives nothing (the data itself is still checked per key)."""
+    wider = {p for p in patterns if any(zenoh.KeyExpr(p).intersects(zenoh.KeyExpr(k)) for k in own)}
+    return tuple(own) + tuple(sorted(wider - set(own)))
+
+
+def _rules_of(role: RolePermissions, table: Sequence[RolePermissions] = ()) -> list[dict[str, Any]]:
     cn = role.common_name
+    subscriptions = [k for r in table for k in r.subscribe]
+    queries = [k for r in table for k in r.query]
+    watches = [k for r in table for k in r.watch]
     wanted: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
         # what it may send (ingress at its neighbours)
         ("in-put", "ingress", ("put",), role.put),
@@ -188,11 +205,16 @@ def _rules_of(role: RolePermissions) -> list[dict[str, Any]]:
         ("in-watch", "ingress", ("declare_liveliness_subscriber", "liveliness_query"), role.watch),
         # what it may receive, and the declarations its neighbours send it (egress at its neighbours)
         ("out-put", "egress", ("put",), role.subscribe),
-        ("out-sub", "egress", ("declare_subscriber",), role.put),
-        ("out-query", "egress", ("query",), role.serve),
+        ("out-sub", "egress", ("declare_subscriber",), _declared_to(role.put, subscriptions)),
+        ("out-query", "egress", ("query",), _declared_to(role.serve, queries)),
         ("out-serve", "egress", ("declare_queryable", "reply"), role.query),
         ("out-token", "egress", ("liveliness_token",), role.watch),
-        ("out-watch", "egress", ("declare_liveliness_subscriber", "liveliness_query"), role.token),
+        (
+            "out-watch",
+            "egress",
+            ("declare_liveliness_subscriber", "liveliness_query"),
+            _declared_to(role.token, watches),
+        ),
     ]
     return [_rule(f"{cn}:{suffix}", flow, messages, k) for suffix, flow, messages, k in wanted if k]
 
@@ -202,13 +224,14 @@ def acl_section(settings: PolicySettings | None = None) -> dict[str, Any]:
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
-    for role in role_table(settings):
+    table = role_table(settings)
+    for role in table:
         cn = role.common_name
         if cn == keys.Role.ROUTER.value:
             flows = ("ingress", "egress")
             own = [_rule(f"{cn}:{flow}", flow, ALL_MESSAGES, [f"{ROOT}/**"]) for flow in flows]
         else:
-            own = _rules_of(role)
+            own = _rules_of(role, table)
         rules.extend(own)
         subjects.append({"id": cn, "cert_common_names": [cn]})
         policies.append({"id": cn, "rules": [r["id"] for r in own], "subjects": [cn]})

@@ -21,12 +21,11 @@ from collections.abc import Callable
 import numpy as np
 import zenoh
 
+from common.codec import decode, encode, read_error_reply
 from common.dispatch import Dispatcher, Plan
-from common.messages import PatchJob, PatchResult, WireError, decode, encode, read_error_reply
-from common.yaw.patchwork import PatchWorkError
-from services.runtime.cli import add_dispatch_arguments
+from common.messages import PatchJob, PatchResult
+from common.wire import WireError
 from services.runtime.handoff import Counters
-from services.runtime.results import result_from_measurement
 from services.runtime.round import (
     Failure,
     FailureReason,
@@ -227,16 +226,4 @@ class Scatter:
         request.result = result
 
 
-__all__ = [
-    "Failure",
-    "FailureReason",
-    "FrameWork",
-    "MemberLeft",
-    "PatchWorkError",
-    "QueryDone",
-    "ReplyArrived",
-    "RoundReport",
-    "Scatter",
-    "add_dispatch_arguments",
-    "result_from_measurement",
-]
+__all__ = ["Scatter"]

@@ -17,8 +17,10 @@ from typing import Any, Generic, Self, TypeVar
 import zenoh
 
 from common import keys
+from common.codec import decode, encode, error_reply
 from common.errors import CapatazError
-from common.messages import Health, Stats, WireError, WireModel, decode, encode, error_reply
+from common.messages import Health, Stats
+from common.wire import WireError, WireModel
 from services.runtime.cli import transport_from_args
 from services.runtime.handoff import Counters
 from services.runtime.presence import ConnectionMonitor, TokenWatch

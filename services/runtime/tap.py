@@ -13,7 +13,8 @@ from typing import Any
 
 import zenoh
 
-from common.messages import WireError, WireModel, decode
+from common.codec import decode
+from common.wire import WireError, WireModel
 from services.runtime.handoff import WorkQueue
 from services.runtime.service import ServiceRuntime
 from services.runtime.transport import TransportSettings, zbytes

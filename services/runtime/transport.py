@@ -3,14 +3,13 @@ multicast scouting, shared memory, lease; also read from ``CAPATAZ_ZENOH_*`` env
 compose) -> :func:`open_session`, and :func:`listening_endpoints` / :func:`zbytes`.
 
 The rest of the runtime lives beside it: :mod:`services.runtime.handoff` (LatestSlot, WorkQueue, Counters),
-:mod:`services.runtime.service` (ServiceRuntime) and :mod:`services.runtime.cli` (argparse helpers). Their
-names are still importable from here (resolved on first use) for code written before the split.
+:mod:`services.runtime.service` (ServiceRuntime, ConfiguredService) and :mod:`services.runtime.cli`
+(argparse helpers).
 It lives in ``services`` because it talks to Zenoh: ``common`` holds only pure cores.
 """
 
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 import os
@@ -216,23 +215,3 @@ def source_of(sample: zenoh.Sample) -> str | None:
     info = getattr(sample, "source_info", None)  # a sample object without it declares nothing
     source = None if info is None else info.source_id
     return None if source is None else f"{source.zid}/{source.eid}"
-
-
-#: names that moved out of this module in the split, and where they live now
-_MOVED = {
-    "LatestSlot": "services.runtime.handoff",
-    "WorkQueue": "services.runtime.handoff",
-    "Counters": "services.runtime.handoff",
-    "HandoffError": "services.runtime.handoff",
-    "ServiceRuntime": "services.runtime.service",
-    "SWITCH_INTERVAL_S": "services.runtime.service",
-    "add_transport_arguments": "services.runtime.cli",
-    "transport_from_args": "services.runtime.cli",
-}
-
-
-def __getattr__(name: str) -> Any:
-    """Old imports (``from services.runtime.transport import ServiceRuntime``) keep working."""
-    if name in _MOVED:
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

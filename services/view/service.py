@@ -31,7 +31,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.datasets.recording import json_schema, to_json
-from common.messages import Frame, PoseEstimate, Stats, WireModel, YawEstimate
+from common.messages import Frame, PoseEstimate, Stats, YawEstimate
+from common.wire import WireModel
 from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.tap import KeyTap
 from services.runtime.transport import TransportSettings

@@ -22,7 +22,7 @@ from services.runtime.cli import (
     stream_bounds_from_args,
 )
 from services.runtime.handoff import WorkQueue
-from services.runtime.scatter import result_from_measurement
+from services.runtime.results import result_from_measurement
 from services.runtime.service import ConfiguredService
 
 

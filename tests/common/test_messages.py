@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from common import messages as m
-from common.messages import WireError, decode, encode
+from common.codec import decode, encode, error_reply, read_error_reply
+from common.wire import SCHEMA_VERSION, WireError, WireModel
 from common.yaw import FftBackend, YawSettings
 from tests.builders import JOB_SETTINGS, patch_job
 
@@ -152,7 +153,7 @@ MESSAGES = st.one_of(
 )
 
 
-def assert_same(a: m.WireModel, b: m.WireModel) -> None:
+def assert_same(a: WireModel, b: WireModel) -> None:
     assert type(a) is type(b)
     for name in type(a).model_fields:
         x, y = getattr(a, name), getattr(b, name)
@@ -165,7 +166,7 @@ def assert_same(a: m.WireModel, b: m.WireModel) -> None:
 
 @settings(max_examples=150, deadline=None)
 @given(MESSAGES)
-def test_every_message_round_trips_exactly(message: m.WireModel) -> None:
+def test_every_message_round_trips_exactly(message: WireModel) -> None:
     payload, attachment = encode(message)
     assert_same(decode(payload, attachment), message)
     assert_same(decode(payload, attachment, type(message)), message)
@@ -191,9 +192,9 @@ def test_pixels_travel_raw_in_the_payload_not_in_the_header() -> None:
 
 
 def test_header_only_messages_decode_without_attachment() -> None:
-    body = m.error_reply("busy", "queue full")
-    assert m.read_error_reply(body) == "busy: queue full"
-    assert m.read_error_reply(b"\xff\x00garbage").startswith("\ufffd")
+    body = error_reply("busy", "queue full")
+    assert read_error_reply(body) == "busy: queue full"
+    assert read_error_reply(b"\xff\x00garbage").startswith("\ufffd")
 
 
 def _frame() -> tuple[bytes, bytes]:
@@ -283,9 +284,7 @@ def test_random_bytes_never_escape_as_anything_but_wire_error(payload: bytes, at
 
 @settings(max_examples=200, deadline=None)
 @given(MESSAGES, st.data())
-def test_every_truncation_of_a_valid_message_is_a_wire_error(
-    message: m.WireModel, data: st.DataObject
-) -> None:
+def test_every_truncation_of_a_valid_message_is_a_wire_error(message: WireModel, data: st.DataObject) -> None:
     payload, attachment = encode(message)
     cut_header = data.draw(st.integers(0, len(attachment) - 1))
     with pytest.raises(WireError):
@@ -320,7 +319,7 @@ def test_nan_or_inf_in_scalar_and_dict_fields_is_a_wire_error(field: str, value:
     fields = {"uav": "a", "seq": 1, "stamp_s": 0.0, "delta_yaw_rad": 0.0, "yaw_rad": 0.0,
               "inlier_count": 0, "patch_count": 0, "confidence": 0.0, "low_confidence": True,
               "method": "none", field: value}  # fmt: skip
-    header = msgpack.packb({"v": m.SCHEMA_VERSION, "t": "YawEstimate", "f": fields, "a": []})
+    header = msgpack.packb({"v": SCHEMA_VERSION, "t": "YawEstimate", "f": fields, "a": []})
     with pytest.raises(WireError, match=field):
         decode(b"", header, m.YawEstimate)
 

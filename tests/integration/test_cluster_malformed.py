@@ -13,7 +13,8 @@ import pytest
 import zenoh
 
 from common import keys
-from common.messages import Health, ImuSample, decode, encode, read_error_reply
+from common.codec import decode, encode, read_error_reply
+from common.messages import Health, ImuSample
 from services.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster

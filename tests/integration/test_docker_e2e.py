@@ -25,10 +25,12 @@ import pytest
 import zenoh
 
 from common import keys
+from common.codec import decode
 from common.geometry import euler_from_quaternion
-from common.messages import AttitudeEstimate, PoseEstimate, WireModel, YawEstimate, decode
+from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.sim.flight import hover_flight
 from common.sim.scene import default_flight
+from common.wire import WireModel
 from services.report import write_json
 from services.runtime.transport import TransportSettings, open_session, zbytes
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from common import keys
-from common.messages import PoseEstimate, decode
+from common.codec import decode
+from common.messages import PoseEstimate
 from common.sim.scene import default_flight
 from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster

@@ -17,7 +17,8 @@ import pytest
 import zenoh
 
 from common import keys
-from common.messages import Frame, Health, YawEstimate, decode, encode
+from common.codec import decode, encode
+from common.messages import Frame, Health, YawEstimate
 from common.sim.flight import hover_flight
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
@@ -198,3 +199,61 @@ def test_one_active_master_and_a_standby_that_continues_the_yaw_when_it_is_kille
     for k, (y,) in published.items():
         if k > 0:
             assert y.yaw_rad == pytest.approx(reference[k], abs=np.radians(1.0)), (k, y.method)
+
+
+def test_forged_yaw_before_a_takeover_does_not_move_the_standbys_starting_yaw(
+    tmp_path: Path, flight_frames: tuple[list[np.ndarray], np.ndarray]
+) -> None:
+    """Open profile: a forger re-publishes the last frames' yaw (right seq and stamp, 2 rad off) just before
+    the active master dies. The standby keeps only yaw of the session that answered as the active master,
+    so it continues from the real yaw and counts the forged ones (``yaw_untrusted``)."""
+    frames, reference = flight_frames
+    takeover = 40
+    with LocalCluster(spec(), tmp_path / "logs") as cluster:
+        cluster.start(with_master=False)
+        masters = {}
+        for node in ("ma", "mb"):
+            masters[node] = f"master/{node}/0"
+            cluster.spawn(
+                masters[node], ["master", *cluster.transport_args(), "--node", node, "--uav", "uav0"]
+            )
+        cluster.wait_alive({*masters.values(), "worker/h1/0", "foreman/h1/0"})
+        with (
+            open_session(cluster.observer_transport()) as session,
+            open_session(cluster.observer_transport()) as forger,
+        ):
+            yaws = Yaws(session)
+            pub = session.declare_publisher(
+                keys.camera_key("uav0"), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            assert yaws.wait(lambda: len(leaders(session)) == 1), "no master took the lead"
+            (leader,) = leaders(session)
+            active = "ma" if "/leader/ma/" in leader else "mb"
+            standby = "mb" if active == "ma" else "ma"
+            forged_yaw = forger.declare_publisher(keys.yaw_key("uav0"))
+            for k in range(N):
+                if k == takeover:
+                    assert yaws.wait(lambda: takeover - 1 in yaws.by_seq())
+                    for seq in range(takeover - 5, takeover):
+                        payload, attachment = encode(
+                            YawEstimate(
+                                uav="uav0", seq=seq, stamp_s=seq / FPS, delta_yaw_rad=0.0,
+                                yaw_rad=reference[seq] + 2.0, inlier_count=40, patch_count=40,
+                                confidence=1.0, low_confidence=False, method="patches",
+                            )
+                        )  # fmt: skip
+                        forged_yaw.put(payload, attachment=attachment)
+                    assert yaws.wait(
+                        lambda: health(session, "master", standby).counters.get("yaw_untrusted", 0) >= 5
+                    ), "the standby did not refuse the forged yaw"
+                    cluster.signal(masters[active], signal.SIGKILL)
+                payload, attachment = frame("uav0", k, k / FPS, frames[k])
+                pub.put(payload, attachment=attachment)
+                time.sleep(1 / FPS)
+            assert yaws.wait(lambda: N - 1 in yaws.by_seq())
+    published = yaws.by_seq()
+    after = [k for k in range(takeover, N) if k in published]
+    assert len(after) >= N - takeover - 2, f"frames without a yaw after the take-over: {after}"
+    for k in after:
+        (y,) = published[k]
+        assert y.yaw_rad == pytest.approx(reference[k], abs=np.radians(1.0)), (k, y.method)

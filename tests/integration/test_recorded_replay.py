@@ -22,10 +22,11 @@ import numpy as np
 import pytest
 
 from common import keys
+from common.codec import decode
 from common.datasets.euroc import write_euroc
 from common.datasets.rosbag_writer import write_bag
 from common.dispatch import Balance
-from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate, decode
+from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.sim.flight import hover_flight
 from services.camera.sources import simulated_camera_measurements
 from services.master.service import Topology

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from services.bench import hostile
+from services.bench import hostile, takeover
 from services.bench.security import small_cluster
 from services.secure import SecureProfile
 from services.up import LocalCluster
@@ -89,3 +89,18 @@ def test_fake_foreman_answering_wrong_shifts_leaves_the_yaw_within_a_degree(clus
     else:
         log = (Path(cluster.log_dir) / "master_master_0.log").read_text()
         assert "suspending foreman/evil/0" in log  # caught and reported, not merely outvoted
+
+
+def test_forged_yaw_before_a_takeover_does_not_move_the_yaw(cluster: LocalCluster) -> None:
+    """Last in the module: it kills the cluster's master (a standby takes over)."""
+    frames = 40
+    result = takeover.attack_forged_yaw_takeover(
+        cluster, profile_of(cluster), frames, FPS, hostile.reference_yaw_rad(frames)
+    )
+    evidence = result.evidence
+    assert evidence["killed"] is not None and evidence["forged_yaw_sent"] > 0
+    assert evidence["yaw_error_deg"] < 1.0 and not result.succeeded, evidence
+    if cluster.secure:
+        assert evidence["refused_by_standby"] == 0  # access control: never delivered
+    else:
+        assert evidence["refused_by_standby"] >= 1, evidence

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from common import keys
-from common.messages import Health, Stats, decode
+from common.codec import decode
+from common.messages import Health, Stats
 from services.runtime.transport import open_session, zbytes
 from services.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two

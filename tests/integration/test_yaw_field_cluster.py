@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from common import keys
+from common.codec import decode
 from common.datasets.calibration import opencv_yaml_text
-from common.messages import Stats, decode
+from common.messages import Stats
 from common.provenance import Provenance
 from common.sim.field import field_flight
 from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid

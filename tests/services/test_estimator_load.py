@@ -19,10 +19,11 @@ import pytest
 import zenoh
 
 from common import keys
+from common.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.measurements import ImuMeasurement
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
-from common.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats, decode, encode
+from common.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings
 from services.estimator.sim_publisher import publish_measurements

@@ -12,12 +12,14 @@ import pytest
 import zenoh
 
 from common import keys
+from common.codec import decode, encode, read_error_reply
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
-from common.messages import BlockJob, PatchJob, PatchResult, decode, encode, read_error_reply
+from common.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService, ForemanSettings
 from services.runtime.handoff import Counters
-from services.runtime.scatter import FrameWork, Scatter
+from services.runtime.round import FrameWork
+from services.runtime.scatter import Scatter
 from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService, WorkerSettings
 from tests.builders import JOB_SETTINGS, patch_job

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from common import keys
+from common.codec import decode, encode
 from common.datasets.calibration import opencv_yaml_text
 from common.geometry import R_BODY_CAMERA_FORWARD, quaternion_from_matrix
 from common.localization.pose import rotation_angle_rad
 from common.localization.scoring import ScoringMethod
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState
-from common.messages import Frame, PoseEstimate, decode, encode
+from common.messages import Frame, PoseEstimate
 from common.sim.objects import (
     object_camera,
     object_flight,

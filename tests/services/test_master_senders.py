@@ -12,7 +12,8 @@ import pytest
 import zenoh
 
 from common import keys
-from common.messages import Frame, YawEstimate, decode, encode
+from common.codec import decode, encode
+from common.messages import Frame, YawEstimate
 from common.sim.flight import hover_flight
 from services.master import MasterService, MasterSettings
 from services.runtime.transport import open_session, zbytes

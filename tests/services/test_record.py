@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from common import keys
+from common.codec import encode
 from common.datasets.recording import RecordingError, from_json, open_recording
-from common.messages import Frame, ImuSample, PoseEstimate, RangeSample, encode
+from common.messages import Frame, ImuSample, PoseEstimate, RangeSample
 from common.sim.flight import hover_flight
 from services.record import RecordService, RecordSettings
 from services.runtime.transport import open_session

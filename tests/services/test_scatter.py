@@ -16,11 +16,13 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.codec import decode, encode
 from common.dispatch import SELF, Dispatcher, DispatchSettings
-from common.messages import PatchJob, PatchResult, decode, encode
+from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters
-from services.runtime.scatter import FrameWork, RoundReport, Scatter
+from services.runtime.round import FrameWork, RoundReport
+from services.runtime.scatter import Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
 from tests.builders import JOB_SETTINGS
 from tests.zenoh_helpers import matched, wait_until

@@ -158,3 +158,26 @@ def test_up_takes_secure_and_zenoh_config_options() -> None:
     assert args.secure == Path("out/secure") and args.zenoh_config is None
     args = build_parser().parse_args(["up", "--cluster", "x.yml", "--zenoh-config", "z.json5"])
     assert args.zenoh_config == Path("z.json5") and args.secure is None
+    for command in (["up", "--cluster", "x.yml"], ["loadtest"]):
+        args = build_parser().parse_args([*command, "--secure", "certs-here", "--zenoh-config", "z.json5"])
+        assert args.secure == Path("certs-here") and args.zenoh_config == Path("z.json5")
+
+
+def test_only_a_uavs_masters_hold_its_election_tokens_and_clients_may_watch_them() -> None:
+    elect = keys.election_all("uav0")
+    assert who_may("ingress", "liveliness_token", elect) == {"master.uav0"}
+    assert "capataz/elect/**" in allowed("client", "ingress", "declare_liveliness_subscriber")
+    # a standby continues from the active master's yaw and learns its session from its health reply
+    assert keys.yaw_key("uav0") in allowed("master.uav0", "ingress", "declare_subscriber")
+    assert "capataz/health/master/**" in allowed("master.uav0", "ingress", "query")
+
+
+def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_data_is_widened() -> None:
+    """Zenoh matches a declaration by inclusion: a client's ``capataz/uav/*/yaw`` subscription must be let
+    through to the master that puts ``capataz/uav/uav0/yaw``, or the client gets nothing."""
+    assert "capataz/uav/*/yaw" in allowed("master.uav0", "egress", "declare_subscriber")
+    assert "capataz/uav/*/camera" not in allowed("master.uav0", "egress", "declare_subscriber")
+    assert "capataz/health/**" in allowed("worker", "egress", "query")
+    # what a role may send is unchanged: no put, no queryable for a client, no yaw put for a camera
+    assert allowed("client", "ingress", "put") == set()
+    assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")

@@ -17,8 +17,10 @@ import numpy as np
 import pytest
 
 from common import keys
-from common.messages import AttitudeEstimate, Frame, PoseEstimate, Stats, WireModel, encode
+from common.codec import encode
+from common.messages import AttitudeEstimate, Frame, PoseEstimate, Stats
 from common.sim.flight import hover_flight
+from common.wire import WireModel
 from services.runtime.transport import open_session
 from services.view import ViewService, ViewSettings
 from tests.builders import yaw_estimate

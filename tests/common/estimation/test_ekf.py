@@ -15,7 +15,6 @@ from common.errors import InputError
 from common.estimation.ekf import (
     AttitudeAltitudeEkf,
     EkfSettings,
-    EkfState,
 )
 from common.estimation.ekf_models import (
     accelerometer_model,
@@ -35,14 +34,9 @@ from common.geometry import (
     wrap_angle_rad,
 )
 from common.sim.sensors import (
-    ImuNoise,
-    RangeNoise,
     ray_ground_distance,
-    sample_stamps,
-    simulate_imu,
-    simulate_range,
 )
-from common.sim.trajectory import turns_trajectory
+from tests.common.estimation.flight_b import run_over_flight_b
 
 angles = st.floats(-math.pi, math.pi, allow_nan=False)
 tilts = st.floats(-0.6, 0.6, allow_nan=False)
@@ -275,36 +269,9 @@ def test_settings_and_inputs_are_validated() -> None:
 
 
 def _run_flight_b(visual_yaw: bool, duration_s: float = 25.0) -> tuple[np.ndarray, float]:
-    """EKF over the first ``duration_s`` of flight (b) from the simulated IMU and rangefinder, the
-    manoeuvre acceleration from the trajectory, and (optionally) yaw readings of 0.3 deg noise at 20 Hz."""
-    trajectory = turns_trajectory(seed=0)
-    imu = simulate_imu(trajectory, sample_stamps(duration_s, 400.0), ImuNoise(), seed=0)
-    rng = simulate_range(trajectory, sample_stamps(duration_s, 50.0), RangeNoise(), seed=0)
-    truth = trajectory.sample(imu.stamps_s)
-    ekf = AttitudeAltitudeEkf()
-    q_true = imu.true_q_world_body
-    state: EkfState = ekf.initial_state(q_true[0], float(rng.true_pz_m[0]), 0.0)
-    noise = np.random.default_rng(5).normal(0.0, math.radians(0.3), len(imu.stamps_s))
-    errors = []
-    alt_errors = []
-    j = 0
-    for k, t in enumerate(imu.stamps_s):
-        if k > 0:
-            state = ekf.predict(state, imu.gyro_rad_s[k], float(t - imu.stamps_s[k - 1]))
-        a = truth.a_world_m_s2[k]
-        state = ekf.update_accelerometer(
-            state, imu.accel_m_s2[k], (float(a[0]), float(a[1]), float(a[2]))
-        ).state
-        while j < len(rng.stamps_s) and rng.stamps_s[j] <= t:
-            state = ekf.update_range(state, float(rng.range_m[j])).state
-            j += 1
-        if visual_yaw and k % 20 == 0:
-            state = ekf.update_yaw(state, float(truth.euler_rad[k, 2] + noise[k])).state
-        errors.append(
-            wrap_angle_rad(euler_from_quaternion(state.q_world_body) - euler_from_quaternion(q_true[k]))
-        )
-        alt_errors.append(state.pz_m - truth.p_world_body_m[k, 2])
-    return np.degrees(np.array(errors)), float(np.sqrt(np.mean(np.square(alt_errors))))
+    """Paper C's EKF over flight (b): attitude errors (deg) and the altitude RMSE (m)."""
+    run = run_over_flight_b(AttitudeAltitudeEkf(), seed=0, duration_s=duration_s, visual_yaw=visual_yaw)
+    return run.errors_deg, float(np.sqrt(np.mean(np.square(run.altitude_errors_m))))
 
 
 def test_tracks_flight_b_attitude_and_altitude() -> None:

@@ -30,13 +30,10 @@ from common.estimation.eskf import (
     error_jacobian,
 )
 from common.geometry import (
-    euler_from_quaternion,
     quaternion_from_euler,
     quaternion_multiply,
-    wrap_angle_rad,
 )
-from common.sim.sensors import ImuNoise, RangeNoise, sample_stamps, simulate_imu, simulate_range
-from common.sim.trajectory import turns_trajectory
+from tests.common.estimation.flight_b import run_over_flight_b
 
 tilts = st.floats(-0.5, 0.5, allow_nan=False)
 angles = st.floats(-math.pi, math.pi, allow_nan=False)
@@ -153,30 +150,9 @@ def test_closed_form_inverse_matches_numpy(m: int, seed: int) -> None:
 
 
 def _run(ekf, seed: int, duration_s: float = 30.0) -> tuple[np.ndarray, object, object]:  # type: ignore[no-untyped-def]
-    """The filter over flight (b) from its simulated IMU and rangefinder, the manoeuvre acceleration of the
-    trajectory and yaw readings (0.3 deg noise, 20 Hz): roll, pitch, yaw errors (deg) at every IMU sample."""
-    trajectory = turns_trajectory(seed=seed)
-    imu = simulate_imu(trajectory, sample_stamps(duration_s, 400.0), ImuNoise(), seed=seed)
-    rng = simulate_range(trajectory, sample_stamps(duration_s, 50.0), RangeNoise(), seed=seed)
-    truth = trajectory.sample(imu.stamps_s)
-    state = ekf.initial_state(imu.true_q_world_body[0], float(rng.true_pz_m[0]), 0.0)
-    noise = np.random.default_rng(5).normal(0.0, math.radians(0.3), len(imu.stamps_s))
-    errors = []
-    j = 0
-    for k, t in enumerate(imu.stamps_s):
-        if k > 0:
-            state = ekf.predict(state, imu.gyro_rad_s[k], float(t - imu.stamps_s[k - 1]))
-        a = truth.a_world_m_s2[k]
-        state = ekf.update_accelerometer(
-            state, imu.accel_m_s2[k], (float(a[0]), float(a[1]), float(a[2]))
-        ).state
-        while j < len(rng.stamps_s) and rng.stamps_s[j] <= t:
-            state = ekf.update_range(state, float(rng.range_m[j])).state
-            j += 1
-        if k % 20 == 0:
-            state = ekf.update_yaw(state, float(truth.euler_rad[k, 2] + noise[k])).state
-        errors.append(wrap_angle_rad(euler_from_quaternion(state.q_world_body) - truth.euler_rad[k]))
-    return np.degrees(np.array(errors)), state, imu
+    """The filter over flight (b): roll, pitch, yaw errors (deg) at every IMU sample, final state, IMU."""
+    run = run_over_flight_b(ekf, seed=seed, duration_s=duration_s)
+    return run.errors_deg, run.state, run.imu
 
 
 @pytest.mark.parametrize("seed", [1])

@@ -14,7 +14,8 @@ from typing import Any
 
 import pytest
 
-from common.messages import Frame, decode
+from common.codec import decode
+from common.messages import Frame
 from services.loadtest.frames import simulated_frames
 from services.loadtest.harness import RunSettings, StreamLog
 from services.loadtest.runner import _stream
