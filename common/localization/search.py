@@ -27,15 +27,17 @@ def anneal(
     keep: int,
     visible: npt.NDArray[np.bool_] | None,
     coarse: float = 1.0,
+    expected_points: int = 0,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Annealed importance weighting (Deutscher et al.): per layer weigh with ``exp(beta l)`` at an
     effective sample size of half the cloud, resample ``keep`` poses, diffuse with a halving noise
     (position m, angle rad); the last layer is weighed and returned with its log weights. The scoring's
     pixel scales start ``coarse`` times wider and narrow geometrically to 1 on the last layer;
-    ``log_likelihood(positions, rotations, edges, visible, coarseness)`` scores the poses."""
+    ``log_likelihood(positions, rotations, edges, visible, coarseness, expected_points)`` scores the
+    poses."""
     for layer in range(layers):
         coarseness = coarse ** (1.0 - layer / max(layers - 1, 1))
-        loglik = log_likelihood(positions, rotations, edges, visible, coarseness)
+        loglik = log_likelihood(positions, rotations, edges, visible, coarseness, expected_points)
         last = layer == layers - 1
         beta = beta_for_ess(loglik, 0.5)
         logw = beta * loglik
@@ -57,18 +59,30 @@ def search_candidates(
     ang_spread: float,
     distance_m: float,
     rng: np.random.Generator,
+    anchor_world_m: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """``n`` poses about ``centre``, half of them uniform in the box ``+- (pos_spread, ang_spread)``, half
-    turned more and shifted less: seen from ``distance_m`` a sideways shift ``dp`` moves the model in the
-    image like a turn of ``dp / d``, so that half covers turns of ``ang_spread + pos_spread / d`` with a third
-    of the position spread (denser where a kidnapped camera's image moved)."""
+    """``n`` poses about ``centre``: half uniform in the box ``+- (pos_spread, ang_spread)`` (position per
+    axis, world rotation vector per axis); half *aimed*: positions in the same box, each turned so that
+    ``anchor_world_m`` (the model in view; default: the point ``distance_m`` ahead of the centre) stays
+    where the centre sees it, plus a turn of up to ``ang_spread / 2``. A camera moved sideways by ``dp``
+    sees the model shifted like a turn of ``dp / d``; the box needs both to match, which in 6-D it rarely
+    samples, while the aimed half couples them (the centre already put the model where the image shows it,
+    :func:`chamfer_turn`)."""
     half = n // 2
     units = rng.uniform(-1.0, 1.0, (n, 6))
-    turn = ang_spread + pos_spread / max(distance_m, 1e-6)
-    scale_p = np.where(np.arange(n)[:, None] < half, pos_spread, pos_spread / 3.0)
-    scale_r = np.where(np.arange(n)[:, None] < half, ang_spread, turn)
-    positions = centre.p_world_camera_m + units[:, :3] * scale_p
-    rotations = perturb(np.repeat(centre.R_world_camera[None], n, axis=0), units[:, 3:] * scale_r)
+    positions = centre.p_world_camera_m + units[:, :3] * pos_spread
+    turns = units[:, 3:] * ang_spread
+    if anchor_world_m is None:
+        anchor_world_m = centre.p_world_camera_m + distance_m * centre.R_world_camera[:, 2]
+    seen = anchor_world_m - centre.p_world_camera_m
+    seen = seen / max(float(np.linalg.norm(seen)), 1e-9)
+    aimed = anchor_world_m - positions[half:]
+    aimed = aimed / np.maximum(np.linalg.norm(aimed, axis=1, keepdims=True), 1e-9)
+    axis = np.cross(seen, aimed)
+    sin = np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.arctan2(sin, aimed @ seen[:, None])
+    turns[half:] = np.where(sin > 1e-12, axis / np.maximum(sin, 1e-12) * angle, 0.0) + 0.5 * turns[half:]
+    rotations = perturb(np.repeat(centre.R_world_camera[None], n, axis=0), turns)
     return positions, rotations
 
 
@@ -79,13 +93,16 @@ def chamfer_turn(
     camera: CameraModel,
     turn_rad: float,
     cap_px: float,
+    bins: npt.ArrayLike | None = None,
 ) -> FloatArray | None:
     """The camera turn ``R`` (applied as ``R R_camera_world``) that moves projected model points ``(u, v)``
     by the 2D shift where the image's edges fit them best: mean distance-transform value (capped at
     ``cap_px``; points shifted out of the image count the cap) over a grid of shifts up to ``turn_rad x f``,
     coarse then fine. A camera moved sideways or turned moves a model seen from afar mostly as a whole; this
     finds that move whatever the search spread. None when the best shift is not clearly better (20 %) than
-    none."""
+    none. With ``bins`` (each point's orientation bin) the distances are the oriented ones
+    (:func:`~common.localization.scoring.with_oriented_distances`): clutter of other directions does not
+    attract the shift."""
     u = np.asarray(u_px, dtype=np.float32)
     v = np.asarray(v_px, dtype=np.float32)
     cap = np.float32(cap_px)
@@ -95,7 +112,11 @@ def chamfer_turn(
         sv = (v[None, :] + shifts[:, 1:].astype(np.float32) + np.float32(0.5)).astype(np.int32)
         inside = (su >= 0) & (su < edges.width) & (sv >= 0) & (sv < edges.height)
         index = np.where(inside, sv * np.int32(edges.width) + su, edges.width * edges.height)
-        d = np.minimum(np.take(edges.distance_lookup, index), cap)
+        if bins is not None and edges.oriented_lookup is not None:
+            offset = np.asarray(bins, dtype=np.int32) * np.int32(edges.oriented_lookup.shape[1])
+            d = np.minimum(np.take(edges.oriented_lookup.ravel(), index + offset[None, :]), cap)
+        else:
+            d = np.minimum(np.take(edges.distance_lookup, index), cap)
         return np.asarray(d.mean(axis=1), dtype=np.float64)
 
     reach = max(4.0, turn_rad * max(camera.fx, camera.fy))

@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from common.bounds import Bounded, bounded
 from common.errors import InputError
+from common.localization.motion import MotionSettings, MotionState
 from common.localization.pose import CameraPose
 from common.localization.refine import RefineSettings
 from common.localization.scoring import ScoringSettings
@@ -42,6 +43,8 @@ class TrackerSettings(Bounded):
     angular_noise_rad_s: float = bounded(float(np.radians(25.0)), ge=0.0)
     search_candidates: int = bounded(3000, ge=1)
     search_layers: int = bounded(7, ge=1)
+    search_keep: int = bounded(800, ge=1)
+    oriented_search: bool = True
     search_coarseness: float = bounded(4.0, gt=0.0)
     refine_search: int = bounded(8, ge=0)
     refine_tracking: int = bounded(1, ge=0)
@@ -49,8 +52,15 @@ class TrackerSettings(Bounded):
     tracking_search_px: int = bounded(8, ge=1)
     visibility_refresh_rad: float = bounded(float(np.radians(5.0)), ge=0.0)
     min_point_ratio: float = bounded(0.35, ge=0.0, le=1.0)
-    velocity_smoothing: float = bounded(0.7, ge=0.0, le=1.0)
+    visible_floor: float = bounded(0.5, ge=0.0, le=1.0)
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    measurement_inflation: float = bounded(4.0, gt=0.0)
+    noise_adaptation: float = bounded(0.1, ge=0.0, le=1.0)
+    max_noise_scale: float = bounded(10.0, ge=1.0)
+    max_rejections: int = bounded(3, ge=1)
+    gyro_sigma_rad_s: float = bounded(float(np.radians(0.5)), gt=0.0)
     lost_match: float = bounded(0.4, ge=0.0, le=1.0)
+    recover_ratio: float = bounded(0.6, ge=0.0, le=1.0)
     lost_frames: int = bounded(10, ge=1)
     spread_growth: float = bounded(1.4, gt=0.0)
     max_spread_factor: float = bounded(4.0, gt=0.0)
@@ -78,12 +88,21 @@ class TrackerState:
     last_good: CameraPose
     #: sample points a good pose shows (a fading maximum of the good frames'; from the start pose at first)
     expected_points: int = 0
+    #: sample points with an oriented match at the estimate, and their fading maximum over good frames
+    matched_points: int = 0
+    expected_matched: float = 0.0
     distance_m: float = 1.0
     bad_frames: int = 0
     search_pending: bool = True
     spread_factor: float = 1.0
     frames: int = 0
     recoveries: int = 0
+    #: the constant-velocity Kalman filter (None until the first good frame and after a bad one)
+    motion: MotionState | None = None
+    #: adaptive scale of the refinement's covariance (see ModelTracker._fuse)
+    noise_scale: float = 1.0
+    #: good frames in a row whose pose the motion model's gate rejected
+    rejected_frames: int = 0
     #: hidden-line mask (E, S) of the sample points and the pose it was computed from
     visible: npt.NDArray[np.bool_] | None = None
     visible_from: CameraPose | None = None

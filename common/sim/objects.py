@@ -26,8 +26,9 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
-from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.pose import CameraPose, perturb, rotation_angle_rad, rotation_vectors
 from common.sim.scene import RenderOptions, SampledFlight, render_view
+from common.sim.sensors import ImuNoise
 from common.types import FloatArray
 
 UInt8Array = npt.NDArray[np.uint8]
@@ -241,6 +242,22 @@ def kidnap(
     rot = np.broadcast_to(np.asarray(rotvec_rad, dtype=np.float64), (flight.n_frames - frame, 3))
     R[frame:] = perturb(R[frame:], np.ascontiguousarray(rot))
     return replace(flight, p_world_camera_m=p, R_world_camera=R)
+
+
+def frame_gyro(flight: CameraFlight, noise: ImuNoise, seed: int) -> FloatArray:
+    """What a gyro rigidly mounted with the camera reads, averaged over each frame interval and turned into
+    the camera frame (T, 3) rad/s (row 0: zeros): the true mean rate ``Log(R_k-1^T R_k) / dt`` plus a
+    constant bias ``N(0, gyro_bias_sigma)`` per axis (by seed) and the white noise averaged over the
+    interval (``density / sqrt(dt)``)."""
+    rng = np.random.default_rng(seed)
+    bias = rng.normal(size=3) * noise.gyro_bias_sigma_rad_s
+    R = flight.R_world_camera
+    dt = np.diff(flight.times_s)
+    if np.any(dt <= 0.0):
+        raise InputError("flight times must increase")
+    rates = rotation_vectors(np.einsum("nji,njk->nik", R[:-1], R[1:])) / dt[:, None]
+    white = rng.normal(size=rates.shape) * (noise.gyro_noise_density_rad_s_sqrt_hz / np.sqrt(dt))[:, None]
+    return np.concatenate([np.zeros((1, 3)), rates + bias + white])
 
 
 def offset_pose(

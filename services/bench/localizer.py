@@ -76,6 +76,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--particles", type=int, default=200, help="field suite: particles")
     parser.add_argument(
+        "--no-gyro",
+        action="store_true",
+        help="field suite: the office without the UAV's gyro (images only; the object never uses one)",
+    )
+    parser.add_argument(
         "--scorings", nargs="+", choices=[m.value for m in ScoringMethod], help="field suite: scorings (all)"
     )
 

@@ -7,7 +7,8 @@
   ``searching`` during a run of poorly fitting frames, ``lost`` on the frame the filter re-initialised after
   the likelihood collapsed (the pose is then the centre of the fresh, wide cloud).
 - :class:`ModelTrackerPath`: the model tracker (:mod:`common.localization.tracker`), which needs no odometry
-  and uses the VO velocity and world-frame angular rate when given; ``tracking_state`` is its own status.
+  and uses the VO velocity and world-frame angular rate when given, else the gyro's mean rate over the frame
+  interval when given (:func:`mean_gyro_camera`); ``tracking_state`` is its own status.
 
 The cores stay state in, state out; these wrappers only hold the current state and the random generator.
 """
@@ -47,7 +48,24 @@ class LocalizationPath(Protocol):
 
     kind: FilterKind
 
-    def step(self, frame: Frame, dt_s: float, vo: VoPair) -> PoseEstimate: ...
+    def step(
+        self, frame: Frame, dt_s: float, vo: VoPair, gyro_camera_rad_s: np.ndarray | None = None
+    ) -> PoseEstimate: ...
+
+
+def mean_gyro_camera(
+    stamps_s: np.ndarray,
+    gyro_body_rad_s: np.ndarray,
+    after_s: float,
+    until_s: float,
+    R_body_camera: np.ndarray,
+) -> np.ndarray | None:
+    """The mean body rate of the gyro readings stamped in ``(after_s, until_s]``, turned into the camera
+    frame (``w_camera = R_body_camera^T w_body``); None when there is none."""
+    inside = (stamps_s > after_s) & (stamps_s <= until_s)
+    if not np.any(inside):
+        return None
+    return np.asarray(R_body_camera.T @ gyro_body_rad_s[inside].mean(axis=0), dtype=np.float64)
 
 
 def odometry_between(previous: PoseEstimate, current: PoseEstimate) -> tuple[np.ndarray, np.ndarray] | None:
@@ -136,7 +154,10 @@ class ParticleFilterPath:
         guess = settings.start_pose().body_state(settings.R_body_camera)
         self.state: ParticleState = self.filter.initialize(guess, self.rng)
 
-    def step(self, frame: Frame, dt_s: float, vo: VoPair) -> PoseEstimate:
+    def step(
+        self, frame: Frame, dt_s: float, vo: VoPair, gyro_camera_rad_s: np.ndarray | None = None
+    ) -> PoseEstimate:
+        """(The gyro is not used: paper B's motion model takes the VO's Euler-angle rates.)"""
         odometry = None if vo is None else euler_odometry_between(*vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state, estimate = localizer_step(
@@ -157,11 +178,19 @@ class ModelTrackerPath:
         self.rng = np.random.default_rng(settings.seed)
         self.state: TrackerState = self.tracker.start(settings.start_pose())
 
-    def step(self, frame: Frame, dt_s: float, vo: VoPair) -> PoseEstimate:
+    def step(
+        self, frame: Frame, dt_s: float, vo: VoPair, gyro_camera_rad_s: np.ndarray | None = None
+    ) -> PoseEstimate:
         odometry = None if vo is None else odometry_between(*vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state = self.tracker.step(
-            self.state, self.tracker.edges(frame.pixels), dt_s, self.rng, velocity, rates
+            self.state,
+            self.tracker.edges(frame.pixels),
+            dt_s,
+            self.rng,
+            velocity,
+            rates,
+            gyro_rad_s=gyro_camera_rad_s if rates is None else None,
         )
         return pose_message(
             self.settings.uav, frame.seq, frame.stamp_s, self.state, self.settings.R_body_camera

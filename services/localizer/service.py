@@ -4,10 +4,11 @@ chooses, ``auto`` takes the particle filter with ``--use-vo`` and the tracker wi
 (:mod:`services.localizer.filters`).
 
 Subscribes to ``capataz/uav/{uav}/camera`` (and, with ``--use-vo``, to ``.../pose/vo``, whose successive poses
-give the prediction its velocity and angular rate) and publishes ``.../pose/pf``: a :class:`PoseEstimate` of
-the body (the camera on its mount) with the 6x6 covariance (position, world-frame error angles),
-``source = "pf"``, ``tracking_state`` (tracking / searching / lost), the frame's ``seq`` and ``stamp_s``.
-Settings and the command line: :mod:`services.localizer.settings`.
+give the prediction its velocity and angular rate; with ``--use-imu``, to ``.../imu``, whose gyro readings
+between two frames measure the tracker's angular rate) and publishes ``.../pose/pf``: a
+:class:`PoseEstimate` of the body (the camera on its mount) with the 6x6 covariance (position, world-frame
+error angles), ``source = "pf"``, ``tracking_state`` (tracking / searching / lost), the frame's ``seq`` and
+``stamp_s``. Settings and the command line: :mod:`services.localizer.settings`.
 
 Latest frame wins: the subscriber callback only decodes and hands the frame to a one-item slot; a frame
 replaced before the filter took it is counted (``dropped_frames``). Bad frames are refused with a log line
@@ -20,19 +21,24 @@ from __future__ import annotations
 import argparse
 import threading
 import time
+from collections import deque
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from common import keys
 from common.codec import encode
-from common.messages import Frame, PoseEstimate
-from services.localizer.filters import LocalizationPath, make_path, odometry_between
+from common.messages import Frame, ImuSample, PoseEstimate
+from services.localizer.filters import LocalizationPath, make_path, mean_gyro_camera, odometry_between
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.handoff import LatestSlot
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 from services.trajectory import add_trajectory_argument, run_with_trajectories
+
+#: gyro readings kept between frames (10 s of a 400 Hz IMU)
+IMU_BUFFER = 4000
 
 
 class LocalizerService(ConfiguredService[LocalizerSettings]):
@@ -48,6 +54,9 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self._vo_lock = threading.Lock()
         self._vo_previous: PoseEstimate | None = None
         self._vo_pair: tuple[PoseEstimate, PoseEstimate] | None = None  # the last two, time advancing
+        #: gyro readings (stamp, body rate), bounded: seconds of a 400 Hz IMU
+        self._imu_lock = threading.Lock()
+        self._imu: deque[tuple[float, np.ndarray]] = deque(maxlen=IMU_BUFFER)
         self._entities: list[Any] = []
         #: future stamps refused before they can become the "previous" stamp (one would freeze the filter)
         self.stamps = InputStamps()
@@ -70,6 +79,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self._entities.append(session.declare_subscriber(keys.camera_key(uav), self._on_frame))
         if self.settings.use_vo:
             self._entities.append(session.declare_subscriber(keys.pose_vo_key(uav), self._on_vo))
+        if self.settings.use_imu:
+            self._entities.append(session.declare_subscriber(keys.imu_key(uav), self._on_imu))
         self.spawn(self._localize, "localize")
 
     def stop(self) -> None:
@@ -122,6 +133,30 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
                 return
             self._vo_pair = (previous, pose)
 
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        reading = self.decode_sample(sample, ImuSample)
+        if reading is None or reading.uav != self.settings.uav or not self._admit("imu", reading.stamp_s):
+            return
+        if not np.all(np.isfinite(reading.gyro_rad_s)):
+            self.count_error("bad_imu", "IMU sample refused", "gyro not finite")
+            return
+        with self._imu_lock:
+            self._imu.append((reading.stamp_s, np.asarray(reading.gyro_rad_s, dtype=np.float64)))
+        self.counters.inc("imu_in")
+
+    def _gyro_between(self, after_s: float | None, until_s: float) -> np.ndarray | None:
+        """The camera-frame mean gyro rate over the frame interval (readings up to ``until_s`` are used
+        once and dropped)."""
+        with self._imu_lock:
+            readings = [r for r in self._imu if r[0] <= until_s]
+            for _ in readings:
+                self._imu.popleft()
+        if after_s is None or not readings:
+            return None
+        stamps = np.array([r[0] for r in readings])
+        rates = np.array([r[1] for r in readings])
+        return mean_gyro_camera(stamps, rates, after_s, until_s, self.settings.R_body_camera)
+
     # -- the filter thread ------------------------------------------------------------------------------
     def _localize(self) -> None:
         while not self.stop_event.is_set():
@@ -129,11 +164,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             if frame is None:
                 continue
             dt = 0.0 if self._last_stamp_s is None else frame.stamp_s - self._last_stamp_s
+            gyro = self._gyro_between(self._last_stamp_s, frame.stamp_s) if self.settings.use_imu else None
             self._last_stamp_s = frame.stamp_s
             with self._vo_lock:
                 vo = self._vo_pair
             t0 = time.perf_counter()
-            message = self.path.step(frame, dt, vo)
+            message = self.path.step(frame, dt, vo, gyro)
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
             self.counters.inc(f"frames_{message.tracking_state}")
             payload, attachment = encode(message)

@@ -79,6 +79,8 @@ class LocalizerSettings(BaseModel):
     angular_noise_deg_s: float = Field(default=25.0, gt=0.0)
     layers: int = Field(default=2, ge=1, le=10)
     use_vo: bool = False
+    #: tracker: the gyro on capataz/uav/{uav}/imu measures the motion model's angular rate
+    use_imu: bool = False
     filter: FilterKind = FilterKind.AUTO
 
     @field_validator("initial_pose")
@@ -188,6 +190,11 @@ def register_arguments(parser: Any) -> None:
         "--layers", type=int, default=2, help="tracker: annealing layers per frame (default 2)"
     )
     parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
+    parser.add_argument(
+        "--use-imu",
+        action="store_true",
+        help="tracker: the gyro on capataz/uav/{uav}/imu measures the motion model's angular rate",
+    )
     add_enum_argument(
         parser, "--filter", FilterKind, FilterKind.AUTO,
         help="particle: paper B's particle filter (predicted by pose/vo); tracker: the model tracker (no "
@@ -221,6 +228,7 @@ def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
             angular_noise_deg_s=args.angular_noise,
             layers=args.layers,
             use_vo=args.use_vo,
+            use_imu=args.use_imu,
             filter=FilterKind(args.filter),
         )
     except ValueError as exc:

@@ -19,6 +19,7 @@ from services.localizer.filters import (
     ModelTrackerPath,
     ParticleFilterPath,
     make_path,
+    mean_gyro_camera,
     particle_tracking_state,
 )
 from services.localizer.settings import register_arguments, settings_from_args
@@ -100,3 +101,25 @@ def test_use_vo_office_flight_does_not_snap_onto_window_bars() -> None:
     errors_m = [np.linalg.norm(m.p_world_body_m - truth[m.seq, :3]) for m in messages[-5:]]
     assert max(errors_m) < 0.10, errors_m
     assert messages[-1].tracking_state == "tracking"
+
+
+def test_gyro_over_the_frame_interval_is_averaged_and_turned_into_the_camera_frame() -> None:
+    settings = _settings("--use-imu")
+    assert settings.use_imu
+    stamps = np.array([0.99, 1.0, 1.01, 1.02, 1.05, 1.06])
+    body = np.zeros((6, 3))
+    body[:, 2] = [9.0, 9.0, 0.2, 0.4, 0.6, 9.0]  # yaw rate (FLU z); readings outside (1.0, 1.05] are ignored
+    camera = mean_gyro_camera(stamps, body, 1.0, 1.05, settings.R_body_camera)
+    assert camera is not None
+    assert np.allclose(settings.R_body_camera @ camera, [0.0, 0.0, 0.4])
+    assert mean_gyro_camera(stamps, body, 1.06, 1.1, settings.R_body_camera) is None
+
+
+def test_tracker_path_takes_the_gyro_and_still_tracks() -> None:
+    run = simulate_run(n_frames=4, seed=0)
+    path = ModelTrackerPath(_settings("--use-imu"))
+    for seq, image in enumerate(run.images):
+        frame = Frame(uav="uav0", seq=seq, stamp_s=0.05 * seq, width=320, height=240, pixels=image)
+        message = path.step(frame, 0.05 if seq else 0.0, None, np.zeros(3) if seq else None)
+    assert message.tracking_state == "tracking"
+    assert path.state.motion is not None

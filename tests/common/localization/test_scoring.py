@@ -13,6 +13,7 @@ from common.errors import InputError
 from common.localization.model import SceneModel
 from common.localization.projection import ProjectedSamples, project_samples, sample_edges
 from common.localization.scoring import (
+    ORIENTATION_BINS,
     ImageEdges,
     ScoringMethod,
     ScoringSettings,
@@ -21,8 +22,10 @@ from common.localization.scoring import (
     nearest_edge_log_weight,
     normal_search_distances,
     normal_weight,
+    orientation_bins,
     per_edge_log_weight,
     score_particles,
+    with_oriented_distances,
 )
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, render_scene
 
@@ -195,3 +198,37 @@ def test_images_are_validated() -> None:
         extract_image_edges(np.zeros((20, 20), dtype=np.float32))
     with pytest.raises(InputError, match="grey image"):
         extract_image_edges(np.zeros((20, 20, 3), dtype=np.uint8))
+
+
+def test_oriented_distances_see_only_edges_of_the_normal_direction() -> None:
+    image = np.full((60, 80), 60, dtype=np.uint8)
+    image[:, 40:] = 200  # a vertical edge at column 39/40 (its normal: along x)
+    image[:10, :] = 120  # a horizontal edge at row 9/10 (its normal: along y)
+    edges = with_oriented_distances(extract_image_edges(image, with_gradients=True))
+    assert edges.oriented_lookup is not None
+    assert edges.oriented_lookup.shape == (ORIENTATION_BINS, 60 * 80 + 1)
+    x_bin = int(orientation_bins(np.array([1.0]), np.array([0.0]))[0])
+    y_bin = int(orientation_bins(np.array([0.0]), np.array([1.0]))[0])
+    assert x_bin != y_bin
+    # a point 3 px right of the vertical edge, 1 px below the horizontal one
+    index = 11 * 80 + 42
+    assert edges.oriented_lookup[x_bin, index] <= 3.5  # the vertical edge, 2-3 px away
+    assert edges.oriented_lookup[y_bin, index] <= 2.0  # the horizontal edge, about 1 px away
+    beside = 11 * 80 + 5  # next to the horizontal edge, 34 px from the vertical one
+    assert edges.distance_px.ravel()[beside] <= 2.0
+    assert edges.oriented_lookup[x_bin, beside] >= 30.0  # an edge of the other direction does not count
+    far = 40 * 80 + 70  # 30 px right of the vertical edge, 30 px below the horizontal one
+    assert edges.oriented_lookup[x_bin, far] >= 25.0
+    assert edges.distance_px.ravel()[far] >= 25.0
+    assert edges.oriented_lookup[y_bin, far] >= 25.0
+    with pytest.raises(InputError):
+        with_oriented_distances(extract_image_edges(image))  # no gradients
+
+
+def test_orientation_bins_of_culled_points_are_zero_without_warnings() -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bins = orientation_bins(np.array([np.nan, 1.0, 0.0]), np.array([np.nan, 0.0, -1.0]))
+    assert bins.tolist() == [0, 0, ORIENTATION_BINS // 2]
