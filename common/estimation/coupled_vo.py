@@ -254,6 +254,14 @@ class CoupledVo:
             tilt_std_rad=0.0 if at_known else view.tilt_std_rad,
         )
 
+    @property
+    def free_position_xy(self) -> FloatArray | None:
+        """The free decomposition's chain position (continuous, not shifted to the origin; None before the
+        first frame): independent of the filter's tilt, the bias filter's position measurement."""
+        if self.chain is None:
+            return None
+        return np.array(self._free_position[:2])
+
     def vision_tilt(self) -> FloatArray | None:
         """Estimated ground normal ``(nx, ny)`` in the rectified camera (None until informed enough)."""
         s = self.settings

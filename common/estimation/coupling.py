@@ -11,7 +11,8 @@ bounded lag and applies them in stamp order:
 - external yaw: yaw update (eq. 19);
 - frame: (optionally) rectify with the EKF's roll and pitch (section III-C), visual odometry against the
   previous frame with the EKF altitude as scale (Algorithms 1-2, eqs. 9-10), then the VO yaw as a yaw
-  update (eq. 19).
+  update (eq. 19) and, with the bias filter, the free-decomposition chain's position as a position update
+  (its inertial navigation; refused too long, the position or the altitude is reset to the measurement).
 
 The visual-odometry side (rectification, the chain, its output) is
 :class:`~common.estimation.coupled_vo.CoupledVo`.
@@ -41,14 +42,12 @@ from common.estimation.coupling_types import (
     PoseOutput,
     ScaleSource,
 )
-from common.estimation.ekf import (
-    EkfSettings,
-)
+from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import (
     EkfError,
     altitude_from_range,
 )
-from common.estimation.eskf import BiasEkfState
+from common.estimation.eskf import BiasAwareEkf, BiasEkfState
 from common.estimation.filters import (
     AnyFilter,
     AnyState,
@@ -71,9 +70,7 @@ from common.estimation.measurements import (
     sensor_of,
 )
 from common.estimation.vo import VoSettings
-from common.estimation.vo_chain import (
-    VoChainSettings,
-)
+from common.estimation.vo_chain import VoChainSettings
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
     check_rotation_matrix,
@@ -125,6 +122,8 @@ class DoubleCouplingEstimator:
         self._altitude_from_range = False
         self._first_imu_s: float | None = None
         self._rect_q: FloatArray | None = None
+        self._position_gated_run = 0
+        self._range_gated_run = 0
 
     # ---- input ------------------------------------------------------------------------------------
 
@@ -223,7 +222,11 @@ class DoubleCouplingEstimator:
         dt_s = m.stamp_s - self.state.stamp_s
         previous = self.state
         try:
-            self.state, _ = self._step("predict", m.gyro_rad_s, dt_s)
+            if isinstance(self.ekf, BiasAwareEkf):
+                # the inertial navigation of the bias filter integrates the accelerometer too
+                self.state, _ = self._step("predict", m.gyro_rad_s, dt_s, m.accel_m_s2)
+            else:
+                self.state, _ = self._step("predict", m.gyro_rad_s, dt_s)
             if self._accel_waits_for_vo(m.stamp_s):
                 self.counters["accel_waiting_for_vo"] += 1
                 accepted = True
@@ -252,12 +255,19 @@ class DoubleCouplingEstimator:
             self._altitude_from_range = True
             self.counters["range_applied"] += 1
             return
+        if self._range_gated_run >= self.settings.range_reset_samples:
+            # refused too long (the altitude has run away): restart it from the reading (eq. 21 inverted)
+            self.state = self._with_altitude(self.state, m.range_m, self.ekf.settings.range_noise_m)
+            self._range_gated_run = 0
+            self.counters["range_reset"] += 1
+            return
         try:
             self.state, accepted = self._step("update_range", m.range_m)
         except EkfError as exc:
             self.counters["ekf_errors"] += 1
             logger.warning("range sample at %.4f s not applied: %s", m.stamp_s, exc)
             return
+        self._range_gated_run = 0 if accepted else self._range_gated_run + 1
         self.counters["range_applied" if accepted else "range_gated"] += 1
 
     def _apply_yaw(self, yaw_rad: float, noise_rad: float, counter: str) -> None:
@@ -314,6 +324,8 @@ class DoubleCouplingEstimator:
             return None
         if result.ok and self.settings.visual_yaw:
             self._apply_yaw(result.vo_yaw_rad, self.settings.vo_yaw_noise_rad, "vo_yaw")
+        if result.ok:
+            self._apply_position()
         if result.p_xy_m is None:
             self.counters["frames_before_vo_origin"] += 1
             return None
@@ -328,6 +340,31 @@ class DoubleCouplingEstimator:
             rectification_weight=result.rectification_weight,
             ok=result.ok,
         )
+
+    def _apply_position(self) -> None:
+        """The free chain's position (independent of the filter's tilt) as the bias filter's position
+        measurement: the first one, or one after ``position_reset_frames`` refused in a row, resets it."""
+        p_xy = self.vo.free_position_xy
+        if not isinstance(self.ekf, BiasAwareEkf) or not isinstance(self.state, BiasEkfState) or p_xy is None:
+            return
+        if (
+            self.counters["position_applied"] == 0
+            or self._position_gated_run >= self.settings.position_reset_frames
+        ):
+            self.state = self.ekf.with_position(self.state, p_xy, self.ekf.settings.position_noise_m)
+            self._position_gated_run = 0
+            self.counters[
+                "position_applied" if self.counters["position_applied"] == 0 else "position_reset"
+            ] += 1
+            return
+        try:
+            self.state, accepted = self._step("update_position", p_xy)
+        except EkfError as exc:
+            self.counters["ekf_errors"] += 1
+            logger.warning("position update not applied: %s", exc)
+            return
+        self._position_gated_run = 0 if accepted else self._position_gated_run + 1
+        self.counters["position_applied" if accepted else "position_gated"] += 1
 
     def _propagate_rectification_attitude(self, m: ImuMeasurement, dt_s: float) -> None:
         """Attitude used to rectify (:func:`~common.estimation.filters.smoothed_attitude`)."""

@@ -95,6 +95,11 @@ class CouplingSettings(Bounded):
     #: re-estimated from how much the accelerometer-bias estimate changed since (at hover a bias error
     #: ``db`` reads as a tilt error of ``db / g``).
     origin_tilt_from_bias: bool = True
+    #: With the bias filter: position updates refused this many frames in a row reset its position to the
+    #: visual one (as EKF2 resets a state whose aiding has been rejected for too long).
+    position_reset_frames: int = 10
+    #: Range updates refused this many samples in a row restart the altitude from the reading.
+    range_reset_samples: int = 25
     #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
     initial_yaw_rad: float = bounded(0.0)
     initial_position_m: tuple[float, float] = (0.0, 0.0)

@@ -35,6 +35,7 @@ from common.estimation.ekf_models import (
     three_floats,
     transition_floats,
     transition_matrix,
+    with_reset_block,
     yaw_model,
 )
 from common.types import FloatArray
@@ -131,10 +132,7 @@ class AttitudeAltitudeEkf:
 
     def with_altitude(self, state: EkfState, pz_m: float, std_m: float) -> EkfState:
         """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
-        P = state.covariance.copy()
-        P[4, :] = 0.0
-        P[:, 4] = 0.0
-        P[4, 4] = std_m**2
+        P = with_reset_block(state.covariance, 4, std_m**2)
         return EkfState(state.q_world_body, float(pz_m), P, state.stamp_s)
 
     def attitude_covariance_world(self, state: EkfState) -> FloatArray:

@@ -290,3 +290,14 @@ def expected_specific_force(
         raise InputError(f"accel_m_s2 must be finite, got {measured_m_s2}")
     expected = math.sqrt(f_world[0] ** 2 + f_world[1] ** 2 + f_world[2] ** 2)
     return None if abs(norm - expected) > tolerance_m_s2 else f_world
+
+
+def with_reset_block(covariance: FloatArray, index: int | slice, variance: float) -> FloatArray:
+    """A copy of ``covariance`` with the states at ``index`` uncorrelated from the rest and ``variance``
+    on their diagonal (a state replaced by a fresh measurement)."""
+    P = np.array(covariance, dtype=np.float64)
+    P[index, :] = 0.0
+    P[:, index] = 0.0
+    rows = np.arange(P.shape[0])[index]
+    P[rows, rows] = variance
+    return P

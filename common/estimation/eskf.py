@@ -1,16 +1,29 @@
 """Error-state EKF with gyro and accelerometer bias states: paper C's observation models, EKF2-style state.
 
-Nominal state: ``q_world_body`` (unit, q0 >= 0), altitude ``pz_m``, gyro bias ``b_g`` (rad/s, body) and
-accelerometer bias ``b_a`` (m/s^2, body). Error state (10): body-frame attitude error ``dtheta``
-(``q_true = q * [1, dtheta/2]``), ``dpz``, ``db_g``, ``db_a``, with a 10x10 covariance.
+Nominal state: ``q_world_body`` (unit, q0 >= 0), altitude ``pz_m``, gyro bias ``b_g`` (rad/s, body),
+accelerometer bias ``b_a`` (m/s^2, body), the horizontal position ``p_xy_m`` and the velocity
+``v_xy_m_s``, ``vz_m_s`` (navigation frame). Error state (15): body-frame attitude error ``dtheta``
+(``q_true = q * [1, dtheta/2]``), ``dpz``, ``db_g``, ``db_a``, ``dp_xy``, ``dv_xy``, ``dvz``;
+15x15 covariance.
 
 - Predict: the bias-corrected gyro through paper C's quaternion kinematics (eq. 12,
   :func:`~common.estimation.ekf.propagate_quaternion`); the error dynamics ``dtheta' = -[w]x dtheta - db_g``,
   constant altitude and bias random walks.
-- Updates: the accelerometer (eq. 16) plus ``b_a``, the yaw ``[cos psi, sin psi]`` (eq. 19) and the
+- Predict with the accelerometer too: velocity and position (altitude included) integrate the bias-corrected
+  specific force rotated to the navigation frame, minus gravity (strapdown inertial navigation, as PX4's
+  EKF2 and ArduPilot's EKF3); ``dv' = -(R [f]x) dtheta - R db_a``. Paper C's constant-altitude model
+  locks the rangefinder out when the vehicle climbs faster than its random walk allows.
+- Position update (:meth:`BiasAwareEkf.update_position`) with the visual odometry's horizontal position:
+  aided this way, a tilt error shows as a growing velocity and position error, so the tilt stays observable
+  during manoeuvres, when the accelerometer alone is no tilt reference.
+- Updates: the accelerometer (eq. 16) plus ``b_a``, with its noise raised by the uncertainty of the
+  manoeuvre acceleration it is compensated for, the yaw ``[cos psi, sin psi]`` (eq. 19) and the
   rangefinder (eq. 21), each from the paper-C model function of :mod:`common.estimation.ekf`; their
   quaternion Jacobians become error-state Jacobians through ``dq/dtheta = 1/2 Xi(q)``. The same chi-square
   gates and accelerometer norm check as :class:`~common.estimation.ekf.AttitudeAltitudeEkf`.
+
+The steps run compiled (:mod:`common.estimation.eskf_kernels`): one call per predict or update, the
+nominal state one vector; the tests hold them to a plain NumPy reference.
 
 Why: a constant accelerometer bias ``b`` reads as a tilt of ``b/g`` to paper C's 5-state filter (0.05 m/s^2
 is 0.3 deg), and that tilt error feeds the rectification. A body-fixed bias and a world-fixed tilt error
@@ -27,32 +40,35 @@ import numpy.typing as npt
 
 from common.bounds import bounded
 from common.errors import InputError
-from common.estimation.ekf import (
-    EkfSettings,
-)
+from common.estimation import eskf_kernels as kernels
+from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import (
     EkfError,
-    accelerometer_model,
     check_initial,
     chi_square_quantile,
-    expected_specific_force,
-    normalized_quaternion,
-    propagate_quaternion,
     rangefinder_model,
-    three_floats,
+    with_reset_block,
     yaw_model,
 )
+from common.estimation.eskf_math import error_jacobian, inverse_spd
 from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
 
 #: Error-state layout.
-THETA, PZ, BG, BA = slice(0, 3), 3, slice(4, 7), slice(7, 10)
-N_ERROR = 10
+THETA, PZ, BG, BA, PXY, VXY, VZ = slice(0, 3), 3, slice(4, 7), slice(7, 10), slice(10, 12), slice(12, 14), 14
+N_ERROR = kernels.N_ERR
+
+__all__ = ["BiasAwareEkf", "BiasEkfSettings", "BiasEkfState", "BiasUpdateResult", "error_jacobian"]
+
+#: kept for the tests that import it from here
+_inverse_spd = inverse_spd
+
+_ZERO3 = np.zeros(3)
 
 
 @dataclass(frozen=True)
 class BiasEkfSettings(EkfSettings):
-    """:class:`EkfSettings` plus the bias states' priors and random walks."""
+    """:class:`EkfSettings` plus the bias states' priors and random walks, and the inertial navigation's."""
 
     #: The gyro bias state replaces most of the attitude random walk that absorbs it in the 5-state filter.
     attitude_random_walk_rad_sqrt_s: float = bounded(0.0005, ge=0.0)
@@ -60,18 +76,82 @@ class BiasEkfSettings(EkfSettings):
     initial_accel_bias_std_m_s2: float = bounded(0.1, ge=0.0)
     gyro_bias_walk_rad_s_sqrt_s: float = bounded(2e-5, ge=0.0)
     accel_bias_walk_m_s2_sqrt_s: float = bounded(2e-4, ge=0.0)
+    #: Horizontal velocity: initial std and random walk (the accelerometer's white noise integrated).
+    initial_velocity_std_m_s: float = bounded(0.5, ge=0.0)
+    velocity_random_walk_m_s_sqrt_s: float = bounded(0.01, ge=0.0)
+    #: Std of the horizontal position measurement (the visual odometry's free chain) per frame.
+    position_noise_m: float = bounded(0.01, gt=0.0)
+    #: The accelerometer's noise grows by this share of the manoeuvre acceleration it is compensated for
+    #: (that estimate, fitted to VO positions, is about as uncertain as it is large in fast manoeuvres).
+    motion_accel_noise_share: float = bounded(1.0, ge=0.0)
 
 
 @dataclass(frozen=True)
 class BiasEkfState:
-    """Nominal state at ``stamp_s`` and the 10x10 error-state covariance (layout :data:`THETA` ...)."""
+    """Nominal state at ``stamp_s`` as one vector (layout of :mod:`~common.estimation.eskf_kernels`, read
+    through the named properties; never modified in place) and the 15x15 error-state covariance (layout
+    :data:`THETA` ...)."""
 
-    q_world_body: FloatArray
-    pz_m: float
-    gyro_bias_rad_s: FloatArray
-    accel_bias_m_s2: FloatArray
+    nominal: FloatArray
     covariance: FloatArray
     stamp_s: float
+
+    @classmethod
+    def from_parts(
+        cls,
+        q_world_body: npt.ArrayLike,
+        pz_m: float,
+        gyro_bias_rad_s: npt.ArrayLike,
+        accel_bias_m_s2: npt.ArrayLike,
+        covariance: npt.ArrayLike,
+        stamp_s: float,
+        p_xy_m: npt.ArrayLike = (0.0, 0.0),
+        v_xy_m_s: npt.ArrayLike = (0.0, 0.0),
+        vz_m_s: float = 0.0,
+    ) -> BiasEkfState:
+        nominal = np.concatenate(
+            [
+                np.asarray(q_world_body, dtype=np.float64).reshape(4),
+                [float(pz_m)],
+                np.asarray(gyro_bias_rad_s, dtype=np.float64).reshape(3),
+                np.asarray(accel_bias_m_s2, dtype=np.float64).reshape(3),
+                np.asarray(p_xy_m, dtype=np.float64).reshape(2),
+                np.asarray(v_xy_m_s, dtype=np.float64).reshape(2),
+                [float(vz_m_s)],
+            ]
+        )
+        P = np.array(covariance, dtype=np.float64)
+        if P.shape != (N_ERROR, N_ERROR):
+            raise InputError(f"covariance must have shape ({N_ERROR}, {N_ERROR}), got {P.shape}")
+        return cls(nominal, P, float(stamp_s))
+
+    @property
+    def q_world_body(self) -> FloatArray:
+        return self.nominal[0:4]
+
+    @property
+    def pz_m(self) -> float:
+        return float(self.nominal[4])
+
+    @property
+    def gyro_bias_rad_s(self) -> FloatArray:
+        return self.nominal[5:8]
+
+    @property
+    def accel_bias_m_s2(self) -> FloatArray:
+        return self.nominal[8:11]
+
+    @property
+    def p_xy_m(self) -> FloatArray:
+        return self.nominal[11:13]
+
+    @property
+    def v_xy_m_s(self) -> FloatArray:
+        return self.nominal[13:15]
+
+    @property
+    def vz_m_s(self) -> float:
+        return float(self.nominal[15])
 
 
 @dataclass(frozen=True)
@@ -83,10 +163,23 @@ class BiasUpdateResult:
     nis: float
 
 
-def error_jacobian(q: tuple[float, float, float, float]) -> FloatArray:
-    """``dq/dtheta`` (4x3) of ``q * [1, dtheta/2]`` at ``dtheta = 0``: ``1/2 [-q_v^T; q0 I + [q_v]x]``."""
-    q0, q1, q2, q3 = q
-    return 0.5 * np.array([[-q1, -q2, -q3], [q0, -q3, q2], [q3, q0, -q1], [-q2, q1, q0]])
+def _vector3(v: npt.ArrayLike, name: str) -> FloatArray:
+    """A float64 3-vector (no copy when it already is one)."""
+    if isinstance(v, np.ndarray) and v.shape == (3,) and v.dtype == np.float64:
+        return v
+    arr = np.asarray(v, dtype=np.float64)
+    if arr.shape != (3,):
+        raise InputError(f"{name} must be a 3-vector, got shape {arr.shape}")
+    return arr
+
+
+def _raise_for(status: int, what: str) -> None:
+    if status == kernels.NOT_FINITE:
+        raise InputError(f"{what}: the innovation is not finite")
+    if status == kernels.NOT_POSITIVE:
+        raise EkfError(f"{what}: the innovation covariance is not positive definite")
+    if status == kernels.DEGENERATE:
+        raise EkfError(f"{what}: the quaternion norm degenerated")
 
 
 class BiasAwareEkf:
@@ -96,18 +189,29 @@ class BiasAwareEkf:
         self.settings = settings or BiasEkfSettings()
         s = self.settings
         self._gate = {dof: chi_square_quantile(s.gate_probability, dof) for dof in (1, 2, 3)}
-        self._accel_R = np.eye(3) * s.accel_noise_m_s2**2
+        self._accel_var = s.accel_noise_m_s2**2
         self._range_var = s.range_noise_m**2
         self._yaw_var = s.yaw_noise_rad**2
-        # preallocated work arrays of the predict step (the filter is single-threaded)
-        self._F = np.eye(N_ERROR)
-        self._Q = np.zeros((N_ERROR, N_ERROR))
-        self._q_dt_s = math.nan
+        # diagonal process noise Q = dt q_rate + dt^2 q_rate2 (random walks; the gyro's white noise)
+        self._q_rate = np.r_[
+            np.full(3, s.attitude_random_walk_rad_sqrt_s**2),
+            s.altitude_random_walk_m_sqrt_s**2,
+            np.full(3, s.gyro_bias_walk_rad_s_sqrt_s**2),
+            np.full(3, s.accel_bias_walk_m_s2_sqrt_s**2),
+            np.zeros(2),
+            np.full(3, s.velocity_random_walk_m_s_sqrt_s**2),
+        ]
+        self._q_rate2 = np.r_[np.full(3, s.gyro_noise_rad_s**2), np.zeros(N_ERROR - 3)]
+        # plain attributes for the 400 Hz calls
+        self._gravity = s.gravity_m_s2
+        self._motion_share = s.motion_accel_noise_share
+        self._norm_tolerance = s.accel_norm_tolerance_m_s2
+        self._gate3 = self._gate[3]
 
     # ---- construction and resets --------------------------------------------------------------------
 
     def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> BiasEkfState:
-        """A state at ``stamp_s``, zero biases, the settings' initial uncertainty."""
+        """A state at ``stamp_s``, at rest, zero biases, the settings' initial uncertainty."""
         qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
         diag = np.r_[
@@ -115,20 +219,25 @@ class BiasAwareEkf:
             s.initial_altitude_std_m**2,
             np.full(3, s.initial_gyro_bias_std_rad_s**2),
             np.full(3, s.initial_accel_bias_std_m_s2**2),
+            np.zeros(2),
+            np.full(3, s.initial_velocity_std_m_s**2),
         ]
-        return BiasEkfState(
-            np.array(qn), float(pz_m), np.zeros(3), np.zeros(3), np.diag(diag), float(stamp_s)
-        )
+        return BiasEkfState.from_parts(qn, pz_m, _ZERO3, _ZERO3, np.diag(diag), stamp_s)
 
     def with_altitude(self, state: BiasEkfState, pz_m: float, std_m: float) -> BiasEkfState:
         """The state with the altitude replaced (uncorrelated, std ``std_m``): eq. 21 inverted at start."""
-        P = state.covariance.copy()
-        P[PZ, :] = 0.0
-        P[:, PZ] = 0.0
-        P[PZ, PZ] = std_m**2
-        return BiasEkfState(
-            state.q_world_body, float(pz_m), state.gyro_bias_rad_s, state.accel_bias_m_s2, P, state.stamp_s
-        )
+        P = with_reset_block(state.covariance, PZ, std_m**2)
+        x = state.nominal.copy()
+        x[kernels.PZ_X] = float(pz_m)
+        return BiasEkfState(x, P, state.stamp_s)
+
+    def with_position(self, state: BiasEkfState, p_xy_m: npt.ArrayLike, std_m: float) -> BiasEkfState:
+        """The state with the horizontal position replaced (uncorrelated, std ``std_m``): the first visual
+        position, or a reset after the position updates were refused for too long."""
+        P = with_reset_block(state.covariance, PXY, std_m**2)
+        x = state.nominal.copy()
+        x[kernels.PXY_X : kernels.PXY_X + 2] = np.asarray(p_xy_m, dtype=np.float64).reshape(2)
+        return BiasEkfState(x, P, state.stamp_s)
 
     # ---- read-outs ------------------------------------------------------------------------------------
 
@@ -143,43 +252,30 @@ class BiasAwareEkf:
 
     # ---- predict --------------------------------------------------------------------------------------
 
-    def predict(self, state: BiasEkfState, gyro_rad_s: npt.ArrayLike, dt_s: float) -> BiasEkfState:
+    def predict(
+        self,
+        state: BiasEkfState,
+        gyro_rad_s: npt.ArrayLike,
+        dt_s: float,
+        accel_m_s2: npt.ArrayLike | None = None,
+    ) -> BiasEkfState:
         """Bias-corrected gyro over ``dt_s``: nominal by eq. 12, covariance ``F P F^T + Q`` with
-        ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``."""
+        ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``. With ``accel_m_s2`` the velocity and the
+        position (altitude included) integrate ``a = R (f - b_a) - g e_z``
+        (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a
+        constant velocity."""
         if not (dt_s >= 0.0 and math.isfinite(dt_s)):
             raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
-        gx, gy, gz = three_floats(gyro_rad_s)
-        bx, by, bz = state.gyro_bias_rad_s.tolist()
-        wx, wy, wz = gx - bx, gy - by, gz - bz
-        half = 0.5 * dt_s
-        q = state.q_world_body.tolist()
-        q0, q1, q2, q3 = propagate_quaternion((q[0], q[1], q[2], q[3]), half * wx, half * wy, half * wz)
-        qn, _ = normalized_quaternion(q0, q1, q2, q3)
-        F = self._F
-        ax, ay, az = wx * dt_s, wy * dt_s, wz * dt_s
-        F[0, 1], F[0, 2], F[1, 0], F[1, 2], F[2, 0], F[2, 1] = az, -ay, -az, ax, ay, -ax
-        F[0, 4] = F[1, 5] = F[2, 6] = -dt_s
-        P = F @ state.covariance @ F.T
-        P += self._process_noise(dt_s)
-        return BiasEkfState(
-            np.array(qn), state.pz_m, state.gyro_bias_rad_s, state.accel_bias_m_s2, P, state.stamp_s + dt_s
-        )
-
-    def _process_noise(self, dt_s: float) -> FloatArray:
-        """Diagonal ``Q`` over ``dt_s`` (cached for the last ``dt_s``: the IMU's rate is steady)."""
-        if dt_s == self._q_dt_s:
-            return self._Q
-        s = self.settings
-        q_theta = dt_s * dt_s * s.gyro_noise_rad_s**2 + dt_s * s.attitude_random_walk_rad_sqrt_s**2
-        diag = np.r_[
-            np.full(3, q_theta),
-            dt_s * s.altitude_random_walk_m_sqrt_s**2,
-            np.full(3, dt_s * s.gyro_bias_walk_rad_s_sqrt_s**2),
-            np.full(3, dt_s * s.accel_bias_walk_m_s2_sqrt_s**2),
-        ]
-        self._Q = np.diag(diag)
-        self._q_dt_s = dt_s
-        return self._Q
+        gyro = _vector3(gyro_rad_s, "gyro_rad_s")
+        use_accel = accel_m_s2 is not None
+        accel = _vector3(accel_m_s2, "accel_m_s2") if accel_m_s2 is not None else _ZERO3
+        status, x, P = kernels.predict_step(
+            state.nominal, state.covariance, gyro, accel, use_accel, float(dt_s), self._q_rate, self._q_rate2,
+            self._gravity,
+        )  # fmt: skip
+        if status != kernels.OK:
+            _raise_for(status, "predict")
+        return BiasEkfState(x, P, state.stamp_s + dt_s)
 
     # ---- updates --------------------------------------------------------------------------------------
 
@@ -189,27 +285,36 @@ class BiasAwareEkf:
         accel_m_s2: npt.ArrayLike,
         motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> BiasUpdateResult:
-        """Accelerometer: eq. 16 plus the bias, ``h = R^T (a + g e_z) + b_a``; skipped like the 5-state
-        filter's when the bias-corrected specific force is far from the expected norm."""
-        ax, ay, az = three_floats(accel_m_s2)
-        bax, bay, baz = state.accel_bias_m_s2.tolist()
-        cx, cy, cz = ax - bax, ay - bay, az - baz
-        s = self.settings
-        f_world = expected_specific_force(
-            (cx, cy, cz), motion_accel_world_m_s2, s.gravity_m_s2, s.accel_norm_tolerance_m_s2
-        )
-        if f_world is None:
-            return BiasUpdateResult(state, False, math.nan)
-        q = state.q_world_body.tolist()
-        h, _ = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)
-        # dh/dtheta of R^T f for q * [1, dtheta/2] is [h]x (the cross-product matrix of eq. 16's h;
-        # the tests check it against the quaternion Jacobian times dq/dtheta); dh/db_a = I
-        hx, hy, hz = h
-        Ht = np.array([[0.0, hz, -hy], [-hz, 0.0, hx], [hy, -hx, 0.0]])  # ([h]x)^T
-        P = state.covariance
-        PHt = P[:, THETA] @ Ht + P[:, BA]  # (10, 3)
-        S = Ht.T @ PHt[THETA] + PHt[BA] + self._accel_R
-        return self._correct(state, PHt, S, (cx - hx, cy - hy, cz - hz))
+        """Accelerometer: eq. 16 plus the bias, ``h = R^T (a + g e_z) + b_a`` (``dh/dtheta = [h]x``,
+        ``dh/db_a = I``), its noise raised by ``motion_accel_noise_share`` times the compensated manoeuvre
+        acceleration ``a``; skipped like the 5-state filter's when the bias-corrected specific force is
+        far from the expected norm."""
+        accel = _vector3(accel_m_s2, "accel_m_s2")
+        mx, my, mz = motion_accel_world_m_s2
+        status, nis, x, P = kernels.accelerometer_step(
+            state.nominal, state.covariance, accel, float(mx), float(my), float(mz), self._gravity,
+            self._accel_var, self._motion_share, self._norm_tolerance, self._gate3,
+        )  # fmt: skip
+        if status == kernels.OK:
+            return BiasUpdateResult(BiasEkfState(x, P, state.stamp_s), True, nis)
+        if status == kernels.NOT_FINITE:
+            raise InputError(f"accel_m_s2 must be finite, got {accel.tolist()}")
+        return self._result(state, status, nis, x, P, "accelerometer update")
+
+    def update_position(
+        self, state: BiasEkfState, p_xy_m: npt.ArrayLike, noise_m: float | None = None
+    ) -> BiasUpdateResult:
+        """Horizontal position ``p_xy_m`` (navigation frame, e.g. the visual odometry's), std ``noise_m``
+        (default ``settings.position_noise_m``)."""
+        p = np.asarray(p_xy_m, dtype=np.float64).reshape(-1)
+        if p.shape != (2,) or not np.all(np.isfinite(p)):
+            raise InputError(f"p_xy_m must be 2 finite numbers, got {p_xy_m!r}")
+        std = self.settings.position_noise_m if noise_m is None else float(noise_m)
+        if not (math.isfinite(std) and std > 0.0):
+            raise InputError(f"position noise must be finite and > 0, got {std}")
+        PHt = np.ascontiguousarray(state.covariance[:, PXY])
+        S = PHt[PXY] + np.eye(2) * std**2
+        return self._correct(state, PHt, S, p - state.p_xy_m, "position update")
 
     def update_yaw(
         self, state: BiasEkfState, yaw_rad: float, yaw_noise_rad: float | None = None
@@ -224,7 +329,8 @@ class BiasAwareEkf:
         H[:, THETA] = np.array(Hq) @ error_jacobian(qt)
         var = self._yaw_var if yaw_noise_rad is None else float(yaw_noise_rad) ** 2
         y = np.array([math.cos(yaw_rad) - h[0], math.sin(yaw_rad) - h[1]])
-        return self._update(state, y, H, np.eye(2) * var)
+        PHt = state.covariance @ H.T
+        return self._correct(state, PHt, H @ PHt + np.eye(2) * var, y, "yaw update")
 
     def update_range(self, state: BiasEkfState, range_m: float) -> BiasUpdateResult:
         """Rangefinder with the tilt model of eq. 21."""
@@ -236,73 +342,27 @@ class BiasAwareEkf:
         H = np.zeros((1, N_ERROR))
         H[0, THETA] = np.array(Hrow[:4]) @ error_jacobian(qt)
         H[0, PZ] = Hrow[4]
-        return self._update(state, np.array([range_m - h]), H, np.array([[self._range_var]]))
-
-    def _update(self, state: BiasEkfState, y: FloatArray, H: FloatArray, R: FloatArray) -> BiasUpdateResult:
-        """Update with a dense ``H`` (range, yaw)."""
         PHt = state.covariance @ H.T
-        return self._correct(state, PHt, H @ PHt + R, tuple(float(v) for v in y))
+        S = H @ PHt + np.array([[self._range_var]])
+        return self._correct(state, PHt, S, np.array([range_m - h]), "range update")
 
     def _correct(
-        self, state: BiasEkfState, PHt: FloatArray, S: FloatArray, y: tuple[float, ...]
+        self, state: BiasEkfState, PHt: FloatArray, S: FloatArray, y: FloatArray, what: str
     ) -> BiasUpdateResult:
         """Gate, gain, ``(I - K H) P`` and injection of the error state (closed-form ``S^-1``, m <= 3)."""
-        Sinv = _inverse_spd(S)
-        m = len(y)
-        yv = np.array(y)
-        Sy = Sinv @ yv
-        nis = float(yv @ Sy)
-        if not math.isfinite(nis):
-            raise InputError("innovation is not finite")
-        if nis > self._gate[m]:
+        status, nis, x, P = kernels.correct_step(
+            state.nominal, state.covariance, np.ascontiguousarray(PHt), np.ascontiguousarray(S),
+            np.ascontiguousarray(y, dtype=np.float64), self._gate[y.shape[0]],
+        )  # fmt: skip
+        return self._result(state, status, nis, x, P, what)
+
+    @staticmethod
+    def _result(
+        state: BiasEkfState, status: int, nis: float, x: FloatArray, P: FloatArray, what: str
+    ) -> BiasUpdateResult:
+        if status == kernels.OK:
+            return BiasUpdateResult(BiasEkfState(x, P, state.stamp_s), True, nis)
+        if status in (kernels.GATED, kernels.SKIPPED):
             return BiasUpdateResult(state, False, nis)
-        K = PHt @ Sinv
-        dx = (PHt @ Sy).tolist()
-        P_new = state.covariance - K @ PHt.T
-        q0, q1, q2, q3 = state.q_world_body.tolist()
-        a, b, c = 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2]
-        # q * [1, dtheta/2] (right product, body-frame error)
-        qn, _ = normalized_quaternion(
-            q0 - q1 * a - q2 * b - q3 * c,
-            q1 + q0 * a + q2 * c - q3 * b,
-            q2 + q0 * b + q3 * a - q1 * c,
-            q3 + q0 * c + q1 * b - q2 * a,
-        )
-        dxa = np.array(dx)
-        new = BiasEkfState(
-            q_world_body=np.array(qn),
-            pz_m=state.pz_m + dx[3],
-            gyro_bias_rad_s=state.gyro_bias_rad_s + dxa[BG],
-            accel_bias_m_s2=state.accel_bias_m_s2 + dxa[BA],
-            covariance=P_new,
-            stamp_s=state.stamp_s,
-        )
-        return BiasUpdateResult(new, True, nis)
-
-
-def _inverse_spd(S: FloatArray) -> FloatArray:
-    """Closed-form inverse of a 1x1, 2x2 or 3x3 innovation covariance (EkfError if not positive definite)."""
-    m = S.shape[0]
-    if m == 1:
-        s00 = float(S[0, 0])
-        if not s00 > 0.0:
-            raise EkfError(f"innovation variance {s00} is not positive")
-        return np.array([[1.0 / s00]])
-    if m == 2:
-        (s00, s01), (s10, s11) = S.tolist()
-        s01 = 0.5 * (s01 + s10)
-        det = s00 * s11 - s01 * s01
-        if not det > 0.0:
-            raise EkfError(f"innovation covariance is not positive definite (det {det})")
-        return np.array([[s11, -s01], [-s01, s00]], dtype=np.float64) / float(det)
-    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S.tolist()
-    c00 = s11 * s22 - s12 * s12
-    c01 = s02 * s12 - s01 * s22
-    c02 = s01 * s12 - s02 * s11
-    det = s00 * c00 + s01 * c01 + s02 * c02
-    if not det > 0.0:
-        raise EkfError(f"innovation covariance is not positive definite (det {det})")
-    c11 = s00 * s22 - s02 * s02
-    c12 = s01 * s02 - s00 * s12
-    c22 = s00 * s11 - s01 * s01
-    return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]], dtype=np.float64) / float(det)
+        _raise_for(status, what)
+        raise EkfError(f"{what}: unexpected status {status}")

@@ -11,8 +11,10 @@
    attitude RMSE; medians and maxima over seeds (``paper_c``, ``agile``).
 3. Timings with warm-up and repetitions, median and p95, and the host's CPU steal: one predict +
    accelerometer update of the chosen (bias) filter against paper C's filter (the same-run baseline), and
-   one VO step (rectification included) against raw frames and a smaller feature budget (with the
-   truth-attitude chain's final error, so speed is weighed against accuracy).
+   one VO step (rectification included) against raw frames, a smaller feature budget and the former 15 px
+   Lucas-Kanade window (with the truth-attitude chain's final error, so speed is weighed against accuracy).
+   ``--seeds`` with ``--jobs N`` runs seeds in N processes; finished seeds are kept in ``--seed-cache``
+   under a fingerprint of the code and reused, so an interrupted sweep resumes.
 
 Single-threaded OpenCV (``cv2.setNumThreads(1)``): every timing is one core's.
 """
@@ -23,6 +25,7 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -54,6 +57,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--reference", action="store_true", help="also run paper C's 5-state filter in the sweep"
+    )
+    parser.add_argument("--jobs", type=int, default=1, help="processes running sweep seeds side by side")
+    parser.add_argument(
+        "--seed-cache",
+        type=Path,
+        default=Path("out/bench/estimator_seeds"),
+        help="per-seed results, reused while the code is unchanged ('' to disable)",
     )
     parser.add_argument("--ekf-steps", type=int, default=8000, help="EKF steps timed per pass")
     parser.add_argument("--ekf-repeats", type=int, default=3, help="EKF timing passes")
@@ -138,12 +148,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     vo_100, vo_100_cm = time_vo_steps(
         flight, vo_start, vo_frames, args.vo_repeats, rectify=True, settings=VoSettings(max_features=100)
     )
+    # the Lucas-Kanade window before it became 11 px (the measurement that chose it)
+    vo_w15, vo_w15_cm = time_vo_steps(
+        flight, vo_start, vo_frames, args.vo_repeats, rectify=True, settings=VoSettings(lk_window_px=15)
+    )
     for name, timing, unit, cm in (
         ("ekf_step_bias", ekf, "us", None),
         ("ekf_step_paper_c", ekf_ref, "us", None),
         ("vo_step_rectified", vo, "ms", vo_cm),
         ("vo_step_raw", vo_raw, "ms", vo_raw_cm),
         ("vo_step_rectified_100_features", vo_100, "ms", vo_100_cm),
+        ("vo_step_rectified_lk_window_15", vo_w15, "ms", vo_w15_cm),
     ):
         rows.append(
             {"run": f"{name} ({unit})", "median": timing.median, "p95": timing.p95,
@@ -169,10 +184,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "vo_cpu_steal_pct": vo.steal_pct,
         "vo_ms_median_unrectified": vo_raw.median,
         "vo_ms_median_100_features": vo_100.median,
+        "vo_ms_median_lk_window_15": vo_w15.median,
         "vo_timing_final_error_cm": {
             "rectified": vo_cm,
             "raw": vo_raw_cm,
             "rectified_100_features": vo_100_cm,
+            "rectified_lk_window_15": vo_w15_cm,
         },
         "ekf_us_per_step_median": ekf.median,
         "ekf_us_per_step_p90": ekf.p90,
@@ -205,9 +222,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         unknown = [name for name in flights if name not in FLIGHTS]
         if unknown:
             raise SystemExit(f"unknown flight(s) {unknown}; known: {', '.join(FLIGHTS)}")
+        if args.jobs < 1:
+            raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
+        cache = args.seed_cache if str(args.seed_cache) not in ("", ".") else None
         result.update(
-            sweep(flights, args.seeds, args.reference, log=lambda line: print(line, file=sys.stderr))
-        )
+            sweep(
+                flights, args.seeds, args.reference, log=lambda line: print(line, file=sys.stderr),
+                jobs=args.jobs, cache_dir=cache,
+            )
+        )  # fmt: skip
         rows.extend(_sweep_rows({name: result[name] for name in flights}))
     result["wall_s"] = time.perf_counter() - t0
     result["table"] = rows

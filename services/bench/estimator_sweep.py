@@ -10,12 +10,17 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from common.estimation.ekf import AttitudeAltitudeEkf
@@ -25,6 +30,8 @@ from common.estimation.vo import MotionModel, VoPose, VoSettings
 from common.estimation.vo_chain import advance_vo_chain, prepare_view, start_vo_chain
 from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
 from common.sim.flight import Flight, agile_flight, turns_flight
+
+logger = logging.getLogger(__name__)
 
 #: The flights of the sweep.
 FLIGHTS: dict[str, Callable[[int], Flight]] = {
@@ -71,28 +78,126 @@ def summarize_seeds(rows: list[dict[str, float]]) -> dict[str, Any]:
     return summary
 
 
+#: The repository root (for the code fingerprint).
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def code_fingerprint(root: Path = ROOT) -> str:
+    """Hash of the sources a seed's figures depend on (the estimator cores, the simulator, the metrics and
+    this module): a stored per-seed result is reused only when none of them changed."""
+    digest = hashlib.sha256()
+    common = root / "common"
+    files = sorted(
+        [
+            *(common / "estimation").glob("*.py"),
+            *(common / "sim").glob("*.py"),
+            common / "metrics.py",
+            common / "geometry.py",
+            Path(__file__).resolve(),
+        ]
+    )
+    for path in files:
+        if path.exists():
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _seed_job(job: tuple[str, int, tuple[str, ...]]) -> dict[str, float]:
+    flight_name, seed, names = job
+    logging.disable(logging.WARNING)  # per-frame warnings of a 20-seed sweep would drown the log
+    cv2.setNumThreads(1)
+    t0 = time.perf_counter()
+    row = {"seed": float(seed), **seed_figures(FLIGHTS[flight_name](seed), names)}
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
 def sweep(
-    flights: tuple[str, ...], seeds: int, reference: bool, log: Callable[[str], None] | None = None
+    flights: tuple[str, ...],
+    seeds: int,
+    reference: bool,
+    log: Callable[[str], None] | None = None,
+    jobs: int = 1,
+    cache_dir: Path | None = None,
 ) -> dict[str, Any]:
-    """Seeds ``0 .. seeds - 1`` of each flight; ``reference`` adds paper C's 5-state filter."""
+    """Seeds ``0 .. seeds - 1`` of each flight; ``reference`` adds paper C's 5-state filter. ``jobs``
+    processes run seeds side by side; with ``cache_dir`` each seed's figures are stored there under the
+    :func:`code_fingerprint` and reused while the code is unchanged (an interrupted sweep resumes)."""
     names = ("rectified", "traditional") + (("rectified_paper_c",) if reference else ())
+    fingerprint = code_fingerprint()
+    todo: list[tuple[str, int, tuple[str, ...]]] = []
+    done: dict[tuple[str, int], dict[str, float]] = {}
+    # seeds interleaved across flights: a sweep cut short still covers every flight
+    for seed in range(seeds):
+        for flight_name in flights:
+            cached = _load_seed(cache_dir, fingerprint, flight_name, seed, names)
+            if cached is not None:
+                done[(flight_name, seed)] = cached
+            else:
+                todo.append((flight_name, seed, names))
+
+    def record(job: tuple[str, int, tuple[str, ...]], row: dict[str, float]) -> None:
+        done[(job[0], job[1])] = row
+        _store_seed(cache_dir, fingerprint, job[0], job[1], names, row)
+        if log is not None:
+            log(
+                f"{job[0]} seed {job[1]}: ATE rect {row['ate_rmse_cm_rectified']:.2f} cm, "
+                f"trad {row['ate_rmse_cm_traditional']:.2f} cm, "
+                f"RPE rect {row['rpe_pct_rectified']:.3f} %, "
+                f"trad {row['rpe_pct_traditional']:.3f} %, att {row['att_rmse_deg']:.3f} deg "
+                f"({row['wall_s']:.0f} s)"
+            )
+
+    if jobs <= 1 or len(todo) <= 1:
+        for job in todo:
+            record(job, _seed_job(job))
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {pool.submit(_seed_job, job): job for job in todo}
+            for future in as_completed(futures):
+                record(futures[future], future.result())
     out: dict[str, Any] = {}
     for flight_name in flights:
-        rows = []
-        for seed in range(seeds):
-            t0 = time.perf_counter()
-            row = {"seed": float(seed), **seed_figures(FLIGHTS[flight_name](seed), names)}
-            rows.append(row)
-            if log is not None:
-                log(
-                    f"{flight_name} seed {seed}: ATE rect {row['ate_rmse_cm_rectified']:.2f} cm, "
-                    f"trad {row['ate_rmse_cm_traditional']:.2f} cm, "
-                    f"RPE rect {row['rpe_pct_rectified']:.3f} %, "
-                    f"trad {row['rpe_pct_traditional']:.3f} %, att {row['att_rmse_deg']:.3f} deg "
-                    f"({time.perf_counter() - t0:.0f} s)"
-                )
-        out[flight_name] = summarize_seeds(rows)
+        rows = [done[(flight_name, seed)] for seed in range(seeds)]
+        out[flight_name] = summarize_seeds([{k: v for k, v in row.items() if k != "wall_s"} for row in rows])
     return out
+
+
+def _seed_path(
+    cache_dir: Path, fingerprint: str, flight_name: str, seed: int, names: tuple[str, ...]
+) -> Path:
+    return cache_dir / f"{flight_name}_{seed}_{'-'.join(names)}_{fingerprint}.json"
+
+
+def _load_seed(
+    cache_dir: Path | None, fingerprint: str, flight_name: str, seed: int, names: tuple[str, ...]
+) -> dict[str, float] | None:
+    if cache_dir is None:
+        return None
+    path = _seed_path(cache_dir, fingerprint, flight_name, seed, names)
+    try:
+        row = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(row, dict) or not all(isinstance(v, (int, float)) for v in row.values()):
+        logger.warning("ignoring %s: not a seed result", path)
+        return None
+    return {str(k): float(v) for k, v in row.items()}
+
+
+def _store_seed(
+    cache_dir: Path | None,
+    fingerprint: str,
+    flight_name: str,
+    seed: int,
+    names: tuple[str, ...],
+    row: dict[str, float],
+) -> None:
+    if cache_dir is None:
+        return
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    _seed_path(cache_dir, fingerprint, flight_name, seed, names).write_text(json.dumps(row))
 
 
 # ---- timing ---------------------------------------------------------------------------------------
@@ -134,8 +239,9 @@ def _timing(samples: list[float], before: tuple[float, float], after: tuple[floa
 
 
 def time_ekf_steps(flight: Flight, filter_kind: str, n_steps: int, repeats: int, warmup: int = 500) -> Timing:
-    """Wall time (us) of one ``predict + update_accelerometer`` on the flight's IMU samples: ``repeats``
-    passes over ``n_steps`` samples, the first ``warmup`` steps of each pass not counted."""
+    """Wall time (us) of one ``predict + update_accelerometer`` on the flight's IMU samples (the bias
+    filter's predict with the accelerometer, as the coupling calls it): ``repeats`` passes over ``n_steps``
+    samples, the first ``warmup`` steps of each pass not counted (the compiled kernels are built before)."""
     ekf: AttitudeAltitudeEkf | BiasAwareEkf = (
         BiasAwareEkf() if filter_kind == "bias" else AttitudeAltitudeEkf()
     )
@@ -151,7 +257,10 @@ def time_ekf_steps(flight: Flight, filter_kind: str, n_steps: int, repeats: int,
         state: Any = ekf.initial_state(imu.true_q_world_body[0], float(imu.true_p_world_body_m[0, 2]), 0.0)
         for k in range(n):
             t0 = clock()
-            state = ekf.predict(state, gyro[k + 1], dts[k])
+            if isinstance(ekf, BiasAwareEkf):  # its predict integrates the accelerometer too
+                state = ekf.predict(state, gyro[k + 1], dts[k], accel[k + 1])
+            else:
+                state = ekf.predict(state, gyro[k + 1], dts[k])
             state = ekf.update_accelerometer(state, accel[k + 1]).state
             dt_ns = clock() - t0
             if k >= warmup:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from services.bench import estimator
+from services.bench import estimator, estimator_sweep
 from services.bench.estimator_sweep import cpu_times, summarize_seeds
 
 
@@ -51,6 +51,7 @@ def test_bench_reports_every_field_on_a_short_flight() -> None:
     runs = {row["run"] for row in result["table"]}
     assert {"rectified", "rectified_paper_c", "traditional", "raw_ekf_scale", "gyro_yaw"} <= runs
     assert {"ekf_step_bias (us)", "ekf_step_paper_c (us)", "vo_step_rectified (ms)"} <= runs
+    assert result["vo_ms_median_lk_window_15"] > 0.0
 
 
 def test_seed_summary_counts_where_rectified_is_better() -> None:
@@ -90,3 +91,37 @@ def test_sweep_over_one_seed_of_each_flight() -> None:
         assert len(summary["per_seed"]) == 1
         for key in ("ate_rmse_cm_rectified", "ate_rmse_cm_traditional", "rpe_pct_rectified", "att_rmse_deg"):
             assert math.isfinite(summary[key]["median"])
+
+
+def test_sweep_stores_each_seed_and_reuses_it_while_the_code_is_unchanged(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An interrupted 20-seed sweep resumes: a seed's figures are stored under the code fingerprint and
+    reused; another fingerprint (changed code) computes them again; a stored file that is not a seed
+    result is ignored (one warning), not trusted."""
+    calls: list[tuple[str, int]] = []
+
+    def fake_job(job: tuple[str, int, tuple[str, ...]]) -> dict[str, float]:
+        calls.append((job[0], job[1]))
+        return {
+            "seed": float(job[1]),
+            "ate_rmse_cm_rectified": 0.5 + job[1],
+            "ate_rmse_cm_traditional": 1.0,
+            "att_rmse_deg": 0.1,
+            "wall_s": 1.0,
+        }
+
+    monkeypatch.setattr(estimator_sweep, "_seed_job", fake_job)
+    first = estimator_sweep.sweep(("paper_c",), 2, False, cache_dir=tmp_path)
+    assert calls == [("paper_c", 0), ("paper_c", 1)]
+    assert len(list(tmp_path.glob("paper_c_*.json"))) == 2
+    again = estimator_sweep.sweep(("paper_c",), 2, False, cache_dir=tmp_path)
+    assert calls == [("paper_c", 0), ("paper_c", 1)]  # nothing recomputed
+    assert again == first
+    assert first["paper_c"]["rectified_better_seeds"] == 1  # seed 0: 0.5 <= 1.0; seed 1: 1.5 > 1.0
+    monkeypatch.setattr(estimator_sweep, "code_fingerprint", lambda: "changed")
+    estimator_sweep.sweep(("paper_c",), 1, False, cache_dir=tmp_path)
+    assert calls[-1] == ("paper_c", 0)
+    (tmp_path / "paper_c_1_rectified-traditional_changed.json").write_text('{"seed": "not a number"}')
+    estimator_sweep.sweep(("paper_c",), 2, False, cache_dir=tmp_path)
+    assert calls[-1] == ("paper_c", 1)

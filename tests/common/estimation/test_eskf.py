@@ -111,7 +111,7 @@ def test_predict_propagates_the_bias_corrected_gyro_and_grows_the_covariance() -
     q0 = quaternion_from_euler(0.1, -0.05, 0.3)
     state = ekf.initial_state(q0, 1.0, 0.0)
     bias = np.array([0.01, -0.02, 0.03])
-    state = BiasEkfState(state.q_world_body, 1.0, bias, np.zeros(3), state.covariance, 0.0)
+    state = BiasEkfState.from_parts(state.q_world_body, 1.0, bias, np.zeros(3), state.covariance, 0.0)
     for _ in range(400):
         state = ekf.predict(state, bias, 0.0025)  # the gyro reads only its bias: no rotation
     assert np.allclose(state.q_world_body, q0, atol=1e-12)
