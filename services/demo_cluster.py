@@ -1,11 +1,11 @@
 """The embedded default through a local cluster: router, camera, master, 2 foremen x 2 workers (127.0.0.1).
 
 ``run_demo(out_dir)`` starts the processes, replays the simulated hover flight through them (two frames in
-flight: the camera renders the next frame while the cluster works on the current one, and the master's
-one-frame slot never has to drop one) while the in-process core tracks the same frames, prints live progress,
-then reports with the yaw demo's ``report_yaw`` (``out/cluster/yaw_cluster.{png,json}``) plus per-member
-shares, speeds and frame timings (``cluster_yaw_shares.png``, ``cluster_timings.png``, ``summary.json``).
-Member shares and timings come from the published YawEstimates themselves.
+flight: the camera renders the next frame while the cluster works on the current one; the master's
+frame queue holds the waiting one, so none is dropped) while the in-process core tracks the same frames,
+prints live progress, then reports with the yaw demo's ``report_yaw`` (``out/cluster/yaw_cluster.{png,json}``)
+plus per-member shares, speeds and frame timings (``cluster_yaw_shares.png``, ``cluster_timings.png``,
+``summary.json``). Member shares and timings come from the published YawEstimates themselves.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ logger = logging.getLogger(__name__)
 PRINT_PERIOD_S = 10.0
 
 #: frames the demo's camera may have without a yaw: 2 pipelines rendering with the cluster's work (about 1.2x
-#: the frame rate of 1 here) and still drops none, since the master holds one frame while it works on another
+#: the frame rate of 1 here) and still drops none, since the master queues one frame while it works on another
 DEMO_IN_FLIGHT = 2
 
 DEMO_CLUSTER = ClusterSpec(
@@ -193,7 +193,7 @@ def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict
         ax.axvline(median, color="tab:blue", lw=1.5, label=f"median {median:.1f} ms")
         ax.axvline(p99, color="tab:red", lw=1.5, ls="--", label=f"p99 {p99:.1f} ms")
         ax.legend(loc="upper right")
-    ax.set_xlabel("master time per frame, taken from its slot to yaw fitted [ms]")
+    ax.set_xlabel("master time per frame, taken from its queue to yaw fitted [ms]")
     ax.set_ylabel("frames")
     ax.set_title(f"yaw cluster timing per frame ({finite.size} frames, 752x480, 2 foremen x 2 workers)")
     ax.grid(alpha=0.3)
