@@ -5,8 +5,8 @@
 optionally an external yaw such as the yaw cluster's), reorders them in a :class:`TimeOrderedBuffer` with a
 bounded lag and applies them in stamp order:
 
-- IMU: EKF predict with the gyro over the sample's true ``dt`` (eqs. 12-15), then the accelerometer
-  update (eq. 16);
+- IMU: filter predict over the sample's true ``dt`` (eqs. 12-15), the accelerometer update (eq. 16) and,
+  with the bias filter, every ``thrust_axis_interval_s`` the multirotor thrust-axis update;
 - range: rangefinder update (eq. 21);
 - external yaw: yaw update (eq. 19);
 - frame: (optionally) rectify with the EKF's roll and pitch (section III-C), visual odometry against the
@@ -14,9 +14,8 @@ bounded lag and applies them in stamp order:
   update (eq. 19) and, with the bias filter, the free-decomposition chain's position as a position update
   (its inertial navigation; refused too long, the position or the altitude is reset to the measurement).
 
-The visual-odometry side (rectification, the chain, its output) is
-:class:`~common.estimation.coupled_vo.CoupledVo`.
-The filter is paper C's 5-state EKF or the error-state EKF with bias states (``CouplingSettings.filter``).
+The visual-odometry side is :class:`~common.estimation.coupled_vo.CoupledVo`; the filter paper C's 5-state
+EKF or the error-state EKF with bias states (``CouplingSettings.filter``).
 
 It returns :class:`AttitudeOutput` (one per IMU sample) and :class:`PoseOutput` (one per frame). Frames are
 latest-wins: a frame still pending when a newer one arrives is dropped and counted.
@@ -43,10 +42,7 @@ from common.estimation.coupling_types import (
     ScaleSource,
 )
 from common.estimation.ekf import EkfSettings
-from common.estimation.ekf_models import (
-    EkfError,
-    altitude_from_range,
-)
+from common.estimation.ekf_models import EkfError, altitude_from_range
 from common.estimation.eskf import BiasAwareEkf, BiasEkfState
 from common.estimation.filters import (
     AnyFilter,
@@ -69,13 +65,13 @@ from common.estimation.measurements import (
     YawMeasurement,
     sensor_of,
 )
+from common.estimation.tilt import AccelWindow
 from common.estimation.vo import VoSettings
 from common.estimation.vo_chain import VoChainSettings
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
     check_rotation_matrix,
     euler_from_quaternion,
-    matrix_from_quaternion,
     quaternion_from_euler,
 )
 from common.types import FloatArray
@@ -124,6 +120,8 @@ class DoubleCouplingEstimator:
         self._rect_q: FloatArray | None = None
         self._position_gated_run = 0
         self._range_gated_run = 0
+        self._accel_window = AccelWindow()
+        self._last_imu: ImuMeasurement | None = None
 
     # ---- input ------------------------------------------------------------------------------------
 
@@ -220,13 +218,17 @@ class DoubleCouplingEstimator:
             self.state = self._initial_state(m)
             self._first_imu_s = m.stamp_s
         dt_s = m.stamp_s - self.state.stamp_s
-        previous = self.state
+        previous, gyro, accel = self.state, m.gyro_rad_s, m.accel_m_s2
+        if self.settings.imu_midpoint and self._last_imu is not None:
+            # rates at the stamps: the interval's mean (trapezoid); the newer alone leads by half a sample
+            gyro, accel = 0.5 * (gyro + self._last_imu.gyro_rad_s), 0.5 * (accel + self._last_imu.accel_m_s2)
+        self._last_imu = m
         try:
             if isinstance(self.ekf, BiasAwareEkf):
                 # the inertial navigation of the bias filter integrates the accelerometer too
-                self.state, _ = self._step("predict", m.gyro_rad_s, dt_s, m.accel_m_s2)
+                self.state, _ = self._step("predict", gyro, dt_s, accel)
             else:
-                self.state, _ = self._step("predict", m.gyro_rad_s, dt_s)
+                self.state, _ = self._step("predict", gyro, dt_s)
             if self._accel_waits_for_vo(m.stamp_s):
                 self.counters["accel_waiting_for_vo"] += 1
                 accepted = True
@@ -242,8 +244,20 @@ class DoubleCouplingEstimator:
         self.counters["imu_applied"] += 1
         if not accepted:
             self.counters["accel_gated"] += 1
-        self._propagate_rectification_attitude(m, dt_s)
+        self._thrust_axis(m)
+        self._propagate_rectification_attitude(gyro, dt_s)
         return self._attitude_output(m.stamp_s)
+
+    def _thrust_axis(self, m: ImuMeasurement) -> None:
+        """Bias filter: the mean body-horizontal accelerometer reading over ``thrust_axis_interval_s`` as the
+        multirotor thrust-axis update (:meth:`~common.estimation.eskf.BiasAwareEkf.update_thrust_axis`)."""
+        interval = self.settings.thrust_axis_interval_s
+        if interval <= 0.0 or not isinstance(self.ekf, BiasAwareEkf):
+            return
+        window = self._accel_window.added(m.stamp_s, m.accel_m_s2)
+        self._accel_window = AccelWindow() if window.spans(m.stamp_s, interval) else window
+        if window is not self._accel_window:
+            self._apply_update("update_thrust_axis", "thrust_axis", window.mean_xy_m_s2(), window.n_samples)
 
     def _on_range(self, m: RangeMeasurement) -> None:
         self._last_range_m = m.range_m
@@ -261,29 +275,27 @@ class DoubleCouplingEstimator:
             self._range_gated_run = 0
             self.counters["range_reset"] += 1
             return
-        try:
-            self.state, accepted = self._step("update_range", m.range_m)
-        except EkfError as exc:
-            self.counters["ekf_errors"] += 1
-            logger.warning("range sample at %.4f s not applied: %s", m.stamp_s, exc)
-            return
-        self._range_gated_run = 0 if accepted else self._range_gated_run + 1
-        self.counters["range_applied" if accepted else "range_gated"] += 1
+        accepted = self._apply_update("update_range", "range", m.range_m)
+        if accepted is not None:
+            self._range_gated_run = 0 if accepted else self._range_gated_run + 1
 
-    def _apply_yaw(self, yaw_rad: float, noise_rad: float, counter: str) -> None:
+    def _apply_update(self, method: str, counter: str, *args: object) -> bool | None:
+        """One filter update, counted as ``<counter>_applied`` / ``_gated``: whether the gate accepted it
+        (None without a state or on a filter error, which is logged)."""
         if self.state is None:
-            return
+            return None
         try:
-            self.state, accepted = self._step("update_yaw", yaw_rad, noise_rad)
+            self.state, accepted = self._step(method, *args)
         except EkfError as exc:
             self.counters["ekf_errors"] += 1
-            logger.warning("yaw update not applied: %s", exc)
-            return
+            logger.warning("%s not applied: %s", method, exc)
+            return None
         self.counters[f"{counter}_applied" if accepted else f"{counter}_gated"] += 1
+        return accepted
 
     def _on_yaw(self, m: YawMeasurement) -> None:
         if self.settings.external_yaw:
-            self._apply_yaw(m.yaw_rad, self.settings.external_yaw_noise_rad, "external_yaw")
+            self._apply_update("update_yaw", "external_yaw", m.yaw_rad, self.settings.external_yaw_noise_rad)
         else:
             self.counters["external_yaw_ignored"] += 1
 
@@ -323,7 +335,7 @@ class DoubleCouplingEstimator:
         if result is None:
             return None
         if result.ok and self.settings.visual_yaw:
-            self._apply_yaw(result.vo_yaw_rad, self.settings.vo_yaw_noise_rad, "vo_yaw")
+            self._apply_update("update_yaw", "vo_yaw", result.vo_yaw_rad, self.settings.vo_yaw_noise_rad)
         if result.ok:
             self._apply_position()
         if result.p_xy_m is None:
@@ -357,27 +369,18 @@ class DoubleCouplingEstimator:
                 "position_applied" if self.counters["position_applied"] == 0 else "position_reset"
             ] += 1
             return
-        try:
-            self.state, accepted = self._step("update_position", p_xy)
-        except EkfError as exc:
-            self.counters["ekf_errors"] += 1
-            logger.warning("position update not applied: %s", exc)
-            return
-        self._position_gated_run = 0 if accepted else self._position_gated_run + 1
-        self.counters["position_applied" if accepted else "position_gated"] += 1
+        accepted = self._apply_update("update_position", "position", p_xy)
+        if accepted is not None:
+            self._position_gated_run = 0 if accepted else self._position_gated_run + 1
 
-    def _propagate_rectification_attitude(self, m: ImuMeasurement, dt_s: float) -> None:
+    def _propagate_rectification_attitude(self, gyro_rad_s: FloatArray, dt_s: float) -> None:
         """Attitude used to rectify (:func:`~common.estimation.filters.smoothed_attitude`)."""
         assert self.state is not None
         tau = self.settings.rectification_smoothing_s
         if self._rect_q is None or tau <= 0.0:
             self._rect_q = self.state.q_world_body
             return
-        self._rect_q = smoothed_attitude(self._rect_q, m.gyro_rad_s, dt_s, self.state.q_world_body, tau)
-
-    def vision_tilt(self) -> FloatArray | None:
-        """Estimated ground normal ``(nx, ny)`` in the rectified camera (None until informed enough)."""
-        return self.vo.vision_tilt()
+        self._rect_q = smoothed_attitude(self._rect_q, gyro_rad_s, dt_s, self.state.q_world_body, tau)
 
     def _accel_waits_for_vo(self, stamp_s: float) -> bool:
         """At a start in mid-manoeuvre the hover model is wrong until the VO gives the acceleration."""
@@ -392,6 +395,3 @@ class DoubleCouplingEstimator:
     @property
     def q_world_body(self) -> FloatArray | None:
         return None if self.state is None else self.state.q_world_body
-
-    def attitude_matrix(self) -> FloatArray | None:
-        return None if self.state is None else matrix_from_quaternion(self.state.q_world_body)

@@ -54,8 +54,11 @@ class CouplingSettings(Bounded):
     #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
     #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
     #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
-    #: it was rectified with the known initial attitude, else from the latest estimate.
-    vision_tilt_correction: bool = True
+    #: it was rectified with the known initial attitude, else from the latest estimate. Off by default: with
+    #: the bias filter's thrust-axis update and the trapezoid IMU integration the filter's tilt error is
+    #: about 0.03 deg and this noisier estimate made the chain worse (paper C seed 3: ATE 0.78 -> 0.51 cm
+    #: without it and without ``origin_tilt_from_bias``); a crutch for paper C's 5-state filter.
+    vision_tilt_correction: bool = False
     #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
     #: pairs) it needs before it is used.
     vision_tilt_window_s: float = bounded(5.0, gt=0.0)
@@ -93,8 +96,15 @@ class CouplingSettings(Bounded):
     free_drift_per_m: float = bounded(0.004, ge=0.0)
     #: With the bias filter: correct the VO origin's offset ``h_0 d_0`` with the tilt error its frame had,
     #: re-estimated from how much the accelerometer-bias estimate changed since (at hover a bias error
-    #: ``db`` reads as a tilt error of ``db / g``).
-    origin_tilt_from_bias: bool = True
+    #: ``db`` reads as a tilt error of ``db / g``). Off by default (see ``vision_tilt_correction``).
+    origin_tilt_from_bias: bool = False
+    #: Predict with the mean of consecutive IMU samples (trapezoid) instead of the newer one (paper C's eq. 12
+    #: as written, which makes the attitude lead by half a sample period times the rate).
+    imu_midpoint: bool = True
+    #: With the bias filter: the mean body-horizontal accelerometer reading over this span as the multirotor
+    #: thrust-axis update (thrust along body z: the reading is the bias plus rotor drag), which separates
+    #: the accelerometer bias from the tilt at hover, where the accelerometer alone cannot; 0 disables.
+    thrust_axis_interval_s: float = bounded(0.05, ge=0.0)
     #: With the bias filter: position updates refused this many frames in a row reset its position to the
     #: visual one (as EKF2 resets a state whose aiding has been rejected for too long).
     position_reset_frames: int = 10

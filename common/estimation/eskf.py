@@ -84,6 +84,12 @@ class BiasEkfSettings(EkfSettings):
     #: The accelerometer's noise grows by this share of the manoeuvre acceleration it is compensated for
     #: (that estimate, fitted to VO positions, is about as uncertain as it is large in fast manoeuvres).
     motion_accel_noise_share: float = bounded(1.0, ge=0.0)
+    #: Multirotor thrust-axis model (:meth:`BiasAwareEkf.update_thrust_axis`): the accelerometer's white
+    #: noise per sample, a floor for what the model leaves out (vibration, asymmetric thrust) and the rotor
+    #: drag per unit of body-horizontal speed (its specific force, left out of the model, raises the noise).
+    thrust_axis_sample_noise_m_s2: float = bounded(0.08, gt=0.0)
+    thrust_axis_floor_m_s2: float = bounded(0.02, ge=0.0)
+    rotor_drag_per_s: float = bounded(0.3, ge=0.0)
 
 
 @dataclass(frozen=True)
@@ -315,6 +321,31 @@ class BiasAwareEkf:
         PHt = np.ascontiguousarray(state.covariance[:, PXY])
         S = PHt[PXY] + np.eye(2) * std**2
         return self._correct(state, PHt, S, p - state.p_xy_m, "position update")
+
+    def update_thrust_axis(
+        self, state: BiasEkfState, mean_accel_xy_body_m_s2: npt.ArrayLike, n_samples: int
+    ) -> BiasUpdateResult:
+        """A multirotor's thrust is along its body z axis, so the body-horizontal specific force is the rotor
+        drag alone (zero at hover): the mean body-horizontal accelerometer reading of ``n_samples`` samples
+        measures the accelerometer bias, ``h = b_a,xy`` (``dh/db_a,xy = I``), with a noise of the averaged
+        white noise, the settings' floor and ``rotor_drag_per_s`` times the body-horizontal speed. A tilt
+        and a bias that read alike at hover separate: the tilt then shows as an acceleration in the visual
+        position (as EKF2's multirotor drag fusion)."""
+        f = np.asarray(mean_accel_xy_body_m_s2, dtype=np.float64).reshape(-1)
+        if f.shape != (2,) or not np.all(np.isfinite(f)) or not n_samples >= 1:
+            raise InputError(f"mean accel must be 2 finite numbers of >= 1 samples, got {f!r} ({n_samples})")
+        s = self.settings
+        v_world = state.nominal[kernels.VXY_X : kernels.VZ_X + 1]
+        v_body = matrix_from_quaternion(state.q_world_body).T @ v_world
+        var = (
+            s.thrust_axis_sample_noise_m_s2**2 / n_samples
+            + s.thrust_axis_floor_m_s2**2
+            + (s.rotor_drag_per_s * float(np.hypot(v_body[0], v_body[1]))) ** 2
+        )
+        ba_xy = slice(BA.start, BA.start + 2)
+        PHt = np.ascontiguousarray(state.covariance[:, ba_xy])
+        S = PHt[ba_xy] + np.eye(2) * var
+        return self._correct(state, PHt, S, f - state.accel_bias_m_s2[:2], "thrust-axis update")
 
     def update_yaw(
         self, state: BiasEkfState, yaw_rad: float, yaw_noise_rad: float | None = None

@@ -292,6 +292,8 @@ CONFIGURATIONS: dict[str, dict[str, Any]] = {
         "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
         "filter": FilterKind.PAPER_C,
         "uncertainty_aware": False,
+        "imu_midpoint": False,
+        "vision_tilt_correction": True,
     },
     "traditional": {"rectify": False, "visual_yaw": True, "scale_from": ScaleSource.RANGE},
     "raw_ekf_scale": {"rectify": False, "visual_yaw": True},

@@ -5,6 +5,8 @@
   ``h * d`` it causes (:func:`residual_tilt_offset`).
 - :class:`VoOrigin`: the VO origin frame and its axis offset ``h_0 d_0``, re-estimated from the accelerometer
   bias; :func:`level_share`: the weight of the level chain in the uncertainty-aware output.
+- :class:`AccelWindow`: the body-horizontal accelerometer readings averaged for the bias filter's multirotor
+  thrust-axis update.
 - :class:`ManoeuvreTrack`: the recent VO positions and the acceleration of a cubic fit to them
   (:func:`motion_acceleration`), which compensates the accelerometer model of eq. 16 in turns.
 """
@@ -178,3 +180,24 @@ def level_share(
     if var_free + var_level <= 0.0:
         return 1.0
     return var_free / (var_free + var_level)
+
+
+@dataclass(frozen=True)
+class AccelWindow:
+    """Body-horizontal accelerometer readings since ``first_stamp_s``: their sum and count."""
+
+    sum_xy_m_s2: tuple[float, float] = (0.0, 0.0)
+    n_samples: int = 0
+    first_stamp_s: float = math.nan
+
+    def added(self, stamp_s: float, accel_m_s2: FloatArray) -> AccelWindow:
+        sx, sy = self.sum_xy_m_s2
+        first = stamp_s if self.n_samples == 0 else self.first_stamp_s
+        return AccelWindow((sx + float(accel_m_s2[0]), sy + float(accel_m_s2[1])), self.n_samples + 1, first)
+
+    def spans(self, stamp_s: float, interval_s: float) -> bool:
+        """Whether the readings cover ``interval_s`` up to ``stamp_s``."""
+        return self.n_samples > 0 and stamp_s - self.first_stamp_s >= interval_s - 1e-9
+
+    def mean_xy_m_s2(self) -> FloatArray:
+        return np.asarray(self.sum_xy_m_s2, dtype=np.float64) / max(self.n_samples, 1)
