@@ -136,7 +136,8 @@ def test_late_joining_particle_path_starts_around_the_vo_pose_not_the_flight_sta
     path = make_path(LocalizerSettings(use_vo=True, seed=3))
     messages = []
     for i in range(join, n_frames):
-        frame = Frame(uav="uav0", seq=i, stamp_s=float(times_s[i]), width=320, height=240, pixels=sim.images[i])
+        image = sim.images[i]
+        frame = Frame(uav="uav0", seq=i, stamp_s=float(times_s[i]), width=320, height=240, pixels=image)
         vo = (_vo(times_s[i - 2], truth[i - 2]), _vo(times_s[i - 1], truth[i - 1]))
         anchor = vo[1] if i == join else None
         dt = 0.0 if i == join else float(times_s[i] - times_s[i - 1])
@@ -159,9 +160,9 @@ def test_service_anchors_once_per_vo_epoch_and_a_vo_jump_begins_a_new_one() -> N
     service._accept_vo(_vo(1.0, state))
     first = service._take_anchor()
     assert first is not None and first.stamp_s == 1.0
-    service._accept_vo(_vo(1.05, state + [0.02, 0, 0, 0, 0, 0]))  # 0.4 m/s: a motion
+    service._accept_vo(_vo(1.05, state + np.array([0.02, 0, 0, 0, 0, 0])))  # 0.4 m/s: a motion
     assert service._take_anchor() is None and service._vo_pair is not None
-    service._accept_vo(_vo(1.10, state + [3.0, 0, 0, 0, 0, 0]))  # 60 m/s: a jump
+    service._accept_vo(_vo(1.10, state + np.array([3.0, 0, 0, 0, 0, 0])))  # 60 m/s: a jump
     assert service._vo_pair is None and service.counters.get("vo_jumps") == 1
     anchor = service._take_anchor()
     assert anchor is not None and anchor.stamp_s == 1.10
