@@ -22,11 +22,9 @@ from pydantic import Field
 from common import keys
 from common.dispatch import (
     SELF,
-    Balance,
     Dispatcher,
     DispatchSettings,
     Plan,
-    SpeedSource,
     TrustMonitor,
     TrustSettings,
 )
@@ -44,6 +42,7 @@ from services.runtime.cli import (
     add_dispatch_arguments,
     add_stream_bound_arguments,
     add_transport_arguments,
+    dispatch_from_args,
     stream_bounds_from_args,
 )
 from services.runtime.membership import LiveMembers
@@ -259,15 +258,6 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         )
         assert isinstance(result, BlockResult)
         return result, plan
-
-
-def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
-    return DispatchSettings(
-        balance=Balance(args.balance),
-        self_compute=args.compute,
-        min_deadline_s=args.min_deadline_ms / 1e3,
-        speed_source=SpeedSource(args.speed),
-    )
 
 
 def register(subparsers: Any) -> None:

@@ -8,11 +8,11 @@ from enum import StrEnum
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.dispatch import Balance, DispatchSettings, SpeedSource
-from common.errors import CapatazError
 from common.streams import FrameGateSettings
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
-from services.runtime.cli import add_dispatch_arguments, add_enum_argument
+from services.runtime.cli import add_dispatch_arguments, add_enum_argument, dispatch_from_args, parse_size
+from services.runtime.fields import settings_from
 
 
 class Topology(StrEnum):
@@ -48,24 +48,15 @@ class MasterSettings(BaseModel):
     #: defence in depth: vet members' results against the robust fit, cap shares (see common.dispatch.trust)
     trust: bool = True
 
+    # the stages' settings take the fields of the same name (the other fields keep their defaults)
     def gate_settings(self) -> FrameGateSettings:
-        return FrameGateSettings(max_seq_jump=self.max_seq_jump, confirm_frames=self.confirm_frames)
+        return settings_from(FrameGateSettings, self)
 
     def yaw_settings(self) -> YawSettings:
-        return YawSettings(
-            grid_cols=self.grid_cols,
-            grid_rows=self.grid_rows,
-            patch_size_px=self.patch_size_px,
-            pyramid_level=self.pyramid_level,
-        )
+        return settings_from(YawSettings, self)
 
     def dispatch_settings(self) -> DispatchSettings:
-        return DispatchSettings(
-            balance=self.balance,
-            self_compute=self.self_compute,
-            min_deadline_s=self.min_deadline_s,
-            speed_source=self.speed_source,
-        )
+        return settings_from(DispatchSettings, self)
 
 
 def add_master_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,7 +69,9 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
     parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
-    parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
+    parser.add_argument(
+        "--patch-size", dest="patch_size_px", type=int, default=32, help="patch side at the pyramid level"
+    )
     parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
     add_yaw_prior_arguments(parser)
     parser.add_argument("--trust", action=argparse.BooleanOptionalAction, default=True,
@@ -86,22 +79,14 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
-    try:
-        cols, rows = (int(v) for v in args.grid.lower().split("x"))
-    except ValueError:
-        raise CapatazError(f"--grid must look like 8x5, got {args.grid!r}") from None
-    return MasterSettings(
-        uav=args.uav,
+    cols, rows = parse_size(args.grid, "--grid", "8x5")
+    return settings_from(
+        MasterSettings,
+        args,
+        dispatch_from_args(args),
         topology=Topology(args.topology),
-        balance=Balance(args.balance),
-        self_compute=args.compute,
-        speed_source=SpeedSource(args.speed),
         budget_s=args.budget_ms / 1e3,
-        min_deadline_s=args.min_deadline_ms / 1e3,
         grid_cols=cols,
         grid_rows=rows,
-        patch_size_px=args.patch_size,
-        pyramid_level=args.pyramid_level,
         prior=yaw_prior_settings_from_args(args),
-        trust=args.trust,
     )

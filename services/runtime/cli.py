@@ -9,13 +9,23 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.dispatch import Balance, SpeedSource
+from common.dispatch import Balance, DispatchSettings, SpeedSource
+from common.errors import CapatazError
 from services.runtime.transport import TransportSettings
 
 
 def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
     """An option taking one of ``enum``'s values (the value string; the settings parse it to the member)."""
     parser.add_argument(flag, choices=[member.value for member in enum], default=default.value, help=help)
+
+
+def parse_size(text: str, option: str, example: str) -> tuple[int, int]:
+    """The two integers of an ``AxB`` option (``--resolution 752x480``, ``--grid 8x5``), or one error line."""
+    try:
+        first, second = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise CapatazError(f"{option} must look like {example}, got {text!r}") from None
+    return first, second
 
 
 def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
@@ -65,6 +75,16 @@ def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -
         parser, "--speed", SpeedSource, SpeedSource.ROUND_TRIP,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )  # fmt: skip
+
+
+def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
+    """The dispatcher's settings given by :func:`add_dispatch_arguments`' options."""
+    return DispatchSettings(
+        balance=Balance(args.balance),
+        self_compute=args.compute,
+        min_deadline_s=args.min_deadline_ms / 1e3,
+        speed_source=SpeedSource(args.speed),
+    )
 
 
 class StreamBoundSettings(BaseModel):
