@@ -7,7 +7,7 @@ from enum import StrEnum
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.dispatch import Balance, DispatchSettings, SpeedSource
+from common.dispatch import DispatchSettings
 from common.streams import FrameGateSettings
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
@@ -25,16 +25,12 @@ class MasterSettings(BaseModel):
 
     uav: str = "uav0"
     topology: Topology = Topology.MASTER_FOREMAN_WORKER
-    balance: Balance = Balance.TIME
-    self_compute: bool = False
-    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
+    #: how its dispatcher shares a frame's patches among the members (as a foreman's does a block's)
+    dispatch: DispatchSettings = Field(default_factory=DispatchSettings)
     #: time budget of one frame's round (s); shares that miss it are re-dispatched
     budget_s: float = 1.0
-    min_deadline_s: float = 0.3
-    grid_cols: int = 8
-    grid_rows: int = 5
-    patch_size_px: int = 32
-    pyramid_level: int = 1
+    #: the yaw stage (patch grid, patch size, pyramid level; the correlation's constants)
+    yaw: YawSettings = Field(default_factory=YawSettings)
     #: take part in the election of the UAV's active master (off: always active, the paper's single master)
     election: bool = True
     #: newest admitted frames kept (a standby taking over measures them against the last published one)
@@ -48,15 +44,9 @@ class MasterSettings(BaseModel):
     #: defence in depth: vet members' results against the robust fit, cap shares (see common.dispatch.trust)
     trust: bool = True
 
-    # the stages' settings take the fields of the same name (the other fields keep their defaults)
     def gate_settings(self) -> FrameGateSettings:
+        """The frame gate with the bounds of the same name (the others keep their defaults)."""
         return settings_from(FrameGateSettings, self)
-
-    def yaw_settings(self) -> YawSettings:
-        return settings_from(YawSettings, self)
-
-    def dispatch_settings(self) -> DispatchSettings:
-        return settings_from(DispatchSettings, self)
 
 
 def add_master_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,11 +58,20 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
-    parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
+    yaw = YawSettings()  # the defaults have one home
+    grid = f"{yaw.grid_cols}x{yaw.grid_rows}"
+    parser.add_argument("--grid", default=grid, help=f"patch grid COLSxROWS (default {grid})")
     parser.add_argument(
-        "--patch-size", dest="patch_size_px", type=int, default=32, help="patch side at the pyramid level"
+        "--patch-size",
+        dest="patch_size_px",
+        type=int,
+        default=yaw.patch_size_px,
+        help=f"patch side at the pyramid level (default {yaw.patch_size_px})",
     )
-    parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
+    parser.add_argument(
+        "--pyramid-level", type=int, default=yaw.pyramid_level,
+        help=f"pyramid level of the patches (default {yaw.pyramid_level})",
+    )  # fmt: skip
     add_yaw_prior_arguments(parser)
     parser.add_argument("--trust", action=argparse.BooleanOptionalAction, default=True,
                         help="vet members, cap shares, one frame source (default on)")  # fmt: skip
@@ -83,10 +82,10 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
     return settings_from(
         MasterSettings,
         args,
-        dispatch_from_args(args),
         topology=Topology(args.topology),
+        dispatch=dispatch_from_args(args),
         budget_s=args.budget_ms / 1e3,
-        grid_cols=cols,
-        grid_rows=rows,
+        # --patch-size and --pyramid-level carry the yaw settings' field names
+        yaw=settings_from(YawSettings, args, grid_cols=cols, grid_rows=rows),
         prior=yaw_prior_settings_from_args(args),
     )

@@ -67,12 +67,18 @@ def transport_from_args(args: Any) -> TransportSettings:
 
 
 def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
-    """The dispatcher's options, shared by the master and the foreman."""
-    add_enum_argument(parser, "--balance", Balance, Balance.TIME, help="share balancing")
-    parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
-    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+    """The dispatcher's options, shared by the master and the foreman (defaults: DispatchSettings())."""
+    default = DispatchSettings()
+    add_enum_argument(parser, "--balance", Balance, default.balance, help="share balancing")
+    parser.add_argument(
+        "--compute", action=argparse.BooleanOptionalAction, default=default.self_compute, help=compute_help
+    )
+    parser.add_argument(
+        "--min-deadline-ms", type=float, default=1e3 * default.min_deadline_s,
+        help="smallest per-request deadline",
+    )  # fmt: skip
     add_enum_argument(
-        parser, "--speed", SpeedSource, SpeedSource.ROUND_TRIP,
+        parser, "--speed", SpeedSource, default.speed_source,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )  # fmt: skip
 

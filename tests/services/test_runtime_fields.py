@@ -27,14 +27,12 @@ def test_later_sources_and_derived_values_win_and_unknown_names_are_ignored() ->
 
 
 def test_a_settings_object_is_a_source_too() -> None:
-    master = MasterSettings(balance=Balance.NONE, min_deadline_s=0.7, speed_source=SpeedSource.REPORTED)
-    dispatch = settings_from(DispatchSettings, master)
-    assert (dispatch.balance, dispatch.min_deadline_s, dispatch.speed_source) == (
-        Balance.NONE,
-        0.7,
-        SpeedSource.REPORTED,
-    )
-    assert dispatch.suspend_s == DispatchSettings().suspend_s
+    master = MasterSettings(max_seq_jump=20, confirm_frames=7)
+    gate = master.gate_settings()
+    assert (gate.max_seq_jump, gate.confirm_frames) == (20, 7)
+    assert gate.silence_s == FrameGateSettings().silence_s
+    dispatch = settings_from(DispatchSettings, argparse.Namespace(balance=Balance.NONE, suspend_s=2.0))
+    assert (dispatch.balance, dispatch.suspend_s) == (Balance.NONE, 2.0)
 
 
 def test_field_names_refuses_a_type_that_is_no_settings() -> None:
@@ -73,9 +71,9 @@ def test_every_master_option_reaches_its_stage() -> None:
          "--speed", "reported", "--min-deadline-ms", "500", "--compute", "--budget-ms", "800"]
     )  # fmt: skip
     settings = master_settings_from_args(args)
-    yaw = settings.yaw_settings()
+    yaw = settings.yaw
     assert (yaw.grid_cols, yaw.grid_rows, yaw.patch_size_px, yaw.pyramid_level) == (6, 4, 16, 0)
-    dispatch = settings.dispatch_settings()
+    dispatch = settings.dispatch
     assert (dispatch.balance, dispatch.speed_source) == (Balance.NONE, SpeedSource.REPORTED)
     assert (dispatch.min_deadline_s, dispatch.self_compute, settings.budget_s) == (0.5, True, 0.8)
     assert settings.gate_settings().max_seq_jump == settings.max_seq_jump
