@@ -10,9 +10,9 @@ import pytest
 from common.dispatch import Balance, DispatchSettings, SpeedSource
 from common.errors import CapatazError
 from common.streams import FrameGateSettings
-from services.camera.service import camera_settings_from_args
+from services.camera.service import CameraSettings, camera_settings_from_args
 from services.cli import build_parser
-from services.localizer.settings import register_arguments, settings_from_args
+from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.master.settings import MasterSettings, master_settings_from_args
 from services.runtime.cli import parse_size
 from services.runtime.fields import field_names, settings_from
@@ -48,18 +48,37 @@ def test_parse_size_refuses_what_is_not_two_integers(text: str) -> None:
     assert parse_size("640X360", "--resolution", "752x480") == (640, 360)
 
 
+def _options_without_a_field(command: str, fields: set[str]) -> set[str]:
+    transport = set(vars(build_parser().parse_args(["worker"])))  # every service's shared options
+    return set(vars(build_parser().parse_args([command]))) - fields - transport
+
+
+def test_an_option_without_a_field_of_its_name_is_one_the_builder_derives() -> None:
+    # an option added with another dest would silently keep the field's default: the exceptions are listed
+    assert _options_without_a_field("localizer", set(LocalizerSettings.model_fields)) == {
+        "resolution",
+        "trajectory",
+    }
+    camera = _options_without_a_field("camera", set(CameraSettings.model_fields))
+    assert camera == {"resolution", "uav", "no_sensors", "write_calibration"}
+
+
 def test_every_localizer_option_reaches_its_field() -> None:
     parser = argparse.ArgumentParser()
     register_arguments(parser)
     args = parser.parse_args(
         ["--hfov", "70", "--mount", "down", "--position-spread", "0.3", "--angle-spread", "5",
-         "--velocity-noise", "0.4", "--angular-noise", "10", "--resolution", "640x360", "--scoring",
-         "per_edge", "--filter", "tracker", "--initial-state", "1", "2", "3", "0", "0", "0.5"]
+         "--velocity-noise", "0.4", "--angular-noise", "10", "--vo-jump", "3", "--resolution", "640x360",
+         "--scoring", "per_edge", "--filter", "tracker", "--initial-state", "1", "2", "3", "0", "0", "0.5"]
     )  # fmt: skip
     settings = settings_from_args(args)
     assert (settings.hfov_deg, settings.camera_mount) == (70.0, "down")
     assert (settings.position_spread_m, settings.angle_spread_deg) == (0.3, 5.0)
-    assert (settings.velocity_noise_m_s, settings.angular_noise_deg_s) == (0.4, 10.0)
+    assert (settings.velocity_noise_m_s, settings.angular_noise_deg_s, settings.vo_jump_m_s) == (
+        0.4,
+        10.0,
+        3.0,
+    )
     assert (settings.width, settings.height) == (640, 360)
     assert settings.scoring.value == "per_edge" and settings.filter.value == "tracker"
     assert settings.initial_state == (1.0, 2.0, 3.0, 0.0, 0.0, 0.5)
