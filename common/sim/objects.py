@@ -29,9 +29,7 @@ from common.localization.model import SceneModel, build_scene
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad, rotation_vectors
 from common.sim.scene import RenderOptions, SampledFlight, render_view
 from common.sim.sensors import ImuNoise
-from common.types import FloatArray
-
-UInt8Array = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 #: Where the flights aim: a little above the part's centre (m).
 OBJECT_CENTRE_M = (0.0, 0.0, 0.07)
@@ -298,7 +296,7 @@ def render_camera_flight(
     camera: CameraModel,
     options: RenderOptions = OBJECT_RENDER,
     rng: np.random.Generator | None = None,
-) -> Iterator[UInt8Array]:
+) -> Iterator[U8Array]:
     """Frames of a camera flight, one per pose, in order."""
     for p, R in zip(flight.p_world_camera_m, flight.R_world_camera, strict=True):
         yield render_view(scene, R, p, camera, options, rng)
@@ -306,7 +304,7 @@ def render_camera_flight(
 
 def rendered_object_flight(
     n_frames: int, seed: int, camera: CameraModel | None = None
-) -> tuple[CameraFlight, list[UInt8Array]]:
+) -> tuple[CameraFlight, list[U8Array]]:
     """:func:`object_flight` over :func:`tabletop_scene` and its frames (the noise seeded alike), seen by
     ``camera`` (default :func:`object_camera`)."""
     flight = object_flight(n_frames, seed=seed)
