@@ -43,8 +43,8 @@ from services.runtime.cli import (
     add_stream_bound_arguments,
     add_transport_arguments,
     dispatch_from_args,
-    stream_bounds_from_args,
 )
+from services.runtime.fields import settings_from
 from services.runtime.membership import LiveMembers
 from services.runtime.results import result_from_measurement
 from services.runtime.round import FrameWork
@@ -271,7 +271,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = ForemanSettings(dispatch=dispatch_from_args(args), **stream_bounds_from_args(args))
+    settings = settings_from(ForemanSettings, args, dispatch=dispatch_from_args(args))
     return ForemanService.from_args(args, settings).run()
 
 

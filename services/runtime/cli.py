@@ -103,12 +103,9 @@ class StreamBoundSettings(BaseModel):
     stream_ttl_s: float = Field(default=60.0, gt=0.0)
 
 
-def stream_bounds_from_args(args: Any) -> dict[str, Any]:
-    """The :class:`StreamBoundSettings` fields given by :func:`add_stream_bound_arguments`' options."""
-    return {"max_streams": args.max_streams, "stream_ttl_s": args.stream_ttl}
-
-
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
     """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker."""
     parser.add_argument("--max-streams", type=int, default=64, help="streams kept at most (LRU evicted)")
-    parser.add_argument("--stream-ttl", type=float, default=60.0, help="seconds an unused stream is kept")
+    parser.add_argument(
+        "--stream-ttl", dest="stream_ttl_s", type=float, default=60.0, help="seconds an unused stream is kept"
+    )

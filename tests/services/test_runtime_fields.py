@@ -12,10 +12,12 @@ from common.errors import CapatazError
 from common.streams import FrameGateSettings
 from services.camera.service import CameraSettings, camera_settings_from_args
 from services.cli import build_parser
+from services.foreman.service import ForemanSettings
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.master.settings import MasterSettings, master_settings_from_args
-from services.runtime.cli import parse_size
+from services.runtime.cli import add_transport_arguments, dispatch_from_args, parse_size
 from services.runtime.fields import field_names, settings_from
+from services.worker.service import WorkerSettings
 
 
 def test_later_sources_and_derived_values_win_and_unknown_names_are_ignored() -> None:
@@ -49,8 +51,10 @@ def test_parse_size_refuses_what_is_not_two_integers(text: str) -> None:
 
 
 def _options_without_a_field(command: str, fields: set[str]) -> set[str]:
-    transport = set(vars(build_parser().parse_args(["worker"])))  # every service's shared options
-    return set(vars(build_parser().parse_args([command]))) - fields - transport
+    shared = argparse.ArgumentParser()
+    add_transport_arguments(shared)  # every service's (TransportSettings)
+    ignored = set(vars(shared.parse_args([]))) | {"command", "handler", "verbose", "quiet", "_parser"}
+    return set(vars(build_parser().parse_args([command]))) - fields - ignored
 
 
 def test_an_option_without_a_field_of_its_name_is_one_the_builder_derives() -> None:
@@ -61,6 +65,25 @@ def test_an_option_without_a_field_of_its_name_is_one_the_builder_derives() -> N
     }
     camera = _options_without_a_field("camera", set(CameraSettings.model_fields))
     assert camera == {"resolution", "uav", "no_sensors", "write_calibration"}
+    assert _options_without_a_field("foreman", set(ForemanSettings.model_fields)) == {
+        "balance", "compute", "min_deadline_ms", "speed",  # dispatch_from_args
+    }  # fmt: skip
+    transport = set(vars(build_parser().parse_args(["camera"]))) & set(
+        vars(build_parser().parse_args(["worker"]))
+    )
+    worker = set(vars(build_parser().parse_args(["worker"]))) - transport - set(WorkerSettings.model_fields)
+    assert worker == set()
+
+
+def test_worker_and_foreman_options_reach_their_fields() -> None:
+    worker = settings_from(
+        WorkerSettings,
+        build_parser().parse_args(["worker", "--queue", "3", "--stream-ttl", "5", "--max-streams", "7"]),
+    )
+    assert (worker.queue, worker.stream_ttl_s, worker.max_streams) == (3, 5.0, 7)
+    args = build_parser().parse_args(["foreman", "--stream-ttl", "9", "--balance", "none"])
+    foreman = settings_from(ForemanSettings, args, dispatch=dispatch_from_args(args))
+    assert (foreman.stream_ttl_s, foreman.dispatch.balance) == (9.0, Balance.NONE)
 
 
 def test_every_localizer_option_reaches_its_field() -> None:
