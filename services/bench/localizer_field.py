@@ -207,10 +207,15 @@ def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, s
 
 
 def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, float]:
-    """CPU ms of one vectorised weighting of ``particles`` poses vs the per-particle loop, interleaved."""
+    """CPU ms of one vectorised weighting of ``particles`` poses vs the per-particle loop (the same function
+    called with one particle), interleaved; also the general numpy path of the weighting (the compiled pass
+    off, :mod:`common.localization.fused`), the choice this figure decided."""
     tracker = ModelTracker(scene.model, scene.camera, TrackerSettings(n_particles=particles))
+    general = ModelTracker(
+        scene.model, scene.camera, TrackerSettings(n_particles=particles, fused_weighting=False)
+    )
     rng = np.random.default_rng(0)
-    fast, slow, hidden_line = [], [], []
+    fast, slow, numpy_path, hidden_line = [], [], [], []
     for i in np.linspace(1, scene.flight.n_frames - 1, 5).astype(int):
         edges = tracker.edges(scene.images[i])
         positions = scene.flight.p_world_camera_m[i] + rng.normal(0.0, 0.003, (particles, 3))
@@ -222,10 +227,14 @@ def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, 
         c0 = time.process_time()
         visible = tracker._visible(truth)
         hidden_line.append(time.process_time() - c0)
+        tracker.log_likelihood(positions, rotations, edges, visible)  # compiled on first use, not timed
         for _ in range(repeats):
             c0 = time.process_time()
             tracker.log_likelihood(positions, rotations, edges, visible)
             fast.append(time.process_time() - c0)
+            c0 = time.process_time()
+            general.log_likelihood(positions, rotations, edges, visible)
+            numpy_path.append(time.process_time() - c0)
             c0 = time.process_time()
             for p in range(particles):
                 tracker.log_likelihood(positions[p : p + 1], rotations[p : p + 1], edges, visible)
@@ -233,8 +242,12 @@ def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, 
     fast_ms, slow_ms = 1e3 * float(np.median(fast)), 1e3 * float(np.median(slow))
     return {
         "weighting_ms_200": fast_ms,
+        "weighting_ms_200_p95": 1e3 * float(np.percentile(fast, 95)),
         "baseline_ms_200": slow_ms,
+        "baseline_ms_200_p95": 1e3 * float(np.percentile(slow, 95)),
         "speedup_200": slow_ms / fast_ms,
+        "weighting_numpy_path_ms_200": 1e3 * float(np.median(numpy_path)),
+        "weighting_numpy_path_ms_200_p95": 1e3 * float(np.percentile(numpy_path, 95)),
         "hidden_line_removal_ms": 1e3 * float(np.median(hidden_line)),
     }
 
