@@ -16,6 +16,8 @@ Per scene and scoring, over ``--seeds`` runs (own flight, start error and filter
 - ``recovered_after_kidnap_frames``: the same flights with the camera teleported 0.1 m and 10 deg (random
   directions) at the middle frame: frames until the error is back within 2x the run's median (position and
   rotation); the worst run (None if one never recovered), and every run's;
+- ``meets_goal``: the scene's goal of issue 13 (medians, no lost run; on the object also every kidnap back
+  within 30 frames), which ``best_scoring`` ranks by after the lost runs;
 - ``step_ms_median`` / ``step_ms_p95``: CPU time of a full tracker step (edge extraction, prediction,
   annealed weighting, resampling, refinement) per frame, one core.
 
@@ -60,6 +62,8 @@ GOALS = {"object": (5.0, 0.5), "office": (30.0, 0.5)}
 #: Start error (mm, deg) per scene.
 START_ERROR = {"object": (30.0, 5.0), "office": (300.0, 10.0)}
 KIDNAP_M, KIDNAP_DEG = 0.1, 10.0
+#: Goal of issue 13 on the kidnap (frames until back, every run), where it sets one.
+KIDNAP_GOAL_FRAMES = {"object": 30}
 
 
 @dataclass(frozen=True)
@@ -201,7 +205,10 @@ def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, s
         "particles": particles,
         "inputs": ["images", "gyro"] if scenes[0].gyro is not None else ["images"],
     }
-    row["meets_goal"] = bool(position_median_mm <= goal_mm and rotation_median_deg <= goal_deg and lost == 0)
+    back = name not in KIDNAP_GOAL_FRAMES or (worst is not None and worst <= KIDNAP_GOAL_FRAMES[name])
+    row["meets_goal"] = bool(
+        position_median_mm <= goal_mm and rotation_median_deg <= goal_deg and lost == 0 and back
+    )
     logger.info("%s %s: %s", name, method.value, row)
     return row
 
