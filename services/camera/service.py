@@ -242,11 +242,10 @@ class CameraService(ConfiguredService[CameraSettings]):
     def _publish_simulated(self) -> None:
         t_start = time.monotonic()
         published = 0
-        rounds = 0
         last_seq = -1
+        stamps = LoopedStamps()
         while not self.stop_event.is_set():
             previous_stamp = -np.inf
-            span = 0.0
             for _i, stamp_s, image in self.frames():
                 if self.stop_event.is_set():
                     break
@@ -255,7 +254,7 @@ class CameraService(ConfiguredService[CameraSettings]):
                     if delay > 0 and self.stop_event.wait(delay):
                         break
                 seq = last_seq + 1
-                offset = rounds * span
+                offset = stamps.offset_of(stamp_s)
                 for uav in self.settings.uavs:
                     self._sensor_samples(uav, previous_stamp, stamp_s, offset)
                     self._wait_yaw(uav, seq - 1)
@@ -273,17 +272,42 @@ class CameraService(ConfiguredService[CameraSettings]):
                     )
                     if self.flight is not None:  # the simulation's ground truth (for views, recordings)
                         self._put(uav, "truth", truth_pose(uav, seq, stamp_s + offset, self.flight, _i))
-                previous_stamp, span = stamp_s, stamp_s + 0.05
+                previous_stamp = stamp_s
                 last_seq = seq
                 published += 1
                 self.counters.inc("frames_out")
-            if not self.settings.loop:
+            if not self.settings.loop or last_seq < 0:
                 break
-            rounds += 1
+            stamps.next_round()
         for uav in self.settings.uavs:
             self._wait_yaw(uav, last_seq)
         self.finished.set()
         self.stop_event.set()
+
+
+class LoopedStamps:
+    """The stamp offset of a flight replayed in rounds (``--loop``): each round begins one frame period after
+    the previous round's last frame, so that stamps keep increasing (receivers refuse a stamp that is not
+    after the one before)."""
+
+    def __init__(self, default_period_s: float = 0.05) -> None:
+        self.offset_s = 0.0
+        self._first_s: float | None = None  # the first frame's stamp (first round, offset 0)
+        self._last_s = 0.0  # the last frame's shifted stamp
+        self._period_s = default_period_s
+
+    def offset_of(self, stamp_s: float) -> float:
+        """The offset to add to this frame's flight stamp (frames in order)."""
+        shifted = stamp_s + self.offset_s
+        if self._first_s is None:
+            self._first_s = shifted
+        elif shifted > self._last_s:
+            self._period_s = shifted - self._last_s
+        self._last_s = shifted
+        return self.offset_s
+
+    def next_round(self) -> None:
+        self.offset_s = self._last_s + self._period_s - (self._first_s or 0.0)
 
 
 def register(subparsers: Any) -> None:

@@ -32,7 +32,7 @@ from common.localization.particle_filter import (
     PoseStatistics,
     covariance_with_world_error_angles,
 )
-from common.localization.pose import rotation_vectors
+from common.localization.pose import CameraPose, rotation_vectors
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState, TrackingStatus
 from common.localization.tracking import localizer_step
@@ -44,13 +44,31 @@ VoPair = tuple[PoseEstimate, PoseEstimate] | None
 
 
 class LocalizationPath(Protocol):
-    """One frame in, the ``pose/pf`` message out."""
+    """One frame in, the ``pose/pf`` message out. ``anchor``: a VO pose to start again around (the first
+    VO pose, or the first after a VO discontinuity; see :func:`vo_jumped`), before this frame."""
 
     kind: FilterKind
 
     def step(
-        self, frame: Frame, dt_s: float, vo: VoPair, gyro_camera_rad_s: np.ndarray | None = None
+        self,
+        frame: Frame,
+        dt_s: float,
+        vo: VoPair,
+        gyro_camera_rad_s: np.ndarray | None = None,
+        anchor: PoseEstimate | None = None,
     ) -> PoseEstimate: ...
+
+
+def body_state_of(pose: PoseEstimate) -> np.ndarray:
+    """The body state ``(x, y, z, roll, pitch, yaw)`` (m, rad) of a pose message."""
+    return np.concatenate([pose.p_world_body_m, euler_from_quaternion(pose.q_world_body)])
+
+
+def vo_jumped(previous: PoseEstimate, current: PoseEstimate, max_speed_m_s: float) -> bool:
+    """True when the VO moved faster than ``max_speed_m_s`` between two poses (time advancing): the
+    odometry restarted, or the stream looped, and its motion across that step is not a motion."""
+    odometry = odometry_between(previous, current)
+    return odometry is not None and float(np.linalg.norm(odometry[0])) > max_speed_m_s
 
 
 def mean_gyro_camera(
@@ -155,9 +173,18 @@ class ParticleFilterPath:
         self.state: ParticleState = self.filter.initialize(guess, self.rng)
 
     def step(
-        self, frame: Frame, dt_s: float, vo: VoPair, gyro_camera_rad_s: np.ndarray | None = None
+        self,
+        frame: Frame,
+        dt_s: float,
+        vo: VoPair,
+        gyro_camera_rad_s: np.ndarray | None = None,
+        anchor: PoseEstimate | None = None,
     ) -> PoseEstimate:
-        """(The gyro is not used: paper B's motion model takes the VO's Euler-angle rates.)"""
+        """(The gyro is not used: paper B's motion model takes the VO's Euler-angle rates.) An ``anchor``
+        re-initialises the cloud around it (the prior box of the filter's start spreads)."""
+        if anchor is not None:
+            self.state = self.filter.initialize(body_state_of(anchor), self.rng)
+            dt_s = 0.0
         odometry = None if vo is None else euler_odometry_between(*vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state, estimate = localizer_step(
@@ -179,8 +206,18 @@ class ModelTrackerPath:
         self.state: TrackerState = self.tracker.start(settings.start_pose())
 
     def step(
-        self, frame: Frame, dt_s: float, vo: VoPair, gyro_camera_rad_s: np.ndarray | None = None
+        self,
+        frame: Frame,
+        dt_s: float,
+        vo: VoPair,
+        gyro_camera_rad_s: np.ndarray | None = None,
+        anchor: PoseEstimate | None = None,
     ) -> PoseEstimate:
+        """An ``anchor`` starts the tracker again around it (its start spreads)."""
+        if anchor is not None:
+            pose = CameraPose.from_body_state(body_state_of(anchor), self.settings.R_body_camera)
+            self.state = self.tracker.start(pose)
+            dt_s = 0.0
         odometry = None if vo is None else odometry_between(*vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state = self.tracker.step(

@@ -19,6 +19,7 @@ not the camera's (``bad_frames``), a time stamp not after the previous frame's (
 from __future__ import annotations
 
 import argparse
+import logging
 import threading
 import time
 from collections import deque
@@ -30,12 +31,20 @@ import zenoh
 from common import keys
 from common.codec import encode
 from common.messages import Frame, ImuSample, PoseEstimate
-from services.localizer.filters import LocalizationPath, make_path, mean_gyro_camera, odometry_between
+from services.localizer.filters import (
+    LocalizationPath,
+    make_path,
+    mean_gyro_camera,
+    odometry_between,
+    vo_jumped,
+)
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.handoff import LatestSlot
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 from services.trajectory import add_trajectory_argument, run_with_trajectories
+
+logger = logging.getLogger(__name__)
 
 #: gyro readings kept between frames (10 s of a 400 Hz IMU)
 IMU_BUFFER = 4000
@@ -54,6 +63,10 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self._vo_lock = threading.Lock()
         self._vo_previous: PoseEstimate | None = None
         self._vo_pair: tuple[PoseEstimate, PoseEstimate] | None = None  # the last two, time advancing
+        #: the VO stream's epoch (+1 at its first pose and at each discontinuity) and, with anchor_on_vo,
+        #: the epoch the filter last started from (around the latest VO pose)
+        self._vo_epoch = -1
+        self._used_epoch = -1
         #: gyro readings (stamp, body rate), bounded: seconds of a 400 Hz IMU
         self._imu_lock = threading.Lock()
         self._imu: deque[tuple[float, np.ndarray]] = deque(maxlen=IMU_BUFFER)
@@ -122,16 +135,44 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         pose = self.decode_sample(sample, PoseEstimate)
         if pose is None or pose.uav != self.settings.uav or not self._admit("vo", pose.stamp_s):
             return
+        self._accept_vo(pose)
+
+    def _accept_vo(self, pose: PoseEstimate) -> None:
+        """Keep the last two VO poses (time advancing) for the prediction; a step faster than
+        ``vo_jump_m_s`` begins a new VO epoch instead (see :meth:`_take_anchor`)."""
         with self._vo_lock:
             previous, self._vo_previous = self._vo_previous, pose
             if previous is None:
+                self._vo_epoch += 1
                 return
             if odometry_between(previous, pose) is None:
                 self.count_error(
                     "stale_vo", "VO pose refused", f"stamp {pose.stamp_s} not after {previous.stamp_s}"
                 )
                 return
+            if vo_jumped(previous, pose, self.settings.vo_jump_m_s):
+                # a restart of the odometry or a loop of the stream: not a motion to predict with
+                self._vo_pair = None
+                self._vo_epoch += 1
+                self.counters.inc("vo_jumps")
+                logger.warning(
+                    "VO jumped %.2f m in %.3f s (faster than %.1f m/s)%s",
+                    float(np.linalg.norm(pose.p_world_body_m - previous.p_world_body_m)),
+                    pose.stamp_s - previous.stamp_s,
+                    self.settings.vo_jump_m_s,
+                    ": starting again around the new VO pose" if self.settings.anchor_on_vo else "",
+                )
+                return
             self._vo_pair = (previous, pose)
+
+    def _take_anchor(self) -> PoseEstimate | None:
+        """With ``anchor_on_vo``: the latest VO pose, once per VO epoch (the first VO pose, the first after
+        a jump), for the filter to start around; None otherwise."""
+        with self._vo_lock:
+            if not self.settings.anchor_on_vo or self._vo_epoch == self._used_epoch:
+                return None
+            self._used_epoch = self._vo_epoch
+            return self._vo_previous
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
         reading = self.decode_sample(sample, ImuSample)
@@ -166,10 +207,14 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             dt = 0.0 if self._last_stamp_s is None else frame.stamp_s - self._last_stamp_s
             gyro = self._gyro_between(self._last_stamp_s, frame.stamp_s) if self.settings.use_imu else None
             self._last_stamp_s = frame.stamp_s
+            anchor = self._take_anchor()
             with self._vo_lock:
                 vo = self._vo_pair
+            if anchor is not None:
+                self.counters.inc("vo_anchors")
+                logger.info("starting around the VO pose of %.3f s", anchor.stamp_s)
             t0 = time.perf_counter()
-            message = self.path.step(frame, dt, vo, gyro)
+            message = self.path.step(frame, dt, vo, gyro, anchor)
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
             self.counters.inc(f"frames_{message.tracking_state}")
             payload, attachment = encode(message)

@@ -79,6 +79,9 @@ class LocalizerSettings(BaseModel):
     angular_noise_deg_s: float = Field(default=25.0, gt=0.0)
     layers: int = Field(default=2, ge=1, le=10)
     use_vo: bool = False
+    #: with use_vo: a VO step faster than this (m/s) is a discontinuity (the odometry restarted, the
+    #: camera looped), after which the localizer starts again around the new VO pose
+    vo_jump_m_s: float = Field(default=10.0, gt=0.0)
     #: tracker: the gyro on capataz/uav/{uav}/imu measures the motion model's angular rate
     use_imu: bool = False
     filter: FilterKind = FilterKind.AUTO
@@ -110,6 +113,12 @@ class LocalizerSettings(BaseModel):
             return parse_pose_numbers(self.initial_pose)
         state = default_flight(n_frames=2).states[0] if self.initial_state is None else self.initial_state
         return CameraPose.from_body_state(state, self.R_body_camera)
+
+    @property
+    def anchor_on_vo(self) -> bool:
+        """With ``use_vo`` and no initial pose given, the VO poses (in the model's world frame) place the
+        filter: it starts around the first one and again after a VO discontinuity."""
+        return self.use_vo and self.initial_pose is None and self.initial_state is None
 
     def resolved_filter(self) -> FilterKind:
         """``filter`` with ``auto`` resolved: the particle filter with VO odometry, the tracker without."""
@@ -189,7 +198,18 @@ def register_arguments(parser: Any) -> None:
     parser.add_argument(
         "--layers", type=int, default=2, help="tracker: annealing layers per frame (default 2)"
     )
-    parser.add_argument("--use-vo", action="store_true", help="drive the prediction by pose/vo")
+    parser.add_argument(
+        "--use-vo",
+        action="store_true",
+        help="drive the prediction by pose/vo; without --initial-pose/--initial-state the VO frame is the "
+        "model's world frame: start around the first VO pose, start again after a VO jump",
+    )
+    parser.add_argument(
+        "--vo-jump",
+        type=float,
+        default=10.0,
+        help="with --use-vo: a VO step faster than this (m/s) is a discontinuity (default 10)",
+    )
     parser.add_argument(
         "--use-imu",
         action="store_true",
@@ -228,6 +248,7 @@ def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
             angular_noise_deg_s=args.angular_noise,
             layers=args.layers,
             use_vo=args.use_vo,
+            vo_jump_m_s=args.vo_jump,
             use_imu=args.use_imu,
             filter=FilterKind(args.filter),
         )

@@ -202,6 +202,13 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
             for sub in streams.subs:
                 sub.undeclare()
     finally:
+        # every service's log, kept for a reader of a failure (out/ is ignored by git)
+        logs = subprocess.run(
+            [*compose, "-p", PROJECT, "logs", "--no-color"],
+            capture_output=True, text=True, cwd=ROOT, env=env, timeout=300,
+        )  # fmt: skip
+        (ROOT / "out").mkdir(exist_ok=True)
+        (ROOT / "out" / "docker_e2e_logs.txt").write_text(logs.stdout + logs.stderr)
         subprocess.run(down, capture_output=True, cwd=ROOT, env=env, timeout=300)
 
     rates = {

@@ -94,6 +94,10 @@ def _run(cluster: LocalCluster, session: Any, name: str, camera_args: list[str],
             f"est-{name}",
             "--uav",
             uav,
+            # a queue that holds the whole flight: a busy host must not make the estimator skip frames
+            # (every replay is compared with the simulated camera's frame by frame)
+            "--frame-queue",
+            str(2 * N_FRAMES),
             "--initial-yaw",
             repr(float(flight.yaw_rad[0])),
             "--initial-xy",

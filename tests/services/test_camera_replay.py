@@ -82,3 +82,19 @@ def test_a_recording_broken_half_way_stops_the_replay_with_one_counted_error() -
     replay_recording(camera, RecordedSource("broken", broken, frames=2, width=6, height=4))  # type: ignore[arg-type]
     assert camera.counters.get("recording_errors") == 1 and camera.counters.get("frames_out") == 1
     assert camera.finished.is_set() and camera.stop_event.is_set()
+
+
+def test_looped_simulated_flight_stamps_keep_increasing_across_rounds() -> None:
+    """Regression: the simulated camera's --loop restarted each round's stamps at 0 (the first frame of a
+    round had offset 0, later ones a growing one), so receivers refused half the second round as stale."""
+    from services.camera.service import LoopedStamps
+
+    flight_s = [0.0, 0.05, 0.1, 0.15]
+    stamps = LoopedStamps()
+    published = []
+    for _round in range(3):
+        for t in flight_s:
+            published.append(t + stamps.offset_of(t))
+        stamps.next_round()
+    assert np.allclose(np.diff(published), 0.05)
+    assert np.isclose(published[0], 0.0)

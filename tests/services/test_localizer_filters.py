@@ -123,3 +123,54 @@ def test_tracker_path_takes_the_gyro_and_still_tracks() -> None:
         message = path.step(frame, 0.05 if seq else 0.0, None, np.zeros(3) if seq else None)
     assert message.tracking_state == "tracking"
     assert path.state.motion is not None
+
+
+def test_late_joining_particle_path_starts_around_the_vo_pose_not_the_flight_start() -> None:
+    """Regression (docker pose/pf 67 cm): a localizer that joined a running office stream late started its
+    particles at the flight's first pose, 1-4 m away, and never converged; it now starts around the VO
+    pose it is handed as ``anchor`` (the service's first VO pose)."""
+    n_frames, join = 60, 28
+    sim = simulate_run(n_frames=n_frames, seed=2)
+    truth, times_s = sim.flight.states, sim.flight.times_s
+    assert np.linalg.norm(truth[join, :3] - truth[0, :3]) > 0.9  # the start guess is far off
+    path = make_path(LocalizerSettings(use_vo=True, seed=3))
+    messages = []
+    for i in range(join, n_frames):
+        image = sim.images[i]
+        frame = Frame(uav="uav0", seq=i, stamp_s=float(times_s[i]), width=320, height=240, pixels=image)
+        vo = (_vo(times_s[i - 2], truth[i - 2]), _vo(times_s[i - 1], truth[i - 1]))
+        anchor = vo[1] if i == join else None
+        dt = 0.0 if i == join else float(times_s[i] - times_s[i - 1])
+        messages.append(path.step(frame, dt, vo, anchor=anchor))
+    # measured: 8.7-11 cm over the last 5 of 32 frames, still closing in (started at the flight's first
+    # pose instead: 1.38-1.51 m and growing)
+    errors_m = [np.linalg.norm(m.p_world_body_m - truth[m.seq, :3]) for m in messages[-5:]]
+    assert max(errors_m) < 0.15, errors_m
+
+
+def test_service_anchors_once_per_vo_epoch_and_a_vo_jump_begins_a_new_one() -> None:
+    """The service hands the filter the latest VO pose once at the first VO pose and once after each VO
+    jump (a loop of the stream, a restart of the odometry); the jump is never used as a motion."""
+    from services.localizer.service import LocalizerService
+    from tests.zenoh_helpers import peer
+
+    state = np.array([7.0, 4.0, 1.5, 0.0, 0.0, 0.3])
+    service = LocalizerService("test", 0, peer("tcp/127.0.0.1:9"), LocalizerSettings(use_vo=True))
+    assert service._take_anchor() is None  # no VO yet: the start guess stands
+    service._accept_vo(_vo(1.0, state))
+    first = service._take_anchor()
+    assert first is not None and first.stamp_s == 1.0
+    service._accept_vo(_vo(1.05, state + np.array([0.02, 0, 0, 0, 0, 0])))  # 0.4 m/s: a motion
+    assert service._take_anchor() is None and service._vo_pair is not None
+    service._accept_vo(_vo(1.10, state + np.array([3.0, 0, 0, 0, 0, 0])))  # 60 m/s: a jump
+    assert service._vo_pair is None and service.counters.get("vo_jumps") == 1
+    anchor = service._take_anchor()
+    assert anchor is not None and anchor.stamp_s == 1.10
+    assert service._take_anchor() is None
+
+    # with an initial pose given, the VO frame is not taken for the model's: no anchors
+    fixed = LocalizerService(
+        "test", 0, peer("tcp/127.0.0.1:9"), LocalizerSettings(use_vo=True, initial_state=tuple(state))
+    )
+    fixed._accept_vo(_vo(1.0, state))
+    assert fixed._take_anchor() is None
