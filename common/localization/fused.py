@@ -87,6 +87,21 @@ def _edge_sums(  # pragma: no cover - compiled; checked against the numpy path
             counts[p, e] = np.float32(count)
 
 
+def compile_fused_kernel() -> None:
+    """Compile (or load from numba's cache) the pass on a one-point problem. A tracker calls it when it is
+    built, so that a service compiles before it subscribes (a cold compile takes seconds on a loaded host;
+    met on the first frame, it let the estimator's queues overflow)."""
+    one = np.ones((1, 1), dtype=bool)
+    KR = np.eye(3, dtype=np.float32)[None]
+    Kt = np.zeros((1, 3, 1), dtype=np.float32)
+    point = np.array([[[0.0, 0.0, 1.0]]], dtype=np.float32)
+    table = np.ones(2, dtype=np.float32)
+    out = np.zeros((1, 1), dtype=np.float32), np.zeros((1, 1), dtype=np.float32)
+    lookup = np.zeros(2, dtype=np.float32)
+    _edge_sums(KR, Kt, point, one, one, 1, 1, lookup, True, np.float32(1.0), table, np.float32(1.0),
+               np.float32(0.05), *out)  # fmt: skip
+
+
 #: resolution of the table of g(d) (linear interpolation between entries: within 1e-5 of g)
 _TABLE_STEPS_PER_PX = 64
 

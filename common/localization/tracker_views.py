@@ -11,7 +11,12 @@ import numpy as np
 import numpy.typing as npt
 
 from common.camera import CameraModel
-from common.localization.fused import fused_applies, fused_edge_sums, score_from_edge_sums
+from common.localization.fused import (
+    compile_fused_kernel,
+    fused_applies,
+    fused_edge_sums,
+    score_from_edge_sums,
+)
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
@@ -36,6 +41,8 @@ class TrackerViews:
         self.camera = camera
         self.config = config or TrackerSettings()
         self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
+        if self.config.fused_weighting:
+            compile_fused_kernel()  # now, not on the first frame
 
     # -- set-up ---------------------------------------------------------------------------------------
     def edges(self, image: npt.ArrayLike) -> ImageEdges:

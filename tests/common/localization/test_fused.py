@@ -63,3 +63,17 @@ def test_fused_weighting_leaves_what_it_cannot_compute_to_the_general_path() -> 
     assert not fused_applies(camera, with_oriented_distances(edges), params)
     lens = replace(camera, distortion=Distortion(DistortionModel.RADTAN, (0.1, 0.0, 0.0, 0.0, 0.0)))
     assert not fused_applies(lens, edges, params)
+
+
+def test_building_a_tracker_compiles_the_pass_its_frames_use() -> None:
+    # a service builds its tracker before it subscribes: the first frame must not meet a cold compile
+    from common.localization.fused import _edge_sums
+
+    flight = object_flight(1, seed=1)
+    camera = object_camera()
+    tracker = ModelTracker(tabletop_model(), camera)
+    compiled = len(_edge_sums.signatures)
+    assert compiled >= 1
+    image = list(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(1)))[0]
+    tracker.log_likelihood(flight.p_world_camera_m, flight.R_world_camera, tracker.edges(image), None)
+    assert len(_edge_sums.signatures) == compiled  # the frame's call found its specialisation built
