@@ -74,6 +74,6 @@ def test_building_a_tracker_compiles_the_pass_its_frames_use() -> None:
     tracker = ModelTracker(tabletop_model(), camera)
     compiled = len(_edge_sums.signatures)
     assert compiled >= 1
-    image = list(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(1)))[0]
+    image = next(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(1)))
     tracker.log_likelihood(flight.p_world_camera_m, flight.R_world_camera, tracker.edges(image), None)
     assert len(_edge_sums.signatures) == compiled  # the frame's call found its specialisation built
