@@ -69,11 +69,11 @@ def test_building_a_tracker_compiles_the_pass_its_frames_use() -> None:
     # a service builds its tracker before it subscribes: the first frame must not meet a cold compile
     from common.localization.fused import _edge_sums
 
-    flight = object_flight(1, seed=1)
+    flight = object_flight(2, seed=1)
     camera = object_camera()
     tracker = ModelTracker(tabletop_model(), camera)
     compiled = len(_edge_sums.signatures)
     assert compiled >= 1
     image = next(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(1)))
-    tracker.log_likelihood(flight.p_world_camera_m, flight.R_world_camera, tracker.edges(image), None)
+    tracker.log_likelihood(flight.p_world_camera_m[:1], flight.R_world_camera[:1], tracker.edges(image), None)
     assert len(_edge_sums.signatures) == compiled  # the frame's call found its specialisation built
