@@ -35,9 +35,7 @@ from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.images import check_grey_image
 from common.localization.projection import ProjectedSamples
-from common.types import BoolArray, Float32Array, FloatArray
-
-UInt8Array = npt.NDArray[np.uint8]
+from common.types import BoolArray, Float32Array, FloatArray, U8Array
 
 
 class ScoringMethod(enum.Enum):
@@ -70,10 +68,10 @@ class ImageEdges:
     index ``H * W``, where :class:`ProjectedSamples` points its invalid sample points.
     """
 
-    edge_map: UInt8Array
+    edge_map: U8Array
     distance_px: Float32Array
     distance_lookup: Float32Array
-    edge_lookup: UInt8Array
+    edge_lookup: U8Array
     #: Sobel image gradient (x, y) of every pixel (H, W) each (int16), when extracted ``with_gradients``
     gradient_x: npt.NDArray[np.int16] | None = None
     gradient_y: npt.NDArray[np.int16] | None = None

@@ -44,11 +44,11 @@ from common.localization.tracker_state import TrackerSettings, TrackingStatus
 from common.sim.objects import (
     CameraFlight,
     frame_gyro,
-    kidnap,
     object_camera,
-    object_flight,
     offset_pose,
+    random_kidnap,
     render_camera_flight,
+    rendered_object_flight,
     tabletop_model,
     tabletop_scene,
 )
@@ -82,10 +82,8 @@ class _Scene:
 
 def _object_scene(frames: int, seed: int) -> _Scene:
     camera = object_camera()
-    scene = tabletop_scene()
-    flight = object_flight(frames, seed=seed)
-    images = list(render_camera_flight(scene, flight, camera, rng=np.random.default_rng(seed)))
-    return _with_kidnap("object", tabletop_model(), camera, flight, images, scene, seed)
+    flight, images = rendered_object_flight(frames, seed, camera)
+    return _with_kidnap("object", tabletop_model(), camera, flight, images, tabletop_scene(), seed)
 
 
 def _office_scene(frames: int, seed: int, gyro: bool = True) -> _Scene:
@@ -108,16 +106,9 @@ def _with_kidnap(
     from common.sim.objects import OBJECT_RENDER
     from common.sim.office_run import DEFAULT_FLIGHT_RENDER
 
-    rng = np.random.default_rng(10_000 + seed)
     frame = flight.n_frames // 2
-    shift, turn = rng.normal(size=3), rng.normal(size=3)
-    moved = kidnap(
-        flight,
-        frame,
-        KIDNAP_M * shift / np.linalg.norm(shift),
-        np.radians(KIDNAP_DEG) * turn / np.linalg.norm(turn),
-    )
-    tail = CameraFlight(moved.times_s[frame:], moved.p_world_camera_m[frame:], moved.R_world_camera[frame:])
+    moved = random_kidnap(flight, frame, KIDNAP_M, np.radians(KIDNAP_DEG), 10_000 + seed)
+    tail = moved.part(frame)
     options = OBJECT_RENDER if name == "object" else DEFAULT_FLIGHT_RENDER
     after = list(render_camera_flight(world, tail, camera, options, np.random.default_rng(20_000 + seed)))
     return _Scene(name, model, camera, flight, images, frame, moved, images[:frame] + after)
@@ -126,9 +117,7 @@ def _with_kidnap(
 def _start(scene: _Scene, seed: int) -> CameraPose:
     mm, deg = START_ERROR[scene.name]
     flight = scene.flight
-    return offset_pose(
-        flight.p_world_camera_m[0], flight.R_world_camera[0], 1e-3 * mm, np.radians(deg), 30_000 + seed
-    )
+    return offset_pose(flight.pose(0), 1e-3 * mm, np.radians(deg), 30_000 + seed)
 
 
 def _track(
@@ -230,7 +219,7 @@ def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, 
             np.repeat(scene.flight.R_world_camera[i][None], particles, axis=0),
             rng.normal(0.0, np.radians(0.3), (particles, 3)),
         )
-        truth = CameraPose(scene.flight.p_world_camera_m[i], scene.flight.R_world_camera[i])
+        truth = scene.flight.pose(i)
         c0 = time.process_time()
         visible = tracker._visible(truth)
         hidden_line.append(time.process_time() - c0)
