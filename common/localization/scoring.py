@@ -269,11 +269,17 @@ def per_edge_log_weight(
 def nearest_edge_log_weight(
     normal_weights: Float32Array, valid: BoolArray, k: float, alpha: float
 ) -> tuple[FloatArray, FloatArray]:
+    """Paper B method 3 (nearest edge) of per-point weights (P, E', S) and validity; see
+    :func:`nearest_edge_log_weight_of_sums`. ``normal_weights`` must be 0 at invalid points."""
+    return nearest_edge_log_weight_of_sums(per_edge_sum(normal_weights), per_edge_sum(valid), k, alpha)
+
+
+def nearest_edge_log_weight_of_sums(
+    g_sum: Float32Array, s: Float32Array, k: float, alpha: float
+) -> tuple[FloatArray, FloatArray]:
     """Paper B method 3 (nearest edge): per line ``l_n = sum_i g(d_i) / S`` over its S visible sample points,
-    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Returns (log W, mean l) per particle.
-    ``normal_weights`` must be 0 at invalid points."""
-    s = per_edge_sum(valid)
-    g_sum = per_edge_sum(normal_weights)
+    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Inputs are per line (P, E): ``sum_i g(d_i)``
+    and S. Returns (log W, mean l) per particle."""
     seen = s > 0
     lines = np.where(seen, g_sum / np.maximum(s, np.float32(1.0)), np.float32(0.0))
     m = np.maximum(seen.sum(axis=1), 1)

@@ -1,8 +1,8 @@
 """Camera images of a known 3D scene (:class:`~common.localization.model.SceneModel`) and flights through it.
 
 :func:`render_scene` rasterises the scene's faces with a small z-buffer: each front-facing face is clipped at
-the near plane, projected, filled with ``cv2.fillPoly`` into its bounding box, and kept where its inverse
-depth (affine in the pixel coordinates for a planar face) beats the buffer. Faces are shaded with a
+the near plane, projected, filled (pixels whose centres lie inside) in its bounding box, and kept where its
+inverse depth (affine in the pixel coordinates for a planar face) beats the buffer. Faces are shaded with a
 half-Lambert directional light (so that every box side has its own brightness), then optional
 world-attached texture noise, Gaussian blur and Gaussian sensor noise are applied.
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from common.localization.pose import CameraPose, rotation_angle_rad
-from common.localization.refine import CANNY_OFFSET_PX, match_fraction
+from common.localization.refine import match_fraction, oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
@@ -115,14 +115,18 @@ def test_match_fraction_is_high_at_the_truth_and_low_without_the_part(tracker: M
     assert n > 100 and high >= 0.6 and low <= 0.25
 
 
-def test_canny_marks_the_pixel_before_a_step() -> None:
-    # regression (edge bias): the refinement assumes an edge pixel at c stands for a step at c + 1/2
+def test_offsets_reach_the_step_not_the_pixel_canny_marks() -> None:
+    # regression (edge bias): Canny marks the pixel before an axis-aligned step (column 11 for a step between
+    # columns 11 and 12, at 11.5, either polarity); the offsets go to the step itself, from either side
     for polarity in (1, -1):
         image = np.full((24, 24), 100 - 60 * polarity, dtype=np.uint8)
         image[:, 12:] = 100 + 60 * polarity
-        edges = extract_image_edges(image)
+        edges = extract_image_edges(image, with_gradients=True)
         assert set(np.nonzero(edges.edge_map)[1].tolist()) == {12 - 1}
-    assert CANNY_OFFSET_PX == 0.5
+        u = np.array([11.5, 10.0, 13.2, 11.5])
+        normal_u = np.array([1.0, 1.0, 1.0, -1.0])
+        d = oriented_offsets(u, np.full(4, 12.0), normal_u, np.zeros(4), edges, 4, 0.9)
+        assert np.allclose(d, [0.0, 1.5, -1.7, 0.0], atol=0.05)
 
 
 @pytest.mark.parametrize("seed", [0, 2])
