@@ -36,6 +36,11 @@ from common.errors import InputError
 WALL_CLOCK_WINDOW_S = 30 * 24 * 3600.0
 
 
+def _from_the_future(stamp_s: float, wall_s: float, max_future_s: float) -> bool:
+    """True when ``stamp_s`` is a wall-clock stamp more than ``max_future_s`` ahead of the wall clock."""
+    return abs(stamp_s - wall_s) < WALL_CLOCK_WINDOW_S and stamp_s > wall_s + max_future_s
+
+
 class Verdict(enum.Enum):
     """What a gate decided about one sample."""
 
@@ -154,7 +159,7 @@ def admit_frame(
         return refuse("foreign_uav", f"frame of {uav!r} on {expected_uav!r}'s stream")
     if not math.isfinite(stamp_s):
         return refuse("bad_stamp", f"stamp {stamp_s}")
-    if abs(stamp_s - wall_s) < WALL_CLOCK_WINDOW_S and stamp_s > wall_s + settings.max_future_s:
+    if _from_the_future(stamp_s, wall_s, settings.max_future_s):
         return refuse("future_stamp", f"stamp {stamp_s - wall_s:.3f} s ahead of the wall clock")
     last = _Last(seq, stamp_s, now_s)
     if state.last is None or state.key is None:
@@ -240,7 +245,7 @@ def check_stamp(
     """Admit or refuse one sensor stamp; ``NEW_EPOCH`` when a jumped clock was confirmed."""
     if not math.isfinite(stamp_s):
         return state, Decision(Verdict.REFUSE, "bad_stamp", f"stamp {stamp_s}")
-    if abs(stamp_s - wall_s) < WALL_CLOCK_WINDOW_S and stamp_s > wall_s + settings.max_future_s:
+    if _from_the_future(stamp_s, wall_s, settings.max_future_s):
         return state, Decision(
             Verdict.REFUSE, "future_stamp", f"{stamp_s - wall_s:.3f} s ahead of the wall clock"
         )

@@ -13,7 +13,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from common.datasets.tum import Trajectory
@@ -23,12 +22,10 @@ from common.estimation.replay import (
     EstimatorRun,
     RunErrors,
     evaluate,
-    flight_measurements,
-    run_estimators,
-    standard_estimators,
 )
 from common.geometry import euler_from_quaternion, wrap_angle_rad
 from common.sim.flight import Flight, turns_flight
+from services.bench.estimator import compare_on_flight_b
 from services.report import write_json
 from services.runtime import progress
 from services.trajectory import truth_at, write_with_truth
@@ -205,10 +202,9 @@ def _run_group(
     seed: int, names: tuple[str, ...], start_frame: int, stop_frame: int
 ) -> dict[str, EstimatorRun]:
     """One process's share: the flight rebuilt (deterministic by seed), its frames rendered once."""
-    cv2.setNumThreads(1)
-    flight = turns_flight(seed=seed)
-    measurements = flight_measurements(flight, start_frame, stop_frame)
-    return run_estimators(standard_estimators(flight, start_frame, names), _counted(measurements, len(names)))
+    return compare_on_flight_b(
+        seed, stop_frame - start_frame, start_frame, names, lambda stream: _counted(stream, len(names))
+    )[1]
 
 
 def run_configurations(

@@ -17,8 +17,7 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.geometry import quaternion_from_euler
-
-FloatArray = npt.NDArray[np.float64]
+from common.types import FloatArray
 
 
 class TumError(InputError):

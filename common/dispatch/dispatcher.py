@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.bounds import Bounded, bounded
-from common.dispatch.trust import TrustMonitor, cap_plan, hold_weights
+from common.dispatch.trust import TrustMonitor, cap_plan, doubling_suspension_s, hold_weights
 from common.errors import CapatazError, InputError
 
 IndexArray = npt.NDArray[np.int32]
@@ -371,7 +371,8 @@ class Dispatcher:
         if n_patches > 0 and waited_s is not None and waited_s > 0:
             bound = n_patches / waited_s
             state.speed_ema = bound if state.speed_ema is None else min(state.speed_ema, bound)
-        pause = float(min(self.settings.max_suspend_s, self.settings.suspend_s * 2.0 ** (state.failures - 1)))
+        cfg = self.settings
+        pause = doubling_suspension_s(cfg.suspend_s, cfg.max_suspend_s, state.failures - 1)
         state.suspended_until_s = now_s + pause
         self._owner = {i: o for i, o in self._owner.items() if o != member}
         self._memo = None

@@ -32,6 +32,12 @@ from common.bounds import Bounded, bounded
 from common.errors import InputError
 
 
+def doubling_suspension_s(first_s: float, max_s: float, earlier: int) -> float:
+    """A suspension that doubles with each ``earlier`` one, capped: ``min(max_s, first_s * 2**earlier)`` (s)
+    (a dispatcher's after missed deadlines, the trust monitor's after inconsistent results)."""
+    return float(min(max_s, first_s * 2.0**earlier))
+
+
 @dataclass(frozen=True)
 class TrustSettings(Bounded):
     """Thresholds of :class:`TrustMonitor` and the share cap."""
@@ -162,7 +168,7 @@ class TrustMonitor:
             frame_bad = o.valid > 0 and o.outliers / o.valid - others > s.outlier_margin
             rec.consistent_frames = 0 if (frame_bad or inconsistent) else rec.consistent_frames + 1
             if inconsistent and rec.suspended_until_s <= now_s:
-                pause = min(s.max_suspend_s, s.suspend_s * 2**rec.suspensions)
+                pause = doubling_suspension_s(s.suspend_s, s.max_suspend_s, rec.suspensions)
                 rec.suspensions += 1
                 rec.suspended_until_s = now_s + pause
                 rec.frames.clear()

@@ -78,8 +78,6 @@ from common.types import FloatArray
 
 logger = logging.getLogger(__name__)
 
-ImageU8 = npt.NDArray[np.uint8]
-
 
 class DoubleCouplingEstimator:
     """Filter + visual odometry with double coupling, fed sample by sample (single-threaded)."""

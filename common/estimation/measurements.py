@@ -11,9 +11,7 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.images import check_grey_image
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 
 class Sensor(enum.Enum):
@@ -60,7 +58,7 @@ class FrameMeasurement:
     """A grey camera frame."""
 
     stamp_s: float
-    image: ImageU8
+    image: U8Array
 
 
 Measurement = ImuMeasurement | RangeMeasurement | YawMeasurement | FrameMeasurement

@@ -24,9 +24,7 @@ import numpy.typing as npt
 from common.errors import CapatazError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix, matrix_from_euler
 from common.images import check_grey_image
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 
 class RectificationError(CapatazError):
@@ -37,8 +35,8 @@ class RectificationError(CapatazError):
 class RectifiedFrame:
     """A frame seen by the rectified (vertical) camera, with the mask of pixels that came from the image."""
 
-    image: ImageU8
-    valid_mask: ImageU8
+    image: U8Array
+    valid_mask: U8Array
     H_rect_orig: FloatArray
     R_rcam_cam: FloatArray
 

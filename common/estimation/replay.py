@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.estimation.coupling import DoubleCouplingEstimator
@@ -41,9 +40,7 @@ from common.estimation.vo_chain import (
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
 from common.metrics import ate_rmse_m, rpe_translation
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 
 class ImuSeriesLike(Protocol):
@@ -96,7 +93,7 @@ class FlightRecord(Protocol):
     def n_frames(self) -> int: ...
     @property
     def yaw_rad(self) -> FloatArray: ...
-    def frame(self, i: int) -> ImageU8: ...
+    def frame(self, i: int) -> U8Array: ...
 
 
 def camera_model_of(flight: FlightRecord) -> CameraModel:

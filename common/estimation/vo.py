@@ -35,9 +35,7 @@ from common.estimation.homography import (
     rotation_about_optical_axis,
 )
 from common.images import check_grey_image
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 
 class MotionModel(enum.Enum):
@@ -97,9 +95,9 @@ class VoSettings(Bounded):
 class PreparedFrame:
     """A frame ready for the pair step: its Shi-Tomasi features and (eroded) valid mask."""
 
-    image: ImageU8
+    image: U8Array
     features_px: npt.NDArray[np.float32]
-    inner_mask: ImageU8 | None
+    inner_mask: U8Array | None
 
 
 @dataclass(frozen=True)
@@ -127,7 +125,7 @@ class VoPose:
     p_n_camera_m: FloatArray
 
 
-def _inner_mask(mask: ImageU8 | None, shape: tuple[int, int], margin_px: int) -> ImageU8:
+def _inner_mask(mask: U8Array | None, shape: tuple[int, int], margin_px: int) -> U8Array:
     """The mask (or the whole image) eroded by ``margin_px``."""
     full = np.full(shape, 255, dtype=np.uint8) if mask is None else np.asarray(mask, dtype=np.uint8)
     if full.shape != shape:

@@ -30,9 +30,7 @@ from common.estimation.vo import (
     metric_translation,
     prepare_frame,
 )
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 
 @dataclass(frozen=True)
@@ -85,7 +83,7 @@ class VoStep:
 
 
 def prepare_view(
-    image: ImageU8,
+    image: U8Array,
     K: FloatArray,
     R_body_camera: FloatArray,
     roll_pitch_rad: tuple[float, float] | None,

@@ -3,6 +3,7 @@
 - :mod:`~common.localization.model`: the scene (faces, edges), JSON format, the built-in office;
 - :mod:`~common.localization.projection`: edge sample points projected into many particles' cameras at once;
 - :mod:`~common.localization.scoring`: image edges and paper B's three scorings (+ distance-transform path);
+- :mod:`~common.localization.fused`: the distance-transform scorings' weighting in one compiled pass (numba);
 - :mod:`~common.localization.particle_filter`: prediction, weighting, resampling, estimate, re-initialisation;
 - :mod:`~common.localization.baseline`: the per-particle loop (the paper's CPU shape; the bench baseline);
 - :mod:`~common.localization.tracking`: running the filter over frames, accuracy against ground truth;

@@ -253,6 +253,35 @@ def project_samples(
     return project_posed_samples(samples, R_camera_world, p_world_camera, camera, near_m, with_normals)
 
 
+def kept_edges(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    p_world_camera: FloatArray,
+    camera: CameraModel,
+    near_m: float = NEAR_PLANE_M,
+) -> tuple[IntArray, BoolArray]:
+    """Edges some particle may see (E',) and, per particle, which of them survive back-face and frustum
+    culling (P, E')."""
+    front = front_facing_edges(samples, p_world_camera)
+    candidates = np.flatnonzero(front.any(axis=0))
+    keep_candidates = front[:, candidates] & frustum_edges(
+        _subset(samples, candidates), R_camera_world, p_world_camera, camera, near_m
+    )
+    seen = keep_candidates.any(axis=0)
+    return candidates[seen], np.asarray(keep_candidates[:, seen])
+
+
+def projection_matrices(
+    R_camera_world: FloatArray, p_world_camera: FloatArray, camera: CameraModel
+) -> tuple[Float32Array, Float32Array]:
+    """``K R`` (P, 3, 3) and ``-K R p`` (P, 3, 1) in float32: one product gives ``(u z, v z, z)`` of a world
+    point in every particle's camera (K folded into the rotation)."""
+    K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
+    KR64 = np.einsum("ij,pjk->pik", K, R_camera_world)
+    Kt = -np.einsum("pij,pj->pi", KR64, p_world_camera).astype(np.float32)[:, :, None]
+    return KR64.astype(np.float32), Kt
+
+
 def project_posed_samples(
     samples: EdgeSamples,
     R_camera_world: FloatArray,
@@ -266,22 +295,11 @@ def project_posed_samples(
     ``p_world_camera`` (P, 3), through the lens (the camera's distortion applied to the sample points).
     ``visible`` (E, S), when given, drops the points hidden by the model's own faces (hidden-line removal,
     :func:`~common.localization.visibility.visible_points`)."""
-    front = front_facing_edges(samples, p_world_camera)
-    candidates = np.flatnonzero(front.any(axis=0))
-    keep_candidates = front[:, candidates] & frustum_edges(
-        _subset(samples, candidates), R_camera_world, p_world_camera, camera, near_m
-    )
-    seen = keep_candidates.any(axis=0)
-    edge_ids = candidates[seen]
-    edge_keep = keep_candidates[:, seen]
+    edge_ids, edge_keep = kept_edges(samples, R_camera_world, p_world_camera, camera, near_m)
     n_particles, n_kept, n_points = R_camera_world.shape[0], edge_ids.size, samples.points_per_edge
     width, height = int(camera.width), int(camera.height)
     points = samples.points_world_m[edge_ids].reshape(-1, 3).T.astype(np.float32)  # (3, E' S)
-    # K folded into the rotation: one matmul gives (u z, v z, z) of every point in every particle's camera
-    K = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
-    KR64 = np.einsum("ij,pjk->pik", K, R_camera_world)
-    KR = KR64.astype(np.float32)
-    Kt = -np.einsum("pij,pj->pi", KR64, p_world_camera).astype(np.float32)[:, :, None]  # (P, 3, 1)
+    KR, Kt = projection_matrices(R_camera_world, p_world_camera, camera)
     homogeneous = _rotate(KR, points)  # (P, 3, E' S)
     homogeneous += Kt
     z = homogeneous[:, 2]

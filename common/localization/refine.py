@@ -4,7 +4,8 @@ Moving-edge style (as ViSP's model-based tracker): every visible sample point of
 projected edge's normal, both ways up to ``search_px``, for the nearest image edge pixel whose gradient is
 parallel to that normal (within ``max_angle_deg``; either polarity). Image edges of another direction --
 texture, clutter crossing the model edge -- are not matches. The signed offsets ``d_i`` are point-to-line
-residuals; Gauss-Newton with Tukey weights solves ``J dxi = d`` for a twist ``dxi = (v, w)`` of the camera
+residuals to the step the found edge pixel marks, located to a fraction of a pixel (:func:`_edge_points`);
+Gauss-Newton with Tukey weights solves ``J dxi = d`` for a twist ``dxi = (v, w)`` of the camera
 (``X_camera' = Exp(w) X_camera + v``), ``J_i = n_i^T (du/dX)(X) [I, -[X]x]``, re-searching at every
 iteration (the search radius halves after the first).
 
@@ -25,10 +26,7 @@ from common.camera import CameraModel
 from common.localization.pose import CameraPose, rotation_matrices
 from common.localization.projection import EdgeSamples, project_posed_samples
 from common.localization.scoring import ImageEdges
-from common.types import BoolArray, FloatArray
-
-#: Where Canny puts an edge relative to the step it marks (px, both axes; checked in the tests).
-CANNY_OFFSET_PX = 0.5
+from common.types import BoolArray, Float32Array, FloatArray
 
 
 @dataclass(frozen=True)
@@ -55,7 +53,42 @@ class Refinement:
     covariance: FloatArray
 
 
-def _oriented_offsets(
+def _edge_points(
+    edges: ImageEdges, flat: npt.NDArray[np.int64], gx: Float32Array, gy: Float32Array
+) -> tuple[FloatArray, FloatArray]:
+    """Sub-pixel position (pixel-centre coordinates) of the step each edge pixel ``flat`` marks: the vertex of
+    the parabola through the gradient magnitude at the pixel and its two neighbours along the gradient's
+    dominant axis (``gx``, ``gy``: the pixel's gradient), clamped to one pixel.
+
+    Canny marks one pixel of the two a step lies between (the one before it on axis-aligned steps, others on
+    diagonal ones); the magnitude profile across the step peaks where the step is, whichever pixel was marked.
+    Integer offsets to the marked pixel had biased the refinement by up to half a pixel along the diagonal.
+    """
+    assert edges.gradient_x is not None and edges.gradient_y is not None
+    width, height = edges.width, edges.height
+    col, row = flat % width, flat // width
+    along_x = np.abs(gx) >= np.abs(gy)
+    limit = np.where(along_x, width, height)
+    pos = np.where(along_x, col, row)
+    stride = np.where(along_x, 1, width)
+    before = np.where(pos > 0, flat - stride, flat)
+    after = np.where(pos < limit - 1, flat + stride, flat)
+    fx, fy = edges.gradient_x.ravel(), edges.gradient_y.ravel()
+
+    def magnitude(index: npt.NDArray[np.int64]) -> Float32Array:
+        return np.asarray(np.hypot(fx[index].astype(np.float32), fy[index].astype(np.float32)))
+
+    m_before, m_here, m_after = magnitude(before), np.hypot(gx, gy), magnitude(after)
+    curvature = m_before - 2.0 * m_here + m_after
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.where(curvature < 0.0, 0.5 * (m_before - m_after) / curvature, 0.0)
+    shift = np.clip(np.nan_to_num(shift), -1.0, 1.0).astype(np.float64)
+    x = col.astype(np.float64) + np.where(along_x, shift, 0.0)
+    y = row.astype(np.float64) + np.where(along_x, 0.0, shift)
+    return x, y
+
+
+def oriented_offsets(
     u: FloatArray,
     v: FloatArray,
     nu: FloatArray,
@@ -64,14 +97,14 @@ def _oriented_offsets(
     radius: int,
     cos_max: float,
 ) -> FloatArray:
-    """Signed offset (px) along each normal to the nearest oriented edge pixel (NaN: none within radius)."""
+    """Signed distance (px) along each unit normal from the point to the sub-pixel step of the nearest
+    oriented edge pixel on the normal (:func:`_edge_points`; NaN: none within ``radius``)."""
     assert edges.gradient_x is not None and edges.gradient_y is not None
     steps = np.concatenate([[0], np.stack([np.arange(1, radius + 1), -np.arange(1, radius + 1)], 1).ravel()])
     steps32 = steps.astype(np.float32)[None, :]
     nu32, nv32 = nu.astype(np.float32)[:, None], nv.astype(np.float32)[:, None]
-    # Canny marks the pixel before a step (a step between columns 9 and 10 is marked at column 9, either
-    # polarity; likewise rows): an edge pixel at c stands for an edge at c + 1/2, so search half a pixel back
-    half = np.float32(0.5 - CANNY_OFFSET_PX)  # + 0.5 then truncation = rounding (coordinates >= -0.5)
+    # pixel c covers [c - 1/2, c + 1/2): + 0.5 then truncation rounds (coordinates >= -0.5)
+    half = np.float32(0.5)
     col = (u.astype(np.float32)[:, None] + steps32 * nu32 + half).astype(np.int32)
     row = (v.astype(np.float32)[:, None] + steps32 * nv32 + half).astype(np.int32)
     inside = (col >= 0) & (col < edges.width) & (row >= 0) & (row < edges.height)
@@ -86,8 +119,15 @@ def _oriented_offsets(
     hit_flat[candidates] = parallel >= np.float32(cos_max) * np.hypot(gx, gy)
     hit = hit_flat.reshape(is_edge.shape[0], steps.size)
     first = np.argmax(hit, axis=1)  # steps are ordered by |offset|: the first hit is the nearest
-    found = hit[np.arange(hit.shape[0]), first]
-    return np.where(found, steps[first].astype(np.float64), np.nan)
+    found = np.flatnonzero(hit[np.arange(hit.shape[0]), first])
+    offsets = np.full(u.shape[0], np.nan)
+    if found.size:
+        pixel = flat[found, first[found]].astype(np.int64)
+        gx_hit = edges.gradient_x.ravel()[pixel].astype(np.float32)
+        gy_hit = edges.gradient_y.ravel()[pixel].astype(np.float32)
+        x, y = _edge_points(edges, pixel, gx_hit, gy_hit)
+        offsets[found] = (x - u[found]) * nu[found] + (y - v[found]) * nv[found]
+    return offsets
 
 
 def _visible_projection(
@@ -130,7 +170,7 @@ def match_fraction(
     if u.size == 0:
         return 0.0, 0
     radius = int(np.ceil(params.match_px))
-    d = _oriented_offsets(u, v, nu, nv, edges, radius, float(np.cos(np.radians(params.max_angle_deg))))
+    d = oriented_offsets(u, v, nu, nv, edges, radius, float(np.cos(np.radians(params.max_angle_deg))))
     return float(np.mean(np.abs(np.nan_to_num(d, nan=np.inf)) <= params.match_px)), int(u.size)
 
 
@@ -152,7 +192,7 @@ def refine_pose(
         u, v, nu, nv, X = _visible_projection(samples, R, t, camera, visible)
         if u.size < params.min_points:
             break
-        d = _oriented_offsets(u, v, nu, nv, edges, radius, cos_max)
+        d = oriented_offsets(u, v, nu, nv, edges, radius, cos_max)
         ok = np.isfinite(d)
         if ok.sum() < params.min_points:
             break

@@ -35,9 +35,7 @@ from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.images import check_grey_image
 from common.localization.projection import ProjectedSamples
-from common.types import BoolArray, Float32Array, FloatArray
-
-UInt8Array = npt.NDArray[np.uint8]
+from common.types import BoolArray, Float32Array, FloatArray, U8Array
 
 
 class ScoringMethod(enum.Enum):
@@ -70,10 +68,10 @@ class ImageEdges:
     index ``H * W``, where :class:`ProjectedSamples` points its invalid sample points.
     """
 
-    edge_map: UInt8Array
+    edge_map: U8Array
     distance_px: Float32Array
     distance_lookup: Float32Array
-    edge_lookup: UInt8Array
+    edge_lookup: U8Array
     #: Sobel image gradient (x, y) of every pixel (H, W) each (int16), when extracted ``with_gradients``
     gradient_x: npt.NDArray[np.int16] | None = None
     gradient_y: npt.NDArray[np.int16] | None = None
@@ -271,11 +269,17 @@ def per_edge_log_weight(
 def nearest_edge_log_weight(
     normal_weights: Float32Array, valid: BoolArray, k: float, alpha: float
 ) -> tuple[FloatArray, FloatArray]:
+    """Paper B method 3 (nearest edge) of per-point weights (P, E', S) and validity; see
+    :func:`nearest_edge_log_weight_of_sums`. ``normal_weights`` must be 0 at invalid points."""
+    return nearest_edge_log_weight_of_sums(per_edge_sum(normal_weights), per_edge_sum(valid), k, alpha)
+
+
+def nearest_edge_log_weight_of_sums(
+    g_sum: Float32Array, s: Float32Array, k: float, alpha: float
+) -> tuple[FloatArray, FloatArray]:
     """Paper B method 3 (nearest edge): per line ``l_n = sum_i g(d_i) / S`` over its S visible sample points,
-    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Returns (log W, mean l) per particle.
-    ``normal_weights`` must be 0 at invalid points."""
-    s = per_edge_sum(valid)
-    g_sum = per_edge_sum(normal_weights)
+    ``W = alpha exp(k sum_n l_n / m)`` over the m visible lines. Inputs are per line (P, E): ``sum_i g(d_i)``
+    and S. Returns (log W, mean l) per particle."""
     seen = s > 0
     lines = np.where(seen, g_sum / np.maximum(s, np.float32(1.0)), np.float32(0.0))
     m = np.maximum(seen.sum(axis=1), 1)

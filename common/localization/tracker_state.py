@@ -34,6 +34,8 @@ class TrackerSettings(Bounded):
 
     n_particles: int = bounded(200, ge=2)
     points_per_edge: int = bounded(8, ge=1)
+    #: weigh with the compiled pass (:mod:`~common.localization.fused`) where it applies
+    fused_weighting: bool = True
     layers: int = bounded(2, ge=1)
     scoring: ScoringSettings = field(default_factory=ScoringSettings)
     refine: RefineSettings = field(default_factory=RefineSettings)

@@ -11,6 +11,12 @@ import numpy as np
 import numpy.typing as npt
 
 from common.camera import CameraModel
+from common.localization.fused import (
+    compile_fused_kernel,
+    fused_applies,
+    fused_edge_sums,
+    score_from_edge_sums,
+)
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
@@ -35,6 +41,8 @@ class TrackerViews:
         self.camera = camera
         self.config = config or TrackerSettings()
         self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
+        if self.config.fused_weighting:
+            compile_fused_kernel()  # now, not on the first frame
 
     # -- set-up ---------------------------------------------------------------------------------------
     def edges(self, image: npt.ArrayLike) -> ImageEdges:
@@ -92,20 +100,29 @@ class TrackerViews:
                 max_normal_px=round(params.max_normal_px * coarseness),
             )
         out = []
+        fused = self.config.fused_weighting and fused_applies(self.camera, edges, params)
+        floor = self.config.visible_floor * expected_points
         for s in range(0, positions.shape[0], chunk):
             R_cw = np.swapaxes(rotations[s : s + chunk], 1, 2)
-            proj = project_posed_samples(
-                self.samples,
-                R_cw,
-                positions[s : s + chunk],
-                self.camera,
-                with_normals=params.method is ScoringMethod.NEAREST_EDGE or edges.oriented_lookup is not None,
-                visible=visible,
-            )
-            logw = score_particles(proj, edges, params).log_weight
-            floor = self.config.visible_floor * expected_points
-            if floor > 0.0:
-                shown = proj.valid.reshape(proj.valid.shape[0], -1).sum(axis=1)
+            if fused:
+                sums, counts = fused_edge_sums(
+                    self.samples, R_cw, positions[s : s + chunk], self.camera, edges, params, visible
+                )
+                logw = score_from_edge_sums(sums, counts, params)
+                shown = counts.sum(axis=1) if floor > 0.0 else None
+            else:
+                proj = project_posed_samples(
+                    self.samples,
+                    R_cw,
+                    positions[s : s + chunk],
+                    self.camera,
+                    with_normals=params.method is ScoringMethod.NEAREST_EDGE
+                    or edges.oriented_lookup is not None,
+                    visible=visible,
+                )
+                logw = score_particles(proj, edges, params).log_weight
+                shown = proj.valid.reshape(proj.valid.shape[0], -1).sum(axis=1) if floor > 0.0 else None
+            if shown is not None:
                 logw = logw * np.minimum(shown / floor, 1.0)
             out.append(logw)
         return np.concatenate(out)

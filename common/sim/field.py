@@ -51,8 +51,6 @@ from common.sim.trajectory import (
 )
 from common.types import Float32Array, FloatArray, U8Array
 
-ImageU8 = U8Array
-
 #: Stream labels mixed into the seed (floors, trajectory shape, exposure steps).
 FLOOR_STREAM = 0xF10
 FIELD_TRAJECTORY_STREAM = 0xF1A
@@ -380,7 +378,7 @@ class FieldFlight(Flight):
         motion_px = float(np.max(np.hypot(ub - ua, vb - va) / np.maximum(footprint, 1e-9)))
         return int(min(MAX_BLUR_SUBFRAMES, max(1, math.ceil(motion_px / 0.75) + 1)))
 
-    def clean_frame(self, i: int) -> ImageU8:
+    def clean_frame(self, i: int) -> U8Array:
         """Frame ``i`` before sensor noise: exposure-integrated view times the auto-exposure gain."""
         index = self._check_index(i)
         t = float(self.frame_stamps_s[index])

@@ -36,9 +36,7 @@ from common.sim.trajectory import (
     hover_trajectory,
     turns_trajectory,
 )
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 CAMERA_RATE_HZ = 20.0
 IMU_RATE_HZ = 400.0
@@ -86,18 +84,18 @@ class Flight:
         index = self._check_index(i)
         return camera_pose_from_body(self.R_world_body[index], self.p_world_body_m[index], self.R_body_camera)
 
-    def clean_frame(self, i: int) -> ImageU8:
+    def clean_frame(self, i: int) -> U8Array:
         """Noise-free render of frame ``i`` (no degradation)."""
         R_world_camera, p_world_camera = self.camera_pose(i)
         return render_ground_view(self.texture, self.camera, R_world_camera, p_world_camera)
 
-    def frame(self, i: int) -> ImageU8:
+    def frame(self, i: int) -> U8Array:
         """Frame ``i`` ``(H, W) uint8``, rendered now with the flight's degradation (deterministic)."""
         index = self._check_index(i)
         clean = self.clean_frame(index)
         return self.degradation.apply(clean, float(self.frame_stamps_s[index]), self.seed, index)
 
-    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[ImageU8]:
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[U8Array]:
         """Frames ``start .. stop - 1`` rendered one at a time."""
         end = self.n_frames if stop is None else min(int(stop), self.n_frames)
         for i in range(int(start), end):

@@ -34,11 +34,9 @@ import numpy.typing as npt
 from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix, matrix_from_euler
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 
 logger = logging.getLogger(__name__)
-
-ImageU8 = npt.NDArray[np.uint8]
 
 #: Stream label mixed into the seed so the texture's random numbers differ from the flight's noise.
 TEXTURE_STREAM = 0x7E7
@@ -62,7 +60,7 @@ class GroundTexture:
     texel_m: float
     origin_x_m: float
     origin_y_m: float
-    levels: tuple[ImageU8, ...]
+    levels: tuple[U8Array, ...]
 
     @property
     def size_px(self) -> int:
@@ -137,7 +135,7 @@ def make_ground_texture(
     )
 
 
-def _pyr_down_periodic(image: ImageU8) -> ImageU8:
+def _pyr_down_periodic(image: U8Array) -> U8Array:
     """``cv2.pyrDown`` of a periodic image, keeping it periodic (dst(i) is centred on src(2 i))."""
     pad = 4
     padded = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_WRAP)
@@ -159,7 +157,7 @@ def _periodic_segments(start: int, length: int, period: int) -> list[tuple[int, 
     return pieces
 
 
-def _crop_periodic(image: ImageU8, x0: int, y0: int, width: int, height: int) -> ImageU8:
+def _crop_periodic(image: U8Array, x0: int, y0: int, width: int, height: int) -> U8Array:
     """Contiguous ``(height, width)`` window of a periodic image starting at column ``x0``, row ``y0``."""
     n_rows, n_cols = image.shape
     row_pieces = _periodic_segments(y0, height, n_rows)
@@ -261,7 +259,7 @@ def render_ground_view(
     R_world_camera: npt.ArrayLike,
     p_world_camera_m: npt.ArrayLike,
     lod_bias: float = 0.0,
-) -> ImageU8:
+) -> U8Array:
     """Exact view ``(H, W) uint8`` of the textured ground from a camera pose, anti-aliased (mip-mapped).
 
     ``R_world_camera`` rotates OpenCV-camera vectors into the ENU world; ``p_world_camera_m`` is the centre of
@@ -283,7 +281,7 @@ def render_ground_view(
 
     corners_px = np.column_stack([camera.corners_px(), np.ones(4)])
 
-    def warp(level: int) -> ImageU8:
+    def warp(level: int) -> U8Array:
         H_texel_pixel = texture.texel_from_world(level) @ H_ground_pixel
         corners = corners_px @ H_texel_pixel.T
         corners = corners[:, :2] / corners[:, 2:]
@@ -333,7 +331,7 @@ def render_pair(
     camera: CameraModel,
     pose_a: tuple[npt.ArrayLike, npt.ArrayLike],
     pose_b: tuple[npt.ArrayLike, npt.ArrayLike],
-) -> tuple[ImageU8, ImageU8, FloatArray]:
+) -> tuple[U8Array, U8Array, FloatArray]:
     """Two noise-free views and their true ground homography ``H_b_a`` (pixel a -> pixel b).
 
     Each pose is ``(R_world_camera, p_world_camera_m)``.

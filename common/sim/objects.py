@@ -29,9 +29,7 @@ from common.localization.model import SceneModel, build_scene
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad, rotation_vectors
 from common.sim.scene import RenderOptions, SampledFlight, render_view
 from common.sim.sensors import ImuNoise
-from common.types import FloatArray
-
-UInt8Array = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 #: Where the flights aim: a little above the part's centre (m).
 OBJECT_CENTRE_M = (0.0, 0.0, 0.07)
@@ -167,6 +165,14 @@ class CameraFlight(SampledFlight):
     p_world_camera_m: FloatArray
     R_world_camera: FloatArray
 
+    def pose(self, frame: int) -> CameraPose:
+        return CameraPose(self.p_world_camera_m[frame], self.R_world_camera[frame])
+
+    def part(self, start: int, stop: int | None = None) -> CameraFlight:
+        """Frames ``[start, stop)`` of the flight (their own stamps)."""
+        cut = slice(start, stop)
+        return CameraFlight(self.times_s[cut], self.p_world_camera_m[cut], self.R_world_camera[cut])
+
 
 def _look_at(eye: FloatArray, target: FloatArray, roll_rad: FloatArray) -> FloatArray:
     """``R_world_camera`` (T, 3, 3) of cameras at ``eye`` looking at ``target``, rolled about the axis."""
@@ -244,6 +250,21 @@ def kidnap(
     return replace(flight, p_world_camera_m=p, R_world_camera=R)
 
 
+def _random_offsets(position_m: float, angle_rad: float, seed: int) -> tuple[FloatArray, FloatArray]:
+    """A shift of length ``position_m`` and a rotation vector of angle ``angle_rad``, in random directions
+    (by seed)."""
+    rng = np.random.default_rng(seed)
+    shift, turn = rng.normal(size=3), rng.normal(size=3)
+    return position_m * shift / np.linalg.norm(shift), angle_rad * turn / np.linalg.norm(turn)
+
+
+def random_kidnap(
+    flight: CameraFlight, frame: int, position_m: float, angle_rad: float, seed: int
+) -> CameraFlight:
+    """:func:`kidnap` by exactly ``position_m`` and ``angle_rad`` in random directions (by seed)."""
+    return kidnap(flight, frame, *_random_offsets(position_m, angle_rad, seed))
+
+
 def frame_gyro(flight: CameraFlight, noise: ImuNoise, seed: int) -> FloatArray:
     """What a gyro rigidly mounted with the camera reads, averaged over each frame interval and turned into
     the camera frame (T, 3) rad/s (row 0: zeros): the true mean rate ``Log(R_k-1^T R_k) / dt`` plus a
@@ -260,16 +281,12 @@ def frame_gyro(flight: CameraFlight, noise: ImuNoise, seed: int) -> FloatArray:
     return np.concatenate([np.zeros((1, 3)), rates + bias + white])
 
 
-def offset_pose(
-    p_world_camera_m: FloatArray, R_world_camera: FloatArray, position_m: float, angle_rad: float, seed: int
-) -> CameraPose:
-    """A camera pose off by exactly ``position_m`` and ``angle_rad`` in random directions (by seed): the
-    start error of the localizer's tests and bench."""
-    rng = np.random.default_rng(seed)
-    shift, turn = rng.normal(size=3), rng.normal(size=3)
+def offset_pose(pose: CameraPose, position_m: float, angle_rad: float, seed: int) -> CameraPose:
+    """``pose`` off by exactly ``position_m`` and ``angle_rad`` in random directions (by seed): the start
+    error of the localizer's tests and bench."""
+    shift_m, rotvec_rad = _random_offsets(position_m, angle_rad, seed)
     return CameraPose(
-        p_world_camera_m + position_m * shift / np.linalg.norm(shift),
-        perturb(R_world_camera[None], (angle_rad * turn / np.linalg.norm(turn))[None])[0],
+        pose.p_world_camera_m + shift_m, perturb(pose.R_world_camera[None], rotvec_rad[None])[0]
     )
 
 
@@ -279,7 +296,17 @@ def render_camera_flight(
     camera: CameraModel,
     options: RenderOptions = OBJECT_RENDER,
     rng: np.random.Generator | None = None,
-) -> Iterator[UInt8Array]:
+) -> Iterator[U8Array]:
     """Frames of a camera flight, one per pose, in order."""
     for p, R in zip(flight.p_world_camera_m, flight.R_world_camera, strict=True):
         yield render_view(scene, R, p, camera, options, rng)
+
+
+def rendered_object_flight(
+    n_frames: int, seed: int, camera: CameraModel | None = None
+) -> tuple[CameraFlight, list[U8Array]]:
+    """:func:`object_flight` over :func:`tabletop_scene` and its frames (the noise seeded alike), seen by
+    ``camera`` (default :func:`object_camera`)."""
+    flight = object_flight(n_frames, seed=seed)
+    rng = np.random.default_rng(seed)
+    return flight, list(render_camera_flight(tabletop_scene(), flight, camera or object_camera(), rng=rng))

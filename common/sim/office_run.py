@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.localization.model import SceneModel
@@ -17,9 +16,7 @@ from common.localization.office import default_scene
 from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings
 from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight
-from common.types import FloatArray
-
-UInt8Array = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 #: The localizer's default camera: 320 x 240 px, 70 deg horizontal field of view, forward-looking.
 OFFICE_WIDTH_PX = 320
@@ -41,7 +38,7 @@ class SimulatedRun:
     scene: SceneModel
     camera: CameraModel
     flight: SceneFlight
-    images: tuple[UInt8Array, ...]
+    images: tuple[U8Array, ...]
     guess: FloatArray
     odometry: Odometry
 

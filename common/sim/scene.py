@@ -1,8 +1,8 @@
 """Camera images of a known 3D scene (:class:`~common.localization.model.SceneModel`) and flights through it.
 
 :func:`render_scene` rasterises the scene's faces with a small z-buffer: each front-facing face is clipped at
-the near plane, projected, filled with ``cv2.fillPoly`` into its bounding box, and kept where its inverse
-depth (affine in the pixel coordinates for a planar face) beats the buffer. Faces are shaded with a
+the near plane, projected, filled (pixels whose centres lie inside) in its bounding box, and kept where its
+inverse depth (affine in the pixel coordinates for a planar face) beats the buffer. Faces are shaded with a
 half-Lambert directional light (so that every box side has its own brightness), then optional
 world-attached texture noise, Gaussian blur and Gaussian sensor noise are applied.
 
@@ -28,9 +28,8 @@ from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler, wrap_angle
 from common.localization.model import SceneModel
 from common.localization.projection import NEAR_PLANE_M, check_states
 from common.localization.visibility import RasterLayers, rasterize_faces
-from common.types import FloatArray
+from common.types import FloatArray, U8Array
 
-UInt8Array = npt.NDArray[np.uint8]
 IntArray = npt.NDArray[np.int32]
 
 
@@ -86,7 +85,7 @@ def render_scene(
     options: RenderOptions = RenderOptions(),
     rng: np.random.Generator | None = None,
     R_body_camera: FloatArray = R_BODY_CAMERA_FORWARD,
-) -> UInt8Array:
+) -> U8Array:
     """Grey uint8 image (H, W) of the scene from a body pose; ``rng`` is needed when ``noise_sigma > 0``."""
     pose = check_states(state, "state")[0]
     R_world_camera = matrix_from_euler(pose[3], pose[4], pose[5]) @ R_body_camera
@@ -100,7 +99,7 @@ def render_view(
     camera: CameraModel,
     options: RenderOptions = RenderOptions(),
     rng: np.random.Generator | None = None,
-) -> UInt8Array:
+) -> U8Array:
     """Grey uint8 image (H, W) of the scene from a camera pose, through the camera's lens (a distorted camera
     gets the pinhole rendering remapped by its distortion model)."""
     pinhole = camera.pinhole()
@@ -215,7 +214,7 @@ def render_flight(
     options: RenderOptions = DEFAULT_FLIGHT_RENDER,
     rng: np.random.Generator | None = None,
     R_body_camera: FloatArray = R_BODY_CAMERA_FORWARD,
-) -> Iterator[UInt8Array]:
+) -> Iterator[U8Array]:
     """Frames of a flight, one per ground-truth state, in order."""
     for state in flight.states:
         yield render_scene(scene, state, camera, options, rng, R_body_camera)

@@ -26,9 +26,7 @@ import numpy.typing as npt
 from common.bounds import Bounded, bounded
 from common.errors import CapatazError, InputError
 from common.sim.trajectory import Trajectory
-from common.types import FloatArray
-
-ImageU8 = npt.NDArray[np.uint8]
+from common.types import FloatArray, U8Array
 
 IMU_STREAM = 0x1A0
 RANGE_STREAM = 0x2A0
@@ -281,7 +279,7 @@ class ImageDegradation(Bounded):
         offset = self.offset_amplitude_dn * np.sin(2.0 * np.pi * t_s / self.offset_period_s + phases[1])
         return float(gain), float(offset)
 
-    def apply(self, image: ImageU8, t_s: float, seed: int, frame_index: int) -> ImageU8:
+    def apply(self, image: U8Array, t_s: float, seed: int, frame_index: int) -> U8Array:
         """Degraded copy of a clean ``uint8`` image; deterministic for ``(seed, frame_index)``."""
         if image.dtype != np.uint8 or image.ndim != 2:
             raise InputError(f"image must be a 2-D uint8 array, got {image.dtype} {image.shape}")

@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.geometry import wrap_angle_rad
 from common.provenance import Provenance
 from common.yaw.settings import YawSettings
 
@@ -119,16 +120,12 @@ def make_prior(
     return Prior(PriorSource.HOLD, rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
 
 
-def wrap_rad(angle: float) -> float:
-    return math.atan2(math.sin(angle), math.cos(angle))
-
-
 def plausible(delta_rad: float, prior: Prior, settings: YawSettings) -> bool:
     """Within the physical rate limit (when stamped) and the prior's tolerance."""
     limit = math.radians(settings.max_yaw_rate_deg_s)
     if prior.dt_s is not None and prior.dt_s > 0.0 and abs(delta_rad) > limit * prior.dt_s:
         return False
-    return abs(wrap_rad(delta_rad - prior.delta_rad)) <= prior.tolerance_rad
+    return abs(float(wrap_angle_rad(delta_rad - prior.delta_rad))) <= prior.tolerance_rad
 
 
 def choose_rotation(candidates: list[tuple[float, float]], prior: Prior, settings: YawSettings) -> int | None:
@@ -147,7 +144,7 @@ def choose_rotation(candidates: list[tuple[float, float]], prior: Prior, setting
         return alike[0]
     if not prior.informative:
         return None
-    return min(alike, key=lambda i: abs(wrap_rad(candidates[i][0] - prior.delta_rad)))
+    return min(alike, key=lambda i: abs(float(wrap_angle_rad(candidates[i][0] - prior.delta_rad))))
 
 
 def measured_variance_rad2(residual_px: float, inliers: int, lever_px: float) -> float:

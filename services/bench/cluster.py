@@ -29,6 +29,7 @@ from services.bench.cluster_workload import in_process_ms, stats_ms, write_frame
 from services.camera import CameraSettings, simulated_flight
 from services.demo_cluster import run_cluster_flight
 from services.master.service import Topology
+from services.runtime.cli import parse_size
 from services.up import ClusterSpec, HostSpec
 
 NAME = "cluster"
@@ -113,7 +114,7 @@ def heterogeneous(
 
 
 def _yaw_settings(grid: str, patch: int, level: int) -> YawSettings:
-    cols, rows = (int(v) for v in grid.split("x"))
+    cols, rows = parse_size(grid, "grid", "8x5")
     return YawSettings(grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level)
 
 
@@ -150,7 +151,7 @@ def share_speed_error(members: dict[str, dict[str, float]]) -> float:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     out_dir = Path(args.out)
-    width, height = (int(v) for v in args.resolution.lower().split("x"))
+    width, height = parse_size(args.resolution, "--resolution", "752x480")
     n = args.frames + args.warmup + 1
     frame_dir = out_dir / "cluster_frames"
     flight = simulated_flight(CameraSettings(width=width, height=height, frames=max(n, 2)))

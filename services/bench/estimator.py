@@ -25,13 +25,16 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
+from common.estimation.measurements import Measurement
 from common.estimation.replay import (
+    CONFIGURATIONS,
     EstimatorRun,
     RunErrors,
     evaluate,
@@ -76,14 +79,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def compare_on_flight_b(
-    seed: int = 0, frames: int | None = None, start_frame: int = 0
+    seed: int = 0,
+    frames: int | None = None,
+    start_frame: int = 0,
+    names: tuple[str, ...] = tuple(CONFIGURATIONS),
+    wrap: Callable[[Iterator[Measurement]], Iterator[Measurement]] = iter,
 ) -> tuple[Flight, dict[str, EstimatorRun]]:
-    """Flight (b) through the standard estimators (frames rendered once)."""
+    """Flight (b) (deterministic by ``seed``) through the standard estimators ``names``, its frames rendered
+    once; ``wrap`` sees the measurement stream on its way (the demo counts frames for its progress bar)."""
     cv2.setNumThreads(1)
     flight = turns_flight(seed=seed)
     stop = None if frames is None else start_frame + frames
     runs = run_estimators(
-        standard_estimators(flight, start_frame), flight_measurements(flight, start_frame, stop)
+        standard_estimators(flight, start_frame, names), wrap(flight_measurements(flight, start_frame, stop))
     )
     return flight, runs
 

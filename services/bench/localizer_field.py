@@ -16,6 +16,8 @@ Per scene and scoring, over ``--seeds`` runs (own flight, start error and filter
 - ``recovered_after_kidnap_frames``: the same flights with the camera teleported 0.1 m and 10 deg (random
   directions) at the middle frame: frames until the error is back within 2x the run's median (position and
   rotation); the worst run (None if one never recovered), and every run's;
+- ``meets_goal``: the scene's goal of issue 13 (medians, no lost run; on the object also every kidnap back
+  within 30 frames), which ``best_scoring`` ranks by after the lost runs;
 - ``step_ms_median`` / ``step_ms_p95``: CPU time of a full tracker step (edge extraction, prediction,
   annealed weighting, resampling, refinement) per frame, one core.
 
@@ -42,11 +44,11 @@ from common.localization.tracker_state import TrackerSettings, TrackingStatus
 from common.sim.objects import (
     CameraFlight,
     frame_gyro,
-    kidnap,
     object_camera,
-    object_flight,
     offset_pose,
+    random_kidnap,
     render_camera_flight,
+    rendered_object_flight,
     tabletop_model,
     tabletop_scene,
 )
@@ -60,6 +62,8 @@ GOALS = {"object": (5.0, 0.5), "office": (30.0, 0.5)}
 #: Start error (mm, deg) per scene.
 START_ERROR = {"object": (30.0, 5.0), "office": (300.0, 10.0)}
 KIDNAP_M, KIDNAP_DEG = 0.1, 10.0
+#: Goal of issue 13 on the kidnap (frames until back, every run), where it sets one.
+KIDNAP_GOAL_FRAMES = {"object": 30}
 
 
 @dataclass(frozen=True)
@@ -78,10 +82,8 @@ class _Scene:
 
 def _object_scene(frames: int, seed: int) -> _Scene:
     camera = object_camera()
-    scene = tabletop_scene()
-    flight = object_flight(frames, seed=seed)
-    images = list(render_camera_flight(scene, flight, camera, rng=np.random.default_rng(seed)))
-    return _with_kidnap("object", tabletop_model(), camera, flight, images, scene, seed)
+    flight, images = rendered_object_flight(frames, seed, camera)
+    return _with_kidnap("object", tabletop_model(), camera, flight, images, tabletop_scene(), seed)
 
 
 def _office_scene(frames: int, seed: int, gyro: bool = True) -> _Scene:
@@ -104,16 +106,9 @@ def _with_kidnap(
     from common.sim.objects import OBJECT_RENDER
     from common.sim.office_run import DEFAULT_FLIGHT_RENDER
 
-    rng = np.random.default_rng(10_000 + seed)
     frame = flight.n_frames // 2
-    shift, turn = rng.normal(size=3), rng.normal(size=3)
-    moved = kidnap(
-        flight,
-        frame,
-        KIDNAP_M * shift / np.linalg.norm(shift),
-        np.radians(KIDNAP_DEG) * turn / np.linalg.norm(turn),
-    )
-    tail = CameraFlight(moved.times_s[frame:], moved.p_world_camera_m[frame:], moved.R_world_camera[frame:])
+    moved = random_kidnap(flight, frame, KIDNAP_M, np.radians(KIDNAP_DEG), 10_000 + seed)
+    tail = moved.part(frame)
     options = OBJECT_RENDER if name == "object" else DEFAULT_FLIGHT_RENDER
     after = list(render_camera_flight(world, tail, camera, options, np.random.default_rng(20_000 + seed)))
     return _Scene(name, model, camera, flight, images, frame, moved, images[:frame] + after)
@@ -122,9 +117,7 @@ def _with_kidnap(
 def _start(scene: _Scene, seed: int) -> CameraPose:
     mm, deg = START_ERROR[scene.name]
     flight = scene.flight
-    return offset_pose(
-        flight.p_world_camera_m[0], flight.R_world_camera[0], 1e-3 * mm, np.radians(deg), 30_000 + seed
-    )
+    return offset_pose(flight.pose(0), 1e-3 * mm, np.radians(deg), 30_000 + seed)
 
 
 def _track(
@@ -201,16 +194,24 @@ def measure_scene(scenes: list[_Scene], method: ScoringMethod, particles: int, s
         "particles": particles,
         "inputs": ["images", "gyro"] if scenes[0].gyro is not None else ["images"],
     }
-    row["meets_goal"] = bool(position_median_mm <= goal_mm and rotation_median_deg <= goal_deg and lost == 0)
+    back = name not in KIDNAP_GOAL_FRAMES or (worst is not None and worst <= KIDNAP_GOAL_FRAMES[name])
+    row["meets_goal"] = bool(
+        position_median_mm <= goal_mm and rotation_median_deg <= goal_deg and lost == 0 and back
+    )
     logger.info("%s %s: %s", name, method.value, row)
     return row
 
 
 def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, float]:
-    """CPU ms of one vectorised weighting of ``particles`` poses vs the per-particle loop, interleaved."""
+    """CPU ms of one vectorised weighting of ``particles`` poses vs the per-particle loop (the same function
+    called with one particle), interleaved; also the general numpy path of the weighting (the compiled pass
+    off, :mod:`common.localization.fused`), the choice this figure decided."""
     tracker = ModelTracker(scene.model, scene.camera, TrackerSettings(n_particles=particles))
+    general = ModelTracker(
+        scene.model, scene.camera, TrackerSettings(n_particles=particles, fused_weighting=False)
+    )
     rng = np.random.default_rng(0)
-    fast, slow, hidden_line = [], [], []
+    fast, slow, numpy_path, hidden_line = [], [], [], []
     for i in np.linspace(1, scene.flight.n_frames - 1, 5).astype(int):
         edges = tracker.edges(scene.images[i])
         positions = scene.flight.p_world_camera_m[i] + rng.normal(0.0, 0.003, (particles, 3))
@@ -218,14 +219,18 @@ def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, 
             np.repeat(scene.flight.R_world_camera[i][None], particles, axis=0),
             rng.normal(0.0, np.radians(0.3), (particles, 3)),
         )
-        truth = CameraPose(scene.flight.p_world_camera_m[i], scene.flight.R_world_camera[i])
+        truth = scene.flight.pose(i)
         c0 = time.process_time()
         visible = tracker._visible(truth)
         hidden_line.append(time.process_time() - c0)
+        tracker.log_likelihood(positions, rotations, edges, visible)  # compiled on first use, not timed
         for _ in range(repeats):
             c0 = time.process_time()
             tracker.log_likelihood(positions, rotations, edges, visible)
             fast.append(time.process_time() - c0)
+            c0 = time.process_time()
+            general.log_likelihood(positions, rotations, edges, visible)
+            numpy_path.append(time.process_time() - c0)
             c0 = time.process_time()
             for p in range(particles):
                 tracker.log_likelihood(positions[p : p + 1], rotations[p : p + 1], edges, visible)
@@ -233,8 +238,12 @@ def weighting_speedup(scene: _Scene, particles: int, repeats: int) -> dict[str, 
     fast_ms, slow_ms = 1e3 * float(np.median(fast)), 1e3 * float(np.median(slow))
     return {
         "weighting_ms_200": fast_ms,
+        "weighting_ms_200_p95": 1e3 * float(np.percentile(fast, 95)),
         "baseline_ms_200": slow_ms,
+        "baseline_ms_200_p95": 1e3 * float(np.percentile(slow, 95)),
         "speedup_200": slow_ms / fast_ms,
+        "weighting_numpy_path_ms_200": 1e3 * float(np.median(numpy_path)),
+        "weighting_numpy_path_ms_200_p95": 1e3 * float(np.percentile(numpy_path, 95)),
         "hidden_line_removal_ms": 1e3 * float(np.median(hidden_line)),
     }
 

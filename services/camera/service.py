@@ -26,7 +26,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.codec import encode
-from common.errors import CapatazError
 from common.estimation.measurements import ImuMeasurement
 from common.geometry import quaternion_from_euler
 from common.messages import Frame, PoseEstimate, YawEstimate
@@ -46,10 +45,10 @@ from services.camera.sources import (
     open_camera_source,
     preloaded,
     sensor_samples,
-    source_settings_from_args,
 )
 from services.estimator.sim_publisher import message_of
-from services.runtime.cli import add_enum_argument, add_transport_arguments
+from services.runtime.cli import add_enum_argument, add_transport_arguments, parse_size
+from services.runtime.fields import settings_from
 from services.runtime.service import ConfiguredService
 
 
@@ -334,7 +333,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
     )
-    parser.add_argument("--wait-master", type=float, default=10.0, help="seconds to wait for a master")
+    parser.add_argument(
+        "--wait-master", dest="wait_master_s", type=float, default=10.0, help="seconds to wait for a master"
+    )
     parser.add_argument(
         "--write-calibration",
         type=Path,
@@ -349,28 +350,15 @@ def camera_settings_from_args(args: argparse.Namespace) -> CameraSettings:
     width: int | None = None
     height: int | None = None
     if args.resolution is not None:
-        try:
-            width, height = (int(v) for v in args.resolution.lower().split("x"))
-        except ValueError:
-            raise CapatazError(f"--resolution must look like 752x480, got {args.resolution!r}") from None
-    return _settings(args, width, height)
-
-
-def _settings(args: argparse.Namespace, width: int | None, height: int | None) -> CameraSettings:
-    return CameraSettings(
+        width, height = parse_size(args.resolution, "--resolution", "752x480")
+    # the simulation's and the recorded input's options (add_source_arguments) carry the fields' names
+    return settings_from(
+        CameraSettings,
+        args,
         uavs=tuple(args.uav or ["uav0"]),
-        flight=args.flight,
-        frames=args.frames,
-        seed=args.seed,
-        fps=args.fps,
-        loop=args.loop,
         width=width,
         height=height,
         sensors=not args.no_sensors,
-        in_flight=args.in_flight,
-        wait_master_s=args.wait_master,
-        preload=args.preload,
-        **source_settings_from_args(args),
     )
 
 

@@ -185,27 +185,6 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def source_settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
-    """The :class:`~services.camera.service.CameraSettings` fields of :func:`add_source_arguments`."""
-    names = (
-        "images",
-        "stamps",
-        "start",
-        "stop",
-        "step",
-        "calibration",
-        "bag",
-        "image_topic",
-        "imu_topic",
-        "range_topic",
-        "camera_info_topic",
-        "euroc",
-        "mcap",
-        "rate",
-    )
-    return {name: getattr(args, name) for name in names}
-
-
 def sensor_samples(flight: Flight, start_s: float, stop_s: float) -> list[Measurement]:
     """The flight's IMU and range samples stamped in ``(start_s, stop_s]``, merged in stamp order (ties:
     IMU first)."""

@@ -22,11 +22,9 @@ from pydantic import Field
 from common import keys
 from common.dispatch import (
     SELF,
-    Balance,
     Dispatcher,
     DispatchSettings,
     Plan,
-    SpeedSource,
     TrustMonitor,
     TrustSettings,
 )
@@ -44,8 +42,9 @@ from services.runtime.cli import (
     add_dispatch_arguments,
     add_stream_bound_arguments,
     add_transport_arguments,
-    stream_bounds_from_args,
+    dispatch_from_args,
 )
+from services.runtime.fields import settings_from
 from services.runtime.membership import LiveMembers
 from services.runtime.results import result_from_measurement
 from services.runtime.round import FrameWork
@@ -261,15 +260,6 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         return result, plan
 
 
-def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
-    return DispatchSettings(
-        balance=Balance(args.balance),
-        self_compute=args.compute,
-        min_deadline_s=args.min_deadline_ms / 1e3,
-        speed_source=SpeedSource(args.speed),
-    )
-
-
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("foreman", help="a foreman: splits blocks among its node's workers")
     add_transport_arguments(parser)
@@ -281,7 +271,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = ForemanSettings(dispatch=dispatch_from_args(args), **stream_bounds_from_args(args))
+    settings = settings_from(ForemanSettings, args, dispatch=dispatch_from_args(args))
     return ForemanService.from_args(args, settings).run()
 
 

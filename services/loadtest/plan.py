@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import InputError
+from common.geometry import wrap_angle_rad
 
 
 class LoadtestError(InputError):
@@ -176,10 +177,6 @@ class FaultOutcome:
     yaw_discontinuity_deg: float
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
 def yaw_jumps_deg(records: Sequence[FrameRecord]) -> list[tuple[float, float]]:
     """(send time, |published - true yaw change| in deg) for each pair of consecutive received yaws whose
     truth is known."""
@@ -191,7 +188,7 @@ def yaw_jumps_deg(records: Sequence[FrameRecord]) -> list[tuple[float, float]]:
     out = []
     for a, b in itertools.pairwise(got):
         assert a.yaw_rad is not None and b.yaw_rad is not None
-        error = _wrap((b.yaw_rad - a.yaw_rad) - (b.true_yaw_rad - a.true_yaw_rad))
+        error = float(wrap_angle_rad((b.yaw_rad - a.yaw_rad) - (b.true_yaw_rad - a.true_yaw_rad)))
         out.append((b.sent_s, abs(math.degrees(error))))
     return out
 

@@ -15,6 +15,7 @@ The cores stay state in, state out; these wrappers only hold the current state a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -43,20 +44,25 @@ from services.localizer.settings import FilterKind, LocalizerSettings
 VoPair = tuple[PoseEstimate, PoseEstimate] | None
 
 
+@dataclass(frozen=True)
+class StepInputs:
+    """What one step takes: the frame, the time since the previous one (s), the last two VO poses, the gyro's
+    mean rate over the interval in the camera frame (rad/s), and ``anchor``: a VO pose to start again around
+    before this frame (the first VO pose, or the first after a VO discontinuity; see :func:`vo_jumped`)."""
+
+    frame: Frame
+    dt_s: float
+    vo: VoPair = None
+    gyro_camera_rad_s: np.ndarray | None = None
+    anchor: PoseEstimate | None = None
+
+
 class LocalizationPath(Protocol):
-    """One frame in, the ``pose/pf`` message out. ``anchor``: a VO pose to start again around (the first
-    VO pose, or the first after a VO discontinuity; see :func:`vo_jumped`), before this frame."""
+    """One frame in, the ``pose/pf`` message out."""
 
     kind: FilterKind
 
-    def step(
-        self,
-        frame: Frame,
-        dt_s: float,
-        vo: VoPair,
-        gyro_camera_rad_s: np.ndarray | None = None,
-        anchor: PoseEstimate | None = None,
-    ) -> PoseEstimate: ...
+    def step(self, inputs: StepInputs) -> PoseEstimate: ...
 
 
 def body_state_of(pose: PoseEstimate) -> np.ndarray:
@@ -172,20 +178,14 @@ class ParticleFilterPath:
         guess = settings.start_pose().body_state(settings.R_body_camera)
         self.state: ParticleState = self.filter.initialize(guess, self.rng)
 
-    def step(
-        self,
-        frame: Frame,
-        dt_s: float,
-        vo: VoPair,
-        gyro_camera_rad_s: np.ndarray | None = None,
-        anchor: PoseEstimate | None = None,
-    ) -> PoseEstimate:
+    def step(self, inputs: StepInputs) -> PoseEstimate:
         """(The gyro is not used: paper B's motion model takes the VO's Euler-angle rates.) An ``anchor``
         re-initialises the cloud around it (the prior box of the filter's start spreads)."""
-        if anchor is not None:
-            self.state = self.filter.initialize(body_state_of(anchor), self.rng)
+        frame, dt_s = inputs.frame, inputs.dt_s
+        if inputs.anchor is not None:
+            self.state = self.filter.initialize(body_state_of(inputs.anchor), self.rng)
             dt_s = 0.0
-        odometry = None if vo is None else euler_odometry_between(*vo)
+        odometry = None if inputs.vo is None else euler_odometry_between(*inputs.vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state, estimate = localizer_step(
             self.filter, self.state, frame.pixels, dt_s, self.rng, velocity, rates
@@ -205,20 +205,14 @@ class ModelTrackerPath:
         self.rng = np.random.default_rng(settings.seed)
         self.state: TrackerState = self.tracker.start(settings.start_pose())
 
-    def step(
-        self,
-        frame: Frame,
-        dt_s: float,
-        vo: VoPair,
-        gyro_camera_rad_s: np.ndarray | None = None,
-        anchor: PoseEstimate | None = None,
-    ) -> PoseEstimate:
+    def step(self, inputs: StepInputs) -> PoseEstimate:
         """An ``anchor`` starts the tracker again around it (its start spreads)."""
-        if anchor is not None:
-            pose = CameraPose.from_body_state(body_state_of(anchor), self.settings.R_body_camera)
+        frame, dt_s = inputs.frame, inputs.dt_s
+        if inputs.anchor is not None:
+            pose = CameraPose.from_body_state(body_state_of(inputs.anchor), self.settings.R_body_camera)
             self.state = self.tracker.start(pose)
             dt_s = 0.0
-        odometry = None if vo is None else odometry_between(*vo)
+        odometry = None if inputs.vo is None else odometry_between(*inputs.vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state = self.tracker.step(
             self.state,
@@ -227,7 +221,7 @@ class ModelTrackerPath:
             self.rng,
             velocity,
             rates,
-            gyro_rad_s=gyro_camera_rad_s if rates is None else None,
+            gyro_rad_s=inputs.gyro_camera_rad_s if rates is None else None,
         )
         return pose_message(
             self.settings.uav, frame.seq, frame.stamp_s, self.state, self.settings.R_body_camera

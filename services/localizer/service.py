@@ -33,6 +33,7 @@ from common.codec import encode
 from common.messages import Frame, ImuSample, PoseEstimate
 from services.localizer.filters import (
     LocalizationPath,
+    StepInputs,
     make_path,
     mean_gyro_camera,
     odometry_between,
@@ -214,7 +215,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
                 self.counters.inc("vo_anchors")
                 logger.info("starting around the VO pose of %.3f s", anchor.stamp_s)
             t0 = time.perf_counter()
-            message = self.path.step(frame, dt, vo, gyro, anchor)
+            message = self.path.step(StepInputs(frame, dt, vo, gyro, anchor))
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
             self.counters.inc(f"frames_{message.tracking_state}")
             payload, attachment = encode(message)

@@ -30,7 +30,8 @@ from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker_state import TrackerSettings
 from common.sim.office_run import OFFICE_HEIGHT_PX, OFFICE_HFOV_DEG, OFFICE_WIDTH_PX
 from common.sim.scene import default_flight
-from services.runtime.cli import add_enum_argument, add_transport_arguments
+from services.runtime.cli import add_enum_argument, add_transport_arguments, parse_size
+from services.runtime.fields import settings_from
 
 #: the body's camera mounts, plus "camera": the published pose is the camera's own (no body)
 _MOUNTS = {**{m.value: m.R_body_camera for m in CameraMount}, "camera": np.eye(3)}
@@ -161,8 +162,12 @@ def register_arguments(parser: Any) -> None:
         default=f"{OFFICE_WIDTH_PX}x{OFFICE_HEIGHT_PX}",
         help="camera WIDTHxHEIGHT (no file)",
     )
-    parser.add_argument("--hfov", type=float, default=OFFICE_HFOV_DEG, help="horizontal FOV (deg; no file)")
-    parser.add_argument("--mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body")
+    parser.add_argument(
+        "--hfov", dest="hfov_deg", type=float, default=OFFICE_HFOV_DEG, help="horizontal FOV (deg; no file)"
+    )
+    parser.add_argument(
+        "--mount", dest="camera_mount", choices=sorted(_MOUNTS), default="forward", help="camera on the body"
+    )
     parser.add_argument("--particles", type=int, default=200, help="number of particles (default 200)")
     add_enum_argument(
         parser, "--scoring", ScoringMethod, ScoringMethod.NEAREST_EDGE_DT,
@@ -184,16 +189,30 @@ def register_arguments(parser: Any) -> None:
         help="initial body pose (m, rad) instead; default: the simulated office flight's start",
     )
     parser.add_argument(
-        "--position-spread", type=float, help="tracker: start/recovery spread, m (default 0.1 x distance)"
+        "--position-spread",
+        dest="position_spread_m",
+        type=float,
+        help="tracker: start/recovery spread, m (default 0.1 x distance)",
     )
     parser.add_argument(
-        "--angle-spread", type=float, default=8.0, help="tracker: start/recovery spread, deg (default 8)"
+        "--angle-spread",
+        dest="angle_spread_deg",
+        type=float,
+        default=8.0,
+        help="tracker: start/recovery spread, deg (default 8)",
     )
     parser.add_argument(
-        "--velocity-noise", type=float, help="tracker: process noise, m/s (default 0.2 x distance / s)"
+        "--velocity-noise",
+        dest="velocity_noise_m_s",
+        type=float,
+        help="tracker: process noise, m/s (default 0.2 x distance / s)",
     )
     parser.add_argument(
-        "--angular-noise", type=float, default=25.0, help="tracker: process noise, deg/s (default 25)"
+        "--angular-noise",
+        dest="angular_noise_deg_s",
+        type=float,
+        default=25.0,
+        help="tracker: process noise, deg/s (default 25)",
     )
     parser.add_argument(
         "--layers", type=int, default=2, help="tracker: annealing layers per frame (default 2)"
@@ -206,6 +225,7 @@ def register_arguments(parser: Any) -> None:
     )
     parser.add_argument(
         "--vo-jump",
+        dest="vo_jump_m_s",
         type=float,
         default=10.0,
         help="with --use-vo: a VO step faster than this (m/s) is a discontinuity (default 10)",
@@ -223,34 +243,9 @@ def register_arguments(parser: Any) -> None:
 
 
 def settings_from_args(args: argparse.Namespace) -> LocalizerSettings:
+    width, height = parse_size(args.resolution, "--resolution", "320x240")
     try:
-        width, height = (int(v) for v in args.resolution.lower().split("x"))
-    except ValueError:
-        raise CapatazError(f"--resolution must look like 320x240, got {args.resolution!r}") from None
-    try:
-        return LocalizerSettings(
-            uav=args.uav,
-            model=args.model,
-            model_scale=args.model_scale,
-            calibration=args.calibration,
-            width=width,
-            height=height,
-            hfov_deg=args.hfov,
-            camera_mount=args.mount,
-            particles=args.particles,
-            scoring=ScoringMethod(args.scoring),
-            seed=args.seed,
-            initial_pose=tuple(args.initial_pose) if args.initial_pose else None,
-            initial_state=tuple(args.initial_state) if args.initial_state else None,
-            position_spread_m=args.position_spread,
-            angle_spread_deg=args.angle_spread,
-            velocity_noise_m_s=args.velocity_noise,
-            angular_noise_deg_s=args.angular_noise,
-            layers=args.layers,
-            use_vo=args.use_vo,
-            vo_jump_m_s=args.vo_jump,
-            use_imu=args.use_imu,
-            filter=FilterKind(args.filter),
-        )
+        # every option's dest is its field's name (pydantic parses the enum values and the number lists)
+        return settings_from(LocalizerSettings, args, width=width, height=height)
     except ValueError as exc:
         raise CapatazError(f"invalid localizer settings: {exc}") from None

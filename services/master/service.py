@@ -69,7 +69,7 @@ class MasterService(ConfiguredService[MasterSettings]):
 
     def setup(self) -> None:
         settings = self.settings
-        self.yaw_settings = settings.yaw_settings()
+        self.yaw_settings = settings.yaw
         self.wire_settings = YawJobSettings.of(self.yaw_settings)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
         #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
@@ -265,7 +265,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         state = replace(
             tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad
         )
-        dispatcher = Dispatcher(self.settings.dispatch_settings(), grid.n_patches)
+        dispatcher = Dispatcher(self.settings.dispatch, grid.n_patches)
         dispatcher.trust = self.guard.monitor()
         stream = _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher, epoch)
         job_type, result_type = self._job_types

@@ -7,12 +7,12 @@ from enum import StrEnum
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.dispatch import Balance, DispatchSettings, SpeedSource
-from common.errors import CapatazError
+from common.dispatch import DispatchSettings
 from common.streams import FrameGateSettings
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
-from services.runtime.cli import add_dispatch_arguments, add_enum_argument
+from services.runtime.cli import add_dispatch_arguments, add_enum_argument, dispatch_from_args, parse_size
+from services.runtime.fields import settings_from
 
 
 class Topology(StrEnum):
@@ -25,16 +25,12 @@ class MasterSettings(BaseModel):
 
     uav: str = "uav0"
     topology: Topology = Topology.MASTER_FOREMAN_WORKER
-    balance: Balance = Balance.TIME
-    self_compute: bool = False
-    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
+    #: how its dispatcher shares a frame's patches among the members (as a foreman's does a block's)
+    dispatch: DispatchSettings = Field(default_factory=DispatchSettings)
     #: time budget of one frame's round (s); shares that miss it are re-dispatched
     budget_s: float = 1.0
-    min_deadline_s: float = 0.3
-    grid_cols: int = 8
-    grid_rows: int = 5
-    patch_size_px: int = 32
-    pyramid_level: int = 1
+    #: the yaw stage (patch grid, patch size, pyramid level; the correlation's constants)
+    yaw: YawSettings = Field(default_factory=YawSettings)
     #: take part in the election of the UAV's active master (off: always active, the paper's single master)
     election: bool = True
     #: newest admitted frames kept (a standby taking over measures them against the last published one)
@@ -49,23 +45,8 @@ class MasterSettings(BaseModel):
     trust: bool = True
 
     def gate_settings(self) -> FrameGateSettings:
-        return FrameGateSettings(max_seq_jump=self.max_seq_jump, confirm_frames=self.confirm_frames)
-
-    def yaw_settings(self) -> YawSettings:
-        return YawSettings(
-            grid_cols=self.grid_cols,
-            grid_rows=self.grid_rows,
-            patch_size_px=self.patch_size_px,
-            pyramid_level=self.pyramid_level,
-        )
-
-    def dispatch_settings(self) -> DispatchSettings:
-        return DispatchSettings(
-            balance=self.balance,
-            self_compute=self.self_compute,
-            min_deadline_s=self.min_deadline_s,
-            speed_source=self.speed_source,
-        )
+        """The frame gate with the bounds of the same name (the others keep their defaults)."""
+        return settings_from(FrameGateSettings, self)
 
 
 def add_master_arguments(parser: argparse.ArgumentParser) -> None:
@@ -77,31 +58,34 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     add_dispatch_arguments(parser, compute_help="the master computes a share itself besides its members")
     parser.add_argument("--budget-ms", type=float, default=1000.0, help="time budget of a frame's round")
-    parser.add_argument("--grid", default="8x5", help="patch grid COLSxROWS (default 8x5)")
-    parser.add_argument("--patch-size", type=int, default=32, help="patch side at the pyramid level")
-    parser.add_argument("--pyramid-level", type=int, default=1, help="pyramid level of the patches")
+    yaw = YawSettings()  # the defaults have one home
+    grid = f"{yaw.grid_cols}x{yaw.grid_rows}"
+    parser.add_argument("--grid", default=grid, help=f"patch grid COLSxROWS (default {grid})")
+    parser.add_argument(
+        "--patch-size",
+        dest="patch_size_px",
+        type=int,
+        default=yaw.patch_size_px,
+        help=f"patch side at the pyramid level (default {yaw.patch_size_px})",
+    )
+    parser.add_argument(
+        "--pyramid-level", type=int, default=yaw.pyramid_level,
+        help=f"pyramid level of the patches (default {yaw.pyramid_level})",
+    )  # fmt: skip
     add_yaw_prior_arguments(parser)
     parser.add_argument("--trust", action=argparse.BooleanOptionalAction, default=True,
                         help="vet members, cap shares, one frame source (default on)")  # fmt: skip
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
-    try:
-        cols, rows = (int(v) for v in args.grid.lower().split("x"))
-    except ValueError:
-        raise CapatazError(f"--grid must look like 8x5, got {args.grid!r}") from None
-    return MasterSettings(
-        uav=args.uav,
+    cols, rows = parse_size(args.grid, "--grid", "8x5")
+    return settings_from(
+        MasterSettings,
+        args,
         topology=Topology(args.topology),
-        balance=Balance(args.balance),
-        self_compute=args.compute,
-        speed_source=SpeedSource(args.speed),
+        dispatch=dispatch_from_args(args),
         budget_s=args.budget_ms / 1e3,
-        min_deadline_s=args.min_deadline_ms / 1e3,
-        grid_cols=cols,
-        grid_rows=rows,
-        patch_size_px=args.patch_size,
-        pyramid_level=args.pyramid_level,
+        # --patch-size and --pyramid-level carry the yaw settings' field names
+        yaw=settings_from(YawSettings, args, grid_cols=cols, grid_rows=rows),
         prior=yaw_prior_settings_from_args(args),
-        trust=args.trust,
     )

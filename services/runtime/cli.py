@@ -9,13 +9,23 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.dispatch import Balance, SpeedSource
+from common.dispatch import Balance, DispatchSettings, SpeedSource
+from common.errors import CapatazError
 from services.runtime.transport import TransportSettings
 
 
 def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
     """An option taking one of ``enum``'s values (the value string; the settings parse it to the member)."""
     parser.add_argument(flag, choices=[member.value for member in enum], default=default.value, help=help)
+
+
+def parse_size(text: str, option: str, example: str) -> tuple[int, int]:
+    """The two integers of an ``AxB`` option (``--resolution 752x480``, ``--grid 8x5``), or one error line."""
+    try:
+        first, second = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise CapatazError(f"{option} must look like {example}, got {text!r}") from None
+    return first, second
 
 
 def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
@@ -57,14 +67,30 @@ def transport_from_args(args: Any) -> TransportSettings:
 
 
 def add_dispatch_arguments(parser: argparse.ArgumentParser, compute_help: str) -> None:
-    """The dispatcher's options, shared by the master and the foreman."""
-    add_enum_argument(parser, "--balance", Balance, Balance.TIME, help="share balancing")
-    parser.add_argument("--compute", action=argparse.BooleanOptionalAction, default=False, help=compute_help)
-    parser.add_argument("--min-deadline-ms", type=float, default=300.0, help="smallest per-request deadline")
+    """The dispatcher's options, shared by the master and the foreman (defaults: DispatchSettings())."""
+    default = DispatchSettings()
+    add_enum_argument(parser, "--balance", Balance, default.balance, help="share balancing")
+    parser.add_argument(
+        "--compute", action=argparse.BooleanOptionalAction, default=default.self_compute, help=compute_help
+    )
+    parser.add_argument(
+        "--min-deadline-ms", type=float, default=1e3 * default.min_deadline_s,
+        help="smallest per-request deadline",
+    )  # fmt: skip
     add_enum_argument(
-        parser, "--speed", SpeedSource, SpeedSource.ROUND_TRIP,
+        parser, "--speed", SpeedSource, default.speed_source,
         help="speed measure for time balancing: members' own figures, or round-trip patches/s",
     )  # fmt: skip
+
+
+def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
+    """The dispatcher's settings given by :func:`add_dispatch_arguments`' options."""
+    return DispatchSettings(
+        balance=Balance(args.balance),
+        self_compute=args.compute,
+        min_deadline_s=args.min_deadline_ms / 1e3,
+        speed_source=SpeedSource(args.speed),
+    )
 
 
 class StreamBoundSettings(BaseModel):
@@ -77,12 +103,9 @@ class StreamBoundSettings(BaseModel):
     stream_ttl_s: float = Field(default=60.0, gt=0.0)
 
 
-def stream_bounds_from_args(args: Any) -> dict[str, Any]:
-    """The :class:`StreamBoundSettings` fields given by :func:`add_stream_bound_arguments`' options."""
-    return {"max_streams": args.max_streams, "stream_ttl_s": args.stream_ttl}
-
-
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
     """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker."""
     parser.add_argument("--max-streams", type=int, default=64, help="streams kept at most (LRU evicted)")
-    parser.add_argument("--stream-ttl", type=float, default=60.0, help="seconds an unused stream is kept")
+    parser.add_argument(
+        "--stream-ttl", dest="stream_ttl_s", type=float, default=60.0, help="seconds an unused stream is kept"
+    )

@@ -19,8 +19,8 @@ from services.runtime.cli import (
     add_enum_argument,
     add_stream_bound_arguments,
     add_transport_arguments,
-    stream_bounds_from_args,
 )
+from services.runtime.fields import settings_from
 from services.runtime.handoff import WorkQueue
 from services.runtime.results import result_from_measurement
 from services.runtime.service import ConfiguredService
@@ -206,7 +206,4 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    settings = WorkerSettings(
-        queue=args.queue, cpu_factor=args.cpu_factor, handoff=args.handoff, **stream_bounds_from_args(args)
-    )
-    return WorkerService.from_args(args, settings).run()
+    return WorkerService.from_args(args, settings_from(WorkerSettings, args)).run()

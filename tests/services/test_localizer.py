@@ -23,11 +23,9 @@ from common.localization.tracker_state import TrackerState
 from common.messages import Frame, PoseEstimate
 from common.sim.objects import (
     object_camera,
-    object_flight,
     offset_pose,
-    render_camera_flight,
+    rendered_object_flight,
     tabletop_model,
-    tabletop_scene,
 )
 from common.sim.office_run import simulate_run
 from services.localizer import LocalizerService, LocalizerSettings
@@ -174,12 +172,11 @@ def _obj_text(scene: object) -> str:
 def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pose(tmp_path: Path) -> None:
     n_frames = 20
     camera = object_camera()
-    flight = object_flight(n_frames, seed=3)
-    images = list(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(3)))
+    flight, images = rendered_object_flight(n_frames, 3, camera)
     (tmp_path / "tabletop.obj").write_text(_obj_text(tabletop_model()))
     (tmp_path / "camera.yaml").write_text(opencv_yaml_text(camera))
     # start 30 mm and 5 deg off, given as OpenCV rvec + tvec (camera-from-world)
-    start = offset_pose(flight.p_world_camera_m[0], flight.R_world_camera[0], 0.03, np.radians(5.0), 7)
+    start = offset_pose(flight.pose(0), 0.03, np.radians(5.0), 7)
     rvec, tvec = start.rvec_tvec()
     settings = LocalizerSettings(
         model=tmp_path / "tabletop.obj",

@@ -18,6 +18,7 @@ from services.localizer import FilterKind, LocalizerSettings
 from services.localizer.filters import (
     ModelTrackerPath,
     ParticleFilterPath,
+    StepInputs,
     make_path,
     mean_gyro_camera,
     particle_tracking_state,
@@ -93,7 +94,7 @@ def test_use_vo_office_flight_does_not_snap_onto_window_bars() -> None:
         frame = Frame(uav="uav0", seq=i, stamp_s=float(times_s[i]), width=320, height=240, pixels=image)
         vo = None if i < 2 else (_vo(times_s[i - 2], truth[i - 2]), _vo(times_s[i - 1], truth[i - 1]))
         dt = 0.0 if i == 0 else float(times_s[i] - times_s[i - 1])
-        messages.append(path.step(frame, dt, vo))
+        messages.append(path.step(StepInputs(frame, dt, vo)))
     for message in messages:
         assert message.source == "pf" and message.tracking_state in {"tracking", "searching", "lost"}
         assert np.all(np.isfinite(message.covariance))
@@ -120,7 +121,7 @@ def test_tracker_path_takes_the_gyro_and_still_tracks() -> None:
     path = ModelTrackerPath(_settings("--use-imu"))
     for seq, image in enumerate(run.images):
         frame = Frame(uav="uav0", seq=seq, stamp_s=0.05 * seq, width=320, height=240, pixels=image)
-        message = path.step(frame, 0.05 if seq else 0.0, None, np.zeros(3) if seq else None)
+        message = path.step(StepInputs(frame, 0.05 if seq else 0.0, None, np.zeros(3) if seq else None))
     assert message.tracking_state == "tracking"
     assert path.state.motion is not None
 
@@ -141,7 +142,7 @@ def test_late_joining_particle_path_starts_around_the_vo_pose_not_the_flight_sta
         vo = (_vo(times_s[i - 2], truth[i - 2]), _vo(times_s[i - 1], truth[i - 1]))
         anchor = vo[1] if i == join else None
         dt = 0.0 if i == join else float(times_s[i] - times_s[i - 1])
-        messages.append(path.step(frame, dt, vo, anchor=anchor))
+        messages.append(path.step(StepInputs(frame, dt, vo, anchor=anchor)))
     # measured: 8.7-11 cm over the last 5 of 32 frames, still closing in (started at the flight's first
     # pose instead: 1.38-1.51 m and growing)
     errors_m = [np.linalg.norm(m.p_world_body_m - truth[m.seq, :3]) for m in messages[-5:]]

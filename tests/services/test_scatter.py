@@ -7,7 +7,6 @@ failure the share is re-dispatched within the round and every patch is still mea
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -126,21 +125,26 @@ def test_a_frozen_solo_member_misses_its_deadline_and_self_takes_the_share(
 def test_a_solo_member_that_leaves_is_cancelled_at_once(
     sessions: tuple[zenoh.Session, zenoh.Session],
 ) -> None:
+    """The member's liveliness is lost while its request is in flight: the round is told at once.
+
+    Regression (failed once on a loaded host): the leave came from a thread polling for the request to be
+    sent, which could lose the race against zenoh; it now comes from the member's side when the request
+    has arrived there, so "in flight" holds by construction."""
     member_side, dispatcher_side = sessions
     held: list[zenoh.Query] = []
-    queryable = member_side.declare_queryable(KEY.format(member="w_0"), held.append, complete=True)
-    assert routed(dispatcher_side, "w_0")
     scatters: list[Scatter] = []
+
+    def on_query(query: zenoh.Query) -> None:
+        held.append(query)  # never answered
+        if scatters:
+            scatters[-1].member_left("w/0")  # liveliness lost mid-round (not before: that is in the plan)
+
+    queryable = member_side.declare_queryable(KEY.format(member="w_0"), on_query, complete=True)
+    assert routed(dispatcher_side, "w_0")
     original = Scatter.run
 
     def run_and_leave(self: Scatter, work: FrameWork, plan: Any) -> RoundReport:
         scatters.append(self)
-
-        def leave_once_in_flight() -> None:  # liveliness lost mid-round (not before: that is in the plan)
-            assert wait_until(lambda: self._solo is not None)
-            self.member_left("w/0")
-
-        threading.Thread(target=leave_once_in_flight, daemon=True).start()
         return original(self, work, plan)
 
     Scatter.run = run_and_leave  # type: ignore[method-assign]
@@ -148,6 +152,7 @@ def test_a_solo_member_that_leaves_is_cancelled_at_once(
         _scatter, report = run_round(dispatcher_side, "w/0", budget_s=5.0)
     finally:
         Scatter.run = original  # type: ignore[method-assign]
+    assert held, "the request never reached the member"
     assert covered_by(report) == {SELF: N_PATCHES}
     # cancelled, not timed out: without the cancellation this would read "deadline missed" after 5 s
     assert report.failures == ["w/0: left (liveliness lost)"]

@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.dispatch import SELF, Dispatcher, DispatchSettings, MemberOutcome, TrustMonitor, TrustSettings
-from common.dispatch.trust import cap_counts, capped_weights, outcomes_of_fit
+from common.dispatch.trust import cap_counts, capped_weights, doubling_suspension_s, outcomes_of_fit
 from common.dispatch.vetting import round_outcomes
 from common.errors import InputError
 from common.sim.flight import hover_flight
@@ -226,3 +226,16 @@ def test_at_start_nobody_is_on_probation_so_two_members_share_without_the_dispat
     d.record_success("foreman/b/0", 0, np.arange(20, 40), 0.012)
     plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
     assert SELF not in plan.assignment and sorted(len(v) for v in plan.assignment.values()) == [20, 20]
+
+
+@given(
+    first_s=st.floats(0.01, 100.0),
+    max_s=st.floats(0.01, 1000.0),
+    earlier=st.integers(0, 40),
+)
+def test_doubling_suspension_doubles_until_the_cap(first_s: float, max_s: float, earlier: int) -> None:
+    pause = doubling_suspension_s(first_s, max_s, earlier)
+    assert pause == min(max_s, first_s * 2.0**earlier)
+    assert pause <= max_s and pause <= doubling_suspension_s(first_s, max_s, earlier + 1)
+    if first_s * 2.0 ** (earlier + 1) <= max_s:
+        assert doubling_suspension_s(first_s, max_s, earlier + 1) == 2.0 * pause

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from common.localization.pose import CameraPose, rotation_angle_rad
-from common.localization.refine import CANNY_OFFSET_PX, match_fraction
+from common.localization.refine import match_fraction, oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
@@ -19,7 +19,9 @@ from common.sim.objects import (
     object_camera,
     object_flight,
     offset_pose,
+    random_kidnap,
     render_camera_flight,
+    rendered_object_flight,
     tabletop_model,
     tabletop_scene,
 )
@@ -32,7 +34,7 @@ def tracker() -> ModelTracker:
 
 
 def _start(flight: CameraFlight, seed: int, mm: float = 30.0, deg: float = 5.0) -> CameraPose:
-    return offset_pose(flight.p_world_camera_m[0], flight.R_world_camera[0], 1e-3 * mm, np.radians(deg), seed)
+    return offset_pose(flight.pose(0), 1e-3 * mm, np.radians(deg), seed)
 
 
 def _run(
@@ -51,10 +53,7 @@ def _run(
 
 @pytest.mark.parametrize("seed", [0, 3])
 def test_locks_and_tracks_without_odometry_from_30mm_5deg(tracker: ModelTracker, seed: int) -> None:
-    flight = object_flight(30, seed=seed)
-    images = list(
-        render_camera_flight(tabletop_scene(), flight, tracker.camera, rng=np.random.default_rng(seed))
-    )
+    flight, images = rendered_object_flight(30, seed, tracker.camera)
     pos, rot, status, _ = _run(tracker, flight, images, tracker.start(_start(flight, seed)), seed)
     assert np.median(pos[3:]) <= 5.0 and np.median(rot[3:]) <= 0.5
     assert status[-10:] == [TrackingStatus.TRACKING] * 10
@@ -69,7 +68,7 @@ def test_object_gone_is_detected_and_tracking_resumes(tracker: ModelTracker) -> 
         render_view(clutter if 12 <= i < 26 else world, R, p, tracker.camera, rng=rng)
         for i, (p, R) in enumerate(zip(flight.p_world_camera_m, flight.R_world_camera, strict=True))
     ]
-    start = CameraPose(flight.p_world_camera_m[0], flight.R_world_camera[0])
+    start = flight.pose(0)
     pos, _, status, state = _run(tracker, flight, images, tracker.start(start), 2)
     assert status[11] is TrackingStatus.TRACKING
     assert status[12] is TrackingStatus.SEARCHING  # the first frame without the part
@@ -83,7 +82,7 @@ def test_kidnapped_camera_is_found_again_within_30_frames(tracker: ModelTracker)
     flight = object_flight(50, seed=4)
     moved = kidnap(flight, 15, [0.06, -0.05, 0.06], np.radians(10.0) * np.array([0.6, 0.0, -0.8]))
     images = list(render_camera_flight(tabletop_scene(), moved, tracker.camera, rng=np.random.default_rng(4)))
-    start = CameraPose(flight.p_world_camera_m[0], flight.R_world_camera[0])
+    start = flight.pose(0)
     pos, rot, _, _ = _run(tracker, moved, images, tracker.start(start), 4)
     limit_mm, limit_deg = 2.0 * np.median(pos[:15]), 2.0 * np.median(rot[:15])
     back = np.flatnonzero((pos[15:] <= max(limit_mm, 1.0)) & (rot[15:] <= max(limit_deg, 0.1)))
@@ -95,7 +94,7 @@ def test_motion_model_carries_the_cloud_at_its_velocity(tracker: ModelTracker) -
         tracker.scene, tracker.camera, TrackerSettings(velocity_noise_m_s=1e-12, angular_noise_rad_s=1e-12)
     )
     flight = object_flight(2, seed=0)
-    state = quiet.start(CameraPose(flight.p_world_camera_m[0], flight.R_world_camera[0]))
+    state = quiet.start(flight.pose(0))
     state = replace(
         state, velocity_m_s=np.array([0.3, 0.0, -0.1]), angular_rate_rad_s=np.array([0.0, 0.0, 0.6])
     )
@@ -116,14 +115,18 @@ def test_match_fraction_is_high_at_the_truth_and_low_without_the_part(tracker: M
     assert n > 100 and high >= 0.6 and low <= 0.25
 
 
-def test_canny_marks_the_pixel_before_a_step() -> None:
-    # regression (edge bias): the refinement assumes an edge pixel at c stands for a step at c + 1/2
+def test_offsets_reach_the_step_not_the_pixel_canny_marks() -> None:
+    # regression (edge bias): Canny marks the pixel before an axis-aligned step (column 11 for a step between
+    # columns 11 and 12, at 11.5, either polarity); the offsets go to the step itself, from either side
     for polarity in (1, -1):
         image = np.full((24, 24), 100 - 60 * polarity, dtype=np.uint8)
         image[:, 12:] = 100 + 60 * polarity
-        edges = extract_image_edges(image)
+        edges = extract_image_edges(image, with_gradients=True)
         assert set(np.nonzero(edges.edge_map)[1].tolist()) == {12 - 1}
-    assert CANNY_OFFSET_PX == 0.5
+        u = np.array([11.5, 10.0, 13.2, 11.5])
+        normal_u = np.array([1.0, 1.0, 1.0, -1.0])
+        d = oriented_offsets(u, np.full(4, 12.0), normal_u, np.zeros(4), edges, 4, 0.9)
+        assert np.allclose(d, [0.0, 1.5, -1.7, 0.0], atol=0.05)
 
 
 @pytest.mark.parametrize("seed", [0, 2])
@@ -132,16 +135,11 @@ def test_kidnap_search_is_not_won_by_slivers_of_the_model(tracker: ModelTracker,
     # poses that showed a sliver of the part (90 of 500 points); with the bench's kidnaps of these seeds
     # (0.1 m / 10 deg at frame 75 of 150) the tracker never came back
     flight = object_flight(150, seed=seed)
-    rng = np.random.default_rng(10_000 + seed)
-    shift, turn = rng.normal(size=3), rng.normal(size=3)
-    moved = kidnap(
-        flight, 75, 0.1 * shift / np.linalg.norm(shift), np.radians(10.0) * turn / np.linalg.norm(turn)
-    )
-    part = CameraFlight(moved.times_s[68:100], moved.p_world_camera_m[68:100], moved.R_world_camera[68:100])
+    part = random_kidnap(flight, 75, 0.1, np.radians(10.0), 10_000 + seed).part(68, 100)
     images = list(
         render_camera_flight(tabletop_scene(), part, tracker.camera, rng=np.random.default_rng(seed))
     )
-    start = CameraPose(part.p_world_camera_m[0], part.R_world_camera[0])
+    start = part.pose(0)
     pos, rot, status, _ = _run(tracker, part, images, tracker.start(start), seed)
     assert status[6] is TrackingStatus.TRACKING and status[7] is not TrackingStatus.TRACKING  # kidnap seen
     back = np.flatnonzero((pos[7:] <= 5.0) & (rot[7:] <= 0.5))

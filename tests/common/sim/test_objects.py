@@ -14,7 +14,10 @@ from common.sim.objects import (
     kidnap,
     object_camera,
     object_flight,
+    offset_pose,
+    random_kidnap,
     render_camera_flight,
+    rendered_object_flight,
     tabletop_model,
     tabletop_scene,
 )
@@ -61,6 +64,32 @@ def test_kidnap_teleports_from_a_frame_on() -> None:
     )
     with pytest.raises(InputError):
         kidnap(flight, 0, [0, 0, 0], [0, 0, 0])
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_random_offsets_have_exactly_the_asked_size_and_depend_on_the_seed(seed: int) -> None:
+    flight = object_flight(10, seed=0)
+    start = offset_pose(flight.pose(0), 0.03, np.radians(5.0), seed)
+    assert np.isclose(np.linalg.norm(start.p_world_camera_m - flight.p_world_camera_m[0]), 0.03)
+    assert np.isclose(rotation_angle_rad(start.R_world_camera, flight.R_world_camera[0]), np.radians(5.0))
+    other = offset_pose(flight.pose(0), 0.03, np.radians(5.0), seed + 1)
+    assert not np.allclose(other.p_world_camera_m, start.p_world_camera_m)
+    moved = random_kidnap(flight, 4, 0.1, np.radians(10.0), seed)
+    assert np.array_equal(moved.p_world_camera_m[:4], flight.p_world_camera_m[:4])
+    shifts = np.linalg.norm(moved.p_world_camera_m[4:] - flight.p_world_camera_m[4:], axis=1)
+    assert np.allclose(shifts, 0.1)
+    turns = rotation_angle_rad(moved.R_world_camera[4:], flight.R_world_camera[4:])
+    assert np.allclose(turns, np.radians(10.0))
+    tail = moved.part(4, 8)
+    assert tail.n_frames == 4 and np.array_equal(tail.times_s, flight.times_s[4:8])
+    assert np.array_equal(tail.pose(0).R_world_camera, moved.R_world_camera[4])
+
+
+def test_rendered_object_flight_is_the_flight_and_its_seeded_frames() -> None:
+    flight, images = rendered_object_flight(3, 2)
+    assert np.array_equal(flight.p_world_camera_m, object_flight(3, seed=2).p_world_camera_m)
+    again = render_camera_flight(tabletop_scene(), flight, object_camera(), rng=np.random.default_rng(2))
+    assert len(images) == 3 and all(np.array_equal(a, b) for a, b in zip(images, again, strict=True))
 
 
 def test_frames_show_the_part_and_are_reproducible() -> None:

@@ -35,7 +35,8 @@ def test_z_buffer_shows_the_nearest_face_with_its_true_depth() -> None:
     cy, cx = CAMERA.shape[0] // 2, CAMERA.shape[1] // 2
     assert layers.face_id[cy, cx] == 1  # the decal in front of the wall
     assert 1.0 / layers.inverse_depth[cy, cx] == pytest.approx(3.99, abs=1e-6)
-    assert layers.face_id[2, 2] == 0  # the wall around it
+    # the wall around it (its top side projects to row 2.37: row 2's centre is above it, off the wall)
+    assert layers.face_id[5, 5] == 0 and layers.face_id[2, 2] == -1
     # depth along the optical axis is constant on a wall facing the camera
     assert np.allclose(1.0 / layers.inverse_depth[layers.face_id == 0], 4.0)
     # the decal covers its projected square: half-size 0.5 m at 3.99 m

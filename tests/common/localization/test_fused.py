@@ -1,0 +1,79 @@
+"""The compiled weighting pass agrees with the general numpy path particle by particle."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from common.camera import Distortion, DistortionModel
+from common.localization.fused import fused_applies
+from common.localization.pose import CameraPose, perturb
+from common.localization.scoring import ScoringMethod, ScoringSettings, with_oriented_distances
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerSettings
+from common.sim.objects import (
+    object_camera,
+    object_flight,
+    render_camera_flight,
+    tabletop_model,
+    tabletop_scene,
+)
+
+
+@pytest.mark.parametrize("method", [m for m in ScoringMethod if m is not ScoringMethod.NEAREST_EDGE])
+@pytest.mark.parametrize("hidden_line_removal", [True, False])
+def test_fused_weighting_matches_the_numpy_path(method: ScoringMethod, hidden_line_removal: bool) -> None:
+    flight = object_flight(3, seed=4)
+    camera = object_camera()
+    image = list(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(4)))[2]
+    config = TrackerSettings(scoring=ScoringSettings(method=method), hidden_line_removal=hidden_line_removal)
+    fused = ModelTracker(tabletop_model(), camera, config)
+    general = ModelTracker(
+        tabletop_model(), camera, replace(config, fused_weighting=False, chunk_particles=64)
+    )
+    rng = np.random.default_rng(0)
+    n = 300  # poses near the truth and far off it (partly out of view, some behind the near plane)
+    spread = np.repeat([0.003, 0.05, 0.3], n // 3)[:, None]
+    positions = flight.p_world_camera_m[2] + rng.normal(size=(n, 3)) * spread
+    rotations = perturb(
+        np.repeat(flight.R_world_camera[2][None], n, axis=0), rng.normal(size=(n, 3)) * spread
+    )
+    edges = fused.edges(image)
+    visible = fused._visible(CameraPose(flight.p_world_camera_m[2], flight.R_world_camera[2]))
+    for expected_points in (0, 400):
+        a = fused.log_likelihood(positions, rotations, edges, visible, expected_points=expected_points)
+        b = general.log_likelihood(positions, rotations, edges, visible, expected_points=expected_points)
+        # exact for counts; g(d) comes from a table within 1e-5 of the exponential
+        tolerance = 1e-3 if method is ScoringMethod.NEAREST_EDGE_DT else 1e-9
+        assert np.allclose(a, b, atol=tolerance), np.abs(a - b).max()
+        assert np.ptp(b) > 1.0  # the poses differ: the comparison is not between constants
+
+
+def test_fused_weighting_leaves_what_it_cannot_compute_to_the_general_path() -> None:
+    camera = object_camera()
+    image = np.zeros((camera.height, camera.width), dtype=np.uint8)
+    image[100:300, 200:400] = 200
+    tracker = ModelTracker(tabletop_model(), camera)
+    edges = tracker.edges(image)
+    params = ScoringSettings()
+    assert fused_applies(camera, edges, params)
+    assert not fused_applies(camera, edges, replace(params, method=ScoringMethod.NEAREST_EDGE))
+    assert not fused_applies(camera, with_oriented_distances(edges), params)
+    lens = replace(camera, distortion=Distortion(DistortionModel.RADTAN, (0.1, 0.0, 0.0, 0.0, 0.0)))
+    assert not fused_applies(lens, edges, params)
+
+
+def test_building_a_tracker_compiles_the_pass_its_frames_use() -> None:
+    # a service builds its tracker before it subscribes: the first frame must not meet a cold compile
+    from common.localization.fused import _edge_sums
+
+    flight = object_flight(2, seed=1)
+    camera = object_camera()
+    tracker = ModelTracker(tabletop_model(), camera)
+    compiled = len(_edge_sums.signatures)
+    assert compiled >= 1
+    image = next(render_camera_flight(tabletop_scene(), flight, camera, rng=np.random.default_rng(1)))
+    tracker.log_likelihood(flight.p_world_camera_m[:1], flight.R_world_camera[:1], tracker.edges(image), None)
+    assert len(_edge_sums.signatures) == compiled  # the frame's call found its specialisation built
