@@ -54,11 +54,12 @@ class CouplingSettings(Bounded):
     #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
     #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
     #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
-    #: it was rectified with the known initial attitude, else from the latest estimate. Off by default: with
-    #: the bias filter's thrust-axis update and the trapezoid IMU integration the filter's tilt error is
-    #: about 0.03 deg and this noisier estimate made the chain worse (paper C seed 3: ATE 0.78 -> 0.51 cm
-    #: without it and without ``origin_tilt_from_bias``); a crutch for paper C's 5-state filter.
-    vision_tilt_correction: bool = False
+    #: it was rectified with the known initial attitude, else from the latest estimate. On by default, as
+    #: the thrust-axis update is off by default: with that update the filter's tilt error is about 0.03 deg
+    #: and this noisier estimate made the chain worse (paper C seed 3: ATE 0.78 -> 0.51 cm without it and
+    #: without ``origin_tilt_from_bias``); without it, paper C's 20 seeds need both (ATE median 1.66 cm and
+    #: rectified better on 10 of 20 with both off).
+    vision_tilt_correction: bool = True
     #: Forgetting time constant (s) of that estimate and the information (sum of ``|T/d|^2`` of the
     #: pairs) it needs before it is used.
     vision_tilt_window_s: float = bounded(5.0, gt=0.0)
@@ -96,8 +97,8 @@ class CouplingSettings(Bounded):
     free_drift_per_m: float = bounded(0.004, ge=0.0)
     #: With the bias filter: correct the VO origin's offset ``h_0 d_0`` with the tilt error its frame had,
     #: re-estimated from how much the accelerometer-bias estimate changed since (at hover a bias error
-    #: ``db`` reads as a tilt error of ``db / g``). Off by default (see ``vision_tilt_correction``).
-    origin_tilt_from_bias: bool = False
+    #: ``db`` reads as a tilt error of ``db / g``). On by default (see ``vision_tilt_correction``).
+    origin_tilt_from_bias: bool = True
     #: Predict with the mean of consecutive IMU samples (trapezoid) instead of the newer one (paper C's eq. 12
     #: as written, which makes the attitude lead by half a sample period times the rate).
     imu_midpoint: bool = True
