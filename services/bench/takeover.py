@@ -76,7 +76,11 @@ def attack_forged_yaw_takeover(
         deadline = time.monotonic() + 60.0 + frames / fps
         while time.monotonic() < deadline and len(watch.yaw) < frames // 2:
             time.sleep(0.05)
-        active = leader(session, uav)
+        # polled: on a busy host the attacker's fresh session may not see the election token at once
+        # (one run of the suite under load read no leader and killed nothing)
+        active, leader_deadline = None, time.monotonic() + 20.0
+        while active is None and time.monotonic() < leader_deadline:
+            active = leader(session, uav)
         publisher = session.declare_publisher(keys.yaw_key(uav))
         stop = threading.Event()
 
