@@ -213,6 +213,18 @@ class BiasAwareEkf:
         self._motion_share = s.motion_accel_noise_share
         self._norm_tolerance = s.accel_norm_tolerance_m_s2
         self._gate3 = self._gate[3]
+        self._compile_kernels()
+
+    def _compile_kernels(self) -> None:
+        """Call each compiled kernel once on a level state at rest, so that numba builds them (or loads them
+        from its disk cache) now: a first call compiles for tens of seconds on a busy host, and a service
+        builds its filter before it subscribes (a cold compile after subscribing let the estimator's queues
+        overflow and the filter diverge: the docker run's roll/pitch 37 deg RMS)."""
+        state = self.initial_state(np.array([1.0, 0.0, 0.0, 0.0]), 1.0, 0.0)
+        gravity = np.array([0.0, 0.0, self._gravity])
+        state = self.predict(state, np.zeros(3), 0.0025, gravity)
+        self.update_accelerometer(state, gravity)
+        self.update_position(state, np.zeros(2))
 
     # ---- construction and resets --------------------------------------------------------------------
 

@@ -70,7 +70,6 @@ from services.estimator.settings import (
     build_estimator,
     settings_from_args,
 )
-from services.estimator.warmup import warm_up
 from services.runtime.cli import add_transport_arguments
 from services.runtime.handoff import WorkQueue
 from services.runtime.service import ConfiguredService
@@ -95,7 +94,6 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
 
     def setup(self) -> None:
         settings = self.settings
-        warm_up(settings)  # compiled kernels before any subscriber (see services.estimator.warmup)
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
         self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
