@@ -50,7 +50,7 @@ from common.estimation.ekf_models import (
     with_reset_block,
     yaw_model,
 )
-from common.estimation.eskf_math import error_jacobian, inverse_spd
+from common.estimation.eskf_math import compile_kernels, error_jacobian, inverse_spd
 from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
 
@@ -213,18 +213,7 @@ class BiasAwareEkf:
         self._motion_share = s.motion_accel_noise_share
         self._norm_tolerance = s.accel_norm_tolerance_m_s2
         self._gate3 = self._gate[3]
-        self._compile_kernels()
-
-    def _compile_kernels(self) -> None:
-        """Call each compiled kernel once on a level state at rest, so that numba builds them (or loads them
-        from its disk cache) now: a first call compiles for tens of seconds on a busy host, and a service
-        builds its filter before it subscribes (a cold compile after subscribing let the estimator's queues
-        overflow and the filter diverge: the docker run's roll/pitch 37 deg RMS)."""
-        state = self.initial_state(np.array([1.0, 0.0, 0.0, 0.0]), 1.0, 0.0)
-        gravity = np.array([0.0, 0.0, self._gravity])
-        state = self.predict(state, np.zeros(3), 0.0025, gravity)
-        self.update_accelerometer(state, gravity)
-        self.update_position(state, np.zeros(2))
+        compile_kernels(self)  # now, not on the first sample: see eskf_math.compile_kernels
 
     # ---- construction and resets --------------------------------------------------------------------
 

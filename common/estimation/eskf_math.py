@@ -3,11 +3,16 @@ quaternion and the inverse of a 1x1-3x3 innovation covariance."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from common.estimation.ekf_models import EkfError
 from common.estimation.eskf_kernels import inverse_small
 from common.types import FloatArray
+
+if TYPE_CHECKING:
+    from common.estimation.eskf import BiasAwareEkf
 
 Quaternion = tuple[float, float, float, float]
 
@@ -24,3 +29,15 @@ def inverse_spd(S: FloatArray) -> FloatArray:
     if not ok:
         raise EkfError(f"innovation covariance {np.asarray(S).tolist()} is not positive definite")
     return out
+
+
+def compile_kernels(ekf: BiasAwareEkf) -> None:
+    """Call each compiled kernel once on a level state at rest, so that numba builds them (or loads them
+    from its disk cache) when the filter is built: a first call compiles for tens of seconds on a busy host,
+    and a service builds its filter before it subscribes (a cold compile after subscribing let the
+    estimator's queues overflow and the filter diverge: the docker run's roll/pitch 37 deg RMS)."""
+    gravity = np.array([0.0, 0.0, ekf.settings.gravity_m_s2])
+    state = ekf.initial_state(np.array([1.0, 0.0, 0.0, 0.0]), 1.0, 0.0)
+    state = ekf.predict(state, np.zeros(3), 0.0025, gravity)
+    ekf.update_accelerometer(state, gravity)
+    ekf.update_position(state, np.zeros(2))
