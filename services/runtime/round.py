@@ -119,6 +119,9 @@ class Request:
     #: a solo request's own reply channel (None: replies arrive through the callbacks' event queue)
     replies: Any = None
     cancel: zenoh.CancellationToken | None = None
+    #: set (under the scatter's lock) before a solo request is cancelled because its member left: the
+    #: token's own ``is_cancelled`` may still read False when the closed channel wakes the round thread
+    left: bool = False
 
 
 class Round:

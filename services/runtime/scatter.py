@@ -72,16 +72,18 @@ class Scatter:
         self._epoch = 0
         #: parsed key expressions of the members (a str would be parsed again for every request)
         self._keys: dict[str, zenoh.KeyExpr] = {}
-        #: the solo request in flight (member, its cancellation), cancelled when that member leaves
-        self._solo: tuple[str, zenoh.CancellationToken] | None = None
+        #: the solo request in flight, cancelled when its member leaves
+        self._solo: Request | None = None
 
     # called from liveliness callbacks (any thread): never blocks
     def member_left(self, member: str) -> None:
         self._events.put(MemberLeft(member))
         with self._lock:
             solo = self._solo
-        if solo is not None and solo[0] == member:
-            solo[1].cancel()  # the round thread blocked on its reply channel wakes at once
+            if solo is None or solo.member != member or solo.cancel is None:
+                return
+            solo.left = True  # before the cancel: the woken round thread reads it, not the token's state
+        solo.cancel.cancel()  # the round thread blocked on its reply channel wakes at once
 
     def _send(
         self,
@@ -132,7 +134,7 @@ class Scatter:
             # reply's arrival, which round-trip balancing measures.
             solo.cancel = zenoh.CancellationToken()
             with self._lock:
-                self._solo = (member, solo.cancel)
+                self._solo = solo
             solo.replies = self.session.get(
                 key,
                 zenoh.handlers.FifoChannel(2),
@@ -183,8 +185,9 @@ class Scatter:
         try:
             reply = request.replies.recv()
         except zenoh.ZError:  # closed without a reply: cancelled (the member left) or nobody answered
-            cancelled = request.cancel is not None and request.cancel.is_cancelled
-            return Failure(FailureReason.LEFT if cancelled else FailureReason.NO_REPLY)
+            with self._lock:
+                left = request.left
+            return Failure(FailureReason.LEFT if left else FailureReason.NO_REPLY)
         finally:
             with self._lock:
                 self._solo = None

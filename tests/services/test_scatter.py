@@ -20,7 +20,7 @@ from common.dispatch import SELF, Dispatcher, DispatchSettings
 from common.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters
-from services.runtime.round import FrameWork, RoundReport
+from services.runtime.round import FailureReason, FrameWork, Request, RoundReport
 from services.runtime.scatter import Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
 from tests.builders import JOB_SETTINGS
@@ -157,6 +157,56 @@ def test_a_solo_member_that_leaves_is_cancelled_at_once(
     # cancelled, not timed out: without the cancellation this would read "deadline missed" after 5 s
     assert report.failures == ["w/0: left (liveliness lost)"]
     queryable.undeclare()
+
+
+class _LaggingToken:
+    """A cancellation token whose state reads "not cancelled" until after its channel is closed."""
+
+    def __init__(self, channel: _ClosedOnCancel) -> None:
+        self.channel = channel
+        self.is_cancelled = False
+
+    def cancel(self) -> None:
+        self.channel.closed = True  # zenoh closes the reply channel first ...
+        self.channel.woken.append(self.is_cancelled)  # ... the round thread wakes and reads the state here
+        self.is_cancelled = True
+
+
+class _ClosedOnCancel:
+    def __init__(self) -> None:
+        self.closed = False
+        self.woken: list[bool] = []
+
+    def recv(self) -> zenoh.Reply:
+        assert self.closed, "recv before the cancellation"
+        raise zenoh.ZError("channel closed")
+
+
+def test_solo_leave_reads_left_even_when_the_token_lags_the_closed_channel() -> None:
+    """Regression (CI, loaded host): the leave was read from the token's ``is_cancelled``, which zenoh may set
+    after the closed channel has woken the round thread; the round then reported "no reply"."""
+    scatter = Scatter(None, Dispatcher(DispatchSettings(), N_PATCHES), str, PatchJob, PatchResult, Counters())  # type: ignore[arg-type]
+    channel = _ClosedOnCancel()
+    request = Request("w/0", np.arange(3), 0.0, 1.0)
+    request.replies = channel
+    request.cancel = _LaggingToken(channel)  # type: ignore[assignment]
+    scatter._solo = request
+    scatter.member_left("w/0")
+    assert channel.woken == [False]  # the token did lag: the old code read "no reply" here
+    work: Any = None  # not reached: the channel is closed
+    failure = scatter._await_solo(request, work)
+    assert failure is not None and failure.reason is FailureReason.LEFT
+    assert scatter._solo is None
+
+
+def test_a_leave_of_another_member_does_not_cancel_the_solo_request() -> None:
+    scatter = Scatter(None, Dispatcher(DispatchSettings(), N_PATCHES), str, PatchJob, PatchResult, Counters())  # type: ignore[arg-type]
+    channel = _ClosedOnCancel()
+    request = Request("w/0", np.arange(3), 0.0, 1.0)
+    request.cancel = _LaggingToken(channel)  # type: ignore[assignment]
+    scatter._solo = request
+    scatter.member_left("w/1")
+    assert not channel.closed and not request.left
 
 
 def test_a_solo_request_nobody_answers_fails_without_waiting(
