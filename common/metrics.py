@@ -164,11 +164,7 @@ def rpe_translation(
     SE(3) RPE would add, is reported separately (yaw error). ``reference_path_m`` lets the pairs follow the
     full 3-D path when the error is taken on the horizontal position only.
     """
-    est, ref = _paired(estimated_m, reference_m)
-    path = ref if reference_path_m is None else check_positions(reference_path_m, "reference_path_m")
-    if path.shape[0] != ref.shape[0]:
-        raise InputError(f"reference_path_m must have {ref.shape[0]} samples, got {path.shape[0]}")
-    pairs = path_pairs_by_distance(path, delta_m)
+    est, ref, pairs = _rpe_pairs(estimated_m, reference_m, delta_m, reference_path_m)
     if not pairs:
         return RelativeError(float(delta_m), 0, math.nan, math.nan, math.nan)
     i, j = np.array(pairs).T
@@ -179,6 +175,74 @@ def rpe_translation(
         mean_m=float(np.mean(err)),
         rmse_m=float(np.sqrt(np.mean(err**2))),
         max_m=float(np.max(err)),
+    )
+
+
+def _rpe_pairs(
+    estimated_m: npt.ArrayLike,
+    reference_m: npt.ArrayLike,
+    delta_m: float,
+    reference_path_m: npt.ArrayLike | None,
+) -> tuple[FloatArray, FloatArray, list[tuple[int, int]]]:
+    """Checked positions and evo's consecutive pairs ``delta_m`` apart on the reference path."""
+    est, ref = _paired(estimated_m, reference_m)
+    path = ref if reference_path_m is None else check_positions(reference_path_m, "reference_path_m")
+    if path.shape[0] != ref.shape[0]:
+        raise InputError(f"reference_path_m must have {ref.shape[0]} samples, got {path.shape[0]}")
+    return est, ref, path_pairs_by_distance(path, delta_m)
+
+
+@dataclass(frozen=True)
+class TrackSplit:
+    """The RPE pairs' horizontal displacement errors split along the true displacement (a scale error:
+    positive when the estimate travelled too far) and across it (a heading error: positive to the left,
+    counter-clockwise); signed means and RMS, in metres per pair (nan without pairs)."""
+
+    delta_m: float
+    pairs: int
+    along_mean_m: float
+    along_rmse_m: float
+    cross_mean_m: float
+    cross_rmse_m: float
+
+    @property
+    def along_rmse_pct(self) -> float:
+        return 100.0 * self.along_rmse_m / self.delta_m
+
+    @property
+    def cross_rmse_pct(self) -> float:
+        return 100.0 * self.cross_rmse_m / self.delta_m
+
+
+def rpe_along_cross(
+    estimated_m: npt.ArrayLike,
+    reference_m: npt.ArrayLike,
+    delta_m: float = 1.0,
+    reference_path_m: npt.ArrayLike | None = None,
+) -> TrackSplit:
+    """:func:`rpe_translation`'s pair errors on x, y split into the component along the true horizontal
+    displacement of the pair and the one across it (``along^2 + cross^2`` is the squared horizontal pair
+    error): whether a VO's relative error is a scale error (altitude, the metric scale) or a heading error
+    (yaw drift). Pairs without horizontal displacement are left out."""
+    est, ref, pairs = _rpe_pairs(estimated_m, reference_m, delta_m, reference_path_m)
+    if pairs:
+        i, j = np.array(pairs).T
+        err = ((est[j] - est[i]) - (ref[j] - ref[i]))[:, :2]
+        seg = (ref[j] - ref[i])[:, :2]
+        length = np.linalg.norm(seg, axis=1)
+        keep = length > 1e-9
+        u = seg[keep] / length[keep, None]
+        along = np.sum(err[keep] * u, axis=1)
+        cross = u[:, 0] * err[keep, 1] - u[:, 1] * err[keep, 0]
+    if not pairs or along.size == 0:
+        return TrackSplit(float(delta_m), 0, math.nan, math.nan, math.nan, math.nan)
+    return TrackSplit(
+        delta_m=float(delta_m),
+        pairs=int(along.size),
+        along_mean_m=float(np.mean(along)),
+        along_rmse_m=float(np.sqrt(np.mean(along**2))),
+        cross_mean_m=float(np.mean(cross)),
+        cross_rmse_m=float(np.sqrt(np.mean(cross**2))),
     )
 
 

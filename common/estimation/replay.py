@@ -39,7 +39,7 @@ from common.estimation.vo_chain import (
     start_vo_chain,
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_quaternion, matrix_from_euler, wrap_angle_rad
-from common.metrics import ate_rmse_m, rpe_translation
+from common.metrics import ate_rmse_m, rpe_along_cross, rpe_translation
 from common.types import FloatArray, U8Array
 
 
@@ -222,6 +222,9 @@ class RunErrors:
     #: ATE RMSE and RPE per metre travelled of the horizontal VO position (:mod:`common.metrics`)
     ate_rmse_m: float
     rpe_pct: float
+    #: the RPE pairs' error along the true displacement (scale) and across it (heading), RMS in % of 1 m
+    rpe_along_pct: float = math.nan
+    rpe_cross_pct: float = math.nan
 
     @property
     def vo_error_pct(self) -> float:
@@ -254,6 +257,7 @@ def evaluate(
     frames = np.searchsorted(flight.frame_stamps_s, run.pose_stamps_s - 1e-9)
     est_xy, true_xy = run.p_world_body_m[:, :2], flight.p_world_body_m[frames, :2]
     vo_err = np.linalg.norm(est_xy - true_xy, axis=1)
+    split = rpe_along_cross(est_xy, true_xy, 1.0, flight.p_world_body_m[frames]) if len(frames) else None
     first = int(frames[0]) if len(frames) else start_frame
     stop = int(frames[-1]) + 1 if len(frames) else start_frame + 1
     return RunErrors(
@@ -269,6 +273,8 @@ def evaluate(
         rpe_pct=rpe_translation(est_xy, true_xy, 1.0, flight.p_world_body_m[frames]).mean_pct
         if len(frames)
         else math.nan,
+        rpe_along_pct=split.along_rmse_pct if split is not None else math.nan,
+        rpe_cross_pct=split.cross_rmse_pct if split is not None else math.nan,
     )
 
 

@@ -48,6 +48,10 @@ SEED_FIELDS = (
     "final_error_cm_rectified",
     "final_error_cm_traditional",
     "att_rmse_deg",
+    "att_rmse_deg_tilt",
+    "att_rmse_deg_yaw",
+    "rpe_along_pct_rectified",
+    "rpe_cross_pct_rectified",
 )
 
 
@@ -61,7 +65,14 @@ def seed_figures(flight: Flight, names: tuple[str, ...] = ("rectified", "traditi
         out[f"ate_rmse_cm_{name}"] = 100.0 * err.ate_rmse_m
         out[f"rpe_pct_{name}"] = err.rpe_pct
         out[f"final_error_cm_{name}"] = 100.0 * err.vo_final_error_m
-    out["att_rmse_deg"] = float(np.max(errors["rectified"].att_rmse_deg))
+        # which part of the relative error is scale (along the path) and which heading (across it)
+        out[f"rpe_along_pct_{name}"] = err.rpe_along_pct
+        out[f"rpe_cross_pct_{name}"] = err.rpe_cross_pct
+    rect = errors["rectified"].att_rmse_deg
+    out["att_rmse_deg"] = float(np.max(rect))
+    # the attitude line's axis: roll/pitch (what the rectification uses) or yaw (the VO's heading drift)
+    out["att_rmse_deg_tilt"] = float(max(rect[0], rect[1]))
+    out["att_rmse_deg_yaw"] = float(rect[2])
     return out
 
 

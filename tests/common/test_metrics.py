@@ -144,3 +144,54 @@ def test_trajectory_metrics_refuse_bad_input() -> None:
     with pytest.raises(InputError):
         rpe_translation(ref, ref, delta_m=0.0)
     assert rpe_translation(ref, ref).pairs == 0  # never travels 1 m: no pairs, nan mean
+
+
+def _random_walk_xy(seed: int, n: int = 300) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.cumsum(rng.normal(0.0, 0.05, (n, 2)), axis=0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), noise=st.floats(1e-4, 0.05))
+def test_along_cross_split_adds_up_to_the_rpe(seed: int, noise: float) -> None:
+    """``along^2 + cross^2`` is each pair's squared error: their mean squares add up to the RPE's."""
+    from common.metrics import rpe_along_cross, rpe_translation
+
+    ref = _random_walk_xy(seed)
+    est = ref + np.random.default_rng(seed + 1).normal(0.0, noise, ref.shape)
+    split = rpe_along_cross(est, ref, delta_m=1.0)
+    rpe = rpe_translation(est, ref, delta_m=1.0)
+    assert split.pairs == rpe.pairs > 0
+    assert split.along_rmse_m**2 + split.cross_rmse_m**2 == pytest.approx(rpe.rmse_m**2, rel=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), scale=st.floats(-0.05, 0.05), angle=st.floats(-0.05, 0.05))
+def test_along_is_scale_and_cross_is_heading(seed: int, scale: float, angle: float) -> None:
+    """A scaled path errs along each displacement only; a path rotated counter-clockwise errs to the left
+    by ``sin(angle)`` and along by ``cos(angle) - 1`` per metre of displacement."""
+    from common.metrics import path_pairs_by_distance, rpe_along_cross
+
+    ref = _random_walk_xy(seed)
+    pairs = np.array(path_pairs_by_distance(ref, 1.0))
+    scaled = rpe_along_cross(ref * (1.0 + scale), ref, delta_m=1.0)
+    assert scaled.cross_rmse_m == pytest.approx(0.0, abs=1e-12)
+    mean_seg = float(np.mean(np.linalg.norm(ref[pairs[:, 1]] - ref[pairs[:, 0]], axis=1)))
+    assert scaled.along_mean_m == pytest.approx(scale * mean_seg, rel=1e-9, abs=1e-15)
+    c, s = math.cos(angle), math.sin(angle)
+    rotated = rpe_along_cross(ref @ np.array([[c, s], [-s, c]]), ref, delta_m=1.0)
+    seg = np.linalg.norm(ref[pairs[:, 1]] - ref[pairs[:, 0]], axis=1)
+    assert rotated.cross_mean_m == pytest.approx(s * float(np.mean(seg)), rel=1e-9, abs=1e-12)
+    assert rotated.along_mean_m == pytest.approx((c - 1.0) * float(np.mean(seg)), rel=1e-6, abs=1e-12)
+
+
+def test_along_cross_without_pairs_or_motion_is_nan_and_refuses_bad_input() -> None:
+    from common.metrics import rpe_along_cross
+
+    still = np.zeros((10, 2))
+    split = rpe_along_cross(still, still, delta_m=1.0)
+    assert split.pairs == 0 and math.isnan(split.cross_rmse_m)
+    with pytest.raises(InputError):
+        rpe_along_cross(np.zeros((5, 2)), np.zeros((6, 2)))
+    with pytest.raises(InputError):
+        rpe_along_cross(np.full((5, 2), np.nan), np.zeros((5, 2)))
