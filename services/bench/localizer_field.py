@@ -37,10 +37,11 @@ from typing import Any
 import numpy as np
 
 from common.geometry import R_BODY_CAMERA_FORWARD
-from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.pose import CameraPose, perturb
 from common.localization.scoring import ScoringMethod, ScoringSettings
 from common.localization.tracker import ModelTracker
-from common.localization.tracker_state import TrackerSettings, TrackingStatus
+from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
+from common.localization.tracking import pose_errors_mm_deg, track_model
 from common.sim.objects import (
     CameraFlight,
     frame_gyro,
@@ -130,18 +131,17 @@ def _track(
 ) -> tuple[np.ndarray, np.ndarray, list[float], TrackingStatus]:
     """Position errors (mm), rotation errors (deg), CPU ms per step, final status."""
     rng = np.random.default_rng(seed)
-    state = tracker.start(start)
-    pos, rot, ms = [], [], []
-    for i, image in enumerate(images):
-        dt = 0.0 if i == 0 else float(flight.times_s[i] - flight.times_s[i - 1])
-        c0 = time.process_time()
-        rate = None if gyro is None or i == 0 else gyro[i]
-        state = tracker.step(state, tracker.edges(image), dt, rng, gyro_rad_s=rate)
-        if i > 0:
+    steps = track_model(tracker, images, flight.times_s, tracker.start(start), rng, gyro)
+    states: list[TrackerState] = []
+    ms: list[float] = []
+    c0 = time.process_time()
+    for state in steps:  # each step's CPU time: from before its ``next`` until it yields
+        if states:
             ms.append((time.process_time() - c0) * 1e3)
-        pos.append(1e3 * np.linalg.norm(state.pose.p_world_camera_m - flight.p_world_camera_m[i]))
-        rot.append(float(np.degrees(rotation_angle_rad(state.pose.R_world_camera, flight.R_world_camera[i]))))
-    return np.asarray(pos), np.asarray(rot), ms, state.status
+        states.append(state)
+        c0 = time.process_time()
+    pos, rot = pose_errors_mm_deg(states, flight.p_world_camera_m, flight.R_world_camera)
+    return pos, rot, ms, states[-1].status
 
 
 def _recovery_frames(pos: np.ndarray, rot: np.ndarray, frame: int, limit: tuple[float, float]) -> int | None:

@@ -13,6 +13,7 @@ from common.localization.refine import match_fraction, oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
+from common.localization.tracking import pose_errors_mm_deg, track_model
 from common.sim.objects import (
     CameraFlight,
     kidnap,
@@ -40,15 +41,9 @@ def _start(flight: CameraFlight, seed: int, mm: float = 30.0, deg: float = 5.0) 
 def _run(
     tracker: ModelTracker, flight: CameraFlight, images: list[np.ndarray], state: TrackerState, seed: int
 ) -> tuple[np.ndarray, np.ndarray, list[TrackingStatus], TrackerState]:
-    rng = np.random.default_rng(seed)
-    pos, rot, status = [], [], []
-    for i, image in enumerate(images):
-        dt = 0.0 if i == 0 else float(flight.times_s[i] - flight.times_s[i - 1])
-        state = tracker.step(state, tracker.edges(image), dt, rng)
-        pos.append(1e3 * np.linalg.norm(state.pose.p_world_camera_m - flight.p_world_camera_m[i]))
-        rot.append(np.degrees(rotation_angle_rad(state.pose.R_world_camera, flight.R_world_camera[i])))
-        status.append(state.status)
-    return np.asarray(pos), np.asarray(rot), status, state
+    states = list(track_model(tracker, images, flight.times_s, state, np.random.default_rng(seed)))
+    pos, rot = pose_errors_mm_deg(states, flight.p_world_camera_m, flight.R_world_camera)
+    return pos, rot, [s.status for s in states], states[-1]
 
 
 @pytest.mark.parametrize("seed", [0, 3])
