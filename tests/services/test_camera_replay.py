@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from services.camera.replay import replay_recording
 from services.camera.service import CameraSettings
 from services.camera.sources import RecordedSource
