@@ -49,6 +49,7 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import check_duration
 from common.errors import InputError
 from common.localization.motion import (
     MotionState,
@@ -108,8 +109,7 @@ class ModelTracker(TrackerViews):
         angular_rate_rad_s: npt.ArrayLike | None = None,
     ) -> TrackerState:
         """Constant velocity and angular rate (the tracker's own, or given odometry) plus process noise."""
-        if not np.isfinite(dt_s) or dt_s < 0.0:
-            raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+        check_duration(dt_s)
         v = state.velocity_m_s if velocity_m_s is None else np.asarray(velocity_m_s, dtype=np.float64)
         w = state.angular_rate_rad_s if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, float)
         if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
