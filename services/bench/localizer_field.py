@@ -43,11 +43,13 @@ from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
 from common.localization.tracking import pose_errors_mm_deg, track_model
 from common.sim.objects import (
+    BENCH_KIDNAP_DEG,
+    BENCH_KIDNAP_M,
     CameraFlight,
+    bench_kidnap,
     frame_gyro,
     object_camera,
     offset_pose,
-    random_kidnap,
     render_camera_flight,
     rendered_object_flight,
     tabletop_model,
@@ -62,7 +64,6 @@ logger = logging.getLogger(__name__)
 GOALS = {"object": (5.0, 0.5), "office": (30.0, 0.5)}
 #: Start error (mm, deg) per scene.
 START_ERROR = {"object": (30.0, 5.0), "office": (300.0, 10.0)}
-KIDNAP_M, KIDNAP_DEG = 0.1, 10.0
 #: Goal of issue 13 on the kidnap (frames until back, every run), where it sets one.
 KIDNAP_GOAL_FRAMES = {"object": 30}
 
@@ -108,7 +109,7 @@ def _with_kidnap(
     from common.sim.office_run import DEFAULT_FLIGHT_RENDER
 
     frame = flight.n_frames // 2
-    moved = random_kidnap(flight, frame, KIDNAP_M, np.radians(KIDNAP_DEG), 10_000 + seed)
+    moved = bench_kidnap(flight, frame, seed)
     tail = moved.part(frame)
     options = OBJECT_RENDER if name == "object" else DEFAULT_FLIGHT_RENDER
     after = list(render_camera_flight(world, tail, camera, options, np.random.default_rng(20_000 + seed)))
@@ -296,7 +297,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
         "best_scoring": best,
         "goals": {k: {"position_median_mm": v[0], "rotation_median_deg": v[1]} for k, v in GOALS.items()},
         "start_error": {k: {"position_mm": v[0], "rotation_deg": v[1]} for k, v in START_ERROR.items()},
-        "kidnap": {"position_m": KIDNAP_M, "rotation_deg": KIDNAP_DEG},
+        "kidnap": {"position_m": BENCH_KIDNAP_M, "rotation_deg": BENCH_KIDNAP_DEG},
         "frames": args.frames,
         "seeds": args.seeds,
         "settle_frames": args.settle,

@@ -16,11 +16,11 @@ from common.localization.tracker_state import TrackerSettings, TrackerState, Tra
 from common.localization.tracking import pose_errors_mm_deg, track_model
 from common.sim.objects import (
     CameraFlight,
+    bench_kidnap,
     kidnap,
     object_camera,
     object_flight,
     offset_pose,
-    random_kidnap,
     render_camera_flight,
     rendered_object_flight,
     tabletop_model,
@@ -130,7 +130,7 @@ def test_kidnap_search_is_not_won_by_slivers_of_the_model(tracker: ModelTracker,
     # poses that showed a sliver of the part (90 of 500 points); with the bench's kidnaps of these seeds
     # (0.1 m / 10 deg at frame 75 of 150) the tracker never came back
     flight = object_flight(150, seed=seed)
-    part = random_kidnap(flight, 75, 0.1, np.radians(10.0), 10_000 + seed).part(68, 100)
+    part = bench_kidnap(flight, 75, seed).part(68, 100)
     images = list(
         render_camera_flight(tabletop_scene(), part, tracker.camera, rng=np.random.default_rng(seed))
     )
