@@ -64,7 +64,7 @@ from common.localization.pose import (
     mean_rotation,
     perturb,
 )
-from common.localization.refine import refine_best
+from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
     anneal,
@@ -198,18 +198,17 @@ class ModelTracker(TrackerViews):
                 expected_points=state.expected_points,
             )
         searching = state.search_pending
+        params = (
+            cfg.refine
+            if searching
+            else replace(cfg.refine, iterations=cfg.tracking_iterations, search_px=cfg.tracking_search_px)
+        )
         refined, refined_pose = refine_best(
-            self.samples,
-            self.camera,
+            EdgeFit(self.samples, self.camera, edges, params, visible),
             positions,
             rotations,
             logw,
-            edges,
-            visible,
             cfg.refine_search if searching else cfg.refine_tracking,
-            cfg.refine
-            if searching
-            else replace(cfg.refine, iterations=cfg.tracking_iterations, search_px=cfg.tracking_search_px),
         )
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from common.localization.pose import CameraPose, rotation_angle_rad
-from common.localization.refine import match_fraction, oriented_offsets
+from common.localization.refine import EdgeFit, match_fraction, oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
@@ -104,9 +104,9 @@ def test_match_fraction_is_high_at_the_truth_and_low_without_the_part(tracker: M
     truth = CameraPose(p, R)
     with_part = render_view(tabletop_scene(), R, p, tracker.camera)
     without = render_view(tabletop_scene(with_part=False), R, p, tracker.camera)
-    args = (tracker.samples, truth.R_camera_world, truth.t_camera_world_m, tracker.camera)
-    high, n = match_fraction(*args, tracker.edges(with_part))
-    low, _ = match_fraction(*args, tracker.edges(without))
+    pose = (truth.R_camera_world, truth.t_camera_world_m)
+    high, n = match_fraction(EdgeFit(tracker.samples, tracker.camera, tracker.edges(with_part)), *pose)
+    low, _ = match_fraction(EdgeFit(tracker.samples, tracker.camera, tracker.edges(without)), *pose)
     assert n > 100 and high >= 0.6 and low <= 0.25
 
 
