@@ -131,7 +131,7 @@ def front_facing_edges(samples: EdgeSamples, p_world_camera_m: FloatArray) -> Bo
     return np.asarray(keep | (first_ids < 0)[None, :])
 
 
-def _frustum_tangents(camera: CameraModel) -> tuple[float, float, float, float]:
+def frustum_tangents(camera: CameraModel) -> tuple[float, float, float, float]:
     """Tangents of the half-angles (left, right, top, bottom) of the field the image sees, through the lens
     (the image border undistorted; a small margin)."""
     if not camera.is_distorted:
@@ -177,7 +177,7 @@ def frustum_edges(
     r = samples.radii_m.astype(np.float32)[None, :]
     # half-angle tangents of the four sides (pixel centres 0 .. width-1, half a pixel of margin); a sphere is
     # outside when its centre lies more than r beyond one side plane
-    t_left, t_right, t_top, t_bottom = _frustum_tangents(camera)
+    t_left, t_right, t_top, t_bottom = frustum_tangents(camera)
     keep = z > np.float32(near_m) - r
     for tangent, lateral, sign in (
         (t_right, x, -1.0),
