@@ -95,19 +95,23 @@ def fused_model(samples: EdgeSamples, camera: CameraModel) -> FusedModel:
     )
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _exp_parts(x: np.float32) -> tuple[np.float32, np.int32]:  # pragma: no cover - compiled; tested
+    """``exp(x)`` for ``x <= 0`` (float32; ``exp(-87)`` below -87) as ``m 2^n``: ``m`` a polynomial of the
+    remainder, ``2^n`` as the bits of a float32 (the caller views them as floats: no branch, vectorises)."""
+    x = x if x > _EXP_FLOOR else _EXP_FLOOR
+    n = np.floor(x * _LOG2E + np.float32(0.5))
+    r = (x - n * _LN2_HI) - n * _LN2_LO
+    p0, p1, p2, p3, p4, p5 = _EXP_POLY
+    p = ((((p0 * r + p1) * r + p2) * r + p3) * r + p4) * r + p5
+    return p * r * r + r + np.float32(1.0), (np.int32(n) + np.int32(127)) << np.int32(23)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _exp_in_place(x: Float32Array, bits: np.ndarray) -> None:  # pragma: no cover - compiled; tested
-    """``x <- exp(x)`` for ``x <= 0`` (float32, relative error below 1e-6; ``exp(-87)`` below -87): ``2^n``
-    times a polynomial of the remainder, ``2^n`` built from its bits in ``bits`` (int32, same length)."""
-    half = np.float32(0.5)
-    p0, p1, p2, p3, p4, p5 = _EXP_POLY
+    """``x <- exp(x)`` by :func:`_exp_parts` (relative error below 1e-6); ``bits`` int32, same length."""
     for q in range(x.size):
-        xq = x[q] if x[q] > _EXP_FLOOR else _EXP_FLOOR
-        n = np.floor(xq * _LOG2E + half)
-        r = (xq - n * _LN2_HI) - n * _LN2_LO
-        p = ((((p0 * r + p1) * r + p2) * r + p3) * r + p4) * r + p5
-        x[q] = p * r * r + r + np.float32(1.0)
-        bits[q] = (np.int32(n) + np.int32(127)) << np.int32(23)
+        x[q], bits[q] = _exp_parts(x[q])
     scale = bits.view(np.float32)
     for q in range(x.size):
         x[q] *= scale[q]
@@ -227,11 +231,11 @@ def _edge_sums(  # pragma: no cover - compiled; checked against the numpy path
     half, one, zero = np.float32(0.5), np.float32(1.0), np.float32(0.0)
     u_max, v_max = np.float32(width) - half, np.float32(height) - half
     outside, w32 = np.int32(width * height), np.int32(width)  # the lookup's last entry is inf
-    index = np.empty(size, dtype=np.int32)
-    shown = np.empty(size, dtype=np.float32)
+    index = np.empty(size, dtype=np.uint32)  # unsigned: the gather needs no negative-index check
     weight = np.empty(size, dtype=np.float32)
     distance = np.empty(size, dtype=np.float32)
     bits = np.empty(size, dtype=np.int32)
+    scale = bits.view(np.float32)
     for p in range(n_particles):
         # the particle's matrix in locals: loaded once, not once per point
         a00, a01, a02, a03 = KR[p, 0, 0], KR[p, 0, 1], KR[p, 0, 2], Kt[p, 0, 0]
@@ -245,17 +249,16 @@ def _edge_sums(  # pragma: no cover - compiled; checked against the numpy path
             v = (a10 * x + a11 * y + a12 * z + a13) * inv_z
             ok = shown_mask[q] & (hz > near) & (u >= -half) & (u < u_max) & (v >= -half) & (v < v_max)
             pixel = np.int32(v + half) * w32 + np.int32(u + half)
-            index[q] = pixel if ok else outside
-            shown[q] = one if ok else zero
+            index[q] = np.uint32(pixel if ok else outside)
         for q in range(size):
             distance[q] = lookup[index[q]]
-        if gaussian:
+        if gaussian:  # g(d) as :func:`_exp_in_place`, in one pass with the threshold
             for q in range(size):
                 d = distance[q]
-                weight[q] = d * d * exponent_scale if d <= threshold else _EXP_FLOOR
-            _exp_in_place(weight, bits)
+                mantissa, bits[q] = _exp_parts(d * d * exponent_scale)
+                weight[q] = mantissa if d <= threshold else zero
             for q in range(size):
-                weight[q] = weight[q] if distance[q] <= threshold else zero
+                weight[q] *= scale[q]
         else:
             for q in range(size):
                 weight[q] = one if distance[q] <= threshold else zero
@@ -263,7 +266,7 @@ def _edge_sums(  # pragma: no cover - compiled; checked against the numpy path
         for s in range(n_points):  # per edge, its points in order (the sums of the general path)
             for j in range(n):
                 row_sums[j] += weight[s * n + j]
-                row_counts[j] += shown[s * n + j]
+                row_counts[j] += one if index[s * n + j] != outside else zero
         for column in mixed_j:
             edge = ids[column]
             first, second = faces[edge, 0], faces[edge, 1]
