@@ -6,6 +6,8 @@ declared bound once constructed (:func:`check_bounds`) and raises :class:`~commo
 the class, the field, the bound and the value. A bounded value must be a finite real number (not a bool);
 ``optional=True`` also lets ``None`` pass (a value "scaled with the scene" or "off"). Rules between fields
 stay explicit code in the subclass's ``__post_init__``, after ``super().__post_init__()``.
+
+:func:`check_duration` is the same kind of check for an argument: a filter's time step.
 """
 
 from __future__ import annotations
@@ -73,6 +75,13 @@ def check_bounds(obj: Any) -> None:
         value = getattr(obj, name)
         if not limits.holds(value):
             raise InputError(f"{type(obj).__name__}.{name} must be {limits.describe()}, got {value!r}")
+
+
+def check_duration(value: float, name: str = "dt_s") -> float:
+    """``value`` as a float when it is a finite number >= 0 (a filter's time step); else InputError."""
+    if not (value >= 0.0 and math.isfinite(value)):
+        raise InputError(f"{name} must be finite and >= 0, got {value}")
+    return float(value)
 
 
 class Bounded:

@@ -64,21 +64,27 @@ class Decision:
 
 
 @dataclass(frozen=True)
-class FrameGateSettings(Bounded):
+class StreamClockSettings(Bounded):
+    """How far a stream's stamps may run ahead: the bounds both gates share."""
+
+    #: fastest a stream's clock may run against the wall clock (replays faster than real time)
+    max_rate: float = bounded(4.0, gt=0.0)
+    #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
+    max_future_s: float = bounded(1.0, gt=0.0)
+
+
+@dataclass(frozen=True)
+class FrameGateSettings(StreamClockSettings):
     """Bounds of a camera stream."""
 
     #: largest forward seq step accepted within an epoch (a longer gap is a jump)
     max_seq_jump: int = bounded(200, ge=1)
     #: largest stamp advance beyond ``max_rate`` x the wall-clock time elapsed since the previous frame (s)
     max_stamp_jump_s: float = bounded(5.0, gt=0.0)
-    #: fastest a stream's clock may run against the wall clock (replays faster than real time)
-    max_rate: float = bounded(4.0, gt=0.0)
     #: refused frames that agree, in a row, needed to start a new epoch
     confirm_frames: int = bounded(3, ge=1)
     #: after this long without a frame of the current epoch, one consistent frame starts a new epoch
     silence_s: float = bounded(1.0, gt=0.0)
-    #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
-    max_future_s: float = bounded(1.0, gt=0.0)
 
 
 @dataclass(frozen=True)
@@ -208,15 +214,11 @@ def admit_frame(
 
 
 @dataclass(frozen=True)
-class StampGuardSettings(Bounded):
+class StampGuardSettings(StreamClockSettings):
     """Bounds of one sensor's time stamps."""
 
     #: a stamp may run ahead of the stream's previous stamp by the wall-clock time elapsed plus this (s)
     max_ahead_s: float = bounded(2.0, gt=0.0)
-    #: fastest the stream's clock may run against the wall clock (replays faster than real time)
-    max_rate: float = bounded(4.0, gt=0.0)
-    #: stamps this far ahead of the wall clock are refused (wall-clock streams only)
-    max_future_s: float = bounded(1.0, gt=0.0)
     #: refused stamps that agree with each other, in a row, needed to adopt a jumped clock
     confirm_samples: int = bounded(5, ge=1)
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import Bounded, bounded
+from common.bounds import Bounded, bounded, check_duration
 from common.errors import InputError
 from common.estimation.ekf_models import (
     STANDARD_GRAVITY_M_S2,
@@ -150,8 +150,7 @@ class AttitudeAltitudeEkf:
         ``Q`` maps the gyro noise through the kinematics, ``Q_q = (dt/2)^2 sigma^2 Xi(q) Xi(q)^T =
         (dt/2)^2 sigma^2 (I - q q^T)``, plus the attitude and altitude random walks.
         """
-        if not (dt_s >= 0.0 and math.isfinite(dt_s)):
-            raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+        check_duration(dt_s)
         wx, wy, wz = three_floats(gyro_rad_s)
         a, b, c = transition_floats(wx, wy, wz, dt_s)
         q_prev = state.q_world_body.tolist()

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import bounded
+from common.bounds import bounded, check_duration
 from common.errors import InputError
 from common.estimation import eskf_kernels as kernels
 from common.estimation.ekf import EkfSettings
@@ -271,8 +271,7 @@ class BiasAwareEkf:
         position (altitude included) integrate ``a = R (f - b_a) - g e_z``
         (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a
         constant velocity."""
-        if not (dt_s >= 0.0 and math.isfinite(dt_s)):
-            raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+        check_duration(dt_s)
         gyro = _vector3(gyro_rad_s, "gyro_rad_s")
         use_accel = accel_m_s2 is not None
         accel = _vector3(accel_m_s2, "accel_m_s2") if accel_m_s2 is not None else _ZERO3

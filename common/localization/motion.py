@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.bounds import Bounded, bounded
+from common.bounds import Bounded, bounded, check_duration
 from common.errors import InputError
 from common.localization.pose import CameraPose, perturb, rotation_vectors
 from common.types import FloatArray
@@ -75,8 +75,7 @@ def motion_start(
 
 def motion_predict(state: MotionState, dt_s: float, settings: MotionSettings) -> MotionState:
     """Constant velocity and angular rate over ``dt_s`` with white (angular) acceleration noise."""
-    if not np.isfinite(dt_s) or dt_s < 0.0:
-        raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+    check_duration(dt_s)
     F = np.eye(12)
     F[0:3, 3:6] = np.eye(3) * dt_s
     F[6:9, 9:12] = np.eye(3) * dt_s

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import Bounded, bounded
+from common.bounds import Bounded, bounded, check_duration
 from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, wrap_angle_rad
@@ -265,8 +265,7 @@ class ParticleFilter:
         euler_rates_rad_s: npt.ArrayLike | None = None,
     ) -> ParticleState:
         """Motion model plus random-walk noise (wider while the fit is poor); weights unchanged."""
-        if not np.isfinite(dt_s) or dt_s < 0.0:
-            raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+        check_duration(dt_s)
         cfg = self.config
         moved = self.motion_model(state.particles, dt_s, velocity_world_m_s, euler_rates_rad_s)
         widen = 1.0 + cfg.search_gain * max(0.0, cfg.good_fit - state.best_fit) / max(cfg.good_fit, 1e-9)

@@ -53,6 +53,18 @@ class Refinement:
     covariance: FloatArray
 
 
+@dataclass(frozen=True)
+class EdgeFit:
+    """What one frame's refinements fit, the same for every pose tried: the model's edge ``samples``
+    (``visible``: those not hidden, None = all), seen by ``camera``, against the frame's ``edges``."""
+
+    samples: EdgeSamples
+    camera: CameraModel
+    edges: ImageEdges
+    params: RefineSettings = RefineSettings()
+    visible: BoolArray | None = None
+
+
 def _edge_points(
     edges: ImageEdges, flat: npt.NDArray[np.int64], gx: Float32Array, gy: Float32Array
 ) -> tuple[FloatArray, FloatArray]:
@@ -131,16 +143,18 @@ def oriented_offsets(
 
 
 def _visible_projection(
-    samples: EdgeSamples,
-    R_camera_world: FloatArray,
-    t_camera_world: FloatArray,
-    camera: CameraModel,
-    visible: BoolArray | None,
+    fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """Pixels, unit normals and camera-frame points of the valid sample points of one pose."""
     p_world_camera = -R_camera_world.T @ t_camera_world
+    samples = fit.samples
     proj = project_posed_samples(
-        samples, R_camera_world[None], p_world_camera[None], camera, with_normals=True, visible=visible
+        samples,
+        R_camera_world[None],
+        p_world_camera[None],
+        fit.camera,
+        with_normals=True,
+        visible=fit.visible,
     )
     assert proj.normal_u is not None and proj.normal_v is not None
     valid = proj.valid[0]
@@ -155,44 +169,30 @@ def _visible_projection(
     )
 
 
-def match_fraction(
-    samples: EdgeSamples,
-    R_camera_world: FloatArray,
-    t_camera_world: FloatArray,
-    camera: CameraModel,
-    edges: ImageEdges,
-    params: RefineSettings = RefineSettings(),
-    visible: BoolArray | None = None,
-) -> tuple[float, int]:
+def match_fraction(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray) -> tuple[float, int]:
     """Fraction of the visible sample points with a same-direction image edge within ``match_px``, and the
     number of visible points (0 gives a fraction of 0)."""
-    u, v, nu, nv, _ = _visible_projection(samples, R_camera_world, t_camera_world, camera, visible)
+    u, v, nu, nv, _ = _visible_projection(fit, R_camera_world, t_camera_world)
     if u.size == 0:
         return 0.0, 0
+    params = fit.params
     radius = int(np.ceil(params.match_px))
-    d = oriented_offsets(u, v, nu, nv, edges, radius, float(np.cos(np.radians(params.max_angle_deg))))
+    d = oriented_offsets(u, v, nu, nv, fit.edges, radius, float(np.cos(np.radians(params.max_angle_deg))))
     return float(np.mean(np.abs(np.nan_to_num(d, nan=np.inf)) <= params.match_px)), int(u.size)
 
 
-def refine_pose(
-    samples: EdgeSamples,
-    R_camera_world: FloatArray,
-    t_camera_world: FloatArray,
-    camera: CameraModel,
-    edges: ImageEdges,
-    params: RefineSettings = RefineSettings(),
-    visible: BoolArray | None = None,
-) -> Refinement:
+def refine_pose(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray) -> Refinement:
     """Gauss-Newton on oriented point-to-edge offsets from one pose (see the module docstring)."""
     R, t = R_camera_world.copy(), t_camera_world.copy()
+    params, camera = fit.params, fit.camera
     cos_max = float(np.cos(np.radians(params.max_angle_deg)))
     radius = params.search_px
     covariance = np.full((6, 6), np.nan)
     for _ in range(params.iterations):
-        u, v, nu, nv, X = _visible_projection(samples, R, t, camera, visible)
+        u, v, nu, nv, X = _visible_projection(fit, R, t)
         if u.size < params.min_points:
             break
-        d = oriented_offsets(u, v, nu, nv, edges, radius, cos_max)
+        d = oriented_offsets(u, v, nu, nv, fit.edges, radius, cos_max)
         ok = np.isfinite(d)
         if ok.sum() < params.min_points:
             break
@@ -228,20 +228,12 @@ def refine_pose(
         radius = max(params.search_px // 2, int(np.ceil(params.match_px)) + 1)
         if np.linalg.norm(step[:3]) < 1e-5 and np.linalg.norm(step[3:]) < 1e-5:
             break
-    fraction, n_points = match_fraction(samples, R, t, camera, edges, params, visible)
+    fraction, n_points = match_fraction(fit, R, t)
     return Refinement(R, t, fraction, n_points, covariance)
 
 
 def refine_best(
-    samples: EdgeSamples,
-    camera: CameraModel,
-    positions: FloatArray,
-    rotations: FloatArray,
-    logw: FloatArray,
-    edges: ImageEdges,
-    visible: npt.NDArray[np.bool_] | None,
-    count: int,
-    params: RefineSettings,
+    fit: EdgeFit, positions: FloatArray, rotations: FloatArray, logw: FloatArray, count: int
 ) -> tuple[Refinement, CameraPose]:
     """Refine the ``count`` best distinct particles (``R_world_camera`` rotations) with the largest log
     weights; the refinement with the best ``match x sqrt(points)`` wins. Returns it and its pose."""
@@ -255,15 +247,7 @@ def refine_best(
     best: tuple[Refinement, CameraPose] | None = None
     for i in chosen:
         guess = CameraPose(positions[i], rotations[i])
-        result = refine_pose(
-            samples,
-            guess.R_camera_world,
-            guess.t_camera_world_m,
-            camera,
-            edges,
-            params,
-            visible,
-        )
+        result = refine_pose(fit, guess.R_camera_world, guess.t_camera_world_m)
         score = result.match_fraction * np.sqrt(max(result.n_points, 0))
         if best is None or score > best[0].match_fraction * np.sqrt(max(best[0].n_points, 0)):
             pose = CameraPose(-result.R_camera_world.T @ result.t_camera_world_m, result.R_camera_world.T)

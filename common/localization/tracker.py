@@ -49,6 +49,7 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
+from common.bounds import check_duration
 from common.errors import InputError
 from common.localization.motion import (
     MotionState,
@@ -63,7 +64,7 @@ from common.localization.pose import (
     mean_rotation,
     perturb,
 )
-from common.localization.refine import refine_best
+from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
     anneal,
@@ -108,8 +109,7 @@ class ModelTracker(TrackerViews):
         angular_rate_rad_s: npt.ArrayLike | None = None,
     ) -> TrackerState:
         """Constant velocity and angular rate (the tracker's own, or given odometry) plus process noise."""
-        if not np.isfinite(dt_s) or dt_s < 0.0:
-            raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
+        check_duration(dt_s)
         v = state.velocity_m_s if velocity_m_s is None else np.asarray(velocity_m_s, dtype=np.float64)
         w = state.angular_rate_rad_s if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, float)
         if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
@@ -198,18 +198,17 @@ class ModelTracker(TrackerViews):
                 expected_points=state.expected_points,
             )
         searching = state.search_pending
+        params = (
+            cfg.refine
+            if searching
+            else replace(cfg.refine, iterations=cfg.tracking_iterations, search_px=cfg.tracking_search_px)
+        )
         refined, refined_pose = refine_best(
-            self.samples,
-            self.camera,
+            EdgeFit(self.samples, self.camera, edges, params, visible),
             positions,
             rotations,
             logw,
-            edges,
-            visible,
             cfg.refine_search if searching else cfg.refine_tracking,
-            cfg.refine
-            if searching
-            else replace(cfg.refine, iterations=cfg.tracking_iterations, search_px=cfg.tracking_search_px),
         )
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()
@@ -240,25 +239,32 @@ class ModelTracker(TrackerViews):
             # the images and the motion model disagreeing for max_rejections frames in a row: search (with
             # the recovery test) rather than trust either
             good = not (fused[1] and state.rejected_frames + 1 >= cfg.max_rejections)
+        motion = None
         if good and fused is not None:
             motion, rejected, noise_scale = fused
             pose = motion.pose
             covariance = motion.covariance[np.ix_(_POSE_ROWS, _POSE_ROWS)]
             positions[1], rotations[1] = pose.p_world_camera_m, pose.R_world_camera
+        # what every frame records, tracked or not
+        seen = replace(
+            state,
+            positions_m=positions,
+            rotations=rotations,
+            pose=pose,
+            covariance=covariance,
+            match=refined.match_fraction,
+            matched_points=int(matched),
+            frames=frames,
+        )
+        if motion is not None:
             return replace(
-                state,
-                positions_m=positions,
-                rotations=rotations,
-                pose=pose,
-                covariance=covariance,
+                seen,
                 velocity_m_s=motion.velocity_m_s,
                 angular_rate_rad_s=motion.angular_rate_rad_s,
                 motion=motion,
                 noise_scale=noise_scale,
                 rejected_frames=state.rejected_frames + 1 if rejected else 0,
                 status=TrackingStatus.TRACKING,
-                match=refined.match_fraction,
-                matched_points=int(matched),
                 last_good=pose,
                 # a slowly fading maximum: a pose that shows only a sliver of the model cannot talk it down
                 expected_points=max(int(0.95 * state.expected_points), refined.n_points),
@@ -266,27 +272,19 @@ class ModelTracker(TrackerViews):
                 bad_frames=0,
                 search_pending=False,
                 spread_factor=1.0,
-                frames=frames,
                 recoveries=state.recoveries + (1 if state.bad_frames > 0 else 0),
             )
         bad = state.bad_frames + 1
         return replace(
-            state,
-            positions_m=positions,
-            rotations=rotations,
-            pose=pose,
-            covariance=covariance,
+            seen,
             velocity_m_s=np.zeros(3),
             angular_rate_rad_s=np.zeros(3),
             motion=None,
             rejected_frames=0,
             status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
-            match=refined.match_fraction,
-            matched_points=int(matched),
             bad_frames=bad,
             search_pending=True,
             spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
-            frames=frames,
         )
 
     def _gyro(self, state: TrackerState, gyro_rad_s: npt.ArrayLike) -> TrackerState:

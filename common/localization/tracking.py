@@ -1,4 +1,5 @@
-"""Running the particle filter along a sequence of frames, and its accuracy against ground truth.
+"""Running the particle filter (or the model tracker) along a sequence of frames, and its accuracy against
+ground truth.
 
 Used alike by the demo, the benchmark, the tests and (frame by frame) the localizer service, so that the
 service's output can be compared with an in-process run.
@@ -6,7 +7,7 @@ service's output can be compared with an in-process run.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,10 @@ import numpy.typing as npt
 from common.errors import InputError
 from common.geometry import wrap_angle_rad
 from common.localization.particle_filter import ParticleFilter, ParticleState, PoseStatistics
+from common.localization.pose import rotation_angle_rad
 from common.localization.scoring import extract_image_edges
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerState
 from common.types import FloatArray
 
 
@@ -112,6 +116,36 @@ def track_flight(
         effective_sample_sizes=np.asarray(ess),
         reinitialisations=state.reinitialisations,
     )
+
+
+def track_model(
+    tracker: ModelTracker,
+    images: Iterable[npt.ArrayLike],
+    times_s: FloatArray,
+    state: TrackerState,
+    rng: np.random.Generator,
+    gyro_rad_s: FloatArray | None = None,
+) -> Iterator[TrackerState]:
+    """Run the model tracker over frames (one per time stamp) from ``state`` (``tracker.start(pose)``),
+    yielding its state after each frame; ``gyro_rad_s``: the camera-frame rate over each frame interval
+    (T, 3), row 0 unused. A caller timing the steps times each ``next``."""
+    for i, image in enumerate(images):
+        dt = 0.0 if i == 0 else float(times_s[i] - times_s[i - 1])
+        rate = None if gyro_rad_s is None or i == 0 else gyro_rad_s[i]
+        state = tracker.step(state, tracker.edges(image), dt, rng, gyro_rad_s=rate)
+        yield state
+
+
+def pose_errors_mm_deg(
+    states: Sequence[TrackerState], p_world_camera_m: FloatArray, R_world_camera: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Position (mm) and rotation (deg) error of each state's pose against the true camera poses of the
+    same frames."""
+    n = len(states)
+    p = np.array([s.pose.p_world_camera_m for s in states]).reshape(n, 3)
+    R = np.array([s.pose.R_world_camera for s in states]).reshape(n, 3, 3)
+    position_mm = 1e3 * np.linalg.norm(p - p_world_camera_m[:n], axis=1)
+    return position_mm, np.degrees(rotation_angle_rad(R, R_world_camera[:n]))
 
 
 def track_accuracy(estimates: FloatArray, truth: FloatArray, first_frame: int) -> TrackAccuracy:

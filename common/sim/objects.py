@@ -265,6 +265,16 @@ def random_kidnap(
     return kidnap(flight, frame, *_random_offsets(position_m, angle_rad, seed))
 
 
+#: The localizer field bench's kidnap: the camera teleported this far (m, deg), in random directions.
+BENCH_KIDNAP_M, BENCH_KIDNAP_DEG = 0.1, 10.0
+
+
+def bench_kidnap(flight: CameraFlight, frame: int, run: int) -> CameraFlight:
+    """The localizer field bench's kidnap of its run ``run`` at ``frame`` (:func:`random_kidnap` by
+    :data:`BENCH_KIDNAP_M` and :data:`BENCH_KIDNAP_DEG`); the tracker's regression tests replay it."""
+    return random_kidnap(flight, frame, BENCH_KIDNAP_M, float(np.radians(BENCH_KIDNAP_DEG)), 10_000 + run)
+
+
 def frame_gyro(flight: CameraFlight, noise: ImuNoise, seed: int) -> FloatArray:
     """What a gyro rigidly mounted with the camera reads, averaged over each frame interval and turned into
     the camera frame (T, 3) rad/s (row 0: zeros): the true mean rate ``Log(R_k-1^T R_k) / dt`` plus a

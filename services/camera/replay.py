@@ -17,7 +17,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from common.errors import InputError
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from services.camera.sources import RecordedSource
 from services.estimator.sim_publisher import message_of
 
@@ -28,6 +28,36 @@ logger = logging.getLogger(__name__)
 
 #: the camera's publisher of each measurement type
 _TOPICS = {FrameMeasurement: "camera", ImuMeasurement: "imu", RangeMeasurement: "range"}
+
+
+class LoopedStamps:
+    """The stamp offset of an input replayed in rounds (``--loop``): each round begins one frame period after
+    the previous round's last sample, so that stamps keep increasing (receivers refuse a stamp that is not
+    after the one before). The simulated flight and the recorded replay both shift their stamps with it."""
+
+    def __init__(self, default_period_s: float = 0.05) -> None:
+        self.offset_s = 0.0
+        #: the first sample's stamp (first round, offset 0); None before the first sample
+        self.first_s: float | None = None
+        self._last_s = 0.0  # the last sample's shifted stamp
+        self._last_frame_s: float | None = None  # the last frame's shifted stamp
+        self._period_s = default_period_s  # the latest frame period seen
+
+    def offset_of(self, stamp_s: float, frame: bool = True) -> float:
+        """The offset to add to this sample's recorded stamp (samples in order; ``frame``: a camera frame,
+        whose spacing is the frame period)."""
+        shifted = stamp_s + self.offset_s
+        if self.first_s is None:
+            self.first_s = shifted
+        if frame:
+            if self._last_frame_s is not None and shifted > self._last_frame_s:
+                self._period_s = shifted - self._last_frame_s
+            self._last_frame_s = shifted
+        self._last_s = shifted
+        return self.offset_s
+
+    def next_round(self) -> None:
+        self.offset_s = self._last_s + self._period_s - (self.first_s or 0.0)
 
 
 def replay_recording(service: CameraService, source: RecordedSource) -> None:
@@ -50,33 +80,26 @@ def _replay(service: CameraService, source: RecordedSource) -> None:
         logger.info("camera calibration: %s", source.camera_info)
     seq = {"camera": -1, "imu": -1, "range": -1}
     pending: list[Measurement] = []  # sensor samples read since the last frame, stamps shifted
-    offset_s = 0.0
-    first_s: float | None = None
-    last_s = 0.0  # the last frame's stamp
-    last_any_s = 0.0  # the last sample's stamp
-    period_s = 0.05
+    stamps = LoopedStamps()
     t_wall0 = time.monotonic()
     skip = lambda kind, why: service.count_error(f"skipped_{kind}", "sample skipped", why)  # noqa: E731
     while not service.stop_event.is_set():
         for m in source.measurements(skip):
             if service.stop_event.is_set():
                 break
-            stamp_s = m.stamp_s + offset_s
-            last_any_s = stamp_s
-            if first_s is None:
-                first_s, t_wall0 = stamp_s, time.monotonic()
+            first = stamps.first_s is None
+            stamp_s = m.stamp_s + stamps.offset_of(m.stamp_s, frame=isinstance(m, FrameMeasurement))
+            if first:
+                t_wall0 = time.monotonic()
             shifted = replace(m, stamp_s=stamp_s)
             if not isinstance(shifted, FrameMeasurement):
                 if settings.sensors:
                     pending.append(shifted)
                 continue
             if paced:
-                delay = t_wall0 + (stamp_s - first_s) / settings.rate - time.monotonic()
+                delay = t_wall0 + (stamp_s - (stamps.first_s or 0.0)) / settings.rate - time.monotonic()
                 if delay > 0 and service.stop_event.wait(delay):
                     break
-            if seq["camera"] >= 0 and stamp_s > last_s:
-                period_s = stamp_s - last_s
-            last_s = stamp_s
             _publish_sensors(service, pending, seq)  # just before their frame, as the simulated camera does
             pending.clear()
             seq["camera"] += 1
@@ -86,9 +109,7 @@ def _replay(service: CameraService, source: RecordedSource) -> None:
             service.counters.inc("frames_out")
         if not settings.loop or seq["camera"] < 0:
             break
-        # next round: its first sample one frame period after this round's last sample
-        # (first_s is the first sample's stamp of the first round, whose offset is 0)
-        offset_s = last_any_s + period_s - (first_s if first_s is not None else 0.0)
+        stamps.next_round()
     _publish_sensors(service, pending, seq)  # samples after the last frame
     for uav in settings.uavs:
         service._wait_yaw(uav, seq["camera"])

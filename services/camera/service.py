@@ -39,7 +39,7 @@ from services.camera.flights import (
     write_flight_calibration,
 )
 from services.camera.images import image_files
-from services.camera.replay import replay_recording
+from services.camera.replay import LoopedStamps, replay_recording
 from services.camera.sources import (
     add_source_arguments,
     open_camera_source,
@@ -282,31 +282,6 @@ class CameraService(ConfiguredService[CameraSettings]):
             self._wait_yaw(uav, last_seq)
         self.finished.set()
         self.stop_event.set()
-
-
-class LoopedStamps:
-    """The stamp offset of a flight replayed in rounds (``--loop``): each round begins one frame period after
-    the previous round's last frame, so that stamps keep increasing (receivers refuse a stamp that is not
-    after the one before)."""
-
-    def __init__(self, default_period_s: float = 0.05) -> None:
-        self.offset_s = 0.0
-        self._first_s: float | None = None  # the first frame's stamp (first round, offset 0)
-        self._last_s = 0.0  # the last frame's shifted stamp
-        self._period_s = default_period_s
-
-    def offset_of(self, stamp_s: float) -> float:
-        """The offset to add to this frame's flight stamp (frames in order)."""
-        shifted = stamp_s + self.offset_s
-        if self._first_s is None:
-            self._first_s = shifted
-        elif shifted > self._last_s:
-            self._period_s = shifted - self._last_s
-        self._last_s = shifted
-        return self.offset_s
-
-    def next_round(self) -> None:
-        self.offset_s = self._last_s + self._period_s - (self._first_s or 0.0)
 
 
 def register(subparsers: Any) -> None:

@@ -22,7 +22,7 @@ from common.datasets.images import open_image_folder
 from common.datasets.rosbag import open_bag
 from common.datasets.tum import Trajectory
 from common.errors import InputError
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.sim.flight import Flight
 
 #: what a skipped sample is reported to: (kind, why)

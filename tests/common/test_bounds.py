@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from common.bounds import Bounded, bounded, field_bounds
+from common.bounds import Bounded, bounded, check_duration, field_bounds
 from common.errors import InputError
 
 
@@ -51,3 +51,12 @@ def test_out_of_bounds_bools_strings_and_none_are_refused(kwargs: dict[str, obje
 def test_optional_lets_none_pass() -> None:
     assert _Example(spread_m=None).spread_m is None
     assert _Example(spread_m=0.5).spread_m == 0.5
+
+
+@given(st.floats(allow_nan=True, allow_infinity=True))
+def test_check_duration_passes_iff_finite_and_not_negative(dt_s: float) -> None:
+    if math.isfinite(dt_s) and dt_s >= 0.0:
+        assert check_duration(dt_s) == dt_s
+    else:
+        with pytest.raises(InputError, match="dt_s must be finite and >= 0"):
+            check_duration(dt_s)

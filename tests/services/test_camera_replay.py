@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from services.camera.replay import replay_recording
 from services.camera.service import CameraSettings
 from services.camera.sources import RecordedSource
@@ -87,7 +87,7 @@ def test_a_recording_broken_half_way_stops_the_replay_with_one_counted_error() -
 def test_looped_simulated_flight_stamps_keep_increasing_across_rounds() -> None:
     """Regression: the simulated camera's --loop restarted each round's stamps at 0 (the first frame of a
     round had offset 0, later ones a growing one), so receivers refused half the second round as stale."""
-    from services.camera.service import LoopedStamps
+    from services.camera.replay import LoopedStamps
 
     flight_s = [0.0, 0.05, 0.1, 0.15]
     stamps = LoopedStamps()

@@ -27,14 +27,23 @@ def test_plot_and_summary_of_a_short_run(tmp_path: Path) -> None:
 
 def test_configurations_in_parallel_processes_equal_one_process() -> None:
     """``capataz run`` spreads the configurations over processes: each must see exactly the stream a
-    single-process run feeds it (same outputs to the bit)."""
+    single-process run feeds it (the same stamps to the bit, the same estimates to 1e-6).
+
+    Regression (failed once on a loaded host, values 1e-8 apart): BLAS and SIMD reduction kernels peel to an
+    aligned address, so how a sum is grouped depends on where an array sits in memory (OpenBLAS PR 5972);
+    two processes agree to rounding, not to the bit. A frame fed differently, or twice, moves the estimates
+    by millimetres and the stamps by a frame."""
     _, serial = compare_on_flight_b(seed=0, frames=12, start_frame=400)
     _, parallel = run_configurations(seed=0, frames=12, start_frame=400)
     assert list(parallel) == list(serial)
     for name, run in serial.items():
         other = parallel[name]
         assert run.pose_stamps_s.size > 0, name
-        for field in ("attitude_stamps_s", "q_world_body", "pz_m", "pose_stamps_s", "p_world_body_m"):
+        for field in ("attitude_stamps_s", "pose_stamps_s"):
             np.testing.assert_array_equal(
                 getattr(other, field), getattr(run, field), err_msg=f"{name}.{field}"
+            )
+        for field in ("q_world_body", "pz_m", "p_world_body_m"):
+            np.testing.assert_allclose(
+                getattr(other, field), getattr(run, field), rtol=0.0, atol=1e-6, err_msg=f"{name}.{field}"
             )

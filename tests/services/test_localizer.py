@@ -20,6 +20,7 @@ from common.localization.pose import rotation_angle_rad
 from common.localization.scoring import ScoringMethod
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState
+from common.localization.tracking import track_model
 from common.messages import Frame, PoseEstimate
 from common.sim.objects import (
     object_camera,
@@ -51,13 +52,7 @@ def _in_process(
     """What the service must publish: the tracker run in this process with the service's settings."""
     tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_settings())
     rng = np.random.default_rng(settings.seed)
-    state = tracker.start(settings.start_pose())
-    states = []
-    for i, image in enumerate(images):
-        dt = 0.0 if i == 0 else float(times_s[i] - times_s[i - 1])
-        state = tracker.step(state, tracker.edges(image), dt, rng)
-        states.append(state)
-    return states
+    return list(track_model(tracker, images, times_s, tracker.start(settings.start_pose()), rng))
 
 
 def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> None:

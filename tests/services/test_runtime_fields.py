@@ -38,7 +38,15 @@ def test_a_settings_object_is_a_source_too() -> None:
 
 
 def test_field_names_refuses_a_type_that_is_no_settings() -> None:
-    assert field_names(FrameGateSettings)[0] == "max_seq_jump"
+    # the shared clock bounds (StreamClockSettings) first, then the gate's own
+    assert field_names(FrameGateSettings) == (
+        "max_rate",
+        "max_future_s",
+        "max_seq_jump",
+        "max_stamp_jump_s",
+        "confirm_frames",
+        "silence_s",
+    )
     with pytest.raises(TypeError, match="neither"):
         field_names(int)
 

@@ -11,7 +11,7 @@ import pytest
 from common.camera import CameraModel
 from common.datasets.euroc import EurocError, open_euroc, write_euroc
 from common.datasets.tum import Trajectory
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from common.sim.flight import hover_flight
 from services.camera.sources import simulated_camera_measurements
 

@@ -11,7 +11,7 @@ import pytest
 from common.camera import CameraModel, Distortion, DistortionModel
 from common.datasets.rosbag import BagError, open_bag
 from common.datasets.rosbag_writer import write_bag
-from common.estimation.coupling import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.sim.flight import Flight, hover_flight
 from services.camera.sources import simulated_camera_measurements
 

@@ -16,7 +16,7 @@ from common.geometry import R_BODY_CAMERA_FORWARD
 from common.localization.model import build_scene
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.projection import sample_edges
-from common.localization.refine import RefineSettings, oriented_offsets, refine_pose
+from common.localization.refine import EdgeFit, RefineSettings, oriented_offsets, refine_pose
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings
@@ -103,15 +103,14 @@ def test_office_refinement_started_at_the_truth_stays_there() -> None:
     position_mm, rotation_deg = [], []
     for i in range(0, 100, 6):
         truth = CameraPose.from_body_state(run.flight.states[i], R_BODY_CAMERA_FORWARD)
-        refined = refine_pose(
+        fit = EdgeFit(
             tracker.samples,
-            truth.R_camera_world,
-            truth.t_camera_world_m,
             run.camera,
             tracker.edges(run.images[i]),
             RefineSettings(),
             tracker._visible(truth),
         )
+        refined = refine_pose(fit, truth.R_camera_world, truth.t_camera_world_m)
         p = -refined.R_camera_world.T @ refined.t_camera_world_m
         position_mm.append(1e3 * np.linalg.norm(p - truth.p_world_camera_m))
         rotation_deg.append(np.degrees(rotation_angle_rad(refined.R_camera_world.T, truth.R_world_camera)))

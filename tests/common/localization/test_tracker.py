@@ -9,17 +9,18 @@ import numpy as np
 import pytest
 
 from common.localization.pose import CameraPose, rotation_angle_rad
-from common.localization.refine import match_fraction, oriented_offsets
+from common.localization.refine import EdgeFit, match_fraction, oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState, TrackingStatus
+from common.localization.tracking import pose_errors_mm_deg, track_model
 from common.sim.objects import (
     CameraFlight,
+    bench_kidnap,
     kidnap,
     object_camera,
     object_flight,
     offset_pose,
-    random_kidnap,
     render_camera_flight,
     rendered_object_flight,
     tabletop_model,
@@ -40,15 +41,9 @@ def _start(flight: CameraFlight, seed: int, mm: float = 30.0, deg: float = 5.0) 
 def _run(
     tracker: ModelTracker, flight: CameraFlight, images: list[np.ndarray], state: TrackerState, seed: int
 ) -> tuple[np.ndarray, np.ndarray, list[TrackingStatus], TrackerState]:
-    rng = np.random.default_rng(seed)
-    pos, rot, status = [], [], []
-    for i, image in enumerate(images):
-        dt = 0.0 if i == 0 else float(flight.times_s[i] - flight.times_s[i - 1])
-        state = tracker.step(state, tracker.edges(image), dt, rng)
-        pos.append(1e3 * np.linalg.norm(state.pose.p_world_camera_m - flight.p_world_camera_m[i]))
-        rot.append(np.degrees(rotation_angle_rad(state.pose.R_world_camera, flight.R_world_camera[i])))
-        status.append(state.status)
-    return np.asarray(pos), np.asarray(rot), status, state
+    states = list(track_model(tracker, images, flight.times_s, state, np.random.default_rng(seed)))
+    pos, rot = pose_errors_mm_deg(states, flight.p_world_camera_m, flight.R_world_camera)
+    return pos, rot, [s.status for s in states], states[-1]
 
 
 @pytest.mark.parametrize("seed", [0, 3])
@@ -109,9 +104,9 @@ def test_match_fraction_is_high_at_the_truth_and_low_without_the_part(tracker: M
     truth = CameraPose(p, R)
     with_part = render_view(tabletop_scene(), R, p, tracker.camera)
     without = render_view(tabletop_scene(with_part=False), R, p, tracker.camera)
-    args = (tracker.samples, truth.R_camera_world, truth.t_camera_world_m, tracker.camera)
-    high, n = match_fraction(*args, tracker.edges(with_part))
-    low, _ = match_fraction(*args, tracker.edges(without))
+    pose = (truth.R_camera_world, truth.t_camera_world_m)
+    high, n = match_fraction(EdgeFit(tracker.samples, tracker.camera, tracker.edges(with_part)), *pose)
+    low, _ = match_fraction(EdgeFit(tracker.samples, tracker.camera, tracker.edges(without)), *pose)
     assert n > 100 and high >= 0.6 and low <= 0.25
 
 
@@ -135,7 +130,7 @@ def test_kidnap_search_is_not_won_by_slivers_of_the_model(tracker: ModelTracker,
     # poses that showed a sliver of the part (90 of 500 points); with the bench's kidnaps of these seeds
     # (0.1 m / 10 deg at frame 75 of 150) the tracker never came back
     flight = object_flight(150, seed=seed)
-    part = random_kidnap(flight, 75, 0.1, np.radians(10.0), 10_000 + seed).part(68, 100)
+    part = bench_kidnap(flight, 75, seed).part(68, 100)
     images = list(
         render_camera_flight(tabletop_scene(), part, tracker.camera, rng=np.random.default_rng(seed))
     )
