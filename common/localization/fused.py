@@ -13,7 +13,9 @@ Layout: the model is read from :class:`FusedModel` (float32, built once per trac
 edges' points are laid out point-major (all edges' first points, then their second points, ...), so that a
 particle's projection, its weights and its per-edge sums are each one branch-free loop the compiler
 vectorises; only the distance lookup is a scalar gather. ``g(d)`` is computed in the loop
-(:func:`_exp_in_place`, within 1e-6 of ``exp``), not read from a table.
+(:func:`_exp_parts`, within 2e-7 of ``exp``), not read from a table. Back-face culling is decided once per
+face for the whole cloud and per camera only for faces some cameras see and others not; frustum culling once
+per cloud (:func:`_cloud_frustum`), the per-point image bounds doing the rest.
 
 It serves the distance-transform scorings on undistorted cameras (the tracker's weighting); the normal walk
 (``NEAREST_EDGE``), oriented lookups and lens distortion take the general path. A test checks both paths
