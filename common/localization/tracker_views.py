@@ -15,6 +15,7 @@ from common.localization.fused import (
     compile_fused_kernel,
     fused_applies,
     fused_edge_sums,
+    fused_model,
     score_from_edge_sums,
 )
 from common.localization.model import SceneModel
@@ -41,6 +42,7 @@ class TrackerViews:
         self.camera = camera
         self.config = config or TrackerSettings()
         self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
+        self.fused = fused_model(self.samples, camera)  # the samples as the compiled weighting reads them
         if self.config.fused_weighting:
             compile_fused_kernel()  # now, not on the first frame
 
@@ -106,7 +108,7 @@ class TrackerViews:
             R_cw = np.swapaxes(rotations[s : s + chunk], 1, 2)
             if fused:
                 sums, counts = fused_edge_sums(
-                    self.samples, R_cw, positions[s : s + chunk], self.camera, edges, params, visible
+                    self.fused, R_cw, positions[s : s + chunk], self.camera, edges, params, visible
                 )
                 logw = score_from_edge_sums(sums, counts, params)
                 shown = counts.sum(axis=1) if floor > 0.0 else None

@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
-from common.localization.projection import project_samples, sample_edges
+from common.localization.pose import perturb
+from common.localization.projection import project_samples, projection_matrices, sample_edges
 
 CAMERA = CameraModel(width=320, height=240, fx=200.0, fy=210.0, cx=159.5, cy=119.5)
 
@@ -172,3 +173,18 @@ def test_projection_goes_through_the_lens_and_keeps_lines_and_limbs_right() -> N
         sample_edges(limb, 4), pose.R_camera_world[None], pose.p_world_camera_m[None], distorted
     )
     assert int(np.flatnonzero(limb.edge_smooth)[0]) in folded.edge_ids.tolist()
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 40), st.integers(0, 2**31 - 1))
+def test_projection_matrices_are_k_r_and_minus_k_r_p(n: int, seed: int) -> None:
+    # the compiled product behind both weighting paths: K R and -K R p, computed in float64, rounded once
+    rng = np.random.default_rng(seed)
+    R_cw = np.swapaxes(perturb(np.repeat(np.eye(3)[None], n, axis=0), rng.normal(size=(n, 3)) * 2.0), 1, 2)
+    p = rng.normal(size=(n, 3)) * 5.0
+    K = np.array([[CAMERA.fx, 0.0, CAMERA.cx], [0.0, CAMERA.fy, CAMERA.cy], [0.0, 0.0, 1.0]])
+    KR, Kt = projection_matrices(R_cw, p, CAMERA)
+    assert KR.dtype == Kt.dtype == np.float32 and KR.shape == (n, 3, 3) and Kt.shape == (n, 3, 1)
+    KR64 = K @ R_cw
+    assert np.allclose(KR, KR64, rtol=1e-6, atol=1e-4)
+    assert np.allclose(Kt[:, :, 0], -np.einsum("pij,pj->pi", KR64, p), rtol=1e-6, atol=1e-3)
