@@ -110,16 +110,6 @@ def _exp_parts(x: np.float32) -> tuple[np.float32, np.int32]:  # pragma: no cove
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _exp_in_place(x: Float32Array, bits: np.ndarray) -> None:  # pragma: no cover - compiled; tested
-    """``x <- exp(x)`` by :func:`_exp_parts` (relative error below 1e-6); ``bits`` int32, same length."""
-    for q in range(x.size):
-        x[q], bits[q] = _exp_parts(x[q])
-    scale = bits.view(np.float32)
-    for q in range(x.size):
-        x[q] *= scale[q]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _front_faces(p64: FloatArray, model: FusedModel) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """Which faces face each camera (P, F) (:func:`~common.localization.projection.front_facing_edges`'s
     test, float64) and per face whether every camera (1), none (0) or some (2) sees its front."""
@@ -254,7 +244,7 @@ def _edge_sums(  # pragma: no cover - compiled; checked against the numpy path
             index[q] = np.uint32(pixel if ok else outside)
         for q in range(size):
             distance[q] = lookup[index[q]]
-        if gaussian:  # g(d) as :func:`_exp_in_place`, in one pass with the threshold
+        if gaussian:  # g(d) by :func:`_exp_parts`, in one pass with the threshold, then scaled by 2^n
             for q in range(size):
                 d = distance[q]
                 mantissa, bits[q] = _exp_parts(d * d * exponent_scale)
