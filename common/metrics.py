@@ -225,17 +225,16 @@ def rpe_along_cross(
     error): whether a VO's relative error is a scale error (altitude, the metric scale) or a heading error
     (yaw drift). Pairs without horizontal displacement are left out."""
     est, ref, pairs = _rpe_pairs(estimated_m, reference_m, delta_m, reference_path_m)
-    if pairs:
-        i, j = np.array(pairs).T
-        err = ((est[j] - est[i]) - (ref[j] - ref[i]))[:, :2]
-        seg = (ref[j] - ref[i])[:, :2]
-        length = np.linalg.norm(seg, axis=1)
-        keep = length > 1e-9
-        u = seg[keep] / length[keep, None]
-        along = np.sum(err[keep] * u, axis=1)
-        cross = u[:, 0] * err[keep, 1] - u[:, 1] * err[keep, 0]
-    if not pairs or along.size == 0:
+    i, j = np.array(pairs, dtype=np.intp).reshape(-1, 2).T
+    err = ((est[j] - est[i]) - (ref[j] - ref[i]))[:, :2]
+    seg = (ref[j] - ref[i])[:, :2]
+    length = np.linalg.norm(seg, axis=1)
+    keep = length > 1e-9
+    if not np.any(keep):
         return TrackSplit(float(delta_m), 0, math.nan, math.nan, math.nan, math.nan)
+    u = seg[keep] / length[keep, None]
+    along = np.sum(err[keep] * u, axis=1)
+    cross = u[:, 0] * err[keep, 1] - u[:, 1] * err[keep, 0]
     return TrackSplit(
         delta_m=float(delta_m),
         pairs=int(along.size),

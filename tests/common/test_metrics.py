@@ -186,11 +186,16 @@ def test_along_is_scale_and_cross_is_heading(seed: int, scale: float, angle: flo
 
 
 def test_along_cross_without_pairs_or_motion_is_nan_and_refuses_bad_input() -> None:
-    from common.metrics import rpe_along_cross
+    from common.metrics import rpe_along_cross, rpe_translation
 
     still = np.zeros((10, 2))
     split = rpe_along_cross(still, still, delta_m=1.0)
     assert split.pairs == 0 and math.isnan(split.cross_rmse_m)
+    climb = np.zeros((10, 3))
+    climb[:, 2] = np.linspace(0.0, 5.0, 10)  # pairs 1 m apart, none of them with a horizontal displacement
+    assert rpe_translation(climb, climb).pairs > 0
+    vertical = rpe_along_cross(climb, climb, delta_m=1.0)
+    assert vertical.pairs == 0 and math.isnan(vertical.along_rmse_m)
     with pytest.raises(InputError):
         rpe_along_cross(np.zeros((5, 2)), np.zeros((6, 2)))
     with pytest.raises(InputError):
