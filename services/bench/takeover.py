@@ -78,8 +78,10 @@ def attack_forged_yaw_takeover(
             time.sleep(0.05)
         # polled: on a busy host the attacker's fresh session may not see the election token at once
         # (one run of the suite under load read no leader and killed nothing)
-        active, leader_deadline = None, time.monotonic() + 20.0
+        # (a query that finds no token returns at once: pause between them, as the wait above does)
+        active, leader_deadline = leader(session, uav), time.monotonic() + 20.0
         while active is None and time.monotonic() < leader_deadline:
+            time.sleep(0.05)
             active = leader(session, uav)
         publisher = session.declare_publisher(keys.yaw_key(uav))
         stop = threading.Event()
