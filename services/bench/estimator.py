@@ -22,7 +22,6 @@ Single-threaded OpenCV (``cv2.setNumThreads(1)``): every timing is one core's.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -124,10 +123,10 @@ def _sweep_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
                     "rpe_trad_pct": summary["rpe_pct_traditional"][stat],
                     "vo_final_cm": summary["final_error_cm_rectified"][stat],
                     "att_rmse_deg": summary["att_rmse_deg"][stat],
-                    "att_tilt_deg": summary.get("att_rmse_deg_tilt", {}).get(stat, math.nan),
-                    "att_yaw_deg": summary.get("att_rmse_deg_yaw", {}).get(stat, math.nan),
-                    "rpe_along_pct": summary.get("rpe_along_pct_rectified", {}).get(stat, math.nan),
-                    "rpe_cross_pct": summary.get("rpe_cross_pct_rectified", {}).get(stat, math.nan),
+                    "att_tilt_deg": summary["att_rmse_deg_tilt"][stat],
+                    "att_yaw_deg": summary["att_rmse_deg_yaw"][stat],
+                    "rpe_along_pct": summary["rpe_along_pct_rectified"][stat],
+                    "rpe_cross_pct": summary["rpe_cross_pct_rectified"][stat],
                     "rect_better": summary["rectified_better_seeds"],
                 }
             )

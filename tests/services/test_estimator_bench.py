@@ -67,6 +67,15 @@ def test_seed_summary_counts_where_rectified_is_better() -> None:
     assert summary["att_rmse_deg"]["max"] == 0.3
 
 
+def test_sweep_table_rows_read_the_summary_of_every_seed_field() -> None:
+    rows = [{field: float(seed) for field in estimator_sweep.SEED_FIELDS} for seed in range(3)]
+    rows[2]["att_rmse_deg_yaw"] = 7.0
+    table = estimator._sweep_rows({"paper_c": summarize_seeds(rows)})
+    assert [row["run"] for row in table] == ["paper_c 0-2 median", "paper_c 0-2 max"]
+    assert table[0]["att_yaw_deg"] == 1.0 and table[1]["att_yaw_deg"] == 7.0
+    assert table[1]["rpe_cross_pct"] == 2.0 and table[0]["rect_better"] == 3
+
+
 def test_cpu_steal_is_read_from_proc_stat(tmp_path: Path) -> None:
     stat = tmp_path / "stat"
     stat.write_text("cpu  100 0 50 800 10 0 5 35 0 0\ncpu0 1 2 3\n")
