@@ -22,6 +22,7 @@ from common.estimation.replay import vo_with_true_attitude
 from common.estimation.tilt import ManoeuvreTrack, VisionTilt
 from common.estimation.vo import VoPose, VoSettings
 from common.estimation.vo_chain import VoChainSettings, prepare_view, shifted, start_vo_chain, with_pose
+from common.metrics import rpe_translation
 from common.sim.flight import Flight
 
 
@@ -52,6 +53,21 @@ def test_keyframe_chain_on_truth_rectified_frames_stays_within_millimetres(fligh
     assert float(np.linalg.norm(keyframes[-1, :2] - truth[-1])) < 3e-3
     with pytest.raises(InputError):
         VoChainSettings(max_flow_px=-1.0)
+
+
+def test_default_feature_budget_beats_the_former_200_on_the_slow_turn_entry(flight_b: Flight) -> None:
+    """The default budget (400 corners) against the former 200 on the truth-attitude chain over 10 s of the
+    turn entry (slow rotation, sub-pixel flow): a smaller relative error per metre and final error."""
+    start, stop = 150, 350
+    truth = flight_b.p_world_body_m[start:stop]
+    errors = {}
+    for settings in (VoSettings(), VoSettings(max_features=200)):
+        p = vo_with_true_attitude(flight_b, start, stop, settings=settings)
+        rpe = rpe_translation(p[:, :2], truth[:, :2], 1.0, truth).mean_pct
+        errors[settings.max_features] = (rpe, float(np.linalg.norm(p[-1, :2] - truth[-1, :2])))
+    assert VoSettings().max_features == 400
+    assert errors[400][0] < 0.8 * errors[200][0], errors
+    assert errors[400][1] < errors[200][1] and errors[400][1] < 3.3e-3, errors
 
 
 def test_shifted_and_with_pose_keep_keyframe_and_newest_frame_consistent(flight_b: Flight) -> None:
@@ -112,3 +128,4 @@ def test_level_share_weighs_the_chains_and_distrusts_a_level_chain_that_disagree
     # the same, but the chains 10 cm apart while their stds allow a few centimetres: toward the free chain
     assert level_share(3.0, math.radians(0.02), 3.0, math.radians(0.02), 0.004, 10.0, 0.1**2) < 0.3
     assert level_share(3.0, 0.0, 3.0, 0.0, 0.0, 0.0) == 1.0
+
