@@ -7,18 +7,18 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-runtime
 DEV    := $(VENV)/.installed
-UV     := $(BIN)/uv pip --python $(BIN)/python
+UV     := $(BIN)/uv pip install --python $(BIN)/python --quiet
 
 .PHONY: run test test-loaded test-docker bench lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --quiet 'uv>=0.5'
-	$(UV) install --quiet -e .
+	$(UV) -e .
 	touch $(STAMP)
 
 $(DEV): $(STAMP)
-	$(UV) install --quiet -e '.[dev]'
+	$(UV) -e '.[dev]'
 	touch $(DEV)
 
 run: $(STAMP)
