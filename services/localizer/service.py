@@ -98,7 +98,9 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self.spawn(self._localize, "localize")
 
     def stop(self) -> None:
-        self.undeclare_all([*self._entities, getattr(self, "_publisher", None)])
+        # subscribers only: the filter thread may still publish until it is joined (the session closes the
+        # publisher; undeclaring it here raced with it: "ZError: Undeclared publisher", a traceback, exit 1)
+        self.undeclare_all(self._entities)
 
     def queue_depths(self) -> dict[str, int]:
         return {"frames": self._slot.depth()}
@@ -219,7 +221,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
             self.counters.inc(f"frames_{message.tracking_state}")
             payload, attachment = encode(message)
-            self._publisher.put(payload, attachment=attachment)
+            try:
+                self._publisher.put(payload, attachment=attachment)
+            except zenoh.ZError:
+                if self.stop_event.is_set():
+                    return  # shutting down: the session is closing under us
+                raise
             if self.trajectory_tap is not None:
                 self.trajectory_tap.write(message)
             self.counters.inc("poses_out")
