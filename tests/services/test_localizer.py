@@ -30,6 +30,7 @@ from common.sim.objects import (
 )
 from common.sim.office_run import simulate_run
 from services.localizer import LocalizerService, LocalizerSettings
+from services.localizer.filters import StepInputs
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
@@ -100,10 +101,10 @@ def test_undeclared_publisher_a_service_stopped_mid_step_exits_cleanly() -> None
         in_step, stopped = threading.Event(), threading.Event()
         step, stop = service.path.step, service.stop
 
-        def slow_step(inputs: object) -> object:  # still inside the step when the runtime calls stop()
+        def slow_step(inputs: StepInputs) -> PoseEstimate:  # inside the step when the runtime calls stop()
             in_step.set()
             stopped.wait(WAIT_S)
-            return step(inputs)  # type: ignore[arg-type]
+            return step(inputs)
 
         def stop_then_release() -> None:
             stop()
