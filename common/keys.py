@@ -21,6 +21,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from enum import StrEnum
+from functools import partial
 
 from common.errors import InputError
 
@@ -59,37 +60,16 @@ def uav_key(uav: str, topic: str) -> str:
     return f"{ROOT}/uav/{check_name(uav, 'uav')}/{topic}"
 
 
-def camera_key(uav: str) -> str:
-    return uav_key(uav, "camera")
-
-
-def imu_key(uav: str) -> str:
-    return uav_key(uav, "imu")
-
-
-def range_key(uav: str) -> str:
-    return uav_key(uav, "range")
-
-
-def yaw_key(uav: str) -> str:
-    return uav_key(uav, "yaw")
-
-
-def attitude_key(uav: str) -> str:
-    return uav_key(uav, "attitude")
-
-
-def pose_vo_key(uav: str) -> str:
-    return uav_key(uav, "pose/vo")
-
-
-def pose_pf_key(uav: str) -> str:
-    return uav_key(uav, "pose/pf")
-
-
-def truth_key(uav: str) -> str:
-    """Ground truth of a simulated flight (PoseEstimate, source ``truth``), published by the camera."""
-    return uav_key(uav, "truth")
+# the streams of one UAV (the table above): ``camera_key("uav0") == "capataz/uav/uav0/camera"``
+camera_key = partial(uav_key, topic="camera")
+imu_key = partial(uav_key, topic="imu")
+range_key = partial(uav_key, topic="range")
+yaw_key = partial(uav_key, topic="yaw")
+attitude_key = partial(uav_key, topic="attitude")
+pose_vo_key = partial(uav_key, topic="pose/vo")
+pose_pf_key = partial(uav_key, topic="pose/pf")
+#: ground truth of a simulated flight (PoseEstimate, source ``truth``), published by the camera
+truth_key = partial(uav_key, topic="truth")
 
 
 def foreman_key(node: str) -> str:
@@ -100,23 +80,20 @@ def worker_key(node: str, i: int) -> str:
     return f"{ROOT}/node/{check_name(node, 'node')}/worker/{_index(i)}"
 
 
-def alive_key(role: str | Role, node: str, i: int) -> str:
-    return f"{ROOT}/alive/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+def _member_key(kind: str, role: str | Role, node: str, i: int) -> str:
+    """``capataz/{kind}/{role}/{node}/{i}``: a service instance's liveliness token, stats or health key."""
+    return f"{ROOT}/{kind}/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
 
 
-def stats_key(role: str | Role, node: str, i: int) -> str:
-    return f"{ROOT}/stats/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
-
-
-def health_key(role: str | Role, node: str, i: int) -> str:
-    return f"{ROOT}/health/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+alive_key = partial(_member_key, "alive")
+stats_key = partial(_member_key, "stats")
+health_key = partial(_member_key, "health")
 
 
 #: everything capataz publishes (what ``capataz record`` subscribes to)
 ALL = f"{ROOT}/**"
 
 
-#: every liveliness token / every stats publication / every health queryable
 def master_candidate_key(uav: str, node: str, i: int) -> str:
     """Liveliness token of a master that can serve ``uav`` (active or standby)."""
     return f"{ROOT}/elect/{check_name(uav, 'uav')}/candidate/{check_name(node, 'node')}/{_index(i)}"
@@ -132,6 +109,7 @@ def election_all(uav: str) -> str:
     return f"{ROOT}/elect/{check_name(uav, 'uav')}/**"
 
 
+#: every liveliness token / every stats publication / every health queryable
 ALIVE_ALL = f"{ROOT}/alive/**"
 STATS_ALL = f"{ROOT}/stats/**"
 HEALTH_ALL = f"{ROOT}/health/**"

@@ -104,18 +104,23 @@ class _Last:
 
 
 @dataclass(frozen=True)
+class _Run:
+    """Frames that follow each other: their key, their sender (None: it declared none) and the newest one."""
+
+    key: FrameKey
+    source: str | None
+    last: _Last
+
+
+@dataclass(frozen=True)
 class FrameGateState:
-    """The stream as the gate knows it (``None`` fields: nothing admitted yet)."""
+    """The stream as the gate knows it."""
 
     epoch: int = -1
-    key: FrameKey | None = None
-    last: _Last | None = None
-    #: the sender that opened the epoch (None: it declared none)
-    source: str | None = None
-    #: the refused frames that agree with each other so far (a candidate epoch)
-    candidate_key: FrameKey | None = None
-    candidate_source: str | None = None
-    candidate: _Last | None = None
+    #: the current epoch's frames (None: nothing admitted yet)
+    current: _Run | None = None
+    #: the refused frames that agree with each other so far (a candidate epoch), and how many they are
+    candidate: _Run | None = None
     candidate_count: int = 0
     refused: dict[str, int] = field(default_factory=dict)
 
@@ -168,49 +173,50 @@ def admit_frame(
     if _from_the_future(stamp_s, wall_s, settings.max_future_s):
         return refuse("future_stamp", f"stamp {stamp_s - wall_s:.3f} s ahead of the wall clock")
     last = _Last(seq, stamp_s, now_s)
-    if state.last is None or state.key is None:
-        return FrameGateState(
-            epoch=state.epoch + 1, key=key, last=last, source=source, refused=state.refused
-        ), Decision(Verdict.NEW_EPOCH)
-    if source != state.source:
+    run = _Run(key, source, last)
+    current = state.current
+    if current is None:
+        return FrameGateState(epoch=state.epoch + 1, current=run, refused=state.refused), Decision(
+            Verdict.NEW_EPOCH
+        )
+    if source != current.source:
         why = "foreign_sender"
-        detail = f"frame of sender {source or 'anonymous'} in the epoch of {state.source or 'anonymous'}"
-    elif key == state.key:
-        why = _follows(state.last, seq, stamp_s, now_s, settings)
+        detail = f"frame of sender {source or 'anonymous'} in the epoch of {current.source or 'anonymous'}"
+    elif key == current.key:
+        why = _follows(current.last, seq, stamp_s, now_s, settings)
         if not why:
-            gap = seq - state.last.seq - 1
-            accepted = replace(
-                state, last=last, candidate_key=None, candidate_source=None, candidate=None, candidate_count=0
-            )
+            gap = seq - current.last.seq - 1
+            accepted = replace(state, current=replace(current, last=last), candidate=None, candidate_count=0)
             return accepted, Decision(Verdict.ACCEPT, gap=gap)
-        detail = f"seq {seq} stamp {stamp_s:.6f} after seq {state.last.seq} stamp {state.last.stamp_s:.6f}"
+        detail = (
+            f"seq {seq} stamp {stamp_s:.6f} after seq {current.last.seq} stamp {current.last.stamp_s:.6f}"
+        )
     else:
         why = (
             "wrong_size"
-            if (key.width, key.height) != (state.key.width, state.key.height)
+            if (key.width, key.height) != (current.key.width, current.key.height)
             else "wrong_encoding"
         )
-        detail = f"{key.width}x{key.height} {key.encoding} on a {state.key.width}x{state.key.height} stream"
+        detail = (
+            f"{key.width}x{key.height} {key.encoding} on a {current.key.width}x{current.key.height} stream"
+        )
     # not the current epoch: a candidate for a new one?
     agrees = (
         state.candidate is not None
-        and state.candidate_key == key
-        and state.candidate_source == source
-        and not _follows(state.candidate, seq, stamp_s, now_s, settings)
+        and state.candidate.key == key
+        and state.candidate.source == source
+        and not _follows(state.candidate.last, seq, stamp_s, now_s, settings)
     )
     count = state.candidate_count + 1 if agrees else 1
-    silent = now_s - state.last.now_s > settings.silence_s
+    silent = now_s - current.last.now_s > settings.silence_s
     restart = why in ("seq_backward", "stamp_backward", "wrong_size", "wrong_encoding", "foreign_sender")
     # another sender's frames agreeing with each other is what a flooding forger sends: only silence counts
     confirmed = count >= settings.confirm_frames and why != "foreign_sender"
     if confirmed or (silent and restart):
-        return FrameGateState(
-            epoch=state.epoch + 1, key=key, last=last, source=source, refused=state.refused
-        ), Decision(Verdict.NEW_EPOCH, why, detail)
-    candidate = replace(
-        state, candidate_key=key, candidate_source=source, candidate=last, candidate_count=count
-    )
-    return refuse(why, detail, candidate)
+        return FrameGateState(epoch=state.epoch + 1, current=run, refused=state.refused), Decision(
+            Verdict.NEW_EPOCH, why, detail
+        )
+    return refuse(why, detail, replace(state, candidate=run, candidate_count=count))
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from common.sim.office_run import (
     simulate_run,
     track_run,
 )
-from services.bench.localizer_field import run_field
+from services.bench.localizer_field import add_field_arguments, run_field
 from services.runtime import progress
 
 logger = logging.getLogger(__name__)
@@ -50,39 +50,22 @@ GOAL_YAW_RMSE_DEG = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--suite", choices=["paper", "field"], default="paper", help="which suite runs")
     parser.add_argument(
         "--frames", type=int, default=300, help="frames of the simulated flight (default 300)"
     )
     parser.add_argument("--settle", type=int, default=75, help="frames allowed for convergence (default 75)")
-    parser.add_argument("--seed", type=int, default=0, help="simulation seed")
     parser.add_argument("--repeats", type=int, default=5, help="timed repetitions per frame (default 5)")
-    parser.add_argument("--timing-frames", type=int, default=10, help="frames used for timing (default 10)")
-    parser.add_argument(
+    paper = parser.add_argument_group("paper suite", "paper B's filter with odometry (localizer.json)")
+    paper.add_argument(
         "--runs",
         type=int,
         default=3,
         help="filter runs per scoring (own seeds and initial guesses; default 3)",
     )
-    parser.add_argument(
-        "--suite",
-        choices=["paper", "field"],
-        default="paper",
-        help="paper: paper B's filter with odometry (localizer.json); field: the model tracker without "
-        "odometry on the object and office scenes (localizer_field.json; see services.bench.localizer_field)",
-    )
-    parser.add_argument("--seeds", type=int, default=5, help="field suite: runs per scene and scoring")
-    parser.add_argument(
-        "--scenes", nargs="+", choices=["object", "office"], help="field suite: scenes (default both)"
-    )
-    parser.add_argument("--particles", type=int, default=200, help="field suite: particles")
-    parser.add_argument(
-        "--no-gyro",
-        action="store_true",
-        help="field suite: the office without the UAV's gyro (images only; the object never uses one)",
-    )
-    parser.add_argument(
-        "--scorings", nargs="+", choices=[m.value for m in ScoringMethod], help="field suite: scorings (all)"
-    )
+    paper.add_argument("--seed", type=int, default=0, help="simulation seed")
+    paper.add_argument("--timing-frames", type=int, default=10, help="frames used for timing (default 10)")
+    add_field_arguments(parser)
 
 
 @contextmanager

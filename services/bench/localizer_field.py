@@ -265,6 +265,25 @@ def best_scoring(results: dict[str, dict[str, dict[str, Any]]]) -> str:
     return min(sorted(common), key=rank)
 
 
+def add_field_arguments(parser: argparse.ArgumentParser) -> None:
+    """``bench localizer``'s options of this suite (``--suite field``), a group of its own in ``--help``."""
+    group = parser.add_argument_group(
+        "field suite",
+        "the model tracker without odometry on the object and office scenes (localizer_field.json)",
+    )
+    group.add_argument("--seeds", type=int, default=5, help="runs per scene and scoring")
+    group.add_argument("--scenes", nargs="+", choices=["object", "office"], help="scenes (default both)")
+    group.add_argument("--particles", type=int, default=200, help="particles")
+    group.add_argument(
+        "--no-gyro",
+        action="store_true",
+        help="the office without the UAV's gyro (images only; the object never uses one)",
+    )
+    group.add_argument(
+        "--scorings", nargs="+", choices=[m.value for m in ScoringMethod], help="scorings (all)"
+    )
+
+
 def run_field(args: argparse.Namespace) -> dict[str, Any]:
     methods = [ScoringMethod(m) for m in args.scorings] if args.scorings else list(ScoringMethod)
     gyro = not getattr(args, "no_gyro", False)

@@ -29,7 +29,7 @@ from common.sim.flight import hover_flight
 from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
 from common.yaw.correlation import forward_transform, inverse_transform, windowed_patches
 from common.yaw.reference import reference_pair, reference_settings
-from services.bench.yaw_field import run_field
+from services.bench.yaw_field import add_field_arguments, run_field
 
 logger = logging.getLogger(__name__)
 
@@ -42,21 +42,15 @@ U8Frames = list[npt.NDArray[np.uint8]]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frames", type=int, default=2041, help="hover frames (default: all 2041)")
+    parser.add_argument("--suite", choices=["hover", "field"], default="hover", help="which suite runs")
     parser.add_argument("--seed", type=int, default=0, help="hover flight seed")
-    parser.add_argument("--quick", action="store_true", help="only the baseline on the core's grid")
-    parser.add_argument(
+    hover = parser.add_argument_group("hover suite", "the paper's flight (out/bench/yaw.json)")
+    hover.add_argument("--frames", type=int, default=2041, help="hover frames (default: all 2041)")
+    hover.add_argument("--quick", action="store_true", help="only the baseline on the core's grid")
+    hover.add_argument(
         "--drop-step", type=int, default=4, help="also run on every N-th frame (dropped frames); 0 = skip"
     )
-    parser.add_argument(
-        "--suite",
-        choices=["hover", "field"],
-        default="hover",
-        help="hover: the paper's flight (out/bench/yaw.json); field: every field scenario and the hover, "
-        "core (calibration + gyro prior) vs the paper's method (out/bench/yaw_field.json)",
-    )
-    parser.add_argument("--field-frames", type=int, default=600, help="frames per field scenario (>= 102)")
-    parser.add_argument("--hover-frames", type=int, default=2041, help="hover frames of the field suite")
+    add_field_arguments(parser)
 
 
 def _median_us(func: Callable[[], object], repeats: int = 300) -> float:

@@ -111,6 +111,17 @@ def run_flight(flight: Flight, settings: YawSettings) -> tuple[dict[str, Any], d
     return pair_stats(core_series, flight.yaw_rad), pair_stats(base_series, flight.yaw_rad)
 
 
+def add_field_arguments(parser: argparse.ArgumentParser) -> None:
+    """``bench yaw``'s options of this suite (``--suite field``), a group of its own in ``--help``."""
+    group = parser.add_argument_group(
+        "field suite",
+        "every field scenario and the hover, core (calibration + gyro prior) vs the paper's method "
+        "(out/bench/yaw_field.json)",
+    )
+    group.add_argument("--field-frames", type=int, default=600, help="frames per field scenario (>= 102)")
+    group.add_argument("--hover-frames", type=int, default=2041, help="hover frames of the field suite")
+
+
 def run_field(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
     settings = YawSettings()

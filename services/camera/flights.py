@@ -4,9 +4,7 @@ turns, the field scenarios of :mod:`common.sim.field`) and the localizer's offic
 from __future__ import annotations
 
 from collections.abc import Iterator
-from enum import StrEnum
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 
@@ -20,46 +18,10 @@ from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.office_run import OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from services.camera.settings import CameraSettings, FlightName
 
 
-class FlightName(StrEnum):
-    """The simulated flights the camera can replay."""
-
-    #: paper A's hover over the ground (752x480)
-    HOVER = "hover"
-    #: paper C's turns over the ground
-    TURNS = "turns"
-    #: the localizer's default flight through the built-in office (320x240, forward camera)
-    OFFICE = "office"
-    #: field scenarios (``common.sim.field.FIELD_SCENARIOS``, 320x240 over the ground): one effect each
-    CHECKERBOARD = "checkerboard"
-    TILES = "tiles"
-    WIDE_ANGLE = "wide_angle"
-    LOW_ALTITUDE = "low_altitude"
-    BLUR_EXPOSURE = "blur_exposure"
-    FAST_YAW = "fast_yaw"
-    #: all field effects together
-    FIELD = "field"
-
-
-class FlightSettings(Protocol):
-    """What a flight needs from the camera's settings."""
-
-    @property
-    def flight(self) -> FlightName: ...
-    @property
-    def frames(self) -> int: ...
-    @property
-    def seed(self) -> int: ...
-    @property
-    def width(self) -> int | None: ...
-    @property
-    def height(self) -> int | None: ...
-    @property
-    def images(self) -> Path | None: ...
-
-
-def simulated_flight(settings: FlightSettings) -> Flight:
+def simulated_flight(settings: CameraSettings) -> Flight:
     """The ground flight the camera replays (the in-process reference builds the same one)."""
     camera = (
         None
@@ -75,7 +37,7 @@ def simulated_flight(settings: FlightSettings) -> Flight:
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
 
 
-def office_frames(settings: FlightSettings) -> Iterator[tuple[int, float, np.ndarray]]:
+def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
     """The localizer's default flight through the built-in office: the same frames as
     ``common.sim.office_run.simulate_run(settings.frames, settings.seed)``."""
     camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
@@ -86,7 +48,7 @@ def office_frames(settings: FlightSettings) -> Iterator[tuple[int, float, np.nda
         yield i, float(flight.times_s[i]), image
 
 
-def office_odometry_poses(settings: FlightSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def office_odometry_poses(settings: CameraSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stamps (T,), positions (T, 3) and Euler angles (T, 3) whose frame-to-frame differences are the office
     flight's noisy odometry (the localizer's in-process stand-in for VO), starting at the true first pose."""
     flight = default_flight(n_frames=settings.frames)
@@ -100,7 +62,7 @@ def office_odometry_poses(settings: FlightSettings) -> tuple[np.ndarray, np.ndar
     return flight.times_s, positions, angles
 
 
-def write_flight_calibration(path: Path, settings: FlightSettings) -> int:
+def write_flight_calibration(path: Path, settings: CameraSettings) -> int:
     """``--write-calibration``: the simulated ground flight's camera as OpenCV YAML (for ``master
     --calibration``); exit code 0."""
     if settings.images is not None or settings.flight is FlightName.OFFICE:

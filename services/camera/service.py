@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
 from common.codec import encode
@@ -31,7 +30,6 @@ from common.geometry import quaternion_from_euler
 from common.messages import Frame, PoseEstimate, YawEstimate
 from common.sim.flight import Flight
 from services.camera.flights import (
-    FlightName,
     office_frames,
     office_odometry_poses,
     simulated_flight,
@@ -40,6 +38,7 @@ from services.camera.flights import (
 )
 from services.camera.images import image_files
 from services.camera.replay import LoopedStamps, replay_recording
+from services.camera.settings import CameraSettings, FlightName
 from services.camera.sources import (
     add_source_arguments,
     open_camera_source,
@@ -50,45 +49,6 @@ from services.estimator.sim_publisher import message_of
 from services.runtime.cli import add_enum_argument, add_transport_arguments, parse_size
 from services.runtime.fields import settings_from
 from services.runtime.service import ConfiguredService
-
-
-class CameraSettings(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    uavs: tuple[str, ...] = ("uav0",)
-    flight: FlightName = FlightName.HOVER
-    frames: int = Field(default=2041, ge=2)
-    seed: int = 0
-    fps: float = Field(default=20.0, ge=0.0)
-    loop: bool = False
-    #: a recorded input instead of a simulation (at most one; see services/camera/sources.py)
-    images: Path | None = None
-    #: per-frame stamps of ``images``: ``index,stamp`` CSV or EuRoC's ``data.csv``
-    stamps: Path | None = None
-    start: int = Field(default=0, ge=0)
-    stop: int | None = Field(default=None, ge=0)
-    step: int = Field(default=1, ge=1)
-    calibration: Path | None = None
-    bag: Path | None = None
-    image_topic: str | None = None
-    imu_topic: str | None = None
-    range_topic: str | None = None
-    camera_info_topic: str | None = None
-    euroc: Path | None = None
-    mcap: Path | None = None
-    #: a recording's replay speed (1 = recorded rate; 0 = as fast as consumed; ``fps = 0`` also unpaces)
-    rate: float = Field(default=1.0, ge=0.0)
-    #: image size; None = the flight's own camera (752x480 over the ground, 320x240 in the office)
-    width: int | None = None
-    height: int | None = None
-    sensors: bool = True
-    in_flight: int = Field(default=0, ge=0)
-    #: read every image of ``images`` before publishing
-    preload: bool = False
-    #: wait this long for a master before the first frame (0 = do not wait)
-    wait_master_s: float = Field(default=10.0, ge=0.0)
-    #: give up waiting for a yaw after this long (flow control only)
-    yaw_timeout_s: float = Field(default=5.0, gt=0.0)
 
 
 class CameraService(ConfiguredService[CameraSettings]):

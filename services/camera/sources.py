@@ -11,7 +11,6 @@ import argparse
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -24,6 +23,7 @@ from common.datasets.tum import Trajectory
 from common.errors import InputError
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.sim.flight import Flight
+from services.camera.settings import CameraSettings
 
 #: what a skipped sample is reported to: (kind, why)
 OnSkip = Callable[[str, str], None]
@@ -129,8 +129,8 @@ def open_source(
     return None
 
 
-def open_camera_source(settings: Any) -> RecordedSource | None:
-    """:func:`open_source` of a camera's settings (``CameraSettings``)."""
+def open_camera_source(settings: CameraSettings) -> RecordedSource | None:
+    """:func:`open_source` of a camera's settings."""
     topics = {
         name: getattr(settings, name)
         for name in ("image_topic", "imu_topic", "range_topic", "camera_info_topic")

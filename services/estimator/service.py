@@ -34,7 +34,6 @@ from typing import Any, TypeVar
 import zenoh
 
 from common import keys
-from common.codec import encode
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
@@ -107,7 +106,6 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         #: (monotonic time, spacing) of the recent frames taken after skipped ones
         self._skips: deque[tuple[float, int]] = deque(maxlen=1024)
         self._newest_in_s = -math.inf
-        self._entities: list[Any] = []
         self._mirrored: dict[str, int] = {}
         self._attitude_seq = 0
         self._pose_seq = 0
@@ -131,13 +129,8 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
             wanted.append((keys.yaw_key(uav), self._on_yaw))
         for key, on_sample in wanted:
             handler = zenoh.handlers.Callback(on_sample, indirect=False)
-            self._entities.append(session.declare_subscriber(key, handler))
+            self.subscriptions.append(session.declare_subscriber(key, handler))
         self.spawn(self._estimate, "estimate")
-
-    def stop(self) -> None:
-        # subscribers only: the estimate thread may still publish until it is joined (the session closes the
-        # publishers; undeclaring them here raced with it: "ZError: Undeclared publisher", exit 1)
-        self.undeclare_all(self._entities)
 
     def healthy(self) -> tuple[bool, str]:
         refused = self.stamps.recent_refusals()
@@ -341,13 +334,8 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
                 msg = pose_message(self.settings.uav, self._pose_seq, out, var_xy)
                 self._pose_seq += 1
                 publisher = self._pose_pub
-            payload, attachment = encode(msg)
-            try:
-                publisher.put(payload, attachment=attachment)
-            except zenoh.ZError:
-                if self.stop_event.is_set():
-                    return  # shutting down: the session is closing under us
-                raise
+            if not self.publish(publisher, msg):
+                return  # shutting down: the session is closing under us
             if self.trajectory_tap is not None:
                 self.trajectory_tap.write(msg)
             self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")

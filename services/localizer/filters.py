@@ -5,7 +5,9 @@
   VO velocity and Euler-angle rates. ``pose/pf`` carries the cloud's mean and covariance; its
   ``tracking_state`` is ``tracking`` while the best particle fits (``best_fit >= collapse_fit``),
   ``searching`` during a run of poorly fitting frames, ``lost`` on the frame the filter re-initialised after
-  the likelihood collapsed (the pose is then the centre of the fresh, wide cloud).
+  the likelihood collapsed (the pose is then the centre of the fresh, wide cloud). With VO poses in the
+  model's frame, an estimate outside the start box around the VO pose reads ``searching``, and after
+  :data:`VO_DISAGREE_FRAMES` such frames the cloud starts again around the VO pose (``lost`` on that frame).
 - :class:`ModelTrackerPath`: the model tracker (:mod:`common.localization.tracker`), which needs no odometry
   and uses the VO velocity and world-frame angular rate when given, else the gyro's mean rate over the frame
   interval when given (:func:`mean_gyro_camera`); ``tracking_state`` is its own status.
@@ -15,7 +17,8 @@ The cores stay state in, state out; these wrappers only hold the current state a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -39,6 +42,8 @@ from common.localization.tracker_state import TrackerState, TrackingStatus
 from common.localization.tracking import localizer_step
 from common.messages import Frame, PoseEstimate
 from services.localizer.settings import FilterKind, LocalizerSettings
+
+logger = logging.getLogger(__name__)
 
 #: two successive VO poses (previous, current) or None when there are not yet two
 VoPair = tuple[PoseEstimate, PoseEstimate] | None
@@ -164,8 +169,20 @@ def particle_pose_message(
     )
 
 
+#: frames in a row the particle cloud may sit farther from the VO pose than its start box spreads before it
+#: starts again around the VO pose (with VO poses in the model's frame: ``anchor_on_vo``); 0.5 s at 20 fps
+VO_DISAGREE_FRAMES = 10
+
+
 class ParticleFilterPath:
-    """Paper B's particle filter, predicted with the VO odometry (as the service did before the tracker)."""
+    """Paper B's particle filter, predicted with the VO odometry (as the service did before the tracker).
+
+    With VO poses in the model's frame (``anchor_on_vo``) they also check the filter: a cloud that settled
+    on a wrong pose with a good fit (a window bar, a repeated edge) never collapses, and reported
+    ``tracking`` metres away (docker pose/pf: 106 cm). While the estimate lies farther from the VO pose than
+    the start box (``init_position_spread_m``), the path reports ``searching``; after
+    :data:`VO_DISAGREE_FRAMES` frames it starts the cloud again around the VO pose (``lost`` on that
+    frame)."""
 
     kind = FilterKind.PARTICLE
 
@@ -177,6 +194,10 @@ class ParticleFilterPath:
         self.rng = np.random.default_rng(settings.seed)
         guess = settings.start_pose().body_state(settings.R_body_camera)
         self.state: ParticleState = self.filter.initialize(guess, self.rng)
+        #: frames in a row the estimate lay outside the start box around the VO pose
+        self.vo_disagreement_frames = 0
+        #: times the cloud was started again around the VO pose
+        self.vo_restarts = 0
 
     def step(self, inputs: StepInputs) -> PoseEstimate:
         """(The gyro is not used: paper B's motion model takes the VO's Euler-angle rates.) An ``anchor``
@@ -184,14 +205,40 @@ class ParticleFilterPath:
         frame, dt_s = inputs.frame, inputs.dt_s
         if inputs.anchor is not None:
             self.state = self.filter.initialize(body_state_of(inputs.anchor), self.rng)
+            self.vo_disagreement_frames = 0
             dt_s = 0.0
         odometry = None if inputs.vo is None else euler_odometry_between(*inputs.vo)
         velocity, rates = (None, None) if odometry is None else odometry
         self.state, estimate = localizer_step(
             self.filter, self.state, frame.pixels, dt_s, self.rng, velocity, rates
         )
+        if self.settings.anchor_on_vo and inputs.vo is not None:
+            estimate = self._check_against_vo(estimate, inputs.vo[1])
         status = particle_tracking_state(self.state, self.filter.config.collapse_fit)
+        if self.vo_disagreement_frames and status is TrackingStatus.TRACKING:
+            status = TrackingStatus.SEARCHING
         return particle_pose_message(self.settings.uav, frame.seq, frame.stamp_s, estimate, status)
+
+    def _check_against_vo(self, estimate: PoseStatistics, vo: PoseEstimate) -> PoseStatistics:
+        """Count the frames the estimate lies outside the start box around the VO pose; after
+        :data:`VO_DISAGREE_FRAMES` start the cloud again there (and return the new cloud's estimate)."""
+        gap_m = float(np.linalg.norm(estimate.mean[:3] - vo.p_world_body_m))
+        if gap_m <= self.filter.config.init_position_spread_m:
+            self.vo_disagreement_frames = 0
+            return estimate
+        self.vo_disagreement_frames += 1
+        if self.vo_disagreement_frames < VO_DISAGREE_FRAMES:
+            return estimate
+        logger.warning(
+            "the particle filter sat %.2f m from the VO pose for %d frames: starting again around it",
+            gap_m,
+            self.vo_disagreement_frames,
+        )
+        self.vo_restarts += 1
+        self.vo_disagreement_frames = 0
+        fresh = self.filter.initialize(body_state_of(vo), self.rng)
+        self.state = replace(fresh, reinitialisations=self.state.reinitialisations + 1)
+        return self.filter.estimate(self.state)
 
 
 class ModelTrackerPath:

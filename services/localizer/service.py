@@ -29,7 +29,6 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.codec import encode
 from common.messages import Frame, ImuSample, PoseEstimate
 from services.localizer.filters import (
     LocalizationPath,
@@ -71,7 +70,6 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         #: gyro readings (stamp, body rate), bounded: seconds of a 400 Hz IMU
         self._imu_lock = threading.Lock()
         self._imu: deque[tuple[float, np.ndarray]] = deque(maxlen=IMU_BUFFER)
-        self._entities: list[Any] = []
         #: future stamps refused before they can become the "previous" stamp (one would freeze the filter)
         self.stamps = InputStamps()
 
@@ -90,15 +88,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
     def start(self, session: zenoh.Session) -> None:
         uav = self.settings.uav
         self._publisher = session.declare_publisher(keys.pose_pf_key(uav))
-        self._entities.append(session.declare_subscriber(keys.camera_key(uav), self._on_frame))
+        self.subscriptions.append(session.declare_subscriber(keys.camera_key(uav), self._on_frame))
         if self.settings.use_vo:
-            self._entities.append(session.declare_subscriber(keys.pose_vo_key(uav), self._on_vo))
+            self.subscriptions.append(session.declare_subscriber(keys.pose_vo_key(uav), self._on_vo))
         if self.settings.use_imu:
-            self._entities.append(session.declare_subscriber(keys.imu_key(uav), self._on_imu))
+            self.subscriptions.append(session.declare_subscriber(keys.imu_key(uav), self._on_imu))
         self.spawn(self._localize, "localize")
-
-    def stop(self) -> None:
-        self.undeclare_all([*self._entities, getattr(self, "_publisher", None)])
 
     def queue_depths(self) -> dict[str, int]:
         return {"frames": self._slot.depth()}
@@ -218,8 +213,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             message = self.path.step(StepInputs(frame, dt, vo, gyro, anchor))
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
             self.counters.inc(f"frames_{message.tracking_state}")
-            payload, attachment = encode(message)
-            self._publisher.put(payload, attachment=attachment)
+            if not self.publish(self._publisher, message):
+                return  # shutting down: the session is closing under us
             if self.trajectory_tap is not None:
                 self.trajectory_tap.write(message)
             self.counters.inc("poses_out")

@@ -24,7 +24,6 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.codec import encode
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
 from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
@@ -222,11 +221,11 @@ class MasterService(ConfiguredService[MasterSettings]):
             return
         if estimate is None:
             return
-        payload, attachment = encode(estimate)
         # the declared source: standbys keep only yaw of sessions that led (services.master.published)
-        self._publisher.put(
-            payload, attachment=attachment, source_info=zenoh.SourceInfo(self._publisher.id, estimate.seq)
-        )
+        if not self.publish(
+            self._publisher, estimate, source_info=zenoh.SourceInfo(self._publisher.id, estimate.seq)
+        ):
+            return  # shutting down: the session is closing under us
         if self.trajectory_tap is not None:
             self.trajectory_tap.write(estimate)
         self.counters.inc("yaw_out")

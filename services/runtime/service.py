@@ -65,6 +65,10 @@ class ServiceRuntime:
         self._t0 = time.monotonic()
         self._threads: list[threading.Thread] = []
         self._log_lock = threading.Lock()
+        #: subscribers (and queryables) the default :meth:`stop` undeclares before the threads are joined.
+        #: Publishers stay declared until the session closes: a thread may still be publishing (undeclaring
+        #: them in stop() raced with it: "ZError: Undeclared publisher", a traceback and exit 1)
+        self.subscriptions: list[Any] = []
 
     # -- identity -------------------------------------------------------------------------------------
     @property
@@ -76,7 +80,9 @@ class ServiceRuntime:
         """Declare subscribers/queryables and start threads."""
 
     def stop(self) -> None:
-        """Release resources after :attr:`stop_event` is set (threads are joined by the runtime)."""
+        """Release resources after :attr:`stop_event` is set (threads are joined by the runtime); by
+        default, undeclare :attr:`subscriptions`."""
+        self.undeclare_all(self.subscriptions)
 
     def shares(self) -> dict[str, float]:
         return {}
@@ -97,6 +103,19 @@ class ServiceRuntime:
                 entity.undeclare()
             except Exception as exc:
                 self.count_error("undeclare_failures", "undeclare", exc)
+
+    def publish(self, publisher: Any, message: WireModel, **options: Any) -> bool:
+        """Encode and put ``message`` (``options``: zenoh's ``put`` keywords); False when the put failed
+        because the service is stopping (the session closes under a thread still publishing). Other failures
+        raise."""
+        payload, attachment = encode(message)
+        try:
+            publisher.put(payload, attachment=attachment, **options)
+        except zenoh.ZError:
+            if self.stop_event.is_set():
+                return False
+            raise
+        return True
 
     def spawn(self, target: Callable[[], None], name: str) -> threading.Thread:
         thread = threading.Thread(target=self._guard(target), name=f"{self.name}:{name}", daemon=True)

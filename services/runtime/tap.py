@@ -9,7 +9,6 @@ the sample's Zenoh timestamp when it carries one, else None.
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import zenoh
 
@@ -30,7 +29,6 @@ class KeyTap(ServiceRuntime):
     ) -> None:
         super().__init__(node, index, transport, stats_period_s)
         self._queue: WorkQueue[_Item] = WorkQueue(queue)
-        self._tap_entities: list[Any] = []
 
     def tap_keys(self) -> tuple[str, ...]:
         raise NotImplementedError
@@ -44,11 +42,8 @@ class KeyTap(ServiceRuntime):
 
     def start(self, session: zenoh.Session) -> None:
         for key_expr in self.tap_keys():
-            self._tap_entities.append(session.declare_subscriber(key_expr, self._on_sample))
+            self.subscriptions.append(session.declare_subscriber(key_expr, self._on_sample))
         self.spawn(self._handle_loop, "handle")
-
-    def stop(self) -> None:
-        self.undeclare_all(self._tap_entities)
 
     def queue_depths(self) -> dict[str, int]:
         return {"tap": self._queue.depth()}

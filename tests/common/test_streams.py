@@ -39,7 +39,7 @@ def test_the_first_frame_starts_epoch_zero_and_a_steady_stream_is_accepted() -> 
     state, decision = admit_frame(FrameGateState(), GATE, "uav0", "uav0", 7, 0.0, KEY, 0.0, WALL)
     assert decision.verdict is Verdict.NEW_EPOCH and state.epoch == 0
     state = run_stream(state, range(8, 50), seq0=7)
-    assert state.epoch == 0 and state.last is not None and state.last.seq == 49
+    assert state.epoch == 0 and state.current is not None and state.current.last.seq == 49
 
 
 def test_seq_2_pow_53_is_refused_counted_and_never_adopted() -> None:
@@ -156,6 +156,12 @@ CAMERA = "c0f38f87c807831a60afb7eff97c3938/6"
 OTHER = "9d0c3e5a5b1f4e0f8a1b2c3d4e5f6a7b/6"
 
 
+def sender_of(state: FrameGateState) -> str | None:
+    """The sender of the current epoch."""
+    assert state.current is not None
+    return state.current.source
+
+
 def run_sender(state: FrameGateState, seqs: range, source: str | None, t0: float = 0.0) -> FrameGateState:
     for k in seqs:
         t = t0 + k / FPS
@@ -170,13 +176,13 @@ def test_a_second_sender_within_an_epoch_is_refused_and_counted(at: int, n: int,
     """Frames of another sender that look exactly like the camera's next ones (same seq, stamp, size, UAV)
     are refused and counted, one at a time between the camera's, and never move the epoch."""
     state = run_sender(FrameGateState(), range(0, at), CAMERA)
-    assert state.source == CAMERA
+    assert sender_of(state) == CAMERA
     for k in range(at, at + n):
         t = k / FPS
         state, decision = admit_frame(state, GATE, "uav0", "uav0", k, t, KEY, t, WALL, other)
         assert decision.verdict is Verdict.REFUSE and decision.reason == "foreign_sender"
         state = run_sender(state, range(k, k + 1), CAMERA)
-    assert state.epoch == 0 and state.source == CAMERA and state.refused == {"foreign_sender": n}
+    assert state.epoch == 0 and sender_of(state) == CAMERA and state.refused == {"foreign_sender": n}
 
 
 def test_a_camera_restarted_in_a_new_session_is_a_new_epoch_once_the_old_one_is_silent() -> None:
@@ -195,7 +201,7 @@ def test_a_camera_restarted_in_a_new_session_is_a_new_epoch_once_the_old_one_is_
         k += 1
     assert verdicts[-1] is Verdict.NEW_EPOCH and set(verdicts[:-1]) == {Verdict.REFUSE}
     assert t - last_s > GATE.silence_s and t - last_s <= GATE.silence_s + 1 / FPS + 0.05
-    assert state.epoch == 1 and state.source == OTHER and state.refused == {"foreign_sender": k}
+    assert state.epoch == 1 and sender_of(state) == OTHER and state.refused == {"foreign_sender": k}
     # the old session's frames are now another sender's
     state, decision = admit_frame(state, GATE, "uav0", "uav0", 100, t, KEY, t, WALL, CAMERA)
     assert decision.reason == "foreign_sender"

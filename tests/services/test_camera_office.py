@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from common.sim.office_run import simulate_run
-from services.camera.service import CameraSettings, camera_settings_from_args, office_frames
+from services.camera.flights import office_frames
+from services.camera.service import camera_settings_from_args
+from services.camera.settings import CameraSettings
 from services.cli import build_parser
 
 

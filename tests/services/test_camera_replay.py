@@ -10,7 +10,7 @@ import numpy as np
 
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from services.camera.replay import replay_recording
-from services.camera.service import CameraSettings
+from services.camera.settings import CameraSettings
 from services.camera.sources import RecordedSource
 from services.runtime.handoff import Counters
 

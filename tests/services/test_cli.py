@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from services.cli import build_parser, main, subcommands
+from services.cli import COMMAND_MODULES, build_parser, command_name, main, requested_module, subcommands
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -130,6 +130,50 @@ def test_every_sub_command_has_a_description_an_example_and_shows_its_defaults()
                 ), f"capataz {name} {action.option_strings[0]}: default not shown"
 
 
+def test_each_command_module_registers_the_command_named_after_it() -> None:
+    whole = {name for name, _sub, _summary, parent in subcommands(build_parser()) if " " not in name}
+    assert whole == {command_name(m) for m in COMMAND_MODULES}
+    for module in COMMAND_MODULES:
+        top = {name for name, *_ in subcommands(build_parser((module,))) if " " not in name}
+        assert top == {command_name(module)}
+
+
+@pytest.mark.parametrize(
+    ("argv", "module"),
+    [
+        (["worker", "--node", "h1"], "services.worker"),
+        (["-v", "bench", "yaw"], "services.bench"),
+        (["-q", "-v", "up"], "services.up"),
+        ([], None),
+        (["--help"], None),
+        (["--version"], None),
+        (["-v", "--help", "worker"], None),
+        (["wrkr"], None),
+        (["--node", "worker"], None),
+    ],
+)
+def test_a_command_line_needs_only_its_own_command_module(argv: list[str], module: str | None) -> None:
+    assert requested_module(argv) == module
+
+
+def test_a_service_process_imports_no_other_command() -> None:
+    """``capataz worker`` parses its command line without importing the bench, localizer or estimator code
+    (each cluster process used to pay about 1.5 s of CPU for them at start-up)."""
+    probe = (
+        "import sys; from services import cli; from services.cli import build_parser, requested_module\n"
+        "argv = ['worker', '--node', 'h1', '--index', '1']\n"
+        "args = build_parser((requested_module(argv),)).parse_args(argv)\n"
+        "assert args.handler is not None\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('services.bench', 'services.localizer',"
+        " 'services.estimator', 'common.localization', 'numba'))))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
 @pytest.mark.parametrize(
     "argv",
     [
@@ -142,6 +186,12 @@ def test_every_sub_command_has_a_description_an_example_and_shows_its_defaults()
 )
 def test_global_options_are_accepted_before_and_after_the_sub_command(argv: list[str]) -> None:
     args = build_parser().parse_args(argv)
+    alone = build_parser((str(requested_module(argv)),)).parse_args(argv)  # what `capataz ...` parses with
+
+    def values(namespace: argparse.Namespace) -> dict[str, object]:
+        return {k: v for k, v in vars(namespace).items() if k not in ("_parser", "handler")}
+
+    assert values(alone) == values(args)
     if "-v" in argv:
         assert args.verbose is True
     if "--quiet" in argv:

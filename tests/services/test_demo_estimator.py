@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from common.estimation.replay import evaluate
+from common.estimation.replay import CONFIGURATIONS, evaluate
 from services.bench.estimator import compare_on_flight_b
-from services.demo_estimator import plot, run_configurations, summarize
+from services.demo_estimator import GROUPS, plot, run_configurations, summarize
 
 
 def test_plot_and_summary_of_a_short_run(tmp_path: Path) -> None:
@@ -47,3 +47,8 @@ def test_configurations_in_parallel_processes_equal_one_process() -> None:
             np.testing.assert_allclose(
                 getattr(other, field), getattr(run, field), rtol=0.0, atol=1e-6, err_msg=f"{name}.{field}"
             )
+
+
+def test_the_process_groups_hold_every_configuration_once() -> None:
+    names = [name for group in GROUPS for name in group]
+    assert sorted(names) == sorted(CONFIGURATIONS)

@@ -30,6 +30,7 @@ from common.sim.objects import (
 )
 from common.sim.office_run import simulate_run
 from services.localizer import LocalizerService, LocalizerSettings
+from services.localizer.filters import StepInputs
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
@@ -84,6 +85,43 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
     assert counts.get("refused_camera_future_stamp") == 1
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
+
+
+def test_undeclared_publisher_a_service_stopped_mid_step_exits_cleanly() -> None:
+    """Regression: SIGTERM while the filter thread was inside a step undeclared the publisher under it; its
+    ``put`` raised "ZError: Undeclared publisher": a traceback, a thread crash and exit code 1."""
+    sim = simulate_run(n_frames=2, seed=2)
+    settings = LocalizerSettings(
+        particles=20,
+        seed=SEED,
+        initial_state=tuple(float(v) for v in sim.guess),  # type: ignore[arg-type]
+    )
+    with hub() as endpoint:
+        service = LocalizerService("test", 0, peer(endpoint), settings, stats_period_s=0.2)
+        in_step, stopped = threading.Event(), threading.Event()
+        step, stop = service.path.step, service.stop
+
+        def slow_step(inputs: StepInputs) -> PoseEstimate:  # inside the step when the runtime calls stop()
+            in_step.set()
+            stopped.wait(WAIT_S)
+            return step(inputs)
+
+        def stop_then_release() -> None:
+            stop()
+            stopped.set()
+
+        service.path.step = slow_step  # type: ignore[method-assign]
+        service.stop = stop_then_release  # type: ignore[method-assign]
+        codes: list[int] = []
+        runner = threading.Thread(target=lambda: codes.append(service.run()), daemon=True)
+        runner.start()
+        assert service.started.wait(WAIT_S), "service did not start"
+        service._slot.put(_frame(0, float(sim.flight.times_s[0]), sim.images[0]))
+        assert in_step.wait(WAIT_S), "the filter thread never took the frame"
+        service.request_stop()
+        runner.join(WAIT_S)
+    assert codes == [0]
+    assert service.counters.get("thread_crashes") == 0
 
 
 def _run_the_service(

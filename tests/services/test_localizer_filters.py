@@ -13,9 +13,10 @@ from common.geometry import quaternion_from_euler
 from common.localization.particle_filter import ParticleState
 from common.localization.tracker_state import TrackingStatus
 from common.messages import Frame, PoseEstimate
-from common.sim.office_run import simulate_run
+from common.sim.office_run import SimulatedRun, simulate_run
 from services.localizer import FilterKind, LocalizerSettings
 from services.localizer.filters import (
+    VO_DISAGREE_FRAMES,
     ModelTrackerPath,
     ParticleFilterPath,
     StepInputs,
@@ -79,6 +80,16 @@ def _vo(stamp_s: float, state: np.ndarray) -> PoseEstimate:
     )
 
 
+def _office_inputs(sim: SimulatedRun, i: int, first: int, anchor: bool = False) -> StepInputs:
+    """Frame ``i`` of a simulated office run with the true poses of frames i-2, i-1 as VO (and, with
+    ``anchor``, the latest VO pose as the anchor on the ``first`` frame)."""
+    truth, times_s = sim.flight.states, sim.flight.times_s
+    frame = Frame(uav="uav0", seq=i, stamp_s=float(times_s[i]), width=320, height=240, pixels=sim.images[i])
+    vo = (_vo(times_s[i - 2], truth[i - 2]), _vo(times_s[i - 1], truth[i - 1]))
+    dt = 0.0 if i == first else float(times_s[i] - times_s[i - 1])
+    return StepInputs(frame, dt, vo, anchor=vo[1] if anchor and i == first else None)
+
+
 def test_use_vo_office_flight_does_not_snap_onto_window_bars() -> None:
     """Regression (the tracker snapping onto window bars with --use-vo): the estimator the service runs with
     ``--use-vo`` is paper B's filter predicted by the VO poses; from its start box (+-0.5 m) it settles onto
@@ -132,17 +143,12 @@ def test_late_joining_particle_path_starts_around_the_vo_pose_not_the_flight_sta
     pose it is handed as ``anchor`` (the service's first VO pose)."""
     n_frames, join = 60, 28
     sim = simulate_run(n_frames=n_frames, seed=2)
-    truth, times_s = sim.flight.states, sim.flight.times_s
+    truth = sim.flight.states
     assert np.linalg.norm(truth[join, :3] - truth[0, :3]) > 0.9  # the start guess is far off
     path = make_path(LocalizerSettings(use_vo=True, seed=3))
     messages = []
     for i in range(join, n_frames):
-        image = sim.images[i]
-        frame = Frame(uav="uav0", seq=i, stamp_s=float(times_s[i]), width=320, height=240, pixels=image)
-        vo = (_vo(times_s[i - 2], truth[i - 2]), _vo(times_s[i - 1], truth[i - 1]))
-        anchor = vo[1] if i == join else None
-        dt = 0.0 if i == join else float(times_s[i] - times_s[i - 1])
-        messages.append(path.step(StepInputs(frame, dt, vo, anchor=anchor)))
+        messages.append(path.step(_office_inputs(sim, i, join, anchor=True)))
     # measured: 8.7-11 cm over the last 5 of 32 frames, still closing in (started at the flight's first
     # pose instead: 1.38-1.51 m and growing)
     errors_m = [np.linalg.norm(m.p_world_body_m - truth[m.seq, :3]) for m in messages[-5:]]
@@ -175,3 +181,39 @@ def test_service_anchors_once_per_vo_epoch_and_a_vo_jump_begins_a_new_one() -> N
     )
     fixed._accept_vo(_vo(1.0, state))
     assert fixed._take_anchor() is None
+
+
+def test_a_particle_path_settled_far_from_the_vo_pose_starts_again_around_it() -> None:
+    """Regression (docker pose/pf 106 cm off on a loaded host, reported ``tracking``): a cloud that settled on
+    a wrong pose with a good fit never collapses, so it never started again. With VO poses in the model's
+    frame (``anchor_on_vo``) the path now reads ``searching`` while the estimate lies outside the start box
+    around the VO pose, and starts again around it after VO_DISAGREE_FRAMES frames. Here the cloud starts at
+    the flight's first pose, over 0.9 m from where the frames are taken (measured before: 0.93-1.51 m off,
+    ``tracking`` on every frame)."""
+    n_frames, join = 80, 28
+    sim = simulate_run(n_frames=n_frames, seed=2)
+    truth = sim.flight.states
+    assert np.linalg.norm(truth[join, :3] - truth[0, :3]) > 0.9
+    path = make_path(LocalizerSettings(use_vo=True, seed=3))
+    assert isinstance(path, ParticleFilterPath)
+    messages = []
+    for i in range(join, n_frames):
+        messages.append(path.step(_office_inputs(sim, i, join)))
+    states = [m.tracking_state for m in messages]
+    errors_m = [float(np.linalg.norm(m.p_world_body_m - truth[m.seq, :3])) for m in messages]
+    assert path.vo_restarts == 1
+    restart = states.index("lost")
+    assert restart == VO_DISAGREE_FRAMES - 1  # every frame before it was outside the box
+    assert all(s == "searching" for s in states[:restart])  # never "tracking" while far off
+    assert max(errors_m[-5:]) < 0.15, errors_m[-5:]
+
+
+def test_a_particle_path_that_agrees_with_the_vo_is_left_alone() -> None:
+    """The VO check must not disturb a filter that tracks: started at the VO pose, no restart."""
+    n_frames, join = 40, 28
+    sim = simulate_run(n_frames=n_frames, seed=2)
+    path = make_path(LocalizerSettings(use_vo=True, seed=3))
+    assert isinstance(path, ParticleFilterPath)
+    for i in range(join, n_frames):
+        path.step(_office_inputs(sim, i, join, anchor=True))
+    assert path.vo_restarts == 0 and path.vo_disagreement_frames == 0

@@ -155,7 +155,7 @@ def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_pat
 def test_calibration_file_must_match_the_folders_image_size(tmp_path: Path) -> None:
     from common.camera import CameraModel
     from common.datasets.calibration import CalibrationError, ros_yaml_text
-    from services.camera.service import CameraSettings
+    from services.camera.settings import CameraSettings
     from services.camera.sources import open_camera_source
 
     folder = _folder(tmp_path, ["0.png", "1.png"])  # 64x48

@@ -108,33 +108,6 @@ def test_cao_load_cycle_is_refused(tmp_path: Path) -> None:
         load_model(tmp_path / "a.cao")
 
 
-@pytest.mark.parametrize(
-    ("text", "line", "message"),
-    [
-        ("V2\n0\n", 1, "starts with 'V1'"),
-        ("V1\n2\n0 0 0\n1 1\n", 4, "3 numbers"),
-        ("V1\n2\n0 0 0\n1 1 x\n", 4, "not a number"),
-        ("V1\n1\n0 0 0\n1\n0 5\n", 5, "out of range"),
-        ("V1\n3\n0 0 0\n1 0 0\n0 1 0\n0\n0\n1\n4 0 1 2\n", 9, "announces 4"),
-        ("V1\n3\n0 0 0\n1 0 0\n0 1 0\n2\n0 1\n1 2\n1\n2 0 1\n", 10, "announces 2"),
-        ("V1\n3\n0 0 0\n1 0 0\n0 1 0\n0\n0\n0\n1\n0 1 -0.1\n", 10, "radius must be positive"),
-        ("V1\n3\n0 0 0\n1 0 0\n2 0 0\n0\n0\n0\n0\n1\n0.1 0 1 2\n", 11, "collinear"),
-        ("V1\n1\n0 0 0\nthree\n", 4, "number of 3D lines"),
-        ("V1\n2\n0 0 0\n", 3, "file ends"),
-        ('V1\nload("x.cao")\n', 2, "not available"),
-    ],
-)
-def test_bad_cao_names_the_line(text: str, line: int, message: str) -> None:
-    with pytest.raises(CadError, match=rf"<cao>:{line}: .*{message}"):
-        scene_from_cao(text)
-
-
-def test_cao_non_planar_face_is_refused() -> None:
-    text = "V1\n4\n0 0 0\n1 0 0\n1 1 0.5\n0 1 0\n0\n0\n1\n4 0 1 2 3\n"
-    with pytest.raises(CadError, match="not planar"):
-        scene_from_cao(text)
-
-
 OBJ = """# an L-shaped plate (non-convex face) with a wire
 o part
 v 0 0 0
@@ -177,28 +150,52 @@ def test_obj_smooth_tessellation_keeps_only_creases() -> None:
     assert scene.n_edges == 3 * n
 
 
+#: the readers by format (the ``<format>`` an error names)
+READERS = {"cao": scene_from_cao, "obj": scene_from_obj}
+
+
 @pytest.mark.parametrize(
-    ("text", "line", "message"),
+    ("fmt", "text", "line", "message"),
     [
-        ("v 0 0\n", 1, "3 or 4 numbers"),
-        ("v 0 0 0\nv 1 0 0\nf 1 2\n", 3, "at least 3"),
-        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "out of range"),
-        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n", 4, "out of range"),
-        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 a\n", 4, "not a vertex index"),
-        ("v 0 0 0\nv 1 0 0\ncurv 0 1 1 2\n", 3, "unknown OBJ statement"),
-        ("v 0 0 nan\n", 1, "not finite"),
-        ("v 0 0 0\nl 1\n", 2, "at least 2"),
+        ("cao", "V2\n0\n", 1, "starts with 'V1'"),
+        ("cao", "V1\n2\n0 0 0\n1 1\n", 4, "3 numbers"),
+        ("cao", "V1\n2\n0 0 0\n1 1 x\n", 4, "not a number"),
+        ("cao", "V1\n1\n0 0 0\n1\n0 5\n", 5, "out of range"),
+        ("cao", "V1\n3\n0 0 0\n1 0 0\n0 1 0\n0\n0\n1\n4 0 1 2\n", 9, "announces 4"),
+        ("cao", "V1\n3\n0 0 0\n1 0 0\n0 1 0\n2\n0 1\n1 2\n1\n2 0 1\n", 10, "announces 2"),
+        ("cao", "V1\n3\n0 0 0\n1 0 0\n0 1 0\n0\n0\n0\n1\n0 1 -0.1\n", 10, "radius must be positive"),
+        ("cao", "V1\n3\n0 0 0\n1 0 0\n2 0 0\n0\n0\n0\n0\n1\n0.1 0 1 2\n", 11, "collinear"),
+        ("cao", "V1\n1\n0 0 0\nthree\n", 4, "number of 3D lines"),
+        ("cao", "V1\n2\n0 0 0\n", 3, "file ends"),
+        ("cao", 'V1\nload("x.cao")\n', 2, "not available"),
+        ("obj", "v 0 0\n", 1, "3 or 4 numbers"),
+        ("obj", "v 0 0 0\nv 1 0 0\nf 1 2\n", 3, "at least 3"),
+        ("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "out of range"),
+        ("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n", 4, "out of range"),
+        ("obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 a\n", 4, "not a vertex index"),
+        ("obj", "v 0 0 0\nv 1 0 0\ncurv 0 1 1 2\n", 3, "unknown OBJ statement"),
+        ("obj", "v 0 0 nan\n", 1, "not finite"),
+        ("obj", "v 0 0 0\nl 1\n", 2, "at least 2"),
     ],
 )
-def test_bad_obj_names_the_line(text: str, line: int, message: str) -> None:
-    with pytest.raises(CadError, match=rf"<obj>:{line}: .*{message}"):
-        scene_from_obj(text)
+def test_bad_file_names_its_format_and_line(fmt: str, text: str, line: int, message: str) -> None:
+    with pytest.raises(CadError, match=rf"<{fmt}>:{line}: .*{message}"):
+        READERS[fmt](text)
 
 
-def test_obj_self_intersecting_face_is_refused() -> None:
-    text = "v 0 0 0\nv 1 1 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 4\n"
-    with pytest.raises(SceneModelError, match="face 0"):
-        scene_from_obj(text)
+@pytest.mark.parametrize(
+    ("fmt", "text", "error", "message"),
+    [
+        ("cao", "V1\n4\n0 0 0\n1 0 0\n1 1 0.5\n0 1 0\n0\n0\n1\n4 0 1 2 3\n", CadError, "not planar"),
+        ("obj", "v 0 0 0\nv 1 1 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 4\n", SceneModelError, "face 0"),
+    ],
+)
+def test_face_that_is_no_polygon_is_refused(
+    fmt: str, text: str, error: type[Exception], message: str
+) -> None:
+    """A non-planar .cao face, a self-intersecting OBJ face."""
+    with pytest.raises(error, match=message):
+        READERS[fmt](text)
 
 
 def test_load_model_by_suffix_and_bad_files(tmp_path: Path) -> None:
