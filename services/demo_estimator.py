@@ -9,7 +9,8 @@ import logging
 import multiprocessing
 import time
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -213,37 +214,66 @@ def _run_group(
     )[1]
 
 
-def run_configurations(
-    seed: int = 0, frames: int | None = None, start_frame: int = 0
-) -> tuple[Flight, dict[str, EstimatorRun]]:
+@dataclass
+class Started:
+    """Configurations at work in their processes (:func:`start_configurations`), to be collected by
+    :func:`finish_configurations`."""
+
+    flight: Flight
+    pool: ProcessPoolExecutor
+    futures: list[Future[dict[str, EstimatorRun]]]
+    counter: Any
+    total: int
+
+    def cancel(self) -> None:
+        """Give up (the part before failed): queued work is dropped and the pool is not waited for."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def start_configurations(seed: int = 0, frames: int | None = None, start_frame: int = 0) -> Started:
     """Flight (b) through every configuration of :data:`CONFIGURATIONS`, the groups in parallel processes
-    (spawned: the parent may hold zenoh's threads from an earlier step), with a progress bar over the frames.
-    The results equal a single-process run: each configuration sees the same deterministic stream."""
-    names = list(CONFIGURATIONS)
+    (spawned: the parent may hold zenoh's threads from an earlier step); returns at once."""
     flight = turns_flight(seed=seed)
     context = multiprocessing.get_context("spawn")
     counter = context.Value("l", 0)
     stop_frame = flight.n_frames if frames is None else min(flight.n_frames, start_frame + frames)
-    total = (stop_frame - start_frame) * len(names)
+    pool = ProcessPoolExecutor(len(GROUPS), mp_context=context, initializer=_init_worker, initargs=(counter,))
+    futures = [pool.submit(_run_group, seed, group, start_frame, stop_frame) for group in GROUPS]
+    return Started(flight, pool, futures, counter, (stop_frame - start_frame) * len(CONFIGURATIONS))
+
+
+def finish_configurations(started: Started) -> tuple[Flight, dict[str, EstimatorRun]]:
+    """Wait for the configurations with a progress bar over their frames. The results equal a
+    single-process run: each configuration sees the same deterministic stream."""
     runs: dict[str, EstimatorRun] = {}
     with (
-        ProcessPoolExecutor(
-            len(GROUPS), mp_context=context, initializer=_init_worker, initargs=(counter,)
-        ) as pool,
-        progress.bar(total=total, desc="estimator configurations", unit="frame") as bar,
+        started.pool,
+        progress.bar(total=started.total, desc="estimator configurations", unit="frame") as bar,
     ):
-        futures = [pool.submit(_run_group, seed, group, start_frame, stop_frame) for group in GROUPS]
-        while not all(f.done() for f in futures):
-            bar.set(counter.value)
+        while not all(f.done() for f in started.futures):
+            bar.set(started.counter.value)
             time.sleep(0.2)
-        bar.set(counter.value)
-        for future in futures:
+        bar.set(started.counter.value)
+        for future in started.futures:
             runs.update(future.result())
-    return flight, {name: runs[name] for name in CONFIGURATIONS}
+    return started.flight, {name: runs[name] for name in CONFIGURATIONS}
 
 
-def run_demo(out_dir: Path) -> dict[str, Any]:
-    flight, runs = run_configurations()
+def run_configurations(
+    seed: int = 0, frames: int | None = None, start_frame: int = 0
+) -> tuple[Flight, dict[str, EstimatorRun]]:
+    """:func:`start_configurations` then :func:`finish_configurations`."""
+    return finish_configurations(start_configurations(seed, frames, start_frame))
+
+
+def start(out_dir: Path) -> Started:
+    """``capataz run`` starts this part's processes before the part ahead of it, which runs in the parent
+    meanwhile (see ``services.run.PRESTART``)."""
+    return start_configurations()
+
+
+def run_demo(out_dir: Path, started: Started | None = None) -> dict[str, Any]:
+    flight, runs = finish_configurations(started if started is not None else start_configurations())
     errors = {name: evaluate(run, flight) for name, run in runs.items()}
     summary = summarize(flight, runs, errors)
     summary["tum"] = write_estimator_tum(out_dir / "tum", flight, runs["rectified"])
