@@ -214,7 +214,7 @@ def _run_group(
     )[1]
 
 
-@dataclass
+@dataclass(frozen=True)
 class Started:
     """Configurations at work in their processes (:func:`start_configurations`), to be collected by
     :func:`finish_configurations`."""
