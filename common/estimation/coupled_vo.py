@@ -35,7 +35,9 @@ from common.estimation.vo_chain import (
     advance_vo_chain,
     prepare_view,
     shifted,
+    smoothed_vo_altitude,
     start_vo_chain,
+    with_altitude,
 )
 from common.geometry import R_BODY_CAMERA_DOWN, euler_from_matrix, matrix_from_euler
 from common.types import FloatArray
@@ -109,9 +111,17 @@ class CoupledVo:
         self._free_keyframe: tuple[PreparedFrame | None, FloatArray] = (None, np.zeros(3))
         self._free_offset = np.zeros(2)
         self._free_path_m = 0.0
+        self._last_stamp_s = math.nan
+        #: when the chain (re)started: its altitude smoothing's time constant grows from there
+        self._chain_start_s = math.nan
 
     def on_frame(self, m: FrameMeasurement, view: FilterView) -> VoFrame | None:
         """Rectify, advance the chain, and the output (None when the frame cannot be rectified)."""
+        result = self._on_frame(m, view)
+        self._last_stamp_s = m.stamp_s
+        return result
+
+    def _on_frame(self, m: FrameMeasurement, view: FilterView) -> VoFrame | None:
         s = self.settings
         rp = (view.roll_rad, view.pitch_rad)
         try:
@@ -125,6 +135,7 @@ class CoupledVo:
         ok = False
         n_inliers = 0
         if self.chain is None:
+            self._chain_start_s = m.stamp_s
             self.chain = start_vo_chain(frame, self._initial_pose(view), view.altitude_m)
             self._free_position = self.chain.pose.p_n_camera_m.copy()
             self._maybe_set_origin(view)
@@ -138,6 +149,7 @@ class CoupledVo:
             except VoError as exc:
                 self.counters["vo_failures"] += 1
                 self.track = self.track.cleared()
+                self._chain_start_s = m.stamp_s
                 self.chain = start_vo_chain(frame, self.chain.pose, view.altitude_m)
                 logger.info("VO pair ending at %.4f s failed: %s", m.stamp_s, exc)
         if ok and s.accel_compensation:
@@ -160,10 +172,20 @@ class CoupledVo:
         s = self.settings
         assert self.chain is not None
         model = s.rectified_motion_model if s.rectify else MotionModel.FREE
+        kf_altitude_m = self.chain.keyframe.altitude_m
         step = advance_vo_chain(
             self.chain, frame, view.altitude_m, self.camera.K, self.vo_settings, model, self.chain_settings
         )
         self.chain = step.state
+        if s.rectify and model in LEVEL_MODELS and s.vo_altitude_smoothing_s > 0.0:
+            self.chain = with_altitude(
+                self.chain,
+                smoothed_vo_altitude(
+                    kf_altitude_m, float(step.motion.t_over_d[2]), view.altitude_m,
+                    m.stamp_s - self._last_stamp_s, s.vo_altitude_smoothing_s,
+                    m.stamp_s - self._chain_start_s,
+                ),
+            )  # fmt: skip
         # the free decomposition's chain: the traditional path (it does not depend on the filter's tilt) for
         # the uncertainty-aware output and the accelerometer compensation (with the level model a tilt error
         # would leak into the translation and back into the filter: a loop)

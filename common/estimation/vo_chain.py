@@ -11,6 +11,7 @@ inliers; with ``max_flow_px = 0`` every frame is a keyframe (paper C's chain). S
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -161,6 +162,38 @@ def with_pose(chain: VoChainState, pose: VoPose) -> VoChainState:
     if kf.frame is chain.frame:
         kf = Keyframe(kf.frame, pose, kf.altitude_m, kf.H_to_latest_px)
     return VoChainState(kf, chain.frame, pose, chain.altitude_m)
+
+
+def smoothed_vo_altitude(
+    keyframe_altitude_m: float,
+    t_z_over_d: float,
+    filter_altitude_m: float,
+    dt_s: float,
+    tau_s: float,
+    elapsed_s: float = math.inf,
+) -> float:
+    """The newest frame's altitude for the chain's scale: the keyframe's times the pair's height ratio
+    ``1 + t_z`` (level views: ``d_k = d_{k-1} (1 + T_z/d)``), pulled toward the filter's altitude by
+    ``dt / tau`` (a complementary filter: the VO's precise ratio from frame to frame, the filter's absolute
+    altitude over seconds; the filter's altitude alone jitters with the rangefinder's noise from one frame
+    to the next, and each pair's translation is scaled by it). For the first ``tau_s`` of a chain
+    (``elapsed_s``: how long it has run) the time constant is the time elapsed, a running mean of the
+    filter's altitude, so a start does not carry the first frame's altitude error for ``tau_s``."""
+    predicted = keyframe_altitude_m * (1.0 + t_z_over_d)
+    if not (math.isfinite(predicted) and predicted > 0.0 and math.isfinite(dt_s) and dt_s > 0.0):
+        return float(filter_altitude_m)
+    tau = min(tau_s, elapsed_s) if elapsed_s >= dt_s else dt_s
+    pull = min(1.0, dt_s / tau)
+    return float(predicted + pull * (filter_altitude_m - predicted))
+
+
+def with_altitude(chain: VoChainState, altitude_m: float) -> VoChainState:
+    """The chain with the newest frame's altitude (the scale of the next pair when it is the keyframe)
+    replaced."""
+    kf = chain.keyframe
+    if kf.frame is chain.frame:
+        kf = Keyframe(kf.frame, kf.pose, float(altitude_m), kf.H_to_latest_px)
+    return VoChainState(kf, chain.frame, chain.pose, float(altitude_m))
 
 
 def shifted(chain: VoChainState, offset_m: FloatArray) -> VoChainState:

@@ -62,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--reference", action="store_true", help="also run paper C's 5-state filter in the sweep"
     )
+    parser.add_argument(
+        "--any-vehicle",
+        action="store_true",
+        help="also run the proposal without knowing the vehicle (the service's default) in the sweep",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="processes running sweep seeds side by side")
     parser.add_argument(
         "--seed-cache",
@@ -248,7 +253,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         result.update(
             sweep(
                 flights, args.seeds, args.reference, log=lambda line: print(line, file=sys.stderr),
-                jobs=args.jobs, cache_dir=cache,
+                jobs=args.jobs, cache_dir=cache, any_vehicle=args.any_vehicle,
             )
         )  # fmt: skip
         rows.extend(_sweep_rows({name: result[name] for name in flights}))

@@ -59,7 +59,7 @@ def seed_figures(flight: Flight, names: tuple[str, ...] = ("rectified", "traditi
     """One flight through the estimators: the per-seed figures of :data:`SEED_FIELDS` (and the reference
     filter's, when ``rectified_paper_c`` is among ``names``)."""
     runs = run_estimators(standard_estimators(flight, 0, names), flight_measurements(flight))
-    errors = {name: evaluate(run, flight) for name, run in runs.items()}
+    errors = {name: evaluate(runs[name], flight) for name in names}
     out: dict[str, float] = {}
     for name, err in errors.items():
         out[f"ate_rmse_cm_{name}"] = 100.0 * err.ate_rmse_m
@@ -68,6 +68,9 @@ def seed_figures(flight: Flight, names: tuple[str, ...] = ("rectified", "traditi
         # which part of the relative error is scale (along the path) and which heading (across it)
         out[f"rpe_along_pct_{name}"] = err.rpe_along_pct
         out[f"rpe_cross_pct_{name}"] = err.rpe_cross_pct
+    for name in names:
+        if name not in ("rectified", "traditional"):
+            out[f"att_rmse_deg_{name}"] = float(np.max(errors[name].att_rmse_deg))
     rect = errors["rectified"].att_rmse_deg
     out["att_rmse_deg"] = float(np.max(rect))
     # the attitude line's axis: roll/pitch (what the rectification uses) or yaw (the VO's heading drift)
@@ -131,11 +134,17 @@ def sweep(
     log: Callable[[str], None] | None = None,
     jobs: int = 1,
     cache_dir: Path | None = None,
+    any_vehicle: bool = False,
 ) -> dict[str, Any]:
-    """Seeds ``0 .. seeds - 1`` of each flight; ``reference`` adds paper C's 5-state filter. ``jobs``
+    """Seeds ``0 .. seeds - 1`` of each flight; ``reference`` adds paper C's 5-state filter, ``any_vehicle``
+    the proposal without knowing the vehicle (the service's default). ``jobs``
     processes run seeds side by side; with ``cache_dir`` each seed's figures are stored there under the
     :func:`code_fingerprint` and reused while the code is unchanged (an interrupted sweep resumes)."""
-    names = ("rectified", "traditional") + (("rectified_paper_c",) if reference else ())
+    names = (
+        ("rectified", "traditional")
+        + (("rectified_paper_c",) if reference else ())
+        + (("rectified_any_vehicle",) if any_vehicle else ())
+    )
     fingerprint = code_fingerprint()
     todo: list[tuple[str, int, tuple[str, ...]]] = []
     done: dict[tuple[str, int], dict[str, float]] = {}

@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
-from common.estimation.coupling_types import CouplingSettings, FilterKind
+from common.estimation.coupling_types import CouplingSettings, FilterKind, Vehicle, vehicle_settings
 from services.runtime.cli import add_enum_argument
 
 
@@ -43,9 +43,9 @@ class EstimatorSettings(BaseModel):
     frame_queue: int = Field(default=6, ge=2, le=128)
     max_pair_s: float = Field(default=0.25, gt=0.0, le=10.0)
     max_backlog_s: float = Field(default=3.0, ge=0.0, le=8.0)  # the held samples (4096) span about 9 s
-    #: the bias filter's multirotor thrust-axis update every this many seconds (0: off, the default; it
-    #: holds for a multirotor in still air only, see CouplingSettings.thrust_axis_interval_s)
-    thrust_axis_interval_s: float = Field(default=0.0, ge=0.0, le=1.0)
+    #: what the filter may assume of the vehicle: any (default) or a multirotor in still air (indoors: the
+    #: thrust-axis update tells the accelerometer bias from the tilt at hover; wrong in wind)
+    vehicle: Vehicle = Vehicle.ANY
 
     def camera(self) -> CameraModel:
         return CameraModel.from_hfov(self.width, self.height, self.hfov_deg)
@@ -60,7 +60,7 @@ class EstimatorSettings(BaseModel):
             initial_yaw_rad=self.initial_yaw_rad,
             initial_position_m=(self.initial_x_m, self.initial_y_m),
             vo_origin_delay_s=self.vo_origin_delay_s,
-            thrust_axis_interval_s=self.thrust_axis_interval_s,
+            **vehicle_settings(self.vehicle),
         )
 
 
@@ -115,14 +115,11 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
         default=3.0,
         help="how far behind (s) the frame queue grows to keep pairs within --max-pair (default 3)",
     )
-    parser.add_argument(
-        "--thrust-axis",
-        type=float,
-        default=0.0,
-        metavar="S",
-        help="bias filter: multirotor thrust-axis update every S seconds (e.g. 0.05), for a multirotor in "
-        "still air; 0 (default) off: wind or a vehicle that tilts without accelerating breaks it",
-    )
+    add_enum_argument(
+        parser, "--vehicle", Vehicle, Vehicle.ANY,
+        help="what the filter may assume: any (default) or still_air_multirotor (indoors: the thrust-axis "
+        "update separates the accelerometer bias from the tilt at hover; wind breaks it)",
+    )  # fmt: skip
 
 
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
@@ -145,7 +142,7 @@ def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
             frame_queue=args.frame_queue,
             max_pair_s=args.max_pair,
             max_backlog_s=args.max_backlog,
-            thrust_axis_interval_s=args.thrust_axis,
+            vehicle=Vehicle(args.vehicle),
         )
     except ValueError as exc:
         raise InputError(f"invalid estimator settings: {exc}") from None

@@ -7,6 +7,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import settings as hypothesis_settings
+from hypothesis import strategies as st
 
 from common.errors import InputError
 from common.estimation.measurements import (
@@ -28,7 +31,15 @@ from common.estimation.vo import (
     estimate_relative_motion,
     track_features,
 )
-from common.estimation.vo_chain import VoChainSettings, prepare_view, shifted, start_vo_chain, with_pose
+from common.estimation.vo_chain import (
+    VoChainSettings,
+    prepare_view,
+    shifted,
+    smoothed_vo_altitude,
+    start_vo_chain,
+    with_altitude,
+    with_pose,
+)
 from common.metrics import rpe_translation
 from common.sim.flight import Flight
 
@@ -175,3 +186,52 @@ def test_level_share_weighs_the_chains_and_distrusts_a_level_chain_that_disagree
     # the same, but the chains 10 cm apart while their stds allow a few centimetres: toward the free chain
     assert level_share(3.0, math.radians(0.02), 3.0, math.radians(0.02), 0.004, 10.0, 0.1**2) < 0.3
     assert level_share(3.0, 0.0, 3.0, 0.0, 0.0, 0.0) == 1.0
+
+
+@hypothesis_settings(max_examples=200, deadline=None)
+@given(
+    keyframe_altitude_m=st.floats(0.2, 20.0),
+    t_z=st.floats(-0.2, 0.2),
+    filter_altitude_m=st.floats(0.2, 20.0),
+    dt_s=st.floats(1e-3, 1.0),
+    tau_s=st.floats(1e-3, 30.0),
+    elapsed_s=st.floats(0.0, 60.0),
+)
+def test_smoothed_vo_altitude_lies_between_the_vo_ratio_and_the_filter(
+    keyframe_altitude_m: float,
+    t_z: float,
+    filter_altitude_m: float,
+    dt_s: float,
+    tau_s: float,
+    elapsed_s: float,
+) -> None:
+    predicted = keyframe_altitude_m * (1.0 + t_z)
+    out = smoothed_vo_altitude(keyframe_altitude_m, t_z, filter_altitude_m, dt_s, tau_s, elapsed_s)
+    low, high = sorted((predicted, filter_altitude_m))
+    assert low - 1e-9 <= out <= high + 1e-9
+    # the pull toward the filter is dt / tau of the gap (all of it once dt >= tau); tau is the time the
+    # chain has run while that is shorter
+    tau = min(tau_s, elapsed_s) if elapsed_s >= dt_s else dt_s
+    expected_gap = (filter_altitude_m - predicted) * max(0.0, 1.0 - dt_s / tau)
+    assert filter_altitude_m - out == pytest.approx(expected_gap, abs=1e-9)
+
+
+def test_smoothed_vo_altitude_follows_the_vo_ratio_and_falls_back_to_the_filter_on_bad_input() -> None:
+    # a 1 % climb seen by the pair, the filter 2 cm low, pulled 1/60 of the way per frame (3 s at 20 fps)
+    assert smoothed_vo_altitude(2.0, 0.01, 2.0, 0.05, 3.0) == pytest.approx(2.02 - 0.02 / 60.0)
+    # a chain 0.5 s old: a running mean so far (1/10 of the way), the first pair takes the filter's
+    assert smoothed_vo_altitude(2.0, 0.01, 2.0, 0.05, 3.0, elapsed_s=0.5) == pytest.approx(2.02 - 0.02 / 10.0)
+    assert smoothed_vo_altitude(2.0, 0.01, 2.0, 0.05, 3.0, elapsed_s=0.05) == pytest.approx(2.0)
+    assert smoothed_vo_altitude(2.0, 0.01, 2.0, 0.05, 3.0, elapsed_s=math.nan) == pytest.approx(2.0)
+    for dt_s in (0.0, -0.05, math.nan):
+        assert smoothed_vo_altitude(2.0, 0.01, 1.9, dt_s, 3.0) == 1.9  # first frame, reordered stamp
+    assert smoothed_vo_altitude(2.0, -1.5, 1.9, 0.05, 3.0) == 1.9  # a ratio below the ground
+
+
+def test_with_altitude_sets_the_scale_of_the_next_pair(flight_b: Flight) -> None:
+    vo_settings = VoSettings()
+    frame = prepare_view(
+        flight_b.frame(0), flight_b.camera.K, flight_b.R_body_camera, (0.0, 0.0), vo_settings
+    )
+    chain = with_altitude(start_vo_chain(frame, VoPose(np.eye(3), np.zeros(3)), 3.5), 3.6)
+    assert chain.altitude_m == 3.6 and chain.keyframe.altitude_m == 3.6
