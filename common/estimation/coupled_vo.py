@@ -111,17 +111,14 @@ class CoupledVo:
         self._free_keyframe: tuple[PreparedFrame | None, FloatArray] = (None, np.zeros(3))
         self._free_offset = np.zeros(2)
         self._free_path_m = 0.0
-        self._last_stamp_s = math.nan
-        #: when the chain (re)started: its altitude smoothing's time constant grows from there
+        #: stamps of the chain's newest frame and keyframe, and of its (re)start (the altitude smoothing's
+        #: time constant grows from there)
+        self._newest_stamp_s = math.nan
+        self._keyframe_stamp_s = math.nan
         self._chain_start_s = math.nan
 
     def on_frame(self, m: FrameMeasurement, view: FilterView) -> VoFrame | None:
         """Rectify, advance the chain, and the output (None when the frame cannot be rectified)."""
-        result = self._on_frame(m, view)
-        self._last_stamp_s = m.stamp_s
-        return result
-
-    def _on_frame(self, m: FrameMeasurement, view: FilterView) -> VoFrame | None:
         s = self.settings
         rp = (view.roll_rad, view.pitch_rad)
         try:
@@ -135,7 +132,7 @@ class CoupledVo:
         ok = False
         n_inliers = 0
         if self.chain is None:
-            self._chain_start_s = m.stamp_s
+            self._chain_start_s = self._keyframe_stamp_s = m.stamp_s
             self.chain = start_vo_chain(frame, self._initial_pose(view), view.altitude_m)
             self._free_position = self.chain.pose.p_n_camera_m.copy()
             self._maybe_set_origin(view)
@@ -149,9 +146,10 @@ class CoupledVo:
             except VoError as exc:
                 self.counters["vo_failures"] += 1
                 self.track = self.track.cleared()
-                self._chain_start_s = m.stamp_s
+                self._chain_start_s = self._keyframe_stamp_s = m.stamp_s
                 self.chain = start_vo_chain(frame, self.chain.pose, view.altitude_m)
                 logger.info("VO pair ending at %.4f s failed: %s", m.stamp_s, exc)
+        self._newest_stamp_s = m.stamp_s
         if ok and s.accel_compensation:
             p = self._free_position
             self.track = self.track.updated(m.stamp_s, float(p[0]), float(p[1]), s.accel_window_s)
@@ -172,20 +170,25 @@ class CoupledVo:
         s = self.settings
         assert self.chain is not None
         model = s.rectified_motion_model if s.rectify else MotionModel.FREE
-        kf_altitude_m = self.chain.keyframe.altitude_m
+        previous = self.chain
         step = advance_vo_chain(
-            self.chain, frame, view.altitude_m, self.camera.K, self.vo_settings, model, self.chain_settings
+            previous, frame, view.altitude_m, self.camera.K, self.vo_settings, model, self.chain_settings
         )
         self.chain = step.state
+        # the pair was measured from the keyframe or, when that pair failed, from the newest frame
+        from_keyframe = step.keyframe_frame is previous.keyframe.frame
+        kf_altitude_m = previous.keyframe.altitude_m if from_keyframe else previous.altitude_m
+        kf_stamp_s = self._keyframe_stamp_s if from_keyframe else self._newest_stamp_s
         if s.rectify and model in LEVEL_MODELS and s.vo_altitude_smoothing_s > 0.0:
             self.chain = with_altitude(
                 self.chain,
                 smoothed_vo_altitude(
                     kf_altitude_m, float(step.motion.t_over_d[2]), view.altitude_m,
-                    m.stamp_s - self._last_stamp_s, s.vo_altitude_smoothing_s,
-                    m.stamp_s - self._chain_start_s,
+                    m.stamp_s - kf_stamp_s, s.vo_altitude_smoothing_s, m.stamp_s - self._chain_start_s,
                 ),
             )  # fmt: skip
+        if self.chain.keyframe.frame is frame:
+            self._keyframe_stamp_s = m.stamp_s
         # the free decomposition's chain: the traditional path (it does not depend on the filter's tilt) for
         # the uncertainty-aware output and the accelerometer compensation (with the level model a tilt error
         # would leak into the translation and back into the filter: a loop)

@@ -30,6 +30,7 @@ from common.estimation.replay import (
     vo_with_true_attitude,
 )
 from common.estimation.tilt import motion_acceleration, rectified_axis_offset, residual_tilt_offset
+from common.estimation.vo_chain import VoChainSettings
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
     euler_from_quaternion,
@@ -244,3 +245,32 @@ def test_rectified_axis_offset_is_zero_for_the_true_tilt_and_h_times_the_error()
     assert np.allclose(rectified_axis_offset(0.3, (0.02, -0.01), (0.02, -0.01), 3.0), 0.0)
     offset = rectified_axis_offset(0.0, (0.0, 0.0), (0.0, math.radians(0.5)), 4.0)
     assert float(np.linalg.norm(offset)) == pytest.approx(4.0 * math.tan(math.radians(0.5)), rel=1e-6)
+
+
+@pytest.mark.parametrize("max_flow_px", [0.0, 8.0])
+def test_the_chain_scale_follows_the_true_altitude_with_and_without_keyframes(
+    flight_b: Flight, max_flow_px: float
+) -> None:
+    """The altitude scaling each pair is the VO's height ratio times the keyframe's, pulled toward the
+    filter's: frame to frame (every frame a keyframe) or from a keyframe several frames back (the pull over
+    the time since that keyframe); either way it stays within the rangefinder's noise of the truth while the
+    flight climbs, and the position within a centimetre."""
+    camera = camera_model_of(flight_b)
+    estimator = DoubleCouplingEstimator(
+        camera, settings=_settings(flight_b), chain_settings=VoChainSettings(max_flow_px=max_flow_px)
+    )
+    altitude_errors_m = []
+    outputs = []
+    for m in flight_measurements(flight_b, START, START + 40):
+        estimator.push(m)
+        outputs.extend(estimator.process_due())
+        chain = estimator.vo.chain
+        if isinstance(m, FrameMeasurement) and chain is not None:
+            frame = round(m.stamp_s * 20.0)
+            altitude_errors_m.append(chain.altitude_m - float(flight_b.p_world_body_m[frame, 2]))
+    outputs.extend(estimator.drain())
+    errors = evaluate(collect(outputs), flight_b, START)
+    assert np.max(np.abs(altitude_errors_m[5:])) < 0.02, altitude_errors_m
+    assert errors.vo_final_error_m < 0.01, errors.vo_final_error_m
+    if max_flow_px > 0.0:
+        assert estimator.vo.chain is not None and estimator.counters["vo_pairs"] == 39
