@@ -178,7 +178,7 @@ def test_sigterm_while_busy_exits_0_twenty_times_in_twenty(flight: Flight) -> No
 @LOAD_RUNS
 def test_paper_c_flight_under_a_busy_host_ends_within_2_cm(flight: Flight) -> None:
     """As the bench's ``rectified_any_vehicle`` run, the service's defaults (VO origin 4 s in, at the true
-    position then): 0.71 cm offline (the bench's ``rectified``, a still-air multirotor, 0.37 cm). The
+    position then): 0.71 cm offline (the bench's ``rectified``, a still-air multirotor: 0.02 cm). The
     service runs as deployed, in its own process (``capataz estimator``); its counters and health are read
     over Zenoh, as an operator would."""
     origin = int(
