@@ -81,12 +81,9 @@ class BiasEkfSettings(EkfSettings):
     velocity_random_walk_m_s_sqrt_s: float = bounded(0.01, ge=0.0)
     #: Std of the horizontal position measurement (the visual odometry's free chain) per frame.
     position_noise_m: float = bounded(0.01, gt=0.0)
-    #: The accelerometer's noise grows by this share of the manoeuvre acceleration it is compensated for.
-    #: That estimate, fitted to VO positions, is about as uncertain as it is large in fast manoeuvres, and the
-    #: inertial navigation aided by the VO position is then the better tilt reference: 10 instead of 1 leaves
-    #: the update to near-hover. Measured by the estimator's seed sweep (``rectified`` and ``traditional``
-    #: fed the same stream, shared host, one run each): agile seeds 0-9, RPE median 0.221 -> 0.168 %/m for a
-    #: still-air multirotor; paper C seeds 0-19, ATE median 0.506 -> 0.516 cm, RPE 0.305 -> 0.277 %/m.
+    #: The accelerometer's noise grows by this share of the compensated manoeuvre acceleration: that VO fit is
+    #: about as uncertain as it is large, the VO-aided inertial navigation the better tilt reference then. 10,
+    #: not 1 (estimator seed sweep): agile seeds 0-9 RPE 0.221 -> 0.168 %/m, paper C ATE 0.506 -> 0.516 cm.
     motion_accel_noise_share: float = bounded(10.0, ge=0.0)
     #: Multirotor thrust-axis model (:meth:`BiasAwareEkf.update_thrust_axis`): the accelerometer's white
     #: noise per sample, a floor for what the model leaves out (vibration, asymmetric thrust) and the rotor
