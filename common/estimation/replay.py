@@ -287,23 +287,23 @@ RECTIFIED_ORIGIN_DELAY_S = 4.0
 #: The simulated flights are a multirotor's in still air (coordinated: thrust along body z, no wind).
 SIM_VEHICLE = vehicle_settings(Vehicle.STILL_AIR_MULTIROTOR)
 
-#: The configurations compared: the paper's proposal (rectified frames, filter altitude as scale) with the
-#: bias-estimating filter and uncertainty-aware rectification, the same with paper C's 5-state EKF, its
-#: "traditional" VO (raw frames, the rangefinder reading as scale: no inertial information),
-#: raw frames with the EKF altitude (only the rectification missing), and the EKF without visual yaw. The
-#: bias filter's configurations know the vehicle (:data:`SIM_VEHICLE`).
+#: The paper's proposal (rectified frames, filter altitude as scale) with the bias-estimating filter and
+#: uncertainty-aware rectification, as the service runs it by default (any vehicle).
+PROPOSAL: dict[str, Any] = {
+    "rectify": True,
+    "visual_yaw": True,
+    "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
+}
+
+#: The configurations compared: the proposal, the same with paper C's 5-state EKF, its "traditional" VO
+#: (raw frames, the rangefinder reading as scale: no inertial information), raw frames with the EKF altitude
+#: (only the rectification missing), and the EKF without visual yaw. The bias filter's configurations know
+#: the vehicle (:data:`SIM_VEHICLE`).
 CONFIGURATIONS: dict[str, dict[str, Any]] = {
-    "rectified": {
-        "rectify": True,
-        "visual_yaw": True,
-        "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
-        **SIM_VEHICLE,
-    },
+    "rectified": {**PROPOSAL, **SIM_VEHICLE},
     # paper C's 5-state EKF and the level model always trusted: the reference the bias filter improves on
     "rectified_paper_c": {
-        "rectify": True,
-        "visual_yaw": True,
-        "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
+        **PROPOSAL,
         "filter": FilterKind.PAPER_C,
         "uncertainty_aware": False,
         "imu_midpoint": False,
@@ -312,24 +312,15 @@ CONFIGURATIONS: dict[str, dict[str, Any]] = {
     },
     "traditional": {"rectify": False, "visual_yaw": True, "scale_from": ScaleSource.RANGE, **SIM_VEHICLE},
     "raw_ekf_scale": {"rectify": False, "visual_yaw": True, **SIM_VEHICLE},
-    "gyro_yaw": {
-        "rectify": True,
-        "visual_yaw": False,
-        "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
-        **SIM_VEHICLE,
-    },
+    "gyro_yaw": {**PROPOSAL, "visual_yaw": False, **SIM_VEHICLE},
 }
 
 
 #: Configurations run on request only (the seed sweep's ``--any-vehicle``): the proposal without knowing
 #: the vehicle (the service's default, :attr:`Vehicle.ANY`).
-ABLATIONS: dict[str, dict[str, Any]] = {
-    "rectified_any_vehicle": {
-        "rectify": True,
-        "visual_yaw": True,
-        "vo_origin_delay_s": RECTIFIED_ORIGIN_DELAY_S,
-    },
-}
+ABLATIONS: dict[str, dict[str, Any]] = {"rectified_any_vehicle": PROPOSAL}
+
+_RUNNABLE = {**CONFIGURATIONS, **ABLATIONS}
 
 
 def standard_estimators(
@@ -341,7 +332,7 @@ def standard_estimators(
     q0 = flight.q_world_body[start_frame]
     out = {}
     for name in names:
-        config = dict({**CONFIGURATIONS, **ABLATIONS}[name])
+        config = dict(_RUNNABLE[name])
         # started mid-flight with the true attitude, the EKF has no tilt transient to wait for
         delay_s = float(config.pop("vo_origin_delay_s", 0.0))
         delay_s = delay_s if start_frame == 0 else 0.0
