@@ -22,7 +22,14 @@ from common.datasets.calibration import CalibrationError, camera_from_camera_inf
 from common.datasets.images import ImageFolder, ImageFolderError, open_image_folder
 from common.datasets.tum import Trajectory, TumError
 from common.errors import InputError
-from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
+from common.estimation.measurements import (
+    SENSOR_ORDER,
+    FrameMeasurement,
+    ImuMeasurement,
+    Measurement,
+    RangeMeasurement,
+    sensor_of,
+)
 
 
 class EurocError(InputError):
@@ -41,16 +48,14 @@ class EurocFolder:
     ground_truth: Trajectory | None
 
     def measurements(self) -> Iterator[Measurement]:
-        """Frames, IMU and range samples merged in stamp order (ties: IMU, range, frame)."""
-        imu: Iterator[tuple[float, int, Measurement]] = (
-            (float(r[0]), 0, ImuMeasurement(float(r[0]), r[1:4].copy(), r[4:7].copy())) for r in self.imu
+        """Frames, IMU and range samples merged in stamp order (equal stamps in
+        :data:`~common.estimation.measurements.SENSOR_ORDER`: range, IMU, frame)."""
+        imu: Iterator[Measurement] = (
+            ImuMeasurement(float(r[0]), r[1:4].copy(), r[4:7].copy()) for r in self.imu
         )
-        rng: Iterator[tuple[float, int, Measurement]] = (
-            (float(r[0]), 1, RangeMeasurement(float(r[0]), float(r[1]))) for r in self.range
-        )
-        frames: Iterator[tuple[float, int, Measurement]] = ((f.stamp_s, 2, f) for f in self.camera.frames())
-        for _stamp, _kind, m in heapq.merge(imu, rng, frames, key=lambda item: (item[0], item[1])):
-            yield m
+        rng: Iterator[Measurement] = (RangeMeasurement(float(r[0]), float(r[1])) for r in self.range)
+        frames: Iterator[Measurement] = iter(self.camera.frames())
+        yield from heapq.merge(imu, rng, frames, key=lambda m: (m.stamp_s, SENSOR_ORDER[sensor_of(m)]))
 
 
 def _table(path: Path, columns: int, what: str) -> np.ndarray:

@@ -9,10 +9,7 @@ import cv2
 import numpy as np
 
 from common.errors import InputError
-from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-
-#: Order of measurements with equal stamps (the simulated camera's: IMU, range, then the frame).
-_KIND_ORDER = {ImuMeasurement: 0, RangeMeasurement: 1, FrameMeasurement: 2}
+from common.estimation.measurements import SENSOR_ORDER, Measurement, sensor_of
 
 
 def to_grey_u8(image: np.ndarray, encoding: str, what: str) -> np.ndarray:
@@ -37,12 +34,12 @@ def in_stamp_order(
     """Re-order measurements given in log (arrival) order by their sensor stamps, within ``window`` items.
 
     A bag is sorted by the time each message was logged; a sensor's stamp can lag by its latency. A
-    bounded heap puts them back in stamp order (memory: ``window`` messages). Ties keep the simulated
-    camera's order: IMU, range, frame.
+    bounded heap puts them back in stamp order (memory: ``window`` messages). Equal stamps go in
+    :data:`~common.estimation.measurements.SENSOR_ORDER` (range, IMU, frame), the simulated stream's.
     """
     heap: list[tuple[float, int, int, Measurement]] = []
     for n, (stamp_s, m) in enumerate(measurements):
-        heapq.heappush(heap, (stamp_s, _KIND_ORDER[type(m)], n, m))
+        heapq.heappush(heap, (stamp_s, SENSOR_ORDER[sensor_of(m)], n, m))
         if len(heap) > window:
             yield heapq.heappop(heap)[3]
     while heap:

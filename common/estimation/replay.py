@@ -1,7 +1,8 @@
-"""Replay a simulated flight through the estimator: its sensor series as one stamp-ordered stream.
+"""Replay a flight through the estimator: the standard configurations, their outputs and their errors.
 
-Shared by the tests, ``capataz bench estimator``, the demo and the service's simulated publisher. Frames
-are rendered lazily, one at a time.
+The stream itself, a flight's samples in stamp order, is the simulation's
+(``common.sim.stream.flight_measurements``); the cores never import the simulator. Shared by the tests,
+``capataz bench estimator`` and the demo.
 """
 
 from __future__ import annotations
@@ -24,14 +25,7 @@ from common.estimation.coupling_types import (
     Vehicle,
     vehicle_settings,
 )
-from common.estimation.measurements import (
-    SENSOR_ORDER,
-    FrameMeasurement,
-    ImuMeasurement,
-    Measurement,
-    RangeMeasurement,
-    Sensor,
-)
+from common.estimation.measurements import Measurement
 from common.estimation.vo import MotionModel, VoPose, VoSettings
 from common.estimation.vo_chain import (
     VoChainSettings,
@@ -101,33 +95,6 @@ class FlightRecord(Protocol):
 def camera_model_of(flight: FlightRecord) -> CameraModel:
     """The flight's camera model (intrinsics; the mount is ``flight.R_body_camera``)."""
     return flight.camera
-
-
-def flight_measurements(
-    flight: FlightRecord, start_frame: int = 0, stop_frame: int | None = None
-) -> Iterator[Measurement]:
-    """IMU, range and camera samples of frames ``[start_frame, stop_frame)`` and between, in stamp order
-    (equal stamps in :data:`~common.estimation.measurements.SENSOR_ORDER`)."""
-    stop = flight.n_frames if stop_frame is None else min(int(stop_frame), flight.n_frames)
-    t0 = float(flight.frame_stamps_s[start_frame])
-    t1 = float(flight.frame_stamps_s[stop - 1])
-    events: list[tuple[float, int, int]] = []
-    imu, rng = flight.imu, flight.range
-    imu_rank, range_rank, camera_rank = (SENSOR_ORDER[s] for s in (Sensor.IMU, Sensor.RANGE, Sensor.CAMERA))
-    for i in np.flatnonzero((imu.stamps_s >= t0 - 1e-9) & (imu.stamps_s <= t1 + 1e-9)).tolist():
-        events.append((float(imu.stamps_s[i]), imu_rank, i))
-    for i in np.flatnonzero((rng.stamps_s >= t0 - 1e-9) & (rng.stamps_s <= t1 + 1e-9)).tolist():
-        events.append((float(rng.stamps_s[i]), range_rank, i))
-    for i in range(start_frame, stop):
-        events.append((float(flight.frame_stamps_s[i]), camera_rank, i))
-    events.sort()
-    for stamp, kind, i in events:
-        if kind == imu_rank:
-            yield ImuMeasurement(stamp, imu.gyro_rad_s[i], imu.accel_m_s2[i])
-        elif kind == range_rank:
-            yield RangeMeasurement(stamp, float(rng.range_m[i]))
-        else:
-            yield FrameMeasurement(stamp, flight.frame(i))
 
 
 @dataclass(frozen=True)

@@ -39,13 +39,13 @@ from common.estimation.replay import (
     EstimatorRun,
     RunErrors,
     evaluate,
-    flight_measurements,
     run_estimators,
     standard_estimators,
     vo_with_true_attitude,
 )
 from common.estimation.vo import VoSettings
 from common.sim.flight import Flight, turns_flight
+from common.sim.stream import flight_measurements
 from services.bench.estimator_sweep import FLIGHTS, sweep, time_ekf_steps, time_vo_steps
 
 NAME = "estimator"

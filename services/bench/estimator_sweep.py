@@ -25,11 +25,12 @@ import numpy as np
 
 from common.estimation.ekf import AttitudeAltitudeEkf
 from common.estimation.eskf import BiasAwareEkf
-from common.estimation.replay import evaluate, flight_measurements, run_estimators, standard_estimators
+from common.estimation.replay import evaluate, run_estimators, standard_estimators
 from common.estimation.vo import MotionModel, VoPose, VoSettings
 from common.estimation.vo_chain import advance_vo_chain, prepare_view, start_vo_chain
 from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
 from common.sim.flight import Flight, agile_flight, turns_flight
+from common.sim.stream import flight_measurements
 
 logger = logging.getLogger(__name__)
 

@@ -1,5 +1,6 @@
 """The simulated flights the camera replays (``--flight``): the ground flights (paper A's hover, paper C's
-turns, the field scenarios of :mod:`common.sim.field`) and the localizer's office flight with its odometry."""
+turns, the field scenarios of :mod:`common.sim.field`) and the localizer's office flight with its odometry,
+each as a :class:`~services.camera.sources.CameraSource` (:func:`flight_source`)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from common.camera import DEFAULT_HFOV_DEG, CameraModel
 from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
+from common.estimation.measurements import FrameMeasurement
 from common.localization.office import default_scene
 from common.localization.tracking import noisy_odometry
 from common.messages import PoseEstimate
@@ -18,7 +20,12 @@ from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.office_run import OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from common.sim.stream import flight_measurements
 from services.camera.settings import CameraSettings, FlightName
+from services.camera.sources import CameraSource, OdometrySample, OnSkip, Sample
+
+#: the office flight's default image size (width, height)
+OFFICE_SIZE = (320, 240)
 
 
 def simulated_flight(settings: CameraSettings) -> Flight:
@@ -40,7 +47,9 @@ def simulated_flight(settings: CameraSettings) -> Flight:
 def office_frames(settings: CameraSettings) -> Iterator[tuple[int, float, np.ndarray]]:
     """The localizer's default flight through the built-in office: the same frames as
     ``common.sim.office_run.simulate_run(settings.frames, settings.seed)``."""
-    camera = CameraModel.from_hfov(settings.width or 320, settings.height or 240, OFFICE_HFOV_DEG)
+    camera = CameraModel.from_hfov(
+        settings.width or OFFICE_SIZE[0], settings.height or OFFICE_SIZE[1], OFFICE_HFOV_DEG
+    )
     flight = default_flight(n_frames=settings.frames)
     rng = np.random.default_rng(settings.seed)
     images = render_flight(default_scene(), flight, camera, DEFAULT_FLIGHT_RENDER, rng)
@@ -82,4 +91,47 @@ def truth_pose(uav: str, seq: int, stamp_s: float, flight: Flight, i: int) -> Po
         q_world_body=flight.q_world_body[i],
         covariance=np.zeros((6, 6)),
         source="truth",
+    )
+
+
+def flight_source(settings: CameraSettings) -> CameraSource:
+    """The simulated flight of ``settings`` as the camera's source: a ground flight's one stream
+    (:func:`common.sim.stream.flight_measurements`) with its true poses, or the office flight's frames with
+    its odometry; frames at ``--fps`` frames per second."""
+    if settings.flight is FlightName.OFFICE:
+        return _office_source(settings)
+    flight = simulated_flight(settings)
+    camera = flight.camera
+    size = f"{camera.width}x{camera.height}"
+    return CameraSource(
+        f"the simulated {settings.flight.value} flight ({flight.n_frames} frames of {size})",
+        lambda _skip: flight_measurements(flight),
+        frames=flight.n_frames,
+        width=camera.width,
+        height=camera.height,
+        truth=lambda uav, seq, stamp_s, i: truth_pose(uav, seq, stamp_s, flight, i),
+        paced_by_fps=True,
+    )
+
+
+def _office_source(settings: CameraSettings) -> CameraSource:
+    stamps, positions, angles = office_odometry_poses(settings)
+
+    def samples(_skip: OnSkip | None) -> Iterator[Sample]:
+        """Before each frame, the odometry poses stamped in ``(previous frame, this frame]``."""
+        previous = -np.inf
+        for _i, stamp_s, image in office_frames(settings):
+            a, b = np.searchsorted(stamps, [previous, stamp_s], side="right")
+            for k in range(int(a), int(b)):
+                yield OdometrySample(float(stamps[k]), positions[k], angles[k])
+            yield FrameMeasurement(stamp_s, image)
+            previous = stamp_s
+
+    return CameraSource(
+        f"the simulated office flight ({settings.frames} frames)",
+        samples,
+        frames=settings.frames,
+        width=settings.width or OFFICE_SIZE[0],
+        height=settings.height or OFFICE_SIZE[1],
+        paced_by_fps=True,
     )

@@ -1,33 +1,65 @@
-"""Replay of a recorded input (image folder, bag, EuRoC folder, capataz recording) by the camera service.
+"""The camera's one publish loop: a source's samples (a simulated flight, an image folder, a bag, a EuRoC
+folder, a capataz recording) on every UAV stream, through the service's guarded publish.
 
-Samples go out in stamp order with their own stamps (the sensor's time base). Frames are paced at the
-recorded rate times ``--rate`` or, with ``--rate 0`` / ``--fps 0``, go out as fast as they are consumed
-(``--in-flight K`` is the flow control: at most K frames without a published yaw). The IMU and range
-samples up to a frame are held back and go out just before it, as the simulated camera sends them (sent as
-soon as read, samples newer than a frame could reach the estimator first and make it refuse that frame as
-stale). ``--loop`` replays again, stamps shifted by the recording's span (first to last sample) plus one
-frame period, so stamps keep increasing.
+Samples go out in stamp order with their own stamps (the sensor's time base). A simulated flight's frames
+go out at ``--fps`` frames per second, a recording's at the recorded rate times ``--rate``; ``--fps 0``
+(and a recording's ``--rate 0``) as fast as they are consumed (``--in-flight K`` is the flow control: at
+most K frames without a published yaw). The IMU, range and odometry samples up to a frame are held back
+and go out just before it (sent as soon as read, samples newer than a frame could reach the estimator
+first and make it refuse that frame as stale); a simulated flight's true pose follows its frame.
+``--loop`` replays again, stamps shifted by the source's span (first to last sample) plus one frame
+period, so stamps keep increasing.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Protocol
+
+import numpy as np
 
 from common.errors import InputError
-from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-from services.camera.sources import RecordedSource
-from services.estimator.sim_publisher import message_of
-
-if TYPE_CHECKING:
-    from services.camera.service import CameraService
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.geometry import quaternion_from_euler
+from common.messages import PoseEstimate
+from common.sensor_messages import message_of
+from common.wire import WireModel
+from services.camera.settings import CameraSettings
+from services.camera.sources import CameraSource, OdometrySample, OnSkip, Sample
+from services.runtime.handoff import Counters
 
 logger = logging.getLogger(__name__)
 
-#: the camera's publisher of each measurement type
-_TOPICS = {FrameMeasurement: "camera", ImuMeasurement: "imu", RangeMeasurement: "range"}
+#: the camera's publisher of each sample type (a frame's true pose goes on ``truth``)
+TOPICS: dict[type, str] = {
+    FrameMeasurement: "camera",
+    ImuMeasurement: "imu",
+    RangeMeasurement: "range",
+    OdometrySample: "pose_vo",
+}
+
+
+class Publisher(Protocol):
+    """What the loop needs of the camera service (tests give it a recording stand-in)."""
+
+    @property
+    def settings(self) -> CameraSettings: ...
+    @property
+    def stop_event(self) -> threading.Event: ...
+    @property
+    def finished(self) -> threading.Event: ...
+    @property
+    def counters(self) -> Counters: ...
+    def count_error(self, counter: str, what: str, exc: BaseException | str) -> None: ...
+    def wait_yaw(self, uav: str, seq: int) -> None:
+        """Flow control: return once at most ``in_flight`` frames up to ``seq`` lack a yaw."""
+
+    def put(self, uav: str, topic: str, message: WireModel) -> bool:
+        """Publish on ``uav``'s ``topic``; False when the service is stopping."""
 
 
 class LoopedStamps:
@@ -60,64 +92,99 @@ class LoopedStamps:
         self.offset_s = self._last_s + self._period_s - (self.first_s or 0.0)
 
 
-def replay_recording(service: CameraService, source: RecordedSource) -> None:
-    """Publish ``source`` on every UAV stream of ``service``, then mark the service finished. A recording
+def replay_source(camera: Publisher, source: CameraSource) -> None:
+    """Publish ``source`` on every UAV stream of ``camera``, then mark the camera finished. A recording
     found broken half-way (a truncated bag, an image changed since it was checked) stops the replay with
     one logged line and the ``recording_errors`` counter (the camera then exits with code 1)."""
     try:
-        _replay(service, source)
+        _replay(camera, source)
     except InputError as exc:
-        service.count_error("recording_errors", "replay stopped", exc)
-    service.finished.set()
-    service.stop_event.set()
+        camera.count_error("recording_errors", "replay stopped", exc)
+    camera.finished.set()
+    camera.stop_event.set()
 
 
-def _replay(service: CameraService, source: RecordedSource) -> None:
-    settings = service.settings
-    paced = settings.fps > 0 and settings.rate > 0
-    logger.info("replaying %s%s", source.description, f" at {settings.rate:g}x" if paced else ", unpaced")
+def _replay(camera: Publisher, source: CameraSource) -> None:
+    settings = camera.settings
+    paced = settings.fps > 0 and (source.paced_by_fps or settings.rate > 0)
+    pace = f"{settings.fps:g} fps" if source.paced_by_fps else f"{settings.rate:g}x"
+    logger.info("replaying %s%s", source.description, f" at {pace}" if paced else ", unpaced")
     if source.camera_info is not None:
         logger.info("camera calibration: %s", source.camera_info)
-    seq = {"camera": -1, "imu": -1, "range": -1}
-    pending: list[Measurement] = []  # sensor samples read since the last frame, stamps shifted
+    seq = dict.fromkeys(TOPICS.values(), -1)
+    pending: list[Sample] = []  # samples read since the last frame, stamps shifted
     stamps = LoopedStamps()
     t_wall0 = time.monotonic()
-    skip = lambda kind, why: service.count_error(f"skipped_{kind}", "sample skipped", why)  # noqa: E731
-    while not service.stop_event.is_set():
-        for m in source.measurements(skip):
-            if service.stop_event.is_set():
-                break
-            first = stamps.first_s is None
-            stamp_s = m.stamp_s + stamps.offset_of(m.stamp_s, frame=isinstance(m, FrameMeasurement))
-            if first:
+    frames_out = 0
+    skip = lambda kind, why: camera.count_error(f"skipped_{kind}", "sample skipped", why)  # noqa: E731
+    while not camera.stop_event.is_set():
+        for index, frame in enumerate(_frames(camera, source, stamps, pending, skip)):
+            if frames_out == 0:
                 t_wall0 = time.monotonic()
-            shifted = replace(m, stamp_s=stamp_s)
-            if not isinstance(shifted, FrameMeasurement):
-                if settings.sensors:
-                    pending.append(shifted)
-                continue
             if paced:
-                delay = t_wall0 + (stamp_s - (stamps.first_s or 0.0)) / settings.rate - time.monotonic()
-                if delay > 0 and service.stop_event.wait(delay):
+                due_s = (
+                    frames_out / settings.fps
+                    if source.paced_by_fps
+                    else (frame.stamp_s - (stamps.first_s or 0.0)) / settings.rate
+                )
+                delay = t_wall0 + due_s - time.monotonic()
+                if delay > 0 and camera.stop_event.wait(delay):
                     break
-            _publish_sensors(service, pending, seq)  # just before their frame, as the simulated camera does
+            _publish_samples(camera, pending, seq)  # just before their frame
             pending.clear()
             seq["camera"] += 1
             for uav in settings.uavs:
-                service._wait_yaw(uav, seq["camera"] - 1)
-                service._put(uav, "camera", message_of(uav, seq["camera"], shifted)[1])
-            service.counters.inc("frames_out")
+                camera.wait_yaw(uav, seq["camera"] - 1)
+                camera.put(uav, "camera", message_of(uav, seq["camera"], frame)[1])
+                if source.truth is not None:  # the simulation's ground truth (for views, recordings)
+                    camera.put(uav, "truth", source.truth(uav, seq["camera"], frame.stamp_s, index))
+            frames_out += 1
+            camera.counters.inc("frames_out")
         if not settings.loop or seq["camera"] < 0:
             break
         stamps.next_round()
-    _publish_sensors(service, pending, seq)  # samples after the last frame
+    _publish_samples(camera, pending, seq)  # samples after the last frame
     for uav in settings.uavs:
-        service._wait_yaw(uav, seq["camera"])
+        camera.wait_yaw(uav, seq["camera"])
 
 
-def _publish_sensors(service: CameraService, samples: list[Measurement], seq: dict[str, int]) -> None:
+def _frames(
+    camera: Publisher,
+    source: CameraSource,
+    stamps: LoopedStamps,
+    pending: list[Sample],
+    skip: OnSkip,
+) -> Iterator[FrameMeasurement]:
+    """One round of the source: its frames, stamps shifted; the samples before each are added to
+    ``pending`` (kept only with ``--sensors``). Stops when the camera stops."""
+    for m in source.measurements(skip):
+        if camera.stop_event.is_set():
+            return
+        is_frame = isinstance(m, FrameMeasurement)
+        shifted = replace(m, stamp_s=m.stamp_s + stamps.offset_of(m.stamp_s, frame=is_frame))
+        if isinstance(shifted, FrameMeasurement):
+            yield shifted
+        elif camera.settings.sensors:
+            pending.append(shifted)
+
+
+def _publish_samples(camera: Publisher, samples: list[Sample], seq: dict[str, int]) -> None:
     for m in samples:
-        topic = _TOPICS[type(m)]
+        topic = TOPICS[type(m)]
         seq[topic] += 1
-        for uav in service.settings.uavs:
-            service._put(uav, topic, message_of(uav, seq[topic], m)[1])
+        for uav in camera.settings.uavs:
+            camera.put(uav, topic, _message(uav, seq[topic], m))
+
+
+def _message(uav: str, seq: int, sample: Sample) -> WireModel:
+    if isinstance(sample, OdometrySample):
+        return PoseEstimate(
+            uav=uav,
+            seq=seq,
+            stamp_s=sample.stamp_s,
+            p_world_body_m=sample.p_world_body_m,
+            q_world_body=quaternion_from_euler(*sample.euler_rad),
+            covariance=np.eye(6) * 1e-4,
+            source="sim-odometry",
+        )
+    return message_of(uav, seq, sample)[1]

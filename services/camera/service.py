@@ -1,13 +1,14 @@
 """The camera (replayer): one or more UAV streams at a given rate, once or looped.
 
 A simulated flight publishes, in time order, every IMU and rangefinder sample up to a frame's stamp,
-then the frame. ``--flight office`` publishes the localizer's default flight through the built-in office
-instead, from the localizer's forward-looking camera, with the flight's simulated odometry on
-``pose/vo`` (truth plus noise, source ``sim-odometry``): no estimator can run on that flight, and paper B's
-prediction needs a velocity. ``--fps 0`` publishes as fast as possible. ``--in-flight K`` is flow control for
-measurements: the camera keeps at most K frames of a stream without a published yaw (so a run can
-check that every frame yields a yaw); 0 (the default) is a free-running camera whose frames the master
-takes latest-wins.
+then the frame (:func:`common.sim.stream.flight_measurements`, through the one publish loop of
+:mod:`services.camera.replay` that also replays recorded inputs). ``--flight office`` publishes the
+localizer's default flight through the built-in office instead, from the localizer's forward-looking
+camera, with the flight's simulated odometry on ``pose/vo`` (truth plus noise, source ``sim-odometry``):
+no estimator can run on that flight, and paper B's prediction needs a velocity. ``--fps 0`` publishes as
+fast as possible. ``--in-flight K`` is flow control for measurements: the camera keeps at most K frames
+of a stream without a published yaw (so a run can check that every frame yields a yaw); 0 (the default)
+is a free-running camera whose frames the master takes latest-wins.
 """
 
 from __future__ import annotations
@@ -15,37 +16,19 @@ from __future__ import annotations
 import argparse
 import threading
 import time
-from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from common import keys
-from common.codec import encode
-from common.estimation.measurements import ImuMeasurement
-from common.geometry import quaternion_from_euler
-from common.messages import Frame, PoseEstimate, YawEstimate
-from common.sim.flight import Flight
-from services.camera.flights import (
-    office_frames,
-    office_odometry_poses,
-    simulated_flight,
-    truth_pose,
-    write_flight_calibration,
-)
+from common.messages import Frame, YawEstimate
+from common.wire import WireModel
+from services.camera.flights import flight_source, write_flight_calibration
 from services.camera.images import image_files
-from services.camera.replay import LoopedStamps, replay_recording
+from services.camera.replay import replay_source
 from services.camera.settings import CameraSettings, FlightName
-from services.camera.sources import (
-    add_source_arguments,
-    open_camera_source,
-    preloaded,
-    sensor_samples,
-)
-from services.estimator.sim_publisher import message_of
+from services.camera.sources import add_source_arguments, open_camera_source, preloaded
 from services.runtime.cli import add_enum_argument, add_transport_arguments, parse_size
 from services.runtime.fields import settings_from
 from services.runtime.service import ConfiguredService
@@ -57,26 +40,15 @@ class CameraService(ConfiguredService[CameraSettings]):
     def setup(self) -> None:
         settings = self.settings
         # a recorded input is opened and checked before anything is published (one clear error otherwise)
-        self.source = open_camera_source(settings)
-        if self.source is not None and settings.preload:
-            self.source = preloaded(self.source)
-        self.flight: Flight | None = (
-            None
-            if self.source is not None or settings.flight is FlightName.OFFICE
-            else simulated_flight(settings)
-        )
+        recorded = open_camera_source(settings)
+        if recorded is not None and settings.preload:
+            recorded = preloaded(recorded)
+        self.source = recorded if recorded is not None else flight_source(settings)
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
-        #: seq of the last IMU / range sample published per (uav, topic)
-        self._sensor_seq: dict[tuple[str, str], int] = {}
         self._ack = threading.Condition()
         self.finished = threading.Event()
         self._entities: list[Any] = []
         self._masters = threading.Event()
-        self._odometry = (
-            office_odometry_poses(settings)
-            if settings.flight is FlightName.OFFICE and self.source is None
-            else None
-        )
 
     def start(self, session: zenoh.Session) -> None:
         self._pub: dict[str, dict[str, Any]] = {}
@@ -121,23 +93,16 @@ class CameraService(ConfiguredService[CameraSettings]):
             self._acked[estimate.uav] = max(self._acked.get(estimate.uav, -1), estimate.seq)
             self._ack.notify_all()
 
-    def frames(self) -> Iterator[tuple[int, float, np.ndarray]]:
-        if self.flight is not None:
-            for i in range(self.flight.n_frames):
-                yield i, float(self.flight.frame_stamps_s[i]), self.flight.frame(i)
-            return
-        yield from office_frames(self.settings)
-
-    def _put(self, uav: str, topic: str, message: Any) -> None:
-        payload, attachment = encode(message)
+    def put(self, uav: str, topic: str, message: WireModel) -> bool:
+        """Publish ``message`` on ``uav``'s ``topic`` (False: the service is stopping)."""
         publisher = self._pub[uav][topic]
-        if topic == "camera":  # declare the source: masters follow one camera per stream (SourceLock)
-            source = zenoh.SourceInfo(publisher.id, message.seq)
-            publisher.put(payload, attachment=attachment, source_info=source)
-            return
-        publisher.put(payload, attachment=attachment)
+        if isinstance(
+            message, Frame
+        ):  # declare the source: masters follow one camera per stream (SourceLock)
+            return self.publish(publisher, message, source_info=zenoh.SourceInfo(publisher.id, message.seq))
+        return self.publish(publisher, message)
 
-    def _wait_yaw(self, uav: str, seq: int) -> None:
+    def wait_yaw(self, uav: str, seq: int) -> None:
         """Flow control: at most ``in_flight`` frames without a yaw."""
         if not self.settings.in_flight:
             return
@@ -150,42 +115,9 @@ class CameraService(ConfiguredService[CameraSettings]):
                     return
                 self._ack.wait(min(left, 0.1))
 
-    def _sensor_samples(self, uav: str, start_s: float, stop_s: float, offset_s: float) -> None:
-        """Publish the IMU and rangefinder samples (office: odometry) with stamps in ``(start_s, stop_s]``."""
-        if not self.settings.sensors:
-            return
-        if self._odometry is not None:
-            stamps, positions, angles = self._odometry
-            a, b = np.searchsorted(stamps, [start_s, stop_s], side="right")
-            for k in range(int(a), int(b)):
-                self._put(
-                    uav,
-                    "pose_vo",
-                    PoseEstimate(
-                        uav=uav,
-                        seq=k,
-                        stamp_s=float(stamps[k]) + offset_s,
-                        p_world_body_m=positions[k],
-                        q_world_body=quaternion_from_euler(*angles[k]),
-                        covariance=np.eye(6) * 1e-4,
-                        source="sim-odometry",
-                    ),
-                )
-        if self.flight is None:
-            return
-        # merged in stamp order: all IMU samples first would make the range samples of the same interval
-        # older than the newest IMU one, which the estimator may already have passed (refused as stale)
-        for m in sensor_samples(self.flight, start_s, stop_s):
-            topic = "imu" if isinstance(m, ImuMeasurement) else "range"
-            seq = self._sensor_seq[uav, topic] = self._sensor_seq.get((uav, topic), -1) + 1
-            self._put(uav, topic, message_of(uav, seq, replace(m, stamp_s=m.stamp_s + offset_s))[1])
-
     def _publish_all(self) -> None:
         self._wait_for_master()
-        if self.source is not None:
-            replay_recording(self, self.source)
-            return
-        self._publish_simulated()
+        replay_source(self, self.source)
 
     def _wait_for_master(self) -> None:
         if self.settings.wait_master_s:
@@ -197,51 +129,6 @@ class CameraService(ConfiguredService[CameraSettings]):
                 if all(p["camera"].matching_status.matching for p in self._pub.values()):
                     break
                 time.sleep(0.01)
-
-    def _publish_simulated(self) -> None:
-        t_start = time.monotonic()
-        published = 0
-        last_seq = -1
-        stamps = LoopedStamps()
-        while not self.stop_event.is_set():
-            previous_stamp = -np.inf
-            for _i, stamp_s, image in self.frames():
-                if self.stop_event.is_set():
-                    break
-                if self.settings.fps:
-                    delay = t_start + published / self.settings.fps - time.monotonic()
-                    if delay > 0 and self.stop_event.wait(delay):
-                        break
-                seq = last_seq + 1
-                offset = stamps.offset_of(stamp_s)
-                for uav in self.settings.uavs:
-                    self._sensor_samples(uav, previous_stamp, stamp_s, offset)
-                    self._wait_yaw(uav, seq - 1)
-                    self._put(
-                        uav,
-                        "camera",
-                        Frame(
-                            uav=uav,
-                            seq=seq,
-                            stamp_s=stamp_s + offset,
-                            width=image.shape[1],
-                            height=image.shape[0],
-                            pixels=image,
-                        ),
-                    )
-                    if self.flight is not None:  # the simulation's ground truth (for views, recordings)
-                        self._put(uav, "truth", truth_pose(uav, seq, stamp_s + offset, self.flight, _i))
-                previous_stamp = stamp_s
-                last_seq = seq
-                published += 1
-                self.counters.inc("frames_out")
-            if not self.settings.loop or last_seq < 0:
-                break
-            stamps.next_round()
-        for uav in self.settings.uavs:
-            self._wait_yaw(uav, last_seq)
-        self.finished.set()
-        self.stop_event.set()
 
 
 def register(subparsers: Any) -> None:

@@ -1,5 +1,6 @@
-"""The camera's recorded inputs: an image folder, a ROS bag, a EuRoC folder or a capataz MCAP recording,
-each opened (and checked) before the first frame, then replayed as one time-ordered measurement stream.
+"""The camera's sources: what it publishes, as one time-ordered stream of samples. A simulated flight
+(services/camera/flights.py) or a recorded input: an image folder, a ROS bag, a EuRoC folder or a capataz
+MCAP recording, each opened (and checked) before the first frame.
 
 Opening refuses a bad input with one :class:`~common.errors.InputError` line (the CLI's exit code 1):
 nothing is published from a recording that would stop half-way (a yaw reset the user would not see).
@@ -12,8 +13,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
 from common.camera import CameraModel
 from common.datasets.calibration import CalibrationError, load_calibration
 from common.datasets.euroc import open_euroc
@@ -21,8 +20,9 @@ from common.datasets.images import open_image_folder
 from common.datasets.rosbag import open_bag
 from common.datasets.tum import Trajectory
 from common.errors import InputError
-from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-from common.sim.flight import Flight
+from common.estimation.measurements import Measurement
+from common.types import FloatArray
+from common.wire import WireModel
 from services.camera.settings import CameraSettings
 
 #: what a skipped sample is reported to: (kind, why)
@@ -30,26 +30,49 @@ OnSkip = Callable[[str, str], None]
 
 
 @dataclass(frozen=True)
-class RecordedSource:
-    """An opened recording: a description, the calibration it carries, and its measurement stream."""
+class OdometrySample:
+    """A simulated odometry pose (the office flight's stand-in for VO: truth plus noise), for ``pose/vo``."""
+
+    stamp_s: float
+    p_world_body_m: FloatArray
+    #: roll, pitch, yaw (rad)
+    euler_rad: FloatArray
+
+
+#: what a source's stream carries: sensor samples and frames, and (office flight) odometry poses
+Sample = Measurement | OdometrySample
+
+#: a source's truth: ``(uav, seq, stamp_s, i)`` -> the true pose message of the i-th frame of a round
+TruthOf = Callable[[str, int, float, int], WireModel]
+
+
+@dataclass(frozen=True)
+class CameraSource:
+    """An opened source: a description, the calibration it carries, and its stream of samples (a new
+    iterator each round of ``--loop``)."""
 
     description: str
-    measurements: Callable[[OnSkip | None], Iterator[Measurement]]
+    measurements: Callable[[OnSkip | None], Iterator[Sample]]
     camera_info: CameraModel | None = None
     ground_truth: Trajectory | None = None
     frames: int | None = None
-    #: frame size (every frame of the recording has it)
+    #: frame size (every frame of the source has it)
     width: int = 0
     height: int = 0
+    #: the simulation's true pose of each frame (published on ``truth`` after it), None for a recording
+    truth: TruthOf | None = None
+    #: True: frames go out at ``--fps`` frames per second (a simulation); False: at the recorded rate
+    #: times ``--rate`` (a recording)
+    paced_by_fps: bool = False
 
 
-def preloaded(source: RecordedSource) -> RecordedSource:
+def preloaded(source: CameraSource) -> CameraSource:
     """The same source with every measurement read into memory first (reading costs no frame time)."""
     items = list(source.measurements(None))
     return replace(source, measurements=lambda _skip: iter(items))
 
 
-def with_calibration(source: RecordedSource, path: Path) -> RecordedSource:
+def with_calibration(source: CameraSource, path: Path) -> CameraSource:
     """``source`` with the camera of a calibration file (it replaces a recording's own CameraInfo); the
     calibration must be of the recording's frame size."""
     camera = load_calibration(path)
@@ -73,7 +96,7 @@ def open_source(
     euroc: Path | None = None,
     mcap: Path | None = None,
     uav: str = "uav0",
-) -> RecordedSource | None:
+) -> CameraSource | None:
     """Open the one recorded input given (None: none given, the camera simulates)."""
     given = [
         name
@@ -86,7 +109,7 @@ def open_source(
         raise InputError("--stamps needs --images")
     if images is not None:
         folder = open_image_folder(images, stamps, start, stop, step, fps)
-        return RecordedSource(
+        return CameraSource(
             f"{len(folder)} images of {folder.path} ({folder.width}x{folder.height})",
             lambda _skip: iter(folder.frames()),
             frames=len(folder),
@@ -95,7 +118,7 @@ def open_source(
         )
     if bag is not None:
         opened = open_bag(bag, **(topics or {}))
-        return RecordedSource(
+        return CameraSource(
             f"bag {opened.path} (image {opened.topics.image}, imu {opened.topics.imu}, "
             f"range {opened.topics.range})",
             opened.measurements,
@@ -106,7 +129,7 @@ def open_source(
         )
     if euroc is not None:
         folder_e = open_euroc(euroc)
-        return RecordedSource(
+        return CameraSource(
             f"EuRoC {folder_e.root} ({len(folder_e.camera)} frames, {len(folder_e.imu)} IMU samples)",
             lambda _skip: folder_e.measurements(),
             camera_info=folder_e.camera_info,
@@ -119,7 +142,7 @@ def open_source(
         from common.datasets.recording import open_recording
 
         recording = open_recording(mcap, uav)
-        return RecordedSource(
+        return CameraSource(
             f"capataz recording {recording.path} ({recording.frames} frames of {recording.uav})",
             lambda _skip: recording.measurements(),
             frames=recording.frames,
@@ -129,7 +152,7 @@ def open_source(
     return None
 
 
-def open_camera_source(settings: CameraSettings) -> RecordedSource | None:
+def open_camera_source(settings: CameraSettings) -> CameraSource | None:
     """:func:`open_source` of a camera's settings."""
     topics = {
         name: getattr(settings, name)
@@ -183,33 +206,3 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
         default=1.0,
         help="replay speed of a recording (1 = recorded rate, 0 = as fast as consumed)",
     )
-
-
-def sensor_samples(flight: Flight, start_s: float, stop_s: float) -> list[Measurement]:
-    """The flight's IMU and range samples stamped in ``(start_s, stop_s]``, merged in stamp order (ties:
-    IMU first)."""
-    imu, rng = flight.imu, flight.range
-    a, b = np.searchsorted(imu.stamps_s, [start_s, stop_s], side="right")
-    samples: list[Measurement] = [
-        ImuMeasurement(float(imu.stamps_s[k]), imu.gyro_rad_s[k], imu.accel_m_s2[k])
-        for k in range(int(a), int(b))
-    ]
-    a, b = np.searchsorted(rng.stamps_s, [start_s, stop_s], side="right")
-    samples += [
-        RangeMeasurement(float(rng.stamps_s[k]), float(rng.range_m[k])) for k in range(int(a), int(b))
-    ]
-    samples.sort(key=lambda m: (m.stamp_s, isinstance(m, RangeMeasurement)))
-    return samples
-
-
-def simulated_camera_measurements(flight: Flight) -> Iterator[Measurement]:
-    """Exactly what ``capataz camera`` publishes for ``flight`` (one round, no stamp offset): before each
-    frame, the IMU and range samples stamped in ``(previous frame, this frame]`` in stamp order (frame 0:
-    all up to it). Exporting this stream (a bag, a EuRoC folder) lets a replay be compared with the
-    simulation."""
-    previous = -np.inf
-    for i in range(flight.n_frames):
-        stamp = float(flight.frame_stamps_s[i])
-        yield from sensor_samples(flight, previous, stamp)
-        yield FrameMeasurement(stamp, flight.frame(i))
-        previous = stamp

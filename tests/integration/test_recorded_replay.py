@@ -28,7 +28,7 @@ from common.datasets.rosbag_writer import write_bag
 from common.dispatch import Balance
 from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.sim.flight import hover_flight
-from services.camera.sources import simulated_camera_measurements
+from common.sim.stream import flight_measurements
 from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
@@ -59,7 +59,7 @@ class _Outputs:
 
     def _on(self, cls: type) -> Any:
         def handler(sample: Any) -> None:
-            message = decode(zbytes(sample.payload), zbytes(sample.attachment), cls)
+            message: Any = decode(zbytes(sample.payload), zbytes(sample.attachment), cls)
             with self.lock:
                 if isinstance(message, YawEstimate):
                     self.yaw[message.seq] = message
@@ -159,7 +159,7 @@ def _run(cluster: LocalCluster, session: Any, name: str, camera_args: list[str],
 
 def test_bags_and_euroc_folder_replay_with_the_simulated_cameras_results(tmp_path: Path) -> None:
     flight = hover_flight(seed=0, n_frames=N_FRAMES)  # what `capataz camera --frames N` simulates
-    stream = list(simulated_camera_measurements(flight))
+    stream = list(flight_measurements(flight))
     write_bag(tmp_path / "flight_ros2", stream, None, "ros2-mcap")
     write_bag(tmp_path / "flight.bag", stream, None, "ros1", encoding="bgr8")
     write_euroc(tmp_path / "flight_euroc", stream)

@@ -15,11 +15,12 @@ import pytest
 from common.codec import decode, encode
 from common.estimation.coupling_types import PoseOutput
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
+from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S
 from common.messages import PoseEstimate
+from common.sensor_messages import message_of
 from common.sim.flight import Flight, turns_flight
+from common.sim.stream import flight_measurements
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
-from services.estimator.sim_publisher import message_of
 from services.runtime.transport import TransportSettings
 from tests.services.fakes import FakeBytes, FakePublisher
 

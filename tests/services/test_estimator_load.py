@@ -22,9 +22,10 @@ from common import keys
 from common.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.measurements import ImuMeasurement
-from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
+from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S
 from common.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats
 from common.sim.flight import Flight, turns_flight
+from common.sim.stream import flight_measurements
 from services.estimator import EstimatorService, EstimatorSettings
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes

@@ -15,11 +15,12 @@ import zenoh
 from common import keys
 from common.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
-from common.estimation.replay import flight_measurements
 from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample
+from common.sensor_messages import message_of
 from common.sim.flight import Flight, turns_flight
+from common.sim.stream import flight_measurements
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
-from services.estimator.sim_publisher import message_of, publish_measurements
+from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
@@ -89,11 +90,11 @@ def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpo
             for seq, measurement in enumerate(stream):
                 key, message = message_of("uav0", seq, measurement)
                 if isinstance(message, Frame):
-                    assert wait_until(
-                        lambda n=frames_sent: (
-                            service.counters.get("frames_in") == n and service._frames.depth() == 0
-                        )
-                    ), service.counters.counts()
+
+                    def taken(n: int = frames_sent) -> bool:
+                        return service.counters.get("frames_in") == n and service._frames.depth() == 0
+
+                    assert wait_until(taken), service.counters.counts()
                     frames_sent += 1
                 payload, attachment = encode(message)
                 publishers[zenoh.KeyExpr(key)].put(payload, attachment=attachment)

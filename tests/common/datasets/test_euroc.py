@@ -11,20 +11,19 @@ import pytest
 from common.camera import CameraModel
 from common.datasets.euroc import EurocError, open_euroc, write_euroc
 from common.datasets.tum import Trajectory
-from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement
 from common.sim.flight import hover_flight
-from services.camera.sources import simulated_camera_measurements
+from common.sim.stream import flight_measurements
 
 
 def test_euroc_folder_reads_back_the_simulated_stream(tmp_path: Path) -> None:
     flight = hover_flight(seed=0, n_frames=5)
-    stream = list(simulated_camera_measurements(flight))
+    stream = list(flight_measurements(flight))
     truth = Trajectory(flight.frame_stamps_s, flight.p_world_body_m, flight.q_world_body)
     info = CameraModel.default()
     write_euroc(tmp_path / "MH_sim", stream, info, truth)
     folder = open_euroc(tmp_path / "MH_sim")
-    order = {ImuMeasurement: 0, RangeMeasurement: 1, FrameMeasurement: 2}
-    expected = sorted(stream, key=lambda m: (m.stamp_s, order[type(m)]))
+    expected = stream  # in the same order: stamp order, equal stamps in SENSOR_ORDER
     read = list(folder.measurements())
     assert [type(m) for m in read] == [type(m) for m in expected]
     assert [m.stamp_s for m in read] == [m.stamp_s for m in expected]
@@ -44,7 +43,7 @@ def test_euroc_folder_reads_back_the_simulated_stream(tmp_path: Path) -> None:
 
 def test_broken_euroc_folders_are_one_clear_error(tmp_path: Path) -> None:
     flight = hover_flight(seed=0, n_frames=3)
-    write_euroc(tmp_path / "e", simulated_camera_measurements(flight))
+    write_euroc(tmp_path / "e", flight_measurements(flight))
     imu = tmp_path / "e" / "mav0" / "imu0" / "data.csv"
     imu.write_text(imu.read_text() + "123,1,2\n")
     with pytest.raises(EurocError, match="imu0"):

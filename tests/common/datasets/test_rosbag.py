@@ -13,7 +13,7 @@ from common.datasets.rosbag import BagError, open_bag
 from common.datasets.rosbag_writer import write_bag
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.sim.flight import Flight, hover_flight
-from services.camera.sources import simulated_camera_measurements
+from common.sim.stream import flight_measurements
 
 N_FRAMES = 6
 
@@ -25,7 +25,7 @@ def flight() -> Flight:
 
 @pytest.fixture(scope="module")
 def stream(flight: Flight) -> list[Measurement]:
-    return list(simulated_camera_measurements(flight))
+    return list(flight_measurements(flight))
 
 
 def _info(flight: Flight) -> CameraModel:
@@ -42,10 +42,8 @@ def _info(flight: Flight) -> CameraModel:
 
 
 def _assert_same(read: list[Measurement], written: list[Measurement]) -> None:
-    """Equal streams; the bag's in strict stamp order (the camera publishes, per frame, its IMU samples
-    and then its range samples)."""
-    order = {ImuMeasurement: 0, RangeMeasurement: 1, FrameMeasurement: 2}
-    written = sorted(written, key=lambda m: (m.stamp_s, order[type(m)]))
+    """Equal streams, in the same order: stamp order, equal stamps in SENSOR_ORDER (the simulated stream's
+    and the reader's)."""
     assert len(read) == len(written)
     for r, w in zip(read, written, strict=True):
         assert type(r) is type(w)

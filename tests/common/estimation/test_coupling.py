@@ -25,7 +25,6 @@ from common.estimation.replay import (
     camera_model_of,
     collect,
     evaluate,
-    flight_measurements,
     run_estimators,
     vo_with_true_attitude,
 )
@@ -38,6 +37,7 @@ from common.geometry import (
     wrap_angle_rad,
 )
 from common.sim.flight import Flight
+from common.sim.stream import flight_measurements
 
 START, STOP = 400, 480  # 4 s in the middle of the manoeuvre: ~3 m at up to 0.76 m/s, tilted ~3 deg
 

@@ -12,7 +12,7 @@ from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import AttitudeOutput, CouplingSettings
 from common.geometry import euler_from_quaternion
 from common.sim.flight import hover_flight
-from services.camera.sources import simulated_camera_measurements
+from common.sim.stream import flight_measurements
 from services.estimator.settings import EstimatorSettings
 
 
@@ -21,7 +21,7 @@ def _roll_pitch_rms_deg(settings: CouplingSettings, n_frames: int) -> float:
     estimator = DoubleCouplingEstimator(EstimatorSettings().camera(), settings=settings)
     stamps = flight.frame_stamps_s
     errors = []
-    for measurement in simulated_camera_measurements(flight):
+    for measurement in flight_measurements(flight):
         estimator.push(measurement)
         for out in estimator.process_due():
             if isinstance(out, AttitudeOutput):

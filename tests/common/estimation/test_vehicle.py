@@ -15,11 +15,11 @@ from common.estimation.replay import (
     ABLATIONS,
     CONFIGURATIONS,
     evaluate,
-    flight_measurements,
     run_estimators,
     standard_estimators,
 )
 from common.sim.flight import turns_flight
+from common.sim.stream import flight_measurements
 from services.estimator.settings import EstimatorSettings, add_estimator_arguments, settings_from_args
 
 
