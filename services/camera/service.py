@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common import keys
-from common.codec import encode
+from common.wire import keys
+from common.wire.codec import encode
 from common.estimation.measurements import ImuMeasurement
 from common.geometry import quaternion_from_euler
-from common.messages import Frame, PoseEstimate, YawEstimate
+from common.wire.messages import Frame, PoseEstimate, YawEstimate
 from common.sim.flight import Flight
 from services.camera.flights import (
     office_frames,

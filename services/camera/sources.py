@@ -116,7 +116,7 @@ def open_source(
             height=folder_e.camera.height,
         )
     if mcap is not None:
-        from common.datasets.recording import open_recording
+        from common.recordings.mcap import open_recording
 
         recording = open_recording(mcap, uav)
         return RecordedSource(

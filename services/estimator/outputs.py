@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
-from common.messages import AttitudeEstimate, PoseEstimate
+from common.wire.messages import AttitudeEstimate, PoseEstimate
 from common.types import FloatArray
 
 #: the floor of the horizontal variance (m^2)

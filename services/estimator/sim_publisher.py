@@ -9,11 +9,11 @@ import time
 
 import zenoh
 
-from common import keys
-from common.codec import encode
+from common.wire import keys
+from common.wire.codec import encode
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
-from common.messages import Frame, ImuSample, RangeSample
-from common.wire import WireModel
+from common.wire.messages import Frame, ImuSample, RangeSample
+from common.wire.schema import WireModel
 
 
 def message_of(uav: str, seq: int, measurement: Measurement) -> tuple[str, WireModel]:

@@ -19,7 +19,7 @@ import numpy as np
 import zenoh
 from pydantic import Field
 
-from common import keys
+from common.wire import keys
 from common.dispatch import (
     SELF,
     Dispatcher,
@@ -29,7 +29,7 @@ from common.dispatch import (
     TrustSettings,
 )
 from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
+from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.streams import StreamTable
 from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import (

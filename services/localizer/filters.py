@@ -40,7 +40,7 @@ from common.localization.pose import CameraPose, rotation_vectors
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState, TrackingStatus
 from common.localization.tracking import localizer_step
-from common.messages import Frame, PoseEstimate
+from common.wire.messages import Frame, PoseEstimate
 from services.localizer.settings import FilterKind, LocalizerSettings
 
 logger = logging.getLogger(__name__)

@@ -25,7 +25,7 @@ from typing import Any
 
 import zenoh
 
-from common import keys
+from common.wire import keys
 
 logger = logging.getLogger(__name__)
 

@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common import keys
+from common.wire import keys
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
+from common.wire.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid

@@ -15,7 +15,7 @@ from typing import Any
 
 import zenoh
 
-from common import keys
+from common.wire import keys
 from services.runtime import zconfig
 from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.service import ServiceRuntime

@@ -24,7 +24,7 @@ from typing import Any
 
 import zenoh
 
-from common import keys
+from common.wire import keys
 
 ROOT = keys.ROOT
 #: message kinds of Zenoh 1.10's access control (all of them, for the router subject)

@@ -1,5 +1,5 @@
 """The base of every service: :class:`ServiceRuntime` opens the session in a ``with``, declares
-``capataz/alive/{role}/{node}/{i}``, answers ``capataz/health/...``, publishes :class:`~common.messages.Stats`
+``capataz/alive/{role}/{node}/{i}``, answers ``capataz/health/...``, publishes :class:`~common.wire.messages.Stats`
 periodically, and shuts down on SIGTERM/SIGINT within a second. Subclasses declare their own
 subscribers/queryables in :meth:`ServiceRuntime.start`."""
 
@@ -16,11 +16,11 @@ from typing import Any, Generic, Self, TypeVar
 
 import zenoh
 
-from common import keys
-from common.codec import decode, encode, error_reply
+from common.wire import keys
+from common.wire.codec import decode, encode, error_reply
 from common.errors import CapatazError
-from common.messages import Health, Stats
-from common.wire import WireError, WireModel
+from common.wire.messages import Health, Stats
+from common.wire.schema import WireError, WireModel
 from services.runtime.cli import transport_from_args
 from services.runtime.handoff import Counters
 from services.runtime.presence import ConnectionMonitor, TokenWatch
@@ -44,7 +44,7 @@ class ServiceRuntime:
     """
 
     role: keys.Role = keys.Role.WORKER
-    #: the ``--trajectory`` files of a service that publishes estimates (services/trajectory.py), or None
+    #: the ``--trajectory`` files of a service that publishes estimates (services/runtime/trajectory.py), or None
     trajectory_tap: Any = None
 
     def __init__(

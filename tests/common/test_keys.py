@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from common import keys
+from common.wire import keys
 from common.errors import InputError
 
 

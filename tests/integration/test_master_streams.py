@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode, encode
-from common.messages import Frame, Health, YawEstimate
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import Frame, Health, YawEstimate
 from common.sim.flight import hover_flight
 from services.runtime.transport import open_session, zbytes
-from services.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 from tests.integration.cluster_helpers import reference_yaw_rad
 
 pytestmark = [pytest.mark.zenoh]

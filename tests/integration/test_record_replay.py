@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
+from common.wire import keys
 from common.dispatch import Balance
 from services.master.service import Topology
-from services.observe import YawCollector
+from services.tools.observe import YawCollector
 from services.runtime.transport import open_session
-from services.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 

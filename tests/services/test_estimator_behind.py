@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.codec import decode, encode
+from common.wire.codec import decode, encode
 from common.estimation.coupling_types import PoseOutput
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
-from common.messages import PoseEstimate
+from common.wire.messages import PoseEstimate
 from common.sim.flight import Flight, turns_flight
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import message_of

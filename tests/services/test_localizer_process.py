@@ -11,7 +11,7 @@ import threading
 import pytest
 import zenoh
 
-from common import keys
+from common.wire import keys
 from services.runtime.transport import open_session
 from tests.zenoh_helpers import WAIT_S, hub, peer
 
@@ -29,7 +29,7 @@ def _stops_cleanly_on_sigterm(endpoint: str) -> None:
         [
             sys.executable,
             "-m",
-            "services.cli",
+            "services.tools.cli",
             "localizer",
             "--connect",
             endpoint,

@@ -12,7 +12,7 @@ import pytest
 from common.camera import DistortionModel
 from common.datasets.calibration import opencv_yaml_text, ros_yaml_text
 from common.errors import InputError
-from common.messages import ImuSample
+from common.wire.messages import ImuSample
 from common.sim.field import wide_angle_camera
 from common.yaw import YawSettings, gyro_delta_yaw_rad
 from services.master.gyro import GyroBuffer

@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from common import keys
+from common.wire import keys
 from services.runtime import presence
 from services.runtime.presence import ConnectionMonitor, DuplicateMemberError
 from services.runtime.service import ServiceRuntime

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.codec import decode
-from common.messages import PoseEstimate
+from common.wire.codec import decode
+from common.wire.messages import PoseEstimate
 from services.runtime.service import ServiceRuntime
 from services.runtime.transport import TransportSettings
 

@@ -90,7 +90,7 @@ def test_credentials_come_from_environment_files(tmp_path: Path, certs: Path) ->
 
 
 def test_services_take_no_credentials_on_the_command_line() -> None:
-    from services.cli import build_parser
+    from services.tools.cli import build_parser
 
     for command in ("worker", "router", "master", "foreman", "camera"):
         options = build_parser().parse_args([command]).__dict__
@@ -99,7 +99,7 @@ def test_services_take_no_credentials_on_the_command_line() -> None:
 
 def router(env: dict[str, str], *args: str) -> subprocess.Popen[bytes]:
     return subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "router", "--no-multicast", *args],
+        [sys.executable, "-m", "services.tools.cli", "router", "--no-multicast", *args],
         env={**os.environ, **env},
         cwd=REPO,
         stdout=subprocess.PIPE,

@@ -128,7 +128,7 @@ def test_camera_command_refuses_bad_folders_in_one_line_with_exit_code_1(tmp_pat
         [
             sys.executable,
             "-m",
-            "services.cli",
+            "services.tools.cli",
             "camera",
             "--images",
             str(folder),
@@ -174,7 +174,7 @@ def test_up_refuses_a_bad_image_folder_before_starting_anything(tmp_path: Path) 
     cv2.imwrite(str(folder / "1.png"), np.zeros((10, 10), np.uint8))
     cluster = Path(__file__).resolve().parents[3] / "deploy" / "clusters" / "local2x2.yml"
     result = subprocess.run(
-        [sys.executable, "-m", "services.cli", "up", "--cluster", str(cluster), "--port", "0",
+        [sys.executable, "-m", "services.tools.cli", "up", "--cluster", str(cluster), "--port", "0",
          "--images", str(folder), "--logs", str(tmp_path / "logs")],
         capture_output=True, text=True, timeout=120, check=False,
     )  # fmt: skip

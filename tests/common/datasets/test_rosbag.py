@@ -161,7 +161,7 @@ def test_camera_command_refuses_a_truncated_bag_in_one_line(
     write_bag(path, stream, None, "ros1")
     path.write_bytes(path.read_bytes()[:300])
     result = subprocess.run(
-        [sys.executable, "-m", "services.cli", "camera", "--bag", str(path), "--wait-master", "0",
+        [sys.executable, "-m", "services.tools.cli", "camera", "--bag", str(path), "--wait-master", "0",
          "--listen", "tcp/127.0.0.1:0", "--no-multicast"],
         capture_output=True, text=True, timeout=120, check=False,
     )  # fmt: skip

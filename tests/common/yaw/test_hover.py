@@ -5,7 +5,7 @@ import pytest
 from common.metrics import yaw_error_stats
 from common.sim.flight import hover_flight
 from common.yaw import YawSettings
-from services.demo_yaw import track_frames
+from services.tools.demo_yaw import track_frames
 
 
 @pytest.mark.slow

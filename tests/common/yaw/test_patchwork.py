@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from common.camera import CameraModel
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
-from common.messages import LOCAL_YAW_SETTINGS, YawJobSettings
+from common.wire.messages import LOCAL_YAW_SETTINGS, YawJobSettings
 from common.sim.flight import hover_flight
 from common.yaw import FftBackend, YawError, YawSettings, YawTracker, make_patch_grid
 from common.yaw.correlation import merge_measurements
