@@ -18,42 +18,12 @@
 
 from __future__ import annotations
 
-import re
-from dataclasses import dataclass
-from enum import StrEnum
 from functools import partial
 
 from common.errors import InputError
+from common.members import MemberId, Role, check_index, check_name
 
 ROOT = "capataz"
-_NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
-
-
-class Role(StrEnum):
-    """Roles of services (the ``{role}`` part of liveliness, stats and health keys)."""
-
-    CAMERA = "camera"
-    MASTER = "master"
-    FOREMAN = "foreman"
-    WORKER = "worker"
-    ROUTER = "router"
-    ESTIMATOR = "estimator"
-    LOCALIZER = "localizer"
-    RECORDER = "recorder"
-    VIEWER = "viewer"
-
-
-def check_name(value: str, what: str = "name") -> str:
-    """A key chunk: letters, digits, ``_ . -`` only (no ``/``, ``*``, ``$``, ``?``, ``#``)."""
-    if not isinstance(value, str) or not _NAME.match(value):
-        raise InputError(f"{what} must match [A-Za-z0-9_.-]+, got {value!r}")
-    return value
-
-
-def _index(i: int) -> int:
-    if isinstance(i, bool) or not isinstance(i, int) or i < 0:
-        raise InputError(f"index must be a non-negative int, got {i!r}")
-    return i
 
 
 def uav_key(uav: str, topic: str) -> str:
@@ -77,12 +47,12 @@ def foreman_key(node: str) -> str:
 
 
 def worker_key(node: str, i: int) -> str:
-    return f"{ROOT}/node/{check_name(node, 'node')}/worker/{_index(i)}"
+    return f"{ROOT}/node/{check_name(node, 'node')}/worker/{check_index(i)}"
 
 
 def _member_key(kind: str, role: str | Role, node: str, i: int) -> str:
     """``capataz/{kind}/{role}/{node}/{i}``: a service instance's liveliness token, stats or health key."""
-    return f"{ROOT}/{kind}/{Role(role).value}/{check_name(node, 'node')}/{_index(i)}"
+    return f"{ROOT}/{kind}/{Role(role).value}/{check_name(node, 'node')}/{check_index(i)}"
 
 
 alive_key = partial(_member_key, "alive")
@@ -96,12 +66,12 @@ ALL = f"{ROOT}/**"
 
 def master_candidate_key(uav: str, node: str, i: int) -> str:
     """Liveliness token of a master that can serve ``uav`` (active or standby)."""
-    return f"{ROOT}/elect/{check_name(uav, 'uav')}/candidate/{check_name(node, 'node')}/{_index(i)}"
+    return f"{ROOT}/elect/{check_name(uav, 'uav')}/candidate/{check_name(node, 'node')}/{check_index(i)}"
 
 
 def master_leader_key(uav: str, node: str, i: int) -> str:
     """Liveliness token of the one active master of ``uav``."""
-    return f"{ROOT}/elect/{check_name(uav, 'uav')}/leader/{check_name(node, 'node')}/{_index(i)}"
+    return f"{ROOT}/elect/{check_name(uav, 'uav')}/leader/{check_name(node, 'node')}/{check_index(i)}"
 
 
 def election_all(uav: str) -> str:
@@ -125,43 +95,18 @@ def alive_node_workers(node: str) -> str:
     return f"{ROOT}/alive/{Role.WORKER.value}/{check_name(node, 'node')}/*"
 
 
-@dataclass(frozen=True, order=True)
-class MemberId:
-    """A service instance: ``role/node/i``; its name is used in shares and reports."""
-
-    role: Role
-    node: str
-    index: int
-
-    @property
-    def name(self) -> str:
-        return f"{self.role.value}/{self.node}/{self.index}"
-
-    @classmethod
-    def from_name(cls, name: str) -> MemberId:
-        """Inverse of :attr:`name` (``role/node/i``); InputError otherwise."""
-        parts = str(name).split("/")
-        if len(parts) != 3:
-            raise InputError(f"not a member name (role/node/i): {name!r}")
-        try:
-            role, index = Role(parts[0]), int(parts[2])
-        except ValueError as exc:
-            raise InputError(f"bad member name {name!r}: {exc}") from None
-        return cls(role, check_name(parts[1], "node"), _index(index))
-
-    @property
-    def work_key(self) -> str:
-        """Where a dispatcher sends this member work (foreman or worker queryable)."""
-        if self.role is Role.FOREMAN:
-            return foreman_key(self.node)
-        if self.role is Role.WORKER:
-            return worker_key(self.node, self.index)
-        raise InputError(f"{self.name} takes no work")
+def work_key(member: MemberId) -> str:
+    """Where a dispatcher sends ``member`` work (foreman or worker queryable)."""
+    if member.role is Role.FOREMAN:
+        return foreman_key(member.node)
+    if member.role is Role.WORKER:
+        return worker_key(member.node, member.index)
+    raise InputError(f"{member.name} takes no work")
 
 
 def work_key_of(member: str) -> str:
     """The work queryable of the member named ``role/node/i`` (what dispatchers address)."""
-    return MemberId.from_name(member).work_key
+    return work_key(MemberId.from_name(member))
 
 
 def parse_alive_key(key: str) -> MemberId:
@@ -174,4 +119,4 @@ def parse_alive_key(key: str) -> MemberId:
         index = int(parts[4])
     except ValueError as exc:
         raise InputError(f"bad liveliness key {key!r}: {exc}") from None
-    return MemberId(role, check_name(parts[3], "node"), _index(index))
+    return MemberId(role, check_name(parts[3], "node"), check_index(index))

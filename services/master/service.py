@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.members import Topology
 from common.wire import keys
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
@@ -38,10 +39,7 @@ from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
 from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, session_of
 from services.master.published import Verdict as YawVerdict
-from services.master.settings import (
-    MasterSettings,
-    Topology,
-)
+from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.round import FrameWork

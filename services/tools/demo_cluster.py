@@ -25,7 +25,7 @@ from common.geometry import wrap_angle_rad
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
 from services.tools.demo_yaw import report_yaw, track_frames
-from services.master.service import Topology
+from common.members import Topology
 from services.tools.observe import YawCollector
 from services.tools.report import write_json
 from services.runtime.progress import bar as progress_bar

@@ -28,7 +28,7 @@ from services.tools.bench.cluster_overhead import OVERHEAD_WARMUP, overhead_752x
 from services.tools.bench.cluster_workload import in_process_ms, stats_ms, write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.tools.demo_cluster import run_cluster_flight
-from services.master.service import Topology
+from common.members import Topology
 from services.runtime.cli import parse_size
 from services.tools.up import ClusterSpec, HostSpec
 

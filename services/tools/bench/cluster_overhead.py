@@ -18,7 +18,7 @@ from common.yaw import YawSettings, make_patch_grid
 from services.tools.bench.cluster_workload import in_process_ms, write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.tools.demo_cluster import run_cluster_flight
-from services.master.service import Topology
+from common.members import Topology
 from services.runtime.transport import open_session, zbytes
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 

@@ -26,7 +26,7 @@ from common.wire.codec import decode
 from common.recordings.mcap import open_recording
 from common.dispatch import Balance
 from common.wire.messages import Frame, YawEstimate
-from services.master.service import Topology
+from common.members import Topology
 from services.runtime.transport import open_session, zbytes
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 

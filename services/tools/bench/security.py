@@ -25,7 +25,7 @@ from services.tools.bench import hostile, secure_system, takeover
 from services.tools.bench.cluster_workload import write_frame_folder
 from services.camera import CameraSettings, simulated_flight
 from services.tools.demo_cluster import run_cluster_flight
-from services.master.service import Topology
+from common.members import Topology
 from services.tools.secure import SecureProfile
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 
