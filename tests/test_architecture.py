@@ -122,7 +122,9 @@ def test_the_rings_diagram_matches_the_folders() -> None:
     """docs/architecture.md lists every package of common/ and services/ under its ring."""
     text = (ROOT / "docs" / "architecture.md").read_text()
     packages = {
-        rel(p.parent) for p in python_files("common", "services") if p.name == "__init__.py" and p.parent != ROOT
+        rel(p.parent)
+        for p in python_files("common", "services")
+        if p.name == "__init__.py" and p.parent != ROOT
     }
     missing = sorted(p for p in packages if f"{p}/" not in text)
     assert missing == [], "packages missing from docs/architecture.md's rings"

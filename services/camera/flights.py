@@ -13,11 +13,11 @@ from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.localization.office import default_scene
 from common.localization.tracking import noisy_odometry
-from common.wire.messages import PoseEstimate
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.office_run import OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
+from common.wire.messages import PoseEstimate
 from services.camera.settings import CameraSettings, FlightName
 
 

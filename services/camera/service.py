@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.wire import keys
-from common.wire.codec import encode
 from common.estimation.measurements import ImuMeasurement
 from common.geometry import quaternion_from_euler
-from common.wire.messages import Frame, PoseEstimate, YawEstimate
 from common.sim.flight import Flight
+from common.wire import keys
+from common.wire.codec import encode
+from common.wire.messages import Frame, PoseEstimate, YawEstimate
 from services.camera.flights import (
     office_frames,
     office_odometry_poses,

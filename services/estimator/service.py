@@ -33,7 +33,6 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from common.wire import keys
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
@@ -45,6 +44,7 @@ from common.estimation.measurements import (
     check_range,
     check_yaw,
 )
+from common.wire import keys
 from common.wire.messages import (
     AttitudeEstimate,
     Frame,

@@ -9,9 +9,9 @@ import time
 
 import zenoh
 
+from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.wire import keys
 from common.wire.codec import encode
-from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.wire.messages import Frame, ImuSample, RangeSample
 from common.wire.schema import WireModel
 

@@ -19,7 +19,6 @@ import numpy as np
 import zenoh
 from pydantic import Field
 
-from common.wire import keys
 from common.dispatch import (
     SELF,
     Dispatcher,
@@ -29,8 +28,9 @@ from common.dispatch import (
     TrustSettings,
 )
 from common.errors import CapatazError
-from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.streams import StreamTable
+from common.wire import keys
+from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import (
     PatchWorkError,

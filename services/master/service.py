@@ -23,13 +23,21 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common.members import Topology
-from common.wire import keys
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.wire.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
+from common.members import Topology
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
+from common.wire import keys
+from common.wire.messages import (
+    BlockJob,
+    BlockResult,
+    Frame,
+    PatchJob,
+    PatchResult,
+    YawEstimate,
+    YawJobSettings,
+)
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
 from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array

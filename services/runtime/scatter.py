@@ -21,8 +21,8 @@ from collections.abc import Callable
 import numpy as np
 import zenoh
 
-from common.wire.codec import decode, encode, read_error_reply
 from common.dispatch import Dispatcher, Plan
+from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import PatchJob, PatchResult
 from common.wire.schema import WireError
 from services.runtime.handoff import Counters

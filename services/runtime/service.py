@@ -16,9 +16,9 @@ from typing import Any, Generic, Self, TypeVar
 
 import zenoh
 
+from common.errors import CapatazError
 from common.wire import keys
 from common.wire.codec import decode, encode, error_reply
-from common.errors import CapatazError
 from common.wire.messages import Health, Stats
 from common.wire.schema import WireError, WireModel
 from services.runtime.cli import transport_from_args

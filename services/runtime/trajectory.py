@@ -23,8 +23,8 @@ import numpy as np
 
 from common.datasets.tum import Trajectory, TumWriter, write_tum
 from common.geometry import quaternion_from_euler
-from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.metrics import ape_rotation_rmse_deg, ape_translation_rmse_m
+from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.wire.schema import WireModel
 
 _ZERO = np.zeros(3)

@@ -22,17 +22,17 @@ import numpy as np
 from common.datasets.tum import Trajectory
 from common.dispatch import Balance
 from common.geometry import wrap_angle_rad
+from common.members import Topology
 from common.sim.flight import HOVER_FRAMES, hover_flight
 from common.yaw import YawSettings
-from services.tools.demo_yaw import report_yaw, track_frames
-from common.members import Topology
-from services.tools.observe import YawCollector
-from services.tools.report import write_json
 from services.runtime.progress import bar as progress_bar
 from services.runtime.progress import quiet
-from services.runtime.transport import open_session
-from services.tools.secure import SecureProfile
 from services.runtime.trajectory import write_with_truth
+from services.runtime.transport import open_session
+from services.tools.demo_yaw import report_yaw, track_frames
+from services.tools.observe import YawCollector
+from services.tools.report import write_json
+from services.tools.secure import SecureProfile
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 
 logger = logging.getLogger(__name__)

@@ -26,10 +26,10 @@ from common.estimation.replay import (
 )
 from common.geometry import euler_from_quaternion, wrap_angle_rad
 from common.sim.flight import Flight, turns_flight
-from services.tools.bench.estimator import compare_on_flight_b
-from services.tools.report import write_json
 from services.runtime import progress
 from services.runtime.trajectory import truth_at, write_with_truth
+from services.tools.bench.estimator import compare_on_flight_b
+from services.tools.report import write_json
 
 logger = logging.getLogger(__name__)
 

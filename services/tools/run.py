@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from services.tools.report import write_json
 from services.runtime import progress
+from services.tools.report import write_json
 
 logger = logging.getLogger(__name__)
 

@@ -27,10 +27,10 @@ import yaml
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from common.wire import keys
 from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
 from common.members import Topology
+from common.wire import keys
 from services.runtime.transport import TransportSettings, open_session
 from services.runtime.usage import condense_validation_error, one_line
 from services.tools.secure import SecureProfile, participant_environment, process_common_name

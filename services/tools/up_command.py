@@ -18,11 +18,11 @@ from typing import Any
 import yaml
 
 from common.datasets.images import open_image_folder
+from services.runtime.transport import open_session
+from services.runtime.usage import number_in
 from services.tools.compose import compose_from_cluster
 from services.tools.observe import StatsWatch, YawCollector, member_rows
 from services.tools.report import print_table
-from services.runtime.transport import open_session
-from services.runtime.usage import number_in
 from services.tools.secure import SecureProfile, add_profile_arguments
 from services.tools.up import ClusterSpec, LocalCluster, load_cluster
 

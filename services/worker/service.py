@@ -10,8 +10,8 @@ from typing import Any
 import zenoh
 from pydantic import Field
 
-from common.wire import keys
 from common.errors import CapatazError
+from common.wire import keys
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 from services.runtime.cli import (

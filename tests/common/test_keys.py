@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from common.wire import keys
 from common.errors import InputError
+from common.wire import keys
 
 
 def test_key_table() -> None:

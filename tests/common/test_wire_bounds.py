@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from common.streams import StreamTable
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob
-from common.streams import StreamTable
 from common.wire.schema import MAX_JOB_PATCHES, WireError
 from common.yaw import YawSettings
 from common.yaw.correlation import patch_spectra_from_crops

@@ -15,8 +15,8 @@ import zenoh
 from common.wire import keys
 from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import Health, ImuSample
-from services.tools.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
+from services.tools.observe import YawCollector
 from services.tools.up import LocalCluster
 from tests.builders import patch_job
 from tests.integration.cluster_helpers import two_by_two

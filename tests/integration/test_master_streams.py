@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.sim.flight import hover_flight
 from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import Frame, Health, YawEstimate
-from common.sim.flight import hover_flight
 from services.runtime.transport import open_session, zbytes
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 from tests.integration.cluster_helpers import reference_yaw_rad

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.wire import keys
 from common.dispatch import Balance
+from common.wire import keys
 from services.master.service import Topology
-from services.tools.observe import YawCollector
 from services.runtime.transport import open_session
+from services.tools.observe import YawCollector
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

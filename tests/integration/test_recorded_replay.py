@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.wire import keys
-from common.wire.codec import decode
 from common.datasets.euroc import write_euroc
 from common.datasets.rosbag_writer import write_bag
 from common.dispatch import Balance
-from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.sim.flight import hover_flight
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from services.camera.sources import simulated_camera_measurements
 from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes

@@ -12,12 +12,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.wire.codec import decode, encode
 from common.estimation.coupling_types import PoseOutput
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
-from common.wire.messages import PoseEstimate
 from common.sim.flight import Flight, turns_flight
+from common.wire.codec import decode, encode
+from common.wire.messages import PoseEstimate
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import message_of
 from services.runtime.transport import TransportSettings

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.wire import keys
-from common.wire.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.replay import flight_measurements
-from common.wire.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample
 from common.sim.flight import Flight, turns_flight
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import message_of, publish_measurements
 from services.runtime.transport import open_session, zbytes

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import zenoh
 
+from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.wire import keys
 from common.wire.codec import decode, encode, read_error_reply
-from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.wire.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService, ForemanSettings

@@ -12,8 +12,8 @@ import pytest
 from common.geometry import quaternion_from_euler
 from common.localization.particle_filter import ParticleState
 from common.localization.tracker_state import TrackingStatus
-from common.wire.messages import Frame, PoseEstimate
 from common.sim.office_run import SimulatedRun, simulate_run
+from common.wire.messages import Frame, PoseEstimate
 from services.localizer import FilterKind, LocalizerSettings
 from services.localizer.filters import (
     VO_DISAGREE_FRAMES,

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.wire.codec import decode, encode
 from common.dispatch import SELF, Dispatcher, DispatchSettings
+from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters

@@ -12,8 +12,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from services.tools.report import print_table, write_json
 from services.runtime import progress
+from services.tools.report import print_table, write_json
 
 #: One line per benchmark.
 BENCH_MODULES: tuple[str, ...] = (

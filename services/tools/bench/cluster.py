@@ -23,13 +23,13 @@ from typing import Any
 import numpy as np
 
 from common.dispatch import Balance, SpeedSource
+from common.members import Topology
 from common.yaw import YawSettings
+from services.camera import CameraSettings, simulated_flight
+from services.runtime.cli import parse_size
 from services.tools.bench.cluster_overhead import OVERHEAD_WARMUP, overhead_752x480, reply_handoff
 from services.tools.bench.cluster_workload import in_process_ms, stats_ms, write_frame_folder
-from services.camera import CameraSettings, simulated_flight
 from services.tools.demo_cluster import run_cluster_flight
-from common.members import Topology
-from services.runtime.cli import parse_size
 from services.tools.up import ClusterSpec, HostSpec
 
 NAME = "cluster"

@@ -11,15 +11,15 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.members import Topology
 from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob, PatchResult, YawJobSettings
 from common.yaw import YawSettings, make_patch_grid
-from services.tools.bench.cluster_workload import in_process_ms, write_frame_folder
 from services.camera import CameraSettings, simulated_flight
-from services.tools.demo_cluster import run_cluster_flight
-from common.members import Topology
 from services.runtime.transport import open_session, zbytes
+from services.tools.bench.cluster_workload import in_process_ms, write_frame_folder
+from services.tools.demo_cluster import run_cluster_flight
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 
 #: frames of each 752x480 overhead run left out of its median (the dispatcher's speeds settle)

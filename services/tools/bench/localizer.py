@@ -38,8 +38,8 @@ from common.sim.office_run import (
     simulate_run,
     track_run,
 )
-from services.tools.bench.localizer_field import add_field_arguments, run_field
 from services.runtime import progress
+from services.tools.bench.localizer_field import add_field_arguments, run_field
 
 logger = logging.getLogger(__name__)
 

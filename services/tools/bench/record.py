@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from common.dispatch import Balance
+from common.members import Topology
+from common.recordings.mcap import open_recording
 from common.wire import keys
 from common.wire.codec import decode
-from common.recordings.mcap import open_recording
-from common.dispatch import Balance
 from common.wire.messages import Frame, YawEstimate
-from common.members import Topology
 from services.runtime.transport import open_session, zbytes
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 

@@ -22,15 +22,15 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.geometry import euler_from_quaternion, wrap_angle_rad
+from common.sim.scene import default_flight
 from common.wire import keys
 from common.wire.codec import decode
-from common.geometry import euler_from_quaternion, wrap_angle_rad
 from common.wire.messages import AttitudeEstimate, PoseEstimate
-from common.sim.scene import default_flight
 from common.wire.schema import WireError
-from services.tools.bench import hostile
 from services.camera import CameraSettings, simulated_flight
 from services.runtime.transport import open_session, zbytes
+from services.tools.bench import hostile
 from services.tools.secure import SecureProfile
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 

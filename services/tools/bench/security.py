@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from common.dispatch import Balance
+from common.members import Topology
+from services.camera import CameraSettings, simulated_flight
 from services.tools.bench import hostile, secure_system, takeover
 from services.tools.bench.cluster_workload import write_frame_folder
-from services.camera import CameraSettings, simulated_flight
 from services.tools.demo_cluster import run_cluster_flight
-from common.members import Topology
 from services.tools.secure import SecureProfile
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 

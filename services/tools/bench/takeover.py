@@ -20,8 +20,8 @@ from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import Health, YawEstimate
 from common.wire.schema import WireError
-from services.tools.bench.hostile import AttackResult, attacker, fly, frames_lost, max_yaw_error_deg, watching
 from services.runtime.transport import zbytes
+from services.tools.bench.hostile import AttackResult, attacker, fly, frames_lost, max_yaw_error_deg, watching
 from services.tools.up import LocalCluster
 
 STANDBY = "master/standby/0"

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common.recordings.mcap import RecordingError, open_recording
 from common.estimation.measurements import FrameMeasurement
+from common.recordings.mcap import RecordingError, open_recording
 from common.sim.flight import hover_flight
 
 #: most frames a recording may contribute (a 752x480 frame is 361 kB: 600 frames are 217 MB)

@@ -22,14 +22,14 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.dispatch import SELF
 from common.wire import keys
 from common.wire.codec import decode, encode
-from common.dispatch import SELF
 from common.wire.messages import Frame, PatchJob, Stats, YawEstimate, YawJobSettings
 from common.wire.schema import WireError
 from common.yaw import YawSettings
-from services.tools.loadtest.plan import Fault, FaultAction, FrameRecord
 from services.runtime.transport import open_session, zbytes
+from services.tools.loadtest.plan import Fault, FaultAction, FrameRecord
 from services.tools.secure import SecureProfile
 from services.tools.up import ClusterSpec, LocalCluster
 

@@ -16,6 +16,7 @@ import zenoh
 from common.wire import keys
 from common.wire.codec import encode
 from common.wire.messages import Frame
+from services.runtime.transport import open_session
 from services.tools.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
 from services.tools.loadtest.harness import (
     Hostile,
@@ -39,7 +40,6 @@ from services.tools.loadtest.plan import (
     summarise,
     yaw_jumps_deg,
 )
-from services.runtime.transport import open_session
 from services.tools.up import ClusterSpec
 
 logger = logging.getLogger(__name__)

@@ -17,8 +17,8 @@ from typing import Any
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.wire import keys
 from common.recordings.mcap import RecordingWriter
+from common.wire import keys
 from common.wire.schema import WireModel
 from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.tap import KeyTap

@@ -29,8 +29,8 @@ import cv2
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
-from common.wire import keys
 from common.recordings.mcap import json_schema, to_json
+from common.wire import keys
 from common.wire.messages import Frame, PoseEstimate, Stats, YawEstimate
 from common.wire.schema import WireModel
 from services.runtime.cli import add_transport_arguments, transport_from_args

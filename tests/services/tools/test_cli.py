@@ -14,7 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from services.tools.cli import COMMAND_MODULES, build_parser, command_name, main, requested_module, subcommands
+from services.tools.cli import (
+    COMMAND_MODULES,
+    build_parser,
+    command_name,
+    main,
+    requested_module,
+    subcommands,
+)
 
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.wire import keys
-from common.wire.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.measurements import ImuMeasurement
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S, flight_measurements
-from common.wire.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats
 from common.sim.flight import Flight, turns_flight
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats
 from services.estimator import EstimatorService, EstimatorSettings
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.recordings.mcap import RecordingError, from_json, open_recording
+from common.sim.flight import hover_flight
 from common.wire import keys
 from common.wire.codec import encode
-from common.recordings.mcap import RecordingError, from_json, open_recording
 from common.wire.messages import Frame, ImuSample, PoseEstimate, RangeSample
-from common.sim.flight import hover_flight
-from services.tools.record import RecordService, RecordSettings
 from services.runtime.transport import open_session
+from services.tools.record import RecordService, RecordSettings
 from tests.zenoh_helpers import hub, peer
 
 pytestmark = pytest.mark.zenoh

@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from common.sim.flight import hover_flight
 from common.wire import keys
 from common.wire.codec import encode
 from common.wire.messages import AttitudeEstimate, Frame, PoseEstimate, Stats
-from common.sim.flight import hover_flight
 from common.wire.schema import WireModel
 from services.runtime.transport import open_session
 from services.tools.view import ViewService, ViewSettings

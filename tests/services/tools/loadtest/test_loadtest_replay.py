@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.wire import keys
 from common.recordings.mcap import RecordingError, RecordingWriter
-from common.wire.messages import Frame
 from common.sim.flight import hover_flight
+from common.wire import keys
+from common.wire.messages import Frame
 from services.tools.cli import main
 from services.tools.loadtest.frames import recorded_frames
 

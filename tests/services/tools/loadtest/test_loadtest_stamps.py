@@ -16,10 +16,10 @@ import pytest
 
 from common.wire.codec import decode
 from common.wire.messages import Frame
+from services.runtime.transport import TransportSettings, open_session
 from services.tools.loadtest.frames import simulated_frames
 from services.tools.loadtest.harness import RunSettings, StreamLog
 from services.tools.loadtest.runner import _stream
-from services.runtime.transport import TransportSettings, open_session
 
 
 class StallingPublisher:
