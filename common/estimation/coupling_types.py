@@ -1,4 +1,5 @@
-"""Settings, camera model and outputs of the double-coupling estimator (:mod:`common.estimation.coupling`)."""
+"""Settings, camera model and outputs of paper C's double-coupling estimator
+(:mod:`common.estimation.coupling`)."""
 
 from __future__ import annotations
 

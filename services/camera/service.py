@@ -25,6 +25,7 @@ import zenoh
 
 from common.estimation.measurements import ImuMeasurement
 from common.geometry import quaternion_from_euler
+from common.members import Role
 from common.sim.flight import Flight
 from common.wire import keys
 from common.wire.codec import encode
@@ -52,7 +53,7 @@ from services.runtime.service import ConfiguredService
 
 
 class CameraService(ConfiguredService[CameraSettings]):
-    role = keys.Role.CAMERA
+    role = Role.CAMERA
 
     def setup(self) -> None:
         settings = self.settings
@@ -99,7 +100,7 @@ class CameraService(ConfiguredService[CameraSettings]):
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
             session.liveliness().declare_subscriber(
-                keys.alive_role(keys.Role.MASTER), self._on_master, history=True
+                keys.alive_role(Role.MASTER), self._on_master, history=True
             )
         )
         self.spawn(self._publish_all, "publish")

@@ -44,6 +44,7 @@ from common.estimation.measurements import (
     check_range,
     check_yaw,
 )
+from common.members import Role
 from common.wire import keys
 from common.wire.messages import (
     AttitudeEstimate,
@@ -89,7 +90,7 @@ SPACING_BINS = 6
 
 
 class EstimatorService(ConfiguredService[EstimatorSettings]):
-    role = keys.Role.ESTIMATOR
+    role = Role.ESTIMATOR
 
     def setup(self) -> None:
         settings = self.settings

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.members import Role
 from common.wire import keys
 from common.wire.messages import Frame, ImuSample, PoseEstimate
 from services.localizer.filters import (
@@ -51,7 +52,7 @@ IMU_BUFFER = 4000
 
 
 class LocalizerService(ConfiguredService[LocalizerSettings]):
-    role = keys.Role.LOCALIZER
+    role = Role.LOCALIZER
 
     def setup(self) -> None:
         settings = self.settings

@@ -25,7 +25,7 @@ import zenoh
 
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.members import Topology
+from common.members import Role, Topology
 from common.provenance import Provenance
 from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
 from common.wire import keys
@@ -70,7 +70,7 @@ class _Stream:
 
 
 class MasterService(ConfiguredService[MasterSettings]):
-    role = keys.Role.MASTER
+    role = Role.MASTER
 
     def setup(self) -> None:
         settings = self.settings
@@ -118,8 +118,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         self.spawn(self._serve, "frames")
 
     @property
-    def member_role(self) -> keys.Role:
-        return keys.Role.WORKER if self.settings.topology is Topology.MASTER_WORKER else keys.Role.FOREMAN
+    def member_role(self) -> Role:
+        return Role.WORKER if self.settings.topology is Topology.MASTER_WORKER else Role.FOREMAN
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)

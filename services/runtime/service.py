@@ -17,6 +17,7 @@ from typing import Any, Generic, Self, TypeVar
 import zenoh
 
 from common.errors import CapatazError
+from common.members import MemberId, Role, check_name
 from common.wire import keys
 from common.wire.codec import decode, encode, error_reply
 from common.wire.messages import Health, Stats
@@ -43,7 +44,7 @@ class ServiceRuntime:
     they must watch :attr:`stop_event`) and optionally :meth:`stop`, :meth:`shares`, :meth:`queue_depths`.
     """
 
-    role: keys.Role = keys.Role.WORKER
+    role: Role = Role.WORKER
     #: the ``--trajectory`` files of a service that publishes estimates (services/runtime/trajectory.py), or None
     trajectory_tap: Any = None
 
@@ -54,7 +55,7 @@ class ServiceRuntime:
         transport: TransportSettings,
         stats_period_s: float = 1.0,
     ) -> None:
-        self.node = keys.check_name(node, "node")
+        self.node = check_name(node, "node")
         self.index = index
         self.transport = transport
         self.stats_period_s = stats_period_s
@@ -181,7 +182,7 @@ class ServiceRuntime:
             if message is not None:
                 handle(query, message, received_perf_s)
 
-    def member_event(self, sample: zenoh.Sample) -> tuple[keys.MemberId, bool] | None:
+    def member_event(self, sample: zenoh.Sample) -> tuple[MemberId, bool] | None:
         """The member of a liveliness sample and whether it joined (PUT) or left; a bad key is counted."""
         try:
             member = keys.parse_alive_key(str(sample.key_expr))
@@ -275,7 +276,7 @@ class ServiceRuntime:
                     ", ".join(self.transport.listen) or "none",
                     ", ".join(self.transport.connect) or "none",
                 )
-                monitor = ConnectionMonitor(self.name, self.transport.connect, self.role is keys.Role.ROUTER)
+                monitor = ConnectionMonitor(self.name, self.transport.connect, self.role is Role.ROUTER)
                 while not self.stop_event.wait(self.stats_period_s):
                     monitor.check(session)
                     payload, attachment = encode(self.stats_message())

@@ -11,6 +11,7 @@ import zenoh
 from pydantic import Field
 
 from common.errors import CapatazError
+from common.members import Role
 from common.wire import keys
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
@@ -48,7 +49,7 @@ class WorkerSettings(StreamBoundSettings):
 class WorkerService(ConfiguredService[WorkerSettings]):
     """One worker process: a queryable, a bounded job queue, one compute thread."""
 
-    role = keys.Role.WORKER
+    role = Role.WORKER
 
     def setup(self) -> None:
         self.handoff = self.settings.handoff

@@ -11,6 +11,7 @@ import threading
 import pytest
 import zenoh
 
+from common.members import Role
 from common.wire import keys
 from services.runtime.transport import open_session
 from tests.zenoh_helpers import WAIT_S, hub, peer
@@ -49,7 +50,7 @@ def _stops_cleanly_on_sigterm(endpoint: str) -> None:
     try:
         with open_session(peer(endpoint)) as session:
             watcher = session.liveliness().declare_subscriber(
-                keys.alive_role(keys.Role.LOCALIZER), on_token, history=True
+                keys.alive_role(Role.LOCALIZER), on_token, history=True
             )
             assert alive.wait(WAIT_S), "the localizer never declared itself alive"
             watcher.undeclare()

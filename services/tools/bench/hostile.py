@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.members import Role
 from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import (
@@ -151,7 +152,7 @@ def attack_forged_outputs(cluster: LocalCluster, profile: str, uav: str, count: 
 
 @contextmanager
 def fake_member(
-    session: zenoh.Session, role: keys.Role, node: str, index: int = 0, answer: Any = None
+    session: zenoh.Session, role: Role, node: str, index: int = 0, answer: Any = None
 ) -> Iterator[dict[str, int]]:
     """A liveliness token and a work queryable of ``role`` on ``node``; counts jobs and crop bytes.
 
@@ -159,7 +160,7 @@ def fake_member(
     """
     seen = {"jobs": 0, "crop_bytes": 0, "declared": 0}
     lock = threading.Lock()
-    key = keys.foreman_key(node) if role is keys.Role.FOREMAN else keys.worker_key(node, index)
+    key = keys.foreman_key(node) if role is Role.FOREMAN else keys.worker_key(node, index)
 
     def on_query(query: zenoh.Query) -> None:
         with lock:
@@ -312,7 +313,7 @@ def attack_fake_worker(cluster: LocalCluster, profile: str, frames: int, fps: fl
     with (
         watching(cluster, cluster.spec.uav) as watch,
         attacker(cluster) as session,
-        fake_member(session, keys.Role.WORKER, host, index=9) as seen,
+        fake_member(session, Role.WORKER, host, index=9) as seen,
     ):
         fly(cluster, watch, frames, fps, timeout_s=60.0 + frames / fps)
     evidence = {"jobs_received": seen["jobs"], "crop_bytes_received": seen["crop_bytes"], "frames": frames,
@@ -327,7 +328,7 @@ def attack_fake_foreman(
     shape = (480, 752)
     with watching(cluster, cluster.spec.uav) as watch, attacker(cluster) as session:
         answer = wrong_shifts_answer(2.0, shape)
-        with fake_member(session, keys.Role.FOREMAN, "evil", answer=answer) as seen:
+        with fake_member(session, Role.FOREMAN, "evil", answer=answer) as seen:
             wall = fly(cluster, watch, frames, fps, timeout_s=60.0 + 2 * frames / fps, in_flight=1)
     error = max_yaw_error_deg(watch, reference_rad)
     evidence = {"jobs_answered": seen["jobs"], "yaw_error_deg": error, "frames": frames, "seconds": wall,
@@ -374,7 +375,7 @@ def attack_liveliness_flood(
 ) -> AttackResult:
     """``tokens`` fake foreman liveliness tokens (no queryables) while the real camera flies."""
     with watching(cluster, cluster.spec.uav) as watch, attacker(cluster) as session:
-        declared = [session.liveliness().declare_token(keys.alive_key(keys.Role.FOREMAN, f"flood{i}", 0))
+        declared = [session.liveliness().declare_token(keys.alive_key(Role.FOREMAN, f"flood{i}", 0))
                     for i in range(tokens)]  # fmt: skip
         try:
             fly(cluster, watch, frames, fps, timeout_s=60.0 + frames / fps)

@@ -17,6 +17,7 @@ from typing import Any
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.members import Role
 from common.recordings.mcap import RecordingWriter
 from common.wire import keys
 from common.wire.schema import WireModel
@@ -40,7 +41,7 @@ class RecordSettings(BaseModel):
 
 
 class RecordService(KeyTap):
-    role = keys.Role.RECORDER
+    role = Role.RECORDER
 
     def __init__(
         self, node: str, index: int, transport: TransportSettings, settings: RecordSettings,

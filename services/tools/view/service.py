@@ -29,6 +29,7 @@ import cv2
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.members import Role
 from common.recordings.mcap import json_schema, to_json
 from common.wire import keys
 from common.wire.messages import Frame, PoseEstimate, Stats, YawEstimate
@@ -68,7 +69,7 @@ class ViewSettings(BaseModel):
 
 
 class ViewService(KeyTap):
-    role = keys.Role.VIEWER
+    role = Role.VIEWER
 
     def __init__(
         self,
