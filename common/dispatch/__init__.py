@@ -10,7 +10,7 @@ from common.dispatch.dispatcher import (
     SpeedSource,
     largest_remainder,
 )
-from common.dispatch.trust import MemberOutcome, TrustMonitor, TrustSettings, Verdict, outcomes_of_fit
+from common.dispatch.trust import MemberOutcome, Suspension, TrustMonitor, TrustSettings, outcomes_of_fit
 
 __all__ = [
     "SELF",
@@ -23,7 +23,7 @@ __all__ = [
     "SpeedSource",
     "TrustMonitor",
     "TrustSettings",
-    "Verdict",
+    "Suspension",
     "largest_remainder",
     "outcomes_of_fit",
 ]

@@ -27,7 +27,7 @@ from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
 from common.members import Role, Topology
 from common.provenance import Provenance
-from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
+from common.streams import FrameGateState, FrameKey, GateVerdict, admit_frame
 from common.wire import keys
 from common.wire.messages import (
     BlockJob,
@@ -45,8 +45,7 @@ from common.yaw.patchwork import SpectrumCache, measure_share
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
-from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, session_of
-from services.master.published import Verdict as YawVerdict
+from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
@@ -146,11 +145,11 @@ class MasterService(ConfiguredService[MasterSettings]):
                 self._gate, self.gate_settings, self.settings.uav, frame.uav, frame.seq, frame.stamp_s, key,
                 time.monotonic(), time.time(), source_of(sample),
             )  # fmt: skip
-            if decision.verdict is Verdict.REFUSE:
+            if decision.verdict is GateVerdict.REFUSE:
                 self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
                 self._refusals.note_refusal()
                 return
-            if decision.verdict is Verdict.NEW_EPOCH:
+            if decision.verdict is GateVerdict.NEW_EPOCH:
                 self.counters.inc("epochs")
                 if self._gate.epoch > 0:
                     self.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
@@ -170,7 +169,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
         with self._recent_lock:
             verdict = self.published.record(yaw, self._leaders_resolved)
-        if verdict is YawVerdict.REFUSED:
+        if verdict is PublishVerdict.REFUSED:
             self.count_error("yaw_untrusted", "refused yaw of a session that never led", yaw.session)
 
     def _trust_leaders(self) -> None:

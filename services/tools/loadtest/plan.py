@@ -290,18 +290,18 @@ def metric_values(
 
 
 @dataclass(frozen=True)
-class Verdict:
+class ObjectiveResult:
     objective: Objective
     value: float
     met: bool
 
 
-def evaluate(objectives: Sequence[Objective], values: dict[Metric, float]) -> list[Verdict]:
+def evaluate(objectives: Sequence[Objective], values: dict[Metric, float]) -> list[ObjectiveResult]:
     """Each objective against the run's values (a metric without a value is not met)."""
     out = []
     for objective in objectives:
         value = values.get(objective.metric, float("nan"))
-        out.append(Verdict(objective, value, objective.met(value)))
+        out.append(ObjectiveResult(objective, value, objective.met(value)))
     return out
 
 
