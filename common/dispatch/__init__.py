@@ -21,9 +21,9 @@ __all__ = [
     "MemberOutcome",
     "Plan",
     "SpeedSource",
+    "Suspension",
     "TrustMonitor",
     "TrustSettings",
-    "Suspension",
     "largest_remainder",
     "outcomes_of_fit",
 ]

@@ -1,4 +1,5 @@
-"""The ONE codec that carries every message of :mod:`common.wire.messages` (their base: :mod:`common.wire.schema`).
+"""The ONE codec that carries every message of :mod:`common.wire.messages` (their base:
+:mod:`common.wire.schema`).
 
 Encoding (schema version :data:`SCHEMA_VERSION`): a message becomes two byte strings,
 

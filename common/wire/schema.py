@@ -1,9 +1,9 @@
 """The wire's building blocks: :class:`WireModel` (the base of every message), array specs and bounds.
 
 Every message (:mod:`common.wire.messages`) is a frozen pydantic model whose array fields
-(:attr:`WireModel.ARRAYS`) travel as raw bytes beside a msgpack header (:mod:`common.wire.codec`). Every count and
-size a sender chooses is bounded here, so a hostile sender gets a :class:`WireError`, never an allocation of
-its choosing.
+(:attr:`WireModel.ARRAYS`) travel as raw bytes beside a msgpack header (:mod:`common.wire.codec`). Every
+count and size a sender chooses is bounded here, so a hostile sender gets a :class:`WireError`, never an
+allocation of its choosing.
 """
 
 from __future__ import annotations

@@ -244,16 +244,6 @@ def acl_section(settings: PolicySettings | None = None) -> dict[str, Any]:
     }
 
 
-def role_of_common_name(common_name: str) -> tuple[Role | None, str | None]:
-    """``camera.uav0`` -> (CAMERA, "uav0"); ``worker`` -> (WORKER, None); ``client`` -> (None, None)."""
-    base, _, uav = common_name.partition(".")
-    try:
-        role = Role(base)
-    except ValueError:
-        return None, None
-    return role, (uav or None)
-
-
 def markdown_table(settings: PolicySettings | None = None) -> str:
     """The role-permission table for the README."""
     lines = [

@@ -1,7 +1,7 @@
 """The base of every service: :class:`ServiceRuntime` opens the session in a ``with``, declares
-``capataz/alive/{role}/{node}/{i}``, answers ``capataz/health/...``, publishes :class:`~common.wire.messages.Stats`
-periodically, and shuts down on SIGTERM/SIGINT within a second. Subclasses declare their own
-subscribers/queryables in :meth:`ServiceRuntime.start`."""
+``capataz/alive/{role}/{node}/{i}``, answers ``capataz/health/...``, publishes
+:class:`~common.wire.messages.Stats` periodically, and shuts down on SIGTERM/SIGINT within a second.
+Subclasses declare their own subscribers/queryables in :meth:`ServiceRuntime.start`."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, Generic, Self, TypeVar
+from typing import Any, ClassVar, Generic, Self, TypeVar
 
 import zenoh
 
@@ -44,8 +44,10 @@ class ServiceRuntime:
     they must watch :attr:`stop_event`) and optionally :meth:`stop`, :meth:`shares`, :meth:`queue_depths`.
     """
 
-    role: Role = Role.WORKER
-    #: the ``--trajectory`` files of a service that publishes estimates (services/runtime/trajectory.py), or None
+    #: every concrete service names its role (its liveliness, stats and health keys); there is no default
+    role: ClassVar[Role]
+    #: the ``--trajectory`` files of a service that publishes estimates (services/runtime/trajectory.py),
+    #: or None
     trajectory_tap: Any = None
 
     def __init__(
@@ -55,6 +57,8 @@ class ServiceRuntime:
         transport: TransportSettings,
         stats_period_s: float = 1.0,
     ) -> None:
+        if not isinstance(getattr(type(self), "role", None), Role):
+            raise TypeError(f"{type(self).__name__} must set its role (a Role) as a class attribute")
         self.node = check_name(node, "node")
         self.index = index
         self.transport = transport

@@ -74,7 +74,8 @@ GLOBAL_OPTIONS = ("-v", "--verbose", "-q", "--quiet")
 
 
 def command_name(module: str) -> str:
-    """The sub-command a module of :data:`COMMAND_MODULES` registers (``services.tools.bench`` -> ``bench``)."""
+    """The sub-command a module of :data:`COMMAND_MODULES` registers (``services.tools.bench`` ->
+    ``bench``)."""
     return module.rsplit(".", 1)[-1]
 
 

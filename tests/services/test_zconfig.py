@@ -151,7 +151,12 @@ def test_router_honours_access_control_given_through_zenoh_config_regression(tmp
         client = TransportSettings(mode="client", connect=(f"tcp/127.0.0.1:{port}",), listen=())
         with open_session(client) as sub_session, open_session(client) as pub_session:
             sub = sub_session.declare_subscriber("t/*", on)
-            time.sleep(0.5)
+            # the subscription is routed once a probe arrives (polled with a bound, no fixed sleep)
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and "t/probe" not in got:
+                pub_session.put("t/probe", b"x")
+                time.sleep(0.05)
+            assert "t/probe" in got, "the subscription was never routed"
             for _ in range(5):
                 pub_session.put("t/denied", b"x")
                 pub_session.put("t/allowed", b"x")

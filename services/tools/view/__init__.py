@@ -1,4 +1,5 @@
-"""``capataz view``: a Foxglove WebSocket server republishing each UAV's stream (services/tools/view/service.py)."""
+"""``capataz view``: a Foxglove WebSocket server republishing each UAV's stream
+(services/tools/view/service.py)."""
 
 from services.tools.view.service import ViewService, ViewSettings, register
 

@@ -167,7 +167,8 @@ def test_a_service_process_imports_no_other_command() -> None:
     """``capataz worker`` parses its command line without importing the bench, localizer or estimator code
     (each cluster process used to pay about 1.5 s of CPU for them at start-up)."""
     probe = (
-        "import sys; from services.tools import cli; from services.tools.cli import build_parser, requested_module\n"
+        "import sys; from services.tools import cli\n"
+        "from services.tools.cli import build_parser, requested_module\n"
         "argv = ['worker', '--node', 'h1', '--index', '1']\n"
         "args = build_parser((requested_module(argv),)).parse_args(argv)\n"
         "assert args.handler is not None\n"
