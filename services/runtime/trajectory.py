@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 
 from common.datasets.tum import Trajectory, TumWriter, write_tum
-from common.geometry import quaternion_from_euler
+from common.geometry import constant, quaternion_from_euler
 from common.metrics import ape_rotation_rmse_deg, ape_translation_rmse_m
 from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.wire.schema import WireModel
 
-_ZERO = np.zeros(3)
+_ZERO = constant(np.zeros(3))
 
 
 def add_trajectory_argument(parser: argparse.ArgumentParser, what: str, flag: str = "--trajectory") -> None:
