@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from services.tools.up import ClusterSpec, cluster_commands
+from services.tools.cluster_file import ClusterSpec, cluster_commands
 
 DEFAULT_IMAGE = "capataz:0.1.0"
 #: the repository root (holds deploy/Dockerfile): the build context of a generated compose file

@@ -29,11 +29,12 @@ from services.runtime.progress import bar as progress_bar
 from services.runtime.progress import quiet
 from services.runtime.trajectory import write_with_truth
 from services.runtime.transport import open_session
+from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.demo_yaw import report_yaw, track_frames
 from services.tools.observe import YawCollector
 from services.tools.report import write_json
 from services.tools.secure import SecureProfile
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import LocalCluster
 
 logger = logging.getLogger(__name__)
 #: seconds between progress lines when no bar is drawn (not a terminal, or CI)

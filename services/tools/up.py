@@ -1,11 +1,9 @@
 """``capataz up --cluster deploy/clusters/2h8n.yml``: start a described cluster locally as processes.
 
-A cluster file describes hosts in the paper's notation (``2h8n`` = 2 hosts, 8 worker nodes): per host a
-foreman, its workers and a CPU limit (a ``taskset`` CPU list; several workers pinned to one core make a
-slow host real). :class:`LocalCluster` starts the router, the workers, the foremen and the master (and a
-camera when asked) on 127.0.0.1 with explicit endpoints and multicast scouting off, and stops them with
-SIGTERM (SIGKILL after a grace period). Tests, the demo and the benchmark use it too.
-"""
+The cluster file (its format: :mod:`services.tools.cluster_file`) describes the hosts. :class:`LocalCluster`
+starts the router, the workers, the foremen and the master (and a camera when asked) on 127.0.0.1 with
+explicit endpoints and multicast scouting off, and stops them with SIGTERM (SIGKILL after a grace period).
+Tests, the demo and the benchmark use it too."""
 
 from __future__ import annotations
 
@@ -19,119 +17,27 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
-from common.members import Topology
 from common.wire import keys
 from services.runtime.transport import TransportSettings, open_session
-from services.runtime.usage import condense_validation_error, one_line
+from services.tools.cluster_file import (
+    ClusterError,
+    ClusterSpec,
+    HostSpec,
+    ServiceCommand,
+    cluster_commands,
+    foreman_command,
+    master_command,
+    worker_command,
+)
 from services.tools.secure import SecureProfile, participant_environment, process_common_name
 
 logger = logging.getLogger(__name__)
-
-
-class ClusterError(CapatazError):
-    """A cluster file is invalid or a cluster did not come up."""
-
-
-class HostSpec(BaseModel):
-    """One host: a foreman and its workers, optionally pinned to CPUs."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    name: str
-    workers: int = Field(ge=0)
-    #: taskset CPU list for the host's processes, e.g. "1" or "0-1"; None = no pinning
-    cpus: str | None = None
-    #: the foreman computes a share too
-    foreman_computes: bool = False
-    #: emulated CPU slowdown of the host's workers (``capataz worker --cpu-factor``)
-    cpu_factor: int = Field(default=1, ge=1)
-
-
-class ClusterSpec(BaseModel):
-    """A cluster description (``deploy/clusters/*.yml``)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    name: str
-    description: str = ""
-    topology: Topology = Topology.MASTER_FOREMAN_WORKER
-    balance: Balance = Balance.TIME
-    #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
-    speed: SpeedSource = SpeedSource.ROUND_TRIP
-    master_computes: bool = False
-    master_cpus: str | None = None
-    #: taskset CPU list of the router and the camera
-    aux_cpus: str | None = None
-    uav: str = "uav0"
-    hosts: tuple[HostSpec, ...]
-
-    @property
-    def n_workers(self) -> int:
-        return sum(h.workers for h in self.hosts)
-
-
-@dataclass(frozen=True)
-class ServiceCommand:
-    """One cluster process as ``capataz`` arguments, without transport options (added by where it runs:
-    :class:`LocalCluster` adds endpoints, compose sets ``CAPATAZ_ZENOH_*``)."""
-
-    #: ``role/node/index``, the name of its liveliness token
-    name: str
-    args: tuple[str, ...]
-    #: taskset CPU list (compose: cpuset); None = not pinned
-    cpus: str | None = None
-
-
-def worker_command(spec: ClusterSpec, host: HostSpec, index: int) -> ServiceCommand:
-    args = ["worker", "--node", host.name, "--index", str(index)]
-    if host.cpu_factor != 1:
-        args += ["--cpu-factor", str(host.cpu_factor)]
-    return ServiceCommand(f"worker/{host.name}/{index}", tuple(args), host.cpus)
-
-
-def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
-    compute = "--compute" if host.foreman_computes else "--no-compute"
-    args = ("foreman", "--node", host.name, "--balance", spec.balance.value, compute,
-            "--speed", spec.speed.value)  # fmt: skip
-    return ServiceCommand(f"foreman/{host.name}/0", args, host.cpus)
-
-
-def master_command(spec: ClusterSpec) -> ServiceCommand:
-    args = ("master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
-            "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
-            "--speed", spec.speed.value)  # fmt: skip
-    return ServiceCommand("master/master/0", args, spec.master_cpus)
-
-
-def cluster_commands(spec: ClusterSpec) -> list[ServiceCommand]:
-    """Every process of the cluster but the router and the camera, in start order (workers, foremen,
-    master): the one rendering of a :class:`ClusterSpec` for ``capataz up`` and for compose."""
-    commands: list[ServiceCommand] = []
-    for host in spec.hosts:
-        commands += [worker_command(spec, host, i) for i in range(host.workers)]
-        if spec.topology is Topology.MASTER_FOREMAN_WORKER:
-            commands.append(foreman_command(spec, host))
-    return [*commands, master_command(spec)]
-
-
-def load_cluster(path: Path) -> ClusterSpec:
-    try:
-        raw = yaml.safe_load(Path(path).read_text())
-        return ClusterSpec.model_validate(raw)
-    except ValidationError as exc:
-        raise ClusterError(f"{path}: {condense_validation_error(exc)}") from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise ClusterError(f"{path}: {one_line(str(exc))}") from None
 
 
 def check_port_free(port: int, host: str = "127.0.0.1") -> None:

@@ -20,11 +20,12 @@ import yaml
 from common.datasets.images import open_image_folder
 from services.runtime.transport import open_session
 from services.runtime.usage import number_in
+from services.tools.cluster_file import ClusterSpec, load_cluster
 from services.tools.compose import compose_from_cluster
 from services.tools.observe import StatsWatch, YawCollector, member_rows
 from services.tools.report import print_table
 from services.tools.secure import SecureProfile, add_profile_arguments
-from services.tools.up import ClusterSpec, LocalCluster, load_cluster
+from services.tools.up import LocalCluster
 
 
 def register(subparsers: Any) -> None:

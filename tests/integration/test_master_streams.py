@@ -21,7 +21,8 @@ from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import Frame, Health, YawEstimate
 from services.runtime.transport import open_session, zbytes
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import reference_yaw_rad
 
 pytestmark = [pytest.mark.zenoh]

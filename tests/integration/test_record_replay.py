@@ -15,8 +15,9 @@ from common.dispatch import Balance
 from common.wire import keys
 from services.master.service import Topology
 from services.runtime.transport import open_session
+from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.observe import YawCollector
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 

@@ -31,7 +31,8 @@ from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from services.camera.sources import simulated_camera_measurements
 from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.up import LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 

@@ -29,8 +29,8 @@ from services.camera import CameraSettings, simulated_flight
 from services.runtime.cli import parse_size
 from services.tools.bench.cluster_overhead import OVERHEAD_WARMUP, overhead_752x480, reply_handoff
 from services.tools.bench.cluster_workload import in_process_ms, stats_ms, write_frame_folder
+from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.demo_cluster import run_cluster_flight
-from services.tools.up import ClusterSpec, HostSpec
 
 NAME = "cluster"
 logger = logging.getLogger(__name__)

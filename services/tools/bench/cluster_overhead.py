@@ -19,8 +19,9 @@ from common.yaw import YawSettings, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
 from services.runtime.transport import open_session, zbytes
 from services.tools.bench.cluster_workload import in_process_ms, write_frame_folder
+from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.demo_cluster import run_cluster_flight
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import LocalCluster
 
 #: frames of each 752x480 overhead run left out of its median (the dispatcher's speeds settle)
 OVERHEAD_WARMUP = 10

@@ -28,7 +28,8 @@ from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import Frame, YawEstimate
 from services.runtime.transport import open_session, zbytes
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.up import LocalCluster
 
 NAME = "record"
 

@@ -31,8 +31,9 @@ from common.wire.schema import WireError
 from services.camera import CameraSettings, simulated_flight
 from services.runtime.transport import open_session, zbytes
 from services.tools.bench import hostile
+from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.secure import SecureProfile
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import LocalCluster
 
 #: the bounds both profiles must meet (the open profile's own tests use the same)
 YAW_BOUND_DEG = 1e-6

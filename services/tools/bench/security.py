@@ -25,9 +25,10 @@ from common.members import Topology
 from services.camera import CameraSettings, simulated_flight
 from services.tools.bench import hostile, secure_system, takeover
 from services.tools.bench.cluster_workload import write_frame_folder
+from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.demo_cluster import run_cluster_flight
 from services.tools.secure import SecureProfile
-from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.up import LocalCluster
 
 NAME = "security"
 logger = logging.getLogger(__name__)

@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from services.tools.cluster_file import load_cluster
 from services.tools.loadtest.harness import RunSettings
 from services.tools.loadtest.plan import (
     CAPACITY_OBJECTIVES,
@@ -29,7 +30,6 @@ from services.tools.loadtest.plan import (
 )
 from services.tools.loadtest.report import plot, table, write_json
 from services.tools.secure import add_profile_arguments
-from services.tools.up import load_cluster
 
 logger = logging.getLogger(__name__)
 

@@ -29,9 +29,10 @@ from common.wire.messages import Frame, PatchJob, Stats, YawEstimate, YawJobSett
 from common.wire.schema import WireError
 from common.yaw import YawSettings
 from services.runtime.transport import open_session, zbytes
+from services.tools.cluster_file import ClusterSpec
 from services.tools.loadtest.plan import Fault, FaultAction, FrameRecord
 from services.tools.secure import SecureProfile
-from services.tools.up import ClusterSpec, LocalCluster
+from services.tools.up import LocalCluster
 
 logger = logging.getLogger(__name__)
 

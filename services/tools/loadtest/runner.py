@@ -17,6 +17,7 @@ from common.wire import keys
 from common.wire.codec import encode
 from common.wire.messages import Frame
 from services.runtime.transport import open_session
+from services.tools.cluster_file import ClusterSpec
 from services.tools.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
 from services.tools.loadtest.harness import (
     Hostile,
@@ -40,7 +41,6 @@ from services.tools.loadtest.plan import (
     summarise,
     yaw_jumps_deg,
 )
-from services.tools.up import ClusterSpec
 
 logger = logging.getLogger(__name__)
 

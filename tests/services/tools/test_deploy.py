@@ -13,8 +13,9 @@ import pytest
 import yaml
 
 from services.tools.cli import build_parser
+from services.tools.cluster_file import load_cluster
 from services.tools.compose import compose_from_cluster
-from services.tools.up import LocalCluster, load_cluster
+from services.tools.up import LocalCluster
 
 ROOT = Path(__file__).resolve().parents[3]
 CLUSTERS = sorted((ROOT / "deploy" / "clusters").glob("*.yml"))
