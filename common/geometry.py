@@ -23,12 +23,21 @@ import numpy.typing as npt
 from common.errors import InputError
 from common.types import FloatArray
 
+
+def constant(values: npt.ArrayLike) -> FloatArray:
+    """A read-only float array: module constants are shared (and are default arguments), so nobody may
+    write into them."""
+    array = np.array(values, dtype=float)
+    array.setflags(write=False)
+    return array
+
+
 #: Downward camera on the body: image right = body right (-y), image down = body backward (-x),
 #: optical axis = body down (-z).
-R_BODY_CAMERA_DOWN: FloatArray = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+R_BODY_CAMERA_DOWN: FloatArray = constant([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: Forward camera on the body: image right = body right (-y), image down = body down (-z),
 #: optical axis = body forward (+x).
-R_BODY_CAMERA_FORWARD: FloatArray = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+R_BODY_CAMERA_FORWARD: FloatArray = constant([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 class CameraMount(StrEnum):

@@ -41,7 +41,7 @@ def _from_the_future(stamp_s: float, wall_s: float, max_future_s: float) -> bool
     return abs(stamp_s - wall_s) < WALL_CLOCK_WINDOW_S and stamp_s > wall_s + max_future_s
 
 
-class Verdict(enum.Enum):
+class GateVerdict(enum.Enum):
     """What a gate decided about one sample."""
 
     ACCEPT = "accept"  # continues the current epoch
@@ -51,7 +51,7 @@ class Verdict(enum.Enum):
 
 @dataclass(frozen=True)
 class Decision:
-    verdict: Verdict
+    verdict: GateVerdict
     #: counter name of a refusal (``foreign_uav``, ``wrong_size``, ``seq_jump``, ...); "" when admitted
     reason: str = ""
     detail: str = ""
@@ -60,7 +60,7 @@ class Decision:
 
     @property
     def admitted(self) -> bool:
-        return self.verdict is not Verdict.REFUSE
+        return self.verdict is not GateVerdict.REFUSE
 
 
 @dataclass(frozen=True)
@@ -164,7 +164,7 @@ def admit_frame(
         base = new if new is not None else state
         counts = dict(base.refused)
         counts[reason] = counts.get(reason, 0) + 1
-        return replace(base, refused=counts), Decision(Verdict.REFUSE, reason, detail)
+        return replace(base, refused=counts), Decision(GateVerdict.REFUSE, reason, detail)
 
     if uav != expected_uav:
         return refuse("foreign_uav", f"frame of {uav!r} on {expected_uav!r}'s stream")
@@ -177,7 +177,7 @@ def admit_frame(
     current = state.current
     if current is None:
         return FrameGateState(epoch=state.epoch + 1, current=run, refused=state.refused), Decision(
-            Verdict.NEW_EPOCH
+            GateVerdict.NEW_EPOCH
         )
     if source != current.source:
         why = "foreign_sender"
@@ -187,7 +187,7 @@ def admit_frame(
         if not why:
             gap = seq - current.last.seq - 1
             accepted = replace(state, current=replace(current, last=last), candidate=None, candidate_count=0)
-            return accepted, Decision(Verdict.ACCEPT, gap=gap)
+            return accepted, Decision(GateVerdict.ACCEPT, gap=gap)
         detail = (
             f"seq {seq} stamp {stamp_s:.6f} after seq {current.last.seq} stamp {current.last.stamp_s:.6f}"
         )
@@ -214,7 +214,7 @@ def admit_frame(
     confirmed = count >= settings.confirm_frames and why != "foreign_sender"
     if confirmed or (silent and restart):
         return FrameGateState(epoch=state.epoch + 1, current=run, refused=state.refused), Decision(
-            Verdict.NEW_EPOCH, why, detail
+            GateVerdict.NEW_EPOCH, why, detail
         )
     return refuse(why, detail, replace(state, candidate=run, candidate_count=count))
 
@@ -252,16 +252,16 @@ def check_stamp(
 ) -> tuple[StampGuardState, Decision]:
     """Admit or refuse one sensor stamp; ``NEW_EPOCH`` when a jumped clock was confirmed."""
     if not math.isfinite(stamp_s):
-        return state, Decision(Verdict.REFUSE, "bad_stamp", f"stamp {stamp_s}")
+        return state, Decision(GateVerdict.REFUSE, "bad_stamp", f"stamp {stamp_s}")
     if _from_the_future(stamp_s, wall_s, settings.max_future_s):
         return state, Decision(
-            Verdict.REFUSE, "future_stamp", f"{stamp_s - wall_s:.3f} s ahead of the wall clock"
+            GateVerdict.REFUSE, "future_stamp", f"{stamp_s - wall_s:.3f} s ahead of the wall clock"
         )
     ahead = _ahead(stamp_s, state.stamp_s, state.now_s, now_s, settings.max_ahead_s, settings.max_rate)
     if state.stamp_s == -math.inf or not ahead:
         newest = max(state.stamp_s, stamp_s)
         return StampGuardState(stamp_s=newest, now_s=now_s if newest == stamp_s else state.now_s), Decision(
-            Verdict.ACCEPT
+            GateVerdict.ACCEPT
         )
     agrees = (
         state.candidate_count > 0
@@ -277,10 +277,10 @@ def check_stamp(
     )
     count = state.candidate_count + 1 if agrees else 1
     if count >= settings.confirm_samples:
-        return StampGuardState(stamp_s=stamp_s, now_s=now_s), Decision(Verdict.NEW_EPOCH, "clock_jump")
+        return StampGuardState(stamp_s=stamp_s, now_s=now_s), Decision(GateVerdict.NEW_EPOCH, "clock_jump")
     detail = f"stamp {stamp_s:.6f} is {stamp_s - state.stamp_s:.3f} s after the stream's newest"
     return replace(state, candidate_stamp_s=stamp_s, candidate_now_s=now_s, candidate_count=count), Decision(
-        Verdict.REFUSE, "future_stamp", detail
+        GateVerdict.REFUSE, "future_stamp", detail
     )
 
 

@@ -6,7 +6,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from common.messages import PatchJob, YawEstimate, YawJobSettings
+from common.wire.messages import PatchJob, YawEstimate, YawJobSettings
 from common.yaw import YawSettings
 
 #: the default yaw settings as every job carries them

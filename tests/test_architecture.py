@@ -1,6 +1,17 @@
-"""The house rules, pinned: pure cores, no service reaching into another's package, small modules, and every
-test that starts Zenoh processes marked ``zenoh``. Known exceptions are listed here and tracked: a listed one
-that no longer breaks the rule fails the test until it is removed, so the lists can only shrink."""
+"""The house rules, pinned: the rings (docs/architecture.md), pure cores, no service reaching into another's
+package, small modules, and every test that starts Zenoh processes marked ``zenoh``. Known exceptions are
+listed here and tracked: a listed one that no longer breaks the rule fails the test until it is removed, so
+the lists can only shrink.
+
+The rings, innermost first; a module imports only modules of its own ring or of rings inside it:
+
+0. cores: ``common/`` (pure: arrays in, value objects out)
+1. file readers: ``common/datasets/``
+2. wire: ``common/wire/`` (schema, messages, codec, keys)
+3. simulation and recordings: ``common/sim/``, ``common/recordings/``
+4. services: ``services/runtime/`` and one package per Zenoh service
+5. tools: ``services/tools/`` (command line, benchmarks, load test, demos, up/compose/secure, record/view)
+"""
 
 from __future__ import annotations
 
@@ -49,6 +60,76 @@ def imports_any(path: Path, prefixes: tuple[str, ...]) -> set[str]:
     return {m for m in imported_modules(path) if any(m == p or m.startswith(p + ".") for p in prefixes)}
 
 
+#: (ring, module prefix), most specific prefixes first; the first that matches a module names its ring
+RINGS: tuple[tuple[int, str], ...] = (
+    (1, "common.datasets"),
+    (2, "common.wire"),
+    (3, "common.sim"),
+    (3, "common.recordings"),
+    (0, "common"),
+    (5, "services.tools"),
+    (4, "services"),
+)
+RING_NAMES = ("cores", "file readers", "wire", "simulation and recordings", "services", "tools")
+#: the Zenoh services (each a package of services/); the runtime is theirs to share
+SERVICES = ("camera", "master", "foreman", "worker", "estimator", "localizer", "router")
+
+
+def module_name(path: Path) -> str:
+    return rel(path).removesuffix(".py").removesuffix("/__init__").replace("/", ".")
+
+
+def ring_of(module: str) -> int | None:
+    return next((ring for ring, prefix in RINGS if module == prefix or module.startswith(prefix + ".")), None)
+
+
+def test_every_module_has_a_ring() -> None:
+    assert [rel(p) for p in python_files("common", "services") if ring_of(module_name(p)) is None] == []
+
+
+def test_each_ring_imports_only_its_own_ring_and_the_rings_inside_it() -> None:
+    offenders = []
+    for path in python_files("common", "services"):
+        ring = ring_of(module_name(path))
+        assert ring is not None
+        for imported in imports_any(path, ("common", "services")):
+            other = ring_of(imported)
+            if other is not None and other > ring:
+                offenders.append(f"{rel(path)} ({RING_NAMES[ring]}) imports {imported} ({RING_NAMES[other]})")
+    assert offenders == []
+
+
+def test_no_service_imports_another_service() -> None:
+    offenders = []
+    for service in SERVICES:
+        others = tuple(f"services.{s}" for s in SERVICES if s != service)
+        for path in python_files(f"services/{service}"):
+            offenders += [f"{rel(path)} imports {m}" for m in sorted(imports_any(path, others))]
+    assert offenders == []
+
+
+def test_only_the_camera_and_the_tools_import_the_simulation() -> None:
+    allowed = ("services/camera/", "services/tools/", "common/sim/")
+    offenders = [
+        f"{rel(p)} imports {sorted(imports_any(p, ('common.sim',)))}"
+        for p in python_files("common", "services")
+        if not rel(p).startswith(allowed) and imports_any(p, ("common.sim",))
+    ]
+    assert offenders == []
+
+
+def test_the_rings_diagram_matches_the_folders() -> None:
+    """docs/architecture.md lists every package of common/ and services/ under its ring."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    packages = {
+        rel(p.parent)
+        for p in python_files("common", "services")
+        if p.name == "__init__.py" and p.parent != ROOT
+    }
+    missing = sorted(p for p in packages if f"{p}/" not in text)
+    assert missing == [], "packages missing from docs/architecture.md's rings"
+
+
 def test_common_imports_no_zenoh() -> None:
     offenders = {rel(p): imports_any(p, ("zenoh",)) for p in python_files("common")}
     assert {k: v for k, v in offenders.items() if v} == {}
@@ -64,8 +145,9 @@ def test_common_imports_the_simulator_only_inside_common_sim() -> None:
     assert SIM_IMPORT_EXCEPTIONS - offenders == set(), "fixed: remove it from SIM_IMPORT_EXCEPTIONS"
 
 
-def test_common_imports_no_service() -> None:
-    offenders = {rel(p): imports_any(p, ("services",)) for p in python_files("common")}
+def test_tests_of_the_cores_import_no_service() -> None:
+    """tests/common mirrors common/: a test that needs a service lives under tests/services."""
+    offenders = {rel(p): imports_any(p, ("services",)) for p in python_files("tests/common")}
     assert {k: v for k, v in offenders.items() if v} == {}
 
 

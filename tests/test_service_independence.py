@@ -1,6 +1,6 @@
 """No service imports another service (issue 24): a service package (a folder under ``services/`` with a
 ``service.py``; the shared runtime is not one) imports only its own package, the shared runtime and the
-rings below; what two services share lives below them (e.g. ``common/sensor_messages.py``)."""
+rings below; what two services share lives below them (e.g. ``common/wire/measurements.py``)."""
 
 from __future__ import annotations
 
@@ -83,6 +83,6 @@ def test_the_rule_allows_the_own_package_the_runtime_and_the_rings_below() -> No
     source = (
         "from services.camera.sources import CameraSource\nfrom . import flights\n"
         "from services.runtime.service import ConfiguredService\n"
-        "from common.sensor_messages import message_of\n"
+        "from common.wire.measurements import message_of\n"
     )
     assert other_services(source, "services.camera", "services.camera", services) == set()

@@ -1,16 +1,9 @@
 """Splitting work among members with time-weighted balancing (pure; the zenoh I/O lives in services)."""
 
-from common.dispatch.dispatcher import (
-    SELF,
-    Balance,
-    Dispatcher,
-    DispatchError,
-    DispatchSettings,
-    Plan,
-    SpeedSource,
-    largest_remainder,
-)
-from common.dispatch.trust import MemberOutcome, TrustMonitor, TrustSettings, Verdict, outcomes_of_fit
+from common.dispatch.dispatcher import SELF, Dispatcher, DispatchError
+from common.dispatch.plan import Plan, largest_remainder
+from common.dispatch.settings import Balance, DispatchSettings, SpeedSource
+from common.dispatch.trust import MemberOutcome, Suspension, TrustMonitor, TrustSettings, outcomes_of_fit
 
 __all__ = [
     "SELF",
@@ -21,9 +14,9 @@ __all__ = [
     "MemberOutcome",
     "Plan",
     "SpeedSource",
+    "Suspension",
     "TrustMonitor",
     "TrustSettings",
-    "Verdict",
     "largest_remainder",
     "outcomes_of_fit",
 ]

@@ -20,66 +20,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import Bounded, bounded
+from common.dispatch.plan import IndexArray, Plan, apportion
+from common.dispatch.settings import Balance, DispatchSettings, SpeedSource
 from common.dispatch.trust import TrustMonitor, cap_plan, doubling_suspension_s, hold_weights
 from common.errors import CapatazError, InputError
 
-IndexArray = npt.NDArray[np.int32]
 #: Name of the dispatcher itself as a member (the master or foreman computing a share).
 SELF = "self"
 
 
 class DispatchError(CapatazError):
     """A dispatch decision is impossible (unknown member, bad indices)."""
-
-
-class Balance(StrEnum):
-    """How shares are chosen."""
-
-    NONE = "none"
-    TIME = "time"
-
-
-class SpeedSource(StrEnum):
-    """Which measurement of a member's speed feeds ``balance=time``.
-
-    ``reported``: the member's own figure (a worker's patches per second of compute time; a foreman's sum
-    of its workers'). ``round-trip`` (default): patches / time from the start of the round to the member's
-    reply, as seen by the dispatcher; shares proportional to it converge to equal completion times (the
-    fixed point of ``n_i ~ n_i / T_i`` is ``T_i = T``), transfers and co-located members included. Workers
-    sharing one core overlap only partly, so the sum of their own figures overstates what their host
-    delivers: on the bench's heterogeneous cluster (two equal cores) ``reported`` settled at 41/59 %,
-    ``round-trip`` at 51/49 %.
-    """
-
-    REPORTED = "reported"
-    ROUND_TRIP = "round-trip"
-
-
-@dataclass(frozen=True)
-class DispatchSettings(Bounded):
-    """Balancing and fault-handling parameters of a :class:`Dispatcher`."""
-
-    balance: Balance = Balance.TIME
-    #: weight of the newest speed measurement in the moving average.
-    ema_alpha: float = bounded(0.3, gt=0.0, le=1.0)
-    #: the dispatcher computes a share itself (the paper's configuration) even when members exist.
-    self_compute: bool = False
-    #: capacity of the dispatcher itself (weight under ``balance=none``).
-    self_capacity: float = bounded(1.0, gt=0.0)
-    #: first suspension after a missed deadline; doubles per consecutive failure up to ``max_suspend_s``.
-    suspend_s: float = bounded(1.0, gt=0.0)
-    max_suspend_s: float = bounded(8.0, gt=0.0)
-    #: per-request deadline = max(min_deadline_s, deadline_factor * expected time at the member's speed).
-    min_deadline_s: float = bounded(0.3, gt=0.0)
-    deadline_factor: float = bounded(4.0, gt=0.0)
-    #: which speed measurement balances (see :class:`SpeedSource`).
-    speed_source: SpeedSource = SpeedSource.ROUND_TRIP
 
 
 @dataclass
@@ -90,52 +45,6 @@ class _Member:
     suspended_until_s: float = -math.inf
     held_seq: int = -2
     held: frozenset[int] = field(default_factory=frozenset)
-
-
-@dataclass(frozen=True)
-class Plan:
-    """Assignment of one frame: member -> sorted patch indices, and the indices it lacks history for."""
-
-    seq: int
-    prev_seq: int
-    assignment: dict[str, IndexArray]
-    moved: dict[str, IndexArray]
-
-    def shares(self) -> dict[str, float]:
-        total = sum(len(v) for v in self.assignment.values())
-        return {m: len(v) / total for m, v in self.assignment.items()} if total else {}
-
-
-def largest_remainder(weights: npt.ArrayLike, total: int) -> npt.NDArray[np.int64]:
-    """Integer counts proportional to ``weights`` summing to ``total`` (Hamilton's method)."""
-    return np.array(_largest_remainder(np.asarray(weights, dtype=np.float64).tolist(), total), dtype=np.int64)
-
-
-def _largest_remainder(weights: list[float], total: int) -> list[int]:
-    """:func:`largest_remainder` on a plain list: a plan has a handful of members, where Python floats
-    are several times cheaper than numpy's per-call overhead (this runs for every frame, twice per path).
-    Ties go to the earlier member."""
-    if (
-        not isinstance(weights, list)
-        or not weights
-        or any(not (isinstance(w, float) and math.isfinite(w) and w >= 0) for w in weights)
-        or sum(weights) <= 0
-    ):
-        raise InputError(
-            f"weights must be a non-empty 1-D array of finite non-negative values, got {weights}"
-        )
-    if total < 0:
-        raise InputError(f"total must be >= 0, got {total}")
-    if len(weights) == 1:
-        return [total]
-    weight_sum = sum(weights)
-    exact = [w / weight_sum * total for w in weights]
-    counts = [math.floor(e) for e in exact]
-    remainder = total - sum(counts)
-    order = sorted(range(len(weights)), key=lambda i: (-(exact[i] - counts[i]), i))
-    for i in order[:remainder]:
-        counts[i] += 1
-    return counts
 
 
 class Dispatcher:
@@ -226,7 +135,7 @@ class Dispatcher:
 
     def _counts(self, members: list[str], total: int, redo: bool = False) -> tuple[list[str], list[int]]:
         """Counts per member under the trust share caps (a re-dispatch counts the frame's earlier shares)."""
-        counts = _largest_remainder(self.weights(members), total)
+        counts = apportion(self.weights(members), total)
         frame, load = self._frame if redo and self._frame[0] else (total, {})
         return cap_plan(self.trust, members, counts, frame, load, len(self.members), SELF)
 

@@ -20,7 +20,7 @@ from types import MappingProxyType
 from typing import NamedTuple
 
 from common.dispatch.dispatcher import Dispatcher
-from common.keys import MemberId, Role
+from common.members import MemberId, Role
 
 
 class Seat(NamedTuple):

@@ -6,7 +6,7 @@ A member (foreman or worker) is only trusted as far as its results are consisten
   the robust fit over the whole frame (or block). :class:`TrustMonitor` keeps a sliding window per
   member; a member whose outlier rate exceeds the other members' by more than ``outlier_margin`` (over
   at least ``min_patches`` of its patches) is **suspended** for ``suspend_s`` and reported
-  (:class:`Verdict`). The suspension is by member name and survives leave/re-join (liveliness churn).
+  (:class:`Suspension`). The suspension is by member name and survives leave/re-join (liveliness churn).
 - **share cap** (:func:`cap_counts`): from two joined remote members on, none gets more than
   ``max_share`` of a frame, and ``probation_share`` until it has earned credit (the rest goes to the
   others, else to the dispatcher itself), so no single member holds the majority the robust fit follows,
@@ -88,7 +88,7 @@ class MemberOutcome:
 
 
 @dataclass(frozen=True)
-class Verdict:
+class Suspension:
     """A member suspended for inconsistent results (what the service logs, counts and reports)."""
 
     member: str
@@ -143,12 +143,12 @@ class TrustMonitor:
     def __init__(self, settings: TrustSettings | None = None) -> None:
         self.settings = settings or TrustSettings()
         self._records: dict[str, _Record] = {}
-        self.verdicts: list[Verdict] = []
+        self.verdicts: list[Suspension] = []
 
     def _record(self, member: str) -> _Record:
         return self._records.setdefault(member, _Record())
 
-    def observe(self, outcomes: Sequence[MemberOutcome], now_s: float) -> list[Verdict]:
+    def observe(self, outcomes: Sequence[MemberOutcome], now_s: float) -> list[Suspension]:
         """Add one frame's outcomes (only frames with two or more members are informative); returns the
         members suspended now."""
         s = self.settings
@@ -159,7 +159,7 @@ class TrustMonitor:
             rec.frames.append((o.valid, o.outliers))
             while len(rec.frames) > s.window:
                 rec.frames.popleft()
-        new: list[Verdict] = []
+        new: list[Suspension] = []
         for o in outcomes:
             rate, patches = self.outlier_rate(o.member)
             others = self._others_rate(o.member, [x.member for x in outcomes])
@@ -172,7 +172,7 @@ class TrustMonitor:
                 rec.suspensions += 1
                 rec.suspended_until_s = now_s + pause
                 rec.frames.clear()
-                verdict = Verdict(
+                verdict = Suspension(
                     o.member,
                     rate,
                     others,

@@ -1,4 +1,5 @@
-"""Settings, camera model and outputs of the double-coupling estimator (:mod:`common.estimation.coupling`)."""
+"""Settings, camera model and outputs of paper C's double-coupling estimator
+(:mod:`common.estimation.coupling`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from common.estimation.vo import MotionModel
 from common.types import FloatArray
 
 
-class FilterKind(enum.Enum):
+class EkfKind(enum.Enum):
     """Which attitude/altitude filter the coupling runs."""
 
     #: Paper C's 5-state EKF (quaternion + altitude), kept as the reference.
@@ -125,7 +126,7 @@ class CouplingSettings(Bounded):
     #: (0: use the hover model meanwhile, right for a start at rest; > 0 for a start in mid-manoeuvre).
     accel_wait_for_vo_s: float = bounded(0.0, ge=0.0)
     #: The attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF.
-    filter: FilterKind = FilterKind.BIAS
+    filter: EkfKind = EkfKind.BIAS
     #: Uncertainty-aware rectification: the output position is the inverse-variance blend
     #: ``w * level + (1 - w) * free`` of two chains over the same rectified pairs: the level model's (error
     #: ``h_k d_k - h_0 d_0``, std ``sqrt((h_k s_k)^2 + (h_0 s_0)^2)`` from the filter's current tilt std

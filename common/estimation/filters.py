@@ -8,7 +8,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from common.estimation.coupling_types import FilterKind
+from common.estimation.coupling_types import EkfKind
 from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState
 from common.estimation.ekf_models import EkfError, propagate_quaternion
 from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
@@ -18,9 +18,9 @@ AnyFilter = AttitudeAltitudeEkf | BiasAwareEkf
 AnyState = EkfState | BiasEkfState
 
 
-def make_filter(kind: FilterKind, settings: EkfSettings | None = None) -> AnyFilter:
+def make_filter(kind: EkfKind, settings: EkfSettings | None = None) -> AnyFilter:
     """The filter of ``kind`` (``settings`` of the matching type, else its defaults)."""
-    if kind is FilterKind.BIAS:
+    if kind is EkfKind.BIAS:
         return BiasAwareEkf(settings if isinstance(settings, BiasEkfSettings) else None)
     return AttitudeAltitudeEkf(settings)
 

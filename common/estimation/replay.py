@@ -19,7 +19,7 @@ from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import (
     AttitudeOutput,
     CouplingSettings,
-    FilterKind,
+    EkfKind,
     PoseOutput,
     ScaleSource,
     Vehicle,
@@ -271,7 +271,7 @@ CONFIGURATIONS: dict[str, dict[str, Any]] = {
     # paper C's 5-state EKF and the level model always trusted: the reference the bias filter improves on
     "rectified_paper_c": {
         **PROPOSAL,
-        "filter": FilterKind.PAPER_C,
+        "filter": EkfKind.PAPER_C,
         "uncertainty_aware": False,
         "imu_midpoint": False,
         "vision_tilt_correction": True,

@@ -1,4 +1,5 @@
-"""Explicit-state pieces of the coupling: the vision tilt of rectified views and the manoeuvre acceleration.
+"""Explicit-state pieces of paper C's coupling: the vision tilt of rectified views and the manoeuvre
+acceleration.
 
 - :class:`VisionTilt`: the residual tilt of rectified views (the EKF's tilt error), an information-weighted,
   exponentially forgetting mean of the free decompositions' plane normals, and the horizontal offset

@@ -239,20 +239,6 @@ def _max_texels_per_pixel(H_texel_pixel: FloatArray, points_px: FloatArray) -> f
     return worst
 
 
-def level_of_detail(
-    texture: GroundTexture,
-    camera: CameraModel,
-    R_world_camera: npt.ArrayLike,
-    p_world_camera_m: npt.ArrayLike,
-) -> float:
-    """Mip-map level of detail ``log2(texels per pixel)`` (worst over the image centre and corners), >= 0."""
-    H_pixel_ground = ground_homography(camera, R_world_camera, p_world_camera_m)
-    H_texel_pixel = texture.texel_from_world(0) @ np.linalg.inv(H_pixel_ground)
-    points = np.vstack([camera.corners_px(), [[camera.cx, camera.cy]]])
-    scale = _max_texels_per_pixel(H_texel_pixel, points)
-    return max(0.0, float(np.log2(scale)))
-
-
 def render_ground_view(
     texture: GroundTexture,
     camera: CameraModel,

@@ -1,4 +1,4 @@
-"""The paper's exact method, kept as the benchmark baseline and a cross-check of the core.
+"""Paper A's exact method, kept as the benchmark baseline and a cross-check of the core.
 
 Paper A, Algorithms 1-2: ``cv2.phaseCorrelate`` per patch pair at full resolution (both spectra
 recomputed every frame), patch centre -> centre + shift, RANSAC homography, psi from it.

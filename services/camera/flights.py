@@ -15,12 +15,12 @@ from common.errors import CapatazError
 from common.estimation.measurements import FrameMeasurement
 from common.localization.office import default_scene
 from common.localization.tracking import noisy_odometry
-from common.messages import PoseEstimate
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.office_run import OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from common.sim.stream import flight_measurements
+from common.wire.messages import PoseEstimate
 from services.camera.settings import CameraSettings, FlightName
 from services.camera.sources import CameraSource, OdometrySample, OnSkip, Sample
 

@@ -25,9 +25,9 @@ import numpy as np
 from common.errors import InputError
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from common.geometry import quaternion_from_euler
-from common.messages import PoseEstimate
-from common.sensor_messages import message_of
-from common.wire import WireModel
+from common.wire.measurements import message_of
+from common.wire.messages import PoseEstimate
+from common.wire.schema import WireModel
 from services.camera.settings import CameraSettings
 from services.camera.sources import CameraSource, OdometrySample, OnSkip, Sample
 from services.runtime.handoff import Counters

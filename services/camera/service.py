@@ -21,9 +21,10 @@ from typing import Any
 
 import zenoh
 
-from common import keys
-from common.messages import Frame, YawEstimate
-from common.wire import WireModel
+from common.members import Role
+from common.wire import keys
+from common.wire.messages import Frame, YawEstimate
+from common.wire.schema import WireModel
 from services.camera.flights import flight_source, write_flight_calibration
 from services.camera.images import image_files
 from services.camera.replay import replay_source
@@ -35,7 +36,7 @@ from services.runtime.service import ConfiguredService
 
 
 class CameraService(ConfiguredService[CameraSettings]):
-    role = keys.Role.CAMERA
+    role = Role.CAMERA
 
     def setup(self) -> None:
         settings = self.settings
@@ -71,7 +72,7 @@ class CameraService(ConfiguredService[CameraSettings]):
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
             session.liveliness().declare_subscriber(
-                keys.alive_role(keys.Role.MASTER), self._on_master, history=True
+                keys.alive_role(Role.MASTER), self._on_master, history=True
             )
         )
         self.spawn(self._publish_all, "publish")

@@ -22,7 +22,7 @@ from common.datasets.tum import Trajectory
 from common.errors import InputError
 from common.estimation.measurements import Measurement
 from common.types import FloatArray
-from common.wire import WireModel
+from common.wire.schema import WireModel
 from services.camera.settings import CameraSettings
 
 #: what a skipped sample is reported to: (kind, why)
@@ -139,7 +139,7 @@ def open_source(
             height=folder_e.camera.height,
         )
     if mcap is not None:
-        from common.datasets.recording import open_recording
+        from common.recordings.mcap import open_recording
 
         recording = open_recording(mcap, uav)
         return CameraSource(

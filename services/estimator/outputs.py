@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
-from common.messages import AttitudeEstimate, PoseEstimate
 from common.types import FloatArray
+from common.wire.messages import AttitudeEstimate, PoseEstimate
 
 #: the floor of the horizontal variance (m^2)
 MIN_VAR_XY_M2 = 1e-6

@@ -33,7 +33,6 @@ from typing import Any, TypeVar
 
 import zenoh
 
-from common import keys
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
@@ -45,7 +44,9 @@ from common.estimation.measurements import (
     check_range,
     check_yaw,
 )
-from common.messages import (
+from common.members import Role
+from common.wire import keys
+from common.wire.messages import (
     AttitudeEstimate,
     Frame,
     ImuSample,
@@ -54,7 +55,7 @@ from common.messages import (
     UavMessage,
     YawEstimate,
 )
-from common.wire import WireModel
+from common.wire.schema import WireModel
 from services.estimator.backlog import HeldSamples, SpacedFrameQueue
 from services.estimator.outputs import (
     VoPath,
@@ -73,7 +74,7 @@ from services.runtime.cli import add_transport_arguments
 from services.runtime.handoff import WorkQueue
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
 
 S = TypeVar("S", bound=UavMessage)
 SENSOR_QUEUE = 4096
@@ -89,7 +90,7 @@ SPACING_BINS = 6
 
 
 class EstimatorService(ConfiguredService[EstimatorSettings]):
-    role = keys.Role.ESTIMATOR
+    role = Role.ESTIMATOR
 
     def setup(self) -> None:
         settings = self.settings

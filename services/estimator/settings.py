@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
-from common.estimation.coupling_types import CouplingSettings, FilterKind, Vehicle, vehicle_settings
+from common.estimation.coupling_types import CouplingSettings, EkfKind, Vehicle, vehicle_settings
 from services.runtime.cli import add_enum_argument
 
 
@@ -24,7 +24,7 @@ class EstimatorSettings(BaseModel):
     hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0)
     rectify: bool = True
     #: the attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF
-    filter: FilterKind = FilterKind.BIAS
+    filter: EkfKind = EkfKind.BIAS
     visual_yaw: bool = True
     external_yaw: bool = False
     max_lag_s: float = Field(default=0.02, ge=0.0, le=1.0)
@@ -78,7 +78,7 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-rectify", action="store_true", help="VO on raw frames (the paper's traditional VO)"
     )
     add_enum_argument(
-        parser, "--filter", FilterKind, FilterKind.BIAS,
+        parser, "--filter", EkfKind, EkfKind.BIAS,
         help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases, default) or "
         "paper_c (paper C's 5-state EKF)",
     )  # fmt: skip
@@ -131,7 +131,7 @@ def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
             height=height,
             hfov_deg=args.hfov,
             rectify=not args.no_rectify,
-            filter=FilterKind(args.filter),
+            filter=EkfKind(args.filter),
             visual_yaw=not args.no_visual_yaw,
             external_yaw=args.external_yaw,
             max_lag_s=args.max_lag,

@@ -9,9 +9,9 @@ import time
 
 import zenoh
 
-from common.codec import encode
 from common.estimation.measurements import Measurement
-from common.sensor_messages import message_of
+from common.wire.codec import encode
+from common.wire.measurements import message_of
 
 
 def publish_measurements(

@@ -19,7 +19,6 @@ import numpy as np
 import zenoh
 from pydantic import Field
 
-from common import keys
 from common.dispatch import (
     SELF,
     Dispatcher,
@@ -29,8 +28,10 @@ from common.dispatch import (
     TrustSettings,
 )
 from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, PatchJob, PatchResult
+from common.members import Role
 from common.streams import StreamTable
+from common.wire import keys
+from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import (
     PatchWorkError,
@@ -117,7 +118,7 @@ class ForemanSettings(StreamBoundSettings):
 
 
 class ForemanService(ConfiguredService[ForemanSettings]):
-    role = keys.Role.FOREMAN
+    role = Role.FOREMAN
 
     def setup(self) -> None:
         self.dispatch_settings = self.settings.dispatch
@@ -129,7 +130,7 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         self.streams: StreamTable[_StreamState] = StreamTable(max_streams, ttl_s)
         self._streams_lock = threading.Lock()
         #: the node's workers, from liveliness (each stream's dispatcher is brought up to date from a copy)
-        self.live = LiveMembers(keys.Role.WORKER)
+        self.live = LiveMembers(Role.WORKER)
         self._last_shares: dict[str, float] = {}
         self._entities: list[Any] = []
 

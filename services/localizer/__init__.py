@@ -3,10 +3,10 @@ VO odometry, or the model tracker, which needs none)."""
 
 from services.localizer.filters import odometry_between, pose_message
 from services.localizer.service import LocalizerService, register
-from services.localizer.settings import FilterKind, LocalizerSettings
+from services.localizer.settings import LocalizerKind, LocalizerSettings
 
 __all__ = [
-    "FilterKind",
+    "LocalizerKind",
     "LocalizerService",
     "LocalizerSettings",
     "odometry_between",

@@ -40,8 +40,8 @@ from common.localization.pose import CameraPose, rotation_vectors
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState, TrackingStatus
 from common.localization.tracking import localizer_step
-from common.messages import Frame, PoseEstimate
-from services.localizer.settings import FilterKind, LocalizerSettings
+from common.wire.messages import Frame, PoseEstimate
+from services.localizer.settings import LocalizerKind, LocalizerSettings
 
 logger = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ class StepInputs:
 class LocalizationPath(Protocol):
     """One frame in, the ``pose/pf`` message out."""
 
-    kind: FilterKind
+    kind: LocalizerKind
 
     def step(self, inputs: StepInputs) -> PoseEstimate: ...
 
@@ -184,7 +184,7 @@ class ParticleFilterPath:
     :data:`VO_DISAGREE_FRAMES` frames it starts the cloud again around the VO pose (``lost`` on that
     frame)."""
 
-    kind = FilterKind.PARTICLE
+    kind = LocalizerKind.PARTICLE
 
     def __init__(self, settings: LocalizerSettings) -> None:
         self.settings = settings
@@ -244,7 +244,7 @@ class ParticleFilterPath:
 class ModelTrackerPath:
     """The model tracker (no odometry needed; uses the VO motion when given)."""
 
-    kind = FilterKind.TRACKER
+    kind = LocalizerKind.TRACKER
 
     def __init__(self, settings: LocalizerSettings) -> None:
         self.settings = settings
@@ -277,6 +277,6 @@ class ModelTrackerPath:
 
 def make_path(settings: LocalizerSettings) -> LocalizationPath:
     """The estimator ``settings.resolved_filter()`` names."""
-    if settings.resolved_filter() is FilterKind.PARTICLE:
+    if settings.resolved_filter() is LocalizerKind.PARTICLE:
         return ParticleFilterPath(settings)
     return ModelTrackerPath(settings)

@@ -28,8 +28,9 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common import keys
-from common.messages import Frame, ImuSample, PoseEstimate
+from common.members import Role
+from common.wire import keys
+from common.wire.messages import Frame, ImuSample, PoseEstimate
 from services.localizer.filters import (
     LocalizationPath,
     StepInputs,
@@ -42,7 +43,7 @@ from services.localizer.settings import LocalizerSettings, register_arguments, s
 from services.runtime.handoff import LatestSlot
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
-from services.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
 
 logger = logging.getLogger(__name__)
 
@@ -51,7 +52,7 @@ IMU_BUFFER = 4000
 
 
 class LocalizerService(ConfiguredService[LocalizerSettings]):
-    role = keys.Role.LOCALIZER
+    role = Role.LOCALIZER
 
     def setup(self) -> None:
         settings = self.settings

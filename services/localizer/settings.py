@@ -37,7 +37,7 @@ from services.runtime.fields import settings_from
 _MOUNTS = {**{m.value: m.R_body_camera for m in CameraMount}, "camera": np.eye(3)}
 
 
-class FilterKind(enum.Enum):
+class LocalizerKind(enum.Enum):
     """Which estimator the localizer runs: ``particle`` = paper B's particle filter driven by the VO
     odometry, ``tracker`` = the model tracker (no odometry needed), ``auto`` = the particle filter when
     ``use_vo`` supplies odometry, the tracker otherwise."""
@@ -85,7 +85,7 @@ class LocalizerSettings(BaseModel):
     vo_jump_m_s: float = Field(default=10.0, gt=0.0)
     #: tracker: the gyro on capataz/uav/{uav}/imu measures the motion model's angular rate
     use_imu: bool = False
-    filter: FilterKind = FilterKind.AUTO
+    filter: LocalizerKind = LocalizerKind.AUTO
 
     @field_validator("initial_pose")
     @classmethod
@@ -121,11 +121,11 @@ class LocalizerSettings(BaseModel):
         filter: it starts around the first one and again after a VO discontinuity."""
         return self.use_vo and self.initial_pose is None and self.initial_state is None
 
-    def resolved_filter(self) -> FilterKind:
+    def resolved_filter(self) -> LocalizerKind:
         """``filter`` with ``auto`` resolved: the particle filter with VO odometry, the tracker without."""
-        if self.filter is not FilterKind.AUTO:
+        if self.filter is not LocalizerKind.AUTO:
             return self.filter
-        return FilterKind.PARTICLE if self.use_vo else FilterKind.TRACKER
+        return LocalizerKind.PARTICLE if self.use_vo else LocalizerKind.TRACKER
 
     def particle_filter_settings(self) -> ParticleFilterSettings:
         """Paper B's filter: ``particles``, ``scoring`` and the mount; its own noise and start spreads."""
@@ -236,7 +236,7 @@ def register_arguments(parser: Any) -> None:
         help="tracker: the gyro on capataz/uav/{uav}/imu measures the motion model's angular rate",
     )
     add_enum_argument(
-        parser, "--filter", FilterKind, FilterKind.AUTO,
+        parser, "--filter", LocalizerKind, LocalizerKind.AUTO,
         help="particle: paper B's particle filter (predicted by pose/vo); tracker: the model tracker (no "
         "odometry needed); auto (default): particle with --use-vo, tracker without",
     )  # fmt: skip

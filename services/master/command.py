@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from common.messages import YawEstimate
+from common.wire.messages import YawEstimate
 from services.master.service import MasterService
 from services.master.settings import add_master_arguments, master_settings_from_args
 from services.runtime.cli import add_transport_arguments
-from services.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
 
 
 def register(subparsers: Any) -> None:

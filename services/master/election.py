@@ -25,7 +25,8 @@ from typing import Any
 
 import zenoh
 
-from common import keys
+from common.members import Role
+from common.wire import keys
 
 logger = logging.getLogger(__name__)
 
@@ -149,7 +150,7 @@ class LeaderSessions:
                 continue
             self._tried[name] = now
             node, index = name.rsplit("/", 1)
-            key = keys.health_key(keys.Role.MASTER, node, int(index))
+            key = keys.health_key(Role.MASTER, node, int(index))
             answered = {
                 str(reply.replier_id.zid)
                 for reply in session.get(key, timeout=self.retry_s)

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from common.messages import ImuSample
+from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
 from services.runtime.handoff import Counters
 

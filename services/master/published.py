@@ -30,7 +30,7 @@ def session_of(source: str | None) -> str:
     return source.split("/")[0] if source else ANONYMOUS
 
 
-class Verdict(Enum):
+class PublishVerdict(Enum):
     TRUSTED = "trusted"
     #: from a session not resolved yet: kept, counted only once its session is resolved as a leader
     PENDING = "pending"
@@ -77,17 +77,17 @@ class PublishedLedger:
     def is_trusted(self, session: str) -> bool:
         return session == self.own_session or session in self.trusted
 
-    def record(self, yaw: PublishedYaw, leaders_resolved: bool) -> Verdict:
+    def record(self, yaw: PublishedYaw, leaders_resolved: bool) -> PublishVerdict:
         """Keep ``yaw`` as trusted or pending, or refuse it (counted)."""
         self._arrivals += 1
         if self.is_trusted(yaw.session):
             self._keep(self._yaw, yaw.seq, (self._arrivals, yaw))
-            return Verdict.TRUSTED
+            return PublishVerdict.TRUSTED
         if yaw.session == ANONYMOUS or leaders_resolved:
             self.refused += 1
-            return Verdict.REFUSED
+            return PublishVerdict.REFUSED
         self._keep(self._pending, (yaw.seq, yaw.session), (self._arrivals, yaw))
-        return Verdict.PENDING
+        return PublishVerdict.PENDING
 
     def _keep(
         self, kept: OrderedDict[_K, tuple[int, PublishedYaw]], key: _K, item: tuple[int, PublishedYaw]

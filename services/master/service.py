@@ -23,12 +23,21 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common import keys
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
-from common.messages import BlockJob, BlockResult, Frame, PatchJob, PatchResult, YawEstimate, YawJobSettings
+from common.members import Role, Topology
 from common.provenance import Provenance
-from common.streams import FrameGateState, FrameKey, Verdict, admit_frame
+from common.streams import FrameGateState, FrameKey, GateVerdict, admit_frame
+from common.wire import keys
+from common.wire.messages import (
+    BlockJob,
+    BlockResult,
+    Frame,
+    PatchJob,
+    PatchResult,
+    YawEstimate,
+    YawJobSettings,
+)
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
 from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
@@ -36,12 +45,8 @@ from common.yaw.patchwork import SpectrumCache, measure_share
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
-from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, session_of
-from services.master.published import Verdict as YawVerdict
-from services.master.settings import (
-    MasterSettings,
-    Topology,
-)
+from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
+from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.round import FrameWork
@@ -64,7 +69,7 @@ class _Stream:
 
 
 class MasterService(ConfiguredService[MasterSettings]):
-    role = keys.Role.MASTER
+    role = Role.MASTER
 
     def setup(self) -> None:
         settings = self.settings
@@ -112,8 +117,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         self.spawn(self._serve, "frames")
 
     @property
-    def member_role(self) -> keys.Role:
-        return keys.Role.WORKER if self.settings.topology is Topology.MASTER_WORKER else keys.Role.FOREMAN
+    def member_role(self) -> Role:
+        return Role.WORKER if self.settings.topology is Topology.MASTER_WORKER else Role.FOREMAN
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         event = self.member_event(sample)
@@ -140,11 +145,11 @@ class MasterService(ConfiguredService[MasterSettings]):
                 self._gate, self.gate_settings, self.settings.uav, frame.uav, frame.seq, frame.stamp_s, key,
                 time.monotonic(), time.time(), source_of(sample),
             )  # fmt: skip
-            if decision.verdict is Verdict.REFUSE:
+            if decision.verdict is GateVerdict.REFUSE:
                 self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
                 self._refusals.note_refusal()
                 return
-            if decision.verdict is Verdict.NEW_EPOCH:
+            if decision.verdict is GateVerdict.NEW_EPOCH:
                 self.counters.inc("epochs")
                 if self._gate.epoch > 0:
                     self.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
@@ -164,7 +169,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
         with self._recent_lock:
             verdict = self.published.record(yaw, self._leaders_resolved)
-        if verdict is YawVerdict.REFUSED:
+        if verdict is PublishVerdict.REFUSED:
             self.count_error("yaw_untrusted", "refused yaw of a session that never led", yaw.session)
 
     def _trust_leaders(self) -> None:

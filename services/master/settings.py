@@ -3,21 +3,16 @@
 from __future__ import annotations
 
 import argparse
-from enum import StrEnum
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.dispatch import DispatchSettings
+from common.members import Topology
 from common.streams import FrameGateSettings
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
 from services.runtime.cli import add_dispatch_arguments, add_enum_argument, dispatch_from_args, parse_size
 from services.runtime.fields import settings_from
-
-
-class Topology(StrEnum):
-    MASTER_WORKER = "master-worker"
-    MASTER_FOREMAN_WORKER = "master-foreman-worker"
 
 
 class MasterSettings(BaseModel):

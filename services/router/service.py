@@ -15,7 +15,7 @@ from typing import Any
 
 import zenoh
 
-from common import keys
+from common.members import Role
 from services.runtime import zconfig
 from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.service import ServiceRuntime
@@ -30,7 +30,7 @@ class RouterService(ServiceRuntime):
     (one per line, written atomically before it declares itself alive), so that a router started on
     ``tcp/127.0.0.1:0`` can be found without reserving a port beforehand."""
 
-    role = keys.Role.ROUTER
+    role = Role.ROUTER
 
     def __init__(self, *args: Any, endpoint_file: Path | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)  # ServiceRuntime's (node, index, transport, stats_period_s)

@@ -24,7 +24,8 @@ from typing import Any
 
 import zenoh
 
-from common import keys
+from common.members import Role, check_name
+from common.wire import keys
 
 ROOT = keys.ROOT
 #: message kinds of Zenoh 1.10's access control (all of them, for the router subject)
@@ -45,7 +46,7 @@ WORKER_WORK = f"{ROOT}/node/*/worker/*"
 OUTPUTS = ("yaw", "attitude", "pose/vo", "pose/pf")
 DEFAULT_UAVS = ("uav0", "uav1")
 #: roles whose certificate is bound to one UAV (CN ``role.uav``) and the names that are not
-UAV_ROLES = (keys.Role.CAMERA, keys.Role.MASTER, keys.Role.ESTIMATOR, keys.Role.LOCALIZER)
+UAV_ROLES = (Role.CAMERA, Role.MASTER, Role.ESTIMATOR, Role.LOCALIZER)
 GLOBAL_NAMES = ("router", "foreman", "worker", "client")
 
 
@@ -62,7 +63,7 @@ class RolePermissions:
     watch: tuple[str, ...] = ()
     note: str = ""
 
-    def with_own_runtime(self, role: keys.Role) -> RolePermissions:
+    def with_own_runtime(self, role: Role) -> RolePermissions:
         """Add what every service runtime does: stats, health queryable and liveliness token of its role."""
         r = role.value
         return RolePermissions(
@@ -88,18 +89,17 @@ class PolicySettings:
 
     def __post_init__(self) -> None:
         for uav in (*self.uavs, *self.camera_odometry_uavs):
-            keys.check_name(uav, "uav")
+            check_name(uav, "uav")
 
 
-def uav_common_name(role: keys.Role, uav: str) -> str:
+def uav_common_name(role: Role, uav: str) -> str:
     """CN of a UAV-bound role's certificate, e.g. ``camera.uav0``."""
-    return f"{role.value}.{keys.check_name(uav, 'uav')}"
+    return f"{role.value}.{check_name(uav, 'uav')}"
 
 
 def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
     """Every certificate common name and its permissions (the README's table, generated from here)."""
     s = settings or PolicySettings()
-    Role = keys.Role
     out: list[RolePermissions] = []
     for uav in s.uavs:
         sensors = (keys.camera_key(uav), keys.imu_key(uav), keys.range_key(uav))
@@ -227,7 +227,7 @@ def acl_section(settings: PolicySettings | None = None) -> dict[str, Any]:
     table = role_table(settings)
     for role in table:
         cn = role.common_name
-        if cn == keys.Role.ROUTER.value:
+        if cn == Role.ROUTER.value:
             flows = ("ingress", "egress")
             own = [_rule(f"{cn}:{flow}", flow, ALL_MESSAGES, [f"{ROOT}/**"]) for flow in flows]
         else:
@@ -244,16 +244,6 @@ def acl_section(settings: PolicySettings | None = None) -> dict[str, Any]:
     }
 
 
-def role_of_common_name(common_name: str) -> tuple[keys.Role | None, str | None]:
-    """``camera.uav0`` -> (CAMERA, "uav0"); ``worker`` -> (WORKER, None); ``client`` -> (None, None)."""
-    base, _, uav = common_name.partition(".")
-    try:
-        role = keys.Role(base)
-    except ValueError:
-        return None, None
-    return role, (uav or None)
-
-
 def markdown_table(settings: PolicySettings | None = None) -> str:
     """The role-permission table for the README."""
     lines = [
@@ -261,7 +251,7 @@ def markdown_table(settings: PolicySettings | None = None) -> str:
         "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for role in role_table(settings):
-        if role.common_name == keys.Role.ROUTER.value:
+        if role.common_name == Role.ROUTER.value:
             lines.append("| `router` | forwards all of `capataz/**` (the others' rules apply at its ingress) "
                          "| | | | | |")  # fmt: skip
             continue

@@ -16,7 +16,7 @@ from common.dispatch.membership import (
     on_liveliness,
     seats,
 )
-from common.keys import MemberId, Role
+from common.wire.keys import MemberId, Role
 from services.runtime.handoff import Counters
 from services.runtime.scatter import Scatter
 

@@ -61,11 +61,6 @@ class Bar:
         if self._impl is not None and done != self._impl.n:
             self._impl.update(done - self._impl.n)
 
-    def set_total(self, total: float | None) -> None:
-        if self._impl is not None:
-            self._impl.total = total
-            self._impl.refresh()
-
     def track(self, items: Iterable[T]) -> Iterator[T]:
         """``items``, counting each one as it is consumed."""
         for item in items:

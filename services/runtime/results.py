@@ -1,11 +1,11 @@
-"""A share's measurement on the wire and back: :class:`~common.messages.PatchResult` <->
+"""A share's measurement on the wire and back: :class:`~common.wire.messages.PatchResult` <->
 :class:`~common.yaw.correlation.PatchMeasurement` (members reply with it, the scatter reads it)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from common.messages import BlockJob, PatchJob, PatchResult
+from common.wire.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.correlation import PatchMeasurement
 
 

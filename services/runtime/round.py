@@ -16,7 +16,7 @@ import numpy as np
 import zenoh
 
 from common.dispatch import SELF, Plan
-from common.messages import PatchResult, YawJobSettings
+from common.wire.messages import PatchResult, YawJobSettings
 from common.yaw.correlation import PatchMeasurement
 from services.runtime.results import measurement_of
 

@@ -21,10 +21,10 @@ from collections.abc import Callable
 import numpy as np
 import zenoh
 
-from common.codec import decode, encode, read_error_reply
 from common.dispatch import Dispatcher, Plan
-from common.messages import PatchJob, PatchResult
-from common.wire import WireError
+from common.wire.codec import decode, encode, read_error_reply
+from common.wire.messages import PatchJob, PatchResult
+from common.wire.schema import WireError
 from services.runtime.handoff import Counters
 from services.runtime.round import (
     Failure,

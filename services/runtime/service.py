@@ -1,7 +1,7 @@
 """The base of every service: :class:`ServiceRuntime` opens the session in a ``with``, declares
-``capataz/alive/{role}/{node}/{i}``, answers ``capataz/health/...``, publishes :class:`~common.messages.Stats`
-periodically, and shuts down on SIGTERM/SIGINT within a second. Subclasses declare their own
-subscribers/queryables in :meth:`ServiceRuntime.start`."""
+``capataz/alive/{role}/{node}/{i}``, answers ``capataz/health/...``, publishes
+:class:`~common.wire.messages.Stats` periodically, and shuts down on SIGTERM/SIGINT within a second.
+Subclasses declare their own subscribers/queryables in :meth:`ServiceRuntime.start`."""
 
 from __future__ import annotations
 
@@ -12,15 +12,16 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, Generic, Self, TypeVar
+from typing import Any, ClassVar, Generic, Self, TypeVar
 
 import zenoh
 
-from common import keys
-from common.codec import decode, encode, error_reply
 from common.errors import CapatazError
-from common.messages import Health, Stats
-from common.wire import WireError, WireModel
+from common.members import MemberId, Role, check_name
+from common.wire import keys
+from common.wire.codec import decode, encode, error_reply
+from common.wire.messages import Health, Stats
+from common.wire.schema import WireError, WireModel
 from services.runtime.cli import transport_from_args
 from services.runtime.handoff import Counters
 from services.runtime.presence import ConnectionMonitor, TokenWatch
@@ -43,8 +44,10 @@ class ServiceRuntime:
     they must watch :attr:`stop_event`) and optionally :meth:`stop`, :meth:`shares`, :meth:`queue_depths`.
     """
 
-    role: keys.Role = keys.Role.WORKER
-    #: the ``--trajectory`` files of a service that publishes estimates (services/trajectory.py), or None
+    #: every concrete service names its role (its liveliness, stats and health keys); there is no default
+    role: ClassVar[Role]
+    #: the ``--trajectory`` files of a service that publishes estimates (services/runtime/trajectory.py),
+    #: or None
     trajectory_tap: Any = None
 
     def __init__(
@@ -54,7 +57,9 @@ class ServiceRuntime:
         transport: TransportSettings,
         stats_period_s: float = 1.0,
     ) -> None:
-        self.node = keys.check_name(node, "node")
+        if not isinstance(getattr(type(self), "role", None), Role):
+            raise TypeError(f"{type(self).__name__} must set its role (a Role) as a class attribute")
+        self.node = check_name(node, "node")
         self.index = index
         self.transport = transport
         self.stats_period_s = stats_period_s
@@ -181,7 +186,7 @@ class ServiceRuntime:
             if message is not None:
                 handle(query, message, received_perf_s)
 
-    def member_event(self, sample: zenoh.Sample) -> tuple[keys.MemberId, bool] | None:
+    def member_event(self, sample: zenoh.Sample) -> tuple[MemberId, bool] | None:
         """The member of a liveliness sample and whether it joined (PUT) or left; a bad key is counted."""
         try:
             member = keys.parse_alive_key(str(sample.key_expr))
@@ -275,7 +280,7 @@ class ServiceRuntime:
                     ", ".join(self.transport.listen) or "none",
                     ", ".join(self.transport.connect) or "none",
                 )
-                monitor = ConnectionMonitor(self.name, self.transport.connect, self.role is keys.Role.ROUTER)
+                monitor = ConnectionMonitor(self.name, self.transport.connect, self.role is Role.ROUTER)
                 while not self.stop_event.wait(self.stats_period_s):
                     monitor.check(session)
                     payload, attachment = encode(self.stats_message())

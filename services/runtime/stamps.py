@@ -7,7 +7,7 @@ import threading
 import time
 from collections import deque
 
-from common.streams import StampGuardSettings, StampGuardState, Verdict, check_stamp
+from common.streams import GateVerdict, StampGuardSettings, StampGuardState, check_stamp
 
 
 class InputStamps:
@@ -28,7 +28,7 @@ class InputStamps:
             state = self._states.get(sensor, StampGuardState())
             state, decision = check_stamp(state, self.settings, stamp_s, now, time.time())
             self._states[sensor] = state
-            if decision.verdict is Verdict.REFUSE:
+            if decision.verdict is GateVerdict.REFUSE:
                 self._refused.append(now)
         return decision.admitted, decision.reason, decision.detail
 

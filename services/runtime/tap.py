@@ -12,8 +12,8 @@ import time
 
 import zenoh
 
-from common.codec import decode
-from common.wire import WireError, WireModel
+from common.wire.codec import decode
+from common.wire.schema import WireError, WireModel
 from services.runtime.handoff import WorkQueue
 from services.runtime.service import ServiceRuntime
 from services.runtime.transport import TransportSettings, zbytes

@@ -10,9 +10,10 @@ from typing import Any
 import zenoh
 from pydantic import Field
 
-from common import keys
 from common.errors import CapatazError
-from common.messages import PatchJob, PatchResult
+from common.members import Role
+from common.wire import keys
+from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 from services.runtime.cli import (
     StreamBoundSettings,
@@ -48,7 +49,7 @@ class WorkerSettings(StreamBoundSettings):
 class WorkerService(ConfiguredService[WorkerSettings]):
     """One worker process: a queryable, a bounded job queue, one compute thread."""
 
-    role = keys.Role.WORKER
+    role = Role.WORKER
 
     def setup(self) -> None:
         self.handoff = self.settings.handoff

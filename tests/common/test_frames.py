@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.codec import decode, encode
-from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate
-from common.wire import WireError
+from common.wire.codec import decode, encode
+from common.wire.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample, YawEstimate
+from common.wire.schema import WireError
 
 MESSAGES = [
     (Frame(uav="u", seq=0, stamp_s=1.0, width=2, height=2, pixels=np.zeros((2, 2), np.uint8)), "camera"),

@@ -112,3 +112,14 @@ def test_check_quaternion_rejects_bad_input(bad: object) -> None:
 def test_check_rotation_matrix_rejects_reflection() -> None:
     with pytest.raises(ValueError, match="reflection"):
         check_rotation_matrix(np.diag([1.0, 1.0, -1.0]))
+
+
+def test_module_constants_are_read_only_regression() -> None:
+    """Issue 24: the mount rotations were writable module arrays used as default arguments: one caller's
+    in-place edit would have changed every later default."""
+    from common.geometry import R_BODY_CAMERA_DOWN, R_BODY_CAMERA_FORWARD
+
+    for rotation in (R_BODY_CAMERA_DOWN, R_BODY_CAMERA_FORWARD):
+        assert not rotation.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            rotation[0, 0] = 2.0

@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from common import messages as m
-from common.codec import decode, encode, error_reply, read_error_reply
-from common.wire import SCHEMA_VERSION, WireError, WireModel
+from common.wire import messages as m
+from common.wire.codec import decode, encode, error_reply, read_error_reply
+from common.wire.schema import SCHEMA_VERSION, WireError, WireModel
 from common.yaw import FftBackend, YawSettings
 from tests.builders import JOB_SETTINGS, patch_job
 

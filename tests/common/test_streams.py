@@ -12,9 +12,9 @@ from common.streams import (
     FrameGateSettings,
     FrameGateState,
     FrameKey,
+    GateVerdict,
     StampGuardSettings,
     StampGuardState,
-    Verdict,
     admit_frame,
     check_stamp,
 )
@@ -37,7 +37,7 @@ def run_stream(state: FrameGateState, seqs: range, t0: float = 0.0, seq0: int = 
 
 def test_the_first_frame_starts_epoch_zero_and_a_steady_stream_is_accepted() -> None:
     state, decision = admit_frame(FrameGateState(), GATE, "uav0", "uav0", 7, 0.0, KEY, 0.0, WALL)
-    assert decision.verdict is Verdict.NEW_EPOCH and state.epoch == 0
+    assert decision.verdict is GateVerdict.NEW_EPOCH and state.epoch == 0
     state = run_stream(state, range(8, 50), seq0=7)
     assert state.epoch == 0 and state.current is not None and state.current.last.seq == 49
 
@@ -45,7 +45,7 @@ def test_the_first_frame_starts_epoch_zero_and_a_steady_stream_is_accepted() -> 
 def test_seq_2_pow_53_is_refused_counted_and_never_adopted() -> None:
     state = run_stream(FrameGateState(), range(0, 20))
     state, decision = admit_frame(state, GATE, "uav0", "uav0", 2**53, 20 / FPS, KEY, 20 / FPS, WALL)
-    assert decision.verdict is Verdict.REFUSE and decision.reason == "seq_jump"
+    assert decision.verdict is GateVerdict.REFUSE and decision.reason == "seq_jump"
     assert state.refused == {"seq_jump": 1}
     state = run_stream(state, range(20, 60))  # the real frames go on, in the same epoch
     assert state.epoch == 0
@@ -66,9 +66,9 @@ def test_a_camera_restart_from_seq_0_is_a_new_epoch_after_confirmation() -> None
     for k in range(5):
         state, decision = admit_frame(state, GATE, "uav0", "uav0", k, t + k / FPS, KEY, t + k / FPS, WALL)
         verdicts.append(decision.verdict)
-    assert verdicts[: GATE.confirm_frames - 1] == [Verdict.REFUSE] * (GATE.confirm_frames - 1)
-    assert verdicts[GATE.confirm_frames - 1] is Verdict.NEW_EPOCH
-    assert verdicts[GATE.confirm_frames :] == [Verdict.ACCEPT] * (5 - GATE.confirm_frames)
+    assert verdicts[: GATE.confirm_frames - 1] == [GateVerdict.REFUSE] * (GATE.confirm_frames - 1)
+    assert verdicts[GATE.confirm_frames - 1] is GateVerdict.NEW_EPOCH
+    assert verdicts[GATE.confirm_frames :] == [GateVerdict.ACCEPT] * (5 - GATE.confirm_frames)
     assert state.epoch == 1
 
 
@@ -76,7 +76,7 @@ def test_a_restart_after_silence_is_adopted_with_its_first_frame() -> None:
     state = run_stream(FrameGateState(), range(0, 100))
     t = 100 / FPS + GATE.silence_s + 0.5
     state, decision = admit_frame(state, GATE, "uav0", "uav0", 0, t, KEY, t, WALL)
-    assert decision.verdict is Verdict.NEW_EPOCH and state.epoch == 1
+    assert decision.verdict is GateVerdict.NEW_EPOCH and state.epoch == 1
 
 
 def test_frames_of_another_size_encoding_or_uav_are_refused() -> None:
@@ -137,7 +137,7 @@ def test_a_future_imu_stamp_is_refused_and_does_not_move_the_stream() -> None:
         assert decision.reason == "future_stamp" and not decision.admitted
     for k in range(400, 800):
         state, decision = check_stamp(state, guard, k / 400, k / 400, WALL)
-        assert decision.verdict is Verdict.ACCEPT
+        assert decision.verdict is GateVerdict.ACCEPT
     assert math.isclose(state.stamp_s, 799 / 400)
 
 
@@ -149,7 +149,7 @@ def test_a_real_clock_jump_is_adopted_after_confirmation() -> None:
     for k in range(guard.confirm_samples):
         state, decision = check_stamp(state, guard, 1000.0 + k / 400, 0.1 + k / 400, WALL)
         verdicts.append(decision.verdict)
-    assert verdicts[-1] is Verdict.NEW_EPOCH and set(verdicts[:-1]) == {Verdict.REFUSE}
+    assert verdicts[-1] is GateVerdict.NEW_EPOCH and set(verdicts[:-1]) == {GateVerdict.REFUSE}
 
 
 CAMERA = "c0f38f87c807831a60afb7eff97c3938/6"
@@ -180,7 +180,7 @@ def test_a_second_sender_within_an_epoch_is_refused_and_counted(at: int, n: int,
     for k in range(at, at + n):
         t = k / FPS
         state, decision = admit_frame(state, GATE, "uav0", "uav0", k, t, KEY, t, WALL, other)
-        assert decision.verdict is Verdict.REFUSE and decision.reason == "foreign_sender"
+        assert decision.verdict is GateVerdict.REFUSE and decision.reason == "foreign_sender"
         state = run_sender(state, range(k, k + 1), CAMERA)
     assert state.epoch == 0 and sender_of(state) == CAMERA and state.refused == {"foreign_sender": n}
 
@@ -199,7 +199,7 @@ def test_a_camera_restarted_in_a_new_session_is_a_new_epoch_once_the_old_one_is_
         if decision.admitted:
             break
         k += 1
-    assert verdicts[-1] is Verdict.NEW_EPOCH and set(verdicts[:-1]) == {Verdict.REFUSE}
+    assert verdicts[-1] is GateVerdict.NEW_EPOCH and set(verdicts[:-1]) == {GateVerdict.REFUSE}
     assert t - last_s > GATE.silence_s and t - last_s <= GATE.silence_s + 1 / FPS + 0.05
     assert state.epoch == 1 and sender_of(state) == OTHER and state.refused == {"foreign_sender": k}
     # the old session's frames are now another sender's

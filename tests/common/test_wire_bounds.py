@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.codec import decode, encode
-from common.messages import PatchJob
 from common.streams import StreamTable
-from common.wire import MAX_JOB_PATCHES, WireError
+from common.wire.codec import decode, encode
+from common.wire.messages import PatchJob
+from common.wire.schema import MAX_JOB_PATCHES, WireError
 from common.yaw import YawSettings
 from common.yaw.correlation import patch_spectra_from_crops
 from common.yaw.patchwork import SpectrumCache

@@ -10,7 +10,7 @@ from common.dispatch import Balance
 from common.sim.flight import hover_flight
 from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
 from services.master.service import Topology
-from services.up import ClusterSpec, HostSpec
+from services.tools.cluster_file import ClusterSpec, HostSpec
 
 #: Frames of the fault run in CI (the issue's 2041-frame figure: CAPATAZ_CLUSTER_FRAMES=2041).
 FAULT_FRAMES = int(os.environ.get("CAPATAZ_CLUSTER_FRAMES", "600"))

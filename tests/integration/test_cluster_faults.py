@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.observe import YawCollector
 from services.runtime.transport import open_session
-from services.up import LocalCluster
+from services.tools.observe import YawCollector
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import FAULT_FRAMES, reference_yaw_rad, two_by_two
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode, encode, read_error_reply
-from common.messages import Health, ImuSample
-from services.observe import YawCollector
+from common.wire import keys
+from common.wire.codec import decode, encode, read_error_reply
+from common.wire.messages import Health, ImuSample
 from services.runtime.transport import open_session, zbytes
-from services.up import LocalCluster
+from services.tools.observe import YawCollector
+from services.tools.up import LocalCluster
 from tests.builders import patch_job
 from tests.integration.cluster_helpers import two_by_two
 from tests.zenoh_helpers import wait_until

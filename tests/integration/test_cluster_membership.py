@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from common.dispatch import SELF
-from services.observe import YawCollector
 from services.runtime.transport import open_session
-from services.up import LocalCluster
+from services.tools.observe import YawCollector
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 from tests.zenoh_helpers import wait_until
 

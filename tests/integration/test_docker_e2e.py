@@ -24,15 +24,15 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode
 from common.geometry import euler_from_quaternion
-from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.sim.flight import hover_flight
 from common.sim.scene import default_flight
-from common.wire import WireModel
-from services.report import write_json
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
+from common.wire.schema import WireModel
 from services.runtime.transport import TransportSettings, open_session, zbytes
+from services.tools.report import write_json
 
 ROOT = Path(__file__).resolve().parents[2]
 PROJECT = "capataz-e2e"

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
-from common.codec import decode
-from common.messages import PoseEstimate
 from common.sim.scene import default_flight
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import PoseEstimate
 from services.runtime.transport import open_session, zbytes
-from services.up import LocalCluster
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

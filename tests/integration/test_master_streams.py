@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode, encode
-from common.messages import Frame, Health, YawEstimate
 from common.sim.flight import hover_flight
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import Frame, Health, YawEstimate
 from services.runtime.transport import open_session, zbytes
-from services.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import reference_yaw_rad
 
 pytestmark = [pytest.mark.zenoh]

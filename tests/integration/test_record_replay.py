@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
 from common.dispatch import Balance
+from common.wire import keys
 from services.master.service import Topology
-from services.observe import YawCollector
 from services.runtime.transport import open_session
-from services.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.observe import YawCollector
+from services.tools.up import LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 

@@ -21,17 +21,18 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common import keys
-from common.codec import decode
 from common.datasets.euroc import write_euroc
 from common.datasets.rosbag_writer import write_bag
 from common.dispatch import Balance
-from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.sim.flight import hover_flight
 from common.sim.stream import flight_measurements
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
-from services.up import ClusterSpec, HostSpec, LocalCluster
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.up import LocalCluster
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 

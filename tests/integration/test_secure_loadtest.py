@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from services.cli import main
+from services.tools.cli import main
 
 pytestmark = [pytest.mark.zenoh]
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from services.bench.secure_system import compare, run_system
+from services.tools.bench.secure_system import compare, run_system
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from services.bench import hostile, takeover
-from services.bench.security import small_cluster
-from services.secure import SecureProfile
-from services.up import LocalCluster
+from services.tools.bench import hostile, takeover
+from services.tools.bench.security import small_cluster
+from services.tools.secure import SecureProfile
+from services.tools.up import LocalCluster
 
 pytestmark = pytest.mark.zenoh
 

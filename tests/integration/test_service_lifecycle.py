@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from common import keys
-from common.codec import decode
-from common.messages import Health, Stats
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import Health, Stats
 from services.runtime.transport import open_session, zbytes
-from services.up import LocalCluster
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

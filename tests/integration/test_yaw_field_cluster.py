@@ -9,16 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
-from common.codec import decode
 from common.datasets.calibration import opencv_yaml_text
-from common.messages import Stats
 from common.provenance import Provenance
 from common.sim.field import field_flight
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import Stats
 from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
-from services.observe import YawCollector
 from services.runtime.transport import open_session, zbytes
-from services.up import LocalCluster
+from services.tools.observe import YawCollector
+from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from services.secure import make_certs
+from services.tools.secure import make_certs
 
 
 @pytest.fixture(scope="session")

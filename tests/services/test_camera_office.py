@@ -8,7 +8,7 @@ from common.sim.office_run import simulate_run
 from services.camera.flights import office_frames
 from services.camera.service import camera_settings_from_args
 from services.camera.settings import CameraSettings
-from services.cli import build_parser
+from services.tools.cli import build_parser
 
 
 def test_office_frames_equal_the_localizers_simulated_run() -> None:

@@ -12,14 +12,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.codec import decode, encode
 from common.estimation.coupling_types import PoseOutput
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Measurement, RangeMeasurement
 from common.estimation.replay import RECTIFIED_ORIGIN_DELAY_S
-from common.messages import PoseEstimate
-from common.sensor_messages import message_of
 from common.sim.flight import Flight, turns_flight
 from common.sim.stream import flight_measurements
+from common.wire.codec import decode, encode
+from common.wire.measurements import message_of
+from common.wire.messages import PoseEstimate
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.runtime.transport import TransportSettings
 from tests.services.fakes import FakeBytes, FakePublisher

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode, encode
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
-from common.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample
-from common.sensor_messages import message_of
 from common.sim.flight import Flight, turns_flight
 from common.sim.stream import flight_measurements
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.measurements import message_of
+from common.wire.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
 from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import open_session, zbytes

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode, encode, read_error_reply
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
-from common.messages import BlockJob, PatchJob, PatchResult
+from common.wire import keys
+from common.wire.codec import decode, encode, read_error_reply
+from common.wire.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService, ForemanSettings
 from services.runtime.handoff import Counters

@@ -12,8 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common import keys
-from common.codec import decode, encode
 from common.datasets.calibration import opencv_yaml_text
 from common.geometry import R_BODY_CAMERA_FORWARD, quaternion_from_matrix
 from common.localization.pose import rotation_angle_rad
@@ -21,7 +19,6 @@ from common.localization.scoring import ScoringMethod
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState
 from common.localization.tracking import track_model
-from common.messages import Frame, PoseEstimate
 from common.sim.objects import (
     object_camera,
     offset_pose,
@@ -29,6 +26,9 @@ from common.sim.objects import (
     tabletop_model,
 )
 from common.sim.office_run import simulate_run
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import Frame, PoseEstimate
 from services.localizer import LocalizerService, LocalizerSettings
 from services.localizer.filters import StepInputs
 from services.runtime.transport import open_session, zbytes

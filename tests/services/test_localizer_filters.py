@@ -12,9 +12,9 @@ import pytest
 from common.geometry import quaternion_from_euler
 from common.localization.particle_filter import ParticleState
 from common.localization.tracker_state import TrackingStatus
-from common.messages import Frame, PoseEstimate
 from common.sim.office_run import SimulatedRun, simulate_run
-from services.localizer import FilterKind, LocalizerSettings
+from common.wire.messages import Frame, PoseEstimate
+from services.localizer import LocalizerKind, LocalizerSettings
 from services.localizer.filters import (
     VO_DISAGREE_FRAMES,
     ModelTrackerPath,
@@ -36,21 +36,21 @@ def _settings(*argv: str) -> LocalizerSettings:
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        ((), FilterKind.TRACKER),
-        (("--use-vo",), FilterKind.PARTICLE),
-        (("--filter", "auto", "--use-vo"), FilterKind.PARTICLE),
-        (("--filter", "tracker", "--use-vo"), FilterKind.TRACKER),
-        (("--filter", "particle"), FilterKind.PARTICLE),
+        ((), LocalizerKind.TRACKER),
+        (("--use-vo",), LocalizerKind.PARTICLE),
+        (("--filter", "auto", "--use-vo"), LocalizerKind.PARTICLE),
+        (("--filter", "tracker", "--use-vo"), LocalizerKind.TRACKER),
+        (("--filter", "particle"), LocalizerKind.PARTICLE),
     ],
 )
 def test_auto_picks_the_particle_filter_with_vo_and_the_tracker_without(
-    argv: tuple[str, ...], expected: FilterKind
+    argv: tuple[str, ...], expected: LocalizerKind
 ) -> None:
     settings = _settings("--particles", "20", *argv)
     assert settings.resolved_filter() is expected
     path = make_path(settings)
     assert path.kind is expected
-    assert isinstance(path, ParticleFilterPath if expected is FilterKind.PARTICLE else ModelTrackerPath)
+    assert isinstance(path, ParticleFilterPath if expected is LocalizerKind.PARTICLE else ModelTrackerPath)
 
 
 def test_unknown_filter_is_refused() -> None:

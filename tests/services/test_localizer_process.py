@@ -11,7 +11,8 @@ import threading
 import pytest
 import zenoh
 
-from common import keys
+from common.members import Role
+from common.wire import keys
 from services.runtime.transport import open_session
 from tests.zenoh_helpers import WAIT_S, hub, peer
 
@@ -29,7 +30,7 @@ def _stops_cleanly_on_sigterm(endpoint: str) -> None:
         [
             sys.executable,
             "-m",
-            "services.cli",
+            "services.tools.cli",
             "localizer",
             "--connect",
             endpoint,
@@ -49,7 +50,7 @@ def _stops_cleanly_on_sigterm(endpoint: str) -> None:
     try:
         with open_session(peer(endpoint)) as session:
             watcher = session.liveliness().declare_subscriber(
-                keys.alive_role(keys.Role.LOCALIZER), on_token, history=True
+                keys.alive_role(Role.LOCALIZER), on_token, history=True
             )
             assert alive.wait(WAIT_S), "the localizer never declared itself alive"
             watcher.undeclare()

@@ -24,7 +24,7 @@ from common.localization.office import default_scene
 from common.localization.pose import CameraPose
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackingStatus
-from common.messages import PoseEstimate
+from common.wire.messages import PoseEstimate
 from services.localizer import LocalizerSettings, odometry_between, pose_message
 
 

@@ -7,9 +7,9 @@ from typing import Any, cast
 
 import numpy as np
 
-from common.codec import encode
-from common.messages import Frame
 from common.sim.flight import hover_flight
+from common.wire.codec import encode
+from common.wire.messages import Frame
 from services.master import MasterService, MasterSettings
 from services.runtime.transport import TransportSettings
 from tests.services.fakes import FakeBytes

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, Verdict, session_of
+from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
 
 LEADER, FORGER = "aa11", "ff99"
 
@@ -13,10 +13,12 @@ LEADER, FORGER = "aa11", "ff99"
 def test_yaw_of_the_own_and_a_resolved_leader_session_is_trusted_others_refused_and_counted() -> None:
     ledger = PublishedLedger("me", capacity=8)
     ledger.trust(LEADER)
-    assert ledger.record(PublishedYaw(1, 0.1, 0.5, LEADER), leaders_resolved=True) is Verdict.TRUSTED
-    assert ledger.record(PublishedYaw(2, 0.2, 0.6, "me"), leaders_resolved=True) is Verdict.TRUSTED
-    assert ledger.record(PublishedYaw(2, 0.2, 9.0, FORGER), leaders_resolved=True) is Verdict.REFUSED
-    assert ledger.record(PublishedYaw(3, 0.3, 9.0, ANONYMOUS), leaders_resolved=False) is Verdict.REFUSED
+    assert ledger.record(PublishedYaw(1, 0.1, 0.5, LEADER), leaders_resolved=True) is PublishVerdict.TRUSTED
+    assert ledger.record(PublishedYaw(2, 0.2, 0.6, "me"), leaders_resolved=True) is PublishVerdict.TRUSTED
+    assert ledger.record(PublishedYaw(2, 0.2, 9.0, FORGER), leaders_resolved=True) is PublishVerdict.REFUSED
+    assert (
+        ledger.record(PublishedYaw(3, 0.3, 9.0, ANONYMOUS), leaders_resolved=False) is PublishVerdict.REFUSED
+    )
     assert ledger.refused == 2
     assert ledger.trusted_yaws() == {1: (0.1, 0.5), 2: (0.2, 0.6)}
     assert ledger.newest_trusted() == 0.6
@@ -24,8 +26,8 @@ def test_yaw_of_the_own_and_a_resolved_leader_session_is_trusted_others_refused_
 
 def test_yaw_of_a_session_not_resolved_yet_waits_and_counts_once_it_answers_as_the_leader() -> None:
     ledger = PublishedLedger("me", capacity=8)
-    assert ledger.record(PublishedYaw(1, 0.1, 0.5, LEADER), leaders_resolved=False) is Verdict.PENDING
-    assert ledger.record(PublishedYaw(1, 0.1, 9.0, FORGER), leaders_resolved=False) is Verdict.PENDING
+    assert ledger.record(PublishedYaw(1, 0.1, 0.5, LEADER), leaders_resolved=False) is PublishVerdict.PENDING
+    assert ledger.record(PublishedYaw(1, 0.1, 9.0, FORGER), leaders_resolved=False) is PublishVerdict.PENDING
     assert ledger.trusted_yaws() == {} and ledger.newest_trusted() is None
     ledger.trust(LEADER)
     assert ledger.trusted_yaws() == {1: (0.1, 0.5)}

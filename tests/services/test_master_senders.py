@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from common import keys
-from common.codec import decode, encode
-from common.messages import Frame, YawEstimate
 from common.sim.flight import hover_flight
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import Frame, YawEstimate
 from services.master import MasterService, MasterSettings
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until

@@ -12,8 +12,8 @@ import pytest
 from common.camera import DistortionModel
 from common.datasets.calibration import opencv_yaml_text, ros_yaml_text
 from common.errors import InputError
-from common.messages import ImuSample
 from common.sim.field import wide_angle_camera
+from common.wire.messages import ImuSample
 from common.yaw import YawSettings, gyro_delta_yaw_rad
 from services.master.gyro import GyroBuffer
 from services.master.lens import add_yaw_prior_arguments, yaw_prior_settings_from_args

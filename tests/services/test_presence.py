@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from common import keys
+from common.members import Role
 from services.runtime import presence
 from services.runtime.presence import ConnectionMonitor, DuplicateMemberError
 from services.runtime.service import ServiceRuntime
@@ -16,7 +16,7 @@ from tests.zenoh_helpers import hub, peer, wait_until
 
 
 class Camera(ServiceRuntime):
-    role = keys.Role.CAMERA
+    role = Role.CAMERA
 
 
 def run_in_thread(service: ServiceRuntime) -> tuple[threading.Thread, dict[str, BaseException]]:

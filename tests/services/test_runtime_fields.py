@@ -12,12 +12,12 @@ from common.errors import CapatazError
 from common.streams import FrameGateSettings
 from services.camera.service import camera_settings_from_args
 from services.camera.settings import CameraSettings
-from services.cli import build_parser
 from services.foreman.service import ForemanSettings
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.master.settings import MasterSettings, master_settings_from_args
 from services.runtime.cli import add_transport_arguments, dispatch_from_args, parse_size
 from services.runtime.fields import field_names, settings_from
+from services.tools.cli import build_parser
 from services.worker.service import WorkerSettings
 
 

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.codec import decode, encode
 from common.dispatch import SELF, Dispatcher, DispatchSettings
-from common.messages import PatchJob, PatchResult
+from common.wire.codec import decode, encode
+from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.handoff import Counters
 from services.runtime.round import FailureReason, FrameWork, Request, RoundReport

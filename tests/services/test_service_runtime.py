@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from common.codec import decode
-from common.messages import PoseEstimate
+from common.members import Role
+from common.wire.codec import decode
+from common.wire.messages import PoseEstimate
 from services.runtime.service import ServiceRuntime
 from services.runtime.transport import TransportSettings
 
@@ -43,8 +44,19 @@ class Entity:
         self.undeclared += 1
 
 
+class _Probe(ServiceRuntime):
+    role = Role.CAMERA
+
+
 def _service() -> ServiceRuntime:
-    return ServiceRuntime("test", 0, TransportSettings())
+    return _Probe("test", 0, TransportSettings())
+
+
+def test_a_service_without_a_role_is_refused_instead_of_announcing_itself_as_a_worker() -> None:
+    """Regression: the base's default role was WORKER, so a service that forgot its own was a worker to the
+    cluster's membership (a dispatcher would send it patches)."""
+    with pytest.raises(TypeError, match="must set its role"):
+        ServiceRuntime("test", 0, TransportSettings())
 
 
 def test_publish_encodes_and_puts_with_the_given_options() -> None:

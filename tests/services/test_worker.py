@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from common.codec import decode, encode, read_error_reply
-from common.messages import PatchJob
+from common.wire.codec import decode, encode, read_error_reply
+from common.wire.messages import PatchJob
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module

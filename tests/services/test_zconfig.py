@@ -90,7 +90,7 @@ def test_credentials_come_from_environment_files(tmp_path: Path, certs: Path) ->
 
 
 def test_services_take_no_credentials_on_the_command_line() -> None:
-    from services.cli import build_parser
+    from services.tools.cli import build_parser
 
     for command in ("worker", "router", "master", "foreman", "camera"):
         options = build_parser().parse_args([command]).__dict__
@@ -99,7 +99,7 @@ def test_services_take_no_credentials_on_the_command_line() -> None:
 
 def router(env: dict[str, str], *args: str) -> subprocess.Popen[bytes]:
     return subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "router", "--no-multicast", *args],
+        [sys.executable, "-m", "services.tools.cli", "router", "--no-multicast", *args],
         env={**os.environ, **env},
         cwd=REPO,
         stdout=subprocess.PIPE,
@@ -151,7 +151,12 @@ def test_router_honours_access_control_given_through_zenoh_config_regression(tmp
         client = TransportSettings(mode="client", connect=(f"tcp/127.0.0.1:{port}",), listen=())
         with open_session(client) as sub_session, open_session(client) as pub_session:
             sub = sub_session.declare_subscriber("t/*", on)
-            time.sleep(0.5)
+            # the subscription is routed once a probe arrives (polled with a bound, no fixed sleep)
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and "t/probe" not in got:
+                pub_session.put("t/probe", b"x")
+                time.sleep(0.05)
+            assert "t/probe" in got, "the subscription was never routed"
             for _ in range(5):
                 pub_session.put("t/denied", b"x")
                 pub_session.put("t/allowed", b"x")

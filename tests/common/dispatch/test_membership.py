@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from common.dispatch import Dispatcher, DispatchSettings
 from common.dispatch import membership as m
-from common.keys import MemberId, Role
+from common.wire.keys import MemberId, Role
 
 MEMBERS = [MemberId(Role.WORKER, node, i) for node in ("a", "b") for i in range(3)] + [
     MemberId(Role.FOREMAN, node, 0) for node in ("a", "b")

@@ -11,7 +11,7 @@ import pytest
 from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.coupling import DoubleCouplingEstimator
-from common.estimation.coupling_types import AttitudeOutput, CouplingSettings, FilterKind
+from common.estimation.coupling_types import AttitudeOutput, CouplingSettings, EkfKind
 from common.estimation.measurements import (
     FrameMeasurement,
     ImuMeasurement,
@@ -203,8 +203,8 @@ def test_batch_outputs_carry_their_own_covariance(flight_b: Flight) -> None:
     assert all(o.altitude_var_m2 > 0.0 for o in outputs if isinstance(o, AttitudeOutput))
 
 
-@pytest.mark.parametrize("kind", list(FilterKind))
-def test_both_filters_run_the_coupling(flight_b: Flight, kind: FilterKind) -> None:
+@pytest.mark.parametrize("kind", list(EkfKind))
+def test_both_filters_run_the_coupling(flight_b: Flight, kind: EkfKind) -> None:
     camera = camera_model_of(flight_b)
     estimator = DoubleCouplingEstimator(camera, settings=_settings(flight_b, filter=kind))
     run = run_estimators({"e": estimator}, flight_measurements(flight_b, START, START + 20))["e"]
@@ -212,7 +212,7 @@ def test_both_filters_run_the_coupling(flight_b: Flight, kind: FilterKind) -> No
     # paper C's filter has no gyro-bias state: seed 0's 0.29 deg/s (body y) runs free through the first
     # second, while the accelerometer waits for the VO's manoeuvre acceleration (roll RMSE 0.49 deg with
     # 200 corners, 0.59 with 400: the first VO accelerations differ); the bias filter stays under 0.5 deg
-    bound_deg = 0.75 if kind is FilterKind.PAPER_C else 0.5
+    bound_deg = 0.75 if kind is EkfKind.PAPER_C else 0.5
     assert np.all(errors.att_rmse_deg < bound_deg), errors.att_rmse_deg
     assert errors.vo_final_error_m < 0.01
     assert estimator.counters["vo_pairs"] == 19

@@ -5,10 +5,7 @@ vehicle is a multirotor in still air, whose body-horizontal specific force is th
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
-import pytest
 
 from common.estimation.coupling_types import CouplingSettings, Vehicle, vehicle_settings
 from common.estimation.replay import (
@@ -20,32 +17,18 @@ from common.estimation.replay import (
 )
 from common.sim.flight import turns_flight
 from common.sim.stream import flight_measurements
-from services.estimator.settings import EstimatorSettings, add_estimator_arguments, settings_from_args
 
 
 def test_any_vehicle_is_the_default_and_assumes_nothing() -> None:
     assert vehicle_settings(Vehicle.ANY) == {}
     assert CouplingSettings().thrust_axis_interval_s == 0.0
-    assert EstimatorSettings().vehicle is Vehicle.ANY
-    assert EstimatorSettings().coupling() == CouplingSettings()
 
 
 def test_still_air_multirotor_turns_the_thrust_axis_on_and_the_accelerometer_only_fallbacks_off() -> None:
-    fields = vehicle_settings(Vehicle.STILL_AIR_MULTIROTOR)
-    settings = CouplingSettings(**fields)
+    settings = CouplingSettings(**vehicle_settings(Vehicle.STILL_AIR_MULTIROTOR))
     assert settings.thrust_axis_interval_s > 0.0
     assert not settings.vision_tilt_correction
     assert not settings.origin_tilt_from_bias
-    assert EstimatorSettings(vehicle=Vehicle.STILL_AIR_MULTIROTOR).coupling() == settings
-
-
-@pytest.mark.parametrize("value", [member.value for member in Vehicle])
-def test_the_service_option_selects_the_vehicle(value: str) -> None:
-    parser = argparse.ArgumentParser()
-    add_estimator_arguments(parser)
-    assert settings_from_args(parser.parse_args(["--vehicle", value])).vehicle is Vehicle(value)
-    with pytest.raises(SystemExit):
-        parser.parse_args(["--vehicle", "boat"])
 
 
 def test_the_bench_flies_a_still_air_multirotor_and_keeps_the_any_vehicle_proposal_as_an_ablation() -> None:

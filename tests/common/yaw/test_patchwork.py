@@ -10,8 +10,8 @@ from pydantic import ValidationError
 
 from common.camera import CameraModel
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
-from common.messages import LOCAL_YAW_SETTINGS, YawJobSettings
 from common.sim.flight import hover_flight
+from common.wire.messages import LOCAL_YAW_SETTINGS, YawJobSettings
 from common.yaw import FftBackend, YawError, YawSettings, YawTracker, make_patch_grid
 from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share

@@ -1,0 +1,1 @@
+"""The recordings ring: capataz MCAP recordings of wire messages (above the wire ring)."""

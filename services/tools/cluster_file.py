@@ -1,0 +1,133 @@
+"""The cluster file (``deploy/clusters/*.yml``): which hosts run which members, read by ``capataz up``, the
+compose generator, the load test and the benchmarks.
+
+A YAML mapping, every key checked (an unknown key is refused with the file's name)::
+
+    name: 2h8n                      # paper A's notation: 2 hosts, 8 worker nodes
+    description: two hosts ...      # free text (optional)
+    topology: master-foreman-worker # or master-worker (the master addresses every worker itself)
+    balance: time                   # time: shares follow each member's measured speed; none: equal shares
+    speed: round_trip               # what "speed" means for time balancing: round_trip or reported
+    master_computes: false          # the master computes a share as well as dispatching
+    master_cpus: "0"                # taskset CPU list of the master (optional)
+    aux_cpus: "0"                   # taskset CPU list of the router and the camera (optional)
+    uav: uav0                       # the UAV stream the master serves
+    hosts:                          # one entry per host: a foreman and its workers
+      - name: h1                    # node name (letters, digits, _ . -)
+        workers: 4                  # workers on this host (>= 0)
+        cpus: "1"                   # taskset CPU list of its processes (optional): a slow host made real
+        foreman_computes: false     # the foreman computes a share too
+        cpu_factor: 1               # emulated slowdown of its workers (>= 1)
+
+:func:`cluster_commands` renders a :class:`ClusterSpec` as ``capataz`` command lines, the one rendering that
+``capataz up`` and the compose generator share.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from common.dispatch import Balance, SpeedSource
+from common.errors import CapatazError
+from common.members import Topology
+from services.runtime.usage import condense_validation_error, one_line
+
+
+class ClusterError(CapatazError):
+    """A cluster file is invalid or a cluster did not come up."""
+
+
+class HostSpec(BaseModel):
+    """One host: a foreman and its workers, optionally pinned to CPUs."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    workers: int = Field(ge=0)
+    #: taskset CPU list for the host's processes, e.g. "1" or "0-1"; None = no pinning
+    cpus: str | None = None
+    #: the foreman computes a share too
+    foreman_computes: bool = False
+    #: emulated CPU slowdown of the host's workers (``capataz worker --cpu-factor``)
+    cpu_factor: int = Field(default=1, ge=1)
+
+
+class ClusterSpec(BaseModel):
+    """A cluster description (``deploy/clusters/*.yml``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    description: str = ""
+    topology: Topology = Topology.MASTER_FOREMAN_WORKER
+    balance: Balance = Balance.TIME
+    #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
+    speed: SpeedSource = SpeedSource.ROUND_TRIP
+    master_computes: bool = False
+    master_cpus: str | None = None
+    #: taskset CPU list of the router and the camera
+    aux_cpus: str | None = None
+    uav: str = "uav0"
+    hosts: tuple[HostSpec, ...]
+
+    @property
+    def n_workers(self) -> int:
+        return sum(h.workers for h in self.hosts)
+
+
+@dataclass(frozen=True)
+class ServiceCommand:
+    """One cluster process as ``capataz`` arguments, without transport options (added by where it runs:
+    :class:`LocalCluster` adds endpoints, compose sets ``CAPATAZ_ZENOH_*``)."""
+
+    #: ``role/node/index``, the name of its liveliness token
+    name: str
+    args: tuple[str, ...]
+    #: taskset CPU list (compose: cpuset); None = not pinned
+    cpus: str | None = None
+
+
+def worker_command(spec: ClusterSpec, host: HostSpec, index: int) -> ServiceCommand:
+    args = ["worker", "--node", host.name, "--index", str(index)]
+    if host.cpu_factor != 1:
+        args += ["--cpu-factor", str(host.cpu_factor)]
+    return ServiceCommand(f"worker/{host.name}/{index}", tuple(args), host.cpus)
+
+
+def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
+    compute = "--compute" if host.foreman_computes else "--no-compute"
+    args = ("foreman", "--node", host.name, "--balance", spec.balance.value, compute,
+            "--speed", spec.speed.value)  # fmt: skip
+    return ServiceCommand(f"foreman/{host.name}/0", args, host.cpus)
+
+
+def master_command(spec: ClusterSpec) -> ServiceCommand:
+    args = ("master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
+            "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
+            "--speed", spec.speed.value)  # fmt: skip
+    return ServiceCommand("master/master/0", args, spec.master_cpus)
+
+
+def cluster_commands(spec: ClusterSpec) -> list[ServiceCommand]:
+    """Every process of the cluster but the router and the camera, in start order (workers, foremen,
+    master): the one rendering of a :class:`ClusterSpec` for ``capataz up`` and for compose."""
+    commands: list[ServiceCommand] = []
+    for host in spec.hosts:
+        commands += [worker_command(spec, host, i) for i in range(host.workers)]
+        if spec.topology is Topology.MASTER_FOREMAN_WORKER:
+            commands.append(foreman_command(spec, host))
+    return [*commands, master_command(spec)]
+
+
+def load_cluster(path: Path) -> ClusterSpec:
+    try:
+        raw = yaml.safe_load(Path(path).read_text())
+        return ClusterSpec.model_validate(raw)
+    except ValidationError as exc:
+        raise ClusterError(f"{path}: {condense_validation_error(exc)}") from None
+    except (OSError, yaml.YAMLError) as exc:
+        raise ClusterError(f"{path}: {one_line(str(exc))}") from None

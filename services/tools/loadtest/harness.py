@@ -1,0 +1,386 @@
+"""The I/O of ``capataz loadtest``: a local cluster, N simulated UAV camera streams at their real rate with
+wall-clock stamps, the yaw of every frame collected with its arrival time, and the fault schedule applied.
+
+Frames are paper A's hover, rendered once (ping-pong over ``loop_frames`` frames, so the motion stays
+continuous) and shared by the streams at different phases; the publisher costs a few hundred microseconds
+per frame, so the cluster, not the harness, is what is measured.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common.dispatch import SELF
+from common.wire import keys
+from common.wire.codec import decode, encode
+from common.wire.messages import Frame, PatchJob, Stats, YawEstimate, YawJobSettings
+from common.wire.schema import WireError
+from common.yaw import YawSettings
+from services.runtime.transport import open_session, zbytes
+from services.tools.cluster_file import ClusterSpec
+from services.tools.loadtest.plan import Fault, FaultAction, FrameRecord
+from services.tools.secure import SecureProfile
+from services.tools.up import LocalCluster
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class RunSettings:
+    streams: int = 4
+    fps: float = 20.0
+    duration_s: float = 30.0
+    #: frames a stream may have without a yaw before it waits (0 = free-running camera)
+    in_flight: int = 0
+    standby_masters: bool = False
+    shared_memory: bool = False
+    loop_frames: int = 120
+    seed: int = 0
+    faults: tuple[Fault, ...] = ()
+    lease_ms: int = 2000
+    #: seconds every stream sends before the clock starts (not measured; reported apart); the streams
+    #: join one after another over its first half, like a ramp
+    warmup_s: float = 4.0
+    #: replay this recording's frames instead of the simulated hover (``capataz record``)
+    replay: Path | None = None
+    replay_uav: str | None = None
+    #: the secure profile's folder (``capataz loadtest --secure``): mutual TLS + access control; None = open
+    secure_dir: Path | None = None
+    #: a zenoh configuration file every process and the harness's sessions load (``--zenoh-config``)
+    zenoh_config: Path | None = None
+
+    @property
+    def warmup_frames(self) -> int:
+        return round(self.warmup_s * self.fps)
+
+    def first_frame(self, stream: int) -> int:
+        """The warm-up frame stream ``stream`` starts with (the ramp: stream 0 at once, the last one half-way
+        through the warm-up)."""
+        return (stream * self.warmup_frames) // (2 * self.streams)
+
+
+@dataclass
+class StreamLog:
+    uav: str
+    sent: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (stamp, true yaw)
+    #: frames of the warm-up (before the clock starts), as ``sent``
+    warm: dict[int, tuple[float, float]] = field(default_factory=dict)
+    received: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (arrival, yaw)
+    #: seq -> (patches the master computed itself, patches of the frame) from the yaw's ``members``
+    computed: dict[int, tuple[int, int]] = field(default_factory=dict)
+    duplicates: int = 0
+    reported_dropped: int = 0
+
+    def records(self, warm_up: bool = False) -> list[FrameRecord]:
+        """The measured frames (``warm_up``: those of the warm-up) and what came of each."""
+        out = []
+        for seq, (stamp, true_yaw) in sorted((self.warm if warm_up else self.sent).items()):
+            got = self.received.get(seq)
+            out.append(FrameRecord(seq, stamp, got[0] if got else None, got[1] if got else None, true_yaw))
+        return out
+
+
+class YawLog:
+    """Every yaw of every stream with its arrival (wall clock, the frames' clock)."""
+
+    def __init__(self, session: zenoh.Session, logs: dict[str, StreamLog]) -> None:
+        self.logs = logs
+        self.lock = threading.Condition()
+        self.malformed = 0
+        self._sub = session.declare_subscriber(f"{keys.ROOT}/uav/*/yaw", self._on_yaw)
+
+    def _on_yaw(self, sample: zenoh.Sample) -> None:
+        arrival = time.time()
+        try:
+            estimate = decode(zbytes(sample.payload), zbytes(sample.attachment), YawEstimate)
+        except WireError:
+            self.malformed += 1
+            return
+        log = self.logs.get(estimate.uav)
+        if log is None or (estimate.seq not in log.sent and estimate.seq not in log.warm):
+            return
+        with self.lock:
+            if estimate.seq in log.received:
+                log.duplicates += 1
+            else:
+                log.received[estimate.seq] = (arrival, estimate.yaw_rad)
+                top = {m: n for m, n in estimate.members.items() if ">" not in m}  # not foreman>worker
+                log.computed[estimate.seq] = (top.get(SELF, 0), sum(top.values()))
+            log.reported_dropped = max(log.reported_dropped, estimate.dropped_frames)
+            self.lock.notify_all()
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class StatsLog:
+    """The newest counters each service published (``capataz/stats/**``), to tell where frames were lost."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.latest: dict[str, dict[str, int]] = {}
+        self._base: dict[str, dict[str, int]] = {}
+        self._lock = threading.Lock()
+        self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
+
+    def _on_stats(self, sample: zenoh.Sample) -> None:
+        try:
+            stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
+        except WireError:
+            return
+        with self._lock:
+            self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = dict(stats.counters)
+
+    def mark(self) -> None:
+        """Counters from now on (a service's counts before the run are subtracted)."""
+        with self._lock:
+            self._base = {name: dict(counts) for name, counts in self.latest.items()}
+
+    def since_mark(self) -> dict[str, dict[str, int]]:
+        """Each service's non-zero counter changes since :meth:`mark` (a restarted one: since its start)."""
+        out = {}
+        with self._lock:
+            for name, counts in sorted(self.latest.items()):
+                base = self._base.get(name, {})
+                if any(v < base.get(k, 0) for k, v in counts.items()):
+                    base = {}  # restarted during the run: its counters started again from 0
+                changed = {k: v - base.get(k, 0) for k, v in sorted(counts.items()) if v != base.get(k, 0)}
+                if changed:
+                    out[name] = changed
+        return out
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a process (Linux /proc), None when it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class LoadCluster:
+    """A :class:`LocalCluster` with one master per UAV (plus a standby each, when asked)."""
+
+    def __init__(self, spec: ClusterSpec, settings: RunSettings, log_dir: Path) -> None:
+        self.settings = settings
+        self.uavs = [f"uav{i}" for i in range(settings.streams)]
+        secure = SecureProfile.ensure(settings.secure_dir, tuple(self.uavs)) if settings.secure_dir else None
+        self.cluster = LocalCluster(
+            spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms, secure=secure,
+            zenoh_config=settings.zenoh_config,
+        )  # fmt: skip
+        self._master_args: dict[str, list[str]] = {}
+        self._master_uav: dict[str, str] = {}
+        self.cpu: dict[str, float] = {}
+        self._cpu0: dict[str, float] = {}
+
+    def start(self) -> None:
+        cluster, spec = self.cluster, self.cluster.spec
+        cluster.start(with_master=False)
+        for i, uav in enumerate(self.uavs):
+            for role in ("m", "s") if self.settings.standby_masters else ("m",):
+                node = f"{role}{i}"
+                args = ["master", *cluster.transport_args(), "--node", node, "--uav", uav, "--topology",
+                        spec.topology, "--balance", spec.balance, "--speed", spec.speed,
+                        "--compute" if spec.master_computes else "--no-compute"]  # fmt: skip
+                name = f"master/{node}/0"
+                self._master_args[name] = args
+                self._master_uav[name] = uav
+                cluster.spawn(name, args, spec.master_cpus, common_name=f"master.{uav}")
+        members = cluster.expected_members() - {"master/master/0"} | set(self._master_args)
+        cluster.wait_alive(members, timeout_s=120.0)
+
+    def camera_sessions(self, stack: ExitStack, observer: zenoh.Session) -> dict[str, zenoh.Session]:
+        """The session that publishes each UAV's frames: the observer's own in the open profile; in the
+        secure profile one per UAV holding that UAV's camera certificate (only it may put the frames)."""
+        if self.cluster.secure is None:
+            return dict.fromkeys(self.uavs, observer)
+        return {
+            uav: stack.enter_context(open_session(self.cluster.participant_transport(f"camera.{uav}")))
+            for uav in self.uavs
+        }
+
+    def wait_leaders(self, session: zenoh.Session, timeout_s: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if all(self.leader(session, uav) for uav in self.uavs):
+                return
+            time.sleep(0.2)
+        raise TimeoutError("not every UAV has an active master")
+
+    @staticmethod
+    def leader(session: zenoh.Session, uav: str) -> str | None:
+        for reply in session.liveliness().get(keys.election_all(uav), timeout=2.0):
+            key = str(reply.ok.key_expr) if reply.ok is not None else ""
+            if "/leader/" in key:
+                node, index = key.split("/leader/", 1)[1].split("/")
+                return f"master/{node}/{index}"
+        return None
+
+    def mark_cpu(self) -> None:
+        for name, process in self.cluster.processes.items():
+            value = cpu_seconds(process.pid)
+            if value is not None:
+                self._cpu0[name] = value
+
+    def collect_cpu(self) -> None:
+        for name, process in self.cluster.processes.items():
+            value = cpu_seconds(process.pid)
+            if value is not None:
+                self.cpu[name] = round(value - self._cpu0.get(name, 0.0), 3)
+
+    def restart(self, name: str) -> None:
+        """Start ``name`` again, as a supervisor (compose's restart policy) would."""
+        cluster, spec = self.cluster, self.cluster.spec
+        if name == "router":
+            cluster.start_router()
+            return
+        role, node, index = name.split("/")
+        if role == "master":
+            uav = self._master_uav[name]
+            cluster.spawn(name, self._master_args[name], spec.master_cpus, common_name=f"master.{uav}")
+        elif role == "foreman":
+            cluster.start_foreman(next(h for h in spec.hosts if h.name == node))
+        elif role == "worker":
+            cluster.start_worker(next(h for h in spec.hosts if h.name == node), int(index))
+
+    def stop(self) -> dict[str, int | None]:
+        return self.cluster.stop()
+
+
+def apply_fault(
+    load: LoadCluster, session: zenoh.Session, fault: Fault, hostile: Callable[[str], None]
+) -> str:
+    """Carry out one fault now (a stop resumes itself after its duration); returns what was hit."""
+    if fault.action is FaultAction.HOSTILE:
+        hostile(fault.target)
+        return f"hostile {fault.target}"
+    spec = load.cluster.spec
+    if fault.target == "master":
+        name = load.leader(session, load.uavs[0]) or "master/m0/0"
+    elif fault.target == "router":
+        name = "router"
+    elif fault.target == "foreman":
+        name = f"foreman/{spec.hosts[-1].name}/0"
+    else:
+        name = f"worker/{spec.hosts[0].name}/0"
+    if fault.action is FaultAction.KILL:
+        load.cluster.signal(name, signal.SIGKILL)
+        load.cluster.processes[name].wait(5.0)
+        load.restart(name)
+    else:
+        load.cluster.signal(name, signal.SIGSTOP)
+        timer = threading.Timer(fault.duration_s, load.cluster.signal, (name, signal.SIGCONT))
+        timer.daemon = True
+        timer.start()
+    return name
+
+
+class Hostile:
+    """Hostile but valid messages on the first stream's keys and to a worker (``hostile:KIND@Ts``).
+
+    Frames declare the camera's own sender (a forger that copies its id), so that the master's stream gate,
+    not its sender check, has to refuse them; ``sender`` frames come from a second publisher instead, with
+    the seq the camera sends next and a current stamp (they continue the stream but for their sender)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        camera: Any,
+        spec: ClusterSpec,
+        uav: str,
+        shape: tuple[int, int],
+        next_seq: Callable[[], int],
+    ) -> None:
+        self.session, self.camera, self.spec, self.uav = session, camera, spec, uav
+        self.height, self.width = shape
+        #: the seq the stream's camera sends next (a second sender forges it)
+        self.next_seq = next_seq
+        self.sent: dict[str, int] = {}
+
+    def __call__(self, kind: str) -> None:
+        rng = np.random.default_rng(len(self.sent))
+        now = time.time()
+        h, w = self.height, self.width
+        pixels = rng.integers(0, 255, (h, w), dtype=np.uint8)
+        frames: list[Frame] = []
+        if kind == "seq":
+            frames.append(Frame(uav=self.uav, seq=2**53, stamp_s=now, width=w, height=h, pixels=pixels))
+        elif kind == "restart":  # two frames of a "restarted camera" (a third would confirm a new epoch)
+            frames += [
+                Frame(uav=self.uav, seq=s, stamp_s=now, width=w, height=h, pixels=pixels) for s in (0, 1)
+            ]
+        elif kind == "size":
+            for side in (64, 4096):
+                big = rng.integers(0, 255, (side, side), dtype=np.uint8)
+                frames.append(
+                    Frame(uav=self.uav, seq=10**6, stamp_s=now, width=side, height=side, pixels=big)
+                )
+        elif kind == "uav":
+            frames.append(Frame(uav="intruder", seq=10**6, stamp_s=now, width=w, height=h, pixels=pixels))
+        elif kind == "future":
+            frames.append(Frame(uav=self.uav, seq=10**6, stamp_s=now + 1e5, width=w, height=h, pixels=pixels))
+        elif kind in ("settings", "streams"):
+            self._jobs(kind)
+        elif kind == "sender":
+            self._second_sender(pixels)
+        if frames:
+            # a publisher of its own that blocks rather than drops: the stream's camera publisher drops under
+            # congestion, and a 16 MB forged frame lost on a busy host would test the transport, not the gate
+            forger = self.session.declare_publisher(
+                keys.camera_key(self.uav), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            copied = zenoh.SourceInfo(self.camera.id, 0)  # the camera's own sender id, forged
+            try:
+                for frame in frames:
+                    payload, attachment = encode(frame)
+                    forger.put(payload, attachment=attachment, source_info=copied)
+            finally:
+                forger.undeclare()
+        self.sent[kind] = self.sent.get(kind, 0) + 1
+
+    def _second_sender(self, pixels: np.ndarray) -> None:
+        # blocking, as the forger above: a dropping publisher lost one of the three on a busy host (the load
+        # test counted 2 foreign frames of 3 in the loaded suite), which tests the transport, not the gate
+        publisher = self.session.declare_publisher(
+            keys.camera_key(self.uav), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        try:
+            seq = self.next_seq()
+            for k in range(3):  # three that agree: a restart would be confirmed, another sender is not
+                frame = Frame(uav=self.uav, seq=seq + k, stamp_s=time.time(), width=self.width,
+                              height=self.height, pixels=pixels)  # fmt: skip
+                payload, attachment = encode(frame)
+                publisher.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(publisher.id, k))
+        finally:
+            publisher.undeclare()
+
+    def _jobs(self, kind: str) -> None:
+        host = self.spec.hosts[0].name
+        wire = YawJobSettings.of(YawSettings()).model_dump(mode="json")  # a hostile copy is sent unchecked
+        n = 1 if kind == "settings" else 2000
+        for i in range(n):
+            settings = dict(wire, patch_size_px=100_000) if kind == "settings" else wire
+            job = PatchJob.model_construct(
+                stream=f"hostile{i}", seq=1, prev_seq=0, settings=settings, indices=np.array([0], np.int32),
+                crops=np.zeros((1, 32, 32), np.uint8), prev_indices=np.array([0], np.int32),
+                prev_crops=np.zeros((1, 32, 32), np.uint8), budget_s=0.2,
+            )  # fmt: skip
+            payload, attachment = encode(job)
+            key = keys.worker_key(host, 0)
+            self.session.get(key, lambda _r: None, payload=payload, attachment=attachment, timeout=1.0)

@@ -1,0 +1,129 @@
+"""Watching a running cluster from a session of our own: yaw estimates and members' stats.
+
+:class:`YawCollector` keeps every yaw estimate of a UAV by frame (tests, the demo, benchmarks, ``up``);
+:class:`StatsWatch` keeps each member's latest :class:`~common.wire.messages.Stats` so that ``capataz up`` can
+report dropped frames and refused inputs per member at the end.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Mapping
+from typing import TypeVar
+
+import zenoh
+
+from common.wire import keys
+from common.wire.codec import decode
+from common.wire.messages import Stats, YawEstimate
+from common.wire.schema import WireError, WireModel
+from services.runtime.transport import zbytes
+
+#: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service
+REFUSED_COUNTERS = frozenset(
+    {"malformed", "rejected", "bad_samples", "bad_frames", "bad_images", "wrong_uav", "queue_full", "busy",
+     "malformed_replies", "bad_liveliness"}
+)  # fmt: skip
+#: counters that mean "a frame was dropped" (latest-wins hand-off replaced an unread frame)
+DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames"})
+
+
+M = TypeVar("M", bound=WireModel)
+
+
+class _Watch:
+    """A subscriber's decoding: a message that does not decode is counted in :attr:`malformed`, not raised."""
+
+    malformed = 0
+
+    def _decoded(self, sample: zenoh.Sample, expected: type[M]) -> M | None:
+        try:
+            return decode(zbytes(sample.payload), zbytes(sample.attachment), expected)
+        except WireError:
+            self.malformed += 1
+            return None
+
+
+class YawCollector(_Watch):
+    """Subscribes to a UAV's yaw and keeps every estimate by frame seq (for tests, the demo, benches)."""
+
+    def __init__(self, session: zenoh.Session, uav: str) -> None:
+        self.estimates: dict[int, YawEstimate] = {}
+        self.arrival_s: dict[int, float] = {}
+        self.malformed = 0
+        self._cond = threading.Condition()
+        self._sub = session.declare_subscriber(keys.yaw_key(uav), self._on_yaw)
+
+    def _on_yaw(self, sample: zenoh.Sample) -> None:
+        estimate = self._decoded(sample, YawEstimate)
+        if estimate is None:
+            return
+        with self._cond:
+            self.estimates[estimate.seq] = estimate
+            self.arrival_s[estimate.seq] = time.monotonic()
+            self._cond.notify_all()
+
+    def wait_for(self, count: int, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while len(self.estimates) < count:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.2))
+            return True
+
+    def newest(self) -> int:
+        with self._cond:
+            return max(self.estimates, default=-1)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class StatsWatch(_Watch):
+    """The latest stats message of every member (``role/node/i``), from ``capataz/stats/**``."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._lock = threading.Lock()
+        self.latest: dict[str, Stats] = {}
+        self.malformed = 0
+        self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
+
+    def _on_stats(self, sample: zenoh.Sample) -> None:
+        stats = self._decoded(sample, Stats)
+        if stats is None:
+            return
+        with self._lock:
+            self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = stats
+
+    def snapshot(self) -> dict[str, Stats]:
+        with self._lock:
+            return dict(self.latest)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def member_rows(
+    names: list[str],
+    alive_after_s: Mapping[str, float],
+    stats: Mapping[str, Stats],
+    exit_codes: Mapping[str, int | None],
+) -> list[dict[str, object]]:
+    """One summary row per member: start-up time, inputs, dropped frames, refused inputs, exit code."""
+    rows: list[dict[str, object]] = []
+    for name in names:
+        counters = stats[name].counters if name in stats else {}
+        rows.append(
+            {
+                "member": name,
+                "start-up s": alive_after_s.get(name, float("nan")),
+                "inputs": counters.get("frames_in") or counters.get("queries", 0),
+                "dropped": sum(counters.get(k, 0) for k in DROPPED_COUNTERS),
+                "refused": sum(v for k, v in counters.items() if k in REFUSED_COUNTERS),
+                "exit": exit_codes.get(name, "-"),
+            }
+        )
+    return rows

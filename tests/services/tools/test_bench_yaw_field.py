@@ -1,0 +1,64 @@
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.sim.field import FIELD_SCENARIOS
+from services.tools.bench import _runner, yaw, yaw_field
+from services.tools.bench.yaw_field import _Series, pair_stats
+
+FIELDS = {
+    "pairs",
+    "median_abs_err_deg",
+    "p99_abs_err_deg",
+    "pairs_over_5deg",
+    "max_ame_deg",
+    "final_err_deg",
+    "ms_median",
+    "ms_p99",
+    "bridged_pairs",
+}
+
+
+def test_pair_stats_counts_errors_of_the_published_deltas() -> None:
+    truth = np.cumsum(np.full(150, math.radians(1.0)))
+    deltas = list(np.diff(truth))
+    deltas[40] += math.radians(90.0)  # one 90 deg jump, then corrected: the integrated yaw is off in between
+    deltas[41] -= math.radians(90.0)
+    stats = pair_stats(_Series(deltas, [1.0] * 149, bridged=3), truth)
+    assert set(stats) == FIELDS
+    assert stats["pairs"] == 149 and stats["pairs_over_5deg"] == 2 and stats["bridged_pairs"] == 3
+    assert stats["max_ame_deg"] > 0.5 and abs(stats["final_err_deg"]) < 1e-9
+
+
+def test_bench_yaw_field_suite_refuses_too_few_frames() -> None:
+    parser = argparse.ArgumentParser()
+    yaw.add_arguments(parser)
+    with pytest.raises(yaw.CapatazError):
+        yaw.run(parser.parse_args(["--suite", "field", "--field-frames", "50"]))
+
+
+@pytest.mark.slow
+def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One field scenario (of the suite's seven) and the hover, 102 frames each: the file's layout."""
+    subset = {"checkerboard": FIELD_SCENARIOS["checkerboard"]}
+    monkeypatch.setattr(yaw_field, "FIELD_SCENARIOS", subset)
+    parser = argparse.ArgumentParser()
+    yaw.add_arguments(parser)
+    args = parser.parse_args(["--suite", "field", "--field-frames", "102", "--hover-frames", "102"])
+    args.out = tmp_path
+    assert _runner(yaw)(args) == 0
+    payload = json.loads((tmp_path / "yaw_field.json").read_text())
+    assert set(payload) == {"scenarios", "baseline", "worst_max_ame_deg", "total_pairs_over_5deg"}
+    names = {*subset, "hover"}
+    assert set(payload["scenarios"]) == set(payload["baseline"]) == names
+    for block in (payload["scenarios"], payload["baseline"]):
+        assert all(set(stats) == FIELDS for stats in block.values())
+    assert payload["total_pairs_over_5deg"] == 0

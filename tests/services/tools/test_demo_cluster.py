@@ -1,0 +1,31 @@
+"""`make run`'s cluster demo on a short flight: each frame has the in-process yaw; report and plots."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from services.tools.demo_cluster import run_demo
+from tests.services.tools.test_tum_output import assert_evo_agrees
+
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
+
+
+def test_cluster_demo_reports_every_frame_equal_to_in_process(tmp_path: Path) -> None:
+    summary = run_demo(tmp_path, n_frames=120)
+    assert summary["frames_with_yaw"] == 120 and summary["frames_lost"] == 0
+    assert summary["dropped_frames"] == 0  # two frames in flight never make the master drop one
+    assert summary["max_abs_diff_vs_in_process_deg"] <= 1e-9
+    assert summary["rms_deg"] < 1.0
+    top = [r for r in summary["members"] if ">" not in r["member"]]
+    assert {r["member"] for r in top} == {"foreman/h1/0", "foreman/h2/0"}
+    assert sum(r["share"] for r in top) == pytest.approx(1.0)
+    assert all(r["speed_patches_s"] > 0 for r in top), top
+    for path in summary["plots"]:
+        assert Path(path).stat().st_size > 0
+    assert (tmp_path / "cluster" / "yaw_cluster.json").is_file()
+    assert (tmp_path / "cluster" / "yaw_cluster.png").is_file()
+    assert all(code == 0 for code in summary["exit_codes"].values()), summary["exit_codes"]
+    assert summary["tum"]["poses"] == 120 and summary["tum"]["ape_rotation_rmse_deg"] > 0
+    assert_evo_agrees(summary["tum"])  # out/tum/yaw.tum and yaw_truth.tum

@@ -1,0 +1,81 @@
+"""``capataz bench localizer`` on a tiny flight: every reported field is there and consistent."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from services.tools.bench import localizer
+from services.tools.bench.localizer_field import best_scoring
+
+
+def test_bench_reports_every_field_and_restores_the_cpu_affinity() -> None:
+    parser = argparse.ArgumentParser()
+    localizer.add_arguments(parser)
+    args = parser.parse_args(
+        ["--frames", "12", "--settle", "6", "--runs", "1", "--repeats", "1", "--timing-frames", "2"]
+    )
+    before = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    result = localizer.run(args)
+    if before is not None:
+        assert os.sched_getaffinity(0) == before
+    for key in ("ms_per_step_200", "ms_per_step_1000", "baseline_ms_per_step_200", "speedup_200"):
+        assert result[key] > 0.0
+    assert result["speedup_200"] == result["baseline_ms_per_step_200"] / result["ms_per_step_200"]
+    assert set(result["scorings"]) == {"klein_murray", "per_edge", "nearest_edge", "nearest_edge_dt"}
+    for row in result["scorings"].values():
+        assert {"ms_per_step_200", "position_rmse_cm", "yaw_rmse_deg"} <= set(row)
+    best = result["fastest_scoring_meeting_goal"]
+    if best is not None:
+        assert result["scorings"][best]["meets_accuracy_goal"]
+        assert all(
+            row["ms_per_step_200"] >= result["scorings"][best]["ms_per_step_200"]
+            for row in result["scorings"].values()
+            if row["meets_accuracy_goal"]
+        )
+    assert len(result["table"]) == 6
+
+
+def test_field_suite_reports_both_scenes_with_every_field_and_their_inputs() -> None:
+    parser = argparse.ArgumentParser()
+    localizer.add_arguments(parser)
+    args = parser.parse_args(
+        [
+            *("--suite", "field", "--frames", "12", "--settle", "3", "--seeds", "1", "--repeats", "1"),
+            *("--scorings", "klein_murray", "nearest_edge_dt"),
+        ]
+    )
+    result = localizer.run(args)
+    assert result["bench_name"] == "localizer_field"
+    assert set(result["scenes"]) == {"office", "object"}
+    fields = {
+        "position_median_mm",
+        "position_rmse_mm",
+        "rotation_median_deg",
+        "rotation_rmse_deg",
+        "lost_runs",
+        "runs",
+        "recovered_after_kidnap_frames",
+        "step_ms_median",
+        "inputs",
+    }
+    for name, rows in result["scenes"].items():
+        assert set(rows) == {"klein_murray", "nearest_edge_dt"}
+        for row in rows.values():
+            assert fields <= set(row) and row["runs"] == 1 and row["step_ms_median"] > 0.0
+            assert row["inputs"] == (["images", "gyro"] if name == "office" else ["images"])
+    assert result["best_scoring"] in {"klein_murray", "nearest_edge_dt"}
+    # the speed-up is the benchmark's to report (a wall-clock comparison is no unit test's to assert)
+
+
+def test_best_scoring_prefers_no_lost_runs_then_goals_then_accuracy() -> None:
+    def row(mm: float, lost: int, goal: bool) -> dict[str, object]:
+        return {"position_median_mm": mm, "lost_runs": lost, "meets_goal": goal}
+
+    results = {
+        "object": {"a": row(2.0, 1, False), "b": row(3.0, 0, True), "c": row(2.5, 0, True)},
+        "office": {"a": row(20.0, 0, True), "b": row(25.0, 0, False), "c": row(35.0, 0, False)},
+    }
+    assert best_scoring(results) == "b"  # a lost a run; b and c meet one goal each, b is closer
+    results["office"]["c"] = row(28.0, 0, True)
+    assert best_scoring(results) == "c"

@@ -1,0 +1,183 @@
+"""The secure profile's files: the least-privilege table, the committed Zenoh config, the certificate script
+and docker-compose.secure.yml."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+
+from common.wire import keys
+from services.runtime.acl import PolicySettings, acl_section, markdown_table, role_table
+from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, render_config
+from tests.services.tools.test_deploy import check_compose
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def allowed(common_name: str, flow: str, message: str) -> set[str]:
+    """Key expressions ``common_name`` is allowed for ``message`` in ``flow``."""
+    section = acl_section()
+    rules = {r["id"]: r for r in section["rules"]}
+    out: set[str] = set()
+    for policy in section["policies"]:
+        if common_name not in policy["subjects"]:
+            continue
+        for rid in policy["rules"]:
+            rule = rules[rid]
+            if flow in rule["flows"] and message in rule["messages"]:
+                out |= set(rule["key_exprs"])
+    return out
+
+
+def who_may(flow: str, message: str, key: str) -> set[str]:
+    names = {r.common_name for r in role_table()} - {"router"}
+    return {n for n in names if key in allowed(n, flow, message)}
+
+
+def test_least_privilege_table_of_the_issue() -> None:
+    assert who_may("ingress", "put", keys.camera_key("uav0")) == {"camera.uav0"}
+    assert who_may("ingress", "put", keys.imu_key("uav1")) == {"camera.uav1"}
+    assert who_may("ingress", "put", keys.yaw_key("uav0")) == {"master.uav0"}
+    assert who_may("ingress", "put", keys.attitude_key("uav0")) == {"estimator.uav0"}
+    assert who_may("ingress", "put", keys.pose_vo_key("uav0")) == {"estimator.uav0"}
+    # the office flight has no estimator: its camera's simulated odometry is the one exception
+    assert who_may("ingress", "put", keys.pose_vo_key("uav1")) == {"estimator.uav1", "camera.uav1"}
+    assert who_may("ingress", "put", keys.pose_pf_key("uav1")) == {"localizer.uav1"}
+    work = {"capataz/node/*/foreman", "capataz/node/*/worker/*"}
+    servers = {
+        n for n in {r.common_name for r in role_table()} if allowed(n, "ingress", "declare_queryable") & work
+    }
+    assert servers == {"foreman", "worker"}
+    queriers = {n for n in {r.common_name for r in role_table()} if allowed(n, "ingress", "query") & work}
+    assert queriers == {"master.uav0", "master.uav1", "foreman"}
+    assert who_may("ingress", "liveliness_token", "capataz/alive/worker/**") == {"worker"}
+    assert who_may("ingress", "liveliness_token", "capataz/alive/foreman/**") == {"foreman"}
+    client = {
+        m: allowed("client", "ingress", m) for m in ("put", "declare_queryable", "liveliness_token", "reply")
+    }
+    assert client == {"put": set(), "declare_queryable": set(), "liveliness_token": set(), "reply": set()}
+    assert allowed("client", "ingress", "declare_subscriber") >= {
+        "capataz/uav/*/yaw",
+        "capataz/uav/*/pose/pf",
+    }
+    assert "capataz/uav/*/camera" not in allowed("client", "egress", "put")  # no raw frames to clients
+    assert acl_section()["default_permission"] == "deny"
+
+
+def test_the_committed_secure_config_is_the_generated_one() -> None:
+    assert DEPLOY_CONFIG.read_text() == render_config(), (
+        "run: capataz secure config --out deploy/zenoh/secure.json5"
+    )
+    body = "\n".join(line for line in DEPLOY_CONFIG.read_text().splitlines() if not line.startswith("//"))
+    assert json.loads(body)["transport"]["link"]["protocols"] == ["tls"]
+
+
+def test_the_readme_has_the_generated_role_table() -> None:
+    assert markdown_table() in (ROOT / "README.md").read_text()
+
+
+def test_policy_refuses_bad_uav_names() -> None:
+    with pytest.raises(Exception, match="uav"):
+        PolicySettings(uavs=("uav/0",))
+
+
+def subject(path: Path) -> str:
+    return subprocess.run(
+        ["openssl", "x509", "-in", str(path), "-noout", "-subject"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+
+
+def test_make_certs_gives_each_role_its_common_name_and_private_keys(certs: Path) -> None:
+    for name in ("router", "worker", "foreman", "client", "camera.uav0", "master.uav0", "localizer.uav0"):
+        assert re.search(rf"CN\s*=\s*{re.escape(name)}$", subject(certs / f"{name}.pem").strip()), name
+        assert (certs / f"{name}.key").stat().st_mode & 0o077 == 0, f"{name}.key is readable by others"
+
+
+def test_running_make_certs_again_rotates_role_certificates_under_the_same_ca(
+    certs: Path, tmp_path: Path
+) -> None:
+    copy = tmp_path / "c"
+    shutil.copytree(certs, copy)
+    before_ca, before_worker = (copy / "ca.pem").read_bytes(), (copy / "worker.pem").read_bytes()
+    make_certs(copy, ("uav0",))
+    assert (copy / "ca.pem").read_bytes() == before_ca
+    assert (copy / "worker.pem").read_bytes() != before_worker
+    check = subprocess.run(
+        ["openssl", "verify", "-CAfile", str(copy / "ca.pem"), str(copy / "worker.pem")], capture_output=True
+    )
+    assert check.returncode == 0
+
+
+def test_secure_profile_environment_names_a_certificate_of_the_role(certs: Path, tmp_path: Path) -> None:
+    shutil.copytree(certs, tmp_path / "p" / "certs")
+    profile = SecureProfile.ensure(tmp_path / "p", ("uav0",))
+    env = profile.environment("master.uav0")
+    assert (
+        env["CAPATAZ_ZENOH_TLS_CERT"].endswith("master.uav0.pem")
+        and Path(env["CAPATAZ_ZENOH_CONFIG"]).is_file()
+    )
+    with pytest.raises(Exception, match="no certificate"):
+        profile.environment("intruder")
+
+
+def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only() -> None:
+    document = yaml.safe_load((ROOT / "docker-compose.secure.yml").read_text())
+    check_compose(document)
+    open_services = yaml.safe_load((ROOT / "docker-compose.yml").read_text())["services"]
+    services = document["services"]
+    assert set(services) == set(open_services)
+    assert services["router"]["ports"] == ["127.0.0.1:${CAPATAZ_PORT:-7447}:7447"]
+    for name, service in services.items():
+        assert service["command"] == open_services[name]["command"] or name == "router", name
+        env = service["environment"]
+        assert env["CAPATAZ_ZENOH_CONFIG"] == "/etc/capataz/zenoh.json5"
+        assert name == "router" or env["CAPATAZ_ZENOH_CONNECT"] == "tls/router:7447"
+        mounted = [v.split(":")[0] for v in service["volumes"]]
+        keys_mounted = [m for m in mounted if m.endswith(".key")]
+        assert len(keys_mounted) == 1, name
+        role = Path(keys_mounted[0]).stem
+        assert name.startswith(role.split(".")[0]), name
+        if "." in role:
+            assert f"--uav {role.split('.')[1]}" in " ".join(service["command"]), name
+        assert all(v.endswith(":ro") for v in service["volumes"]), name
+
+
+def test_up_takes_secure_and_zenoh_config_options() -> None:
+    from services.tools.cli import build_parser
+
+    args = build_parser().parse_args(["up", "--cluster", "deploy/clusters/local2x2.yml", "--secure"])
+    assert args.secure == Path("out/secure") and args.zenoh_config is None
+    args = build_parser().parse_args(["up", "--cluster", "x.yml", "--zenoh-config", "z.json5"])
+    assert args.zenoh_config == Path("z.json5") and args.secure is None
+    for command in (["up", "--cluster", "x.yml"], ["loadtest"]):
+        args = build_parser().parse_args([*command, "--secure", "certs-here", "--zenoh-config", "z.json5"])
+        assert args.secure == Path("certs-here") and args.zenoh_config == Path("z.json5")
+
+
+def test_only_a_uavs_masters_hold_its_election_tokens_and_clients_may_watch_them() -> None:
+    elect = keys.election_all("uav0")
+    assert who_may("ingress", "liveliness_token", elect) == {"master.uav0"}
+    assert "capataz/elect/**" in allowed("client", "ingress", "declare_liveliness_subscriber")
+    # a standby continues from the active master's yaw and learns its session from its health reply
+    assert keys.yaw_key("uav0") in allowed("master.uav0", "ingress", "declare_subscriber")
+    assert "capataz/health/master/**" in allowed("master.uav0", "ingress", "query")
+
+
+def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_data_is_widened() -> None:
+    """Zenoh matches a declaration by inclusion: a client's ``capataz/uav/*/yaw`` subscription must be let
+    through to the master that puts ``capataz/uav/uav0/yaw``, or the client gets nothing."""
+    assert "capataz/uav/*/yaw" in allowed("master.uav0", "egress", "declare_subscriber")
+    assert "capataz/uav/*/camera" not in allowed("master.uav0", "egress", "declare_subscriber")
+    assert "capataz/health/**" in allowed("worker", "egress", "query")
+    # what a role may send is unchanged: no put, no queryable for a client, no yaw put for a camera
+    assert allowed("client", "ingress", "put") == set()
+    assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")
