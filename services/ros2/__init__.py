@@ -9,7 +9,7 @@ wheels); without it the command says so in one line and exits 1. The conversions
 from __future__ import annotations
 
 import argparse
-import importlib.util
+import importlib
 import sys
 from pathlib import Path
 from typing import Any
@@ -28,7 +28,12 @@ EXTRA_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs")
 
 def extra_installed() -> bool:
     """True when the ``ros2`` extra's modules can be imported."""
-    return all(importlib.util.find_spec(name) is not None for name in EXTRA_MODULES)
+    try:
+        for name in EXTRA_MODULES:
+            importlib.import_module(name)
+    except ImportError:
+        return False
+    return True
 
 
 def register(subparsers: Any) -> None:
@@ -49,7 +54,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--dds-profile",
         type=Path,
-        help="Fast DDS profile (default: the loopback-only profile, written to out/ros2/fastdds_loopback.xml)",
+        help="Fast DDS profile (default: the loopback-only one, written to out/ros2/fastdds_loopback.xml)",
     )
     parser.add_argument(
         "--calibration-out",

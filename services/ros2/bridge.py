@@ -51,8 +51,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
     role = keys.Role.BRIDGE
 
     def setup(self) -> None:
-        self.profile = write_profile(self.settings.profile_path())
-        apply_environment(dds_environment(self.profile, self.settings.domain_id))
+        self.profile = self.settings.profile_path()
         self.gates = SensorGates()
         self._cameras: dict[str, Any] = {}
         self._zpub: dict[tuple[str, str], Any] = {}
@@ -63,6 +62,8 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
 
     # -- ROS side ---------------------------------------------------------------------------------------
     def _open_ros(self) -> None:
+        self.profile = write_profile(self.profile)
+        apply_environment(dds_environment(self.profile, self.settings.domain_id))
         import rclpy
         from rclpy.context import Context
         from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
@@ -132,7 +133,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         from sensor_msgs.msg import Imu
 
         node, qos = self.ros_node, self.sensor_qos
-        outs = {
+        outs: dict[str, tuple[str, type[WireModel], Any]] = {
             "yaw": (keys.yaw_key(uav), YawEstimate, node.create_publisher(Imu, out_topic(uav, "yaw"), qos)),
             "attitude": (
                 keys.attitude_key(uav),
@@ -215,21 +216,25 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         return pose
 
     # -- in: ROS 2 sensors -> capataz streams ----------------------------------------------------------
+    def declare_inputs(self, session: zenoh.Session, uav: str) -> None:
+        """The capataz keys ``uav``'s ROS sensors go out on."""
+        self._zpub[uav, "camera"] = session.declare_publisher(keys.camera_key(uav))
+        self._zpub[uav, "imu"] = session.declare_publisher(keys.imu_key(uav))
+        self._zpub[uav, "range"] = session.declare_publisher(keys.range_key(uav))
+
     def _wire_in(self, session: zenoh.Session, uav: str) -> None:
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, Range
 
-        camera = session.declare_publisher(keys.camera_key(uav))
-        self._zpub[uav, "camera"] = camera
-        self._zpub[uav, "imu"] = session.declare_publisher(keys.imu_key(uav))
-        self._zpub[uav, "range"] = session.declare_publisher(keys.range_key(uav))
+        self.declare_inputs(session, uav)
         kinds = {"image": Image, "compressed": CompressedImage, "camera_info": CameraInfo}
         kinds |= {"imu": Imu, "range": Range}
         for stream, kind in kinds.items():
             topic = in_topic(uav, IN_TOPICS[stream])
-            callback = partial(self._on_sensor, uav, stream, topic)
+            callback = partial(self.on_sensor, uav, stream, topic)
             self.ros_node.create_subscription(kind, topic, callback, self.sensor_qos)
 
-    def _on_sensor(self, uav: str, stream: str, topic: str, msg: Any) -> None:
+    def on_sensor(self, uav: str, stream: str, topic: str, msg: Any) -> None:
+        """One ROS message of ``uav``'s ``stream``: converted, gated, forwarded, or refused and counted."""
         received_s = time.perf_counter()
         self.counters.inc(f"in_{stream}")
         try:
@@ -286,6 +291,5 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
     def _check_camera(self, uav: str, frame: Frame, topic: str) -> None:
         camera = self._cameras.get(uav)
         if camera is not None and (camera.width, camera.height) != (frame.width, frame.height):
-            raise InputError(
-                f"{topic}: {frame.width}x{frame.height} image, camera_info says {camera.width}x{camera.height}"
-            )
+            size = f"{frame.width}x{frame.height}"
+            raise InputError(f"{topic}: {size} image, camera_info says {camera.width}x{camera.height}")

@@ -2,13 +2,13 @@
 
 Out (estimates -> ROS), per UAV ``u`` (frame ids prefixed with the UAV, so several UAVs share one tf tree):
 
-| capataz key            | ROS message                                  | header.frame_id | child / notes        |
-| ---------------------- | -------------------------------------------- | --------------- | -------------------- |
-| ``uav/u/yaw``          | ``sensor_msgs/Imu`` (orientation only)       | ``u/yaw_origin``| yaw about z          |
-| ``uav/u/attitude``     | ``sensor_msgs/Imu`` (orientation only)       | ``u/world``     | q_world_body         |
-| ``uav/u/pose/vo``      | ``geometry_msgs/PoseWithCovarianceStamped``  | ``u/world``     | body pose            |
-| ``uav/u/pose/pf``      | ``geometry_msgs/PoseWithCovarianceStamped``  | ``u/map``       | body pose in the map |
-| (static) camera mount  | ``geometry_msgs/TransformStamped``           | ``u/body``      | ``u/camera``         |
+| capataz key        | ROS message                                 | header.frame_id  | child / notes  |
+| ------------------ | ------------------------------------------- | ---------------- | -------------- |
+| ``uav/u/yaw``      | ``sensor_msgs/Imu`` (orientation only)      | ``u/yaw_origin`` | yaw about z    |
+| ``uav/u/attitude`` | ``sensor_msgs/Imu`` (orientation only)      | ``u/world``      | q_world_body   |
+| ``uav/u/pose/vo``  | ``geometry_msgs/PoseWithCovarianceStamped`` | ``u/world``      | body pose      |
+| ``uav/u/pose/pf``  | ``geometry_msgs/PoseWithCovarianceStamped`` | ``u/map``        | pose in map    |
+| (static) mount     | ``geometry_msgs/TransformStamped``          | ``u/body``       | ``u/camera``   |
 
 Covariances are the ones the capataz messages carry, laid out as ROS wants them (row-major): the attitude's
 3x3 covariance of world-frame error angles is ``orientation_covariance`` (ROS: rotation about the fixed

@@ -21,7 +21,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, Imu, Range
 
-from common.estimation.measurements import ImuMeasurement
+from common.estimation.measurements import ImuMeasurement, RangeMeasurement
 from common.sim.flight import hover_flight
 from services.camera.sources import sensor_samples
 from services.ros2.dds import udp_sockets_of
@@ -112,7 +112,7 @@ def main(config_path: str) -> int:
                     float, a
                 )
                 imus.publish(imu)
-            else:
+            elif isinstance(m, RangeMeasurement):
                 r = Range(min_range=0.05, max_range=50.0, range=float(m.range_m))
                 stamp(r, m.stamp_s)
                 ranges.publish(r)

@@ -7,6 +7,7 @@ stays on loopback (the profile of services/ros2/dds.py, a random domain per run)
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -28,19 +29,14 @@ from services.ros2.dds import LOOPBACK, dds_environment, random_domain_id, write
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
 
-pytestmark = [
-    pytest.mark.zenoh,
-    pytest.mark.slow,
-    pytest.mark.ros2,
-    pytest.mark.skipif(
-        not extra_installed(), reason="ros2 extra not installed (pip install 'capataz[ros2]')"
-    ),
-]
+NO_EXTRA = "ros2 extra not installed (pip install 'capataz[ros2]')"
+NEEDS_EXTRA = pytest.mark.skipif(not extra_installed(), reason=NO_EXTRA)
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow, pytest.mark.ros2, NEEDS_EXTRA]
 
 FRAMES = 60
 FPS = 10.0
 UAV = "uav0"
-F32 = dict(rtol=1e-6, atol=1e-7)  # float32 resolution of values of order 1
+RTOL, ATOL = 1e-6, 1e-7  # float32 resolution of values of order 1
 
 
 def _ns(stamp_s: float) -> int:
@@ -64,7 +60,7 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
 
     def collect(name: str, kind: type) -> Any:
         def on(sample: Any) -> None:
-            message = decode(zbytes(sample.payload), zbytes(sample.attachment), kind)
+            message: Any = decode(zbytes(sample.payload), zbytes(sample.attachment), kind)
             with lock:
                 zenoh_side[name][_ns(message.stamp_s)] = message
 
@@ -76,7 +72,7 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
         balance=Balance.TIME,
         hosts=(HostSpec(name="h1", workers=1),),
     )
-    config = {
+    config: dict[str, Any] = {
         "uav": UAV, "fps": FPS, "frames": FRAMES, "timeout_s": 120.0,
         "ready": str(tmp_path / "ready"), "done": str(tmp_path / "done"), "out": str(tmp_path / "ros.json"),
     }  # fmt: skip
@@ -87,7 +83,8 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
         bridge = cluster.spawn(
             "bridge/ros2/0",
             ["ros2", *cluster.transport_args(), "--uav", UAV, "--input-uav", UAV, "--domain-id", str(domain),
-             "--dds-profile", str(tmp_path / "fastdds.xml"), "--calibration-out", str(tmp_path / "{uav}.yml")],
+             "--dds-profile", str(tmp_path / "fastdds.xml"),
+             "--calibration-out", str(tmp_path / "{uav}.yml")],
         )  # fmt: skip
         cluster.wait_alive({"master/master/0", "worker/h1/0", "estimator/estimator/0", "bridge/ros2/0"})
         with open_session(cluster.observer_transport()) as session:
@@ -99,7 +96,7 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
             pf_publisher = session.declare_publisher(keys.pose_pf_key(UAV))
             node = subprocess.Popen(
                 [sys.executable, "-m", "tests.integration.ros2_node", str(tmp_path / "config.json")],
-                env={**__import__("os").environ, **env},
+                env={**os.environ, **env},
                 stdout=(tmp_path / "node.log").open("wb"),
                 stderr=subprocess.STDOUT,
             )
@@ -113,9 +110,10 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
                 # the estimates of the last frames, then a localizer's pose/pf published by a capataz client
                 pf = [
                     PoseEstimate(
-                        uav=UAV, seq=k, stamp_s=100.0 + 0.05 * k, p_world_body_m=np.array([1.0, 2.0 + k, 3.0]),
-                        q_world_body=np.array([0.6, 0.0, 0.8, 0.0]), covariance=np.diag(np.arange(1.0, 7.0)) * 1e-3,
-                        source="pf", tracking_state="tracking",
+                        uav=UAV, seq=k, stamp_s=100.0 + 0.05 * k,
+                        p_world_body_m=np.array([1.0, 2.0 + k, 3.0]),
+                        q_world_body=np.array([0.6, 0.0, 0.8, 0.0]),
+                        covariance=np.diag(np.arange(1.0, 7.0)) * 1e-3, source="pf",
                     )
                     for k in range(5)
                 ]  # fmt: skip
@@ -149,28 +147,28 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
         z = zenoh_copy["yaw"][_ros_ns(item)]
         assert item[2] == f"{UAV}/yaw_origin"
         x, y, zq, w = item[3]
-        assert np.isclose(2.0 * np.arctan2(zq, w), z.yaw_rad, **F32) or abs(z.yaw_rad) < 1e-7
+        assert np.isclose(2.0 * np.arctan2(zq, w), z.yaw_rad, rtol=RTOL, atol=ATOL) or abs(z.yaw_rad) < 1e-7
         assert x == y == 0.0
-        assert np.isclose(item[4][8], z.yaw_variance_rad2, **F32)
+        assert np.isclose(item[4][8], z.yaw_variance_rad2, rtol=RTOL, atol=ATOL)
     for item in ros["attitude"]:
         a = zenoh_copy["attitude"][_ros_ns(item)]
         assert item[2] == f"{UAV}/world"
         _same_rotation(item[3], a.q_world_body)
-        np.testing.assert_allclose(item[4], a.covariance.reshape(9), **F32)
+        np.testing.assert_allclose(item[4], a.covariance.reshape(9), rtol=RTOL, atol=ATOL)
     for item in ros["pose/vo"]:
         p = zenoh_copy["pose/vo"][_ros_ns(item)]
         assert item[2] == f"{UAV}/world"
-        np.testing.assert_allclose(item[3], p.p_world_body_m, **F32)
+        np.testing.assert_allclose(item[3], p.p_world_body_m, rtol=RTOL, atol=ATOL)
         _same_rotation(item[4], p.q_world_body)
-        np.testing.assert_allclose(item[5], p.covariance.reshape(36), **F32)
+        np.testing.assert_allclose(item[5], p.covariance.reshape(36), rtol=RTOL, atol=ATOL)
     assert len(ros["pose/pf"]) >= 3
     by_stamp = {_ns(m.stamp_s): m for m in pf}
     for item in ros["pose/pf"]:
         p = by_stamp[_ros_ns(item)]
         assert item[2] == f"{UAV}/map"
-        np.testing.assert_allclose(item[3], p.p_world_body_m, **F32)
+        np.testing.assert_allclose(item[3], p.p_world_body_m, rtol=RTOL, atol=ATOL)
         _same_rotation(item[4], p.q_world_body)
-        np.testing.assert_allclose(item[5], p.covariance.reshape(36), **F32)
+        np.testing.assert_allclose(item[5], p.covariance.reshape(36), rtol=RTOL, atol=ATOL)
 
     # the camera mount, static (transient local: the node joined after it was published)
     assert ros["mount"], "no camera mount received"
