@@ -16,6 +16,7 @@ import pytest
 from common import keys
 from common.codec import decode
 from common.messages import Frame, ImuSample, RangeSample
+from common.wire import WireModel
 from services.ros2.bridge import Ros2Bridge
 from services.ros2.settings import Ros2Settings
 from services.runtime.transport import open_session, zbytes
@@ -53,11 +54,11 @@ def info(width: int, height: int) -> Any:
 def test_good_ros_samples_are_forwarded_and_bad_ones_refused_and_counted(tmp_path: Any) -> None:
     received: dict[str, list[Any]] = {"camera": [], "imu": [], "range": []}
     lock = threading.Lock()
-    kinds = {"camera": Frame, "imu": ImuSample, "range": RangeSample}
+    kinds: dict[str, type[WireModel]] = {"camera": Frame, "imu": ImuSample, "range": RangeSample}
 
     def on(name: str) -> Any:
         def callback(sample: Any) -> None:
-            message = decode(zbytes(sample.payload), zbytes(sample.attachment), kinds[name])
+            message: Any = decode(zbytes(sample.payload), zbytes(sample.attachment), kinds[name])
             with lock:
                 received[name].append(message)
 
