@@ -206,5 +206,7 @@ def _first_error(exc: ValueError) -> str:
     errors = getattr(exc, "errors", None)
     if callable(errors):
         first = errors()[0]
-        return f"{'.'.join(str(p) for p in first.get('loc', ()))}: {first.get('msg', exc)}"
+        where = ".".join(str(p) for p in first.get("loc", ()))
+        text = str(first.get("msg", exc)).removeprefix("Value error, ")
+        return f"{where}: {text}" if where else text
     return str(exc).splitlines()[0]

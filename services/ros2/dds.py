@@ -82,7 +82,6 @@ def dds_environment(profile: Path, domain_id: int) -> dict[str, str]:
     return {
         "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
         "FASTDDS_DEFAULT_PROFILES_FILE": str(profile),
-        "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile),  # the older name, read by older Fast DDS
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
         "ROS_DOMAIN_ID": str(domain_id),
     }

@@ -37,6 +37,29 @@ def stamp(msg: Any, stamp_s: float) -> None:
     msg.header.stamp.sec, msg.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
 
 
+def publish_bad_input(uav: str, last_s: float, images: Any, imus: Any, ranges: Any) -> None:
+    """After the flight: an unknown encoding, a wrong step, a NaN IMU sample, an IMU stamp going back, a NaN
+    range (the bridge refuses and counts each; nothing of it reaches capataz)."""
+    unknown = Image(height=4, width=4, encoding="yuv422", step=8, data=bytes(32))
+    short_step = Image(height=4, width=4, encoding="mono8", step=3, data=bytes(16))
+    nan_imu, back_imu = Imu(), Imu()
+    nan_imu.angular_velocity.x = float("nan")
+    nan_range = Range(min_range=0.05, max_range=50.0, range=float("nan"))
+    for msg, stamp_s in (
+        (unknown, 1.0),
+        (short_step, 1.1),
+        (nan_imu, 1.0),
+        (back_imu, -0.5),
+        (nan_range, 1.0),
+    ):
+        stamp(msg, last_s + stamp_s)
+    images.publish(unknown)
+    images.publish(short_step)
+    imus.publish(nan_imu)
+    imus.publish(back_imu)
+    ranges.publish(nan_range)
+
+
 def main(config_path: str) -> int:
     config = json.loads(Path(config_path).read_text())
     uav, fps, frames = config["uav"], float(config["fps"]), int(config["frames"])
@@ -126,6 +149,7 @@ def main(config_path: str) -> int:
         previous = stamp_s
         while time.monotonic() < t0 + (i + 1) / fps:
             rclpy.spin_once(node, timeout_sec=0.005)
+    publish_bad_input(uav, previous, images, imus, ranges)
     done = Path(config["done"])
     while time.monotonic() < deadline and not done.exists():
         rclpy.spin_once(node, timeout_sec=0.05)

@@ -22,12 +22,13 @@ from common import keys
 from common.codec import decode, encode
 from common.dispatch import Balance
 from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_quaternion
-from common.messages import AttitudeEstimate, PoseEstimate, YawEstimate
+from common.messages import AttitudeEstimate, Health, PoseEstimate, YawEstimate
 from services.master.service import Topology
 from services.ros2 import extra_installed
 from services.ros2.dds import LOOPBACK, dds_environment, random_domain_id, write_profile
 from services.runtime.transport import open_session, zbytes
 from services.up import ClusterSpec, HostSpec, LocalCluster
+from tests.zenoh_helpers import wait_until
 
 NO_EXTRA = "ros2 extra not installed (pip install 'capataz[ros2]')"
 NEEDS_EXTRA = pytest.mark.skipif(not extra_installed(), reason=NO_EXTRA)
@@ -50,6 +51,14 @@ def _ros_ns(item: list[Any]) -> int:
 def _same_rotation(q_xyzw: list[float], q_wxyz: np.ndarray) -> None:
     ros = np.array([q_xyzw[3], *q_xyzw[:3]])
     assert min(np.abs(ros - q_wxyz).max(), np.abs(ros + q_wxyz).max()) < 1e-6, (q_xyzw, q_wxyz)
+
+
+def bridge_counters(session: Any) -> dict[str, int]:
+    """The bridge's counters, from its health queryable."""
+    for reply in session.get(keys.health_key(keys.Role.BRIDGE, "ros2", 0), timeout=5.0):
+        if reply.ok is not None:
+            return dict(decode(zbytes(reply.ok.payload), zbytes(reply.ok.attachment), Health).counters)
+    return {}
 
 
 def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: Path) -> None:
@@ -124,6 +133,10 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
                 time.sleep(2.0)
                 Path(config["done"]).write_text("done")
                 node.wait(60)
+                # the node's bad input after the flight: refused and counted by the bridge, one reason each
+                refused = {"refused_malformed": 4, "refused_stamp_backward": 1}
+                wait_until(lambda: all(bridge_counters(session).get(k) == n for k, n in refused.items()))
+                counters = bridge_counters(session)
             finally:
                 if node.poll() is None:
                     node.kill()
@@ -132,6 +145,7 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
                     s.undeclare()
         assert bridge.poll() is None, "the bridge exited early"
     assert node.returncode == 0, (tmp_path / "node.log").read_text()[-3000:]
+    assert {k: counters.get(k) for k in refused} == refused, counters
     ros = json.loads(Path(config["out"]).read_text())
 
     # DDS stayed on loopback: every UDP socket of the ROS node is bound to 127.0.0.1
