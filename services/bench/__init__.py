@@ -23,6 +23,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.bench.estimator",
     "services.bench.record",
     "services.bench.security",
+    "services.bench.ros2",
 )
 
 
