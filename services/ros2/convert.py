@@ -1,14 +1,17 @@
 """capataz messages <-> ROS 2 message fields, as plain values (no rclpy, no zenoh: testable without ROS).
 
-Out (estimates -> ROS), per UAV ``u`` (frame ids prefixed with the UAV, so several UAVs share one tf tree):
+Out (estimates -> ROS), per UAV ``u`` (frame ids prefixed with the UAV, so several UAVs share one tf tree;
+each pose is the pose of ``u/base_link``):
 
-| capataz key        | ROS message                                 | header.frame_id  | child / notes  |
-| ------------------ | ------------------------------------------- | ---------------- | -------------- |
-| ``uav/u/yaw``      | ``sensor_msgs/Imu`` (orientation only)      | ``u/yaw_origin`` | yaw about z    |
-| ``uav/u/attitude`` | ``sensor_msgs/Imu`` (orientation only)      | ``u/world``      | q_world_body   |
-| ``uav/u/pose/vo``  | ``geometry_msgs/PoseWithCovarianceStamped`` | ``u/world``      | body pose      |
-| ``uav/u/pose/pf``  | ``geometry_msgs/PoseWithCovarianceStamped`` | ``u/map``        | pose in map    |
-| (static) mount     | ``geometry_msgs/TransformStamped``          | ``u/body``       | ``u/camera``   |
+| capataz key        | ROS message                                 | header.frame_id  | what               |
+| ------------------ | ------------------------------------------- | ---------------- | ------------------ |
+| ``uav/u/yaw``      | ``sensor_msgs/Imu`` (orientation only)      | ``u/yaw_origin`` | yaw about z        |
+| ``uav/u/attitude`` | ``sensor_msgs/Imu`` (orientation only)      | ``u/world``      | q_world_body       |
+| ``uav/u/pose/vo``  | ``geometry_msgs/PoseWithCovarianceStamped`` | ``u/world``      | body pose (VO)     |
+| ``uav/u/pose/pf``  | ``geometry_msgs/PoseWithCovarianceStamped`` | ``u/map``        | body pose (map)    |
+| (static) mount     | ``geometry_msgs/TransformStamped``          | ``u/base_link``  | camera (below)     |
+
+The mount's child frame is ``u/camera_optical_frame`` (OpenCV axes: x right, y down, z along the axis).
 
 Covariances are the ones the capataz messages carry, laid out as ROS wants them (row-major): the attitude's
 3x3 covariance of world-frame error angles is ``orientation_covariance`` (ROS: rotation about the fixed
@@ -62,9 +65,13 @@ def xyzw(q_wxyz: Any) -> tuple[float, float, float, float]:
     return x, y, z, w
 
 
+#: capataz frame -> ROS frame (REP 103/105 names: the body is ``base_link``, the camera an optical frame)
+ROS_FRAMES = {"body": "base_link", "camera": "camera_optical_frame"}
+
+
 def frame_name(uav: str, frame: str) -> str:
-    """The ROS frame id of a capataz frame of ``uav`` (``uav0/world``)."""
-    return f"{uav}/{frame}"
+    """The ROS frame id of a capataz frame of ``uav``: ``uav0/world``, ``uav0/base_link``, ..."""
+    return f"{uav}/{ROS_FRAMES.get(frame, frame)}"
 
 
 @dataclass(frozen=True)
@@ -145,7 +152,8 @@ def pose_of(estimate: PoseEstimate, source: str) -> Pose:
 
 
 def camera_mount(uav: str, R_body_camera: FloatArray = MOUNT_R_BODY_CAMERA) -> Mount:
-    """The camera on the body as a static transform ``u/body -> u/camera`` (at the body origin)."""
+    """The camera on the body as a static transform ``u/base_link -> u/camera_optical_frame`` (at the body
+    origin: the project's simulation puts the camera there)."""
     return Mount(
         frame_name(uav, "body"),
         frame_name(uav, "camera"),

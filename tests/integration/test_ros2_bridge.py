@@ -187,7 +187,7 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
     # the camera mount, static (transient local: the node joined after it was published)
     assert ros["mount"], "no camera mount received"
     parent, child, translation, q = ros["mount"][-1]
-    assert (parent, child) == (f"{UAV}/body", f"{UAV}/camera")
+    assert (parent, child) == (f"{UAV}/base_link", f"{UAV}/camera_optical_frame")
     assert translation == [0.0, 0.0, 0.0]
     np.testing.assert_allclose(matrix_from_quaternion([q[3], *q[:3]]), R_BODY_CAMERA_DOWN, atol=1e-12)
     # the CameraInfo became the master's kind of calibration file

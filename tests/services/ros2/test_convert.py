@@ -97,7 +97,7 @@ def test_a_pose_keeps_its_6x6_covariance_in_the_ros_order(source: str, frame: st
 
 def test_the_mount_is_the_projects_downward_camera() -> None:
     mount = convert.camera_mount("uav1")
-    assert (mount.frame_id, mount.child_frame_id) == ("uav1/body", "uav1/camera")
+    assert (mount.frame_id, mount.child_frame_id) == ("uav1/base_link", "uav1/camera_optical_frame")
     assert mount.translation_m == (0.0, 0.0, 0.0)
     assert np.allclose(matrix_from_quaternion(wxyz(mount.q_xyzw)), R_BODY_CAMERA_DOWN, atol=1e-12)
 
