@@ -144,6 +144,8 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
                 for s in subscribers:
                     s.undeclare()
         assert bridge.poll() is None, "the bridge exited early"
+        codes = cluster.stop()
+    assert codes["bridge/ros2/0"] == 0, "the bridge did not stop cleanly on SIGTERM"
     assert node.returncode == 0, (tmp_path / "node.log").read_text()[-3000:]
     assert {k: counters.get(k) for k in refused} == refused, counters
     ros = json.loads(Path(config["out"]).read_text())
