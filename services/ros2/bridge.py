@@ -37,8 +37,8 @@ logger = logging.getLogger(__name__)
 
 #: how long one executor turn waits for ROS callbacks (the stop flag is checked between turns)
 SPIN_S = 0.05
-#: history of each input subscription (messages; 125 ms of 400 Hz IMU)
-INPUT_DEPTH = 50
+#: history of each input subscription (messages): about 1 s of a 400 Hz IMU, 0.5 s of a 20 fps camera
+INPUT_DEPTH = {"image": 10, "compressed": 10, "camera_info": 5, "imu": 400, "range": 100}
 
 
 def _tf2_message() -> Any:
@@ -80,9 +80,12 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         name = "".join(c if c.isalnum() else "_" for c in f"capataz_bridge_{self.node}_{self.index}")
         self.ros_node = rclpy.create_node(name, context=self.context)
         self.sensor_qos = qos_profile_sensor_data
-        # inputs: best effort like the sensor-data profile, with a deeper history: its 5 samples overflow at
-        # 400 Hz IMU while this one executor thread converts a 752x480 frame (bench ros2)
-        self.input_qos = QoSProfile(depth=INPUT_DEPTH, reliability=qos_profile_sensor_data.reliability)
+        # inputs: best effort like the sensor-data profile, with deeper histories: 5 samples (the profile's)
+        # and then 50 lost IMU samples whenever this one executor thread stalled on a shared host (bench ros2)
+        self.input_qos = {
+            stream: QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability)
+            for stream, depth in INPUT_DEPTH.items()
+        }
         self.static_qos = QoSProfile(
             depth=1,
             reliability=QoSReliabilityPolicy.RELIABLE,
@@ -236,7 +239,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         for stream, kind in kinds.items():
             topic = in_topic(uav, IN_TOPICS[stream])
             callback = partial(self.on_sensor, uav, stream, topic)
-            self.ros_node.create_subscription(kind, topic, callback, self.input_qos)
+            self.ros_node.create_subscription(kind, topic, callback, self.input_qos[stream])
 
     def on_sensor(self, uav: str, stream: str, topic: str, msg: Any) -> None:
         """One ROS message of ``uav``'s ``stream``: converted, gated, forwarded, or refused and counted."""
