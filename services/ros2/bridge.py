@@ -28,7 +28,7 @@ from common.messages import AttitudeEstimate, Frame, PoseEstimate, YawEstimate
 from common.streams import FrameKey
 from common.wire import WireModel
 from services.ros2 import convert
-from services.ros2.dds import apply_environment, dds_environment, write_profile
+from services.ros2.dds import DEFAULT_PROFILE_PATH, apply_environment, dds_environment, profile_for
 from services.ros2.inputs import SensorGates
 from services.ros2.settings import IN_TOPICS, Ros2Settings, in_topic, out_topic
 from services.runtime.service import ConfiguredService
@@ -53,7 +53,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
     role = keys.Role.BRIDGE
 
     def setup(self) -> None:
-        self.profile = self.settings.profile_path()
+        self.profile = self.settings.dds_profile or DEFAULT_PROFILE_PATH
         self.gates = SensorGates()
         self._cameras: dict[str, Any] = {}
         self._zpub: dict[tuple[str, str], Any] = {}
@@ -64,7 +64,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
 
     # -- ROS side ---------------------------------------------------------------------------------------
     def _open_ros(self) -> None:
-        self.profile = write_profile(self.profile)
+        self.profile = profile_for(self.settings.dds_profile)
         apply_environment(dds_environment(self.profile, self.settings.domain_id))
         import rclpy
         from rclpy.context import Context

@@ -75,6 +75,14 @@ def write_profile(path: Path) -> Path:
     return path
 
 
+def profile_for(path: Path | None) -> Path:
+    """The profile the bridge loads: a user's own file as it is; else the loopback profile, written to
+    ``path`` (or :data:`DEFAULT_PROFILE_PATH`)."""
+    if path is not None and path.is_file():
+        return path.resolve()
+    return write_profile(path or DEFAULT_PROFILE_PATH)
+
+
 def dds_environment(profile: Path, domain_id: int) -> dict[str, str]:
     """The environment of every process of the graph: Fast DDS with ``profile``, in ``domain_id``."""
     if not 0 <= domain_id <= MAX_DOMAIN_ID:

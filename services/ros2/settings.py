@@ -7,7 +7,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field
 
 from common import keys
-from services.ros2.dds import DEFAULT_PROFILE_PATH, MAX_DOMAIN_ID
+from services.ros2.dds import MAX_DOMAIN_ID
 
 
 class Ros2Settings(BaseModel):
@@ -19,13 +19,11 @@ class Ros2Settings(BaseModel):
     input_uavs: tuple[str, ...] = ()
     #: the ROS 2 domain (``ROS_DOMAIN_ID``)
     domain_id: int = Field(default=0, ge=0, le=MAX_DOMAIN_ID)
-    #: the Fast DDS profile (written there when absent); None: the loopback profile under out/ros2
+    #: a Fast DDS profile of the user's (loaded as it is; the loopback profile is written there when absent);
+    #: None: the loopback profile, written to out/ros2/fastdds_loopback.xml
     dds_profile: Path | None = None
     #: write each new CameraInfo as an OpenCV YAML calibration here (for the master's --calibration)
     calibration_out: Path | None = None
-
-    def profile_path(self) -> Path:
-        return self.dds_profile or DEFAULT_PROFILE_PATH
 
     def model_post_init(self, _context: object) -> None:
         for uav in (*self.uavs, *self.input_uavs):

@@ -16,6 +16,7 @@ from services.ros2.dds import (
     LOOPBACK_PROFILE_XML,
     MAX_DOMAIN_ID,
     dds_environment,
+    profile_for,
     random_domain_id,
     udp_sockets_of,
     write_profile,
@@ -61,6 +62,16 @@ def test_the_environment_selects_fast_dds_with_the_profile_and_leaves_its_discov
     assert env["ROS_DOMAIN_ID"] == "17"
     with pytest.raises(ValueError, match="domain"):
         dds_environment(profile, MAX_DOMAIN_ID + 1)
+
+
+def test_a_users_own_profile_is_loaded_as_it_is_and_a_missing_one_is_the_loopback_profile(
+    tmp_path: Path,
+) -> None:
+    own = tmp_path / "own.xml"
+    own.write_text("<dds/>")
+    assert profile_for(own) == own.resolve() and own.read_text() == "<dds/>"
+    missing = tmp_path / "new" / "p.xml"
+    assert profile_for(missing).read_text() == LOOPBACK_PROFILE_XML
 
 
 def test_random_domains_stay_in_the_udp_port_range() -> None:
