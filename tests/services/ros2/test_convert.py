@@ -7,6 +7,7 @@ import array
 from types import SimpleNamespace as Ns
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given
@@ -153,6 +154,18 @@ def test_an_image_that_cannot_be_a_frame_is_refused_in_one_line(msg: Any, fragme
     with pytest.raises(InputError, match=fragment) as info:
         convert.frame_of("uav0", 0, msg, False, "/uav0/camera/image_raw")
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("extension", [".png", ".jpg"])
+def test_a_compressed_image_is_decoded_to_grey(extension: str) -> None:
+    grey = np.tile(np.arange(0, 240, 15, dtype=np.uint8), (12, 1))
+    ok, encoded = cv2.imencode(extension, grey)
+    assert ok
+    msg = Ns(header=header(4.0), format=extension[1:], data=array.array("B", encoded.tobytes()))
+    frame = convert.frame_of("uav0", 1, msg, True, "/uav0/camera/image_raw/compressed")
+    assert frame.stamp_s == 4.0 and frame.pixels.shape == grey.shape
+    tolerance = 0 if extension == ".png" else 8  # lossless / lossy
+    assert np.abs(frame.pixels.astype(int) - grey).max() <= tolerance
 
 
 def test_a_compressed_image_that_does_not_decode_is_refused() -> None:
