@@ -32,6 +32,7 @@ class Role(StrEnum):
     LOCALIZER = "localizer"
     RECORDER = "recorder"
     VIEWER = "viewer"
+    BRIDGE = "bridge"
 
 
 def check_name(value: str, what: str = "name") -> str:

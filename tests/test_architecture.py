@@ -72,7 +72,7 @@ RINGS: tuple[tuple[int, str], ...] = (
 )
 RING_NAMES = ("cores", "file readers", "wire", "simulation and recordings", "services", "tools")
 #: the Zenoh services (each a package of services/); the runtime is theirs to share
-SERVICES = ("camera", "master", "foreman", "worker", "estimator", "localizer", "router")
+SERVICES = ("camera", "master", "foreman", "worker", "estimator", "localizer", "router", "ros2")
 
 
 def module_name(path: Path) -> str:

@@ -98,7 +98,7 @@ class WireModel(BaseModel):
 
 
 Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
-#: Frames of reference (``frame_id``; README "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
+#: Frames of reference (``frame_id``; docs/data.md "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
 #: ``body`` (FLU: x forward, y left, z up), ``camera`` (OpenCV optical: x right, y down, z along the axis).
 FRAME_ID_PATTERN = r"^[A-Za-z0-9_./-]{1,64}$"
 

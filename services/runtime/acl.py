@@ -98,7 +98,7 @@ def uav_common_name(role: Role, uav: str) -> str:
 
 
 def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
-    """Every certificate common name and its permissions (the README's table, generated from here)."""
+    """Every certificate common name and its permissions (docs/security.md's table, generated from here)."""
     s = settings or PolicySettings()
     out: list[RolePermissions] = []
     for uav in s.uavs:
@@ -245,7 +245,7 @@ def acl_section(settings: PolicySettings | None = None) -> dict[str, Any]:
 
 
 def markdown_table(settings: PolicySettings | None = None) -> str:
-    """The role-permission table for the README."""
+    """The role-permission table of docs/security.md."""
     lines = [
         "| certificate CN | put | subscribe | serve (queryable) | query | liveliness token | watch |",
         "| --- | --- | --- | --- | --- | --- | --- |",

@@ -41,6 +41,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.tools.record",
     "services.tools.view",
     "services.tools.secure",
+    "services.ros2",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.
@@ -67,6 +68,8 @@ EXAMPLES: dict[str, str] = {
     "worker": "capataz worker --connect tcp/127.0.0.1:7447 --node h1 --index 0",
     "up": "capataz up --cluster deploy/clusters/local2x2.yml --frames 400",
     "localizer": "capataz localizer --connect tcp/127.0.0.1:7447 --uav uav1 --use-vo",
+    "bench ros2": "capataz bench ros2 --seconds 20",
+    "ros2": "capataz ros2 --connect tcp/127.0.0.1:7447 --uav uav0 --input-uav uav0 --domain-id 42",
     "estimator": "capataz estimator --connect tcp/127.0.0.1:7447 --uav uav0 --external-yaw",
 }
 

@@ -11,6 +11,7 @@ plus per-member shares, speeds and frame timings (``cluster_yaw_shares.png``, ``
 from __future__ import annotations
 
 import logging
+import math
 import subprocess
 import threading
 import time
@@ -205,6 +206,15 @@ def _plot(out_dir: Path, flight: Any, estimates: dict[int, Any], rows: list[dict
     return paths
 
 
+def member_line(row: dict[str, Any]) -> str:
+    """One member's line of the summary; a member that never reported a speed (it computed nothing itself)
+    shows none, not "nan patches/s"."""
+    name, speed = row["member"], row["speed_patches_s"]
+    share = f"share {row['share']:.2f}, " if ">" not in name else ""
+    rate = f"{speed:.0f} patches/s" if speed is not None and math.isfinite(speed) else "no speed measured"
+    return f"  {name:>34}: {share}{row['patches_per_frame']:.1f} patches/frame, {rate}"
+
+
 def run_demo(out_dir: Path, n_frames: int = HOVER_FRAMES) -> dict[str, Any]:
     """The hover flight through the local cluster; the in-process core runs alongside for comparison."""
     out = Path(out_dir)
@@ -263,9 +273,6 @@ def run_demo(out_dir: Path, n_frames: int = HOVER_FRAMES) -> dict[str, Any]:
         f"max |cluster - in-process| {max_diff_deg:.2e} deg, {extra['redispatched']} shares re-dispatched"
     )
     for row in rows:
-        name = row["member"]
-        speed = row["speed_patches_s"]
-        share = f"share {row['share']:.2f}, " if ">" not in name else ""
-        print(f"  {name:>34}: {share}{row['patches_per_frame']:.1f} patches/frame, {speed:.0f} patches/s")
+        print(member_line(row))
     print(f"plots: {', '.join(str(p) for p in plots)}")
     return summary

@@ -97,78 +97,54 @@ def write_estimator_tum(out_dir: Path, flight: Flight, run: EstimatorRun) -> dic
 
 
 def plot(path: Path, flight: Flight, runs: dict[str, EstimatorRun], errors: dict[str, RunErrors]) -> Path:
-    """Top-down path, VO error over the whole flight, roll / pitch errors, yaw, altitude."""
+    """Five panels, paper C's Figs. 13-14 and the errors behind them: the top-down path, the VO position error
+    over the flight, the rectified filter's roll and pitch errors, the yaw error against gyro-only yaw, and
+    the altitude with the rangefinder's readings."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(12, 15))
-    grid = fig.add_gridspec(6, 2, height_ratios=(2.2, 1.2, 1, 1, 1, 1))
+    fig = plt.figure(figsize=(13, 12))
+    grid = fig.add_gridspec(3, 2, height_ratios=(1.6, 1, 1))
     ax_xy = fig.add_subplot(grid[0, 0])
     ax_xy.plot(flight.p_world_body_m[:, 0], flight.p_world_body_m[:, 1], "k--", lw=1.2, label="truth")
-    for name in ("traditional", "rectified_paper_c", "rectified"):
+    for name in ("traditional", "rectified"):
         p = runs[name].p_world_body_m
-        ax_xy.plot(p[:, 0], p[:, 1], color=COLOURS[name], lw=0.9, label=LABELS[name])
+        ax_xy.plot(p[:, 0], p[:, 1], color=COLOURS[name], lw=1.0, label=LABELS[name])
+    ax_xy.set(xlabel="x (m)", ylabel="y (m)", title="top-down path")
     ax_xy.set_aspect("equal", adjustable="datalim")
-    ax_xy.set_xlabel("x (m)")
-    ax_xy.set_ylabel("y (m)")
-    ax_xy.set_title("top-down path", fontsize=9)
-    ax_zoom = fig.add_subplot(grid[0, 1])
+    ax_err = fig.add_subplot(grid[0, 1])
     for name in ("traditional", "rectified_paper_c", "rectified"):
-        run = runs[name]
-        frames = np.searchsorted(flight.frame_stamps_s, run.pose_stamps_s - 1e-9)
-        d = 100.0 * (run.p_world_body_m[:, :2] - flight.p_world_body_m[frames, :2])
-        ax_zoom.plot(d[:, 0], d[:, 1], color=COLOURS[name], lw=0.8, label=LABELS[name])
-    ax_zoom.plot([0.0], [0.0], "k+", ms=10)
-    ax_zoom.set_aspect("equal", adjustable="datalim")
-    ax_zoom.set_xlabel("x error (cm)")
-    ax_zoom.set_ylabel("y error (cm)")
-    ax_zoom.set_title("horizontal VO error over the flight (estimate - truth)", fontsize=9)
-    ax_err = fig.add_subplot(grid[1, :])
-    for name in ("traditional", "raw_ekf_scale", "rectified_paper_c", "rectified"):
         e = errors[name]
         ax_err.plot(runs[name].pose_stamps_s, 100.0 * e.vo_error_m, color=COLOURS[name], lw=1.0,
-                    label=f"{LABELS[name]}: ATE {100 * e.ate_rmse_m:.2f} cm, RPE {e.rpe_pct:.3f} %/m, "
-                    f"final {100 * e.vo_final_error_m:.2f} cm")  # fmt: skip
-    ax_err.set_ylabel("|VO error| (cm)")
-    t_true = flight.frame_stamps_s
-    axes = [fig.add_subplot(grid[k, :], sharex=ax_err) for k in (2, 3, 4, 5)]
-    for k, (ax, label) in enumerate(zip(axes[:2], ("roll error (deg)", "pitch error (deg)"), strict=True)):
-        for name in ("rectified_paper_c", "rectified"):
-            err = _roll_pitch_error_deg(runs[name], flight)
-            rms = float(np.sqrt(np.mean(err[:, k] ** 2)))
-            ax.plot(runs[name].attitude_stamps_s, err[:, k], color=COLOURS[name], lw=0.8,
-                    label=f"{LABELS[name]}: RMSE {rms:.3f} deg")  # fmt: skip
-        ax.set_ylabel(label)
-    ax = axes[2]
-    ax.plot(t_true, np.degrees(flight.yaw_rad), "k--", lw=1.2, label="truth")
-    for name in ("traditional", "rectified", "gyro_yaw"):
-        run = runs[name]
-        yaw = np.degrees(np.unwrap(euler_from_quaternion(run.q_world_body)[:, 2]))
-        # the same turn count as the truth's unwrapped yaw at the run's first sample
-        true0 = float(np.degrees(np.interp(run.attitude_stamps_s[0], t_true, flight.yaw_rad)))
-        yaw += 360.0 * np.round((true0 - yaw[0]) / 360.0)
-        ax.plot(run.attitude_stamps_s, yaw, color=COLOURS[name], lw=1.0, label=f"yaw, {LABELS[name]}")
-    ax.set_ylabel("yaw (deg)")
-    inset = ax.inset_axes((0.55, 0.08, 0.42, 0.35))
+                    label=f"{LABELS[name]}: ATE {100 * e.ate_rmse_m:.2f} cm")  # fmt: skip
+    ax_err.set(xlabel="time (s)", ylabel="|VO position error| (cm)", title="visual odometry error")
+    ax_tilt = fig.add_subplot(grid[1, 0])
+    err = _roll_pitch_error_deg(runs["rectified"], flight)
+    for k, (label, colour) in enumerate((("roll", "tab:blue"), ("pitch", "tab:orange"))):
+        rms = float(np.sqrt(np.mean(err[:, k] ** 2)))
+        ax_tilt.plot(runs["rectified"].attitude_stamps_s, err[:, k], color=colour, lw=0.8,
+                     label=f"{label}: RMSE {rms:.3f} deg")  # fmt: skip
+    ax_tilt.set(xlabel="time (s)", ylabel="error (deg)", title=f"roll and pitch error, {LABELS['rectified']}")
+    ax_yaw = fig.add_subplot(grid[1, 1])
     for name in ("rectified", "gyro_yaw"):
-        inset.plot(runs[name].attitude_stamps_s, errors[name].yaw_error_deg, color=COLOURS[name], lw=0.8)
-    inset.set_title("yaw error (deg)", fontsize=8)
-    inset.tick_params(labelsize=7)
-    ax = axes[3]
-    ax.plot(flight.imu.stamps_s, flight.imu.true_p_world_body_m[:, 2], "k--", lw=1.2, label="truth")
-    ax.plot(
-        flight.range.stamps_s, flight.range.range_m, ".", color="0.6", ms=1.5, label="rangefinder reading"
+        yaw_err = errors[name].yaw_error_deg
+        rms = float(np.sqrt(np.mean(np.square(yaw_err))))
+        ax_yaw.plot(runs[name].attitude_stamps_s, yaw_err, color=COLOURS[name], lw=1.0,
+                    label=f"{LABELS[name]}: RMSE {rms:.3f} deg")  # fmt: skip
+    ax_yaw.set(xlabel="time (s)", ylabel="yaw error (deg)", title="yaw error: visual yaw against gyro only")
+    ax_alt = fig.add_subplot(grid[2, :])
+    ax_alt.plot(flight.imu.stamps_s, flight.imu.true_p_world_body_m[:, 2], "k--", lw=1.2, label="truth")
+    ax_alt.plot(
+        flight.range.stamps_s, flight.range.range_m, ".", color="0.6", ms=2, label="rangefinder reading"
     )
-    ax.plot(
-        runs["rectified"].attitude_stamps_s, runs["rectified"].pz_m, color="tab:red", lw=1.0, label="filter"
-    )
-    ax.set_ylabel("altitude (m)")
-    ax.set_xlabel("time (s)")
-    for ax in (ax_xy, ax_zoom, ax_err, *axes):
+    ax_alt.plot(runs["rectified"].attitude_stamps_s, runs["rectified"].pz_m, color="tab:red", lw=1.0,
+                label="filter")  # fmt: skip
+    ax_alt.set(xlabel="time (s)", ylabel="altitude (m)", title="altitude")
+    for ax in (ax_xy, ax_err, ax_tilt, ax_yaw, ax_alt):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6.5, loc="upper left")
+        ax.legend(loc="best", fontsize=9)
     fig.suptitle(
         f"Flight (b) seed {flight.seed}: filter + visual odometry with double coupling (paper C Figs. 13-14)"
     )

@@ -1,5 +1,5 @@
-"""Every output message carries a ``frame_id`` (README "Keys and frames"): defaults per message, kept on the
-wire, refused when it is not a frame name."""
+"""Every output message carries a ``frame_id`` (docs/data.md "Keys and frames"): defaults per message, kept on
+the wire, refused when it is not a frame name."""
 
 from __future__ import annotations
 

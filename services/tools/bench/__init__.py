@@ -23,6 +23,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.estimator",
     "services.tools.bench.record",
     "services.tools.bench.security",
+    "services.tools.bench.ros2",
 )
 
 

@@ -99,6 +99,7 @@ def plot(report: dict[str, Any], path: Path) -> Path | None:
     fig, axes = plt.subplots(2, 2, figsize=(13, 8))
     ax_t, ax_h, ax_l, ax_c = axes.ravel()
     all_lat = []
+    n_lost = 0
     for uav, rows in timeline.items():
         got = [(t, lat) for t, lat in rows if lat is not None]
         lost = [t for t, lat in rows if lat is None]
@@ -106,6 +107,7 @@ def plot(report: dict[str, Any], path: Path) -> Path | None:
             ax_t.plot([t for t, _ in got], [lat for _, lat in got], ".", ms=2, label=uav)
             all_lat += [lat for _, lat in got]
         ax_l.plot(lost, [uav] * len(lost), "x", ms=5)
+        n_lost += len(lost)
     for f in report.get("faults", []):
         if f.get("applied_at_s") is not None:
             for ax in (ax_t, ax_l):
@@ -117,6 +119,11 @@ def plot(report: dict[str, Any], path: Path) -> Path | None:
         ax_h.hist(all_lat, bins=60)
     ax_h.set(xlabel="latency (ms)", ylabel="frames", yscale="log", title="latency histogram")
     ax_l.set(xlabel="time since start (s)", title="lost frames")
+    if n_lost == 0:  # an empty panel reads as a broken plot: say what it means
+        n_frames = sum(len(rows) for rows in timeline.values())
+        ax_l.text(0.5, 0.5, f"no frame lost\n({n_frames} frames, {len(timeline)} streams)", ha="center",
+                  va="center", transform=ax_l.transAxes, fontsize=12)  # fmt: skip
+        ax_l.set_yticks([])
     cpu = report.get("cpu_s", {})
     names = sorted(cpu, key=lambda n: -cpu[n])[:12]
     ax_c.barh(names, [cpu[n] for n in names])

@@ -59,8 +59,19 @@ def _progress(t0: float, logs: dict[str, StreamLog], out: Any) -> None:
     worst = max(latest, default=float("nan"))
     now = time.time() - t0
     clock = f"warm-up {-now:4.1f} s" if now < 0 else f"{now:6.1f} s"
-    out.write(f"\r  {clock}  frames sent {sent:6d}  yaws {got:6d}  recent max {worst:6.1f} ms ")
+    line = f"  {clock}  frames sent {sent:6d}  yaws {got:6d}  recent max {worst:6.1f} ms"
+    # a terminal gets one line redrawn in place; a file or a pipe gets plain lines (no carriage returns)
+    out.write(f"\r{line} " if _is_terminal(out) else f"{line}\n")
     out.flush()
+
+
+def _is_terminal(out: Any) -> bool:
+    return bool(getattr(out, "isatty", lambda: False)())
+
+
+def progress_interval_s(out: Any) -> float:
+    """How often the progress line is written: every second on a terminal, every 10 s into a file."""
+    return 1.0 if _is_terminal(out) else 10.0
 
 
 def frame_loop(settings: RunSettings) -> FrameLoop:
@@ -187,7 +198,7 @@ def _stream(
             publisher.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(publisher.id, k))
         if live and time.time() >= next_progress:
             _progress(t0, logs, sys.stderr)
-            next_progress += 1.0
+            next_progress += progress_interval_s(sys.stderr)
 
 
 def _report(

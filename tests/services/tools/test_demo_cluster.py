@@ -29,3 +29,17 @@ def test_cluster_demo_reports_every_frame_equal_to_in_process(tmp_path: Path) ->
     assert all(code == 0 for code in summary["exit_codes"].values()), summary["exit_codes"]
     assert summary["tum"]["poses"] == 120 and summary["tum"]["ape_rotation_rmse_deg"] > 0
     assert_evo_agrees(summary["tum"])  # out/tum/yaw.tum and yaw_truth.tum
+
+
+def test_a_member_without_a_measured_speed_says_so_instead_of_nan_regression() -> None:
+    """Issue 28: ``make run`` printed ``nan patches/s`` for members that computed nothing themselves."""
+    from services.tools.demo_cluster import member_line
+
+    row = {
+        "member": "master/master/0",
+        "share": 0.0,
+        "patches_per_frame": 0.0,
+        "speed_patches_s": float("nan"),
+    }
+    assert "nan" not in member_line(row) and "no speed measured" in member_line(row)
+    assert member_line({**row, "speed_patches_s": 1234.4}).endswith("1234 patches/s")

@@ -78,8 +78,8 @@ def test_the_committed_secure_config_is_the_generated_one() -> None:
     assert json.loads(body)["transport"]["link"]["protocols"] == ["tls"]
 
 
-def test_the_readme_has_the_generated_role_table() -> None:
-    assert markdown_table() in (ROOT / "README.md").read_text()
+def test_the_security_page_has_the_generated_role_table() -> None:
+    assert markdown_table() in (ROOT / "docs" / "security.md").read_text()
 
 
 def test_policy_refuses_bad_uav_names() -> None:
