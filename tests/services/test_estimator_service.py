@@ -20,8 +20,8 @@ from common.wire.codec import decode, encode
 from common.wire.measurements import message_of
 from common.wire.messages import AttitudeEstimate, Frame, ImuSample, PoseEstimate, RangeSample
 from services.estimator import EstimatorService, EstimatorSettings, build_estimator
-from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import open_session, zbytes
+from tests.services.publishing import publish_measurements
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 pytestmark = pytest.mark.zenoh

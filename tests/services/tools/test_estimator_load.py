@@ -27,10 +27,10 @@ from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats
 from services.estimator import EstimatorService, EstimatorSettings
-from services.estimator.sim_publisher import publish_measurements
 from services.runtime.transport import TransportSettings, open_session, zbytes
 from services.tools.up import capataz_command
 from tests.services.fakes import FakePublisher
+from tests.services.publishing import publish_measurements
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 #: the two long runs under busy loops (about 4 minutes together) run on request

@@ -1,4 +1,5 @@
-"""Publish a simulated flight's IMU, rangefinder and camera streams on one UAV's keys (for tests, demos).
+"""Tests publish a measurement stream (a simulated flight's IMU, rangefinder and camera samples) on one
+UAV's keys, as the camera would, to a service under test.
 
 Samples go out in stamp order, paced at ``speed`` times real time (``speed = 0``: as fast as possible).
 """
