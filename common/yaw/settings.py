@@ -37,11 +37,11 @@ class YawSettings(Bounded):
     patch covers ``patch_size_px * 2**pyramid_level`` full-resolution pixels.
     """
 
-    patch_size_px: int = bounded(32, ge=8)
-    grid_cols: int = bounded(8, ge=1)
-    grid_rows: int = bounded(5, ge=1)
+    patch_size_px: int = bounded(32, ge=8, help="patch side at the pyramid level")
+    grid_cols: int = bounded(8, ge=1, help="patch grid columns")
+    grid_rows: int = bounded(5, ge=1, help="patch grid rows")
     margin_px: int = bounded(0, ge=0)  # border left free at full resolution
-    pyramid_level: int = bounded(1, ge=0, le=4)
+    pyramid_level: int = bounded(1, ge=0, le=4, help="pyramid level of the patches")
     fft_backend: FftBackend = FftBackend.NUMPY
     #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
     #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
@@ -71,7 +71,9 @@ class YawSettings(Bounded):
     #: window's pull of the shifts towards zero then acts on tiny shifts only); 180 = never.
     refine_min_deg: float = bounded(0.25, ge=0.0)
     #: Physical limit: a delta implying a faster yaw rate between two stamped frames is refused.
-    max_yaw_rate_deg_s: float = bounded(300.0, gt=0.0)
+    max_yaw_rate_deg_s: float = bounded(
+        300.0, gt=0.0, help="physical yaw-rate limit in deg/s: deltas implying more are refused"
+    )
     #: Physical limit on the yaw acceleration: how far a measured delta may leave the held yaw rate.
     max_yaw_accel_deg_s2: float = bounded(1500.0, gt=0.0)
     #: A measured delta further than this from the gyro's is not trusted (the gyro bridges the pair).

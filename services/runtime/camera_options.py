@@ -140,7 +140,6 @@ def add_camera_options(parser: Any, default: CameraModel | None) -> None:
     add_enum_argument(group, "--distortion", LensModel, LensModel.NONE, help="lens distortion model")
     group.add_argument(
         "--distortion-coeffs",
-        default="",
         help="comma-separated coefficients: radtan k1,k2,p1,p2,k3; fisheye k1,k2,k3,k4",
     )
 
@@ -162,7 +161,7 @@ def _option_of(field: str) -> str:
 def camera_options_from_args(args: argparse.Namespace) -> CameraOptions:
     """The group's values, validated (one :class:`UsageError` line, exit 2, when inconsistent)."""
     try:
-        coeffs = tuple(float(v) for v in args.distortion_coeffs.split(",") if v.strip())
+        coeffs = tuple(float(v) for v in (args.distortion_coeffs or "").split(",") if v.strip())
     except ValueError:
         raise UsageError(
             f"--distortion-coeffs must be comma-separated numbers, got {args.distortion_coeffs!r}"

@@ -101,25 +101,33 @@ def _plain(annotation: Any) -> Any:
     return annotation
 
 
+def _described(model: type[Any], name: str) -> tuple[Any, Any, str]:
+    """(annotation, default, help text) of field ``name`` of a pydantic model or a core dataclass."""
+    if isinstance(model, type) and issubclass(model, BaseModel):
+        info = model.model_fields[name]
+        return info.annotation, info.get_default(call_default_factory=True), info.description or ""
+    return typing.get_type_hints(model)[name], field_default(model, name), field_help(model, name)
+
+
 def add_options(
     parser: Any,
-    model: type[BaseModel],
+    model: type[Any],
     names: Iterable[str],
     flags: Mapping[str, str | tuple[str, ...]] | None = None,
     extra: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> None:
-    """An option for each field of ``model`` in ``names``: flag(s) from ``flags`` (else :func:`flag_of`),
-    ``dest`` the field's name, default, help text, type or choices the field's; a bool is a
-    ``--x/--no-x`` switch; ``extra`` adds or overrides argparse keywords (``nargs``, ``metavar``)."""
+    """An option for each field of ``model`` (a pydantic model or a core dataclass) in ``names``: flag(s)
+    from ``flags`` (else :func:`flag_of`), ``dest`` the field's name, default, help text, type or choices
+    the field's; a bool is a ``--x/--no-x`` switch; ``extra`` adds or overrides argparse keywords
+    (``nargs``, ``metavar``)."""
     flags = flags or {}
     extra = extra or {}
     for name in names:
-        info = model.model_fields[name]
+        annotation, default, help_text = _described(model, name)
         given = flags.get(name, flag_of(name))
         options = (given,) if isinstance(given, str) else tuple(given)
-        kind = _plain(info.annotation)
-        default = info.get_default(call_default_factory=True)
-        kwargs: dict[str, Any] = {"dest": name, "help": info.description or ""}
+        kind = _plain(annotation)
+        kwargs: dict[str, Any] = {"dest": name, "help": help_text}
         if kind is bool:
             kwargs.update(action=argparse.BooleanOptionalAction, default=default)
         elif typing.get_origin(kind) is typing.Literal:
