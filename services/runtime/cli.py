@@ -10,8 +10,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.dispatch import Balance, DispatchSettings, SpeedSource
-from common.errors import CapatazError
 from services.runtime.transport import TransportSettings
+from services.runtime.usage import UsageError
 
 
 def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
@@ -20,11 +20,12 @@ def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, h
 
 
 def parse_size(text: str, option: str, example: str) -> tuple[int, int]:
-    """The two integers of an ``AxB`` option (``--resolution 752x480``, ``--grid 8x5``), or one error line."""
+    """The two integers of an ``AxB`` option (``--resolution 752x480``, ``--grid 8x5``), or one error line
+    (a :class:`UsageError`: exit 2)."""
     try:
         first, second = (int(v) for v in str(text).lower().split("x"))
     except ValueError:
-        raise CapatazError(f"{option} must look like {example}, got {text!r}") from None
+        raise UsageError(f"{option} must look like {example}, got {text!r}") from None
     return first, second
 
 
