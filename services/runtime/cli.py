@@ -10,6 +10,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.dispatch import Balance, DispatchSettings, SpeedSource
+from services.runtime.options import add_options
 from services.runtime.transport import TransportSettings
 from services.runtime.usage import UsageError
 
@@ -99,14 +100,13 @@ class StreamBoundSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    #: streams kept at most (the least recently used evicted), and how long an unused one is kept
-    max_streams: int = Field(default=64, ge=1)
-    stream_ttl_s: float = Field(default=60.0, gt=0.0)
+    max_streams: int = Field(default=64, ge=1, description="streams kept at most (LRU evicted)")
+    stream_ttl_s: float = Field(default=60.0, gt=0.0, description="seconds an unused stream is kept")
 
 
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
-    """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker."""
-    parser.add_argument("--max-streams", type=int, default=64, help="streams kept at most (LRU evicted)")
-    parser.add_argument(
-        "--stream-ttl", dest="stream_ttl_s", type=float, default=60.0, help="seconds an unused stream is kept"
+    """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker
+    (default, bound and help text: :class:`StreamBoundSettings`' fields)."""
+    add_options(
+        parser, StreamBoundSettings, ("max_streams", "stream_ttl_s"), flags={"stream_ttl_s": "--stream-ttl"}
     )

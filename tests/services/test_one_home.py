@@ -21,13 +21,17 @@ from services.localizer.settings import LocalizerSettings
 from services.localizer.settings import settings_from_args as localizer_from_args
 from services.master.lens import YawPriorSettings
 from services.master.settings import MasterSettings, master_settings_from_args
+from services.runtime.cli import StreamBoundSettings
+from services.runtime.fields import settings_from
 from services.runtime.options import core_origin
+from services.worker.service import WorkerSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMANDS: dict[str, tuple[type[BaseModel], Any]] = {
     "localizer": (LocalizerSettings, localizer_from_args),
     "estimator": (EstimatorSettings, estimator_from_args),
     "master": (MasterSettings, master_settings_from_args),
+    "worker": (WorkerSettings, lambda args: settings_from(WorkerSettings, args)),
 }
 #: the settings of the master's nested parts whose fields are options too
 NESTED: dict[str, tuple[type[BaseModel], ...]] = {"master": (YawPriorSettings,)}
@@ -37,6 +41,8 @@ SETTINGS_MODULES = [
     "services/master/settings.py",
     "services/master/lens.py",
     "services/runtime/camera_options.py",
+    "services/worker/service.py",
+    "services/foreman/service.py",
 ]
 
 
@@ -66,13 +72,22 @@ def test_every_option_default_is_its_field_default(command: str) -> None:
     assert checked >= 4  # the options are generated from the fields (not a vacuous loop)
 
 
+@pytest.mark.parametrize("command", ["worker", "foreman"])
+def test_the_stream_bound_options_default_to_their_fields(command: str) -> None:
+    args = build_parser().parse_args([command])
+    assert (args.max_streams, args.stream_ttl_s) == (
+        StreamBoundSettings().max_streams,
+        StreamBoundSettings().stream_ttl_s,
+    )
+
+
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_the_command_line_without_options_gives_the_default_settings(command: str) -> None:
     model, from_args = COMMANDS[command]
     assert from_args(build_parser().parse_args([command])) == model()
 
 
-@pytest.mark.parametrize("command", sorted(COMMANDS))
+@pytest.mark.parametrize("command", ["localizer", "estimator", "master"])
 def test_every_field_from_a_core_has_the_core_default_and_bounds(command: str) -> None:
     found = 0
     for model in _models(command):
