@@ -42,7 +42,8 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
     group.add_argument(
         "--shm", action=argparse.BooleanOptionalAction, help="zenoh shared memory on/off (default off)"
     )
-    group.add_argument("--lease-ms", type=int, help="link lease in ms (default 2000)")
+    lease_ms = TransportSettings.model_fields["lease_ms"].default
+    group.add_argument("--lease-ms", type=int, help=f"link lease in ms (default {lease_ms})")
     group.add_argument(
         "--zenoh-config",
         type=Path,
