@@ -14,6 +14,11 @@ import pytest
 from pydantic import BaseModel
 
 from common.bounds import field_bounds, field_default
+from common.estimation.coupling_types import CouplingSettings
+from common.localization.scoring import ParticleSettings, ScoringSettings
+from common.localization.tracker_state import TrackerSettings
+from common.streams import FrameGateSettings
+from common.yaw import YawSettings
 from services.cli import build_parser
 from services.estimator.settings import EstimatorSettings
 from services.estimator.settings import settings_from_args as estimator_from_args
@@ -173,3 +178,13 @@ def test_a_generated_option_parses_its_type_and_choices() -> None:
     with pytest.raises(SystemExit):
         build_parser().parse_args(["estimator", "--filter", "kalman"])
     assert isinstance(build_parser().parse_args(["localizer", "--particles", "50"]).particles, int)
+
+
+def test_the_default_service_settings_give_the_default_core_settings() -> None:
+    """The service's defaults (in degrees where the core has radians) go back to the core's exactly."""
+    assert LocalizerSettings().tracker_settings() == TrackerSettings()
+    particle = LocalizerSettings().particle_filter_settings()
+    assert (particle.n_particles, particle.scoring) == (ParticleSettings().n_particles, ScoringSettings())
+    assert EstimatorSettings().coupling() == CouplingSettings()
+    assert MasterSettings().gate_settings() == FrameGateSettings()
+    assert MasterSettings().prior.max_yaw_rate_deg_s == YawSettings().max_yaw_rate_deg_s
