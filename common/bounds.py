@@ -7,6 +7,10 @@ the class, the field, the bound and the value. A bounded value must be a finite 
 ``optional=True`` also lets ``None`` pass (a value "scaled with the scene" or "off"). Rules between fields
 stay explicit code in the subclass's ``__post_init__``, after ``super().__post_init__()``.
 
+A field's ``help`` text (:func:`bounded`, or :func:`setting` for a field without bounds) stands beside it
+too: a service's settings and its command-line options take the default, the bound and the text from here
+(``services.runtime.options``) instead of writing them again.
+
 :func:`check_duration` is the same kind of check for an argument: a filter's time step.
 """
 
@@ -20,6 +24,7 @@ from common.errors import InputError
 
 T = TypeVar("T")
 _KEY = "bounds"
+_HELP = "help"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,10 +63,38 @@ def bounded(
     lt: float | None = None,
     le: float | None = None,
     optional: bool = False,
+    help: str = "",
 ) -> T:
     """A dataclass field with ``default`` whose value :func:`check_bounds` checks against the limits."""
     limits = Bounds(gt=gt, ge=ge, lt=lt, le=le, optional=optional)
-    return dataclasses.field(default=default, metadata={_KEY: limits})
+    return dataclasses.field(default=default, metadata={_KEY: limits, _HELP: help})
+
+
+def setting(default: T, *, help: str) -> T:
+    """A dataclass field without bounds (a switch, an enum) with ``default`` and its ``help`` text."""
+    return dataclasses.field(default=default, metadata={_HELP: help})
+
+
+def field_help(cls: Any, name: str) -> str:
+    """The help text declared with field ``name`` of a dataclass ("" when none)."""
+    return str(_field(cls, name).metadata.get(_HELP, ""))
+
+
+def field_default(cls: Any, name: str) -> Any:
+    """The default of field ``name`` of a dataclass (its factory's value for a ``default_factory``)."""
+    found = _field(cls, name)
+    if found.default is not dataclasses.MISSING:
+        return found.default
+    if found.default_factory is not dataclasses.MISSING:
+        return found.default_factory()
+    raise KeyError(f"{getattr(cls, '__name__', cls)}.{name} has no default")
+
+
+def _field(cls: Any, name: str) -> dataclasses.Field[Any]:
+    for found in dataclasses.fields(cls):
+        if found.name == name:
+            return found
+    raise KeyError(f"{getattr(cls, '__name__', cls)} has no field {name!r}")
 
 
 def field_bounds(cls: Any) -> dict[str, Bounds]:

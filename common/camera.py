@@ -84,8 +84,12 @@ class Distortion:
 
     @property
     def is_identity(self) -> bool:
-        """True when the model leaves every point where it is."""
-        return self.model is DistortionModel.NONE or not any(self.coeffs)
+        """True when the model leaves every point where it is: none, or radtan with all-zero coefficients
+        (a fisheye with all-zero coefficients is the ideal equidistant lens, ``theta_d = theta``: not a
+        pinhole)."""
+        return self.model is DistortionModel.NONE or (
+            self.model is DistortionModel.RADTAN and not any(self.coeffs)
+        )
 
     def distort(self, xy: FloatArray) -> FloatArray:
         """Distorted normalised coordinates ``(N, 2)`` of ideal normalised coordinates ``(N, 2)``."""

@@ -116,7 +116,9 @@ def camera_from_camera_info(
         if any(coeffs[5:]):
             raise CalibrationError(f"{len(coeffs)} radtan coefficients: only k1 k2 p1 p2 k3 are supported")
         coeffs = coeffs[:5]
-    if not any(coeffs):
+    if model is DistortionModel.RADTAN and not any(coeffs):
+        # radtan with zero coefficients is a pinhole; a fisheye with zero coefficients is not (the ideal
+        # equidistant lens, r = f theta) and stays a fisheye
         model, coeffs = DistortionModel.NONE, []
     if len(k) != 9:
         raise CalibrationError(f"camera matrix must have 9 values, got {len(k)}")

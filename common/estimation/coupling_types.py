@@ -7,7 +7,7 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
-from common.bounds import Bounded, bounded
+from common.bounds import Bounded, bounded, setting
 from common.estimation.vo import MotionModel
 from common.types import FloatArray
 
@@ -65,7 +65,11 @@ class CouplingSettings(Bounded):
 
     #: Orthogonal rectification of each frame with the EKF's roll and pitch (False: the paper's
     #: "traditional" VO).
-    rectify: bool = True
+    rectify: bool = setting(
+        True,
+        help="VO on frames rectified with the filter's roll and pitch (--no-rectify: "
+        "the paper's traditional VO on raw frames)",
+    )
     #: Time constant (s) pulling the rectification attitude (gyro-propagated between frames) towards the
     #: EKF's; 0 rectifies with the EKF attitude of each frame as it is.
     rectification_smoothing_s: float = bounded(0.0, ge=0.0)
@@ -83,7 +87,9 @@ class CouplingSettings(Bounded):
     #: along the chain, so the error is ``h_k d_k - h_0 d_0`` with ``0`` the origin frame. An origin
     #: before the EKF's tilt has settled from the first accelerometer sample leaves that transient in
     #: ``d_0`` for the whole flight.
-    vo_origin_delay_s: float = bounded(0.0, ge=0.0)
+    vo_origin_delay_s: float = bounded(
+        0.0, ge=0.0, le=60.0, help="seconds before the VO sets its origin (at --initial-xy)"
+    )
     #: Rectified VO with a level model only: estimate the residual tilt of the rectified views (the
     #: EKF's tilt error ``d``) from the free decompositions' plane normals and remove its offset
     #: ``h * d`` from the VO position (:func:`residual_tilt_offset`); the origin's offset is zero when
@@ -106,13 +112,13 @@ class CouplingSettings(Bounded):
     #: paper C seeds 0-19: ATE median 0.516 -> 0.486 cm, rectified better on 19 of 20 either way.
     vo_altitude_smoothing_s: float = bounded(3.0, ge=0.0)
     #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
-    visual_yaw: bool = True
+    visual_yaw: bool = setting(True, help="feed the VO yaw to the filter")
     #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
-    external_yaw: bool = False
+    external_yaw: bool = setting(False, help="also use the yaw samples on capataz/uav/{uav}/yaw")
     vo_yaw_noise_rad: float = bounded(0.005, gt=0.0)
     external_yaw_noise_rad: float = bounded(0.02, gt=0.0)
     #: Samples are held until this much older than the newest stamp, then applied in order.
-    max_lag_s: float = bounded(0.02, ge=0.0)
+    max_lag_s: float = bounded(0.02, ge=0.0, le=1.0, help="reordering lag of the input (s)")
     max_pending: int = bounded(4096, ge=1)
     #: Altitude assumed before the first range reading, and its std.
     default_altitude_m: float = bounded(1.0, ge=0.0)
@@ -126,7 +132,11 @@ class CouplingSettings(Bounded):
     #: (0: use the hover model meanwhile, right for a start at rest; > 0 for a start in mid-manoeuvre).
     accel_wait_for_vo_s: float = bounded(0.0, ge=0.0)
     #: The attitude/altitude filter: the bias-estimating error-state EKF (default) or paper C's 5-state EKF.
-    filter: EkfKind = EkfKind.BIAS
+    filter: EkfKind = setting(
+        EkfKind.BIAS,
+        help="attitude/altitude filter: bias (error-state EKF with gyro and accel biases) or paper_c (paper "
+        "C's 5-state EKF)",
+    )
     #: Uncertainty-aware rectification: the output position is the inverse-variance blend
     #: ``w * level + (1 - w) * free`` of two chains over the same rectified pairs: the level model's (error
     #: ``h_k d_k - h_0 d_0``, std ``sqrt((h_k s_k)^2 + (h_0 s_0)^2)`` from the filter's current tilt std
@@ -156,8 +166,10 @@ class CouplingSettings(Bounded):
     #: Range updates refused this many samples in a row restart the altitude from the reading.
     range_reset_samples: int = 25
     #: Initial yaw of the EKF and of the VO, and the VO's origin (navigation frame n = world).
-    initial_yaw_rad: float = bounded(0.0)
-    initial_position_m: tuple[float, float] = (0.0, 0.0)
+    initial_yaw_rad: float = bounded(0.0, help="initial yaw (rad)")
+    initial_position_m: tuple[float, float] = setting(
+        (0.0, 0.0), help="initial horizontal position of the VO path (m)"
+    )
     #: Known initial attitude ``q_world_body`` (else roll and pitch from the first accelerometer sample).
     initial_q_world_body: tuple[float, float, float, float] | None = None
 

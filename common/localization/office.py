@@ -6,11 +6,30 @@ Decals (doors, windows, pictures) are faces a centimetre in front of a wall with
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
+from common.camera import CameraModel
 from common.localization.model import SceneModel, build_scene, newell_normal
+
+#: The office's default camera, 320x240 with a 70 deg horizontal field of view: what its simulated flight
+#: renders, and what the localizer assumes when it is given no camera.
+OFFICE_WIDTH_PX = 320
+OFFICE_HEIGHT_PX = 240
+OFFICE_HFOV_DEG = 70.0
+#: The first body state (x, y, z in m; roll, pitch, yaw in rad) of the office's default flight: where the
+#: localizer starts when it is given no start pose (tests/common/sim checks it against the simulated flight).
+OFFICE_START_STATE: tuple[float, float, float, float, float, float] = (
+    7.2, 4.0, 1.5, 0.0, math.radians(2.0), math.radians(50.0)
+)  # fmt: skip
+
+
+def office_camera() -> CameraModel:
+    """The office's default camera: :data:`OFFICE_WIDTH_PX` x :data:`OFFICE_HEIGHT_PX` pixels,
+    :data:`OFFICE_HFOV_DEG` wide."""
+    return CameraModel.from_hfov(OFFICE_WIDTH_PX, OFFICE_HEIGHT_PX, OFFICE_HFOV_DEG)
 
 
 class SceneBuilder:

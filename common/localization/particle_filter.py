@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import Bounded, bounded, check_duration
+from common.bounds import bounded, check_duration
 from common.camera import CameraModel
 from common.errors import CapatazError, InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, wrap_angle_rad
@@ -35,6 +35,7 @@ from common.localization.projection import (
 )
 from common.localization.scoring import (
     ImageEdges,
+    ParticleSettings,
     ScoreResult,
     ScoringMethod,
     ScoringSettings,
@@ -50,8 +51,8 @@ class ParticleFilterError(CapatazError):
 
 
 @dataclass(frozen=True)
-class ParticleFilterSettings(Bounded):
-    """Settings of :class:`ParticleFilter`.
+class ParticleFilterSettings(ParticleSettings):
+    """Settings of :class:`ParticleFilter` (the particles' own in :class:`ParticleSettings`).
 
     Noise is a random walk added at every prediction: standard deviation ``noise * sqrt(dt_s)`` per
     component (position m/sqrt(s); roll, pitch, yaw rad/sqrt(s)). While the best particle's fit is below
@@ -61,9 +62,6 @@ class ParticleFilterSettings(Bounded):
     ``chunk_particles`` (cache-sized temporaries).
     """
 
-    n_particles: int = bounded(200, ge=2)
-    points_per_edge: int = bounded(8, ge=1)
-    scoring: ScoringSettings = field(default_factory=ScoringSettings)
     position_noise_m: float = bounded(0.04, ge=0.0)
     angle_noise_rad: tuple[float, float, float] = (0.015, 0.015, 0.02)
     good_fit: float = bounded(0.75)
@@ -75,7 +73,6 @@ class ParticleFilterSettings(Bounded):
     init_position_spread_m: float = bounded(0.5, ge=0.0)
     init_angle_spread_rad: float = bounded(float(np.radians(10.0)), ge=0.0)
     near_m: float = bounded(NEAR_PLANE_M, gt=0.0)
-    chunk_particles: int = bounded(256, ge=1)
     R_body_camera: FloatArray = field(default_factory=lambda: R_BODY_CAMERA_FORWARD.copy())
 
     def __post_init__(self) -> None:
@@ -209,7 +206,7 @@ class ParticleFilter:
     ) -> tuple[ParticleState, ScoreResult]:
         """First frame after (re-)initialisation: score ``init_candidates`` poses drawn from the prior box and
         keep ``n_particles`` of them by low-variance resampling of their weights (importance sampling of the
-        prior with the first frame's likelihood; 200 particles alone cover a 6D box too thinly)."""
+        prior with the first frame's likelihood; the default particles alone cover a 6D box too thinly)."""
         if state.prior_centre is None or state.prior_spread is None:
             raise ParticleFilterError("initialize_on_frame needs a state made by initialize()")
         n = state.particles.shape[0]

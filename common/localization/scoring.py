@@ -25,13 +25,13 @@ Weights are returned as logarithms (``log W``) so that the filter can normalise 
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import Bounded, bounded
+from common.bounds import Bounded, bounded, setting
 from common.errors import InputError
 from common.images import check_grey_image
 from common.localization.projection import ProjectedSamples
@@ -51,13 +51,28 @@ class ScoringMethod(enum.Enum):
 class ScoringSettings(Bounded):
     """Constants of the scorings (paper B's ``k``, ``lambda``, ``alpha``, ``sigma``, max normal length)."""
 
-    method: ScoringMethod = ScoringMethod.NEAREST_EDGE_DT
+    method: ScoringMethod = setting(
+        ScoringMethod.NEAREST_EDGE_DT,
+        help="paper B's image-closeness measure (nearest_edge_dt: nearest edge through a distance transform)",
+    )
     k: float = bounded(30.0, gt=0.0)
     lambda_per_edge: float = bounded(10.0, ge=0.0)
     alpha: float = bounded(1.0, ge=0.0)
     align_px: float = bounded(2.0, gt=0.0)
     sigma_px: float = bounded(2.0, gt=0.0)
     max_normal_px: int = bounded(10, ge=1)
+
+
+@dataclass(frozen=True)
+class ParticleSettings(Bounded):
+    """What paper B's particle filter and the model tracker share: the particles and how they are scored
+    (the model's edges sampled at ``points_per_edge`` points; particles scored in blocks of
+    ``chunk_particles``, cache-sized temporaries)."""
+
+    n_particles: int = bounded(200, ge=2, help="number of particles")
+    points_per_edge: int = bounded(8, ge=1)
+    scoring: ScoringSettings = field(default_factory=ScoringSettings)
+    chunk_particles: int = bounded(256, ge=1)
 
 
 @dataclass(frozen=True)

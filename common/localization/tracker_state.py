@@ -10,12 +10,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from common.bounds import Bounded, bounded
+from common.bounds import bounded
 from common.errors import InputError
 from common.localization.motion import MotionSettings, MotionState
 from common.localization.pose import CameraPose
 from common.localization.refine import RefineSettings
-from common.localization.scoring import ScoringSettings
+from common.localization.scoring import ParticleSettings
 from common.types import FloatArray
 
 
@@ -29,20 +29,29 @@ class TrackingStatus(enum.Enum):
 
 
 @dataclass(frozen=True)
-class TrackerSettings(Bounded):
-    """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring)."""
+class TrackerSettings(ParticleSettings):
+    """Settings of :class:`ModelTracker` (None = scaled with the scene, see the module docstring); the
+    particles' own in :class:`ParticleSettings`."""
 
-    n_particles: int = bounded(200, ge=2)
-    points_per_edge: int = bounded(8, ge=1)
     #: weigh with the compiled pass (:mod:`~common.localization.fused`) where it applies
     fused_weighting: bool = True
-    layers: int = bounded(2, ge=1)
-    scoring: ScoringSettings = field(default_factory=ScoringSettings)
+    layers: int = bounded(2, ge=1, le=10, help="annealing layers per frame")
     refine: RefineSettings = field(default_factory=RefineSettings)
-    position_spread_m: float | None = bounded(None, gt=0.0, optional=True)
-    angle_spread_rad: float = bounded(float(np.radians(8.0)), ge=0.0)
-    velocity_noise_m_s: float | None = bounded(None, gt=0.0, optional=True)
-    angular_noise_rad_s: float = bounded(float(np.radians(25.0)), ge=0.0)
+    position_spread_m: float | None = bounded(
+        None, gt=0.0, optional=True, help="start/recovery spread per axis, m (default 0.1 x the distance)"
+    )
+    angle_spread_rad: float = bounded(
+        float(np.radians(8.0)), gt=0.0, le=float(np.radians(90.0)), help="start/recovery angle spread"
+    )
+    velocity_noise_m_s: float | None = bounded(
+        None,
+        gt=0.0,
+        optional=True,
+        help="process noise: unmodelled velocity, m/s (default 0.2 x distance / s)",
+    )
+    angular_noise_rad_s: float = bounded(
+        float(np.radians(25.0)), gt=0.0, help="process noise: unmodelled angular rate"
+    )
     search_candidates: int = bounded(3000, ge=1)
     search_layers: int = bounded(7, ge=1)
     search_keep: int = bounded(800, ge=1)
@@ -67,7 +76,6 @@ class TrackerSettings(Bounded):
     spread_growth: float = bounded(1.4, gt=0.0)
     max_spread_factor: float = bounded(4.0, gt=0.0)
     hidden_line_removal: bool = True
-    chunk_particles: int = bounded(256, ge=1)
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -12,23 +12,16 @@ import numpy as np
 
 from common.camera import CameraModel
 from common.localization.model import SceneModel
-from common.localization.office import default_scene
+from common.localization.office import default_scene, office_camera
 from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings
 from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight
 from common.types import FloatArray, U8Array
 
 #: The localizer's default camera: 320 x 240 px, 70 deg horizontal field of view, forward-looking.
-OFFICE_WIDTH_PX = 320
-OFFICE_HEIGHT_PX = 240
-OFFICE_HFOV_DEG = 70.0
 #: Initial uncertainty of the default run (each position axis, each angle).
 INITIAL_POSITION_ERROR_M = 0.5
 INITIAL_ANGLE_ERROR_RAD = float(np.radians(10.0))
-
-
-def default_camera() -> CameraModel:
-    return CameraModel.from_hfov(OFFICE_WIDTH_PX, OFFICE_HEIGHT_PX, OFFICE_HFOV_DEG)
 
 
 @dataclass(frozen=True)
@@ -47,7 +40,7 @@ def simulate_run(n_frames: int = 300, seed: int = 0, camera: CameraModel | None 
     """Render the default flight through the office; the guess is the first true pose plus a uniform error
     within +-0.5 m per axis and +-10 deg per angle."""
     rng = np.random.default_rng(seed)
-    cam = camera or default_camera()
+    cam = camera or office_camera()
     scene = default_scene()
     flight = default_flight(n_frames=n_frames)
     images = tuple(render_flight(scene, flight, cam, DEFAULT_FLIGHT_RENDER, rng))

@@ -6,12 +6,15 @@ Their base and bounds: :mod:`common.wire.schema`; the one codec that carries the
 from __future__ import annotations
 
 import dataclasses
+import enum
 import functools
-from typing import ClassVar, Literal
+import typing
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, Self
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, create_model, model_validator
 
+from common.bounds import field_bounds
 from common.errors import InputError
 from common.provenance import Provenance
 from common.wire.schema import (
@@ -25,7 +28,7 @@ from common.wire.schema import (
     WireModel,
     frame_id_field,
 )
-from common.yaw.settings import FftBackend, FitModel, YawSettings
+from common.yaw.settings import YawSettings
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -141,48 +144,25 @@ class PoseEstimate(UavMessage):
 
 
 # ----------------------------------------------------------------------------------------------- work
-class YawJobSettings(BaseModel):
+#: Yaw settings only the central stage uses (the lens model): never sent to members.
+LOCAL_YAW_SETTINGS = frozenset({"camera"})
+
+
+class _YawJobBase(BaseModel):
     """The yaw settings a job carries (every member measures with the dispatcher's), bounded at the wire.
 
-    The same fields as :class:`~common.yaw.settings.YawSettings` but the lens model (only the central stage
-    uses it). Each count and size a member allocates windows and spectra by is bounded here, before any
-    allocation; the largest values in use are far below. A decoded value is also a valid ``YawSettings``
-    (checked once, at decode): :attr:`yaw_settings` is that object.
+    Its fields are generated from :class:`~common.yaw.settings.YawSettings` (:func:`_wire_fields`): the same
+    fields but the lens model (only the central stage uses it), with the core's types and bounds, so each
+    count and size a member allocates windows and spectra by is bounded before any allocation. A decoded
+    value is also a valid ``YawSettings`` (checked once, at decode): :attr:`yaw_settings` is that object.
     """
 
     # strict: no bool or string for a number; enums (by value on the wire) stay lax
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False, strict=True)
-    patch_size_px: int = Field(ge=8, le=256)
-    grid_cols: int = Field(ge=1, le=64)
-    grid_rows: int = Field(ge=1, le=64)
-    margin_px: int = Field(ge=0, le=4096)
-    pyramid_level: int = Field(ge=0, le=4)
-    fft_backend: FftBackend = Field(strict=False)
-    peak_sigma_px: float = Field(ge=1e-3, le=64.0)
-    window_taper: float = Field(ge=0.0, le=1.0)
-    overlap_correction: float = Field(ge=0.0, le=8.0)
-    min_texture_std: float = Field(ge=0.0, le=255.0)
-    min_peak_ratio: float = Field(ge=0.0, le=1e3)
-    fit_model: FitModel = Field(strict=False)
-    prealigned_fit_model: FitModel = Field(strict=False)
-    ransac_threshold_px: float = Field(ge=1e-3, le=1e3)
-    ransac_max_iters: int = Field(ge=1, le=10_000)
-    min_inliers: int = Field(ge=3, le=4096)
-    min_inlier_fraction: float = Field(ge=0.0, le=1.0)
-    global_size_px: int = Field(ge=64, le=1024)
-    global_angle_bins: int = Field(ge=90, le=4096)
-    max_residual_px: float = Field(ge=1e-3, le=1e3)
-    refine_min_deg: float = Field(ge=0.0, le=180.0)
-    max_yaw_rate_deg_s: float = Field(gt=0.0, le=1e5)
-    max_yaw_accel_deg_s2: float = Field(gt=0.0, le=1e7)
-    gyro_gate_deg: float = Field(gt=0.0, le=180.0)
-    gyro_sigma_deg_s: float = Field(ge=0.0, le=1e3)
-    ambiguity_ratio: float = Field(gt=0.0, le=1.0)
-    frame_period_s: float = Field(gt=0.0, le=60.0)
     _yaw_settings: YawSettings = PrivateAttr()
 
     @model_validator(mode="after")
-    def _valid_yaw_settings(self) -> YawJobSettings:
+    def _valid_yaw_settings(self) -> _YawJobBase:
         try:
             self._yaw_settings = _yaw_settings(
                 tuple((name, getattr(self, name)) for name in type(self).model_fields)
@@ -192,7 +172,7 @@ class YawJobSettings(BaseModel):
         return self
 
     @classmethod
-    def of(cls, settings: YawSettings) -> YawJobSettings:
+    def of(cls, settings: YawSettings) -> Self:
         """The wire form of ``settings`` (its lens model stays behind: :data:`LOCAL_YAW_SETTINGS`)."""
         values = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
         return cls.model_validate({k: v for k, v in values.items() if k not in LOCAL_YAW_SETTINGS})
@@ -203,14 +183,43 @@ class YawJobSettings(BaseModel):
         return self._yaw_settings
 
 
+def _wire_fields() -> dict[str, Any]:
+    """The wire fields of :class:`YawSettings`: its types, its bounds; required (a job states them all)."""
+    hints = typing.get_type_hints(YawSettings)
+    bounds = field_bounds(YawSettings)
+    fields: dict[str, Any] = {}
+    for name in (f.name for f in dataclasses.fields(YawSettings) if f.name not in LOCAL_YAW_SETTINGS):
+        limits = bounds.get(name)
+        keywords: dict[str, Any] = {}
+        if limits is not None:
+            keywords = {
+                k: getattr(limits, k) for k in ("gt", "ge", "lt", "le") if getattr(limits, k) is not None
+            }
+        if isinstance(hints[name], type) and issubclass(hints[name], enum.Enum):
+            keywords["strict"] = False
+        fields[name] = (hints[name], Field(**keywords))
+    return fields
+
+
+if TYPE_CHECKING:
+
+    class YawJobSettings(_YawJobBase):
+        def __getattr__(self, name: str) -> Any: ...
+
+else:
+    YawJobSettings = create_model(
+        "YawJobSettings",
+        __base__=_YawJobBase,
+        __module__=__name__,
+        __doc__=_YawJobBase.__doc__,
+        **_wire_fields(),
+    )
+
+
 @functools.lru_cache(maxsize=16)
 def _yaw_settings(values: tuple[tuple[str, object], ...]) -> YawSettings:
     """A job's core settings: jobs carry the same few, so each is built and checked once, then looked up."""
     return YawSettings(**dict(values))  # type: ignore[arg-type]
-
-
-#: Yaw settings only the central stage uses (the lens model): never sent to members.
-LOCAL_YAW_SETTINGS = frozenset({"camera"})
 
 
 class PatchJob(WireModel):

@@ -32,56 +32,61 @@ class FitModel(Enum):
 class YawSettings(Bounded):
     """Every tunable of the yaw core; the defaults are the benchmarked configuration.
 
+    The bounds are also the wire's: :class:`~common.wire.messages.YawJobSettings` is generated from these
+    fields (each count and size a member allocates windows and spectra by is bounded above here).
+
     The patch grid is laid out on the frame at pyramid level ``pyramid_level`` (each level halves
     the frame with ``cv2.pyrDown``); ``patch_size_px`` is the side of a patch at that level, so a
     patch covers ``patch_size_px * 2**pyramid_level`` full-resolution pixels.
     """
 
-    patch_size_px: int = bounded(32, ge=8)
-    grid_cols: int = bounded(8, ge=1)
-    grid_rows: int = bounded(5, ge=1)
-    margin_px: int = bounded(0, ge=0)  # border left free at full resolution
-    pyramid_level: int = bounded(1, ge=0, le=4)
+    patch_size_px: int = bounded(32, ge=8, le=256, help="patch side at the pyramid level")
+    grid_cols: int = bounded(8, ge=1, le=64, help="patch grid columns")
+    grid_rows: int = bounded(5, ge=1, le=64, help="patch grid rows")
+    margin_px: int = bounded(0, ge=0, le=4096)  # border left free at full resolution
+    pyramid_level: int = bounded(1, ge=0, le=4, help="pyramid level of the patches")
     fft_backend: FftBackend = FftBackend.NUMPY
     #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
     #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
-    peak_sigma_px: float = bounded(1.0, gt=0.0)
+    peak_sigma_px: float = bounded(1.0, ge=1e-3, le=64.0)
     #: Tukey window taper of each patch (1 = Hann, 0 = none).
     window_taper: float = bounded(1.0, ge=0.0, le=1.0)
     #: Exponent of the window-overlap division before the sub-pixel fit (0 = off, 1 = full).
-    overlap_correction: float = bounded(2.0, ge=0.0)
+    overlap_correction: float = bounded(2.0, ge=0.0, le=8.0)
     #: Patches whose grey-level standard deviation (0..255 scale) is below this are textureless.
-    min_texture_std: float = bounded(4.0, ge=0.0)
+    min_texture_std: float = bounded(4.0, ge=0.0, le=255.0)
     #: A patch is valid when its correlation peak exceeds the second peak (outside +-2 px) by this ratio.
-    min_peak_ratio: float = bounded(1.5, ge=0.0)
+    min_peak_ratio: float = bounded(1.5, ge=0.0, le=1e3)
     fit_model: FitModel = FitModel.SIMILARITY
     #: Model of the patch fit after a global pre-alignment (long gaps: the tilt change's perspective shows).
     prealigned_fit_model: FitModel = FitModel.HOMOGRAPHY
-    ransac_threshold_px: float = bounded(1.0, gt=0.0)  # full-resolution pixels
-    ransac_max_iters: int = bounded(500, ge=1)
-    min_inliers: int = bounded(6, ge=3)
+    ransac_threshold_px: float = bounded(1.0, ge=1e-3, le=1e3)  # full-resolution pixels
+    ransac_max_iters: int = bounded(500, ge=1, le=10_000)
+    min_inliers: int = bounded(6, ge=3, le=4096)
     #: The patch fit is "poor" (the global pre-alignment runs) below this inlier fraction of valid patches.
     min_inlier_fraction: float = bounded(0.5, ge=0.0, le=1.0)
     #: Global (Fourier-Mellin) stage: side of the square log-polar input and its number of angle rows.
-    global_size_px: int = bounded(256, ge=64)
-    global_angle_bins: int = bounded(720, ge=90)
+    global_size_px: int = bounded(256, ge=64, le=1024)
+    global_angle_bins: int = bounded(720, ge=90, le=4096)
     #: Residual (full-resolution px, median over inliers) above which the estimate is low-confidence.
-    max_residual_px: float = bounded(1.5, gt=0.0)
+    max_residual_px: float = bounded(1.5, ge=1e-3, le=1e3)
     #: Above this patch-fit rotation (deg) the patches are measured again on frame k turned back by it (the
     #: window's pull of the shifts towards zero then acts on tiny shifts only); 180 = never.
-    refine_min_deg: float = bounded(0.25, ge=0.0)
+    refine_min_deg: float = bounded(0.25, ge=0.0, le=180.0)
     #: Physical limit: a delta implying a faster yaw rate between two stamped frames is refused.
-    max_yaw_rate_deg_s: float = bounded(300.0, gt=0.0)
+    max_yaw_rate_deg_s: float = bounded(
+        300.0, gt=0.0, le=1e5, help="physical yaw-rate limit in deg/s: deltas implying more are refused"
+    )
     #: Physical limit on the yaw acceleration: how far a measured delta may leave the held yaw rate.
-    max_yaw_accel_deg_s2: float = bounded(1500.0, gt=0.0)
+    max_yaw_accel_deg_s2: float = bounded(1500.0, gt=0.0, le=1e7)
     #: A measured delta further than this from the gyro's is not trusted (the gyro bridges the pair).
-    gyro_gate_deg: float = bounded(2.0, gt=0.0)
+    gyro_gate_deg: float = bounded(2.0, gt=0.0, le=180.0)
     #: Standard deviation of the gyro's integrated yaw per second (bias and noise), for the bridge variance.
-    gyro_sigma_deg_s: float = bounded(0.5, ge=0.0)
+    gyro_sigma_deg_s: float = bounded(0.5, ge=0.0, le=1e3)
     #: Global-stage candidates r + k 90 deg whose response reaches this fraction of the best look alike.
     ambiguity_ratio: float = bounded(0.8, gt=0.0, le=1.0)
     #: Frame period assumed for the held rate when frames carry no stamps.
-    frame_period_s: float = bounded(0.05, gt=0.0)
+    frame_period_s: float = bounded(0.05, gt=0.0, le=60.0)
     #: Intrinsics and lens distortion of the frames (None: an undistorted camera centred on the frame).
     #: Only the central stage uses it (correspondences are undistorted before the fit); not on the wire.
     camera: CameraModel | None = None

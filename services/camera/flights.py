@@ -13,11 +13,10 @@ from common.camera import DEFAULT_HFOV_DEG, CameraModel
 from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.estimation.measurements import FrameMeasurement
-from common.localization.office import default_scene
+from common.localization.office import OFFICE_HFOV_DEG, default_scene
 from common.localization.tracking import noisy_odometry
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
-from common.sim.office_run import OFFICE_HFOV_DEG
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from common.sim.stream import flight_measurements
 from common.wire.messages import PoseEstimate

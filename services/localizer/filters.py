@@ -41,6 +41,7 @@ from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState, TrackingStatus
 from common.localization.tracking import localizer_step
 from common.wire.messages import Frame, PoseEstimate
+from services.localizer.loading import load_scene, localizer_camera
 from services.localizer.settings import LocalizerKind, LocalizerSettings
 
 logger = logging.getLogger(__name__)
@@ -189,7 +190,7 @@ class ParticleFilterPath:
     def __init__(self, settings: LocalizerSettings) -> None:
         self.settings = settings
         self.filter = ParticleFilter(
-            settings.load_scene(), settings.camera(), settings.particle_filter_settings()
+            load_scene(settings), localizer_camera(settings), settings.particle_filter_settings()
         )
         self.rng = np.random.default_rng(settings.seed)
         guess = settings.start_pose().body_state(settings.R_body_camera)
@@ -248,7 +249,9 @@ class ModelTrackerPath:
 
     def __init__(self, settings: LocalizerSettings) -> None:
         self.settings = settings
-        self.tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_settings())
+        self.tracker = ModelTracker(
+            load_scene(settings), localizer_camera(settings), settings.tracker_settings()
+        )
         self.rng = np.random.default_rng(settings.seed)
         self.state: TrackerState = self.tracker.start(settings.start_pose())
 

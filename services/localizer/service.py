@@ -39,6 +39,7 @@ from services.localizer.filters import (
     odometry_between,
     vo_jumped,
 )
+from services.localizer.loading import localizer_camera
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.handoff import LatestSlot
 from services.runtime.service import ConfiguredService
@@ -56,7 +57,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
 
     def setup(self) -> None:
         settings = self.settings
-        self.camera = settings.camera()
+        self.camera = localizer_camera(settings)
         self.path: LocalizationPath = make_path(settings)
         self._slot: LatestSlot[Frame] = LatestSlot()
         self._last_stamp_s: float | None = None  # of the last frame the filter used

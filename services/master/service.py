@@ -45,6 +45,7 @@ from common.yaw.patchwork import SpectrumCache, measure_share
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameQueue
 from services.master.gyro import GyroPrior
+from services.master.lens import CameraSource
 from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
@@ -99,6 +100,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._publisher: Any = None
         self._last_shares: dict[str, float] = {}
         self.gyro = GyroPrior(settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters)
+        self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -264,7 +266,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         assert self.session is not None
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
         tracker = YawTracker(
-            self.settings.prior.tracker_settings(self.yaw_settings, frame.width, frame.height), grid
+            self.settings.prior.tracker_settings(self.yaw_settings, self.lens.at(frame.width, frame.height)),
+            grid,
         )
         state = replace(
             tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad

@@ -10,8 +10,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.dispatch import Balance, DispatchSettings, SpeedSource
-from common.errors import CapatazError
+from services.runtime.options import add_options
 from services.runtime.transport import TransportSettings
+from services.runtime.usage import UsageError
 
 
 def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
@@ -20,11 +21,12 @@ def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, h
 
 
 def parse_size(text: str, option: str, example: str) -> tuple[int, int]:
-    """The two integers of an ``AxB`` option (``--resolution 752x480``, ``--grid 8x5``), or one error line."""
+    """The two integers of an ``AxB`` option (``--resolution 752x480``, ``--grid 8x5``), or one error line
+    (a :class:`UsageError`: exit 2)."""
     try:
         first, second = (int(v) for v in str(text).lower().split("x"))
     except ValueError:
-        raise CapatazError(f"{option} must look like {example}, got {text!r}") from None
+        raise UsageError(f"{option} must look like {example}, got {text!r}") from None
     return first, second
 
 
@@ -40,7 +42,8 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
     group.add_argument(
         "--shm", action=argparse.BooleanOptionalAction, help="zenoh shared memory on/off (default off)"
     )
-    group.add_argument("--lease-ms", type=int, help="link lease in ms (default 2000)")
+    lease_ms = TransportSettings.model_fields["lease_ms"].default
+    group.add_argument("--lease-ms", type=int, help=f"link lease in ms (default {lease_ms})")
     group.add_argument(
         "--zenoh-config",
         type=Path,
@@ -98,14 +101,13 @@ class StreamBoundSettings(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    #: streams kept at most (the least recently used evicted), and how long an unused one is kept
-    max_streams: int = Field(default=64, ge=1)
-    stream_ttl_s: float = Field(default=60.0, gt=0.0)
+    max_streams: int = Field(default=64, ge=1, description="streams kept at most (LRU evicted)")
+    stream_ttl_s: float = Field(default=60.0, gt=0.0, description="seconds an unused stream is kept")
 
 
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
-    """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker."""
-    parser.add_argument("--max-streams", type=int, default=64, help="streams kept at most (LRU evicted)")
-    parser.add_argument(
-        "--stream-ttl", dest="stream_ttl_s", type=float, default=60.0, help="seconds an unused stream is kept"
+    """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker
+    (default, bound and help text: :class:`StreamBoundSettings`' fields)."""
+    add_options(
+        parser, StreamBoundSettings, ("max_streams", "stream_ttl_s"), flags={"stream_ttl_s": "--stream-ttl"}
     )

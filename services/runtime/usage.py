@@ -22,7 +22,7 @@ class UsageError(InputError):
 
 
 #: unit suffixes that an option leaves out of its settings field (``--wait-master`` sets ``wait_master_s``)
-_UNIT_SUFFIXES = ("_s", "_ms", "_m", "_px", "_deg", "_rad", "_hz")
+_UNIT_SUFFIXES = ("_deg_s", "_rad_s", "_m_s", "_s", "_ms", "_m", "_px", "_deg", "_rad", "_hz")
 _RUST_LOCATION = re.compile(r"\s*(?:at\s+)?\S+\.rs:\d+(?::\d+)?\.?")
 _PYDANTIC_URL = re.compile(r"\s*For further information visit \S+")
 
@@ -58,7 +58,10 @@ def option_for(field: str, options: Iterable[str]) -> str:
     """The command-line option that sets settings field ``field`` (``--wait-master`` for ``wait_master_s``),
     or the field's name when no option matches."""
     known = set(options)
-    candidates = [field, *(field[: -len(s)] for s in _UNIT_SUFFIXES if field.endswith(s))]
+    field = field.rsplit(".", 1)[-1]  # a nested settings' field (``camera.hfov_deg``)
+    stems = [field[: -len(s)] for s in _UNIT_SUFFIXES if field.endswith(s)]
+    # a duration in seconds may be given in milliseconds (``--budget-ms`` sets ``budget_s``)
+    candidates = [field, *stems, *(stem + "_ms" for stem in stems if field.endswith("_s"))]
     for name in candidates:
         option = "--" + name.replace("_", "-")
         if option in known:

@@ -17,12 +17,12 @@ from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 from services.runtime.cli import (
     StreamBoundSettings,
-    add_enum_argument,
     add_stream_bound_arguments,
     add_transport_arguments,
 )
 from services.runtime.fields import settings_from
 from services.runtime.handoff import WorkQueue
+from services.runtime.options import add_options
 from services.runtime.results import result_from_measurement
 from services.runtime.service import ConfiguredService
 
@@ -40,10 +40,18 @@ class WorkerSettings(StreamBoundSettings):
     """A worker's own settings (the runtime's come with the transport)."""
 
     #: capacity of the bounded hand-off (zenoh FIFO channel or job queue)
-    queue: int = Field(default=8, ge=1)
+    queue: int = Field(default=8, ge=1, description="bounded job queue capacity")
     #: emulated slower CPU: every computation is done this many times (results of the extra ones unused)
-    cpu_factor: int = Field(default=1, ge=1)
-    handoff: Handoff = Handoff.CHANNEL
+    cpu_factor: int = Field(
+        default=1,
+        ge=1,
+        description="emulate a CPU this many times slower (repeat every computation); for benchmarks",
+    )
+    handoff: Handoff = Field(
+        default=Handoff.CHANNEL,
+        description="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded "
+        "queue",
+    )
 
 
 class WorkerService(ConfiguredService[WorkerSettings]):
@@ -191,17 +199,7 @@ class WorkerService(ConfiguredService[WorkerSettings]):
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("worker", help="a worker: measures patch shifts for a master or foreman")
     add_transport_arguments(parser)
-    parser.add_argument("--queue", type=int, default=8, help="bounded job queue capacity")
-    parser.add_argument(
-        "--cpu-factor",
-        type=int,
-        default=1,
-        help="emulate a CPU this many times slower (repeat every computation); for benchmarks",
-    )
-    add_enum_argument(
-        parser, "--handoff", Handoff, Handoff.CHANNEL,
-        help="queries reach the compute thread through a zenoh FIFO channel, or a callback + bounded queue"
-    )  # fmt: skip
+    add_options(parser, WorkerSettings, ("queue", "cpu_factor", "handoff"))
     add_stream_bound_arguments(parser)
     parser.set_defaults(handler=run)
 

@@ -39,8 +39,7 @@ def _settings(flight: Flight) -> EstimatorSettings:
     )
     return EstimatorSettings(
         initial_yaw_rad=float(flight.yaw_rad[0]),
-        initial_x_m=float(flight.p_world_body_m[origin, 0]),
-        initial_y_m=float(flight.p_world_body_m[origin, 1]),
+        initial_position_m=(float(flight.p_world_body_m[origin, 0]), float(flight.p_world_body_m[origin, 1])),
         vo_origin_delay_s=RECTIFIED_ORIGIN_DELAY_S,
     )
 

@@ -42,8 +42,7 @@ def test_service_matches_in_process_run_and_survives_malformed_samples(flight: F
 def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpoint: str) -> None:
     settings = EstimatorSettings(
         initial_yaw_rad=float(flight.yaw_rad[0]),
-        initial_x_m=float(flight.p_world_body_m[0, 0]),
-        initial_y_m=float(flight.p_world_body_m[0, 1]),
+        initial_position_m=(float(flight.p_world_body_m[0, 0]), float(flight.p_world_body_m[0, 1])),
     )
     stream = list(flight_measurements(flight, 0, N_FRAMES))
     reference = build_estimator(settings)
@@ -223,8 +222,7 @@ def test_sensor_samples_are_handed_off_in_the_order_they_were_published(flight: 
     (the service test above failed so under CPU load). The callbacks now run in arrival order."""
     settings = EstimatorSettings(
         initial_yaw_rad=float(flight.yaw_rad[0]),
-        initial_x_m=float(flight.p_world_body_m[0, 0]),
-        initial_y_m=float(flight.p_world_body_m[0, 1]),
+        initial_position_m=(float(flight.p_world_body_m[0, 0]), float(flight.p_world_body_m[0, 1])),
     )
     burst = list(flight_measurements(flight, 0, 8))
     with hub() as endpoint:

@@ -13,12 +13,12 @@ from common.estimation.coupling_types import AttitudeOutput, CouplingSettings
 from common.geometry import euler_from_quaternion
 from common.sim.flight import hover_flight
 from common.sim.stream import flight_measurements
-from services.estimator.settings import EstimatorSettings
+from services.estimator.settings import EstimatorSettings, estimator_camera
 
 
 def _roll_pitch_rms_deg(settings: CouplingSettings, n_frames: int) -> float:
     flight = hover_flight(seed=0, n_frames=n_frames)
-    estimator = DoubleCouplingEstimator(EstimatorSettings().camera(), settings=settings)
+    estimator = DoubleCouplingEstimator(estimator_camera(EstimatorSettings()), settings=settings)
     stamps = flight.frame_stamps_s
     errors = []
     for measurement in flight_measurements(flight):

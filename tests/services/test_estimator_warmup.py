@@ -12,11 +12,12 @@ _PROBE = """
 import json, numba
 from common.estimation import eskf_kernels
 from services.estimator.settings import EstimatorSettings, build_estimator
+from services.runtime.camera_options import CameraOptions
 # the entry points the filter calls from Python (the private ones are compiled into them)
 kernels = {n: getattr(eskf_kernels, n) for n in dir(eskf_kernels) if not n.startswith("_")
            and isinstance(getattr(eskf_kernels, n), numba.core.registry.CPUDispatcher)}
 before = sorted(n for n, k in kernels.items() if k.signatures)
-build_estimator(EstimatorSettings(width=160, height=120))  # what the service's setup does
+build_estimator(EstimatorSettings(camera=CameraOptions(width=160, height=120)))  # as the service does
 after = sorted(n for n, k in kernels.items() if k.signatures)
 print(json.dumps({"all": sorted(kernels), "before": before, "after": after}))
 """

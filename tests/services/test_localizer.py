@@ -31,6 +31,8 @@ from common.wire.codec import decode, encode
 from common.wire.messages import Frame, PoseEstimate
 from services.localizer import LocalizerService, LocalizerSettings
 from services.localizer.filters import StepInputs
+from services.localizer.loading import load_scene, localizer_camera
+from services.runtime.camera_options import CameraOptions
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
@@ -51,7 +53,7 @@ def _in_process(
     settings: LocalizerSettings, images: Sequence[np.ndarray], times_s: np.ndarray
 ) -> list[TrackerState]:
     """What the service must publish: the tracker run in this process with the service's settings."""
-    tracker = ModelTracker(settings.load_scene(), settings.camera(), settings.tracker_settings())
+    tracker = ModelTracker(load_scene(settings), localizer_camera(settings), settings.tracker_settings())
     rng = np.random.default_rng(settings.seed)
     return list(track_model(tracker, images, times_s, tracker.start(settings.start_pose()), rng))
 
@@ -213,7 +215,7 @@ def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pos
     rvec, tvec = start.rvec_tvec()
     settings = LocalizerSettings(
         model=tmp_path / "tabletop.obj",
-        calibration=tmp_path / "camera.yaml",
+        camera=CameraOptions(calibration=tmp_path / "camera.yaml"),
         camera_mount="camera",
         initial_pose=(*rvec.tolist(), *tvec.tolist()),
         seed=SEED,

@@ -26,6 +26,12 @@ from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackingStatus
 from common.wire.messages import PoseEstimate
 from services.localizer import LocalizerSettings, odometry_between, pose_message
+from services.localizer.loading import load_scene, localizer_camera
+from services.runtime.camera_options import CameraOptions
+
+
+def _calibrated(path: Path) -> LocalizerSettings:
+    return LocalizerSettings(camera=CameraOptions(calibration=path))
 
 
 def _pose(stamp_s: float, p: list[float], euler: list[float]) -> PoseEstimate:
@@ -53,21 +59,21 @@ def test_vo_odometry_is_the_finite_difference_of_positions_and_wrapped_angles() 
 def test_model_files_load_and_bad_ones_fail_clearly(tmp_path: Path) -> None:
     path = tmp_path / "office.json"
     path.write_text(json.dumps(scene_to_dict(default_scene())))
-    assert LocalizerSettings(model=path).load_scene().n_edges == default_scene().n_edges
+    assert load_scene(LocalizerSettings(model=path)).n_edges == default_scene().n_edges
     with pytest.raises(CapatazError, match="not a file"):
-        LocalizerSettings(model=tmp_path / "missing.json").load_scene()
+        load_scene(LocalizerSettings(model=tmp_path / "missing.json"))
     (tmp_path / "bad.json").write_text('{"vertices": []}')
     with pytest.raises(SceneModelError):
-        LocalizerSettings(model=tmp_path / "bad.json").load_scene()
+        load_scene(LocalizerSettings(model=tmp_path / "bad.json"))
 
 
 def test_calibration_file_gives_the_camera(tmp_path: Path) -> None:
     camera = CameraModel(width=640, height=480, fx=600.0, fy=598.0, cx=321.0, cy=239.0)
     (tmp_path / "cam.yaml").write_text(opencv_yaml_text(camera))
-    assert LocalizerSettings(calibration=tmp_path / "cam.yaml").camera() == camera
+    assert localizer_camera(_calibrated(tmp_path / "cam.yaml")) == camera
     (tmp_path / "bad.yaml").write_text("image_width: 640\n")
     with pytest.raises(CalibrationError):
-        LocalizerSettings(calibration=tmp_path / "bad.yaml").camera()
+        localizer_camera(_calibrated(tmp_path / "bad.yaml"))
 
 
 def test_initial_pose_is_camera_from_world_as_rvec_tvec_or_matrix() -> None:

@@ -16,7 +16,7 @@ from common.sim.field import wide_angle_camera
 from common.wire.messages import ImuSample
 from common.yaw import YawSettings, gyro_delta_yaw_rad
 from services.master.gyro import GyroBuffer
-from services.master.lens import add_yaw_prior_arguments, yaw_prior_settings_from_args
+from services.master.lens import CameraSource, add_yaw_prior_arguments, yaw_prior_settings_from_args
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -31,7 +31,7 @@ def test_calibration_files_of_both_formats_load_into_the_yaw_settings(tmp_path: 
     path = tmp_path / "camera.yaml"
     path.write_text(writer(camera))  # type: ignore[operator]
     prior = yaw_prior_settings_from_args(_parse("--calibration", str(path), "--max-yaw-rate", "200"))
-    settings = prior.tracker_settings(YawSettings(), 320, 240)
+    settings = prior.tracker_settings(YawSettings(), CameraSource(prior.lens).at(320, 240))
     assert settings.camera is not None and settings.max_yaw_rate_deg_s == 200.0
     assert settings.camera.distortion.model is DistortionModel.RADTAN
     assert np.allclose(settings.camera.K, camera.K)
@@ -42,11 +42,12 @@ def test_explicit_intrinsics_and_distortion_options() -> None:
     prior = yaw_prior_settings_from_args(
         _parse("--fx", "200", "--distortion", "fisheye", "--distortion-coeffs", "0.01,-0.002,0,0")
     )
-    camera = prior.tracker_settings(YawSettings(), 320, 240).camera
+    camera = CameraSource(prior.lens).at(320, 240)
     assert camera is not None
     assert camera.fy == 200.0 and camera.cx == 159.5 and camera.distortion.model is DistortionModel.FISHEYE
-    assert prior.tracker_settings(YawSettings(), 320, 240).camera == camera
-    assert yaw_prior_settings_from_args(_parse()).lens.camera() is None  # nothing set: no lens model
+    assert prior.tracker_settings(YawSettings(), camera).camera == camera
+    nothing = yaw_prior_settings_from_args(_parse()).lens
+    assert CameraSource(nothing).at(320, 240) is None  # nothing set: no lens model
 
 
 @pytest.mark.parametrize(

@@ -20,6 +20,19 @@ from services.runtime.fields import field_names, settings_from
 from services.tools.cli import build_parser
 from services.worker.service import WorkerSettings
 
+#: the camera option group's dests (services.runtime.camera_options: one group for every command)
+CAMERA_GROUP = {
+    "calibration",
+    "resolution",
+    "hfov_deg",
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "distortion",
+    "distortion_coeffs",
+}
+
 
 def test_later_sources_and_derived_values_win_and_unknown_names_are_ignored() -> None:
     first = argparse.Namespace(max_rate=2.0, silence_s=3.0, not_a_field=1)
@@ -69,8 +82,8 @@ def _options_without_a_field(command: str, fields: set[str]) -> set[str]:
 def test_an_option_without_a_field_of_its_name_is_one_the_builder_derives() -> None:
     # an option added with another dest would silently keep the field's default: the exceptions are listed
     assert _options_without_a_field("localizer", set(LocalizerSettings.model_fields)) == {
-        "resolution",
         "trajectory",
+        *CAMERA_GROUP,  # camera_options_from_args
     }
     camera = _options_without_a_field("camera", set(CameraSettings.model_fields))
     assert camera == {"resolution", "uav", "no_sensors", "write_calibration"}
@@ -104,14 +117,14 @@ def test_every_localizer_option_reaches_its_field() -> None:
          "--scoring", "per_edge", "--filter", "tracker", "--initial-state", "1", "2", "3", "0", "0", "0.5"]
     )  # fmt: skip
     settings = settings_from_args(args)
-    assert (settings.hfov_deg, settings.camera_mount) == (70.0, "down")
+    assert (settings.camera.hfov_deg, settings.camera_mount) == (70.0, "down")
     assert (settings.position_spread_m, settings.angle_spread_deg) == (0.3, 5.0)
     assert (settings.velocity_noise_m_s, settings.angular_noise_deg_s, settings.vo_jump_m_s) == (
         0.4,
         10.0,
         3.0,
     )
-    assert (settings.width, settings.height) == (640, 360)
+    assert (settings.camera.width, settings.camera.height) == (640, 360)
     assert settings.scoring.value == "per_edge" and settings.filter.value == "tracker"
     assert settings.initial_state == (1.0, 2.0, 3.0, 0.0, 0.0, 0.5)
 

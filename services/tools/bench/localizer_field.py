@@ -273,7 +273,7 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--seeds", type=int, default=5, help="runs per scene and scoring")
     group.add_argument("--scenes", nargs="+", choices=["object", "office"], help="scenes (default both)")
-    group.add_argument("--particles", type=int, default=200, help="particles")
+    group.add_argument("--particles", type=int, default=TrackerSettings().n_particles, help="particles")
     group.add_argument(
         "--no-gyro",
         action="store_true",

@@ -105,6 +105,19 @@ def test_camera_info_message_mapping() -> None:
     assert cam.distortion.model is DistortionModel.FISHEYE
 
 
+@pytest.mark.parametrize("name", ["equidistant", "fisheye"])
+def test_a_fisheye_with_all_zero_coefficients_stays_a_fisheye_not_a_pinhole(name: str) -> None:
+    """Regression: zero coefficients made any file a pinhole; a fisheye's zero is the equidistant lens."""
+    cam = camera_from_camera_info(320, 240, name, [0.0] * 4, [200, 0, 160, 0, 200, 120, 0, 0, 1])
+    assert cam.distortion.model is DistortionModel.FISHEYE and cam.is_distorted
+    # a ray 45 deg off the axis lands at f * theta (equidistant), not at f * tan(theta) (pinhole)
+    u, _ = cam.project(np.array([[1.0, 0.0, 1.0]]))[0]
+    assert u - cam.cx == pytest.approx(200.0 * np.pi / 4.0)
+    assert np.allclose(cam.undistort_px(cam.distort_px(np.array([[300.0, 200.0]]))), [[300.0, 200.0]])
+    pinhole = camera_from_camera_info(320, 240, "plumb_bob", [0.0] * 5, [200, 0, 160, 0, 200, 120, 0, 0, 1])
+    assert pinhole.distortion.model is DistortionModel.NONE  # radtan's zero is a pinhole
+
+
 @pytest.mark.parametrize(
     ("content", "match"),
     [

@@ -59,3 +59,12 @@ def test_a_window_holds_each_sample_once_in_stamp_and_sensor_order(
     assert [m.stamp_s for m in ranges] == flight.range.stamps_s[inside].tolist()
     assert [m.range_m for m in ranges] == flight.range.range_m[inside].tolist()
     assert isinstance(stream[-1], FrameMeasurement)  # nothing after the last frame
+
+
+def test_the_localizers_office_start_is_the_simulated_office_flights_first_state() -> None:
+    """common.localization.office keeps the office flight's start as a constant (a service may not import
+    the simulator); this ties it to the simulator."""
+    from common.localization.office import OFFICE_START_STATE
+    from common.sim.scene import default_flight
+
+    assert np.allclose(default_flight(n_frames=2).states[0], OFFICE_START_STATE, atol=1e-12)

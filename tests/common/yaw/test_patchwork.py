@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from common.bounds import field_bounds
 from common.camera import CameraModel
 from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
+from common.errors import InputError
 from common.sim.flight import hover_flight
 from common.wire.messages import LOCAL_YAW_SETTINGS, YawJobSettings
 from common.yaw import FftBackend, YawError, YawSettings, YawTracker, make_patch_grid
@@ -39,6 +41,28 @@ def test_the_job_settings_carry_every_yaw_setting_but_the_lens() -> None:
     core = {f.name for f in dataclasses.fields(YawSettings)}
     assert set(YawJobSettings.model_fields) == core - LOCAL_YAW_SETTINGS
     assert YawJobSettings.of(YawSettings(camera=CameraModel.default())).yaw_settings == YawSettings()
+
+
+def test_the_job_settings_bounds_are_the_core_settings_bounds() -> None:
+    """One home: the wire's limits are YawSettings' (generated), so the two refuse the same values."""
+    wire = YawJobSettings.of(YawSettings()).model_dump(mode="json")
+    checked = 0
+    for name, limits in field_bounds(YawSettings).items():
+        integer = isinstance(wire[name], int)
+        step = 1 if integer else 1e-3
+        outside = {"gt": limits.gt, "lt": limits.lt}  # the open limit itself is outside
+        if limits.ge is not None:
+            outside["ge"] = limits.ge - step
+        if limits.le is not None:
+            outside["le"] = limits.le + step * (1 if integer else max(1.0, limits.le))
+        for value in (v for v in outside.values() if v is not None):
+            value = int(value) if integer else float(value)
+            with pytest.raises(ValidationError, match=name):
+                YawJobSettings.model_validate({**wire, name: value})
+            with pytest.raises(InputError, match=name):
+                YawSettings(**{name: value})  # type: ignore[arg-type]
+            checked += 1
+    assert checked > 40
 
 
 @pytest.mark.parametrize("backend", [FftBackend.OPENCV, FftBackend.NUMPY])

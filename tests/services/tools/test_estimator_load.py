@@ -47,8 +47,7 @@ def flight() -> Flight:
 def settings_of(flight: Flight) -> EstimatorSettings:
     return EstimatorSettings(
         initial_yaw_rad=float(flight.yaw_rad[0]),
-        initial_x_m=float(flight.p_world_body_m[0, 0]),
-        initial_y_m=float(flight.p_world_body_m[0, 1]),
+        initial_position_m=(float(flight.p_world_body_m[0, 0]), float(flight.p_world_body_m[0, 1])),
     )
 
 
