@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from common.datasets.tum import Trajectory
@@ -25,10 +26,10 @@ from common.estimation.replay import (
     evaluate,
 )
 from common.geometry import euler_from_quaternion, wrap_angle_rad
+from common.sim.comparison import compare_on_flight_b
 from common.sim.flight import Flight, turns_flight
 from services.runtime import progress
 from services.runtime.trajectory import truth_at, write_with_truth
-from services.tools.bench.estimator import compare_on_flight_b
 from services.tools.report import write_json
 
 logger = logging.getLogger(__name__)
@@ -184,7 +185,9 @@ def _counted(measurements: Iterator[Measurement], weight: int) -> Iterator[Measu
 def _run_group(
     seed: int, names: tuple[str, ...], start_frame: int, stop_frame: int
 ) -> dict[str, EstimatorRun]:
-    """One process's share: the flight rebuilt (deterministic by seed), its frames rendered once."""
+    """One process's share: the flight rebuilt (deterministic by seed), its frames rendered once, on one
+    OpenCV thread (the two processes share the two cores)."""
+    cv2.setNumThreads(1)
     return compare_on_flight_b(
         seed, stop_frame - start_frame, start_frame, names, lambda stream: _counted(stream, len(names))
     )[1]

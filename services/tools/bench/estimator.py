@@ -26,26 +26,19 @@ import argparse
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from common.estimation.measurements import Measurement
 from common.estimation.replay import (
-    CONFIGURATIONS,
-    EstimatorRun,
     RunErrors,
     evaluate,
-    run_estimators,
-    standard_estimators,
     vo_with_true_attitude,
 )
 from common.estimation.vo import VoSettings
-from common.sim.flight import Flight, turns_flight
-from common.sim.stream import flight_measurements
+from common.sim.comparison import compare_on_flight_b
 from services.tools.bench.estimator_sweep import FLIGHTS, sweep, time_ekf_steps, time_vo_steps
 
 NAME = "estimator"
@@ -82,24 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-truth-vo", action="store_true", help="skip the VO-alone run with the true attitude and altitude"
     )
-
-
-def compare_on_flight_b(
-    seed: int = 0,
-    frames: int | None = None,
-    start_frame: int = 0,
-    names: tuple[str, ...] = tuple(CONFIGURATIONS),
-    wrap: Callable[[Iterator[Measurement]], Iterator[Measurement]] = iter,
-) -> tuple[Flight, dict[str, EstimatorRun]]:
-    """Flight (b) (deterministic by ``seed``) through the standard estimators ``names``, its frames rendered
-    once; ``wrap`` sees the measurement stream on its way (the demo counts frames for its progress bar)."""
-    cv2.setNumThreads(1)
-    flight = turns_flight(seed=seed)
-    stop = None if frames is None else start_frame + frames
-    runs = run_estimators(
-        standard_estimators(flight, start_frame, names), wrap(flight_measurements(flight, start_frame, stop))
-    )
-    return flight, runs
 
 
 def _row(name: str, err: RunErrors) -> dict[str, Any]:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from common.estimation.replay import CONFIGURATIONS, evaluate
-from services.tools.bench.estimator import compare_on_flight_b
+from common.sim.comparison import compare_on_flight_b
 from services.tools.demo_estimator import GROUPS, plot, run_configurations, summarize
 
 

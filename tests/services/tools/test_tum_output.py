@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from common.datasets.tum import read_tum
+from common.sim.comparison import compare_on_flight_b
 from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from services.runtime.trajectory import TrajectoryTap
-from services.tools.bench.estimator import compare_on_flight_b
 from services.tools.demo_estimator import write_estimator_tum
 from services.tools.demo_localizer import run_demo as localizer_demo
 from tests.builders import yaw_estimate
