@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.dispatch import Balance, DispatchSettings, SpeedSource
 from services.runtime.options import add_options
 from services.runtime.transport import TransportSettings
-from services.runtime.usage import UsageError
+from services.runtime.usage import UsageError, number_in
 
 
 def add_enum_argument(parser: Any, flag: str, enum: type[Enum], default: Enum, help: str) -> None:
@@ -30,12 +30,32 @@ def parse_size(text: str, option: str, example: str) -> tuple[int, int]:
     return first, second
 
 
+#: the protocols a capataz endpoint may use (zenoh's ``PROTOCOL/ADDRESS[?metadata][#config]``)
+ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
+
+
+def endpoint(text: str) -> str:
+    """An argparse ``type=`` for ``--listen`` / ``--connect``: ``PROTOCOL/ADDRESS`` with a known protocol, or
+    one error line naming what is accepted (zenoh's own error is a truncated Rust dump)."""
+    protocol, slash, address = str(text).partition("/")
+    if not slash or protocol not in ENDPOINT_PROTOCOLS or not address.split("?")[0].split("#")[0]:
+        raise argparse.ArgumentTypeError(
+            f"must be PROTOCOL/ADDRESS with PROTOCOL one of {', '.join(ENDPOINT_PROTOCOLS)} "
+            f"(e.g. tcp/127.0.0.1:7447), got {text!r}"
+        )
+    return str(text)
+
+
 def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
     """Options every service shares (environment ``CAPATAZ_ZENOH_*`` fills what is not given)."""
     group = parser.add_argument_group("transport (defaults from CAPATAZ_ZENOH_* environment variables)")
     group.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (default peer)")
-    group.add_argument("--listen", action="append", metavar="ENDPOINT", help="listen endpoint (repeatable)")
-    group.add_argument("--connect", action="append", metavar="ENDPOINT", help="connect endpoint (repeatable)")
+    group.add_argument(
+        "--listen", action="append", type=endpoint, metavar="ENDPOINT", help="listen endpoint (repeatable)"
+    )
+    group.add_argument(
+        "--connect", action="append", type=endpoint, metavar="ENDPOINT", help="connect endpoint (repeatable)"
+    )
     group.add_argument(
         "--multicast", action=argparse.BooleanOptionalAction, help="multicast scouting on/off (default off)"
     )
@@ -43,7 +63,7 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
         "--shm", action=argparse.BooleanOptionalAction, help="zenoh shared memory on/off (default off)"
     )
     lease_ms = TransportSettings.model_fields["lease_ms"].default
-    group.add_argument("--lease-ms", type=int, help=f"link lease in ms (default {lease_ms})")
+    group.add_argument("--lease-ms", type=number_in(int, 1), help=f"link lease in ms (default {lease_ms})")
     group.add_argument(
         "--zenoh-config",
         type=Path,
@@ -53,8 +73,15 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
         "CAPATAZ_ZENOH_USRPWD_FILE",
     )
     group.add_argument("--node", default=node_default, help=f"node (host) name (default {node_default})")
-    group.add_argument("--index", type=int, default=0, help="instance index on the node (default 0)")
-    group.add_argument("--stats-period", type=float, default=1.0, help="seconds between stats messages")
+    group.add_argument(
+        "--index", type=number_in(int, 0), default=0, help="instance index on the node (default 0)"
+    )
+    group.add_argument(
+        "--stats-period",
+        type=number_in(float, 0.01, 3600.0),
+        default=1.0,
+        help="seconds between stats messages",
+    )
 
 
 def transport_from_args(args: Any) -> TransportSettings:

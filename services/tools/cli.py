@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import re
 import sys
 from collections.abc import Iterator, Sequence
 from importlib import metadata
@@ -117,12 +118,19 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         return f"{text} (default: %(default)s)".strip()
 
 
+#: a negative number in the float notations (``-1``, ``-.5``, ``-2.5e-15``, ``-1E3``; ``-inf`` is not one)
+NEGATIVE_NUMBER = re.compile(r"^-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
+
+
 class CapatazParser(argparse.ArgumentParser):
     """An argument parser whose errors are one line (``capataz camera: error: argument --fps: ...``)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        # a negative number is a value, in every notation (argparse's own pattern misses -2.5e-15 and -1e3,
+        # and then reads them as unknown options): ``--initial-pose -2.5e-15 0 0 ...``
+        self._negative_number_matcher = NEGATIVE_NUMBER
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -209,6 +217,9 @@ def _report(args: argparse.Namespace, exc: BaseException, code: int) -> int:
         text = condense_validation_error(exc, lambda field: option_for(field, options))
     elif isinstance(exc, CapatazError):
         text = one_line(str(exc))
+    elif isinstance(exc, OSError):  # a file or folder that cannot be read or written, a port in use
+        where = f"{exc.filename}: " if exc.filename else ""
+        text = f"{where}{exc.strerror or one_line(str(exc))}"
     else:
         text = f"{type(exc).__name__}: {one_line(str(exc))} (an internal error; -v shows the traceback)"
     if args.verbose:
@@ -232,7 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.handler(args) or 0)
     except (ValidationError, UsageError) as exc:
         return _report(args, exc, 2)
-    except CapatazError as exc:
+    except (CapatazError, OSError) as exc:
         return _report(args, exc, 1)
     except KeyboardInterrupt:
         return 130

@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from services.runtime.usage import number_in
 from services.tools.cluster_file import load_cluster
 from services.tools.loadtest.harness import RunSettings
 from services.tools.loadtest.plan import (
@@ -45,13 +46,19 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--cluster", type=Path, default=Path("deploy/clusters/loadtest.yml"), help="cluster file"
     )
-    parser.add_argument("--streams", type=int, default=4, help="UAV streams (752x480 camera each)")
     parser.add_argument(
-        "--fps", type=float, help="frames per second of each stream (default 20, a replay: its recorded rate)"
+        "--streams", type=number_in(int, 1, 256), default=4, help="UAV streams (752x480 camera each)"
     )
-    parser.add_argument("--duration", type=float, default=30.0, help="seconds of streaming (measured)")
     parser.add_argument(
-        "--warmup", type=float, default=4.0,
+        "--fps",
+        type=number_in(float, 0.1, 200.0),
+        help="frames per second of each stream (default 20, a replay: its recorded rate)",
+    )
+    parser.add_argument(
+        "--duration", type=number_in(float, 0.1, 3600.0), default=30.0, help="seconds of streaming (measured)"
+    )
+    parser.add_argument(
+        "--warmup", type=number_in(float, 0.0, 600.0), default=4.0,
         help="seconds every stream sends before the clock starts, joining one after another over its first "
         "half (reported apart, not in the statistics; 0: measure from the first frame)",
     )  # fmt: skip
@@ -61,7 +68,10 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     parser.add_argument("--replay-uav", help="the recording's UAV stream (default: its only one)")
     parser.add_argument(
-        "--in-flight", type=int, default=0, help="frames a stream may have without a yaw (0: free-running)"
+        "--in-flight",
+        type=number_in(int, 0),
+        default=0,
+        help="frames a stream may have without a yaw (0: free-running)",
     )
     parser.add_argument("--standby", action="store_true", help="a standby master per UAV (fail-over)")
     parser.add_argument("--shm", action="store_true", help="zenoh shared memory on (off: stands for hosts)")
@@ -79,7 +89,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--capacity", action="store_true", help="search the most streams meeting the objectives"
     )
-    parser.add_argument("--max-streams", type=int, default=16, help="upper bound of the capacity search")
+    parser.add_argument(
+        "--max-streams", type=number_in(int, 1, 256), default=16, help="upper bound of the capacity search"
+    )
     parser.add_argument("--name", default="loadtest", help="report name: out/loadtest/<name>.json/.png")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated flight")
