@@ -28,8 +28,9 @@ def parse_size(text: str, option: str, example: str) -> tuple[int, int]:
     return first, second
 
 
-def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
-    """Options every service shares (environment ``CAPATAZ_ZENOH_*`` fills what is not given)."""
+def add_transport_arguments(parser: Any, node_default: str = "local", member: bool = True) -> None:
+    """Options every service shares (environment ``CAPATAZ_ZENOH_*`` fills what is not given); with
+    ``member=False`` (a tool that watches the cluster without joining it) only the transport's."""
     group = parser.add_argument_group("transport (defaults from CAPATAZ_ZENOH_* environment variables)")
     group.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (default peer)")
     group.add_argument("--listen", action="append", metavar="ENDPOINT", help="listen endpoint (repeatable)")
@@ -49,6 +50,8 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
         "CAPATAZ_ZENOH_CONFIG); credentials only from it or CAPATAZ_ZENOH_TLS_{CA,CERT,KEY}, "
         "CAPATAZ_ZENOH_USRPWD_FILE",
     )
+    if not member:
+        return
     group.add_argument("--node", default=node_default, help=f"node (host) name (default {node_default})")
     group.add_argument("--index", type=int, default=0, help="instance index on the node (default 0)")
     group.add_argument("--stats-period", type=float, default=1.0, help="seconds between stats messages")

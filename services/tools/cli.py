@@ -1,4 +1,5 @@
-"""The capataz command: one sub-command per service, plus run, up and bench.
+"""The capataz command: one sub-command per service, plus run, up, bench and the operator's probes
+(status, echo, hz, metrics).
 
 Each command module exposes ``register(subparsers)``, which adds its parser and sets
 ``handler=callable(args) -> int``. This module gives every parser the same behaviour: a description and an
@@ -41,6 +42,10 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.tools.record",
     "services.tools.view",
     "services.tools.secure",
+    "services.tools.status",
+    "services.tools.echo",
+    "services.tools.hz",
+    "services.tools.metrics",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.
@@ -68,6 +73,10 @@ EXAMPLES: dict[str, str] = {
     "up": "capataz up --cluster deploy/clusters/local2x2.yml --frames 400",
     "localizer": "capataz localizer --connect tcp/127.0.0.1:7447 --uav uav1 --use-vo",
     "estimator": "capataz estimator --connect tcp/127.0.0.1:7447 --uav uav0 --external-yaw",
+    "status": "capataz status --connect tcp/127.0.0.1:7447 --watch",
+    "echo": "capataz echo capataz/uav/uav0/yaw --connect tcp/127.0.0.1:7447 --count 5",
+    "hz": "capataz hz capataz/uav/uav0/camera --connect tcp/127.0.0.1:7447 --duration 10",
+    "metrics": "capataz metrics --port 9464 --connect tcp/127.0.0.1:7447",
 }
 
 GLOBAL_OPTIONS = ("-v", "--verbose", "-q", "--quiet")
