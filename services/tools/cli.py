@@ -59,6 +59,7 @@ EXAMPLES: dict[str, str] = {
     "bench all": "capataz bench all --out out/bench",
     "bench security": "capataz bench security --overhead-repeats 5",
     "bench record": "capataz bench record --frames 200 --repeats 4",
+    "bench compression": "capataz bench compression --frames 200",
     "record": "capataz record --connect tcp/127.0.0.1:7447 --out out/run.mcap --duration 60",
     "view": "capataz view --connect tcp/127.0.0.1:7447",
     "secure": "capataz secure certs --out out/secure/certs --uav uav0 --uav uav1",

@@ -40,8 +40,9 @@ def echo_line(arrival: Arrival, as_json: bool) -> tuple[str, bool]:
     return f"{arrival.key} {type(message).__name__} {json.dumps(fields, separators=(',', ':'))}", True
 
 
-def echo(args: argparse.Namespace, out: TextIO = sys.stdout) -> dict[str, int]:
+def echo(args: argparse.Namespace, out: TextIO | None = None) -> dict[str, int]:
     """Print messages until ``--count``, ``--duration`` or a signal; returns what was printed and refused."""
+    out = sys.stdout if out is None else out
     printed = malformed = 0
     deadline = Deadline(args.duration)
     sink = SampleQueue(args.queue)

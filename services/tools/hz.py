@@ -62,9 +62,11 @@ def report_line(key: str, figures: IntervalStats | None, as_json: bool) -> str:
     )
 
 
-def hz(args: argparse.Namespace, out: TextIO = sys.stdout) -> RateWindow:
-    """Measure until ``--duration``, ``--count`` reports or a signal; returns the window."""
-    rates = RateWindow(args.window, args.per_key, args.key)
+def hz(args: argparse.Namespace, out: TextIO | None = None, rates: RateWindow | None = None) -> RateWindow:
+    """Measure (into ``rates``, or a new window) until ``--duration``, ``--count`` reports or a signal;
+    returns the window."""
+    out = sys.stdout if out is None else out
+    rates = RateWindow(args.window, args.per_key, args.key) if rates is None else rates
     deadline = Deadline(args.duration)
     sink = SampleQueue(args.queue, keep_bytes=False)
     reports = 0

@@ -176,14 +176,16 @@ class StatsExporter:
         self._subscriber.undeclare()
 
 
-def serve(args: argparse.Namespace, started: threading.Event | None = None) -> int:
-    """Serve the endpoint until SIGINT/SIGTERM or ``--duration``; ``started`` is set once it listens (its
-    port in ``args.bound_port``)."""
+def serve(
+    args: argparse.Namespace, started: threading.Event | None = None, stop: threading.Event | None = None
+) -> int:
+    """Serve the endpoint until SIGINT/SIGTERM, ``stop`` or ``--duration``; ``started`` is set once it
+    listens (its port in ``args.bound_port``)."""
     from prometheus_client import start_http_server
 
     registry = CollectorRegistry(auto_describe=False)
     deadline = Deadline(args.duration)
-    with stop_on_signals() as stop, open_probe_session(args) as session:
+    with stop_on_signals(stop) as stop, open_probe_session(args) as session:
         exporter = StatsExporter(session, args.forget)
         registry.register(exporter)
         try:

@@ -50,9 +50,10 @@ def open_probe_session(args: argparse.Namespace) -> zenoh.Session:
 
 
 @contextmanager
-def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM while inside (main thread only; the old handlers are restored)."""
-    stop = threading.Event()
+def stop_on_signals(stop: threading.Event | None = None) -> Iterator[threading.Event]:
+    """An event (``stop``, or a new one) set by SIGINT or SIGTERM while inside (main thread only; the old
+    handlers are restored)."""
+    stop = threading.Event() if stop is None else stop
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return

@@ -237,8 +237,9 @@ def render(snapshot: Snapshot, out: TextIO) -> None:
         print(f"{snapshot.malformed} stats or health messages did not decode", file=out)
 
 
-def status(args: argparse.Namespace, out: TextIO = sys.stdout) -> list[Snapshot]:
+def status(args: argparse.Namespace, out: TextIO | None = None) -> list[Snapshot]:
     """One snapshot (or one per window with ``--watch``), printed; returns them."""
+    out = sys.stdout if out is None else out
     snapshots: list[Snapshot] = []
     deadline = Deadline(args.duration)
     with stop_on_signals() as stop, open_probe_session(args) as session:
@@ -247,6 +248,8 @@ def status(args: argparse.Namespace, out: TextIO = sys.stdout) -> list[Snapshot]
             while not stop.is_set():
                 snapshot = observer.snapshot(args.window, stop)
                 snapshots.append(snapshot)
+                if not snapshot.members and len(snapshots) == 1:
+                    break  # nobody there: one error line below, no empty table
                 if args.json:
                     print(json.dumps(snapshot.document()), file=out, flush=True)
                 else:
@@ -254,7 +257,7 @@ def status(args: argparse.Namespace, out: TextIO = sys.stdout) -> list[Snapshot]
                         print("\x1b[2J\x1b[H", end="", file=out)
                     render(snapshot, out)
                     out.flush()
-                if not args.watch or deadline.passed() or (not snapshot.members and len(snapshots) == 1):
+                if not args.watch or deadline.passed():
                     break
         finally:
             observer.close()
