@@ -3,7 +3,8 @@
 Every ``--every`` seconds it prints, over the last ``--window`` arrivals (receiver's clock), the mean rate
 (one over the mean interval) and the minimum, maximum and standard deviation of the intervals
 (:func:`common.rates.interval_stats`); with several keys under one expression, one line per key
-(``--per-key``). Bounded by ``--duration`` or ``--count`` reports; SIGINT/SIGTERM end it cleanly (exit 0).
+(``--per-key``), and once more at the end. Bounded by ``--duration`` or ``--count`` reports; SIGINT/SIGTERM
+end it cleanly (exit 0).
 Payloads are not decoded: only arrivals count.
 """
 
@@ -70,6 +71,16 @@ def hz(args: argparse.Namespace, out: TextIO | None = None, rates: RateWindow | 
     deadline = Deadline(args.duration)
     sink = SampleQueue(args.queue, keep_bytes=False)
     reports = 0
+    reported_total = -1
+
+    def report() -> None:
+        nonlocal reported_total
+        reported_total = rates.total
+        if not rates.arrivals:
+            print(f"{args.key}: no messages yet", file=out, flush=True)
+        for key, figures in rates.figures().items():
+            print(report_line(key, figures, args.json), file=out, flush=True)
+
     with stop_on_signals() as stop, open_probe_session(args) as session:
         subscriber = session.declare_subscriber(args.key, sink)
         try:
@@ -81,12 +92,13 @@ def hz(args: argparse.Namespace, out: TextIO | None = None, rates: RateWindow | 
                 if time.monotonic() >= next_report:
                     next_report += args.every
                     reports += 1
-                    if not rates.arrivals:
-                        print(f"{args.key}: no messages yet", file=out, flush=True)
-                    for key, figures in rates.figures().items():
-                        print(report_line(key, figures, args.json), file=out, flush=True)
+                    report()
         finally:
             subscriber.undeclare()
+    while (arrival := sink.take(0.0)) is not None:  # what arrived before the end counts
+        rates.add(arrival.key, arrival.arrival_s)
+    if rates.total != reported_total:  # the figures at the end (^C, --duration)
+        report()
     return rates
 
 
