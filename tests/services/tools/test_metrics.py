@@ -5,9 +5,11 @@ health (from its health queryable) as ``capataz_member_healthy``; OpenMetrics on
 from __future__ import annotations
 
 import argparse
+import re
 import threading
 import time
 import urllib.request
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -22,6 +24,8 @@ from services.tools.metrics import serve
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 pytestmark = pytest.mark.zenoh
+
+ROOT = Path(__file__).resolve().parents[3]
 
 MASTER = Stats(
     role="master", node="m1", index=0, uptime_s=12.5, stamp_s=time.time(), host="ground-1", uavs=["uav0"],
@@ -119,4 +123,8 @@ def test_the_endpoint_serves_each_members_stats_as_published() -> None:
     assert ("capataz_member_healthy", member(WORKER)) not in values  # no health answer: no series
     assert values["capataz_exporter_members", ()] == 2
     assert openmetrics.rstrip().endswith("# EOF")
+    # the documented list (docs/operations.md, the Grafana-ready table) is what the endpoint serves
+    table = (ROOT / "docs" / "operations.md").read_text().split("| metric | type |", 1)[1].split("\n\n", 1)[0]
+    documented = set(re.findall(r"^\| `(capataz_[a-z_]+)`", table, re.M))
+    assert documented == {name for name, _labels in values}
     assert samples(openmetrics)["capataz_events_total", member(WORKER, event="jobs")] == 120
