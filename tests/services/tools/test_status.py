@@ -190,3 +190,27 @@ def test_status_watch_repeats_until_its_duration(capsys: pytest.CaptureFixture[s
             runner.join(10)
     assert len(snapshots) >= 2
     assert len(capsys.readouterr().out.strip().splitlines()) == len(snapshots)
+
+
+@pytest.mark.zenoh
+def test_every_member_answers_health_with_the_default_consolidation() -> None:
+    """Regression: replies on the query's key (``capataz/health/**``) were merged to one (1 of 4 here)."""
+    with hub() as endpoint:
+        members = [Sick("h7", i, peer(endpoint)) for i in range(4)]
+        runners = [threading.Thread(target=m.run, daemon=True) for m in members]
+        for runner in runners:
+            runner.start()
+        try:
+            assert all(m.started.wait(WAIT_S) for m in members)
+            expected = {keys.health_key(Role.WORKER, "h7", i) for i in range(4)}
+            with open_session(peer(endpoint)) as session:
+
+                def answered() -> set[str]:
+                    return {str(r.ok.key_expr) for r in session.get(keys.HEALTH_ALL, timeout=5.0) if r.ok}
+
+                assert wait_until(lambda: answered() == expected, WAIT_S, interval_s=0.2)
+        finally:
+            for m in members:
+                m.request_stop()
+            for runner in runners:
+                runner.join(10)
