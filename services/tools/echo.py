@@ -70,7 +70,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("key", metavar="KEY", help="key expression (capataz/uav/uav0/yaw, capataz/uav/**)")
     parser.add_argument("--count", type=int, default=0, help="stop after this many messages (0 = no limit)")
     parser.add_argument("--json", action="store_true", help="one JSON object per line (key, type, fields)")
-    parser.add_argument("--queue", type=int, default=1024, help="samples waiting to be printed at most")
+    parser.add_argument("--queue", type=int, default=64, help="samples waiting to be printed at most")
     add_probe_arguments(parser, "stop after this many seconds (0 = --count or ^C)")
     parser.set_defaults(handler=run)
 

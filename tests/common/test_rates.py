@@ -36,7 +36,7 @@ def test_fewer_than_two_arrivals_have_no_figures() -> None:
 
 
 @pytest.mark.parametrize("times", [[1.0, 0.5], [0.0, math.nan], [[0.0, 1.0]]])
-def test_bad_arrival_times_are_refused(times: list) -> None:  # type: ignore[type-arg]
+def test_bad_arrival_times_are_refused(times: list) -> None:
     with pytest.raises(InputError):
         interval_stats(times)
 
@@ -58,7 +58,7 @@ def test_figures_are_the_intervals_and_do_not_depend_on_the_origin(gaps: list[fl
     st.dictionaries(st.sampled_from(["a", "b", "c", "d"]), st.integers(0, 10**6)),
     st.floats(0.01, 100.0),
 )
-def test_counter_rates_give_back_the_later_counters(earlier: dict, growth: dict, elapsed_s: float) -> None:  # type: ignore[type-arg]
+def test_counter_rates_give_back_the_later_counters(earlier: dict, growth: dict, elapsed_s: float) -> None:
     later = {k: earlier.get(k, 0) + v for k, v in growth.items()}
     rates = counter_rates(earlier, later, elapsed_s)
     assert set(rates) == set(later)
