@@ -47,6 +47,8 @@ from services.tools.report import print_table
 
 #: the stream keys whose rates ``status`` shows
 STREAMS = f"{keys.ROOT}/uav/**"
+#: seconds after which the stats of a member that left are forgotten (``--watch``)
+FORGET_S = 30.0
 
 
 @dataclass
@@ -148,6 +150,7 @@ class ClusterObserver:
         self._lock = threading.Lock()
         self._first: dict[str, Stats] = {}
         self._latest: dict[str, Stats] = {}
+        self._heard_s: dict[str, float] = {}
         self._malformed = 0
         self._streams = SampleQueue(1 << 16, keep_bytes=False)
         self._alive: set[str] = set()
@@ -169,6 +172,7 @@ class ClusterObserver:
         with self._lock:
             self._first.setdefault(name, stats)
             self._latest[name] = stats
+            self._heard_s[name] = time.monotonic()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         try:
@@ -202,6 +206,11 @@ class ClusterObserver:
                 break
         health, bad = health_replies(self.session, self.timeout_s)
         with self._lock:
+            # a member that left is listed as gone while its last stats are recent, then forgotten
+            silent = [n for n, t in self._heard_s.items() if time.monotonic() - t > FORGET_S]
+            for name in set(silent) - self._alive:
+                del self._latest[name], self._heard_s[name]
+                self._first.pop(name, None)
             first, latest, malformed, alive = (
                 dict(self._first),
                 dict(self._latest),

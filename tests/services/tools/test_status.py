@@ -214,3 +214,33 @@ def test_every_member_answers_health_with_the_default_consolidation() -> None:
                 m.request_stop()
             for runner in runners:
                 runner.join(10)
+
+
+@pytest.mark.zenoh
+def test_a_member_that_left_is_listed_as_gone_then_forgotten(monkeypatch: pytest.MonkeyPatch) -> None:
+    from services.tools import status as status_module
+
+    monkeypatch.setattr(status_module, "FORGET_S", 3.0)
+    with hub() as endpoint, open_session(peer(endpoint)) as session:
+        observer = status_module.ClusterObserver(session, None, timeout_s=2.0)
+        leaving = Sick("h6", 0, peer(endpoint), stats_period_s=0.2)
+        runner = threading.Thread(target=leaving.run, daemon=True)
+        runner.start()
+        try:
+            assert leaving.started.wait(WAIT_S)
+            never = threading.Event()
+            states: list[str] = []
+
+            def state() -> str:
+                member = observer.snapshot(0.3, never).members.get("worker/h6/0")
+                states.append("absent" if member is None else member.state)
+                return states[-1]
+
+            assert wait_until(lambda: state() == "DEGRADED", WAIT_S, interval_s=0.1)
+            leaving.request_stop()
+            runner.join(10)
+            assert wait_until(lambda: state() == "absent", WAIT_S, interval_s=0.1), states
+            assert "gone" in states  # its token went first, its stats were kept a while
+        finally:
+            leaving.request_stop()
+            observer.close()
