@@ -7,23 +7,28 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from common.members import MemberId, Role
+from common.members import MemberId, Role, Topology
 from common.wire import keys
 from services.runtime.service import HOST_NAME, ServiceRuntime
 from services.runtime.transport import TransportSettings, open_session
 from services.tools.cli import build_parser
+from services.tools.secure import SecureProfile, participant_environment
 from services.tools.status import Snapshot, status
+from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -244,3 +249,30 @@ def test_a_member_that_left_is_listed_as_gone_then_forgotten(monkeypatch: pytest
         finally:
             leaving.request_stop()
             observer.close()
+
+
+@pytest.mark.zenoh
+def test_status_in_the_secure_profile_with_the_read_only_client_certificate(tmp_path: Path) -> None:
+    """Mutual TLS and access control on every participant: the operator's ``client`` certificate may
+    subscribe to stats and liveliness and query health, which is all status needs."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed (needed to make the development certificates)")
+    secure = SecureProfile.ensure(tmp_path / "secure")
+    spec = ClusterSpec(name="s", topology=Topology.MASTER_WORKER, hosts=(HostSpec(name="h1", workers=1),))
+    with LocalCluster(spec, tmp_path / "logs", secure=secure) as cluster:
+        cluster.start()
+        cluster.wait_alive(cluster.expected_members())
+        env = {**os.environ, **participant_environment(secure, None, "client")}
+        command = [sys.executable, "-m", "services.tools.cli", "status", "--json", "--no-streams",
+                   "--connect", cluster.router, "--listen", "tls/127.0.0.1:0"]  # fmt: skip
+        documents: list[dict[str, Any]] = []
+
+        def listed() -> bool:
+            done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, timeout=120, env=env)
+            assert done.returncode in (0, 1), done.stderr
+            documents.append(json.loads(done.stdout) if done.returncode == 0 else {"members": []})
+            states = {m["member"]: m["state"] for m in documents[-1]["members"]}
+            return states == dict.fromkeys(["router/router/0", "master/master/0", "worker/h1/0"], "ok")
+
+        assert wait_until(listed, 120, interval_s=0.5), documents[-1]
+    assert cluster.router.startswith("tls/")
