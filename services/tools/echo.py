@@ -19,6 +19,7 @@ from services.tools.probe import (
     Deadline,
     SampleQueue,
     add_probe_arguments,
+    check_key_expr,
     check_positive,
     decoded,
     open_probe_session,
@@ -76,6 +77,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_key_expr(args.key)
     check_positive(args.count, "--count", allow_zero=True)
     check_positive(args.duration, "--duration", allow_zero=True)
     check_positive(args.queue, "--queue")

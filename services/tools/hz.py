@@ -23,6 +23,7 @@ from services.tools.probe import (
     Deadline,
     SampleQueue,
     add_probe_arguments,
+    check_key_expr,
     check_positive,
     open_probe_session,
     stop_on_signals,
@@ -116,6 +117,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_key_expr(args.key)
     if args.window < 2:
         raise UsageError(f"--window must be >= 2 (arrivals), got {args.window}")
     check_positive(args.every, "--every")

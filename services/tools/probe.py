@@ -45,6 +45,16 @@ def check_positive(value: float, option: str, allow_zero: bool = False) -> None:
         raise UsageError(f"{option} must be {'>= 0' if allow_zero else '> 0'}, got {value}")
 
 
+def check_key_expr(text: str) -> str:
+    """A key expression (``capataz/uav/*/yaw``), or one line naming what is wrong with it (exit 2)."""
+    try:
+        return str(zenoh.KeyExpr(text))
+    except zenoh.ZError as exc:
+        raise UsageError(
+            f"KEY {text!r} is not a key expression ({str(exc).split(':', 1)[-1].strip()})"
+        ) from None
+
+
 def open_probe_session(args: argparse.Namespace) -> zenoh.Session:
     return open_session(transport_from_args(args))
 

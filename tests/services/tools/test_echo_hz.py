@@ -148,6 +148,8 @@ def test_echo_process_exits_0_on_sigterm() -> None:
         (["echo", "k", "--count", "-1"], "--count must be >= 0"),
         (["status", "--window", "0"], "--window must be > 0"),
         (["metrics", "--port", "70000"], "--port must be in 0..65535"),
+        (["echo", "bad key//"], "KEY 'bad key//' is not a key expression"),
+        (["hz", "capataz//x"], "KEY 'capataz//x' is not a key expression"),
     ],
 )
 def test_bad_options_give_one_line_and_exit_2(argv: list[str], fragment: str) -> None:
