@@ -7,6 +7,9 @@ from its pydantic model (arrays as nested lists; nothing is lost: covariances, t
 key also gets a ``foxglove.PoseInFrame`` channel ``<key>/in_frame`` (frame ``world``) for Foxglove's 3D panel.
 A message's log time is when the recorder received it; its publish time the sender's Zenoh timestamp
 when the sample carries one (else the log time); the sensor stamp stays in the message.
+
+Chunks are compressed (:class:`Compression`, zstd by default; MCAP readers, Foxglove included, read all
+three); the measured size and cost of each are in docs/operations.md.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import struct
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
 
@@ -30,6 +34,14 @@ from common.wire.schema import WireModel
 
 #: suffix of the derived PoseInFrame channel of a pose key
 IN_FRAME = "/in_frame"
+
+
+class Compression(StrEnum):
+    """MCAP chunk compression of a recording (``capataz record --compression``)."""
+
+    NONE = "none"
+    LZ4 = "lz4"
+    ZSTD = "zstd"
 
 
 class RecordingError(InputError):
@@ -103,10 +115,17 @@ def pose_in_frame(pose: PoseEstimate) -> bytes:
 
 
 class RecordingWriter:
-    """Writes wire messages into an MCAP file, one channel per key (thread-safe; ``close`` finishes it)."""
+    """Writes wire messages into an MCAP file, one channel per key (thread-safe; ``close`` finishes it),
+    its chunks compressed with ``compression``."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, compression: Compression = Compression.ZSTD) -> None:
         from mcap.writer import CompressionType, Writer
+
+        kind = {
+            Compression.NONE: CompressionType.NONE,
+            Compression.LZ4: CompressionType.LZ4,
+            Compression.ZSTD: CompressionType.ZSTD,
+        }[Compression(compression)]
 
         self.path = Path(path)
         try:
@@ -114,7 +133,7 @@ class RecordingWriter:
             self._file: IO[bytes] = self.path.open("wb")
         except OSError as exc:
             raise RecordingError(f"{self.path}: cannot be written ({exc})") from None
-        self._writer = Writer(self._file, compression=CompressionType.NONE)
+        self._writer = Writer(self._file, compression=kind)
         self._writer.start(profile="", library="capataz")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

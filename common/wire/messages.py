@@ -350,6 +350,11 @@ class Stats(ServiceMessage):
     timings_ms: dict[str, float] = Field(default_factory=dict)
     queue_depths: dict[str, int] = Field(default_factory=dict)
     shares: dict[str, float] = Field(default_factory=dict)
+    #: the machine the member runs on (its host name: a container's in compose), "" when unknown
+    host: str = Field(default="", max_length=255)
+    #: the UAV streams the member serves (a master's, an estimator's; a camera's several), empty for
+    #: members of every stream (workers, foremen, the router)
+    uavs: list[Uav] = Field(default_factory=list, max_length=64)
 
 
 class Health(ServiceMessage):

@@ -1,7 +1,7 @@
 """Read capataz's yaw estimates from a Zenoh client (the README's quick-start).
 
-    python docs/examples/read_yaw.py tcp/127.0.0.1:7447 --count 20
-    python docs/examples/read_yaw.py tls/127.0.0.1:7447 --tls out/secure/certs   # the read-only client cert
+python docs/examples/read_yaw.py tcp/127.0.0.1:7447 --count 20
+python docs/examples/read_yaw.py tls/127.0.0.1:7447 --tls out/secure/certs   # the read-only client cert
 """
 
 from __future__ import annotations

@@ -46,8 +46,9 @@ def endpoint(text: str) -> str:
     return str(text)
 
 
-def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
-    """Options every service shares (environment ``CAPATAZ_ZENOH_*`` fills what is not given)."""
+def add_transport_arguments(parser: Any, node_default: str = "local", member: bool = True) -> None:
+    """Options every service shares (environment ``CAPATAZ_ZENOH_*`` fills what is not given); with
+    ``member=False`` (a tool that watches the cluster without joining it) only the transport's."""
     group = parser.add_argument_group("transport (defaults from CAPATAZ_ZENOH_* environment variables)")
     group.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (default peer)")
     group.add_argument(
@@ -72,6 +73,8 @@ def add_transport_arguments(parser: Any, node_default: str = "local") -> None:
         "CAPATAZ_ZENOH_CONFIG); credentials only from it or CAPATAZ_ZENOH_TLS_{CA,CERT,KEY}, "
         "CAPATAZ_ZENOH_USRPWD_FILE",
     )
+    if not member:
+        return
     group.add_argument("--node", default=node_default, help=f"node (host) name (default {node_default})")
     group.add_argument(
         "--index", type=number_in(int, 0), default=0, help="instance index on the node (default 0)"

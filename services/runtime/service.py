@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import signal
+import socket
 import sys
 import threading
 import time
@@ -34,6 +35,8 @@ logger = logging.getLogger(__name__)
 #: long for the GIL; 0.1 ms took 0.2-0.4 ms off a 752x480 master-foreman-worker frame (bench cluster),
 #: 0.03 ms was no better.
 SWITCH_INTERVAL_S = 0.0001
+#: the machine a member runs on, in its stats (``capataz status``'s host column)
+HOST_NAME = socket.gethostname()
 M = TypeVar("M", bound=WireModel)
 
 
@@ -97,6 +100,13 @@ class ServiceRuntime:
 
     def healthy(self) -> tuple[bool, str]:
         return True, "ok"
+
+    def uavs(self) -> tuple[str, ...]:
+        """The UAV streams this member serves (its settings' ``uav`` or ``uavs``), empty for all streams."""
+        settings = getattr(self, "settings", None)
+        many = getattr(settings, "uavs", None)
+        one = getattr(settings, "uav", None)
+        return tuple(many) if many else (one,) if isinstance(one, str) else ()
 
     # -- helpers for subclasses -----------------------------------------------------------------------
     def undeclare_all(self, entities: Iterable[Any]) -> None:
@@ -203,10 +213,11 @@ class ServiceRuntime:
         finally:
             query.drop()
 
-    def reply(self, query: zenoh.Query, message: WireModel) -> None:
+    def reply(self, query: zenoh.Query, message: WireModel, key: str | None = None) -> None:
+        """Answer ``query`` with ``message`` on ``key`` (default: the query's key expression)."""
         payload, attachment = encode(message)
         try:
-            query.reply(query.key_expr, payload, attachment=attachment)
+            query.reply(query.key_expr if key is None else key, payload, attachment=attachment)
         except Exception as exc:
             self.count_error("reply_failures", "cannot send reply", exc)
         finally:
@@ -224,6 +235,8 @@ class ServiceRuntime:
             timings_ms=self.counters.median_timings_ms(),
             queue_depths=self.queue_depths(),
             shares=self.shares(),
+            host=HOST_NAME,
+            uavs=list(self.uavs()),
         )
 
     def _on_health(self, query: zenoh.Query) -> None:
@@ -237,7 +250,9 @@ class ServiceRuntime:
             detail=detail,
             counters=self.counters.counts(),
         )
-        self.reply(query, health)
+        # on its own key, not the query's: replies to ``capataz/health/**`` on one key were merged by the
+        # default consolidation (1 of 12 members answered)
+        self.reply(query, health, keys.health_key(self.role, self.node, self.index))
 
     def request_stop(self, *_args: Any) -> None:
         self.stop_event.set()

@@ -1,4 +1,5 @@
-"""The capataz command: one sub-command per service, plus run, up and bench.
+"""The capataz command: one sub-command per service, plus run, up, bench and the operator's probes
+(status, echo, hz, metrics).
 
 Each command module exposes ``register(subparsers)``, which adds its parser and sets
 ``handler=callable(args) -> int``. This module gives every parser the same behaviour: a description and an
@@ -43,6 +44,10 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.tools.view",
     "services.tools.secure",
     "services.ros2",
+    "services.tools.status",
+    "services.tools.echo",
+    "services.tools.hz",
+    "services.tools.metrics",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.
@@ -56,6 +61,7 @@ EXAMPLES: dict[str, str] = {
     "bench all": "capataz bench all --out out/bench",
     "bench security": "capataz bench security --overhead-repeats 5",
     "bench record": "capataz bench record --frames 200 --repeats 4",
+    "bench compression": "capataz bench compression --frames 200",
     "record": "capataz record --connect tcp/127.0.0.1:7447 --out out/run.mcap --duration 60",
     "view": "capataz view --connect tcp/127.0.0.1:7447",
     "secure": "capataz secure certs --out out/secure/certs --uav uav0 --uav uav1",
@@ -72,6 +78,10 @@ EXAMPLES: dict[str, str] = {
     "bench ros2": "capataz bench ros2 --seconds 20",
     "ros2": "capataz ros2 --connect tcp/127.0.0.1:7447 --uav uav0 --input-uav uav0 --domain-id 42",
     "estimator": "capataz estimator --connect tcp/127.0.0.1:7447 --uav uav0 --external-yaw",
+    "status": "capataz status --connect tcp/127.0.0.1:7447 --watch",
+    "echo": "capataz echo capataz/uav/uav0/yaw --connect tcp/127.0.0.1:7447 --count 5",
+    "hz": "capataz hz capataz/uav/uav0/camera --connect tcp/127.0.0.1:7447 --duration 10",
+    "metrics": "capataz metrics --port 9464 --connect tcp/127.0.0.1:7447",
 }
 
 GLOBAL_OPTIONS = ("-v", "--verbose", "-q", "--quiet")

@@ -6,7 +6,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -42,16 +42,16 @@ def format_cell(value: Any) -> str:
     return str(value)
 
 
-def print_table(rows: Sequence[Mapping[str, Any]], title: str = "") -> None:
+def print_table(rows: Sequence[Mapping[str, Any]], title: str = "", file: TextIO | None = None) -> None:
     """Print rows of dicts as an aligned text table (the columns of all rows, in order of appearance)."""
     if title:
-        print(title)
+        print(title, file=file)
     if not rows:
         return
     columns = list(dict.fromkeys(c for row in rows for c in row))
     cells = [[format_cell(row.get(c, "")) for c in columns] for row in rows]
     widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(columns)]
-    print("  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)))
-    print("  ".join("-" * w for w in widths))
+    print("  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)), file=file)
+    print("  ".join("-" * w for w in widths), file=file)
     for r in cells:
-        print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)))
+        print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)), file=file)

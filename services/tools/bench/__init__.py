@@ -22,6 +22,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.yaw",
     "services.tools.bench.estimator",
     "services.tools.bench.record",
+    "services.tools.bench.compression",
     "services.tools.bench.security",
     "services.tools.bench.ros2",
 )

@@ -54,6 +54,9 @@ def test_docker_compose_parses_and_every_command_exists() -> None:
         services
     )
     assert sum(1 for s in services if s.startswith("worker-")) == 4
+    # the metrics exporter is opt-in: a profile, started only with --profile metrics
+    assert services["metrics"]["profiles"] == ["metrics"]
+    assert [s for s, v in services.items() if v.get("profiles")] == ["metrics"]
     environment = services["master"]["environment"]
     assert environment["CAPATAZ_ZENOH_CONNECT"] == "tcp/router:7447"
     assert environment["CAPATAZ_ZENOH_MULTICAST"] == "false"

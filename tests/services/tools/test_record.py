@@ -111,6 +111,7 @@ def test_record_writes_every_key_as_a_channel_and_reads_back(tmp_path: Path, end
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}  # compressed by default
         by_topic = {c.topic: c for c in summary.channels.values()}
         schemas = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
         assert set(by_topic) == {
