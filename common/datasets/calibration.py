@@ -193,7 +193,12 @@ def _first_mat(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None
     for name in names:
         node = fs.getNode(name)
         if not node.empty():
-            mat = node.mat()
+            try:
+                mat = node.mat()
+            except cv2.error:  # its data does not fill rows x cols (OpenCV's bare assertion otherwise)
+                rows, cols = node.getNode("rows").real(), node.getNode("cols").real()
+                n = node.getNode("data").size()
+                raise CalibrationError(f"{name} says {rows:g}x{cols:g} but has {n} values") from None
             if mat is None:
                 raise CalibrationError(f"{name} is not a matrix")
             return np.asarray(mat, dtype=np.float64)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -75,6 +76,23 @@ def add_master_arguments(parser: argparse.ArgumentParser) -> None:
     add_options(parser, MasterSettings, ("trust",))
 
 
+#: the master's options that set a yaw settings field whose name is not the option's
+_YAW_OPTIONS = {
+    "grid_cols": "--grid (columns)",
+    "grid_rows": "--grid (rows)",
+    "patch_size_px": "--patch-size",
+}
+
+
+def _yaw_option_error(text: str) -> str:
+    """A yaw settings error named by its option: ``--grid (columns): must be ...``."""
+    found = re.match(r"YawSettings\.(\w+) (.*)", text)
+    if found is None:
+        return f"yaw options (--grid, --patch-size, --pyramid-level): {text}"
+    field, rest = found.groups()
+    return f"{_YAW_OPTIONS.get(field, '--' + field.replace('_', '-'))}: {rest}"
+
+
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
     """The settings of the command line (a value out of its bound: one line, exit 2)."""
     cols, rows = parse_size(args.grid, "--grid", "8x5")
@@ -83,7 +101,7 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
         # --patch-size and --pyramid-level carry the yaw settings' field names
         yaw = settings_from(YawSettings, args, grid_cols=cols, grid_rows=rows)
     except InputError as exc:
-        raise UsageError(f"yaw options (--grid, --patch-size, --pyramid-level): {exc}") from None
+        raise UsageError(_yaw_option_error(str(exc))) from None
     return settings_from(
         MasterSettings,
         args,

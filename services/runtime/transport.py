@@ -126,6 +126,7 @@ class TransportSettings(BaseModel):
             for key, value in entries.items():
                 zconfig.insert(config, key, value)
             zconfig.check_tls_ready(config, zconfig.get(config, "listen/endpoints") or [])
+            zconfig.check_tls_trust(config, zconfig.get(config, "connect/endpoints") or [])
         except zconfig.ZenohConfigError as exc:
             raise TransportError(str(exc)) from None
         return config

@@ -129,6 +129,19 @@ def check_tls_ready(config: zenoh.Config, endpoints: list[str]) -> None:
         )
 
 
+def check_tls_trust(config: zenoh.Config, endpoints: list[str]) -> None:
+    """A ``tls/`` connect endpoint without a CA to check the other side's certificate against retried
+    forever in silence (zenoh's default roots never trust capataz's CA): say what to set instead."""
+    if not any(str(e).startswith("tls/") for e in endpoints):
+        return
+    if not get(config, "transport/link/tls").get("root_ca_certificate"):
+        raise ZenohConfigError(
+            "a tls/ connect endpoint needs the CA certificate to trust: set CAPATAZ_ZENOH_TLS_CA (and, for "
+            "mutual TLS, CAPATAZ_ZENOH_TLS_CERT and CAPATAZ_ZENOH_TLS_KEY), or transport/link/tls in "
+            "--zenoh-config"
+        )
+
+
 def access_control_enabled(config: zenoh.Config) -> bool:
     return bool(get(config, "access_control/enabled"))
 

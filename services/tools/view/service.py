@@ -29,6 +29,7 @@ import cv2
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.errors import CapatazError
 from common.members import Role
 from common.recordings.mcap import json_schema, to_json
 from common.wire import keys
@@ -53,6 +54,10 @@ CLUSTER_SCHEMA = {
         "redispatched": {"type": "integer"},
     },
 }
+
+
+class ViewError(CapatazError):
+    """The viewer cannot serve (its port is taken, its address is not this host's)."""
 
 
 class ViewSettings(BaseModel):
@@ -94,9 +99,17 @@ class ViewService(KeyTap):
         import foxglove
 
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(
-            name="capataz", host=self.settings.host, port=self.settings.port, context=self.context
-        )
+        try:
+            self.server = foxglove.start_server(
+                name="capataz", host=self.settings.host, port=self.settings.port, context=self.context
+            )
+        except (
+            RuntimeError
+        ) as exc:  # the SDK's FoxgloveError, e.g. "Failed to bind port: Address already in use"
+            reason = str(exc).split(": ", 1)[-1]
+            raise ViewError(
+                f"--port {self.settings.port}: cannot serve on {self.settings.host}: {reason}"
+            ) from None
         logger.info("Foxglove WebSocket server on ws://%s:%d", self.settings.host, self.server.port)
         super().start(session)
 

@@ -174,3 +174,14 @@ def test_a_folder_or_missing_path_is_not_a_calibration(tmp_path: Path) -> None:
         load_calibration(tmp_path)
     with pytest.raises(CalibrationError, match="not a file"):
         load_calibration(tmp_path / "missing.yaml")
+
+
+def test_an_opencv_matrix_whose_data_does_not_fill_it_names_the_file_regression(tmp_path: Path) -> None:
+    """Issue 28: a camera_matrix of 3x3 with 6 values gave OpenCV's bare assertion, without the file."""
+    path = tmp_path / "short.yaml"
+    path.write_text(
+        "%YAML:1.0\n---\nimage_width: 752\nimage_height: 480\ncamera_matrix: !!opencv-matrix\n"
+        "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 400., 0., 0., 400., 1., 2. ]\n"
+    )
+    with pytest.raises(CalibrationError, match=r"short\.yaml: camera_matrix says 3x3 but has 6 values"):
+        load_calibration(path)
