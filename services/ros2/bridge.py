@@ -3,10 +3,11 @@
 Out: each estimate a Zenoh subscriber receives is converted (:mod:`services.ros2.convert`) and published
 on its ROS topic (sensor-data QoS: best effort, keep last 5); the camera mount is published once, reliable
 and transient local (late joiners get it), as a ``geometry_msgs/TransformStamped`` on
-``/{uav}/capataz/camera_mount`` and, where the ``tf2_msgs`` package is installed (a sourced ROS 2, not the
-PyPI wheels), on ``/tf_static``. In: ROS sensor messages pass the stream gate (:mod:`services.ros2.inputs`)
-and the wire messages' validation, then go out on the UAV's capataz keys; a refused one is counted under its
-reason and logged in one line (the first 20, then every 100th).
+``/{uav}/capataz/camera_mount`` and on ``/tf_static`` as a ``tf2_msgs/TFMessage`` (PyPI has no tf2_msgs
+wheel: :mod:`services.ros2.tf2_msgs_build` builds it into the environment; without it, one warning line).
+In: ROS sensor messages pass the stream gate (:mod:`services.ros2.inputs`) and the wire messages'
+validation, then go out on the UAV's capataz keys; a refused one is counted under its reason and logged in
+one line (the first 20, then every 100th).
 """
 
 from __future__ import annotations
@@ -175,7 +176,12 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         static_pub.publish(transform)
         self._static.append(static_pub)
         tf_message = _tf2_message()
-        if tf_message is not None:
+        if tf_message is None:
+            logger.warning(
+                "no /tf_static for %s: tf2_msgs is not importable (capataz ros2 --build-tf2-msgs builds it)",
+                uav,
+            )
+        else:
             tf_pub = node.create_publisher(tf_message, "/tf_static", self.static_qos)
             tf_pub.publish(tf_message(transforms=[transform]))
             self._static.append(tf_pub)
