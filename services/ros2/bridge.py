@@ -139,7 +139,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
 
     # -- out: capataz estimates -> ROS 2 ---------------------------------------------------------------
     def _wire_out(self, session: zenoh.Session, uav: str) -> None:
-        from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+        from geometry_msgs.msg import PoseWithCovarianceStamped
         from sensor_msgs.msg import Imu
 
         node, qos = self.ros_node, self.sensor_qos
@@ -164,6 +164,13 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         for name, (key, kind, publisher) in outs.items():
             callback = partial(self._on_estimate, name, kind, publisher)
             self.subscriptions.append(session.declare_subscriber(key, callback))
+        self._publish_mount(uav)
+
+    def _publish_mount(self, uav: str) -> None:
+        """The camera mount, once, transient local: on its own topic and, with tf2_msgs, on /tf_static."""
+        from geometry_msgs.msg import TransformStamped
+
+        node = self.ros_node
         mount = convert.camera_mount(uav)
         transform = TransformStamped()
         transform.header.stamp = self.ros_node.get_clock().now().to_msg()
