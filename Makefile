@@ -3,6 +3,8 @@
 # `make run` needs the runtime dependencies only; tests, lint and type checks add the dev tools and the
 # ros2 extra (rclpy and Fast DDS wheels for the bridge test: +161 MB, +16 s uncached, 3 s from uv's cache).
 # pip installs uv into the venv, and uv installs the project: 3 s instead of pip's 26 s on 2 cores.
+# PyPI has no tf2_msgs wheel: services/ros2/tf2_msgs_build.py generates and compiles it into the venv with the
+# extra's rosidl generators and cc/c++ (for /tf_static; about 5 s, nothing when already built).
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -18,8 +20,9 @@ $(STAMP): pyproject.toml
 	$(UV) -e .
 	touch $(STAMP)
 
-$(DEV): $(STAMP)
+$(DEV): $(STAMP) services/ros2/tf2_msgs_build.py
 	$(UV) -e '.[dev,ros2]'
+	$(BIN)/python -m services.ros2.tf2_msgs_build
 	touch $(DEV)
 
 run: $(STAMP)

@@ -61,6 +61,11 @@ def register(subparsers: Any) -> None:
         type=Path,
         help="write each input UAV's CameraInfo as an OpenCV YAML calibration ({uav} is replaced)",
     )
+    parser.add_argument(
+        "--build-tf2-msgs",
+        action="store_true",
+        help="build the tf2_msgs package (for /tf_static; PyPI has no wheel) into this environment and exit",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -78,6 +83,10 @@ def run(args: argparse.Namespace) -> int:
     if not extra_installed():
         print(MISSING_EXTRA, file=sys.stderr)
         return 1
+    if args.build_tf2_msgs:
+        from services.ros2 import tf2_msgs_build
+
+        return tf2_msgs_build.main([])
     from services.ros2.bridge import Ros2Bridge
 
     return Ros2Bridge.from_args(args, settings_from_args(args)).run()

@@ -3,10 +3,11 @@
 Out: each estimate a Zenoh subscriber receives is converted (:mod:`services.ros2.convert`) and published
 on its ROS topic (sensor-data QoS: best effort, keep last 5); the camera mount is published once, reliable
 and transient local (late joiners get it), as a ``geometry_msgs/TransformStamped`` on
-``/{uav}/capataz/camera_mount`` and, where the ``tf2_msgs`` package is installed (a sourced ROS 2, not the
-PyPI wheels), on ``/tf_static``. In: ROS sensor messages pass the stream gate (:mod:`services.ros2.inputs`)
-and the wire messages' validation, then go out on the UAV's capataz keys; a refused one is counted under its
-reason and logged in one line (the first 20, then every 100th).
+``/{uav}/capataz/camera_mount`` and on ``/tf_static`` as a ``tf2_msgs/TFMessage`` (PyPI has no tf2_msgs
+wheel: :mod:`services.ros2.tf2_msgs_build` builds it into the environment; without it, one warning line).
+In: ROS sensor messages pass the stream gate (:mod:`services.ros2.inputs`) and the wire messages'
+validation, then go out on the UAV's capataz keys; a refused one is counted under its reason and logged in
+one line (the first 20, then every 100th).
 """
 
 from __future__ import annotations
@@ -138,7 +139,7 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
 
     # -- out: capataz estimates -> ROS 2 ---------------------------------------------------------------
     def _wire_out(self, session: zenoh.Session, uav: str) -> None:
-        from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+        from geometry_msgs.msg import PoseWithCovarianceStamped
         from sensor_msgs.msg import Imu
 
         node, qos = self.ros_node, self.sensor_qos
@@ -163,6 +164,13 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         for name, (key, kind, publisher) in outs.items():
             callback = partial(self._on_estimate, name, kind, publisher)
             self.subscriptions.append(session.declare_subscriber(key, callback))
+        self._publish_mount(uav)
+
+    def _publish_mount(self, uav: str) -> None:
+        """The camera mount, once, transient local: on its own topic and, with tf2_msgs, on /tf_static."""
+        from geometry_msgs.msg import TransformStamped
+
+        node = self.ros_node
         mount = convert.camera_mount(uav)
         transform = TransformStamped()
         transform.header.stamp = self.ros_node.get_clock().now().to_msg()
@@ -175,7 +183,12 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         static_pub.publish(transform)
         self._static.append(static_pub)
         tf_message = _tf2_message()
-        if tf_message is not None:
+        if tf_message is None:
+            logger.warning(
+                "no /tf_static for %s: tf2_msgs is not importable (capataz ros2 --build-tf2-msgs builds it)",
+                uav,
+            )
+        else:
             tf_pub = node.create_publisher(tf_message, "/tf_static", self.static_qos)
             tf_pub.publish(tf_message(transforms=[transform]))
             self._static.append(tf_pub)

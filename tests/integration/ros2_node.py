@@ -2,9 +2,11 @@
 
 ``python -m tests.integration.ros2_node CONFIG.json``: publishes a simulated hover flight's images (mono8),
 camera info, IMU and range on ``/{uav}/...`` in stamp order at ``fps`` frames per second, subscribes to the
-bridge's estimates (``/{uav}/capataz/...``) and the camera mount, and, once the file ``done`` names exists
-(or ``timeout_s`` passed), writes everything it received to ``out`` as JSON, with the UDP sockets it had
-open. The environment (domain, Fast DDS profile) is the caller's.
+bridge's estimates (``/{uav}/capataz/...``) and the camera mount (its own topic and ``/tf_static``, a
+``tf2_msgs/TFMessage``: the package ``services.ros2.tf2_msgs_build`` built), and, once the file ``done``
+names exists (or ``timeout_s`` passed), writes everything it received to ``out`` as JSON, with the UDP
+sockets it had open and the publishers of ``/tf_static`` (node, type, type hash). The environment
+(domain, Fast DDS profile) is the caller's.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import rclpy
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, Imu, Range
+from tf2_msgs.msg import TFMessage
 
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
 from common.sim.flight import hover_flight
@@ -66,7 +69,8 @@ def main(config_path: str) -> int:
     flight = hover_flight(seed=0, n_frames=frames)
     rclpy.init()
     node = rclpy.create_node("capataz_test_flight")
-    received: dict[str, list[Any]] = {"yaw": [], "attitude": [], "pose/vo": [], "pose/pf": [], "mount": []}
+    names = ("yaw", "attitude", "pose/vo", "pose/pf", "mount", "tf_static")
+    received: dict[str, list[Any]] = {name: [] for name in names}
 
     def orientation(name: str) -> Any:
         def on(msg: Imu) -> None:
@@ -88,11 +92,15 @@ def main(config_path: str) -> int:
 
         return on
 
-    def on_mount(msg: TransformStamped) -> None:
+    def transform(msg: TransformStamped) -> list[Any]:
         t, q = msg.transform.translation, msg.transform.rotation
-        received["mount"].append(
-            [msg.header.frame_id, msg.child_frame_id, [t.x, t.y, t.z], [q.x, q.y, q.z, q.w]]
-        )
+        return [msg.header.frame_id, msg.child_frame_id, [t.x, t.y, t.z], [q.x, q.y, q.z, q.w]]
+
+    def on_mount(msg: TransformStamped) -> None:
+        received["mount"].append(transform(msg))
+
+    def on_tf_static(msg: TFMessage) -> None:
+        received["tf_static"].append([transform(t) for t in msg.transforms])
 
     # best effort like the bridge's publishers, with a history deep enough for the attitude's IMU rate while
     # this one thread also publishes the flight (the sensor-data profile keeps the last 5)
@@ -103,6 +111,7 @@ def main(config_path: str) -> int:
         node.create_subscription(PoseWithCovarianceStamped, f"/{uav}/capataz/pose/vo", pose("pose/vo"), qos),
         node.create_subscription(PoseWithCovarianceStamped, f"/{uav}/capataz/pose/pf", pose("pose/pf"), qos),
         node.create_subscription(TransformStamped, f"/{uav}/capataz/camera_mount", on_mount, STATIC),
+        node.create_subscription(TFMessage, "/tf_static", on_tf_static, STATIC),
     ]
     images = node.create_publisher(Image, f"/{uav}/camera/image_raw", RELIABLE)
     infos = node.create_publisher(CameraInfo, f"/{uav}/camera/camera_info", RELIABLE)
@@ -153,6 +162,11 @@ def main(config_path: str) -> int:
     while time.monotonic() < deadline and not done.exists():
         rclpy.spin_once(node, timeout_sec=0.05)
     received["udp_sockets"] = [list(s) for s in udp_sockets_of()]
+    # the type the bridge's /tf_static publisher announces to the graph (name and RIHS01 type hash)
+    received["tf_static_publishers"] = [
+        [info.node_name, info.topic_type, str(info.topic_type_hash)]
+        for info in node.get_publishers_info_by_topic("/tf_static")
+    ]
     Path(config["out"]).write_text(json.dumps(received))
     node.destroy_node()
     rclpy.shutdown()

@@ -1,11 +1,14 @@
 """Issue 30's end to end: a real rclpy node (its own process) flies a simulated hover flight into ROS 2
 topics; the bridge brings it onto uav0's capataz streams, the master (one worker) and the estimator compute
 from them, and the node receives yaw, attitude and pose/vo (and a pose/pf a capataz client publishes) on ROS 2
-with the values a capataz client receives on Zenoh; the camera mount arrives as a static transform. DDS
-stays on loopback (the profile of services/ros2/dds.py, a random domain per run)."""
+with the values a capataz client receives on Zenoh; the camera mount arrives as a static transform on its
+own topic and on ``/tf_static`` (a ``tf2_msgs/TFMessage`` of the package services/ros2/tf2_msgs_build.py
+builds, with the type hash of ROS 2's own tf2_msgs). DDS stays on loopback (the profile of
+services/ros2/dds.py, a random domain per run)."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -27,6 +30,7 @@ from common.wire.messages import AttitudeEstimate, Health, PoseEstimate, YawEsti
 from services.master.service import Topology
 from services.ros2 import extra_installed
 from services.ros2.dds import LOOPBACK, dds_environment, random_domain_id, write_profile
+from services.ros2.tf2_msgs_build import ROS_TYPE_HASH
 from services.runtime.transport import open_session, zbytes
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
 from tests.zenoh_helpers import wait_until
@@ -62,7 +66,16 @@ def bridge_counters(session: Any) -> dict[str, int]:
     return {}
 
 
+def _same_mount(transform: list[Any]) -> None:
+    parent, child, translation, q = transform
+    assert (parent, child) == (f"{UAV}/base_link", f"{UAV}/camera_optical_frame")
+    assert translation == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(matrix_from_quaternion([q[3], *q[:3]]), R_BODY_CAMERA_DOWN, atol=1e-12)
+
+
 def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: Path) -> None:
+    if importlib.util.find_spec("tf2_msgs") is None:
+        pytest.fail("tf2_msgs not built: make .venv/.installed (or python -m services.ros2.tf2_msgs_build)")
     domain = random_domain_id()
     env = dds_environment(write_profile(tmp_path / "fastdds.xml"), domain)
     zenoh_side: dict[str, dict[int, Any]] = {"yaw": {}, "attitude": {}, "pose/vo": {}}
@@ -187,11 +200,14 @@ def test_a_ros2_node_flies_into_capataz_and_reads_its_estimates_back(tmp_path: P
         _same_rotation(item[4], p.q_world_body)
         np.testing.assert_allclose(item[5], p.covariance.reshape(36), rtol=RTOL, atol=ATOL)
 
-    # the camera mount, static (transient local: the node joined after it was published)
+    # the camera mount, static (transient local: the node joined after it was published), on its own topic
+    # and on /tf_static as the one transform of a tf2_msgs/TFMessage whose type is ROS 2's own
     assert ros["mount"], "no camera mount received"
-    parent, child, translation, q = ros["mount"][-1]
-    assert (parent, child) == (f"{UAV}/base_link", f"{UAV}/camera_optical_frame")
-    assert translation == [0.0, 0.0, 0.0]
-    np.testing.assert_allclose(matrix_from_quaternion([q[3], *q[:3]]), R_BODY_CAMERA_DOWN, atol=1e-12)
+    _same_mount(ros["mount"][-1])
+    assert ros["tf_static"], "nothing received on /tf_static"
+    assert len(ros["tf_static"][-1]) == 1, ros["tf_static"]
+    _same_mount(ros["tf_static"][-1][0])
+    tf_type = ["tf2_msgs/msg/TFMessage", ROS_TYPE_HASH]
+    assert ros["tf_static_publishers"] == [["capataz_bridge_ros2_0", *tf_type]], ros["tf_static_publishers"]
     # the CameraInfo became the master's kind of calibration file
     assert (tmp_path / f"{UAV}.yml").is_file()

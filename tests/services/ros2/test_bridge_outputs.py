@@ -3,6 +3,10 @@ fields, covariances, "not provided" markers, and an estimate that cannot be a RO
 
 from __future__ import annotations
 
+import logging
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +14,7 @@ from common.errors import InputError
 from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from services.ros2 import extra_installed
 from services.ros2.bridge import Ros2Bridge
+from services.ros2.dds import dds_environment, random_domain_id, write_profile
 from services.ros2.settings import Ros2Settings
 from services.runtime.transport import TransportSettings
 
@@ -61,3 +66,37 @@ def test_an_estimate_stamped_before_the_epoch_is_no_ros_message(bridge: Ros2Brid
     )  # fmt: skip
     with pytest.raises(InputError, match="ROS time"):
         bridge._ros_message("yaw", estimate)
+
+
+@pytest.mark.parametrize("tf2_msgs_importable", [True, False])
+def test_the_mount_goes_to_tf_static_with_tf2_msgs_and_a_warning_without(
+    tf2_msgs_importable: bool,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    domain = random_domain_id()
+    profile = write_profile(tmp_path / "fastdds.xml")
+    for name, value in dds_environment(profile, domain).items():  # restored after the test
+        monkeypatch.setenv(name, value)
+    if not tf2_msgs_importable:
+        monkeypatch.setitem(sys.modules, "tf2_msgs.msg", None)  # as without the built package
+    settings = Ros2Settings(uavs=("uav3",), domain_id=domain, dds_profile=profile)
+    bridge = Ros2Bridge("ros2", 0, TransportSettings(), settings)
+    bridge._open_ros()
+    try:
+        with caplog.at_level(logging.WARNING, logger="services.ros2.bridge"):
+            bridge._publish_mount("uav3")
+        topics = dict(bridge.ros_node.get_topic_names_and_types())
+    finally:
+        bridge.ros_node.destroy_node()
+        bridge.context.try_shutdown()
+    assert topics["/uav3/capataz/camera_mount"] == ["geometry_msgs/msg/TransformStamped"]
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    if tf2_msgs_importable:
+        assert topics["/tf_static"] == ["tf2_msgs/msg/TFMessage"] and warnings == []
+    else:
+        assert "/tf_static" not in topics
+        assert warnings == [
+            "no /tf_static for uav3: tf2_msgs is not importable (capataz ros2 --build-tf2-msgs builds it)"
+        ]
