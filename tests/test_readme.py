@@ -9,6 +9,7 @@ The README's links must resolve too, and its length stays a map's (at most 250 l
 from __future__ import annotations
 
 import os
+import random
 import re
 import socket
 import subprocess
@@ -53,7 +54,7 @@ def test_the_readme_is_a_map_and_every_quick_start_block_is_run() -> None:
     assert section.count("```bash") == len(QUICK_STARTS) == len(quick_starts(section)), (
         "a block with no marker"
     )
-    assert {"client", "client-tls", "recording", "model", "loadtest", "compose"} <= set(QUICK_STARTS)
+    assert {"client", "client-tls", "recording", "model", "ros2", "loadtest", "compose"} <= set(QUICK_STARTS)
 
 
 def test_every_relative_link_of_the_readme_and_docs_resolves() -> None:
@@ -93,6 +94,7 @@ def run_quick_start(quick: QuickStart, tmp_path: Path) -> tuple[Path, str]:
         _recording_inputs(repo)
     port = str(free_port())
     script = re.sub(r"(?<=[:\s])7447\b", port, quick.script)
+    script = script.replace("--domain-id 42", f"--domain-id {random.randint(1, 232)}")  # one graph per run
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}", "CI": "1"}
     env["PYTHONPATH"] = str(ROOT)  # the quick-starts assume the project's environment
     done = subprocess.run(
@@ -132,6 +134,14 @@ def test_a_cad_model_is_tracked_in_a_real_video(tmp_path: Path, shared_data: Pat
         line for line in (repo / "out" / "cube.tum").read_text().splitlines() if not line.startswith("#")
     ]
     assert len(poses) >= 20, output[-3000:]
+
+
+@pytest.mark.zenoh
+def test_a_ros2_node_reads_the_yaw_through_the_bridge(tmp_path: Path) -> None:
+    pytest.importorskip("rclpy", reason="the ros2 extra is not installed (pip install -e '.[ros2]')")
+    _, output = run_quick_start(QUICK_STARTS["ros2"], tmp_path)
+    estimates = re.findall(r"^\d+\.\d+ s: yaw quaternion z [+-]\d\.\d+ w [+-]\d\.\d+, sigma", output, re.M)
+    assert len(estimates) >= 20, output[-3000:]
 
 
 @pytest.mark.zenoh
