@@ -130,6 +130,8 @@ class StatsLog:
 
     def __init__(self, session: zenoh.Session) -> None:
         self.latest: dict[str, dict[str, int]] = {}
+        #: when each service's newest counters arrived (this host's monotonic clock)
+        self.arrived_monotonic_s: dict[str, float] = {}
         self._base: dict[str, dict[str, int]] = {}
         self._lock = threading.Lock()
         self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
@@ -139,8 +141,21 @@ class StatsLog:
             stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
         except WireError:
             return
+        name = f"{stats.role}/{stats.node}/{stats.index}"
         with self._lock:
-            self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = dict(stats.counters)
+            self.latest[name] = dict(stats.counters)
+            self.arrived_monotonic_s[name] = time.monotonic()
+
+    def wait_fresh(self, since_monotonic_s: float, timeout_s: float) -> bool:
+        """Wait (bounded) until every service seen so far has published counters after ``since_monotonic_s``
+        (a stats period is 1 s; a loaded host delays it): True when all have."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with self._lock:
+                stale = [n for n, t in self.arrived_monotonic_s.items() if t <= since_monotonic_s]
+            if not stale or time.monotonic() >= deadline:
+                return not stale
+            time.sleep(0.05)
 
     def mark(self) -> None:
         """Counters from now on (a service's counts before the run are subtracted)."""
