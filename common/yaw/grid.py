@@ -1,4 +1,4 @@
-"""The patch grid over a frame (paper A, Fig. 2) and the frame validation at the core's boundary."""
+"""The patch grid over a frame (paper A, Fig. 2) and the frame's check where it enters the yaw core."""
 
 from __future__ import annotations
 
@@ -73,11 +73,16 @@ class PatchGrid:
             raise InputError("indices must be unique")
         return arr
 
+    def check_frame(self, frame_u8: object, name: str = "frame") -> U8Array:
+        """``frame_u8`` if it is a grey uint8 image of the grid's shape, else InputError: the one check of a
+        frame where it enters the yaw core (the tracker, a member's crops); the steps after it trust it."""
+        frame = check_grey_image(frame_u8, name)
+        if frame.shape != self.frame_shape:
+            raise InputError(f"{name} must have shape {self.frame_shape}, got {frame.shape}")
+        return frame
+
     def level_image(self, frame_u8: U8Array) -> U8Array:
-        """The frame at the grid's pyramid level (checks the frame and its shape)."""
-        check_grey_image(frame_u8, "frame")
-        if frame_u8.shape != self.frame_shape:
-            raise InputError(f"frame must have shape {self.frame_shape} for this grid, got {frame_u8.shape}")
+        """The frame at the grid's pyramid level (checked by :meth:`check_frame` where it entered)."""
         return pyramid_image(frame_u8, self.pyramid_level)
 
     def crop_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
@@ -101,7 +106,7 @@ class PatchGrid:
         Only these pixels need to travel to a worker; ``patch_spectra_from_crops`` turns them into
         the same spectra as ``patch_spectra`` on the whole frame, bit for bit.
         """
-        return self.crop_level(self.level_image(frame_u8), indices)
+        return self.crop_level(self.level_image(self.check_frame(frame_u8)), indices)
 
 
 def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> PatchGrid:
