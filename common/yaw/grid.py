@@ -73,16 +73,8 @@ class PatchGrid:
             raise InputError("indices must be unique")
         return arr
 
-    def check_frame(self, frame_u8: object, name: str = "frame") -> U8Array:
-        """``frame_u8`` if it is a grey uint8 image of the grid's shape, else InputError: the one check of a
-        frame where it enters the yaw core (the tracker, a member's crops); the steps after it trust it."""
-        frame = check_grey_image(frame_u8, name)
-        if frame.shape != self.frame_shape:
-            raise InputError(f"{name} must have shape {self.frame_shape}, got {frame.shape}")
-        return frame
-
     def level_image(self, frame_u8: U8Array) -> U8Array:
-        """The frame at the grid's pyramid level (checked by :meth:`check_frame` where it entered)."""
+        """The frame at the grid's pyramid level (the frame was checked where it entered the core)."""
         return pyramid_image(frame_u8, self.pyramid_level)
 
     def crop_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
@@ -106,7 +98,8 @@ class PatchGrid:
         Only these pixels need to travel to a worker; ``patch_spectra_from_crops`` turns them into
         the same spectra as ``patch_spectra`` on the whole frame, bit for bit.
         """
-        return self.crop_level(self.level_image(self.check_frame(frame_u8)), indices)
+        frame = check_grey_image(frame_u8, "frame", shape=self.frame_shape)
+        return self.crop_level(self.level_image(frame), indices)
 
 
 def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> PatchGrid:

@@ -113,7 +113,7 @@ class YawTracker:
         self, frame0_u8: U8Array, with_spectra: bool = True, stamp_s: float | None = None
     ) -> TrackerState:
         """State at frame 0 (yaw 0); ``with_spectra`` caches its patch spectra for in-process ``track``."""
-        frame = self.grid.check_frame(frame0_u8, "frame0_u8")
+        frame = check_grey_image(frame0_u8, "frame0_u8", shape=self.grid.frame_shape)
         spectra = patch_spectra(frame, self.grid, None, self.settings) if with_spectra else None
         return TrackerState(
             seq=0, yaw_rad=0.0, previous_frame=frame, previous_spectra=spectra, stamp_s=_check_stamp(stamp_s)
@@ -135,7 +135,7 @@ class YawTracker:
         rotation since frame k-1, :func:`~common.yaw.honest.gyro_delta_yaw_rad`) is the prior and the
         bridge over untrusted pairs. The returned state has no spectra; ``track`` adds them.
         """
-        frame = self.grid.check_frame(frame_u8, "frame_u8")
+        frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
         return self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
 
     def _conclude(
@@ -216,7 +216,7 @@ class YawTracker:
         gyro_delta_rad: float | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """In-process: spectra of all patches, ``measure_patches`` vs the cached ones, ``conclude``."""
-        frame = self.grid.check_frame(frame_u8, "frame_u8")
+        frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
         previous = state.previous_spectra
         if previous is None:
             previous = patch_spectra(state.previous_frame, self.grid, None, self.settings)

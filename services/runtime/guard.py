@@ -2,7 +2,7 @@
 
 Thin glue between the pure cores (:mod:`common.dispatch.trust`, :mod:`common.dispatch.vetting`,
 :mod:`common.dispatch.admission`) and a service's counters and log: the master calls
-:meth:`admit_frame` in its frame callback, :meth:`note_alive` in its liveliness callback (both hand off
+:meth:`admit_frame` on its frames thread, :meth:`note_alive` in its liveliness callback (hands off
 only), :meth:`quarantined` when it applies membership and :meth:`vet` after each frame's round.
 """
 
@@ -45,10 +45,11 @@ class DispatchGuard:
         """The service's trust monitor, for a new dispatcher (disabled when the guard is)."""
         return self._monitor
 
-    def admit_frame(self, sample: zenoh.Sample) -> bool:
-        """Whether a frame sample is from the followed source; others are dropped, counted and logged."""
+    def admit_frame(self, sample: zenoh.Sample, now_s: float) -> bool:
+        """Whether a frame sample received at ``now_s`` (monotonic) is from the followed source; others are
+        dropped, counted and logged."""
         source = source_of(sample)
-        if not self.enabled or self.sources.admit(source, time.monotonic()):
+        if not self.enabled or self.sources.admit(source, now_s):
             return True
         n = self.counters.inc("frames_foreign")
         if n <= 5 or n % 100 == 0:

@@ -72,6 +72,13 @@ class WorkQueue(Generic[T]):
                 self._cond.wait(timeout_s)
             return self._items.popleft() if self._items else None
 
+    def wait(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for an item (not taking it); True when one is queued."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            return bool(self._items)
+
     def drain(self) -> list[T]:
         with self._cond:
             items = list(self._items)
