@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -106,13 +107,15 @@ class DoubleCouplingEstimator:
 
     def process_due(self) -> list[Output]:
         """Apply every sample that is older than the newest by ``max_lag_s``, in stamp order."""
-        return self._apply(self.buffer.pop_due())
+        return self._apply(self.buffer.pop_due)
 
     def drain(self) -> list[Output]:
         """Apply everything pending (end of a stream)."""
-        return self._apply(self.buffer.drain())
+        return self._apply(self.buffer.drain)
 
-    def _apply(self, released: list[Timed[Measurement]]) -> list[Output]:
+    def _apply(self, release: Callable[[], list[Timed[Measurement]]]) -> list[Output]:
+        """Apply what ``release`` (the buffer's) gives, in stamp order."""
+        released = release()
         outputs: list[Output] = []
         latest_frame = -math.inf
         for t in released:

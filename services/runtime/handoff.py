@@ -108,6 +108,14 @@ class Counters:
         with self._lock:
             return self._counts.get(name, 0)
 
+    def update(self, counts: dict[str, int], timings_ms: dict[str, float] | None = None) -> None:
+        """Several counts and timings at once (one lock)."""
+        with self._lock:
+            for name, n in counts.items():
+                self._counts[name] = self._counts.get(name, 0) + n
+            for name, value_ms in (timings_ms or {}).items():
+                self._timings.setdefault(name, deque(maxlen=self._window)).append(value_ms)
+
     def time_ms(self, name: str, value_ms: float) -> None:
         with self._lock:
             self._timings.setdefault(name, deque(maxlen=self._window)).append(value_ms)

@@ -91,7 +91,7 @@ def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpo
                 if isinstance(message, Frame):
                     assert wait_until(
                         lambda n=frames_sent: (
-                            service.counters.get("frames_in") == n and service._frames.depth() == 0
+                            service.counters.get("frames_in") == n and service._backlog.frames.depth() == 0
                         )
                     ), service.counters.counts()
                     frames_sent += 1
