@@ -25,7 +25,8 @@ from common.estimation.coupled_vo import FilterView
 from common.estimation.coupling_types import AttitudeOutput, CouplingSettings, ScaleSource
 from common.estimation.ekf import EkfSettings
 from common.estimation.ekf_models import EkfError, altitude_from_range
-from common.estimation.eskf import BiasAwareEkf, BiasEkfState
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.eskf_state import BiasEkfState
 from common.estimation.filters import (
     AnyState,
     AttitudeFilter,

@@ -13,7 +13,8 @@ import numpy.typing as npt
 from common.estimation.coupling_types import FilterKind
 from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState
 from common.estimation.ekf_models import propagate_quaternion
-from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.eskf_state import BiasEkfSettings, BiasEkfState
 from common.types import FloatArray
 
 AnyState = EkfState | BiasEkfState
