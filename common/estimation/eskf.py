@@ -167,10 +167,10 @@ class BiasAwareEkf:
         position (altitude included) integrate ``a = R (f - b_a) - g e_z``
         (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a
         constant velocity."""
-        check_duration(dt_s)
         gyro = _vector3(gyro_rad_s, "gyro_rad_s")
         use_accel = accel_m_s2 is not None
         accel = _vector3(accel_m_s2, "accel_m_s2") if accel_m_s2 is not None else _ZERO3
+        check_duration(dt_s)
         status, x, P = kernels.predict_step(
             state.nominal, state.covariance, gyro, accel, use_accel, float(dt_s), self._q_rate, self._q_rate2,
             self._gravity,

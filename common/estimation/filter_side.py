@@ -135,19 +135,20 @@ class FilterSide:
         if s.thrust_axis_interval_s > 0.0 and isinstance(self.ekf, BiasAwareEkf):
             self._thrust_axis(self.ekf, m)
         state = self.state
+        # the read-outs first, together (each an entry into the filter's module)
+        altitude_var_m2 = self.ekf.altitude_variance(state)
+        covariance = self.ekf.attitude_covariance_world(state)
+        q = state.q_world_body
         if self._rect_q is None or s.rectification_smoothing_s <= 0.0:
-            self._rect_q = state.q_world_body
+            self._rect_q = q
         else:
             # the attitude used to rectify (:func:`~common.estimation.filters.smoothed_attitude`)
-            self._rect_q = smoothed_attitude(
-                self._rect_q, gyro, dt_s, state.q_world_body, s.rectification_smoothing_s
-            )
-        altitude_var_m2 = self.ekf.altitude_variance(state)
+            self._rect_q = smoothed_attitude(self._rect_q, gyro, dt_s, q, s.rectification_smoothing_s)
         return AttitudeOutput(
             stamp_s=m.stamp_s,
-            q_world_body=state.q_world_body,
+            q_world_body=q,
             pz_m=state.pz_m,
-            attitude_covariance_world=self.ekf.attitude_covariance_world(state),
+            attitude_covariance_world=covariance,
             altitude_var_m2=altitude_var_m2,
         )
 

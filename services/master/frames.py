@@ -85,11 +85,6 @@ class FrameIntake:
         #: recent refusals, for health
         self.refusals = InputStamps()
 
-    @property
-    def dropped(self) -> int:
-        """Frames dropped before the yaw stage (a full inbox or queue)."""
-        return self.slot.dropped + self.inbox.dropped
-
     def receive(self, sample: zenoh.Sample) -> None:
         """Zenoh's thread: hand the sample off with its arrival times."""
         if self.inbox.put(Received(sample, time.monotonic(), time.time())):
@@ -97,35 +92,39 @@ class FrameIntake:
 
     def gate_received(self, leading: bool) -> None:
         """Frames thread: every sample received so far through the gate, in arrival order; the admitted ones
-        kept as recent frames and, when ``leading``, queued."""
+        kept as recent frames and, when ``leading``, queued. The counts are added once."""
+        counts: dict[str, int] = {}
         for received in self.inbox.drain():
-            item = self._admit(received)
+            item = self._admit(received, counts)
             if item is not None and leading and self.slot.put(item):
-                self.service.counters.inc("frames_dropped")
+                counts["frames_dropped"] = counts.get("frames_dropped", 0) + 1
+        if counts:
+            self.service.counters.update(counts)
 
-    def _admit(self, received: Received) -> tuple[int, Frame] | None:
+    def _admit(self, received: Received, counts: dict[str, int]) -> tuple[int, Frame] | None:
         """(epoch, frame) of an admitted sample; None (counted) for a refused one."""
         service, sample = self.service, received.sample
-        if not self.guard.admit_frame(sample, received.now_s):
+        source = source_of(sample)
+        if not self.guard.admit_source(source, received.now_s):
             return None
         frame = service.decode_sample(sample, Frame)
         if frame is None:
             return None
-        service.counters.inc("frames_in")
+        counts["frames_in"] = counts.get("frames_in", 0) + 1
         key = FrameKey(frame.width, frame.height, frame.encoding)
         self.gate, decision = admit_frame(
             self.gate, self.gate_settings, self.uav, frame.uav, frame.seq, frame.stamp_s, key,
-            received.now_s, received.wall_s, source_of(sample),
+            received.now_s, received.wall_s, source,
         )  # fmt: skip
         if decision.verdict is Verdict.REFUSE:
             service.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
             self.refusals.note_refusal()
             return None
         if decision.verdict is Verdict.NEW_EPOCH:
-            service.counters.inc("epochs")
+            counts["epochs"] = counts.get("epochs", 0) + 1
             if self.gate.epoch > 0:
                 service.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
-        service.counters.inc("frames_missing", decision.gap)
+        counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
         item = (self.gate.epoch, frame)
         with self.recent_lock:
             self.recent.append(item)

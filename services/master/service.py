@@ -285,7 +285,7 @@ class MasterService(ConfiguredService[MasterSettings]):
                 method="initial",
                 provenance=Provenance.INITIAL,
                 timings_ms={"total": (time.perf_counter() - t0) * 1e3},
-                dropped_frames=self.intake.dropped,
+                dropped_frames=self.slot.dropped + self.intake.inbox.dropped,
             )
         if frame.seq <= stream.prev_seq:
             self.counters.inc("frames_already_measured")
@@ -374,7 +374,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             timings_ms=timings,
             members=members,
             speeds_patches_s=dict(report.speeds) if report else {},
-            dropped_frames=self.intake.dropped,
+            dropped_frames=self.slot.dropped + self.intake.inbox.dropped,
             redispatched=report.redispatched if report else 0,
             provenance=core.provenance,
             yaw_variance_rad2=core.yaw_variance_rad2,

@@ -89,11 +89,11 @@ def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpo
             for seq, measurement in enumerate(stream):
                 key, message = message_of("uav0", seq, measurement)
                 if isinstance(message, Frame):
-                    assert wait_until(
-                        lambda n=frames_sent: (
-                            service.counters.get("frames_in") == n and service._backlog.frames.depth() == 0
-                        )
-                    ), service.counters.counts()
+
+                    def taken(n: int = frames_sent) -> bool:
+                        return service.counters.get("frames_in") == n and service._backlog.frames.depth() == 0
+
+                    assert wait_until(taken), service.counters.counts()
                     frames_sent += 1
                 payload, attachment = encode(message)
                 publishers[zenoh.KeyExpr(key)].put(payload, attachment=attachment)
