@@ -144,8 +144,15 @@ class AttitudeAltitudeEkf:
 
     # ---- predict ----------------------------------------------------------------------------------
 
-    def predict(self, state: EkfState, gyro_rad_s: npt.ArrayLike, dt_s: float) -> EkfState:
-        """Gyro prediction over ``dt_s`` (paper C eqs. 1-3 with the models of eqs. 12-15).
+    def predict(
+        self,
+        state: EkfState,
+        gyro_rad_s: npt.ArrayLike,
+        dt_s: float,
+        accel_m_s2: npt.ArrayLike | None = None,
+    ) -> EkfState:
+        """Gyro prediction over ``dt_s`` (paper C eqs. 1-3 with the models of eqs. 12-15); ``accel_m_s2`` is
+        not used (the constant-altitude model has no inertial navigation; the error-state filter's has).
 
         ``Q`` maps the gyro noise through the kinematics, ``Q_q = (dt/2)^2 sigma^2 Xi(q) Xi(q)^T =
         (dt/2)^2 sigma^2 (I - q q^T)``, plus the attitude and altitude random walks.

@@ -1,61 +1,73 @@
-"""The two attitude/altitude filters behind one set of functions: paper C's 5-state EKF (the reference) and
-the error-state EKF with bias states. The coupling holds either; these dispatch on the pair it holds."""
+"""The two attitude/altitude filters behind one :class:`AttitudeFilter` protocol: paper C's 5-state EKF (the
+reference) and the error-state EKF with bias states. The coupling holds either and calls its methods directly;
+each method takes a state and returns a new one (or an :class:`Update` carrying it)."""
 
 from __future__ import annotations
 
 import math
-from typing import Any, cast
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 
 from common.estimation.coupling_types import EkfKind
 from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState
-from common.estimation.ekf_models import EkfError, propagate_quaternion
-from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
+from common.estimation.ekf_models import propagate_quaternion
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.eskf_state import BiasEkfSettings, BiasEkfState
 from common.types import FloatArray
 
-AnyFilter = AttitudeAltitudeEkf | BiasAwareEkf
 AnyState = EkfState | BiasEkfState
+S = TypeVar("S", bound=AnyState)
+S_co = TypeVar("S_co", bound=AnyState, covariant=True)
 
 
-def make_filter(kind: EkfKind, settings: EkfSettings | None = None) -> AnyFilter:
+class Update(Protocol[S_co]):
+    """Outcome of one measurement update: the new state, whether the gate accepted it, its NIS."""
+
+    @property
+    def state(self) -> S_co: ...
+    @property
+    def accepted(self) -> bool: ...
+    @property
+    def nis(self) -> float: ...
+
+
+class AttitudeFilter(Protocol[S]):
+    """What the coupling calls on a filter: state in, state out."""
+
+    @property
+    def settings(self) -> EkfSettings: ...
+
+    def initial_state(self, q_world_body: npt.ArrayLike, pz_m: float, stamp_s: float) -> S: ...
+
+    def predict(
+        self, state: S, gyro_rad_s: npt.ArrayLike, dt_s: float, accel_m_s2: npt.ArrayLike | None = None
+    ) -> S: ...
+
+    def update_accelerometer(
+        self,
+        state: S,
+        accel_m_s2: npt.ArrayLike,
+        motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> Update[S]: ...
+
+    def update_yaw(self, state: S, yaw_rad: float, yaw_noise_rad: float | None = None) -> Update[S]: ...
+
+    def update_range(self, state: S, range_m: float) -> Update[S]: ...
+
+    def with_altitude(self, state: S, pz_m: float, std_m: float) -> S: ...
+
+    def attitude_covariance_world(self, state: S) -> FloatArray: ...
+
+    def altitude_variance(self, state: S) -> float: ...
+
+
+def make_filter(kind: EkfKind, settings: EkfSettings | None = None) -> AttitudeFilter[Any]:
     """The filter of ``kind`` (``settings`` of the matching type, else its defaults)."""
     if kind is EkfKind.BIAS:
         return BiasAwareEkf(settings if isinstance(settings, BiasEkfSettings) else None)
     return AttitudeAltitudeEkf(settings)
-
-
-def _call(ekf: AnyFilter, state: AnyState, method: str, *args: Any) -> Any:
-    """``ekf.method(state, *args)`` (both filters share the names) once the state is the filter's kind."""
-    if not (
-        (isinstance(state, BiasEkfState) and isinstance(ekf, BiasAwareEkf))
-        or (isinstance(state, EkfState) and isinstance(ekf, AttitudeAltitudeEkf))
-    ):
-        raise EkfError("filter and state kinds differ")
-    return getattr(ekf, method)(state, *args)
-
-
-def with_altitude(ekf: AnyFilter, state: AnyState, pz_m: float, std_m: float) -> AnyState:
-    """The state with its altitude replaced (uncorrelated, std ``std_m``)."""
-    return cast(AnyState, _call(ekf, state, "with_altitude", pz_m, std_m))
-
-
-def attitude_covariance(ekf: AnyFilter, state: AnyState) -> FloatArray:
-    """3x3 covariance of world-frame error angles."""
-    return cast(FloatArray, _call(ekf, state, "attitude_covariance_world"))
-
-
-def altitude_variance(ekf: AnyFilter, state: AnyState) -> float:
-    return float(_call(ekf, state, "altitude_variance"))
-
-
-def filter_step(ekf: AnyFilter, state: AnyState, method: str, *args: Any) -> tuple[AnyState, bool]:
-    """One filter call (``predict`` or an ``update_*``; both filters share the names): the new state and
-    whether the update passed its gate."""
-    result = getattr(ekf, method)(state, *args)
-    if method == "predict":
-        return result, True
-    return result.state, bool(result.accepted)
 
 
 def tilt_std_rad(attitude_covariance_world: FloatArray) -> float:

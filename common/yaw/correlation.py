@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -47,7 +47,7 @@ class PatchMeasurement:
     ``shift_px`` (n, 2) [dx, dy]: content at centre c in frame k-1 is at c + shift in frame k.
     ``confidence`` (n,) is the ratio of the correlation peak to the second peak; ``peak`` (n,) the
     height of the (Gaussian-weighted) phase-correlation peak; ``valid`` (n,) rejects textureless
-    and ambiguous patches.
+    and ambiguous patches, ``n_valid`` is how many it keeps.
     """
 
     indices: IntArray
@@ -55,10 +55,10 @@ class PatchMeasurement:
     confidence: FloatArray
     peak: FloatArray
     valid: npt.NDArray[np.bool_]
+    n_valid: int = field(init=False)
 
-    @property
-    def n_valid(self) -> int:
-        return int(np.count_nonzero(self.valid))
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "n_valid", int(np.count_nonzero(self.valid)))
 
 
 def merge_measurements(
@@ -227,9 +227,10 @@ def patch_spectra_from_crops(
 def patch_spectra(
     frame_u8: U8Array, grid: PatchGrid, indices: npt.ArrayLike | None, settings: YawSettings
 ) -> PatchSpectra:
-    """Spectra of the patches ``indices`` (all when None) of one full-resolution frame."""
-    idx = grid.all_indices if indices is None else grid.check_indices(indices)
-    return patch_spectra_from_crops(grid.crop(frame_u8, idx), idx, settings)
+    """Spectra of the patches ``indices`` (all when None) of one full-resolution frame, checked where it
+    entered the core (:meth:`~common.yaw.tracker.YawTracker.track`)."""
+    idx = grid.all_indices if indices is None else indices
+    return patch_spectra_from_crops(grid.crop_level(grid.level_image(frame_u8), idx), idx, settings)
 
 
 @functools.lru_cache(maxsize=16)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -19,18 +19,18 @@ class ModelFit:
     """A robust fit: ``homography`` (3, 3) maps frame k-1 pixels to frame k pixels.
 
     ``ok`` is False when there were too few correspondences or the fit failed (then the homography is
-    the identity); ``inliers`` (n,) is over the correspondences given; ``residual_px`` is the median
-    transfer error of the inliers.
+    the identity); ``inliers`` (n,) is over the correspondences given, ``inlier_count`` how many they are;
+    ``residual_px`` is the median transfer error of the inliers.
     """
 
     ok: bool
     homography: FloatArray
     inliers: BoolArray
     residual_px: float
+    inlier_count: int = field(init=False)
 
-    @property
-    def inlier_count(self) -> int:
-        return int(np.count_nonzero(self.inliers))
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "inlier_count", int(np.count_nonzero(self.inliers)))
 
 
 def _failed(n: int) -> ModelFit:

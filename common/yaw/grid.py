@@ -1,4 +1,4 @@
-"""The patch grid over a frame (paper A, Fig. 2) and the frame validation at the core's boundary."""
+"""The patch grid over a frame (paper A, Fig. 2) and the frame's check where it enters the yaw core."""
 
 from __future__ import annotations
 
@@ -74,10 +74,7 @@ class PatchGrid:
         return arr
 
     def level_image(self, frame_u8: U8Array) -> U8Array:
-        """The frame at the grid's pyramid level (checks the frame and its shape)."""
-        check_grey_image(frame_u8, "frame")
-        if frame_u8.shape != self.frame_shape:
-            raise InputError(f"frame must have shape {self.frame_shape} for this grid, got {frame_u8.shape}")
+        """The frame at the grid's pyramid level (the frame was checked where it entered the core)."""
         return pyramid_image(frame_u8, self.pyramid_level)
 
     def crop_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
@@ -101,7 +98,8 @@ class PatchGrid:
         Only these pixels need to travel to a worker; ``patch_spectra_from_crops`` turns them into
         the same spectra as ``patch_spectra`` on the whole frame, bit for bit.
         """
-        return self.crop_level(self.level_image(frame_u8), indices)
+        frame = check_grey_image(frame_u8, "frame", shape=self.frame_shape)
+        return self.crop_level(self.level_image(frame), indices)
 
 
 def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> PatchGrid:

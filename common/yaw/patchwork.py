@@ -126,20 +126,24 @@ def measure_share(
             f"no spectra of frame {prev_seq} for patches {missing[:10]} (send previous crops)"
         )
     current = patch_spectra_from_crops(crops_u8, idx, settings)
-    cache.store(stream, seq, current)
     if idx.size == 0:
-        return measure_patches(current, current, settings)
-    if cached is not None and not prev_idx.size and np.array_equal(cached.indices, idx):
-        return measure_patches(cached, current, settings)  # all previous spectra held, in order
-    sent = patch_spectra_from_crops(prev_crops_u8, prev_idx, settings) if prev_idx.size else None
-    rows: dict[int, tuple[np.ndarray, np.floating[Any]]] = {}
-    for part in (cached, sent):
-        if part is not None:
-            for row, index in enumerate(part.indices.tolist()):
-                rows[int(index)] = (part.spectra[row], part.texture_std[row])
-    previous = PatchSpectra(
-        indices=idx,
-        spectra=np.stack([rows[int(i)][0] for i in idx]),
-        texture_std=np.array([rows[int(i)][1] for i in idx], dtype=np.float32),
-    )
-    return measure_patches(previous, current, settings)
+        previous = current
+    elif cached is not None and not prev_idx.size and np.array_equal(cached.indices, idx):
+        previous = cached  # all previous spectra held, in order
+    else:
+        sent = patch_spectra_from_crops(prev_crops_u8, prev_idx, settings) if prev_idx.size else None
+        rows: dict[int, tuple[np.ndarray, np.floating[Any]]] = {}
+        for part in (cached, sent):
+            if part is not None:
+                for row, index in enumerate(part.indices.tolist()):
+                    rows[int(index)] = (part.spectra[row], part.texture_std[row])
+        previous = PatchSpectra(
+            indices=idx,
+            spectra=np.stack([rows[int(i)][0] for i in idx]),
+            texture_std=np.array([rows[int(i)][1] for i in idx], dtype=np.float32),
+        )
+    measurement = measure_patches(previous, current, settings)
+    cache.store(
+        stream, seq, current
+    )  # once measured: a share that fails to measure leaves the cache as it was
+    return measurement

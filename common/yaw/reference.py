@@ -54,8 +54,8 @@ class ReferencePair:
 
 def reference_shifts(frame_a: U8Array, frame_b: U8Array, grid: PatchGrid) -> tuple[FloatArray, FloatArray]:
     """``cv2.phaseCorrelate`` of every patch pair (Hann window): shifts (P, 2) [dx, dy] and responses (P,)."""
-    level_a = grid.level_image(frame_a)
-    level_b = grid.level_image(frame_b)
+    level_a = grid.level_image(check_grey_image(frame_a, "frame_a", shape=grid.frame_shape))
+    level_b = grid.level_image(check_grey_image(frame_b, "frame_b", shape=grid.frame_shape))
     window = _window64(grid.patch_size_px)
     scale = float(2**grid.pyramid_level)
     shifts = np.empty((grid.n_patches, 2))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from enum import Enum
 
@@ -100,7 +101,7 @@ class YawSettings(Bounded):
         if self.camera is not None and not isinstance(self.camera, CameraModel):
             raise InputError(f"camera must be a CameraModel, got {type(self.camera).__name__}")
 
-    @property
+    @functools.cached_property
     def scale(self) -> int:
-        """Full-resolution pixels per pixel at the working pyramid level."""
+        """Full-resolution pixels per pixel at the working pyramid level (computed once per settings)."""
         return int(2**self.pyramid_level)

@@ -23,7 +23,7 @@ from common.yaw.correlation import (
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
 from common.yaw.global_align import estimate_global_alignment, warp_into
 from common.yaw.grid import PatchGrid, pyramid_image
-from common.yaw.honest import Prior, PriorSource, choose_rotation, plausible
+from common.yaw.honest import Prior, PriorSource, choose_rotation, measured_variance_rad2, plausible
 from common.yaw.settings import FitModel, YawSettings
 
 logger = logging.getLogger(__name__)
@@ -110,6 +110,8 @@ def fit_is_good(fit: ModelFit, measurement: PatchMeasurement, settings: YawSetti
 
 @dataclass(frozen=True, eq=False)
 class PairResult:
+    """One pair's outcome; ``variance_rad2`` is the variance of ``delta_rad`` if it is trusted (measured)."""
+
     homography: FloatArray
     method: EstimateMethod
     fit: ModelFit
@@ -117,6 +119,7 @@ class PairResult:
     low_confidence: bool
     delta_rad: float
     trusted: bool
+    variance_rad2: float
 
 
 def _result(
@@ -133,8 +136,9 @@ def _result(
         rotation_of_homography_rad(homography, lens.centre_px) if method is not EstimateMethod.NONE else 0.0
     )
     low = not good or fit.residual_px > settings.max_residual_px or method in _UNTRUSTED
+    variance = measured_variance_rad2(fit.residual_px, fit.inlier_count, lens.lever_px)
     trusted = not low and plausible(delta, prior, settings)
-    return PairResult(homography, method, fit, measurement, low, delta, trusted)
+    return PairResult(homography, method, fit, measurement, low, delta, trusted, variance)
 
 
 _UNTRUSTED = (EstimateMethod.GLOBAL_ONLY, EstimateMethod.NONE)

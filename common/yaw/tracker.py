@@ -25,9 +25,9 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, make_patch_grid
-from common.yaw.honest import PriorSource, Provenance, make_prior, measured_variance_rad2
+from common.yaw.honest import PriorSource, Provenance, make_prior
 from common.yaw.settings import YawSettings
-from common.yaw.stages import EstimateMethod, PairResult, conclude_pair, lens_of
+from common.yaw.stages import EstimateMethod, conclude_pair, lens_of
 
 logger = logging.getLogger(__name__)
 
@@ -95,7 +95,11 @@ def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> fl
 
 
 class YawTracker:
-    """Integrates the yaw of a frame stream; explicit state in, state out."""
+    """Integrates the yaw of a frame stream; explicit state in, state out.
+
+    Each frame is checked once, where it enters (:meth:`initial_state`, :meth:`conclude`, :meth:`track`);
+    the stages after that trust it.
+    """
 
     def __init__(self, settings: YawSettings, grid: PatchGrid) -> None:
         if grid.pyramid_level != settings.pyramid_level or grid.patch_size_px != settings.patch_size_px:
@@ -103,18 +107,13 @@ class YawTracker:
         self.settings = settings
         self.grid = grid
         self.lens = lens_of(grid, settings)
-
-    def _check(self, frame_u8: U8Array, name: str) -> U8Array:
-        check_grey_image(frame_u8, name)
-        if frame_u8.shape != self.grid.frame_shape:
-            raise InputError(f"{name} must have shape {self.grid.frame_shape}, got {frame_u8.shape}")
-        return frame_u8
+        self._n_patches = grid.n_patches
 
     def initial_state(
         self, frame0_u8: U8Array, with_spectra: bool = True, stamp_s: float | None = None
     ) -> TrackerState:
         """State at frame 0 (yaw 0); ``with_spectra`` caches its patch spectra for in-process ``track``."""
-        frame = self._check(frame0_u8, "frame0_u8")
+        frame = check_grey_image(frame0_u8, "frame0_u8", shape=self.grid.frame_shape)
         spectra = patch_spectra(frame, self.grid, None, self.settings) if with_spectra else None
         return TrackerState(
             seq=0, yaw_rad=0.0, previous_frame=frame, previous_spectra=spectra, stamp_s=_check_stamp(stamp_s)
@@ -136,29 +135,39 @@ class YawTracker:
         rotation since frame k-1, :func:`~common.yaw.honest.gyro_delta_yaw_rad`) is the prior and the
         bridge over untrusted pairs. The returned state has no spectra; ``track`` adds them.
         """
-        frame = self._check(frame_u8, "frame_u8")
+        frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
+        return self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
+
+    def _conclude(
+        self,
+        state: TrackerState,
+        frame: U8Array,
+        measurement: PatchMeasurement,
+        stamp_s: float | None,
+        gyro_delta_rad: float | None,
+        check_global: bool,
+    ) -> tuple[TrackerState, FrameYaw]:
+        """:meth:`conclude` of a checked frame; ``check_global`` verifies even a trusted patch fit against the
+        global stage (one pair of any rotation, :func:`estimate_pair`)."""
         stamp = _check_stamp(stamp_s)
         if gyro_delta_rad is not None and not math.isfinite(gyro_delta_rad):
             raise InputError(f"gyro_delta_rad must be finite, got {gyro_delta_rad}")
         if measurement.indices.size and np.any(np.diff(measurement.indices) <= 0):
             measurement = merge_measurements([measurement])
-        if measurement.indices.size and measurement.indices.max() >= self.grid.n_patches:
-            raise InputError(f"measurement indices exceed the grid's {self.grid.n_patches} patches")
+        if measurement.indices.size and measurement.indices.max() >= self._n_patches:
+            raise InputError(f"measurement indices exceed the grid's {self._n_patches} patches")
         dt = stamp - state.stamp_s if stamp is not None and state.stamp_s is not None else None
         if dt is not None and dt <= 0.0:
             raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
         prior = make_prior(self.settings, dt, gyro_delta_rad, state.rate_rad_s, state.since_measured_s)
         result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
-            state.previous_spectra, prior, False,
+            state.previous_spectra, prior, check_global,
         )  # fmt: skip
         step_s = dt if dt is not None else self.settings.frame_period_s
         rate: float | None
         if result.trusted:
-            provenance, delta = Provenance.MEASURED, result.delta_rad
-            variance = measured_variance_rad2(
-                result.fit.residual_px, result.fit.inlier_count, self.lens.lever_px
-            )
+            provenance, delta, variance = Provenance.MEASURED, result.delta_rad, result.variance_rad2
             rate, since = delta / step_s, 0.0
         elif prior.source is PriorSource.GYRO:
             provenance, delta, variance = Provenance.BRIDGED, prior.delta_rad, prior.variance_rad2
@@ -168,7 +177,26 @@ class YawTracker:
             rate, since = state.rate_rad_s, state.since_measured_s + step_s
         yaw = state.yaw_rad + delta
         yaw_variance = state.yaw_variance_rad2 + variance
-        estimate = _make_estimate(state.seq + 1, delta, yaw, result, provenance, variance, yaw_variance)
+        measured = result.method is not EstimateMethod.NONE
+        patch_count = int(result.measurement.indices.size)
+        inliers = result.fit.inlier_count if measured else 0
+        estimate = FrameYaw(
+            seq=state.seq + 1,
+            delta_yaw_rad=float(delta),
+            yaw_rad=float(yaw),
+            inlier_count=inliers,
+            patch_count=patch_count,
+            valid_count=result.measurement.n_valid,
+            confidence=inliers / patch_count if patch_count else 0.0,
+            low_confidence=bool(result.low_confidence or provenance is not Provenance.MEASURED),
+            method=result.method,
+            homography=result.homography,
+            residual_px=float(result.fit.residual_px),
+            provenance=provenance,
+            measured_delta_rad=float(result.delta_rad) if measured else math.nan,
+            delta_variance_rad2=float(variance),
+            yaw_variance_rad2=float(yaw_variance),
+        )
         return TrackerState(
             seq=state.seq + 1,
             yaw_rad=yaw,
@@ -188,14 +216,14 @@ class YawTracker:
         gyro_delta_rad: float | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """In-process: spectra of all patches, ``measure_patches`` vs the cached ones, ``conclude``."""
-        frame = self._check(frame_u8, "frame_u8")
+        frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
         previous = state.previous_spectra
         if previous is None:
             previous = patch_spectra(state.previous_frame, self.grid, None, self.settings)
             state = replace(state, previous_spectra=previous)
         current = patch_spectra(frame, self.grid, previous.indices, self.settings)
         measurement = measure_patches(previous, current, self.settings)
-        state, estimate = self.conclude(state, frame, measurement, stamp_s, gyro_delta_rad)
+        state, estimate = self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
         return replace(state, previous_spectra=current), estimate
 
 
@@ -205,62 +233,19 @@ def _check_stamp(stamp_s: float | None) -> float | None:
     return None if stamp_s is None else float(stamp_s)
 
 
-def _make_estimate(
-    seq: int,
-    delta: float,
-    yaw: float,
-    result: PairResult,
-    provenance: Provenance,
-    delta_variance: float,
-    yaw_variance: float,
-) -> FrameYaw:
-    patch_count = int(result.measurement.indices.size)
-    inliers = result.fit.inlier_count if result.method is not EstimateMethod.NONE else 0
-    return FrameYaw(
-        seq=seq,
-        delta_yaw_rad=float(delta),
-        yaw_rad=float(yaw),
-        inlier_count=inliers,
-        patch_count=patch_count,
-        valid_count=result.measurement.n_valid,
-        confidence=inliers / patch_count if patch_count else 0.0,
-        low_confidence=bool(result.low_confidence or provenance is not Provenance.MEASURED),
-        method=result.method,
-        homography=result.homography,
-        residual_px=float(result.fit.residual_px),
-        provenance=provenance,
-        measured_delta_rad=float(result.delta_rad) if result.method is not EstimateMethod.NONE else math.nan,
-        delta_variance_rad2=float(delta_variance),
-        yaw_variance_rad2=float(yaw_variance),
-    )
-
-
 def estimate_pair(
     frame_a: U8Array, frame_b: U8Array, settings: YawSettings, gyro_delta_rad: float | None = None
 ) -> FrameYaw:
     """Yaw of one pair a -> b (any rotation): patch fit, checked against and if needed pre-aligned by
     the global Fourier-Mellin estimate; ``gyro_delta_rad`` disambiguates look-alike rotations. Without a
     trusted measurement the delta is the prior's (0 without a gyro) and the estimate is not MEASURED."""
-    check_grey_image(frame_a, "frame_a")
-    check_grey_image(frame_b, "frame_b")
-    if frame_a.shape != frame_b.shape:
-        raise InputError(
-            f"frame_a and frame_b must have the same shape, got {frame_a.shape} and {frame_b.shape}"
-        )
-    grid = make_patch_grid(frame_a.shape, settings)
+    a = check_grey_image(frame_a, "frame_a")
+    b = check_grey_image(frame_b, "frame_b")
+    if a.shape != b.shape:
+        raise InputError(f"frame_a and frame_b must have the same shape, got {a.shape} and {b.shape}")
+    grid = make_patch_grid(a.shape, settings)
     tracker = YawTracker(settings, grid)
-    state = tracker.initial_state(frame_a)
-    before = state.previous_spectra
-    assert before is not None
-    measurement = measure_patches(before, patch_spectra(frame_b, grid, None, settings), settings)
-    prior = make_prior(settings, None, gyro_delta_rad, None, 0.0)
-    result = conclude_pair(frame_a, frame_b, measurement, grid, tracker.lens, settings, before, prior, True)
-    if result.trusted:
-        provenance, delta = Provenance.MEASURED, result.delta_rad
-        variance = measured_variance_rad2(
-            result.fit.residual_px, result.fit.inlier_count, tracker.lens.lever_px
-        )
-    else:
-        provenance = Provenance.BRIDGED if prior.source is PriorSource.GYRO else Provenance.HELD
-        delta, variance = prior.delta_rad, prior.variance_rad2
-    return _make_estimate(1, delta, delta, result, provenance, variance, variance)
+    before = patch_spectra(a, grid, None, settings)
+    state = TrackerState(seq=0, yaw_rad=0.0, previous_frame=a, previous_spectra=before)
+    measurement = measure_patches(before, patch_spectra(b, grid, None, settings), settings)
+    return tracker._conclude(state, b, measurement, None, gyro_delta_rad, True)[1]

@@ -4,13 +4,16 @@ uncertainty, and the horizontal uncertainty of the VO path (which grows for good
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.types import FloatArray
 from common.wire.messages import AttitudeEstimate, PoseEstimate
+from common.wire.schema import WireModel
 
 #: the floor of the horizontal variance (m^2)
 MIN_VAR_XY_M2 = 1e-6
@@ -82,3 +85,48 @@ def pose_message(uav: str, seq: int, out: PoseOutput, var_xy: float) -> PoseEsti
         source="vo",
         tracking_state="tracking" if out.ok else "lost",
     )
+
+
+class Publication:
+    """What the service publishes of the estimator's outputs: each numbered, each pose with the VO path's
+    horizontal uncertainty (advanced pose by pose)."""
+
+    def __init__(self, uav: str, max_pair_s: float, drift_fraction: float) -> None:
+        self.uav = uav
+        self.max_pair_s = max_pair_s
+        self.drift_fraction = drift_fraction
+        self.attitude_seq = 0
+        self.pose_seq = 0
+        self.path = VoPath()
+
+    def publish(
+        self,
+        outputs: list[AttitudeOutput | PoseOutput],
+        put: Callable[[Any, WireModel], bool],
+        attitude_pub: Any,
+        pose_pub: Any,
+        tap: Any = None,
+    ) -> dict[str, int]:
+        """Put each output's message (``put(publisher, message)``: False when the service is stopping, which
+        ends the batch), written to ``tap`` when given; the counts of ``attitudes_out`` and ``poses_out``."""
+        counts: dict[str, int] = {}
+        for out in outputs:
+            msg: AttitudeEstimate | PoseEstimate
+            if isinstance(out, AttitudeOutput):
+                # each output with its own uncertainty, not the batch's last state's (issue 9 section 5)
+                msg = attitude_message(self.uav, self.attitude_seq, out)
+                self.attitude_seq += 1
+                publisher, counter = attitude_pub, "attitudes_out"
+            else:
+                self.path = advance_path(self.path, out, self.max_pair_s)
+                msg = pose_message(
+                    self.uav, self.pose_seq, out, horizontal_variance(self.path, self.drift_fraction)
+                )
+                self.pose_seq += 1
+                publisher, counter = pose_pub, "poses_out"
+            if not put(publisher, msg):
+                break  # shutting down: the session is closing under us
+            if tap is not None:
+                tap.write(msg)
+            counts[counter] = counts.get(counter, 0) + 1
+        return counts

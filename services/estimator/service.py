@@ -8,9 +8,12 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
 - ``capataz/uav/{uav}/pose/vo``: a :class:`PoseEstimate` after every frame (x, y from the visual odometry,
   z and attitude from the EKF), ``source = "vo"``.
 
-Callbacks only decode, validate and hand off, on zenoh's receiving thread in arrival order: IMU, range and
-yaw samples to a bounded FIFO (refusals counted as ``queue_full``), frames to a short
-:class:`~services.estimator.backlog.SpacedFrameQueue`. One thread feeds them to
+Callbacks only decode, check and hand off, on zenoh's receiving thread in arrival order, to the
+:class:`~services.estimator.backlog.Backlog`: IMU, range and yaw samples to a bounded FIFO (refusals counted
+as ``queue_full``), frames to a short :class:`~services.estimator.backlog.SpacedFrameQueue`. A sample's time
+is checked once, there (the stamp guard, :class:`~services.runtime.stamps.InputStamps`), and so are its
+values (:func:`~services.estimator.inputs.measurement_of`); the backlog and the filter's buffer only order
+what passed. One thread feeds them to
 :class:`~common.estimation.coupling.DoubleCouplingEstimator` in stamp order, one frame at a time, each after
 the samples before it. When the filter is behind, every IMU and range sample is still applied and the
 frame queue skips frames evenly (``frames_skipped``; ``vo_spacing_<n>`` counts the pairs ``n`` frames
@@ -27,7 +30,6 @@ import argparse
 import math
 import time
 from collections import deque
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -35,15 +37,7 @@ import zenoh
 
 from common.errors import InputError
 from common.estimation.buffer import Refusal
-from common.estimation.coupling_types import AttitudeOutput, PoseOutput
-from common.estimation.measurements import (
-    FrameMeasurement,
-    Measurement,
-    check_frame,
-    check_imu,
-    check_range,
-    check_yaw,
-)
+from common.estimation.measurements import FrameMeasurement, Measurement
 from common.members import Role
 from common.wire import keys
 from common.wire.messages import (
@@ -56,14 +50,9 @@ from common.wire.messages import (
     YawEstimate,
 )
 from common.wire.schema import WireModel
-from services.estimator.backlog import HeldSamples, SpacedFrameQueue
-from services.estimator.outputs import (
-    VoPath,
-    advance_path,
-    attitude_message,
-    horizontal_variance,
-    pose_message,
-)
+from services.estimator.backlog import Backlog
+from services.estimator.inputs import WHAT, Input, measurement_of
+from services.estimator.outputs import Publication, VoPath
 from services.estimator.settings import (
     EstimatorSettings,
     add_estimator_arguments,
@@ -71,7 +60,6 @@ from services.estimator.settings import (
     settings_from_args,
 )
 from services.runtime.cli import add_transport_arguments
-from services.runtime.handoff import WorkQueue
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
@@ -96,21 +84,17 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         settings = self.settings
         self.estimator = build_estimator(settings)
         self._shape = self.estimator.camera.shape
-        self._samples: WorkQueue[Measurement] = WorkQueue(SENSOR_QUEUE)
-        #: frames wait in a short queue (a busy moment costs latency, not frames: VO pairs stay one apart);
-        #: a longer backlog skips frames evenly, and the VO pairs the frames it gets
-        self._frames: SpacedFrameQueue[FrameMeasurement] = SpacedFrameQueue(
-            settings.frame_queue, settings.max_pair_s, settings.max_backlog_s
+        #: the samples and frames handed off by the callbacks; frames wait in a short queue (a busy moment
+        #: costs latency, not frames: VO pairs stay one apart), a longer backlog skips frames evenly, and the
+        #: VO pairs the frames it gets; samples newer than a queued frame are held until it is pushed
+        self._backlog: Backlog[Measurement, FrameMeasurement] = Backlog(
+            SENSOR_QUEUE, settings.frame_queue, settings.max_pair_s, settings.max_backlog_s
         )
-        #: samples drained but held back until the frames queued before them are pushed (stamp order)
-        self._held: HeldSamples[Measurement] = HeldSamples(SENSOR_QUEUE)
         #: (monotonic time, spacing) of the recent frames taken after skipped ones
         self._skips: deque[tuple[float, int]] = deque(maxlen=1024)
         self._newest_in_s = -math.inf
         self._mirrored: dict[str, int] = {}
-        self._attitude_seq = 0
-        self._pose_seq = 0
-        self._path = VoPath()
+        self._publication = Publication(settings.uav, settings.max_pair_s, settings.vo_drift_fraction)
         self.stamps = InputStamps()
         self._stale_run = 0
         self._last_input_s = 0.0
@@ -154,13 +138,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         return True, "ok"
 
     def queue_depths(self) -> dict[str, int]:
-        return {
-            "samples": self._samples.depth(),
-            "frames": self._frames.depth(),
-            "held": len(self._held),
-            "buffer": len(self.estimator.buffer),
-            "lag_ms": self.lag_ms(),
-        }
+        return {**self._backlog.depths(), "buffer": len(self.estimator.buffer), "lag_ms": self.lag_ms()}
 
     def lag_ms(self) -> int:
         """How far the filter is behind the newest input (stamps, ms)."""
@@ -170,87 +148,62 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         return max(0, round(1e3 * (self._newest_in_s - released_s)))
 
     # -- callbacks: decode, check, hand off ----------------------------------------------------------
-    def _own(self, uav: str, what: str, key: Any) -> bool:
-        if uav != self.settings.uav:
-            self.count_error("wrong_uav", f"{what} of another UAV refused", f"{uav!r} on {key}")
-            self.stamps.note_refusal()
-            return False
-        return True
-
-    def _admit(self, sensor: str, stamp_s: float) -> bool:
-        """The stamp guard: a stamp too far ahead of the sensor's recent ones or the wall clock is refused."""
-        self._last_input_s = time.monotonic()
-        admitted, reason, detail = self.stamps.check(sensor, stamp_s)
-        if not admitted:
-            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} sample refused", detail)
-        elif reason:
-            self.count_error("clock_jumps", f"{sensor} clock jump adopted", f"stamp {stamp_s}")
-            self._newest_in_s = stamp_s
-        else:
-            self._newest_in_s = max(self._newest_in_s, stamp_s)
-        return admitted
-
-    def _offer(self, measurement: Measurement) -> None:
-        if not self._samples.offer(measurement):
-            self.count_error("queue_full", "sample refused", "the sensor queue is full")
-
-    def _admitted(self, sample: zenoh.Sample, expected: type[S], what: str, sensor: str) -> S | None:
-        """The sample decoded, of this UAV, and with a stamp the guard admits; else None (counted)."""
-        msg = self.decode_sample(sample, expected)
-        if (
-            msg is None
-            or not self._own(msg.uav, what, sample.key_expr)
-            or not self._admit(sensor, msg.stamp_s)
-        ):
-            return None
-        return msg
-
-    def _offer_checked(self, what: str, check: Callable[[], Measurement]) -> None:
-        try:
-            self._offer(check())
-        except InputError as exc:
-            self.count_error("bad_samples", f"{what} refused", exc)
-
     def _on_imu(self, sample: zenoh.Sample) -> None:
-        msg = self._admitted(sample, ImuSample, "IMU sample", "imu")
-        if msg is not None:
-            self._offer_checked("IMU sample", lambda: check_imu(msg.stamp_s, msg.gyro_rad_s, msg.accel_m_s2))
+        self._receive(sample, ImuSample, "imu")
 
     def _on_range(self, sample: zenoh.Sample) -> None:
-        msg = self._admitted(sample, RangeSample, "range sample", "range")
-        if msg is not None:
-            self._offer_checked("range sample", lambda: check_range(msg.stamp_s, msg.range_m))
+        self._receive(sample, RangeSample, "range")
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
-        msg = self._admitted(sample, YawEstimate, "yaw", "yaw")
-        if msg is None:
-            return
-        if msg.low_confidence:
-            self.counters.inc("yaw_low_confidence")
-            return
-        self._offer_checked("yaw", lambda: check_yaw(msg.stamp_s, msg.yaw_rad))
+        self._receive(sample, YawEstimate, "yaw")
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
-        msg = self._admitted(sample, Frame, "frame", "camera")
+        self._receive(sample, Frame, "camera")
+
+    def _receive(self, sample: zenoh.Sample, expected: type[Input], sensor: str) -> None:
+        """Decoded, this UAV's, its stamp through the guard (too far ahead of the sensor's recent ones or the
+        wall clock: refused), its values checked; then handed off. Each refusal is counted."""
+        msg = self.decode_sample(sample, expected)
         if msg is None:
             return
-        try:
-            frame = check_frame(msg.stamp_s, msg.pixels, self._shape)
-        except InputError as exc:
-            self.count_error("bad_frames", "frame refused", exc)
+        what = WHAT[sensor]
+        if msg.uav != self.settings.uav:
+            self.count_error(
+                "wrong_uav", f"{what} of another UAV refused", f"{msg.uav!r} on {sample.key_expr}"
+            )
+            self.stamps.note_refusal()
             return
-        self.counters.inc("frames_in")
-        skipped = self._frames.offer(frame)
-        if skipped is not None:
-            self.count_error("frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out")
+        self._last_input_s = time.monotonic()
+        admitted, reason, detail = self.stamps.check(sensor, msg.stamp_s)
+        if not admitted:
+            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} sample refused", detail)
+            return
+        if reason:
+            self.count_error("clock_jumps", f"{sensor} clock jump adopted", f"stamp {msg.stamp_s}")
+            self._newest_in_s = msg.stamp_s
+        else:
+            self._newest_in_s = max(self._newest_in_s, msg.stamp_s)
+        if isinstance(msg, YawEstimate) and msg.low_confidence:
+            self.counters.inc("yaw_low_confidence")
+            return
+        try:
+            measurement = measurement_of(msg, self._shape)
+        except InputError as exc:
+            frame = sensor == "camera"
+            self.count_error("bad_frames" if frame else "bad_samples", f"{what} refused", exc)
+            return
+        if isinstance(measurement, FrameMeasurement):
+            self.counters.inc("frames_in")
+            if self._backlog.offer_frame(measurement) is not None:
+                self.count_error(
+                    "frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out"
+                )
+        elif not self._backlog.offer_sample(measurement):
+            self.count_error("queue_full", "sample refused", "the sensor queue is full")
 
     # -- the estimator thread ------------------------------------------------------------------------
-    def _push(self, measurement: Measurement) -> bool:
-        """Push one sample to the filter; False (counted) when it refused it."""
-        refusal = self.estimator.push(measurement)
-        if refusal is None:
-            self._stale_run = 0
-            return True
+    def _refused(self, measurement: Measurement, refusal: Refusal) -> None:
+        """A sample the filter refused: counted; a long run of stale ones rebuilds the filter."""
         name = type(measurement).__name__.removesuffix("Measurement").lower()
         self.count_error(
             f"refused_{name}_{refusal.value}",
@@ -266,89 +219,54 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
             )
             self.estimator = build_estimator(self.settings)
             self._stale_run = 0
-            self._path = VoPath()
-        return False
+            self._publication.path = VoPath()
 
     def _estimate(self) -> None:
         while not self.stop_event.is_set():
             self.step(0.02)
 
     def step(self, timeout_s: float) -> bool:
-        """One turn of the estimator thread: the queued samples, then the oldest queued frame with the
-        samples before it (waits up to ``timeout_s`` for a sample when nothing is queued); True when a
-        frame was taken."""
-        if not self._held and self._frames.depth() == 0:
-            first = self._samples.take(timeout_s)
-            if first is not None:
-                self._push_all(self._held.add([first]))
-        # the samples before the frame: a frame still queued after the drain arrived before the samples
-        # newer than it (they are held until it is pushed), one arriving later is newer than them all
-        self._push_all(self._held.add(self._samples.drain()))
-        taken = self._frames.take()
-        if taken is None:
-            self._push_all(self._held.until(math.inf))
-            self._process()
-            self._mirror_counters()
-            return False
-        frame, spacing = taken
-        # the filter brought up to the frame before it is pushed (a frame pushed while an older one is
-        # still pending would supersede it); every IMU and range sample is applied, frames or not
-        self._push_all(self._held.until(frame.stamp_s))
-        self._process()
-        if self._push(frame):
-            self._count_frame(spacing)
-        self._process()
-        self._mirror_counters()
-        return True
-
-    def _push_all(self, samples: list[Measurement]) -> None:
-        for m in samples:
-            self._push(m)
-
-    def _count_frame(self, spacing: int) -> None:
-        self.counters.inc("frames_used")
-        if spacing > 1:
-            self._skips.append((time.monotonic(), spacing))
-        wide = spacing >= SPACING_BINS
-        self.counters.inc(f"vo_spacing_{SPACING_BINS}_plus" if wide else f"vo_spacing_{spacing}")
-
-    def _process(self) -> None:
+        """One turn of the estimator thread (:meth:`Backlog.next <services.estimator.backlog.Backlog.next>`):
+        the samples pushed to the filter and applied, then the frame, if one was queued, pushed and applied
+        (the filter is brought up to a frame before it is pushed: a frame pushed while an older one is still
+        pending would supersede it; every IMU and range sample is applied, frames or not); the outputs
+        published and the counters updated once. Waits up to ``timeout_s`` for a sample when nothing is
+        queued; True when a frame was taken."""
+        turn = self._backlog.next(timeout_s)
+        for m in turn.samples:
+            if (refusal := self.estimator.push(m)) is None:
+                self._stale_run = 0
+            else:
+                self._refused(m, refusal)
         t0 = time.perf_counter()
         outputs = self.estimator.process_due()
-        self.counters.time_ms("process", (time.perf_counter() - t0) * 1e3)
-        self._publish(outputs)
-
-    def _publish(self, outputs: list[AttitudeOutput | PoseOutput]) -> None:
+        counts: dict[str, int] = {}
+        if turn.frame is not None:
+            if (refusal := self.estimator.push(turn.frame)) is None:
+                self._stale_run = 0
+                counts["frames_used"] = 1
+                if turn.spacing > 1:
+                    self._skips.append((time.monotonic(), turn.spacing))
+                wide = turn.spacing >= SPACING_BINS
+                counts[f"vo_spacing_{SPACING_BINS}_plus" if wide else f"vo_spacing_{turn.spacing}"] = 1
+            else:
+                self._refused(turn.frame, refusal)
+            outputs += self.estimator.process_due()
+        process_ms = (time.perf_counter() - t0) * 1e3
         if outputs:
             self._last_output_s = time.monotonic()
-        for out in outputs:
-            if isinstance(out, AttitudeOutput):
-                # each output with its own uncertainty, not the batch's last state's (issue 9 section 5)
-                msg: AttitudeEstimate | PoseEstimate = attitude_message(
-                    self.settings.uav, self._attitude_seq, out
-                )
-                self._attitude_seq += 1
-                publisher = self._attitude_pub
-            else:
-                self._path = advance_path(self._path, out, self.settings.max_pair_s)
-                var_xy = horizontal_variance(self._path, self.settings.vo_drift_fraction)
-                msg = pose_message(self.settings.uav, self._pose_seq, out, var_xy)
-                self._pose_seq += 1
-                publisher = self._pose_pub
-            if not self.publish(publisher, msg):
-                return  # shutting down: the session is closing under us
-            if self.trajectory_tap is not None:
-                self.trajectory_tap.write(msg)
-            self.counters.inc("attitudes_out" if isinstance(out, AttitudeOutput) else "poses_out")
-
-    def _mirror_counters(self) -> None:
+        published = self._publication.publish(
+            outputs, self.publish, self._attitude_pub, self._pose_pub, self.trajectory_tap
+        )
+        counts.update(published)
+        # the filter's own counters, mirrored (its refusals are counted where they were pushed)
         for name, value in self.estimator.counters.items():
-            if name.startswith("refused_"):
-                continue  # counted at the push
             delta = value - self._mirrored.get(name, 0)
-            if delta:
-                self.counters.inc(name, delta)
+            if delta and not name.startswith("refused_"):
+                counts[name] = counts.get(name, 0) + delta
                 self._mirrored[name] = value
+        self.counters.update(counts, {"process": process_ms})
+        return turn.frame is not None
 
 
 def register(subparsers: Any) -> None:

@@ -1,12 +1,38 @@
-"""The master's frame queue: bounded, oldest dropped first."""
+"""The master's frames on their way in: zenoh's callback hands each sample off, the frames thread gates it.
+
+:meth:`FrameIntake.receive` is all zenoh's callback does: the sample and its arrival times into a bounded
+inbox (as zenoh-python's examples hand samples to a channel). :meth:`FrameIntake.gate_received`, on the
+master's frames thread, takes every sample received so far through the source lock, the decoder and the
+stream gate (:func:`common.streams.admit_frame`), in arrival order and with the arrival times, so the gate
+decides as it did in the callback. Admitted frames are kept as the recent ones (a standby taking over
+measures them) and, when leading, queued for the yaw stage in a short FIFO whose oldest frame is dropped
+(counted) beyond ``frame_queue``.
+"""
 
 from __future__ import annotations
 
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
 from typing import TypeVar
 
+import zenoh
+
+from common.streams import FrameGateState, FrameKey, GateVerdict, admit_frame
+from common.wire.messages import Frame
+from services.master.settings import MasterSettings
+from services.runtime.guard import DispatchGuard
 from services.runtime.handoff import WorkQueue
+from services.runtime.service import ConfiguredService
+from services.runtime.stamps import InputStamps
+from services.runtime.transport import source_of
 
 T = TypeVar("T")
+
+#: frame samples received but not gated yet, at most (beyond, the oldest is dropped and counted): the frames
+#: thread gates them all before each frame it measures, so this only fills while it is stalled
+INBOX_CAPACITY = 256
 
 
 class FrameQueue(WorkQueue[T]):
@@ -27,3 +53,79 @@ class FrameQueue(WorkQueue[T]):
             self._items.append(item)
             self._cond.notify()
             return full
+
+
+@dataclass(frozen=True)
+class Received:
+    """A frame sample as zenoh's callback hands it off: with the receiver's monotonic and wall-clock times."""
+
+    sample: zenoh.Sample
+    now_s: float
+    wall_s: float
+
+
+class FrameIntake:
+    """One master's inbox, stream gate, recent frames and queue (see the module docstring)."""
+
+    def __init__(
+        self, service: ConfiguredService[MasterSettings], guard: DispatchGuard, settings: MasterSettings
+    ) -> None:
+        self.service = service
+        self.guard = guard
+        self.uav = settings.uav
+        self.gate_settings = settings.gate_settings()
+        self.gate = FrameGateState()
+        #: what zenoh's callback hands off
+        self.inbox: FrameQueue[Received] = FrameQueue(INBOX_CAPACITY)
+        #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
+        #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
+        self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
+        self.recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
+        self.recent_lock = threading.Lock()
+        #: recent refusals, for health
+        self.refusals = InputStamps()
+
+    def receive(self, sample: zenoh.Sample) -> None:
+        """Zenoh's thread: hand the sample off with its arrival times."""
+        if self.inbox.put(Received(sample, time.monotonic(), time.time())):
+            self.service.counters.inc("frames_dropped")
+
+    def gate_received(self, leading: bool) -> None:
+        """Frames thread: every sample received so far through the gate, in arrival order; the admitted ones
+        kept as recent frames and, when ``leading``, queued. The counts are added once."""
+        counts: dict[str, int] = {}
+        for received in self.inbox.drain():
+            item = self._admit(received, counts)
+            if item is not None and leading and self.slot.put(item):
+                counts["frames_dropped"] = counts.get("frames_dropped", 0) + 1
+        if counts:
+            self.service.counters.update(counts)
+
+    def _admit(self, received: Received, counts: dict[str, int]) -> tuple[int, Frame] | None:
+        """(epoch, frame) of an admitted sample; None (counted) for a refused one."""
+        service, sample = self.service, received.sample
+        source = source_of(sample)
+        if not self.guard.admit_source(source, received.now_s):
+            return None
+        frame = service.decode_sample(sample, Frame)
+        if frame is None:
+            return None
+        counts["frames_in"] = counts.get("frames_in", 0) + 1
+        key = FrameKey(frame.width, frame.height, frame.encoding)
+        self.gate, decision = admit_frame(
+            self.gate, self.gate_settings, self.uav, frame.uav, frame.seq, frame.stamp_s, key,
+            received.now_s, received.wall_s, source,
+        )  # fmt: skip
+        if decision.verdict is GateVerdict.REFUSE:
+            service.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
+            self.refusals.note_refusal()
+            return None
+        if decision.verdict is GateVerdict.NEW_EPOCH:
+            counts["epochs"] = counts.get("epochs", 0) + 1
+            if self.gate.epoch > 0:
+                service.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
+        counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
+        item = (self.gate.epoch, frame)
+        with self.recent_lock:
+            self.recent.append(item)
+        return item

@@ -1,8 +1,10 @@
 """The master of one UAV stream: admitted frame -> shares -> merged measurement -> yaw.
 
-Every frame passes the stream gate (:mod:`common.streams`: foreign UAV, size, encoding, a second sender
-within an epoch, seq and stamp jumps refused and counted; a confirmed restart is a new epoch whose yaw
-continues the last one) and waits in a short FIFO. Several masters may serve one UAV: one is active
+Zenoh's callback only hands each frame sample off, with its arrival times, to a bounded inbox (as
+zenoh-python's examples do); the master's frames thread runs the rest. Every frame passes the stream gate
+(:mod:`common.streams`: foreign UAV, size, encoding, a second sender within an epoch, seq and stamp jumps
+refused and counted; a confirmed restart is a new epoch whose yaw continues the last one) and waits in a
+short FIFO. Several masters may serve one UAV: one is active
 (:mod:`services.master.election`), the others stand by warm and take over from the last published yaw.
 
 Topology is a setting: ``master-worker`` (members = every worker) or ``master-foreman-worker``
@@ -16,7 +18,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -27,7 +28,6 @@ from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
 from common.members import Role, Topology
 from common.provenance import Provenance
-from common.streams import FrameGateState, FrameKey, GateVerdict, admit_frame
 from common.wire import keys
 from common.wire.messages import (
     BlockJob,
@@ -43,7 +43,7 @@ from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
 from common.yaw.patchwork import SpectrumCache, measure_share
 from services.master.election import Election, LeaderSessions
-from services.master.frames import FrameQueue
+from services.master.frames import FrameIntake
 from services.master.gyro import GyroPrior
 from services.master.lens import CameraSource
 from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
@@ -53,8 +53,10 @@ from services.runtime.membership import LiveMembers
 from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
-from services.runtime.stamps import InputStamps
 from services.runtime.transport import source_of
+
+#: a standby looks at the election at least this often (s)
+STANDBY_POLL_S = 0.02
 
 
 @dataclass
@@ -67,6 +69,8 @@ class _Stream:
     dispatcher: Dispatcher
     epoch: int = 0
     cache: SpectrumCache = field(default_factory=SpectrumCache)
+    #: every patch index of the grid (the round's expected cover)
+    all_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
 
 
 class MasterService(ConfiguredService[MasterSettings]):
@@ -76,26 +80,21 @@ class MasterService(ConfiguredService[MasterSettings]):
         settings = self.settings
         self.yaw_settings = settings.yaw
         self.wire_settings = YawJobSettings.of(self.yaw_settings)
-        #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
-        #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
-        self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
-        self.gate_settings = settings.gate_settings()
-        self._gate = FrameGateState()
-        self._recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
+        #: the guard first: the intake's source lock is part of it
+        self.guard = DispatchGuard(self.name, self.counters, settings.trust)
+        self.intake = FrameIntake(self, self.guard, settings)
+        self.slot = self.intake.slot
+        #: protects the published yaw (zenoh's yaw callback records, the frames thread reads)
         self._recent_lock = threading.Lock()
         #: yaw published for this UAV by seq, from sessions that led it (a take-over starts there)
         self.published = PublishedLedger(ANONYMOUS, 4 * settings.recent_frames)
         self.leader_sessions = LeaderSessions(self.name, self.count_error)
         self._leaders_resolved = False
         self.election: Election | None = None
-        #: recent refusals, for health
-        self._refusals = InputStamps()
         self._job_types: tuple[type[PatchJob], type[PatchResult]] = (BlockJob, BlockResult)
         self.stream: _Stream | None = None
         self.scatter: Scatter | None = None
         self.live = LiveMembers(self.member_role)
-        #: defence in depth: trust vetting, one frame source, liveliness churn limited per key
-        self.guard = DispatchGuard(self.name, self.counters, settings.trust)
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_shares: dict[str, float] = {}
@@ -135,31 +134,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             self.election.close()
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
-        if not self.guard.admit_frame(sample):
-            return
-        frame = self.decode_sample(sample, Frame)
-        if frame is None:
-            return
-        self.counters.inc("frames_in")
-        key = FrameKey(frame.width, frame.height, frame.encoding)
-        with self._recent_lock:
-            self._gate, decision = admit_frame(
-                self._gate, self.gate_settings, self.settings.uav, frame.uav, frame.seq, frame.stamp_s, key,
-                time.monotonic(), time.time(), source_of(sample),
-            )  # fmt: skip
-            if decision.verdict is GateVerdict.REFUSE:
-                self.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
-                self._refusals.note_refusal()
-                return
-            if decision.verdict is GateVerdict.NEW_EPOCH:
-                self.counters.inc("epochs")
-                if self._gate.epoch > 0:
-                    self.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
-            self.counters.inc("frames_missing", decision.gap)
-            item = (self._gate.epoch, frame)
-            self._recent.append(item)
-        if (self.election is None or self.election.leading) and self.slot.put(item):
-            self.counters.inc("frames_dropped")
+        self.intake.receive(sample)  # the gate runs on the frames thread
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
         self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type))
@@ -190,12 +165,12 @@ class MasterService(ConfiguredService[MasterSettings]):
         return dict(self._last_shares)
 
     def queue_depths(self) -> dict[str, int]:
-        return {"frames": self.slot.depth()}
+        return {"frames": self.slot.depth(), "inbox": self.intake.inbox.depth()}
 
     def healthy(self) -> tuple[bool, str]:
-        recent = self._refusals.recent_refusals()
-        if recent:
-            return False, f"degraded: {recent} frames refused in the last {self._refusals.window_s:.0f} s"
+        refusals = self.intake.refusals
+        if recent := refusals.recent_refusals():
+            return False, f"degraded: {recent} frames refused in the last {refusals.window_s:.0f} s"
         role = "active" if self.election is None or self.election.leading else "standby"
         return True, role
 
@@ -208,16 +183,27 @@ class MasterService(ConfiguredService[MasterSettings]):
         )
         self._job_types = (job_type, result_type)
         while not self.stop_event.is_set():
-            if self.election is not None:
-                self._trust_leaders()
-                if self.election.update():
-                    self._take_over()
-                if not self.election.leading:
-                    self.stop_event.wait(0.02)  # standby: frames go to the recent ones only
-                    continue
-            item = self.slot.take(0.05)
-            if item is not None:
-                self._process(*item)
+            self.serve_once(0.05)
+
+    def serve_once(self, timeout_s: float) -> bool:
+        """One turn of the frames thread: the election, the frames received so far through the gate, then the
+        oldest queued frame measured and published (waits up to ``timeout_s`` for a frame when none is
+        queued); True when a frame was measured."""
+        if self.election is not None:
+            self._trust_leaders()
+            if self.election.update():
+                self._take_over()
+        standby = self.election is not None and not self.election.leading
+        if self.slot.depth() == 0 and self.intake.inbox.depth() == 0:
+            self.intake.inbox.wait(min(timeout_s, STANDBY_POLL_S) if standby else timeout_s)
+        self.intake.gate_received(not standby)
+        if standby:
+            return False  # frames go to the recent ones only
+        item = self.slot.take(0.0)
+        if item is None:
+            return False
+        self._process(*item)
+        return True
 
     def _process(self, epoch: int, frame: Frame) -> None:
         t0 = time.perf_counter()
@@ -242,8 +228,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         """Continue from the last published yaw: anchor on the newest kept frame whose yaw was published,
         then measure the kept frames after it (frames a failed master took but did not publish)."""
         self.counters.inc("takeovers")
+        with self.intake.recent_lock:
+            recent = list(self.intake.recent)
         with self._recent_lock:
-            recent = list(self._recent)
             published = self.published.trusted_yaws()
         for epoch, frame in reversed(recent):
             known = published.get(frame.seq)
@@ -274,7 +261,10 @@ class MasterService(ConfiguredService[MasterSettings]):
         )
         dispatcher = Dispatcher(self.settings.dispatch, grid.n_patches)
         dispatcher.trust = self.guard.monitor()
-        stream = _Stream(grid, tracker, state, frame.seq, grid.level_image(frame.pixels), dispatcher, epoch)
+        level = grid.level_image(frame.pixels)
+        stream = _Stream(
+            grid, tracker, state, frame.seq, level, dispatcher, epoch, all_indices=grid.all_indices
+        )
         job_type, result_type = self._job_types
         self.scatter = Scatter(
             self.session, dispatcher, keys.work_key_of, job_type, result_type, self.counters
@@ -303,7 +293,7 @@ class MasterService(ConfiguredService[MasterSettings]):
                 method="initial",
                 provenance=Provenance.INITIAL,
                 timings_ms={"total": (time.perf_counter() - t0) * 1e3},
-                dropped_frames=self.slot.dropped,
+                dropped_frames=self.slot.dropped + self.intake.inbox.dropped,
             )
         if frame.seq <= stream.prev_seq:
             self.counters.inc("frames_already_measured")
@@ -322,6 +312,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             return grid.crop_level(prev_level, indices)
 
         def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
+            share, moved_share = grid.crop_level(level, indices), grid.crop_level(prev_level, moved)
             return measure_share(
                 stream.cache,
                 settings,
@@ -329,9 +320,9 @@ class MasterService(ConfiguredService[MasterSettings]):
                 frame.seq,
                 prev_seq,
                 indices,
-                crops(indices),
+                share,
                 moved,
-                prev_crops(moved),
+                moved_share,
             )
 
         work = FrameWork(
@@ -347,11 +338,11 @@ class MasterService(ConfiguredService[MasterSettings]):
         plan = stream.dispatcher.plan(frame.seq, prev_seq, time.monotonic())
         try:
             report = self.scatter.run(work, plan)
-            measurement = merge_measurements(report.parts, grid.all_indices)
+            measurement = merge_measurements(report.parts, stream.all_indices)
         except (CapatazError, ValueError) as exc:  # never lose a frame: compute it here
             self.count_error("local_fallback", f"frame {frame.seq}: round failed, computing locally", exc)
             stream.dispatcher.forget_history(SELF)
-            measurement = compute_self(grid.all_indices, grid.all_indices)
+            measurement = compute_self(stream.all_indices, stream.all_indices)
             report = None
         t_round = time.perf_counter()
         if report is not None:
@@ -391,7 +382,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             timings_ms=timings,
             members=members,
             speeds_patches_s=dict(report.speeds) if report else {},
-            dropped_frames=self.slot.dropped,
+            dropped_frames=self.slot.dropped + self.intake.inbox.dropped,
             redispatched=report.redispatched if report else 0,
             provenance=core.provenance,
             yaw_variance_rad2=core.yaw_variance_rad2,

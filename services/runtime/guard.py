@@ -2,7 +2,7 @@
 
 Thin glue between the pure cores (:mod:`common.dispatch.trust`, :mod:`common.dispatch.vetting`,
 :mod:`common.dispatch.admission`) and a service's counters and log: the master calls
-:meth:`admit_frame` in its frame callback, :meth:`note_alive` in its liveliness callback (both hand off
+:meth:`admit_source` on its frames thread, :meth:`note_alive` in its liveliness callback (hands off
 only), :meth:`quarantined` when it applies membership and :meth:`vet` after each frame's round.
 """
 
@@ -15,7 +15,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from common.dispatch import TrustMonitor, TrustSettings
 from common.dispatch.admission import ChurnLimiter, SourceLock
@@ -23,7 +22,6 @@ from common.dispatch.vetting import round_outcomes
 from common.yaw import YawSettings
 from common.yaw.correlation import PatchMeasurement
 from services.runtime.handoff import Counters
-from services.runtime.transport import source_of
 
 logger = logging.getLogger(__name__)
 
@@ -45,10 +43,10 @@ class DispatchGuard:
         """The service's trust monitor, for a new dispatcher (disabled when the guard is)."""
         return self._monitor
 
-    def admit_frame(self, sample: zenoh.Sample) -> bool:
-        """Whether a frame sample is from the followed source; others are dropped, counted and logged."""
-        source = source_of(sample)
-        if not self.enabled or self.sources.admit(source, time.monotonic()):
+    def admit_source(self, source: str | None, now_s: float) -> bool:
+        """Whether a frame sent by ``source`` (:func:`~services.runtime.transport.source_of` its sample),
+        received at ``now_s`` (monotonic), is the followed source's; others are dropped, counted, logged."""
+        if not self.enabled or self.sources.admit(source, now_s):
             return True
         n = self.counters.inc("frames_foreign")
         if n <= 5 or n % 100 == 0:

@@ -72,6 +72,13 @@ class WorkQueue(Generic[T]):
                 self._cond.wait(timeout_s)
             return self._items.popleft() if self._items else None
 
+    def wait(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for an item (not taking it); True when one is queued."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            return bool(self._items)
+
     def drain(self) -> list[T]:
         with self._cond:
             items = list(self._items)
@@ -100,6 +107,14 @@ class Counters:
     def get(self, name: str) -> int:
         with self._lock:
             return self._counts.get(name, 0)
+
+    def update(self, counts: dict[str, int], timings_ms: dict[str, float] | None = None) -> None:
+        """Several counts and timings at once (one lock)."""
+        with self._lock:
+            for name, n in counts.items():
+                self._counts[name] = self._counts.get(name, 0) + n
+            for name, value_ms in (timings_ms or {}).items():
+                self._timings.setdefault(name, deque(maxlen=self._window)).append(value_ms)
 
     def time_ms(self, name: str, value_ms: float) -> None:
         with self._lock:

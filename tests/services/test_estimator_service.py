@@ -91,7 +91,7 @@ def _matches_in_process_run_and_survives_malformed_samples(flight: Flight, endpo
                 if isinstance(message, Frame):
 
                     def taken(n: int = frames_sent) -> bool:
-                        return service.counters.get("frames_in") == n and service._frames.depth() == 0
+                        return service.counters.get("frames_in") == n and service._backlog.frames.depth() == 0
 
                     assert wait_until(taken), service.counters.counts()
                     frames_sent += 1

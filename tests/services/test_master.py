@@ -44,11 +44,13 @@ def test_dropped_frames_counts_each_drop_once() -> None:
     ]
     estimates = []
     master._on_frame(_Sample(frames[0]))  # type: ignore[arg-type]
+    master.intake.gate_received(leading=True)
     first = master.slot.take(0.0)
     assert first is not None
     estimates.append(master._estimate(*first, time.perf_counter()))
     for frame in frames[1:]:  # five frames while the master is busy: a queue of two drops the three oldest
         master._on_frame(_Sample(frame))  # type: ignore[arg-type]
+    master.intake.gate_received(leading=True)
     while (item := master.slot.take(0.0)) is not None:
         estimates.append(master._estimate(*item, time.perf_counter()))
     assert [e.seq for e in estimates if e is not None] == [0, 4, 5]
@@ -63,6 +65,8 @@ def test_a_foreign_or_resized_frame_never_reaches_the_yaw_stage() -> None:
     master._on_frame(_Sample(Frame(uav="uav1", seq=1, stamp_s=0.05, width=752, height=480, pixels=pixels)))  # type: ignore[arg-type]
     small = np.zeros((64, 64), np.uint8)
     master._on_frame(_Sample(Frame(uav="uav0", seq=1, stamp_s=0.05, width=64, height=64, pixels=small)))  # type: ignore[arg-type]
+    assert master.slot.depth() == 0 and master.counters.get("frames_in") == 0  # the callback only hands off
+    master.intake.gate_received(leading=True)
     assert master.slot.depth() == 1
     assert master.counters.get("refused_foreign_uav") == 1 and master.counters.get("refused_wrong_size") == 1
     ok, detail = master.healthy()

@@ -19,15 +19,8 @@ from common.wire.messages import Frame
 from services.runtime.transport import open_session
 from services.tools.cluster_file import ClusterSpec
 from services.tools.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
-from services.tools.loadtest.harness import (
-    Hostile,
-    LoadCluster,
-    RunSettings,
-    StatsLog,
-    StreamLog,
-    YawLog,
-    apply_fault,
-)
+from services.tools.loadtest.harness import Hostile, LoadCluster, RunSettings, apply_fault
+from services.tools.loadtest.observers import StatsLog, StreamLog, YawLog
 from services.tools.loadtest.plan import (
     FaultOutcome,
     Objective,

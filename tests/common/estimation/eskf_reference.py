@@ -20,8 +20,8 @@ from common.estimation.ekf_models import (
     three_floats,
     yaw_model,
 )
-from common.estimation.eskf import BiasEkfSettings
 from common.estimation.eskf_math import error_jacobian, inverse_spd
+from common.estimation.eskf_state import BiasEkfSettings
 from common.types import FloatArray
 
 #: Error-state layout.

@@ -21,14 +21,9 @@ from common.estimation.ekf_models import (
     rangefinder_model,
     yaw_model,
 )
-from common.estimation.eskf import (
-    N_ERROR,
-    BiasAwareEkf,
-    BiasEkfSettings,
-    BiasEkfState,
-    _inverse_spd,
-    error_jacobian,
-)
+from common.estimation.eskf import BiasAwareEkf, error_jacobian
+from common.estimation.eskf_math import inverse_spd
+from common.estimation.eskf_state import N_ERROR, BiasEkfSettings, BiasEkfState
 from common.geometry import (
     quaternion_from_euler,
     quaternion_multiply,
@@ -48,7 +43,7 @@ def _perturbed(q: np.ndarray, dtheta: np.ndarray) -> tuple[float, float, float, 
     return (float(p[0]), float(p[1]), float(p[2]), float(p[3]))
 
 
-def _numeric(fn, n: int, eps: float = 1e-6) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _numeric(fn, n: int, eps: float = 1e-6) -> np.ndarray:
     cols = []
     for i in range(n):
         d = np.zeros(n)
@@ -138,7 +133,7 @@ def test_an_outlier_is_gated_and_bad_input_refused() -> None:
     with pytest.raises(InputError):
         BiasEkfSettings(initial_accel_bias_std_m_s2=-1.0)
     with pytest.raises(EkfError):
-        _inverse_spd(np.zeros((3, 3)))
+        inverse_spd(np.zeros((3, 3)))
 
 
 @settings(max_examples=30, deadline=None)
@@ -146,10 +141,10 @@ def test_an_outlier_is_gated_and_bad_input_refused() -> None:
 def test_closed_form_inverse_matches_numpy(m: int, seed: int) -> None:
     A = np.random.default_rng(seed).normal(size=(m, m))
     S = A @ A.T + 0.1 * np.eye(m)
-    assert np.allclose(_inverse_spd(S), np.linalg.inv(S), rtol=1e-9, atol=1e-12)
+    assert np.allclose(inverse_spd(S), np.linalg.inv(S), rtol=1e-9, atol=1e-12)
 
 
-def _run(ekf, seed: int, duration_s: float = 30.0) -> tuple[np.ndarray, object, object]:  # type: ignore[no-untyped-def]
+def _run(ekf, seed: int, duration_s: float = 30.0) -> tuple[np.ndarray, object, object]:
     """The filter over flight (b): roll, pitch, yaw errors (deg) at every IMU sample, final state, IMU."""
     run = run_over_flight_b(ekf, seed=seed, duration_s=duration_s)
     return run.errors_deg, run.state, run.imu

@@ -12,7 +12,8 @@ from common.camera import CameraModel
 from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import AttitudeOutput, CouplingSettings
-from common.estimation.eskf import BiasAwareEkf, BiasEkfSettings, BiasEkfState
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.eskf_state import BiasEkfSettings, BiasEkfState
 from common.estimation.measurements import ImuMeasurement
 from common.geometry import euler_from_quaternion, quaternion_from_euler, wrap_angle_rad
 from common.sim.sensors import ImuNoise, sample_stamps, simulate_imu
@@ -91,7 +92,7 @@ def _roll_pitch_rms(midpoint: bool) -> float:
     estimator = DoubleCouplingEstimator(
         CameraModel.default(), ekf_settings=BiasEkfSettings(accel_noise_m_s2=1e3), settings=settings
     )
-    outputs = []
+    outputs: list[AttitudeOutput] = []
     for k, t in enumerate(imu.stamps_s):
         estimator.push(ImuMeasurement(float(t), imu.gyro_rad_s[k], imu.accel_m_s2[k]))
         outputs.extend(o for o in estimator.process_due() if isinstance(o, AttitudeOutput))

@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from common.estimation.eskf import BiasAwareEkf, BiasEkfState
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.eskf_state import BiasEkfState
 from common.geometry import euler_from_quaternion, quaternion_from_euler, wrap_angle_rad
 from common.sim.sensors import ImuNoise, RangeNoise, sample_stamps, simulate_imu, simulate_range
 from common.sim.trajectory import agile_trajectory

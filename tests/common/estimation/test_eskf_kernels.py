@@ -10,7 +10,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from common.estimation.eskf import N_ERROR, BiasAwareEkf, BiasEkfState
+from common.estimation.eskf import BiasAwareEkf
+from common.estimation.eskf_state import N_ERROR, BiasEkfState
 from common.geometry import euler_from_quaternion, matrix_from_quaternion, quaternion_from_euler
 from tests.common.estimation.eskf_reference import ReferenceEskf, ReferenceState
 

@@ -74,7 +74,7 @@ def test_each_output_of_a_batch_carries_its_own_covariance(flight: Flight) -> No
     outputs = service.estimator.process_due()  # one batch: many IMU steps and some frames
     attitudes = [o for o in outputs if isinstance(o, AttitudeOutput)]
     assert len(attitudes) > 50 and any(isinstance(o, PoseOutput) for o in outputs)
-    service._publish(outputs)
+    service._publication.publish(outputs, service.publish, service._attitude_pub, service._pose_pub)
     published = [decode(p, a, AttitudeEstimate) for p, a in service._attitude_pub.puts]  # type: ignore[attr-defined]
     assert len(published) == len(attitudes)
     for msg, out in zip(published, attitudes, strict=True):

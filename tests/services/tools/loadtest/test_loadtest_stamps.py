@@ -18,7 +18,8 @@ from common.wire.codec import decode
 from common.wire.messages import Frame
 from services.runtime.transport import TransportSettings, open_session
 from services.tools.loadtest.frames import simulated_frames
-from services.tools.loadtest.harness import RunSettings, StreamLog
+from services.tools.loadtest.harness import RunSettings
+from services.tools.loadtest.observers import StreamLog
 from services.tools.loadtest.runner import _stream
 
 

@@ -1,0 +1,132 @@
+"""The walks of issue 24, measured with :func:`tests.walks.walk` (``sys.setprofile``: the project modules
+control enters, consecutive calls within one module counting as one entry):
+
+- one IMU sample from the estimator service's callback to its published attitude;
+- one frame from the master's callback to its published yaw (the master computing alone: the yaw core's
+  distributable stage on its own thread, as a member would).
+
+Every module is entered at most twice, but for the few listed with their current count (a budget that may
+shrink, never grow) and why.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from common.estimation.coupling_types import EkfKind
+from common.estimation.measurements import ImuMeasurement, RangeMeasurement
+from common.sim.flight import hover_flight, turns_flight
+from common.sim.stream import flight_measurements
+from common.wire import keys
+from common.wire.codec import encode
+from common.wire.measurements import message_of
+from common.wire.messages import Frame
+from services.estimator import EstimatorService, EstimatorSettings
+from services.master import MasterService, MasterSettings
+from services.runtime.transport import TransportSettings, open_session
+from tests.services.fakes import FakeBytes, FakePublisher
+from tests.walks import entries_per_module, walk
+
+#: each filter step calls the filter's model (the 5-state EKF's ``ekf_models``, the error-state EKF's compiled
+#: kernels) and comes back: predict, the accelerometer update and the read-outs of the attitude each enter the
+#: filter's module once (the 5-state filter's update goes through its ``_update`` after the model, once more)
+FILTER_STEPS = {
+    "common/estimation/eskf.py": 3,
+    "common/estimation/ekf.py": 4,
+    "common/estimation/ekf_models.py": 4,
+}
+#: the master's services and the dispatcher, not brought to two yet: their counts may shrink, never grow
+MASTER_SERVICES = {
+    "common/dispatch/dispatcher.py": 6,  # plan: the trust screen, weights and share caps each go back to it
+    "common/dispatch/trust.py": 4,
+    "services/runtime/handoff.py": 6,  # the queues and the counters (the round's timings, the frame's counts)
+    "services/master/service.py": 4,  # the callback, the turn, the frame's round, its own share (a closure)
+    "services/master/frames.py": 4,  # the hand-off, the gate and the queue (FrameQueue.put and take)
+    "services/runtime/guard.py": 3,  # the source lock, the quarantine, the vetting
+}
+
+
+def _sample(message: Any, key: str) -> SimpleNamespace:
+    payload, attachment = encode(message)
+    return SimpleNamespace(payload=FakeBytes(payload), attachment=FakeBytes(attachment), key_expr=key)
+
+
+def _over(counts: dict[str, int], budget: dict[str, int]) -> dict[str, int]:
+    """The modules entered more than twice and more often than their budget allows."""
+    return {m: n for m, n in counts.items() if n > max(2, budget.get(m, 2))}
+
+
+@pytest.mark.parametrize("kind", [EkfKind.BIAS, EkfKind.PAPER_C])
+def test_an_imu_sample_enters_no_module_more_than_twice_from_the_callback_to_the_attitude(
+    kind: EkfKind,
+) -> None:
+    flight = turns_flight(seed=0)
+    stream = list(flight_measurements(flight, 0, 6))
+    # no reordering lag: the sample the callback gets is the one applied and published in the same turn
+    settings = EstimatorSettings(initial_yaw_rad=float(flight.yaw_rad[0]), max_lag_s=0.0, filter=kind)
+    service = EstimatorService("walk", 0, TransportSettings(), settings)
+    service._attitude_pub, service._pose_pub = FakePublisher(), FakePublisher()  # type: ignore[assignment]
+    last = max(i for i, m in enumerate(stream) if isinstance(m, ImuMeasurement))
+    callbacks = {ImuMeasurement: service._on_imu, RangeMeasurement: service._on_range}
+    for seq, m in enumerate(stream[:last]):  # the filter, the VO and the queues warmed up
+        key, message = message_of("uav0", seq, m)
+        callbacks.get(type(m), service._on_frame)(_sample(message, key))  # type: ignore[arg-type]
+        while service.step(0.0):
+            pass
+    key, message = message_of("uav0", last, stream[last])
+    sample = _sample(message, key)
+    published = len(service._attitude_pub.puts)  # type: ignore[attr-defined]
+
+    def receive_and_step() -> bool:
+        service._on_imu(sample)  # type: ignore[arg-type]
+        return service.step(0.0)
+
+    entries = walk(receive_and_step)
+
+    assert len(service._attitude_pub.puts) == published + 1  # type: ignore[attr-defined]
+    counts = entries_per_module(entries)
+    assert not _over(counts, FILTER_STEPS), (counts, entries)
+    # the filters are called directly (no dispatch on method names in common/estimation/filters.py)
+    assert "common/estimation/filters.py" not in counts
+    # time checked once (the stamp guard), values once (the checked measurement), each where it arrives
+    assert counts["services/runtime/stamps.py"] == 1 and counts["services/estimator/inputs.py"] == 1
+    assert counts["common/estimation/coupling.py"] <= 2 and counts["services/estimator/service.py"] <= 2
+
+
+@pytest.mark.zenoh
+def test_a_frame_enters_no_yaw_module_more_than_twice_from_the_callback_to_the_published_yaw() -> None:
+    flight = hover_flight(seed=0, n_frames=3)
+    samples = [
+        _sample(
+            Frame(uav="uav0", seq=k, stamp_s=k / 20, width=752, height=480, pixels=flight.frame(k)),
+            keys.camera_key("uav0"),
+        )
+        for k in range(3)
+    ]
+    transport = TransportSettings()  # loopback, no scouting: this session meets nobody
+    with open_session(transport) as session:
+        master = MasterService("walk", 0, transport, MasterSettings(election=False))
+        master.session = session
+        master._publisher = session.declare_publisher(keys.yaw_key("uav0"))
+        for sample in samples[:2]:  # the stream started and one pair measured: spectra cached
+            master._on_frame(sample)  # type: ignore[arg-type]
+            assert master.serve_once(0.0)
+
+        def receive_and_serve() -> bool:
+            master._on_frame(samples[2])  # type: ignore[arg-type]
+            return master.serve_once(0.0)
+
+        entries = walk(receive_and_serve)
+
+        assert master.counters.get("yaw_out") == 3
+    counts = entries_per_module(entries)
+    yaw_core = {m: n for m, n in counts.items() if m.startswith("common/yaw/") or m == "common/images.py"}
+    assert {"common/yaw/tracker.py", "common/yaw/correlation.py", "common/yaw/fit.py"} <= set(yaw_core)
+    assert max(yaw_core.values()) <= 2, (yaw_core, entries)
+    assert (
+        counts["common/images.py"] == 1
+    )  # the frame checked once in the yaw core (the wire checks its message)
+    assert not _over(counts, MASTER_SERVICES), (counts, entries)
