@@ -18,7 +18,7 @@ from services.tools.probe import (
     Arrival,
     Deadline,
     SampleQueue,
-    add_probe_arguments,
+    add_key_probe_arguments,
     check_key_expr,
     check_positive,
     decoded,
@@ -68,11 +68,7 @@ def echo(args: argparse.Namespace, out: TextIO | None = None) -> dict[str, int]:
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("echo", help="print each message on a key expression (ros2 topic echo)")
-    parser.add_argument("key", metavar="KEY", help="key expression (capataz/uav/uav0/yaw, capataz/uav/**)")
-    parser.add_argument("--count", type=int, default=0, help="stop after this many messages (0 = no limit)")
-    parser.add_argument("--json", action="store_true", help="one JSON object per line (key, type, fields)")
-    parser.add_argument("--queue", type=int, default=64, help="samples waiting to be printed at most")
-    add_probe_arguments(parser, "stop after this many seconds (0 = --count or ^C)")
+    add_key_probe_arguments(parser, "messages", queue=64)
     parser.set_defaults(handler=run)
 
 

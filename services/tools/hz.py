@@ -22,7 +22,7 @@ from services.runtime.usage import UsageError
 from services.tools.probe import (
     Deadline,
     SampleQueue,
-    add_probe_arguments,
+    add_key_probe_arguments,
     check_key_expr,
     check_positive,
     open_probe_session,
@@ -105,14 +105,10 @@ def hz(args: argparse.Namespace, out: TextIO | None = None, rates: RateWindow | 
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser("hz", help="the rate of a key expression (like ros2 topic hz)")
-    parser.add_argument("key", metavar="KEY", help="key expression, e.g. capataz/uav/uav0/camera")
+    add_key_probe_arguments(parser, "reports", queue=4096)
     parser.add_argument("--window", type=int, default=100, help="arrivals the figures are made from")
     parser.add_argument("--every", type=float, default=1.0, help="seconds between reports")
-    parser.add_argument("--count", type=int, default=0, help="stop after this many reports (0 = no limit)")
     parser.add_argument("--per-key", action="store_true", help="one line per key under the expression")
-    parser.add_argument("--json", action="store_true", help="one JSON object per line")
-    parser.add_argument("--queue", type=int, default=4096, help="arrivals waiting to be counted at most")
-    add_probe_arguments(parser, "stop after this many seconds (0 = --count or ^C)")
     parser.set_defaults(handler=run)
 
 

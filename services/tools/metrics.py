@@ -26,16 +26,14 @@ from prometheus_client.registry import CollectorRegistry
 
 from common.errors import CapatazError
 from common.wire import keys
-from common.wire.codec import decode
 from common.wire.messages import Health, Stats
-from common.wire.schema import WireError
-from services.runtime.transport import zbytes
 from services.runtime.usage import UsageError
 from services.tools.observe import DROPPED_COUNTERS, REFUSED_COUNTERS
 from services.tools.probe import (
     Deadline,
     add_probe_arguments,
     check_positive,
+    decode_stats,
     health_replies,
     open_probe_session,
     stop_on_signals,
@@ -74,9 +72,8 @@ class StatsExporter:
         self._subscriber = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
 
     def _on_stats(self, sample: zenoh.Sample) -> None:
-        try:
-            stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
-        except WireError:
+        stats = decode_stats(sample)
+        if stats is None:
             with self._lock:
                 self.malformed += 1
             return

@@ -26,7 +26,7 @@ import zenoh
 from common.errors import CapatazError
 from common.wire import keys
 from common.wire.codec import decode
-from common.wire.messages import Health
+from common.wire.messages import Health, Stats
 from common.wire.schema import WireError, WireModel
 from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.transport import open_session, zbytes
@@ -37,6 +37,24 @@ def add_probe_arguments(parser: argparse.ArgumentParser, duration_help: str) -> 
     """The transport options (no ``--node``/``--index``: a probe is not a member) and ``--duration``."""
     add_transport_arguments(parser, member=False)
     parser.add_argument("--duration", type=float, default=0.0, help=duration_help)
+
+
+def add_key_probe_arguments(parser: argparse.ArgumentParser, what: str, queue: int) -> None:
+    """What ``echo`` and ``hz`` share: the key expression, ``--count`` of ``what`` (messages, reports),
+    ``--json``, a bounded ``--queue`` and the probe's own options."""
+    parser.add_argument("key", metavar="KEY", help="key expression (capataz/uav/uav0/yaw, capataz/uav/**)")
+    parser.add_argument("--count", type=int, default=0, help=f"stop after this many {what} (0 = no limit)")
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    parser.add_argument("--queue", type=int, default=queue, help="samples waiting to be handled at most")
+    add_probe_arguments(parser, "stop after this many seconds (0 = --count or ^C)")
+
+
+def decode_stats(sample: zenoh.Sample) -> Stats | None:
+    """A member's Stats, or None for a sample that is not one (the caller counts it as malformed)."""
+    try:
+        return decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
+    except WireError:
+        return None
 
 
 def check_positive(value: float, option: str, allow_zero: bool = False) -> None:

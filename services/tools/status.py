@@ -28,10 +28,7 @@ import zenoh
 from common.errors import CapatazError
 from common.rates import counter_rates
 from common.wire import keys
-from common.wire.codec import decode
 from common.wire.messages import Health, Stats
-from common.wire.schema import WireError
-from services.runtime.transport import zbytes
 from services.tools.observe import DROPPED_COUNTERS, REFUSED_COUNTERS
 from services.tools.probe import (
     Deadline,
@@ -39,6 +36,7 @@ from services.tools.probe import (
     SampleQueue,
     add_probe_arguments,
     check_positive,
+    decode_stats,
     health_replies,
     open_probe_session,
     stop_on_signals,
@@ -162,9 +160,8 @@ class ClusterObserver:
             self._subscribers.append(session.declare_subscriber(streams, self._streams))
 
     def _on_stats(self, sample: zenoh.Sample) -> None:
-        try:
-            stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
-        except WireError:
+        stats = decode_stats(sample)
+        if stats is None:
             with self._lock:
                 self._malformed += 1
             return
