@@ -64,6 +64,7 @@ from common.localization.pose import (
     mean_rotation,
     perturb,
 )
+from common.localization.process_noise import NoiseState, adapt, residual_px
 from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
@@ -114,10 +115,11 @@ class ModelTracker(TrackerViews):
         w = state.angular_rate_rad_s if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, float)
         if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
             raise InputError("velocity and angular rate must be 3 finite numbers each")
-        _, noise_m_s = self.scales(state.distance_m)
+        noise, sigma_p, sigma_r = self.frame_noise(state, dt_s)
         n = state.positions_m.shape[0]
-        positions = state.positions_m + v * dt_s + rng.normal(size=(n, 3)) * (noise_m_s * dt_s)
-        turns = w * dt_s + rng.normal(size=(n, 3)) * (self.config.angular_noise_rad_s * dt_s)
+        R_wc = state.pose.R_world_camera  # the noise is set per camera axis (process_noise)
+        positions = state.positions_m + v * dt_s + (rng.normal(size=(n, 3)) * sigma_p) @ R_wc.T
+        turns = w * dt_s + (rng.normal(size=(n, 3)) * sigma_r) @ R_wc.T
         rotations = perturb(state.rotations, turns)
         motion = state.motion
         if motion is not None:
@@ -130,7 +132,9 @@ class ModelTracker(TrackerViews):
                 state.pose.p_world_camera_m + v * dt_s,
                 perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0],
             )
-        return replace(state, positions_m=positions, rotations=rotations, pose=pose, motion=motion)
+        return replace(
+            state, positions_m=positions, rotations=rotations, pose=pose, motion=motion, process_noise=noise
+        )
 
     # -- one frame ------------------------------------------------------------------------------------
     def step(
@@ -154,7 +158,7 @@ class ModelTracker(TrackerViews):
         if edges.gradient_x is None:
             raise InputError("the tracker needs edges with gradients (ModelTracker.edges)")
         cfg = self.config
-        spread_m, noise_m_s = self.scales(state.distance_m)
+        spread_m = self.position_spread_m(state.distance_m)
         n = cfg.n_particles
         if state.search_pending:
             if cfg.oriented_search:
@@ -180,11 +184,11 @@ class ModelTracker(TrackerViews):
         else:
             if gyro_rad_s is not None:
                 state, angular_rate_rad_s = self._gyro(state, gyro_rad_s), None
+            _, sigma_p, sigma_r = self.frame_noise(state, dt_s)
             state = self.predict(state, dt_s, rng, velocity_m_s, angular_rate_rad_s)
             state = self._refresh_visibility(state)
             visible = state.visible
-            dt = max(dt_s, 1e-3)
-            noise = (noise_m_s * dt, cfg.angular_noise_rad_s * dt)
+            noise = (float(sigma_p[0]), float(sigma_r[0]))
             positions, rotations, logw = anneal(
                 self.log_likelihood,
                 state.positions_m,
@@ -209,6 +213,7 @@ class ModelTracker(TrackerViews):
             rotations,
             logw,
             cfg.refine_search if searching else cfg.refine_tracking,
+            also=() if searching else (state.pose,),
         )
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()
@@ -259,6 +264,8 @@ class ModelTracker(TrackerViews):
         if motion is not None:
             return replace(
                 seen,
+                process_noise=self._adapted_noise(state, refined_pose, searching),
+                distance_m=self.viewing_distance_m(pose),
                 velocity_m_s=motion.velocity_m_s,
                 angular_rate_rad_s=motion.angular_rate_rad_s,
                 motion=motion,
@@ -287,6 +294,15 @@ class ModelTracker(TrackerViews):
             spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
         )
 
+    def _adapted_noise(self, predicted: TrackerState, measured: CameraPose, searching: bool) -> NoiseState:
+        """The process noise after a good frame: adapted to the motion model's residual (px per frame)
+        unless the frame was searched (no prediction to compare with)."""
+        noise = predicted.process_noise or NoiseState.initial(self.config.noise)
+        if searching or noise.last_frames <= 0.0:
+            return noise
+        r = residual_px(predicted.pose, measured, self.samples.centres_world_m, self.camera)
+        return adapt(noise, r / max(noise.last_frames, 1.0), self.config.noise)
+
     def _gyro(self, state: TrackerState, gyro_rad_s: npt.ArrayLike) -> TrackerState:
         """The state with its angular rate measured by the gyro (camera frame, rad/s)."""
         gyro = np.asarray(gyro_rad_s, dtype=np.float64)
@@ -311,8 +327,7 @@ class ModelTracker(TrackerViews):
         measured_cov = covariance * (cfg.measurement_inflation * state.noise_scale)
         if state.motion is None or searching:
             # at rest, but the camera may move at up to 5x the velocity noise and turn at 2x the angular one
-            _, noise_m_s = self.scales(state.distance_m)
-            start = motion_start(measured, measured_cov, 5.0 * noise_m_s, 2.0 * cfg.angular_noise_rad_s)
+            start = motion_start(measured, measured_cov, *self.start_rates(state))
             return start, False, state.noise_scale
         update = motion_update(state.motion, measured, measured_cov, cfg.motion)
         scale = state.noise_scale

@@ -14,6 +14,7 @@ from common.bounds import Bounded, bounded
 from common.errors import InputError
 from common.localization.motion import MotionSettings, MotionState
 from common.localization.pose import CameraPose
+from common.localization.process_noise import NoiseSettings, NoiseState
 from common.localization.refine import RefineSettings
 from common.localization.scoring import ScoringSettings
 from common.types import FloatArray
@@ -41,8 +42,11 @@ class TrackerSettings(Bounded):
     refine: RefineSettings = field(default_factory=RefineSettings)
     position_spread_m: float | None = bounded(None, gt=0.0, optional=True)
     angle_spread_rad: float = bounded(float(np.radians(8.0)), ge=0.0)
+    #: process noise: None = derived in pixels per frame (:mod:`~common.localization.process_noise`,
+    #: ``noise``); a number overrides it (m/s of unmodelled velocity, rad/s of unmodelled rate)
     velocity_noise_m_s: float | None = bounded(None, gt=0.0, optional=True)
-    angular_noise_rad_s: float = bounded(float(np.radians(25.0)), ge=0.0)
+    angular_noise_rad_s: float | None = bounded(None, ge=0.0, optional=True)
+    noise: NoiseSettings = field(default_factory=NoiseSettings)
     search_candidates: int = bounded(3000, ge=1)
     search_layers: int = bounded(7, ge=1)
     search_keep: int = bounded(800, ge=1)
@@ -108,6 +112,8 @@ class TrackerState:
     #: hidden-line mask (E, S) of the sample points and the pose it was computed from
     visible: npt.NDArray[np.bool_] | None = None
     visible_from: CameraPose | None = None
+    #: the process noise adapted online and the measured frame interval (None: not yet started)
+    process_noise: NoiseState | None = None
 
 
 def next_spread(factor: float, config: TrackerSettings) -> float:

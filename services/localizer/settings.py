@@ -75,9 +75,10 @@ class LocalizerSettings(BaseModel):
     #: start / recovery spread (m per axis; None = 0.1 x the viewing distance) and angle spread (deg)
     position_spread_m: float | None = Field(default=None, gt=0.0)
     angle_spread_deg: float = Field(default=8.0, gt=0.0, le=90.0)
-    #: process noise: unmodelled velocity (m/s; None = 0.2 x the viewing distance per s) and rate (deg/s)
+    #: process noise overrides: unmodelled velocity (m/s) and rate (deg/s); None = derived in pixels per
+    #: frame from the model, the camera and the stream (common.localization.process_noise)
     velocity_noise_m_s: float | None = Field(default=None, gt=0.0)
-    angular_noise_deg_s: float = Field(default=25.0, gt=0.0)
+    angular_noise_deg_s: float | None = Field(default=None, gt=0.0)
     layers: int = Field(default=2, ge=1, le=10)
     use_vo: bool = False
     #: with use_vo: a VO step faster than this (m/s) is a discontinuity (the odometry restarted, the
@@ -143,7 +144,9 @@ class LocalizerSettings(BaseModel):
             position_spread_m=self.position_spread_m,
             angle_spread_rad=float(np.radians(self.angle_spread_deg)),
             velocity_noise_m_s=self.velocity_noise_m_s,
-            angular_noise_rad_s=float(np.radians(self.angular_noise_deg_s)),
+            angular_noise_rad_s=(
+                None if self.angular_noise_deg_s is None else float(np.radians(self.angular_noise_deg_s))
+            ),
         )
 
 
@@ -205,14 +208,13 @@ def register_arguments(parser: Any) -> None:
         "--velocity-noise",
         dest="velocity_noise_m_s",
         type=float,
-        help="tracker: process noise, m/s (default 0.2 x distance / s)",
+        help="tracker: process noise override, m/s (default: from pixels per frame, see process_noise)",
     )
     parser.add_argument(
         "--angular-noise",
         dest="angular_noise_deg_s",
         type=float,
-        default=25.0,
-        help="tracker: process noise, deg/s (default 25)",
+        help="tracker: process noise override, deg/s (default: from pixels per frame, see process_noise)",
     )
     parser.add_argument(
         "--layers", type=int, default=2, help="tracker: annealing layers per frame (default 2)"
