@@ -115,18 +115,24 @@ def observe_interval(state: NoiseState, dt_s: float, settings: NoiseSettings) ->
 def residual_px(
     predicted: CameraPose, measured: CameraPose, points_world_m: FloatArray, camera: CameraModel
 ) -> float:
-    """RMS image displacement (px) of ``points_world_m`` (N, 3) between two poses (points in front of both
-    cameras; 0 when none is)."""
-    pts = []
+    """Robust RMS image displacement (px: the root of the median square) of ``points_world_m`` (N, 3)
+    between two poses, over the points in the image at the predicted pose and in front of both cameras at
+    no less than a fifth of their median depth (pinhole; 0 when there is none): a camera inside its model
+    (a room) does not count the points beside, behind or right in front of it."""
+    uv, depth = [], []
     for pose in (predicted, measured):
         X = (points_world_m - pose.p_world_camera_m) @ pose.R_world_camera
-        pts.append(X)
-    z0, z1 = pts[0][:, 2], pts[1][:, 2]
-    ok = (z0 > 1e-6) & (z1 > 1e-6)
+        z = np.maximum(X[:, 2], 1e-9)
+        uv.append(np.stack([camera.fx * X[:, 0] / z + camera.cx, camera.fy * X[:, 1] / z + camera.cy], 1))
+        depth.append(X[:, 2])
+    u, v = uv[0][:, 0], uv[0][:, 1]
+    ok = (depth[0] > 1e-6) & (depth[1] > 1e-6)
+    ok &= (u >= 0.0) & (u < camera.width) & (v >= 0.0) & (v < camera.height)
     if not ok.any():
         return 0.0
-    uv = [np.stack([camera.fx * X[ok, 0] / X[ok, 2], camera.fy * X[ok, 1] / X[ok, 2]], axis=1) for X in pts]
-    return float(np.sqrt(np.mean(np.sum((uv[0] - uv[1]) ** 2, axis=1))))
+    near = 0.2 * float(np.median(depth[0][ok]))
+    ok &= (depth[0] >= near) & (depth[1] >= near)
+    return float(np.sqrt(np.median(np.sum((uv[0][ok] - uv[1][ok]) ** 2, axis=1))))
 
 
 def adapt(state: NoiseState, residual_per_frame_px: float, settings: NoiseSettings) -> NoiseState:

@@ -223,6 +223,10 @@ class ModelTracker(TrackerViews):
         expected = state.expected_points
         matched = refined.match_fraction * refined.n_points
         good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
+        if not searching and state.expected_match > 0.0:
+            # trusted only near the match this model shows here when right (a relative test: absolute
+            # fractions differ between models, cameras and scenes; a wrong pose on texture falls short)
+            good = good and refined.match_fraction >= cfg.trust_ratio * state.expected_match
         if searching and state.frames > 0:
             # a search can fit the model to clutter: a recovery must match nearly as many points as the good
             # frames before the loss did, not merely a fraction of what it shows
@@ -276,6 +280,11 @@ class ModelTracker(TrackerViews):
                 # a slowly fading maximum: a pose that shows only a sliver of the model cannot talk it down
                 expected_points=max(int(0.95 * state.expected_points), refined.n_points),
                 expected_matched=max(0.95 * state.expected_matched, matched),
+                expected_match=(
+                    refined.match_fraction
+                    if state.expected_match == 0.0
+                    else 0.9 * state.expected_match + 0.1 * refined.match_fraction
+                ),
                 bad_frames=0,
                 search_pending=False,
                 spread_factor=1.0,

@@ -66,6 +66,10 @@ class TrackerSettings(Bounded):
     max_rejections: int = bounded(3, ge=1)
     gyro_sigma_rad_s: float = bounded(float(np.radians(0.5)), gt=0.0)
     lost_match: float = bounded(0.4, ge=0.0, le=1.0)
+    #: a tracked frame's match fraction must reach this share of the running mean of the good frames'
+    #: (the match expected for this model, this camera and this scene): wrong poses that texture lets match
+    #: a fraction of the edges fall below it with margin (see ModelTracker.step)
+    trust_ratio: float = bounded(0.7, ge=0.0, le=1.0)
     recover_ratio: float = bounded(0.6, ge=0.0, le=1.0)
     lost_frames: int = bounded(10, ge=1)
     spread_growth: float = bounded(1.4, gt=0.0)
@@ -114,6 +118,8 @@ class TrackerState:
     visible_from: CameraPose | None = None
     #: the process noise adapted online and the measured frame interval (None: not yet started)
     process_noise: NoiseState | None = None
+    #: running mean of the good frames' match fraction (0: none yet), for the trust test
+    expected_match: float = 0.0
 
 
 def next_spread(factor: float, config: TrackerSettings) -> float:

@@ -108,6 +108,9 @@ def test_residual_is_the_image_displacement() -> None:
     points = np.array([[0.0, 0.0, 2.0], [0.1, -0.1, 2.0]])
     moved = CameraPose(np.array([0.004, 0.0, 0.0]), np.eye(3))  # 4 mm at 2 m: 1 px
     assert np.isclose(residual_px(pose, moved, points, camera), 1.0)
+    # points beside, behind or right in front of the camera (inside a room) do not count
+    beside = np.vstack([points, [[5.0, 0.0, 0.05], [0.0, 0.0, -1.0], [0.0, 0.0, 0.01]]])
+    assert np.isclose(residual_px(pose, moved, beside, camera), 1.0)
 
 
 def test_the_cloud_spreads_by_the_same_pixels_at_any_scale() -> None:
