@@ -11,20 +11,29 @@ Per frame:
 
 1. **Motion model** (:meth:`ModelTracker.predict`, :mod:`~common.localization.motion`): a constant-velocity
    Kalman filter on the pose (white acceleration / angular acceleration noise in physical units) carries the
-   estimate; the particles move with its velocity and rate plus ``velocity_noise_m_s`` and
-   ``angular_noise_rad_s`` (the unmodelled velocity), or with a given odometry. Optionally a gyro
+   estimate; the particles move with its velocity and rate plus the **process noise**, set in pixels of
+   image motion per frame and turned into pose units by the model's size and distance, the focal length and
+   the frame interval measured from the stamps, adapted online to the motion model's residual, bounded
+   (:mod:`~common.localization.process_noise`, the one home of it; ``velocity_noise_m_s`` /
+   ``angular_noise_rad_s`` override it). A frame after a gap (skipped frames) is predicted over the elapsed
+   intervals, its noise widened alike. Or the particles move with a given odometry. Optionally a gyro
    (``gyro_rad_s``: the camera-frame mean rate over the frame interval) measures the rate.
 2. **Annealed weighting** (Deutscher et al. 2000): ``layers`` rounds of weighting with ``exp(beta l)``,
    ``beta`` chosen so that the effective sample size is half the particles (1 on the last layer unless
    that collapses the cloud), resampling and diffusion with a noise that halves per layer. A sharp
    likelihood no longer starves the cloud. Below ``visible_floor`` of the points a good pose showed, a
    pose's log weight is scaled by the points it shows (a sliver of the model cannot win on fractions).
-3. **Local refinement** of the best particle (:mod:`~common.localization.refine`): Gauss-Newton on oriented
-   point-to-edge offsets. Its pose, with its covariance inflated by ``measurement_inflation``, updates the
-   motion model (gated: a refinement that snapped to a parallel edge is ridden over; ``max_rejections``
-   frames in a row make the frame bad, i.e. a search); the filtered pose is the estimate.
+3. **Local refinement** (:mod:`~common.localization.refine`) of the motion model's prediction and of the best
+   particle: Gauss-Newton on oriented point-to-edge offsets; the refinement with the longest matched
+   outline wins (:func:`~common.localization.refine.match_measures`: a pose shrunk onto the object's
+   texture shows a shorter outline, matched in spots). Its pose, with its covariance inflated by
+   ``measurement_inflation``, updates the motion model (gated: a refinement that snapped to a parallel edge
+   is ridden over; ``max_rejections`` frames in a row make the frame bad, i.e. a search); the filtered pose
+   is the estimate.
 4. **Loss detection**: the match fraction (same-direction edges within 2.5 px) of the refined pose; below
-   ``lost_match`` (or fewer than ``min_point_ratio`` of the points seen at the last good pose) the frame is
+   ``lost_match``, below ``trust_ratio`` of the running mean of the good frames' match (the match this model
+   shows here when right: a relative test, since absolute fractions differ between models, cameras and
+   scenes) or with fewer than ``min_point_ratio`` of the points seen at the last good pose, the frame is
    bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose with
    a spread growing by ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1);
    after ``lost_frames`` bad frames the status is ``lost`` (the search goes on). A search's pose is only
@@ -37,9 +46,9 @@ Hidden-line removal: sample points hidden by the model's own faces from the pred
 Start and recovery search ``search_candidates x spread`` poses (:func:`~common.localization.search.
 search_candidates`: half uniform in the box ``pose +- spread``, half aimed at the model), half of them about
 the last good pose, half about it turned by the 2D chamfer shift, annealed over ``search_layers`` keeping
-``search_keep`` poses per layer. The default spreads and noises scale with the scene:
-``position_spread_m = 0.1 d`` and ``velocity_noise_m_s = 0.2 d / s`` where ``d`` is the median depth of the
-model's points in view from the initial pose (:meth:`ModelTracker.viewing_distance_m`); angles do not scale.
+``search_keep`` poses per layer. The default position spread scales with the scene: ``position_spread_m =
+0.1 d`` where ``d`` is the median depth of the model's points in view (:meth:`ModelTracker.
+viewing_distance_m`; from the initial pose, then from every good frame's); angles do not scale.
 """
 
 from __future__ import annotations
