@@ -158,3 +158,23 @@ def test_skipped_frames_widen_the_prediction_and_tracking_holds(tracker: ModelTr
     # the noise state counted the gaps without taking them for the frame interval
     noise = states[-1].process_noise
     assert noise is not None and np.isclose(noise.frame_interval_s or 0.0, 1.0 / 30.0, rtol=0.05)
+
+
+def test_a_frame_matching_well_short_of_the_expected_match_is_not_trusted(tracker: ModelTracker) -> None:
+    flight, images = rendered_object_flight(8, 6, tracker.camera)
+    states = list(
+        track_model(
+            tracker, images[:7], flight.times_s[:7], tracker.start(flight.pose(0)), np.random.default_rng(6)
+        )
+    )
+    state = states[-1]
+    assert state.status is TrackingStatus.TRACKING and 0.0 < state.expected_match <= 1.0
+    dt = float(flight.times_s[7] - flight.times_s[6])
+    edges = tracker.edges(images[7])
+    as_expected = tracker.step(state, edges, dt, np.random.default_rng(7))
+    assert as_expected.status is TrackingStatus.TRACKING
+    assert as_expected.match >= tracker.config.lost_match  # the absolute test alone would pass it
+    # the same frame and pose, where this model used to match far better: not trusted
+    spoilt = replace(state, expected_match=as_expected.match / (0.9 * tracker.config.trust_ratio))
+    doubted = tracker.step(spoilt, edges, dt, np.random.default_rng(7))
+    assert doubted.status is TrackingStatus.SEARCHING and doubted.search_pending
