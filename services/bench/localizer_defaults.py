@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from common.errors import CapatazError
 from common.geometry import R_BODY_CAMERA_FORWARD
 from common.localization.office import default_scene
 from common.localization.pose import CameraPose
@@ -71,7 +72,11 @@ GOAL_SHARE, GOAL_DEG = 0.01, 0.5
 
 
 def add_defaults_arguments(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("defaults suite", "default settings across scales and rates")
+    group = parser.add_argument_group(
+        "defaults suite",
+        "default settings across scales, rates and motions, and the cube (localizer_defaults.json); --seeds "
+        "runs per cell and start, --frames per run",
+    )
     group.add_argument("--quick", action="store_true", help="defaults suite: 1 seed, 90 frames per run")
     group.add_argument("--cells", nargs="+", help="defaults suite: only cells named scene/rate/motion")
     group.add_argument("--cube-dir", type=Path, default=Path("../shared/data/visp_cube"), help="cube data")
@@ -167,11 +172,17 @@ def measure_cell(scene: str, rate: float, motion: str, frames: int, seeds: int) 
 
 
 def run_defaults(args: argparse.Namespace) -> dict[str, Any]:
+    if getattr(args, "cube_runs", 0) > 0 and not (args.cube_dir / "cube.cao").is_file():
+        raise CapatazError(f"no cube data in {args.cube_dir} (--cube-dir; --cube-runs 0 to skip the cube)")
     quick = getattr(args, "quick", False)
     seeds = 1 if quick else args.seeds
     frames = 90 if quick else args.frames
     cells = [(s, r, m) for s in ("small", "large", "office") for r in RATES_HZ for m in MOTIONS]
     if getattr(args, "cells", None):
+        names = {f"{c[0]}/{c[1]:g}/{c[2]}" for c in cells}
+        unknown = sorted(set(args.cells) - names)
+        if unknown:
+            raise CapatazError(f"unknown cell(s) {unknown}; cells are scene/rate/motion, e.g. small/20/slow")
         cells = [c for c in cells if f"{c[0]}/{c[1]:g}/{c[2]}" in args.cells]
     rows = [measure_cell(s, r, m, frames, seeds) for s, r, m in cells]
     frames_all = sum(r["frames"] for r in rows)
