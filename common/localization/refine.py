@@ -16,6 +16,7 @@ texture it has: texture seldom runs parallel to every model edge at once.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +52,8 @@ class Refinement:
     match_fraction: float
     n_points: int
     covariance: FloatArray
+    #: the matched outline (px, :func:`match_measures`): what decides between refinements
+    outline_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -172,13 +175,47 @@ def _visible_projection(
 def match_fraction(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray) -> tuple[float, int]:
     """Fraction of the visible sample points with a same-direction image edge within ``match_px``, and the
     number of visible points (0 gives a fraction of 0)."""
-    u, v, nu, nv, _ = _visible_projection(fit, R_camera_world, t_camera_world)
-    if u.size == 0:
-        return 0.0, 0
+    fraction, n, _ = match_measures(fit, R_camera_world, t_camera_world)
+    return fraction, n
+
+
+def match_measures(
+    fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray
+) -> tuple[float, int, float]:
+    """:func:`match_fraction`'s two figures and the **matched outline** (px): the sum over the model's
+    visible edges of the edge's projected visible length times the square of the share of its points
+    matched. A pose shrunk onto texture inside the object's outline shows a shorter outline, and texture
+    matches an edge in spots, not along it (the square); the whole outline on the object's edges scores
+    most."""
+    R, t = R_camera_world, t_camera_world
+    proj = project_posed_samples(
+        fit.samples, R[None], (-R.T @ t)[None], fit.camera, with_normals=True, visible=fit.visible
+    )
+    assert proj.normal_u is not None and proj.normal_v is not None
+    valid = proj.valid[0]
+    n = int(valid.sum())
+    if n == 0:
+        return 0.0, 0, 0.0
     params = fit.params
     radius = int(np.ceil(params.match_px))
-    d = oriented_offsets(u, v, nu, nv, fit.edges, radius, float(np.cos(np.radians(params.max_angle_deg))))
-    return float(np.mean(np.abs(np.nan_to_num(d, nan=np.inf)) <= params.match_px)), int(u.size)
+    u, v = proj.u_px[0].astype(np.float64), proj.v_px[0].astype(np.float64)
+    d = oriented_offsets(
+        u[valid],
+        v[valid],
+        proj.normal_u[0][valid].astype(np.float64),
+        proj.normal_v[0][valid].astype(np.float64),
+        fit.edges,
+        radius,
+        float(np.cos(np.radians(params.max_angle_deg))),
+    )
+    hit = np.abs(np.nan_to_num(d, nan=np.inf)) <= params.match_px
+    matched = np.zeros(valid.shape)
+    matched[valid] = hit
+    shown = valid.sum(axis=1)
+    share = np.divide(matched.sum(axis=1), shown, out=np.zeros(shown.shape), where=shown > 0)
+    spacing = np.hypot(np.diff(u, axis=1), np.diff(v, axis=1)).mean(axis=1) if u.shape[1] > 1 else 1.0
+    outline = float(np.sum(shown * spacing * share**2))
+    return float(hit.mean()), n, outline
 
 
 def refine_pose(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray) -> Refinement:
@@ -228,15 +265,22 @@ def refine_pose(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatA
         radius = max(params.search_px // 2, int(np.ceil(params.match_px)) + 1)
         if np.linalg.norm(step[:3]) < 1e-5 and np.linalg.norm(step[3:]) < 1e-5:
             break
-    fraction, n_points = match_fraction(fit, R, t)
-    return Refinement(R, t, fraction, n_points, covariance)
+    fraction, n_points, outline = match_measures(fit, R, t)
+    return Refinement(R, t, fraction, n_points, covariance, outline)
 
 
 def refine_best(
-    fit: EdgeFit, positions: FloatArray, rotations: FloatArray, logw: FloatArray, count: int
+    fit: EdgeFit,
+    positions: FloatArray,
+    rotations: FloatArray,
+    logw: FloatArray,
+    count: int,
+    also: Sequence[CameraPose] = (),
 ) -> tuple[Refinement, CameraPose]:
-    """Refine the ``count`` best distinct particles (``R_world_camera`` rotations) with the largest log
-    weights; the refinement with the best ``match x sqrt(points)`` wins. Returns it and its pose."""
+    """Refine the poses ``also`` (the motion model's prediction) and the ``count`` best distinct particles
+    (``R_world_camera`` rotations) with the largest log weights; the refinement with the longest matched
+    outline (:func:`match_measures`, which texture cannot raise by shrinking the model onto it) wins.
+    Returns it and its pose."""
     order = np.argsort(-logw)
     chosen: list[int] = []
     for i in order:
@@ -244,12 +288,11 @@ def refine_best(
             break
         if all(np.linalg.norm(positions[i] - positions[j]) > 1e-4 for j in chosen):
             chosen.append(int(i))
+    guesses = list(also) + [CameraPose(positions[i], rotations[i]) for i in chosen]
     best: tuple[Refinement, CameraPose] | None = None
-    for i in chosen:
-        guess = CameraPose(positions[i], rotations[i])
+    for guess in guesses:
         result = refine_pose(fit, guess.R_camera_world, guess.t_camera_world_m)
-        score = result.match_fraction * np.sqrt(max(result.n_points, 0))
-        if best is None or score > best[0].match_fraction * np.sqrt(max(best[0].n_points, 0)):
+        if best is None or result.outline_px > best[0].outline_px:
             pose = CameraPose(-result.R_camera_world.T @ result.t_camera_world_m, result.R_camera_world.T)
             best = (result, pose)
     assert best is not None

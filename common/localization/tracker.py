@@ -11,20 +11,29 @@ Per frame:
 
 1. **Motion model** (:meth:`ModelTracker.predict`, :mod:`~common.localization.motion`): a constant-velocity
    Kalman filter on the pose (white acceleration / angular acceleration noise in physical units) carries the
-   estimate; the particles move with its velocity and rate plus ``velocity_noise_m_s`` and
-   ``angular_noise_rad_s`` (the unmodelled velocity), or with a given odometry. Optionally a gyro
+   estimate; the particles move with its velocity and rate plus the **process noise**, set in pixels of
+   image motion per frame and turned into pose units by the model's size and distance, the focal length and
+   the frame interval measured from the stamps, adapted online to the motion model's residual, bounded
+   (:mod:`~common.localization.process_noise`, the one home of it; ``velocity_noise_m_s`` /
+   ``angular_noise_rad_s`` override it). A frame after a gap (skipped frames) is predicted over the elapsed
+   intervals, its noise widened alike. Or the particles move with a given odometry. Optionally a gyro
    (``gyro_rad_s``: the camera-frame mean rate over the frame interval) measures the rate.
 2. **Annealed weighting** (Deutscher et al. 2000): ``layers`` rounds of weighting with ``exp(beta l)``,
    ``beta`` chosen so that the effective sample size is half the particles (1 on the last layer unless
    that collapses the cloud), resampling and diffusion with a noise that halves per layer. A sharp
    likelihood no longer starves the cloud. Below ``visible_floor`` of the points a good pose showed, a
    pose's log weight is scaled by the points it shows (a sliver of the model cannot win on fractions).
-3. **Local refinement** of the best particle (:mod:`~common.localization.refine`): Gauss-Newton on oriented
-   point-to-edge offsets. Its pose, with its covariance inflated by ``measurement_inflation``, updates the
-   motion model (gated: a refinement that snapped to a parallel edge is ridden over; ``max_rejections``
-   frames in a row make the frame bad, i.e. a search); the filtered pose is the estimate.
+3. **Local refinement** (:mod:`~common.localization.refine`) of the motion model's prediction and of the best
+   particle: Gauss-Newton on oriented point-to-edge offsets; the refinement with the longest matched
+   outline wins (:func:`~common.localization.refine.match_measures`: a pose shrunk onto the object's
+   texture shows a shorter outline, matched in spots). Its pose, with its covariance inflated by
+   ``measurement_inflation``, updates the motion model (gated: a refinement that snapped to a parallel edge
+   is ridden over; ``max_rejections`` frames in a row make the frame bad, i.e. a search); the filtered pose
+   is the estimate.
 4. **Loss detection**: the match fraction (same-direction edges within 2.5 px) of the refined pose; below
-   ``lost_match`` (or fewer than ``min_point_ratio`` of the points seen at the last good pose) the frame is
+   ``lost_match``, below ``trust_ratio`` of the running mean of the good frames' match (the match this model
+   shows here when right: a relative test, since absolute fractions differ between models, cameras and
+   scenes) or with fewer than ``min_point_ratio`` of the points seen at the last good pose, the frame is
    bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose with
    a spread growing by ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1);
    after ``lost_frames`` bad frames the status is ``lost`` (the search goes on). A search's pose is only
@@ -37,9 +46,9 @@ Hidden-line removal: sample points hidden by the model's own faces from the pred
 Start and recovery search ``search_candidates x spread`` poses (:func:`~common.localization.search.
 search_candidates`: half uniform in the box ``pose +- spread``, half aimed at the model), half of them about
 the last good pose, half about it turned by the 2D chamfer shift, annealed over ``search_layers`` keeping
-``search_keep`` poses per layer. The default spreads and noises scale with the scene:
-``position_spread_m = 0.1 d`` and ``velocity_noise_m_s = 0.2 d / s`` where ``d`` is the median depth of the
-model's points in view from the initial pose (:meth:`ModelTracker.viewing_distance_m`); angles do not scale.
+``search_keep`` poses per layer. The default position spread scales with the scene: ``position_spread_m =
+0.1 d`` where ``d`` is the median depth of the model's points in view (:meth:`ModelTracker.
+viewing_distance_m`; from the initial pose, then from every good frame's); angles do not scale.
 """
 
 from __future__ import annotations
@@ -64,6 +73,7 @@ from common.localization.pose import (
     mean_rotation,
     perturb,
 )
+from common.localization.process_noise import NoiseState, adapt, residual_px
 from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
@@ -114,10 +124,11 @@ class ModelTracker(TrackerViews):
         w = state.angular_rate_rad_s if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, float)
         if v.shape != (3,) or w.shape != (3,) or not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
             raise InputError("velocity and angular rate must be 3 finite numbers each")
-        _, noise_m_s = self.scales(state.distance_m)
+        noise, sigma_p, sigma_r = self.frame_noise(state, dt_s)
         n = state.positions_m.shape[0]
-        positions = state.positions_m + v * dt_s + rng.normal(size=(n, 3)) * (noise_m_s * dt_s)
-        turns = w * dt_s + rng.normal(size=(n, 3)) * (self.config.angular_noise_rad_s * dt_s)
+        R_wc = state.pose.R_world_camera  # the noise is set per camera axis (process_noise)
+        positions = state.positions_m + v * dt_s + (rng.normal(size=(n, 3)) * sigma_p) @ R_wc.T
+        turns = w * dt_s + (rng.normal(size=(n, 3)) * sigma_r) @ R_wc.T
         rotations = perturb(state.rotations, turns)
         motion = state.motion
         if motion is not None:
@@ -130,7 +141,9 @@ class ModelTracker(TrackerViews):
                 state.pose.p_world_camera_m + v * dt_s,
                 perturb(state.pose.R_world_camera[None], (w * dt_s)[None])[0],
             )
-        return replace(state, positions_m=positions, rotations=rotations, pose=pose, motion=motion)
+        return replace(
+            state, positions_m=positions, rotations=rotations, pose=pose, motion=motion, process_noise=noise
+        )
 
     # -- one frame ------------------------------------------------------------------------------------
     def step(
@@ -154,7 +167,7 @@ class ModelTracker(TrackerViews):
         if edges.gradient_x is None:
             raise InputError("the tracker needs edges with gradients (ModelTracker.edges)")
         cfg = self.config
-        spread_m, noise_m_s = self.scales(state.distance_m)
+        spread_m = self.position_spread_m(state.distance_m)
         n = cfg.n_particles
         if state.search_pending:
             if cfg.oriented_search:
@@ -180,11 +193,11 @@ class ModelTracker(TrackerViews):
         else:
             if gyro_rad_s is not None:
                 state, angular_rate_rad_s = self._gyro(state, gyro_rad_s), None
+            _, sigma_p, sigma_r = self.frame_noise(state, dt_s)
             state = self.predict(state, dt_s, rng, velocity_m_s, angular_rate_rad_s)
             state = self._refresh_visibility(state)
             visible = state.visible
-            dt = max(dt_s, 1e-3)
-            noise = (noise_m_s * dt, cfg.angular_noise_rad_s * dt)
+            noise = (float(sigma_p[0]), float(sigma_r[0]))
             positions, rotations, logw = anneal(
                 self.log_likelihood,
                 state.positions_m,
@@ -209,6 +222,7 @@ class ModelTracker(TrackerViews):
             rotations,
             logw,
             cfg.refine_search if searching else cfg.refine_tracking,
+            also=() if searching else (state.pose,),
         )
         weights = np.exp(logw - logw.max())
         weights /= weights.sum()
@@ -218,6 +232,10 @@ class ModelTracker(TrackerViews):
         expected = state.expected_points
         matched = refined.match_fraction * refined.n_points
         good = refined.match_fraction >= cfg.lost_match and refined.n_points >= cfg.min_point_ratio * expected
+        if not searching and state.expected_match > 0.0:
+            # trusted only near the match this model shows here when right (a relative test: absolute
+            # fractions differ between models, cameras and scenes; a wrong pose on texture falls short)
+            good = good and refined.match_fraction >= cfg.trust_ratio * state.expected_match
         if searching and state.frames > 0:
             # a search can fit the model to clutter: a recovery must match nearly as many points as the good
             # frames before the loss did, not merely a fraction of what it shows
@@ -259,6 +277,8 @@ class ModelTracker(TrackerViews):
         if motion is not None:
             return replace(
                 seen,
+                process_noise=self._adapted_noise(state, refined_pose, searching),
+                distance_m=self.viewing_distance_m(pose),
                 velocity_m_s=motion.velocity_m_s,
                 angular_rate_rad_s=motion.angular_rate_rad_s,
                 motion=motion,
@@ -269,6 +289,11 @@ class ModelTracker(TrackerViews):
                 # a slowly fading maximum: a pose that shows only a sliver of the model cannot talk it down
                 expected_points=max(int(0.95 * state.expected_points), refined.n_points),
                 expected_matched=max(0.95 * state.expected_matched, matched),
+                expected_match=(
+                    refined.match_fraction
+                    if state.expected_match == 0.0
+                    else 0.9 * state.expected_match + 0.1 * refined.match_fraction
+                ),
                 bad_frames=0,
                 search_pending=False,
                 spread_factor=1.0,
@@ -286,6 +311,15 @@ class ModelTracker(TrackerViews):
             search_pending=True,
             spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
         )
+
+    def _adapted_noise(self, predicted: TrackerState, measured: CameraPose, searching: bool) -> NoiseState:
+        """The process noise after a good frame: adapted to the motion model's residual (px per frame)
+        unless the frame was searched (no prediction to compare with)."""
+        noise = predicted.process_noise or NoiseState.initial(self.config.noise)
+        if searching or noise.last_frames <= 0.0:
+            return noise
+        r = residual_px(predicted.pose, measured, self.samples.centres_world_m, self.camera)
+        return adapt(noise, r / max(noise.last_frames, 1.0), self.config.noise)
 
     def _gyro(self, state: TrackerState, gyro_rad_s: npt.ArrayLike) -> TrackerState:
         """The state with its angular rate measured by the gyro (camera frame, rad/s)."""
@@ -311,8 +345,7 @@ class ModelTracker(TrackerViews):
         measured_cov = covariance * (cfg.measurement_inflation * state.noise_scale)
         if state.motion is None or searching:
             # at rest, but the camera may move at up to 5x the velocity noise and turn at 2x the angular one
-            _, noise_m_s = self.scales(state.distance_m)
-            start = motion_start(measured, measured_cov, 5.0 * noise_m_s, 2.0 * cfg.angular_noise_rad_s)
+            start = motion_start(measured, measured_cov, *self.start_rates(state))
             return start, False, state.noise_scale
         update = motion_update(state.motion, measured, measured_cov, cfg.motion)
         scale = state.noise_scale

@@ -14,6 +14,7 @@ from common.bounds import bounded
 from common.errors import InputError
 from common.localization.motion import MotionSettings, MotionState
 from common.localization.pose import CameraPose
+from common.localization.process_noise import NoiseSettings, NoiseState
 from common.localization.refine import RefineSettings
 from common.localization.scoring import ParticleSettings
 from common.types import FloatArray
@@ -43,15 +44,23 @@ class TrackerSettings(ParticleSettings):
     angle_spread_rad: float = bounded(
         float(np.radians(8.0)), gt=0.0, le=float(np.radians(90.0)), help="start/recovery angle spread"
     )
+    #: process noise: None = derived in pixels per frame (:mod:`~common.localization.process_noise`,
+    #: ``noise``); a number overrides it (m/s of unmodelled velocity, rad/s of unmodelled rate)
     velocity_noise_m_s: float | None = bounded(
         None,
         gt=0.0,
         optional=True,
-        help="process noise: unmodelled velocity, m/s (default 0.2 x distance / s)",
+        help="process noise override: unmodelled velocity, m/s (default: derived from the expected image "
+        "motion in pixels per frame)",
     )
-    angular_noise_rad_s: float = bounded(
-        float(np.radians(25.0)), gt=0.0, help="process noise: unmodelled angular rate"
+    angular_noise_rad_s: float | None = bounded(
+        None,
+        gt=0.0,
+        optional=True,
+        help="process noise override: unmodelled angular rate (default: derived from the expected image "
+        "motion in pixels per frame)",
     )
+    noise: NoiseSettings = field(default_factory=NoiseSettings)
     search_candidates: int = bounded(3000, ge=1)
     search_layers: int = bounded(7, ge=1)
     search_keep: int = bounded(800, ge=1)
@@ -71,6 +80,10 @@ class TrackerSettings(ParticleSettings):
     max_rejections: int = bounded(3, ge=1)
     gyro_sigma_rad_s: float = bounded(float(np.radians(0.5)), gt=0.0)
     lost_match: float = bounded(0.4, ge=0.0, le=1.0)
+    #: a tracked frame's match fraction must reach this share of the running mean of the good frames'
+    #: (the match expected for this model, this camera and this scene): wrong poses that texture lets match
+    #: a fraction of the edges fall below it with margin (see ModelTracker.step)
+    trust_ratio: float = bounded(0.7, ge=0.0, le=1.0)
     recover_ratio: float = bounded(0.6, ge=0.0, le=1.0)
     lost_frames: int = bounded(10, ge=1)
     spread_growth: float = bounded(1.4, gt=0.0)
@@ -116,6 +129,10 @@ class TrackerState:
     #: hidden-line mask (E, S) of the sample points and the pose it was computed from
     visible: npt.NDArray[np.bool_] | None = None
     visible_from: CameraPose | None = None
+    #: the process noise adapted online and the measured frame interval (None: not yet started)
+    process_noise: NoiseState | None = None
+    #: running mean of the good frames' match fraction (0: none yet), for the trust test
+    expected_match: float = 0.0
 
 
 def next_spread(factor: float, config: TrackerSettings) -> float:

@@ -20,6 +20,7 @@ from common.localization.fused import (
 )
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
+from common.localization.process_noise import NoiseState, observe_interval, pixel_scale
 from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
 from common.localization.scoring import (
     ImageEdges,
@@ -42,6 +43,8 @@ class TrackerViews:
         self.camera = camera
         self.config = config or TrackerSettings()
         self.samples: EdgeSamples = sample_edges(scene, self.config.points_per_edge)
+        #: half the model's bounding-box diagonal: its size as the process noise sees it
+        self.model_radius_m = 0.5 * scene.size_m
         self.fused = fused_model(self.samples, camera)  # the samples as the compiled weighting reads them
         if self.config.fused_weighting:
             compile_fused_kernel()  # now, not on the first frame
@@ -66,13 +69,40 @@ class TrackerViews:
             return float(np.median(z[ahead][in_view]))
         return max(float(np.linalg.norm(pose.p_world_camera_m - self.scene.centre_world_m)), 1e-3)
 
-    def scales(self, distance_m: float) -> tuple[float, float]:
-        """Position spread (m) and velocity noise (m/s) for a model ``distance_m`` away (configured or
-        scaled: 0.1 d and 0.2 d / s)."""
+    def position_spread_m(self, distance_m: float) -> float:
+        """Start / recovery position spread (m) for a model ``distance_m`` away (configured, or 0.1 d)."""
         cfg = self.config
-        spread = cfg.position_spread_m if cfg.position_spread_m is not None else 0.1 * distance_m
-        noise = cfg.velocity_noise_m_s if cfg.velocity_noise_m_s is not None else 0.2 * distance_m
-        return spread, noise
+        return cfg.position_spread_m if cfg.position_spread_m is not None else 0.1 * distance_m
+
+    def frame_noise(self, state: TrackerState, dt_s: float) -> tuple[NoiseState, FloatArray, FloatArray]:
+        """This step's process noise (:mod:`~common.localization.process_noise`): the noise state with
+        ``dt_s`` observed, and camera-frame standard deviations of position (3,) m and rotation (3,) rad
+        over the step; ``velocity_noise_m_s`` / ``angular_noise_rad_s`` override theirs (x ``dt_s``)."""
+        cfg = self.config
+        noise = state.process_noise or NoiseState.initial(cfg.noise)
+        noise = observe_interval(noise, dt_s, cfg.noise)
+        scale = pixel_scale(state.distance_m, self.camera, self.model_radius_m)
+        position, rotation = scale.sigmas(noise.noise_px * noise.last_frames)
+        if cfg.velocity_noise_m_s is not None:
+            position = np.full(3, cfg.velocity_noise_m_s * dt_s)
+        if cfg.angular_noise_rad_s is not None:
+            rotation = np.full(3, cfg.angular_noise_rad_s * dt_s)
+        return noise, position, rotation
+
+    def start_rates(self, state: TrackerState) -> tuple[float, float]:
+        """Standard deviation of the velocity (m/s) and angular rate (rad/s) when the motion model starts:
+        ``ceiling_px`` per frame interval (1/30 s until measured), or 5x / 2x the overrides."""
+        cfg = self.config
+        noise = state.process_noise or NoiseState.initial(cfg.noise)
+        interval = noise.frame_interval_s or 1.0 / 30.0
+        scale = pixel_scale(state.distance_m, self.camera, self.model_radius_m)
+        v = scale.lateral_m * cfg.noise.ceiling_px / interval
+        w = scale.turn_rad * cfg.noise.ceiling_px / interval
+        if cfg.velocity_noise_m_s is not None:
+            v = 5.0 * cfg.velocity_noise_m_s
+        if cfg.angular_noise_rad_s is not None:
+            w = 2.0 * cfg.angular_noise_rad_s
+        return v, w
 
     # -- weighting ------------------------------------------------------------------------------------
     def log_likelihood(

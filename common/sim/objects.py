@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.errors import InputError
-from common.localization.model import SceneModel, build_scene
+from common.localization.model import SceneModel, build_scene, scene_from_dict, scene_to_dict
 from common.localization.pose import CameraPose, perturb, rotation_angle_rad, rotation_vectors
 from common.sim.scene import RenderOptions, SampledFlight, render_view
 from common.sim.sensors import ImuNoise
@@ -158,6 +158,13 @@ def tabletop_scene(with_part: bool = True) -> SceneModel:
     return f.build("tabletop+clutter")
 
 
+def scaled_scene(scene: SceneModel, scale: float) -> SceneModel:
+    """``scene`` with every vertex scaled by ``scale`` about the origin."""
+    description = scene_to_dict(scene)
+    description["vertices"] = (np.asarray(description["vertices"]) * scale).tolist()
+    return scene_from_dict(description)
+
+
 @dataclass(frozen=True)
 class CameraFlight(SampledFlight):
     """Exact camera poses at ``times_s`` (T,): centres (T, 3) and ``R_world_camera`` (T, 3, 3)."""
@@ -200,25 +207,37 @@ def _wander(
     return out
 
 
-def object_flight(n_frames: int = 300, seed: int = 0, rate_hz: float = OBJECT_RATE_HZ) -> CameraFlight:
+def object_flight(
+    n_frames: int = 300,
+    seed: int = 0,
+    rate_hz: float = OBJECT_RATE_HZ,
+    *,
+    scale: float = 1.0,
+    distance_scale: float = 1.0,
+    max_step_m: float = MAX_STEP_M,
+    max_step_rad: float = MAX_STEP_RAD,
+) -> CameraFlight:
     """A flight around the tabletop part: distance 0.45-0.9 m, elevation 20-55 deg, the aim wandering a few
     centimetres about the part and a roll of up to 10 deg; slowed down (if needed) so that no frame moves
-    more than 20 mm or 2 deg."""
-    if n_frames < 2 or rate_hz <= 0.0:
-        raise InputError(f"need n_frames >= 2 and rate_hz > 0, got {n_frames}, {rate_hz}")
+    more than ``max_step_m`` (20 mm) or ``max_step_rad`` (2 deg). ``scale``: the world (and the flight)
+    scaled about the origin (for :func:`scaled_scene` of the same factor); ``distance_scale``: the orbit's
+    distance to the part times this (before ``scale``)."""
+    if n_frames < 2 or rate_hz <= 0.0 or scale <= 0.0 or distance_scale <= 0.0:
+        raise InputError(f"need n_frames >= 2 and rate_hz, scales > 0, got {n_frames}, {rate_hz}")
     speed = 1.0
     for _ in range(20):
-        p, R = _orbit(speed * np.arange(n_frames, dtype=np.float64) / rate_hz, seed)
+        p, R = _orbit(speed * np.arange(n_frames, dtype=np.float64) / rate_hz, seed, distance_scale)
+        p = scale * p
         step_m = np.linalg.norm(np.diff(p, axis=0), axis=1).max()
         step_rad = rotation_angle_rad(R[1:], R[:-1]).max()
-        ratio = max(step_m / MAX_STEP_M, step_rad / MAX_STEP_RAD)
+        ratio = max(step_m / max_step_m, step_rad / max_step_rad)
         if ratio <= 1.0:
             return CameraFlight(times_s=np.arange(n_frames) / rate_hz, p_world_camera_m=p, R_world_camera=R)
         speed /= ratio * 1.02
     raise InputError("could not build a flight within the per-frame motion limits")
 
 
-def _orbit(t: FloatArray, seed: int) -> tuple[FloatArray, FloatArray]:
+def _orbit(t: FloatArray, seed: int, distance_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
     """Camera centres and rotations of the orbit at (scaled) times ``t``; its shape depends on the seed."""
     rng = np.random.default_rng(seed)
     centre = np.asarray(OBJECT_CENTRE_M)
@@ -226,7 +245,7 @@ def _orbit(t: FloatArray, seed: int) -> tuple[FloatArray, FloatArray]:
         rng.uniform(0.0, 2.0 * np.pi) + rng.choice([-1.0, 1.0]) * 0.45 * t + _wander(t, rng, 0.6, (4, 9))
     )
     elevation = np.radians(37.0) + _wander(t, rng, np.radians(16.0), (3, 8))
-    distance = 0.66 + _wander(t, rng, 0.2, (3, 7))
+    distance = distance_scale * (0.66 + _wander(t, rng, 0.2, (3, 7)))
     eye = centre + distance[:, None] * np.stack(
         [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1
     )

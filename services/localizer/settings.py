@@ -73,7 +73,7 @@ class LocalizerSettings(BaseModel):
     position_spread_m: float | None = from_core(TrackerSettings, "position_spread_m")
     angle_spread_deg: float = from_core(TrackerSettings, "angle_spread_rad", unit=DEGREES)
     velocity_noise_m_s: float | None = from_core(TrackerSettings, "velocity_noise_m_s")
-    angular_noise_deg_s: float = from_core(TrackerSettings, "angular_noise_rad_s", unit=DEGREES)
+    angular_noise_deg_s: float | None = from_core(TrackerSettings, "angular_noise_rad_s", unit=DEGREES)
     layers: int = from_core(TrackerSettings, "layers")
     use_vo: bool = Field(
         default=False,
@@ -138,7 +138,9 @@ class LocalizerSettings(BaseModel):
             position_spread_m=self.position_spread_m,
             angle_spread_rad=DEGREES.core(self.angle_spread_deg),
             velocity_noise_m_s=self.velocity_noise_m_s,
-            angular_noise_rad_s=DEGREES.core(self.angular_noise_deg_s),
+            angular_noise_rad_s=(
+                None if self.angular_noise_deg_s is None else DEGREES.core(self.angular_noise_deg_s)
+            ),
         )
 
 

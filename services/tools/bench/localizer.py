@@ -39,6 +39,7 @@ from common.sim.office_run import (
     track_run,
 )
 from services.runtime import progress
+from services.tools.bench.localizer_defaults import add_defaults_arguments, run_defaults
 from services.tools.bench.localizer_field import add_field_arguments, run_field
 
 logger = logging.getLogger(__name__)
@@ -50,7 +51,9 @@ GOAL_YAW_RMSE_DEG = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--suite", choices=["paper", "field"], default="paper", help="which suite runs")
+    parser.add_argument(
+        "--suite", choices=["paper", "field", "defaults"], default="paper", help="which suite runs"
+    )
     parser.add_argument(
         "--frames", type=int, default=300, help="frames of the simulated flight (default 300)"
     )
@@ -66,6 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     paper.add_argument("--seed", type=int, default=0, help="simulation seed")
     paper.add_argument("--timing-frames", type=int, default=10, help="frames used for timing (default 10)")
     add_field_arguments(parser)
+    add_defaults_arguments(parser)
 
 
 @contextmanager
@@ -165,6 +169,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     with _one_core() as core:
         if getattr(args, "suite", "paper") == "field":
             return {**run_field(args), "core": core}
+        if getattr(args, "suite", "paper") == "defaults":
+            return {**run_defaults(args), "core": core}
         return _measure(args, core)
 
 

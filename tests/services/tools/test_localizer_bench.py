@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 
+import pytest
+
+from common.errors import CapatazError
 from services.tools.bench import localizer
 from services.tools.bench.localizer_field import best_scoring
 
@@ -79,3 +83,34 @@ def test_best_scoring_prefers_no_lost_runs_then_goals_then_accuracy() -> None:
     assert best_scoring(results) == "b"  # a lost a run; b and c meet one goal each, b is closer
     results["office"]["c"] = row(28.0, 0, True)
     assert best_scoring(results) == "c"
+
+
+def test_defaults_suite_reports_its_cells_the_loss_flag_and_refuses_bad_input(tmp_path: Path) -> None:
+    parser = argparse.ArgumentParser()
+    localizer.add_arguments(parser)
+    args = parser.parse_args(
+        [
+            "--suite",
+            "defaults",
+            "--frames",
+            "8",
+            "--seeds",
+            "1",
+            "--cells",
+            "small/20/slow",
+            "--cube-runs",
+            "0",
+        ]
+    )
+    result = localizer.run(args)
+    assert result["bench_name"] == "localizer_defaults" and result["reduced"] is True
+    (row,) = result["cells"]
+    assert row["cell"] == "small/20/slow" and row["runs"] == 3 and row["frames"] == 24
+    assert 0 <= row["false_tracking_frames"] <= row["off_frames"] <= row["frames"]
+    assert 0 <= row["false_reject_frames"] <= row["right_frames"] <= row["frames"]
+    assert row["meets"] == (
+        row["lost_runs"] == 0 and row["position_median_share"] <= 0.01 and row["rotation_median_deg"] <= 0.5
+    )
+    for bad in (["--cells", "tiny/20/slow"], ["--cube-dir", str(tmp_path)]):
+        with pytest.raises(CapatazError):
+            localizer.run(parser.parse_args(["--suite", "defaults", "--frames", "8", *bad]))
