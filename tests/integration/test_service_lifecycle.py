@@ -47,7 +47,8 @@ def test_services_declare_liveliness_answer_health_publish_stats_and_stop_cleanl
             while not wanted <= set(stats) and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert wanted <= set(stats)
-            assert stats[keys.stats_key("master", "master", 0)].queue_depths.keys() == {"frames"}
+            # the callback's hand-off (inbox) and the frame queue
+            assert stats[keys.stats_key("master", "master", 0)].queue_depths.keys() == {"inbox", "frames"}
             sub.undeclare()
         exit_s = {}
         for i, name in enumerate(sorted(members)):
