@@ -14,6 +14,7 @@ import argparse
 import importlib
 import logging
 import re
+import signal
 import sys
 from collections.abc import Iterator, Sequence
 from importlib import metadata
@@ -238,6 +239,10 @@ def _report(args: argparse.Namespace, exc: BaseException, code: int) -> int:
     return code
 
 
+def _exit_on_sigterm(*_args: Any) -> NoReturn:
+    raise SystemExit(0)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     module = requested_module(argv)
@@ -249,6 +254,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         datefmt="%H:%M:%S",
     )
     progress.configure(quiet=args.quiet)
+    # a SIGTERM before a command installs its own handling (a service still setting up: a camera rendering
+    # its flight, a localizer loading its model) ends it cleanly, exit 0, instead of killing it (-15)
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         return int(args.handler(args) or 0)
     except (ValidationError, UsageError) as exc:

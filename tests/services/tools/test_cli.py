@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -22,6 +23,7 @@ from services.tools.cli import (
     requested_module,
     subcommands,
 )
+from tests.zenoh_helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -206,3 +208,32 @@ def test_global_options_are_accepted_before_and_after_the_sub_command(argv: list
         assert args.quiet is True
     if "--out" in argv:
         assert args.out == Path("X")
+
+
+def _catches_sigterm(pid: int) -> bool:
+    """Whether process ``pid`` has a handler for SIGTERM (its ``SigCgt`` mask in /proc)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), 16)
+    return bool(caught & (1 << (signal.SIGTERM - 1)))
+
+
+@pytest.mark.zenoh  # the camera opens a session once it is set up
+def test_sigterm_while_a_service_is_still_setting_up_exits_0_regression() -> None:
+    """Issue 27: a SIGTERM to a service still setting up (a camera preparing a long flight) killed it (-15)
+    instead of ending it cleanly. The command line's own handler, installed before the service's, exits 0."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "services.tools.cli", "camera", "--frames", "100000", "--wait-master", "0",
+         "--listen", "tcp/127.0.0.1:0", "--no-multicast"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert wait_until(lambda: _catches_sigterm(process.pid), timeout_s=60.0, interval_s=0.005)
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 0, err
+    assert "Traceback" not in err
