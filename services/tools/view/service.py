@@ -39,6 +39,7 @@ from services.runtime.cli import add_transport_arguments, transport_from_args
 from services.runtime.tap import KeyTap
 from services.runtime.transport import TransportSettings
 from services.tools.view.layout import layout_json
+from services.tools.view.subprotocol import SubprotocolFront
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +90,7 @@ class ViewService(KeyTap):
         self._last_frame_s: dict[str, float] = {}
         self._channels: dict[str, Any] = {}
         self.server: Any = None
+        self.front: SubprotocolFront | None = None
         self.context: Any = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
@@ -99,28 +101,32 @@ class ViewService(KeyTap):
         import foxglove
 
         self.context = foxglove.Context()
-        try:
-            self.server = foxglove.start_server(
-                name="capataz", host=self.settings.host, port=self.settings.port, context=self.context
-            )
-        except (
-            RuntimeError
-        ) as exc:  # the SDK's FoxgloveError, e.g. "Failed to bind port: Address already in use"
-            reason = str(exc).split(": ", 1)[-1]
-            raise ViewError(
-                f"--port {self.settings.port}: cannot serve on {self.settings.host}: {reason}"
-            ) from None
-        logger.info("Foxglove WebSocket server on ws://%s:%d", self.settings.host, self.server.port)
+        try:  # the viewer's port first: a taken port is the user's to fix, before anything starts
+            self.front = SubprotocolFront(self.settings.host, self.settings.port, backend_port=0)
+        except OSError as exc:
+            where = f"--port {self.settings.port}: cannot serve on {self.settings.host}"
+            raise ViewError(f"{where}: {exc.strerror or exc}") from None
+        # the SDK's server on an internal loopback port; the front answers both subprotocol names
+        self.server = foxglove.start_server(name="capataz", host="127.0.0.1", port=0, context=self.context)
+        self.front.backend_port = int(self.server.port)
+        self.front.start()
+        logger.info(
+            "Foxglove WebSocket server on ws://%s:%d (foxglove.sdk.v1 and foxglove.websocket.v1)",
+            self.settings.host,
+            self.front.port,
+        )
         super().start(session)
 
     def stop(self) -> None:
         super().stop()
+        if self.front is not None:
+            self.front.stop()
         if self.server is not None:
             self.server.stop()
 
     @property
     def port(self) -> int:
-        return int(self.server.port) if self.server is not None else 0
+        return self.front.port if self.front is not None else 0
 
     def admit(self, key: str) -> bool:
         """Frames: at most ``image_rate_hz`` per UAV, decided before they are queued."""

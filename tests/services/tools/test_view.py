@@ -210,3 +210,37 @@ def test_deploy_layout_is_the_generated_one_and_names_only_served_topics() -> No
               "truth", "pose/vo/in_frame", "pose/pf/in_frame", "truth/in_frame")}  # fmt: skip
     topics = layout_topics(json.loads(path.read_text()))
     assert topics and topics <= served, topics - served
+
+
+@pytest.mark.parametrize("offered", [["foxglove.websocket.v1"], ["foxglove.sdk.v1"]])
+def test_a_client_offering_either_name_of_the_protocol_is_served_regression(
+    endpoint: str, offered: list[str]
+) -> None:
+    """Issue 28: a client offering only ``foxglove.websocket.v1`` (the protocol's name before foxglove-sdk;
+    Lichtblick, older Foxglove apps) got HTTP 400. It is answered under the name it offered."""
+    from websockets.sync.client import connect
+
+    service = ViewService("view", 0, peer(endpoint), ViewSettings(port=0))
+    runner = threading.Thread(target=service.run, daemon=True)
+    runner.start()
+    try:
+        assert service.started.wait(20.0)
+        with connect(f"ws://127.0.0.1:{service.port}", subprotocols=offered, open_timeout=10) as ws:
+            assert ws.subprotocol == offered[0]
+            hello = json.loads(ws.recv(timeout=10.0))
+        assert hello["op"] == "serverInfo" and hello["name"] == "capataz"
+    finally:
+        service.request_stop()
+        runner.join(10.0)
+
+
+def test_only_the_old_name_alone_is_renamed_both_ways() -> None:
+    from services.tools.view.subprotocol import rename_answer, rename_offer
+
+    request = b"GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Protocol: foxglove.websocket.v1\r\n\r\n"
+    renamed, legacy = rename_offer(request)
+    assert legacy and b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n" in renamed
+    both = b"GET / HTTP/1.1\r\nsec-websocket-protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n"
+    assert rename_offer(both) == (both, False)
+    answer = b"HTTP/1.1 101 Switching Protocols\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+    assert rename_answer(answer) == answer.replace(b"foxglove.sdk.v1", b"foxglove.websocket.v1")
