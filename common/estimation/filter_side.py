@@ -85,7 +85,8 @@ class FilterSide:
             if range_m is None
             else altitude_from_range((q[0], q[1], q[2], q[3]), range_m)
         )
-        return self.ekf.with_altitude(state, pz, std_m)
+        updated: AnyState = self.ekf.with_altitude(state, pz, std_m)  # the filter's own kind of state
+        return updated
 
     def attitude_covariance(self) -> FloatArray:
         assert self.state is not None
