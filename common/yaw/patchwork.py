@@ -35,18 +35,32 @@ class _StreamCache:
     #: the last share stored whole: a lookup of exactly its indices returns it without re-stacking
     last: PatchSpectra | None = None
     stored_s: float = 0.0
+    #: bytes of the spectra held (what :attr:`SpectrumCache.max_bytes` bounds)
+    nbytes: int = 0
 
 
 class SpectrumCache:
-    """Newest-frame spectra per (stream, patch index); thread-safe; bounded number of streams (the least
-    recently stored beyond ``max_streams`` and any not stored to for ``max_age_s`` are evicted)."""
+    """Newest-frame spectra per (stream, patch index); thread-safe; bounded in total, across streams: the
+    least recently stored streams are evicted beyond ``max_streams``, beyond ``max_bytes`` of spectra, and
+    when not stored to for ``max_age_s`` (a share larger than the whole budget is not kept: its next frame is
+    sent its previous patches again)."""
 
-    def __init__(self, max_streams: int = 64, max_age_s: float = 60.0, clock: Any = time.monotonic) -> None:
+    def __init__(
+        self,
+        max_streams: int = 64,
+        max_age_s: float = 60.0,
+        clock: Any = time.monotonic,
+        max_bytes: int | None = None,
+    ) -> None:
         self._streams: OrderedDict[str, _StreamCache] = OrderedDict()
         self._lock = threading.Lock()
         self._max_streams = max_streams
         self._max_age_s = max_age_s
         self._clock = clock
+        #: the budget across streams (None: unbounded; a member's comes from its ``--cache-mb``)
+        self.max_bytes = max_bytes
+        self.nbytes = 0
+        self.evicted = 0
 
     def __len__(self) -> int:
         return len(self._streams)
@@ -85,6 +99,8 @@ class SpectrumCache:
             entry = self._streams.get(stream)
             # a frame far older than the cached one is a restarted stream (new epoch): it replaces it
             if entry is None or entry.seq < seq or entry.seq - seq > 2:
+                if entry is not None:
+                    self.nbytes -= entry.nbytes
                 entry = _StreamCache(seq=seq, spectra={})
                 self._streams[stream] = entry
             elif entry.seq > seq:
@@ -93,11 +109,21 @@ class SpectrumCache:
             self._streams.move_to_end(stream)
             entry.last = spectra if not entry.spectra else None
             for row, index in enumerate(spectra.indices.tolist()):
+                old = entry.spectra.get(int(index))
+                if old is not None:
+                    entry.nbytes -= old[0].nbytes
+                    self.nbytes -= old[0].nbytes
                 entry.spectra[int(index)] = (spectra.spectra[row], spectra.texture_std[row])
-            while len(self._streams) > self._max_streams:
-                self._streams.popitem(last=False)
-            while self._streams and now - next(iter(self._streams.values())).stored_s > self._max_age_s:
-                self._streams.popitem(last=False)
+                entry.nbytes += spectra.spectra[row].nbytes
+                self.nbytes += spectra.spectra[row].nbytes
+            while self._streams and (
+                len(self._streams) > self._max_streams
+                or (self.max_bytes is not None and self.nbytes > self.max_bytes)
+                or now - next(iter(self._streams.values())).stored_s > self._max_age_s
+            ):
+                _, evicted = self._streams.popitem(last=False)
+                self.nbytes -= evicted.nbytes
+                self.evicted += 1
 
 
 def measure_share(

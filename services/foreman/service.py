@@ -125,7 +125,9 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         self.queue_capacity = self.settings.queue
         self._queryable: Any = None
         max_streams, ttl_s = self.settings.max_streams, self.settings.stream_ttl_s
-        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=ttl_s)
+        self.cache = SpectrumCache(
+            max_streams=max_streams, max_age_s=ttl_s, max_bytes=int(self.settings.cache_mb * 2**20)
+        )
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
         self.streams: StreamTable[_StreamState] = StreamTable(max_streams, ttl_s)
         self._streams_lock = threading.Lock()

@@ -133,11 +133,20 @@ class StreamBoundSettings(BaseModel):
 
     max_streams: int = Field(default=64, ge=1, description="streams kept at most (LRU evicted)")
     stream_ttl_s: float = Field(default=60.0, gt=0.0, description="seconds an unused stream is kept")
+    cache_mb: float = Field(
+        default=512.0,
+        gt=0.0,
+        le=65536.0,
+        description="memory budget of the cached spectra across all streams (MB; LRU evicted beyond it)",
+    )
 
 
 def add_stream_bound_arguments(parser: argparse.ArgumentParser) -> None:
     """Bounds of the per-stream state (spectra, dispatchers, crops), shared by the foreman and the worker
     (default, bound and help text: :class:`StreamBoundSettings`' fields)."""
     add_options(
-        parser, StreamBoundSettings, ("max_streams", "stream_ttl_s"), flags={"stream_ttl_s": "--stream-ttl"}
+        parser,
+        StreamBoundSettings,
+        ("max_streams", "stream_ttl_s", "cache_mb"),
+        flags={"stream_ttl_s": "--stream-ttl"},
     )

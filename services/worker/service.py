@@ -65,7 +65,9 @@ class WorkerService(ConfiguredService[WorkerSettings]):
         self.cpu_factor = self.settings.cpu_factor
         self.queue: WorkQueue[tuple[zenoh.Query, PatchJob, float]] = WorkQueue(self.queue_capacity)
         self.cache = SpectrumCache(
-            max_streams=self.settings.max_streams, max_age_s=self.settings.stream_ttl_s
+            max_streams=self.settings.max_streams,
+            max_age_s=self.settings.stream_ttl_s,
+            max_bytes=int(self.settings.cache_mb * 2**20),
         )
         self._queryable: Any = None
 
