@@ -1,6 +1,6 @@
 """Hand-off primitives, so that zenoh callbacks never block: :class:`LatestSlot` (latest wins, drops
-counted), :class:`WorkQueue` (bounded FIFO, refusals counted) and :class:`Counters` (thread-safe counts and
-recent timings for a service's stats)."""
+counted), :class:`WorkQueue` (bounded FIFO, refusals counted), :class:`FrameQueue` (bounded FIFO dropping its
+oldest) and :class:`Counters` (thread-safe counts and recent timings for a service's stats)."""
 
 from __future__ import annotations
 
@@ -87,6 +87,26 @@ class WorkQueue(Generic[T]):
 
     def depth(self) -> int:
         return len(self._items)
+
+
+class FrameQueue(WorkQueue[T]):
+    """A bounded FIFO that drops its oldest item when full (``dropped`` counts each drop once); the rest
+    (``take``, ``depth``, ``drain``) is the :class:`WorkQueue`'s."""
+
+    def __init__(self, capacity: int) -> None:
+        super().__init__(capacity)
+        self.dropped = 0
+
+    def put(self, item: T) -> bool:
+        """Append ``item``; True when the oldest item was dropped to make room."""
+        with self._cond:
+            full = len(self._items) >= self._capacity
+            if full:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify()
+            return full
 
 
 class Counters:
