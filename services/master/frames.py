@@ -32,6 +32,23 @@ from services.runtime.transport import source_of
 INBOX_CAPACITY = 256
 
 
+class FrameFifo(deque[tuple[int, Frame]]):
+    """The gated frames waiting for the yaw stage, oldest first, at most ``capacity`` (beyond, the oldest is
+    dropped; :attr:`dropped` counts each drop once). Only the frames thread puts and takes (the intake's
+    turn appends to it directly, as a deque), so it needs no lock; :meth:`depth` is safe from any thread."""
+
+    def __init__(self, capacity: int) -> None:
+        super().__init__(maxlen=capacity)
+        self.dropped = 0
+
+    def depth(self) -> int:
+        return len(self)
+
+    def take(self, timeout_s: float = 0.0) -> tuple[int, Frame] | None:
+        """The oldest frame, None when empty (``timeout_s`` is not waited: the frames thread fills it)."""
+        return self.popleft() if self else None
+
+
 @dataclass(frozen=True)
 class Received:
     """A frame sample as zenoh's callback hands it off: with the receiver's monotonic and wall-clock times."""
@@ -56,7 +73,7 @@ class FrameIntake:
         self.inbox: FrameQueue[Received] = FrameQueue(INBOX_CAPACITY)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
         #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
-        self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
+        self.slot = FrameFifo(settings.frame_queue)
         self.recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
         self.recent_lock = threading.Lock()
         #: recent refusals, for health
@@ -70,22 +87,26 @@ class FrameIntake:
     def gate_received(self, leading: bool) -> None:
         """Frames thread: every sample received so far through the gate, in arrival order; the admitted ones
         kept as recent frames and, when ``leading``, queued. The counts are added once."""
-        self._turn(leading, None)
+        counts: dict[str, int] = {}
+        self._turn(leading, None, counts)
+        if counts:
+            self.service.counters.update(counts)
 
-    def next_frame(self, leading: bool, wait_s: float) -> tuple[int, Frame] | None:
+    def next_frame(self, leading: bool, wait_s: float, counts: dict[str, int]) -> tuple[int, Frame] | None:
         """One turn of the frames thread: waits up to ``wait_s`` for a sample when none is received or
-        queued, :meth:`gate_received`, then the oldest queued (epoch, frame) when ``leading``."""
-        return self._turn(leading, wait_s)
+        queued, gates them as :meth:`gate_received` (its counts added to ``counts``, for the caller to add
+        to the counters with the frame's), then the oldest queued (epoch, frame) when ``leading``."""
+        return self._turn(leading, wait_s, counts)
 
-    def _turn(self, leading: bool, wait_s: float | None) -> tuple[int, Frame] | None:
-        """:meth:`next_frame` (``wait_s`` None: only :meth:`gate_received`). Written so that nothing of this
-        module is called once it has called out: each sample's admission inline, the guard asked once for
-        all their sources, the admitted frames queued together."""
-        if wait_s is not None and self.slot.depth() == 0 and self.inbox.depth() == 0:
+    def _turn(self, leading: bool, wait_s: float | None, counts: dict[str, int]) -> tuple[int, Frame] | None:
+        """:meth:`next_frame` (``wait_s`` None: only the gate). Written so that nothing of this module is
+        called once it has called out: each sample's admission inline, the guard asked once for all their
+        sources, the admitted frames queued together (the FIFO as a deque)."""
+        slot = self.slot
+        if wait_s is not None and not slot and self.inbox.depth() == 0:
             self.inbox.wait(wait_s)
         received = self.inbox.drain()
         service = self.service
-        counts: dict[str, int] = {}
         sources: list[tuple[str | None, float]] = []
         for r in received:  # a loop, not a comprehension: that would be a call into this module
             sources.append((source_of(r.sample), r.now_s))
@@ -115,8 +136,8 @@ class FrameIntake:
             self.recent.extend(admitted)
         if leading:
             for item in admitted:
-                if self.slot.put(item):
+                if len(slot) == slot.maxlen:  # the oldest is dropped to make room
+                    slot.dropped += 1
                     counts["frames_dropped"] = counts.get("frames_dropped", 0) + 1
-        if counts:
-            self.service.counters.update(counts)
-        return self.slot.take(0.0) if leading and wait_s is not None else None
+                slot.append(item)
+        return slot.popleft() if leading and wait_s is not None and slot else None

@@ -19,7 +19,7 @@ import numpy as np
 
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 
 #: Samples kept (10 s at 400 Hz): enough for any frame interval the master bridges.
 DEFAULT_CAPACITY = 4000

@@ -102,7 +102,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_shares: dict[str, float] = {}
-        #: the frame's counts, added to the counters once when it is done (:meth:`_process`)
+        #: the turn's and its frame's counts, added to the counters once when it is done (:meth:`_process`)
         self._frame_counts: dict[str, int] = {}
         self.gyro = GyroPrior(settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters)
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
@@ -199,8 +199,12 @@ class MasterService(ConfiguredService[MasterSettings]):
                 self._take_over()
         standby = self.election is not None and not self.election.leading
         # standing by, frames go to the recent ones only
-        item = self.intake.next_frame(not standby, min(timeout_s, STANDBY_POLL_S) if standby else timeout_s)
+        wait_s = min(timeout_s, STANDBY_POLL_S) if standby else timeout_s
+        item = self.intake.next_frame(not standby, wait_s, self._frame_counts)
         if item is None:
+            if self._frame_counts:  # the turn's counts (else added with its frame's, at its end)
+                self.counters.update(self._frame_counts)
+                self._frame_counts = {}
             return False
         self._process(*item)
         return True

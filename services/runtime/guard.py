@@ -21,7 +21,7 @@ from common.dispatch.admission import ChurnLimiter, SourceLock
 from common.dispatch.vetting import round_outcomes
 from common.yaw import YawSettings
 from common.yaw.correlation import PatchMeasurement
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 
 logger = logging.getLogger(__name__)
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import time
 
+from services.runtime.counters import Counters
 from services.runtime.guard import DispatchGuard
-from services.runtime.handoff import Counters
 
 
 def test_one_admission_refuses_another_source_and_pauses_a_churning_member() -> None:
