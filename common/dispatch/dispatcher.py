@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from common.dispatch.plan import IndexArray, Plan, apportion
+from common.dispatch.plan import IndexArray, Memo, Plan, capped_counts, missing, sticky_plan
 from common.dispatch.settings import Balance, DispatchSettings, SpeedSource
-from common.dispatch.trust import TrustMonitor, cap_plan, doubling_suspension_s, hold_weights
+from common.dispatch.trust import TrustMonitor, doubling_suspension_s
 from common.errors import CapatazError, InputError
 
 #: Name of the dispatcher itself as a member (the master or foreman computing a share).
@@ -57,9 +57,8 @@ class Dispatcher:
         self.n_patches = n_patches
         self._members: dict[str, _Member] = {SELF: _Member(capacity=settings.self_capacity)}
         self._owner: dict[int, str] = {}
-        #: the last plan's (members, targets, indices) and assignment: the steady state repeats it exactly
-        #: (sticky owners, same shares), so it is reused until ownership changes otherwise
-        self._memo: tuple[tuple[object, ...], dict[str, IndexArray]] | None = None
+        #: the last plan's (members, targets, indices) and assignment (:data:`~common.dispatch.plan.Memo`)
+        self._memo: Memo | None = None
         self._all = list(range(n_patches))
         self.last_plan: Plan | None = None
         #: defence in depth (common.dispatch.trust), and the frame's (size, patches per member) for its caps
@@ -118,69 +117,35 @@ class Dispatcher:
         return {m: s.speed_ema for m, s in self._members.items() if s.speed_ema is not None}
 
     # -- shares -----------------------------------------------------------------------------------------
-    def weights(self, members: list[str]) -> list[float]:
-        """Balancing weight of each member (capacity, or measured speed under ``balance=time``)."""
-        states = [self._members[m] for m in members]
-        capacity = [float(s.capacity) for s in states]
-        if self.settings.balance is Balance.NONE:
-            return capacity
-        speeds = [s.speed_ema if s.speed_ema is not None and s.speed_ema > 0 else None for s in states]
-        known = [v / c for v, c in zip(speeds, capacity, strict=True) if v is not None]
-        if not known:
-            return capacity
-        # a member without measurement starts at the mean speed per unit of capacity of the measured ones
-        per_capacity = sum(known) / len(known)
-        w = [float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)]
-        return hold_weights(self.trust, members, w, capacity, SELF)
-
-    def _counts(self, members: list[str], total: int, redo: bool = False) -> tuple[list[str], list[int]]:
-        """Counts per member under the trust share caps (a re-dispatch counts the frame's earlier shares)."""
-        counts = apportion(self.weights(members), total)
-        frame, load = self._frame if redo and self._frame[0] else (total, {})
-        return cap_plan(self.trust, members, counts, frame, load, len(self.members), SELF)
+    def _counts(self, members: list[str], total: int, now_s: float) -> tuple[list[str], list[int]]:
+        """Counts per member of a re-dispatch under the trust share caps (counting the frame's earlier
+        shares): :func:`~common.dispatch.plan.capped_counts`."""
+        trust = None
+        if self.trust is not None:
+            trust = self.trust.view([m for m in members if m != SELF], set(), now_s)
+        frame, load = self._frame if self._frame[0] else (total, {})
+        by_time = self.settings.balance is Balance.TIME
+        return capped_counts(
+            members, self._members, by_time, total, trust, frame, load, len(self.members), SELF
+        )
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
-        """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members."""
+        """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members
+        (:func:`~common.dispatch.plan.sticky_plan`): the trust monitor is consulted once, then the plan is
+        computed in one call, and nothing of this module runs after them."""
         todo = self._all if indices is None else self._check_indices(indices)
-        members, counts = self._counts(self.active(now_s), len(todo))
-        key = (tuple(members), tuple(counts), tuple(todo))
-        if self._memo is not None and self._memo[0] == key:
-            repeated = dict(self._memo[1])
-            missing = {m: self._missing(m, owned, prev_seq) for m, owned in repeated.items()}
-            self.last_plan = Plan(seq=seq, prev_seq=prev_seq, assignment=repeated, moved=missing)
-            self._frame = (len(todo), {m: len(v) for m, v in repeated.items()})
-            return self.last_plan
-        targets = dict(zip(members, counts, strict=True))
-        keep: dict[str, list[int]] = {m: [] for m in members}
-        pool: list[int] = []
-        for index in todo:
-            owner = self._owner.get(index)
-            if owner in keep and len(keep[owner]) < targets[owner]:
-                keep[owner].append(index)
-            else:
-                pool.append(index)
-        pool.sort()
-        cursor = 0
-        for m in members:
-            need = targets[m] - len(keep[m])
-            keep[m].extend(pool[cursor : cursor + need])
-            cursor += need
-        assignment: dict[str, IndexArray] = {}
-        moved: dict[str, IndexArray] = {}
-        for m in members:
-            owned = sorted(keep[m])
-            if not owned:
-                continue
-            self._owner.update(dict.fromkeys(owned, m))
-            indices = np.array(owned, dtype=np.int32)
-            indices.setflags(write=False)  # shared by the plans that repeat this one
-            assignment[m] = indices
-            moved[m] = self._missing(m, indices, prev_seq)
-        self._memo = (key, assignment)
-        plan = Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)
-        self.last_plan = plan
-        self._frame = (len(todo), {m: len(v) for m, v in assignment.items()})
-        return plan
+        joined = self.members
+        remote = [m for m in joined if self._members[m].suspended_until_s <= now_s]
+        trust = None
+        if self.trust is not None:  # suspended for inconsistent results; new members tried a few at a time
+            trust = self.trust.view(remote, {m for m in remote if not self.speed(m)}, now_s)
+        planned = sticky_plan(
+            seq, prev_seq, todo, remote, self._members, trust, self.settings.balance is Balance.TIME,
+            self.settings.self_compute, self._owner, self._memo, len(joined), SELF,
+        )  # fmt: skip
+        self._owner.update(planned.owners)
+        self._memo, self._frame, self.last_plan = planned.memo, planned.frame, planned.plan
+        return planned.plan
 
     def _check_indices(self, indices: npt.ArrayLike) -> list[int]:
         arr = np.asarray(indices)
@@ -195,16 +160,6 @@ class Dispatcher:
             raise DispatchError("indices must be distinct")
         return values
 
-    def _missing(self, member: str, indices: IndexArray, prev_seq: int) -> IndexArray:
-        state = self._members[member]
-        if state.held_seq != prev_seq:
-            return indices.copy()
-        held = state.held
-        wanted = indices.tolist()
-        if held.issuperset(wanted):
-            return indices[:0]  # the sticky steady state: it holds them all
-        return np.array([i for i in wanted if i not in held], dtype=np.int32)
-
     def redistribute(self, indices: npt.ArrayLike, exclude: set[str], now_s: float, prev_seq: int) -> Plan:
         """Split a failed share among the active members not in ``exclude`` (else ``SELF``), same frame.
 
@@ -212,7 +167,7 @@ class Dispatcher:
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
         members = [m for m in self.active(now_s, answered_only=True) if m not in exclude] or [SELF]
-        members, counts = self._counts(members, int(idx.size), redo=True)
+        members, counts = self._counts(members, int(idx.size), now_s)
         assignment: dict[str, IndexArray] = {}
         moved: dict[str, IndexArray] = {}
         start = 0
@@ -225,7 +180,7 @@ class Dispatcher:
                 self._owner[int(i)] = m
             self._memo = None
             assignment[m] = part
-            moved[m] = self._missing(m, part, prev_seq)
+            moved[m] = missing(self._members[m], part, prev_seq)
             self._frame[1][m] = self._frame[1].get(m, 0) + int(n)
         seq = self.last_plan.seq if self.last_plan else 0
         return Plan(seq=seq, prev_seq=prev_seq, assignment=assignment, moved=moved)

@@ -1,10 +1,14 @@
-"""One frame's assignment (:class:`Plan`) and the apportionment of patches to members by weight
-(:func:`largest_remainder`, Hamilton's method)."""
+"""One frame's assignment (:class:`Plan`): the apportionment of patches to members by weight
+(:func:`largest_remainder`, Hamilton's method), held and capped by the trust monitor's view
+(:func:`capped_counts`), and the sticky assignment (:func:`sticky_plan`). Pure: the dispatcher
+(:mod:`common.dispatch.dispatcher`) holds the state and calls this module once per plan."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -58,3 +62,214 @@ def apportion(weights: list[float], total: int) -> list[int]:
     for i in order[:remainder]:
         counts[i] += 1
     return counts
+
+
+# -- one frame's plan, from the dispatcher's state and the trust monitor's view (one call per plan) --------
+
+
+class MemberState(Protocol):
+    """What a plan reads of a member's state (the dispatcher's record of it)."""
+
+    capacity: float
+    speed_ema: float | None
+    held_seq: int
+    held: frozenset[int]
+
+
+class TrustView(Protocol):
+    """What a plan takes from the trust monitor (:meth:`~common.dispatch.trust.TrustMonitor.view`)."""
+
+    @property
+    def enabled(self) -> bool: ...
+    @property
+    def kept(self) -> tuple[str, ...]: ...
+    @property
+    def credited(self) -> frozenset[str]: ...
+    @property
+    def share_limits(self) -> Mapping[str, float]: ...
+
+
+#: the last plan's (members, targets, indices) and assignment: the steady state repeats it exactly (sticky
+#: owners, same shares), so it is reused until ownership changes otherwise
+Memo = tuple[tuple[object, ...], dict[str, IndexArray]]
+
+
+@dataclass(frozen=True)
+class Planned:
+    """A plan and what the dispatcher keeps of it: the new owners of moved indices, the memo and the frame's
+    (size, patches per member) for the share caps of a re-dispatch."""
+
+    plan: Plan
+    owners: dict[int, str]
+    memo: Memo
+    frame: tuple[int, dict[str, int]]
+
+
+def balance_weights(states: Sequence[MemberState], by_time: bool) -> tuple[list[float], list[float], bool]:
+    """Each member's balancing weight (its capacity, or its measured speed when ``by_time``: a member without
+    measurement starts at the mean speed per unit of capacity of the measured ones), the capacities and
+    whether any speed was measured."""
+    capacity = [float(s.capacity) for s in states]
+    if not by_time:
+        return capacity, capacity, False
+    speeds = [s.speed_ema if s.speed_ema is not None and s.speed_ema > 0 else None for s in states]
+    known = [v / c for v, c in zip(speeds, capacity, strict=True) if v is not None]
+    if not known:
+        return capacity, capacity, False
+    per_capacity = sum(known) / len(known)
+    w = [float(v) if v is not None else per_capacity * c for v, c in zip(speeds, capacity, strict=True)]
+    return w, capacity, True
+
+
+def capped_counts(
+    members: list[str],
+    states: Mapping[str, MemberState],
+    by_time: bool,
+    total: int,
+    trust: TrustView | None,
+    frame_total: int,
+    load: Mapping[str, int],
+    joined: int,
+    own: str,
+) -> tuple[list[str], list[int]]:
+    """Counts per member: apportioned by weight, the speed of members without credit held
+    (:func:`capped_weights`), and the trust share caps (from two ``joined`` remote members on, each holds at
+    most its share limit of ``frame_total``, ``load`` being what it holds already; the overflow goes to
+    ``own``, the dispatcher itself, appended when absent)."""
+    weights, capacity, measured = balance_weights([states[m] for m in members], by_time)
+    if measured and trust is not None and trust.enabled:
+        held = capped_weights(
+            dict(zip(members, weights, strict=True)),
+            dict(zip(members, capacity, strict=True)),
+            {m: m == own or m in trust.credited for m in members},
+        )
+        weights = [held[m] for m in members]
+    counts = apportion(weights, total)
+    if trust is None or not trust.enabled or joined < 2:
+        return members, counts
+    limits: list[int | None] = [
+        None if m == own else max(0, math.floor(trust.share_limits[m] * frame_total) - load.get(m, 0))
+        for m in members
+    ]
+    if all(limit is None or c <= limit for c, limit in zip(counts, limits, strict=True)):
+        return members, counts
+    if own not in members:
+        members, counts, limits = [*members, own], [*counts, 0], [*limits, None]
+    return members, cap_counts(counts, limits)
+
+
+def missing(state: MemberState, indices: IndexArray, prev_seq: int) -> IndexArray:
+    """The ``indices`` a member does not hold for frame ``prev_seq`` (it must be sent those patches too)."""
+    if state.held_seq != prev_seq:
+        return indices.copy()
+    held = state.held
+    wanted = indices.tolist()
+    if held.issuperset(wanted):
+        return indices[:0]  # the sticky steady state: it holds them all
+    return np.array([i for i in wanted if i not in held], dtype=np.int32)
+
+
+def sticky_plan(
+    seq: int,
+    prev_seq: int,
+    todo: list[int],
+    remote: list[str],
+    states: Mapping[str, MemberState],
+    trust: TrustView | None,
+    by_time: bool,
+    self_compute: bool,
+    owner: Mapping[int, str],
+    memo: Memo | None,
+    joined: int,
+    own: str,
+) -> Planned:
+    """Frame ``seq``'s plan (vs ``prev_seq``) of the patches ``todo``: the ``remote`` members the trust
+    monitor keeps (plus ``own`` when ``self_compute`` or alone) get counts by :func:`capped_counts`; a member
+    keeps the indices it owned up to its count, the rest moves, lowest first (see the dispatcher's module)."""
+    kept = remote if trust is None else list(trust.kept)
+    members = [*kept, own] if self_compute or not kept else kept
+    members, counts = capped_counts(members, states, by_time, len(todo), trust, len(todo), {}, joined, own)
+    key = (tuple(members), tuple(counts), tuple(todo))
+    if memo is not None and memo[0] == key:
+        repeated = dict(memo[1])
+        lacking = {m: missing(states[m], owned, prev_seq) for m, owned in repeated.items()}
+        frame = (len(todo), {m: len(v) for m, v in repeated.items()})
+        return Planned(Plan(seq, prev_seq, repeated, lacking), {}, memo, frame)
+    targets = dict(zip(members, counts, strict=True))
+    keep: dict[str, list[int]] = {m: [] for m in members}
+    pool: list[int] = []
+    for index in todo:
+        held_by = owner.get(index)
+        if held_by in keep and len(keep[held_by]) < targets[held_by]:
+            keep[held_by].append(index)
+        else:
+            pool.append(index)
+    pool.sort()
+    cursor = 0
+    for m in members:
+        need = targets[m] - len(keep[m])
+        keep[m].extend(pool[cursor : cursor + need])
+        cursor += need
+    assignment: dict[str, IndexArray] = {}
+    moved: dict[str, IndexArray] = {}
+    owners: dict[int, str] = {}
+    for m in members:
+        owned = sorted(keep[m])
+        if not owned:
+            continue
+        owners.update(dict.fromkeys(owned, m))
+        indices = np.array(owned, dtype=np.int32)
+        indices.setflags(write=False)  # shared by the plans that repeat this one
+        assignment[m] = indices
+        moved[m] = missing(states[m], indices, prev_seq)
+    frame = (len(todo), {m: len(v) for m, v in assignment.items()})
+    return Planned(Plan(seq, prev_seq, assignment, moved), owners, (key, assignment), frame)
+
+
+def cap_counts(counts: Sequence[int], limits: Sequence[int | None]) -> list[int]:
+    """Move what exceeds each entry's limit to entries with room; the total is preserved.
+
+    ``limits[i]`` None means uncapped. Overflow goes first to capped entries with room (the emptiest first,
+    ties to the earlier), then to the last uncapped entry (callers put the dispatcher itself there); with no
+    uncapped entry, the last entry takes it.
+    """
+    if len(counts) != len(limits) or not counts:
+        raise InputError("counts and limits must be non-empty and of equal length")
+    if any(c < 0 for c in counts) or any(limit is not None and limit < 0 for limit in limits):
+        raise InputError("counts and limits must be >= 0")
+    out = list(counts)
+    overflow = 0
+    for i, limit in enumerate(limits):
+        if limit is not None and out[i] > limit:
+            overflow += out[i] - limit
+            out[i] = limit
+    while overflow:
+        room = [i for i, limit in enumerate(limits) if limit is not None and out[i] < limit]
+        if not room:
+            break
+        i = min(room, key=lambda j: (out[j], j))
+        take = min(overflow, (limits[i] or 0) - out[i])
+        # one at a time keeps the spread even among several entries with room
+        take = 1 if len(room) > 1 else take
+        out[i] += take
+        overflow -= take
+    if overflow:
+        free = [i for i, limit in enumerate(limits) if limit is None]
+        out[free[-1] if free else len(out) - 1] += overflow
+    return out
+
+
+def capped_weights(
+    weights: Mapping[str, float], capacity: Mapping[str, float], credited: Mapping[str, bool]
+) -> dict[str, float]:
+    """Weights where a member without credit is held at the slowest per-capacity speed of all members.
+
+    Its speed then buys it no more than its capacity share relative to the slowest member (what
+    ``balance=none`` would give it); a credited member keeps its measured weight. A single fast liar
+    cannot raise the reference (it is the minimum), and a slow member keeps its lower weight.
+    """
+    per_capacity = [w / capacity[m] for m, w in weights.items() if capacity.get(m, 0) > 0 and w > 0]
+    if not per_capacity:
+        return dict(weights)
+    floor = min(per_capacity)
+    return {m: w if credited.get(m, False) else min(w, floor * capacity[m]) for m, w in weights.items()}

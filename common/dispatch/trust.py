@@ -7,7 +7,8 @@ A member (foreman or worker) is only trusted as far as its results are consisten
   member; a member whose outlier rate exceeds the other members' by more than ``outlier_margin`` (over
   at least ``min_patches`` of its patches) is **suspended** for ``suspend_s`` and reported
   (:class:`Suspension`). The suspension is by member name and survives leave/re-join (liveliness churn).
-- **share cap** (:func:`cap_counts`): from two joined remote members on, none gets more than
+- **share cap** (:func:`~common.dispatch.plan.cap_counts`, with each member's limit from
+  :meth:`TrustMonitor.view`): from two joined remote members on, none gets more than
   ``max_share`` of a frame, and ``probation_share`` until it has earned credit (the rest goes to the
   others, else to the dispatcher itself), so no single member holds the majority the robust fit follows,
   not even while the others are suspended.
@@ -137,6 +138,17 @@ def outcomes_of_fit(
     return [MemberOutcome(m, v, o) for m, (v, o) in totals.items()]
 
 
+@dataclass(frozen=True)
+class TrustView:
+    """What one plan takes from the monitor (:meth:`TrustMonitor.view`): the members it keeps, those with
+    credit (their speed may buy more than their capacity share) and each member's share limit."""
+
+    enabled: bool
+    kept: tuple[str, ...]
+    credited: frozenset[str]
+    share_limits: Mapping[str, float]
+
+
 class TrustMonitor:
     """Per-member consistency history, suspensions and speed credit (see the module docstring)."""
 
@@ -220,10 +232,6 @@ class TrustMonitor:
         rec = self._records.get(member)
         return rec is not None and rec.consistent_frames >= self.settings.earn_frames
 
-    def limit(self, member: str, frame_total: int) -> int:
-        """The most patches of a frame of ``frame_total`` that ``member`` may hold."""
-        return math.floor(self.share_limit(member) * frame_total)
-
     def share_limit(self, member: str) -> float:
         """The largest share of a frame ``member`` may get now: ``probation_share`` while it has no credit
         and others have (a newcomer next to proven members), else ``max_share``."""
@@ -244,120 +252,16 @@ class TrustMonitor:
         allowed = set() if answered_only else set(fresh[: self.settings.max_untested])
         return [m for m in kept if m not in untested or m in allowed]
 
-    def hold_weights(
-        self, members: Sequence[str], weights: Sequence[float], capacity: Sequence[float], trusted: str
-    ) -> list[float]:
-        """Balancing weights where uncredited members' speed buys no more than :func:`capped_weights`."""
-        if not self.settings.enabled:
-            return list(weights)
-        held = capped_weights(
-            dict(zip(members, weights, strict=True)),
-            dict(zip(members, capacity, strict=True)),
-            {m: m == trusted or self.credited(m) for m in members},
-        )
-        return [held[m] for m in members]
-
-    def cap(
-        self,
-        members: Sequence[str],
-        counts: Sequence[int],
-        frame_total: int,
-        load: Mapping[str, int],
-        joined: int,
-        dispatcher: str,
-    ) -> tuple[list[str], list[int]]:
-        """Apply the share caps (from two ``joined`` remote members on) to a plan's or re-dispatch's counts.
-
-        Each member may hold at most ``share_limit * frame_total`` of the frame, ``load`` being what it holds
-        already; the overflow goes to the ``dispatcher`` itself, which is appended when absent.
-        """
-        members, counts = list(members), list(counts)
-        if not self.settings.enabled or joined < 2:
-            return members, counts
-        limits: list[int | None] = [
-            None if m == dispatcher else max(0, self.limit(m, frame_total) - load.get(m, 0)) for m in members
-        ]
-        if all(limit is None or c <= limit for c, limit in zip(counts, limits, strict=True)):
-            return members, counts
-        if dispatcher not in members:
-            members, counts, limits = [*members, dispatcher], [*counts, 0], [*limits, None]
-        return members, cap_counts(counts, limits)
+    def view(
+        self, members: Sequence[str], untested: set[str], now_s: float, answered_only: bool = False
+    ) -> TrustView:
+        """Everything a plan takes from the monitor, in one call: the members :meth:`screen` keeps, which of
+        ``members`` are :meth:`credited` and the :meth:`share_limit` of each."""
+        kept = self.screen(members, untested, now_s, answered_only)
+        credited = frozenset(m for m in members if self.credited(m))
+        limits = {m: self.share_limit(m) for m in members}
+        return TrustView(self.settings.enabled, tuple(kept), credited, limits)
 
     def report(self) -> dict[str, float]:
         """Outlier rate per member (for stats)."""
         return {m: self.outlier_rate(m)[0] for m in self._records}
-
-
-def cap_counts(counts: Sequence[int], limits: Sequence[int | None]) -> list[int]:
-    """Move what exceeds each entry's limit to entries with room; the total is preserved.
-
-    ``limits[i]`` None means uncapped. Overflow goes first to capped entries with room (the emptiest first,
-    ties to the earlier), then to the last uncapped entry (callers put the dispatcher itself there); with no
-    uncapped entry, the last entry takes it.
-    """
-    if len(counts) != len(limits) or not counts:
-        raise InputError("counts and limits must be non-empty and of equal length")
-    if any(c < 0 for c in counts) or any(limit is not None and limit < 0 for limit in limits):
-        raise InputError("counts and limits must be >= 0")
-    out = list(counts)
-    overflow = 0
-    for i, limit in enumerate(limits):
-        if limit is not None and out[i] > limit:
-            overflow += out[i] - limit
-            out[i] = limit
-    while overflow:
-        room = [i for i, limit in enumerate(limits) if limit is not None and out[i] < limit]
-        if not room:
-            break
-        i = min(room, key=lambda j: (out[j], j))
-        take = min(overflow, (limits[i] or 0) - out[i])
-        # one at a time keeps the spread even among several entries with room
-        take = 1 if len(room) > 1 else take
-        out[i] += take
-        overflow -= take
-    if overflow:
-        free = [i for i, limit in enumerate(limits) if limit is None]
-        out[free[-1] if free else len(out) - 1] += overflow
-    return out
-
-
-def capped_weights(
-    weights: Mapping[str, float], capacity: Mapping[str, float], credited: Mapping[str, bool]
-) -> dict[str, float]:
-    """Weights where a member without credit is held at the slowest per-capacity speed of all members.
-
-    Its speed then buys it no more than its capacity share relative to the slowest member (what
-    ``balance=none`` would give it); a credited member keeps its measured weight. A single fast liar
-    cannot raise the reference (it is the minimum), and a slow member keeps its lower weight.
-    """
-    per_capacity = [w / capacity[m] for m, w in weights.items() if capacity.get(m, 0) > 0 and w > 0]
-    if not per_capacity:
-        return dict(weights)
-    floor = min(per_capacity)
-    return {m: w if credited.get(m, False) else min(w, floor * capacity[m]) for m, w in weights.items()}
-
-
-def hold_weights(
-    trust: TrustMonitor | None,
-    members: Sequence[str],
-    weights: list[float],
-    capacity: Sequence[float],
-    own: str,
-) -> list[float]:
-    """:meth:`TrustMonitor.hold_weights`, or ``weights`` unchanged without a monitor."""
-    return weights if trust is None else trust.hold_weights(members, weights, capacity, trusted=own)
-
-
-def cap_plan(
-    trust: TrustMonitor | None,
-    members: list[str],
-    counts: list[int],
-    frame_total: int,
-    load: Mapping[str, int],
-    joined: int,
-    own: str,
-) -> tuple[list[str], list[int]]:
-    """:meth:`TrustMonitor.cap`, or the counts unchanged without a monitor."""
-    if trust is None:
-        return members, counts
-    return trust.cap(members, counts, frame_total, load, joined, dispatcher=own)

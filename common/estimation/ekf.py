@@ -15,30 +15,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from common.bounds import Bounded, bounded, check_duration
 from common.errors import InputError
+from common.estimation.chi_square import chi_square_quantile
 from common.estimation.ekf_models import (
     STANDARD_GRAVITY_M_S2,
+    Corrected,
     EkfError,
-    accelerometer_model,
+    accelerometer_step,
     check_initial,
-    chi_square_quantile,
+    correct_step,
     error_angle_covariance_world,
-    expected_specific_force,
-    normalized_quaternion,
-    propagate_quaternion,
+    predict_step,
     rangefinder_model,
-    three_floats,
-    transition_floats,
-    transition_matrix,
     with_reset_block,
     yaw_model,
 )
 from common.types import FloatArray
+
+StateT = TypeVar("StateT")
 
 __all__ = [
     "STANDARD_GRAVITY_M_S2",
@@ -46,6 +46,7 @@ __all__ = [
     "EkfError",
     "EkfSettings",
     "EkfState",
+    "ImuStepResult",
     "UpdateResult",
 ]
 
@@ -100,6 +101,18 @@ class UpdateResult:
     nis: float
 
 
+@dataclass(frozen=True)
+class ImuStepResult(Generic[StateT]):
+    """One IMU sample through a filter (``imu_step``, either filter): the state after the predict and the
+    accelerometer update, whether the gate accepted that update (None: not asked for), and the read-outs of
+    the new state (:meth:`~AttitudeAltitudeEkf.attitude_covariance_world`, the altitude variance)."""
+
+    state: StateT
+    accepted: bool | None
+    attitude_covariance_world: FloatArray
+    altitude_var_m2: float
+
+
 class AttitudeAltitudeEkf:
     """The paper-C EKF. Immutable: every method takes an :class:`EkfState` and returns a new one."""
 
@@ -113,9 +126,6 @@ class AttitudeAltitudeEkf:
         self._attitude_rw_var = s.attitude_random_walk_rad_sqrt_s**2
         self._altitude_rw_var = s.altitude_random_walk_m_sqrt_s**2
         self._gate = {dof: chi_square_quantile(s.gate_probability, dof) for dof in (1, 2, 3)}
-        self._sign_flip = np.ones((5, 5))
-        self._sign_flip[4, :4] = -1.0
-        self._sign_flip[:4, 4] = -1.0
 
     # ---- construction -----------------------------------------------------------------------------
 
@@ -158,30 +168,43 @@ class AttitudeAltitudeEkf:
         (dt/2)^2 sigma^2 (I - q q^T)``, plus the attitude and altitude random walks.
         """
         check_duration(dt_s)
-        wx, wy, wz = three_floats(gyro_rad_s)
-        a, b, c = transition_floats(wx, wy, wz, dt_s)
-        q_prev = state.q_world_body.tolist()
-        q0, q1, q2, q3 = propagate_quaternion((q_prev[0], q_prev[1], q_prev[2], q_prev[3]), a, b, c)
-        F = transition_matrix(a, b, c)
-        qk = 0.25 * (dt_s * dt_s * self._gyro_var + dt_s * self._attitude_rw_var)
-        qn, flipped = normalized_quaternion(q0, q1, q2, q3)
-        n0, n1, n2, n3 = qn
-        m0, m1, m2, m3 = -qk * n0, -qk * n1, -qk * n2, -qk * n3
-        Q = np.array(
-            [
-                qk + m0 * n0, m0 * n1, m0 * n2, m0 * n3, 0.0,
-                m1 * n0, qk + m1 * n1, m1 * n2, m1 * n3, 0.0,
-                m2 * n0, m2 * n1, qk + m2 * n2, m2 * n3, 0.0,
-                m3 * n0, m3 * n1, m3 * n2, qk + m3 * n3, 0.0,
-                0.0, 0.0, 0.0, 0.0, dt_s * self._altitude_rw_var,
-            ]
-        ).reshape(5, 5)  # fmt: skip
-        P = np.dot(np.dot(F, state.covariance), F.T) + Q
-        if flipped:
-            P *= self._sign_flip
-        return EkfState(
-            q_world_body=np.array(qn), pz_m=state.pz_m, covariance=P, stamp_s=state.stamp_s + dt_s
-        )
+        qn, P = predict_step(
+            state.q_world_body, state.covariance, gyro_rad_s, dt_s, self._gyro_var, self._attitude_rw_var,
+            self._altitude_rw_var,
+        )  # fmt: skip
+        return EkfState(np.array(qn), state.pz_m, P, state.stamp_s + dt_s)
+
+    def imu_step(
+        self,
+        state: EkfState,
+        gyro_rad_s: npt.ArrayLike,
+        accel_m_s2: npt.ArrayLike,
+        dt_s: float,
+        measured_accel_m_s2: npt.ArrayLike | None,
+        motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> ImuStepResult[EkfState]:
+        """One IMU sample: :meth:`predict` with the interval's ``gyro_rad_s`` over ``dt_s`` (``accel_m_s2`` is
+        not used), then, unless ``measured_accel_m_s2`` is None, :meth:`update_accelerometer` with it, and the
+        read-outs; one call into the model module (:mod:`common.estimation.ekf_models`)."""
+        check_duration(dt_s)
+        qn, P = predict_step(
+            state.q_world_body, state.covariance, gyro_rad_s, dt_s, self._gyro_var, self._attitude_rw_var,
+            self._altitude_rw_var,
+        )  # fmt: skip
+        new = EkfState(np.array(qn), state.pz_m, P, state.stamp_s + dt_s)
+        accepted = None
+        if measured_accel_m_s2 is not None:
+            s = self.settings
+            _, corrected = accelerometer_step(
+                new.q_world_body, new.pz_m, P, measured_accel_m_s2, motion_accel_world_m_s2, s.gravity_m_s2,
+                s.accel_norm_tolerance_m_s2, self._accel_var, self._gate[3],
+            )  # fmt: skip
+            accepted = corrected is not None
+            if corrected is not None:
+                q, pz_m, P = corrected
+                new = EkfState(np.array(q), pz_m, P, new.stamp_s)
+        covariance = error_angle_covariance_world(new.q_world_body, P[:4, :4])
+        return ImuStepResult(new, accepted, covariance, float(P[4, 4]))
 
     # ---- updates ----------------------------------------------------------------------------------
 
@@ -196,20 +219,12 @@ class AttitudeAltitudeEkf:
         ``motion_accel_world_m_s2`` is the vehicle's known acceleration (zero: the paper's hover model).
         Skipped (``accepted=False``, ``nis=nan``) when the specific force is far from the expected norm.
         """
-        ax, ay, az = three_floats(accel_m_s2)
         s = self.settings
-        f_world = expected_specific_force(
-            (ax, ay, az), motion_accel_world_m_s2, s.gravity_m_s2, s.accel_norm_tolerance_m_s2
-        )
-        if f_world is None:
-            return UpdateResult(state=state, accepted=False, nis=math.nan)
-        q = state.q_world_body.tolist()
-        h, Hq = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)
-        (h00, h01, h02, h03), (h10, h11, h12, h13), (h20, h21, h22, h23) = Hq
-        H = np.array([h00, h01, h02, h03, 0.0, h10, h11, h12, h13, 0.0, h20, h21, h22, h23, 0.0]).reshape(
-            3, 5
-        )
-        return self._update(state, (ax - h[0], ay - h[1], az - h[2]), H, self._accel_var)
+        nis, corrected = accelerometer_step(
+            state.q_world_body, state.pz_m, state.covariance, accel_m_s2, motion_accel_world_m_s2,
+            s.gravity_m_s2, s.accel_norm_tolerance_m_s2, self._accel_var, self._gate[3],
+        )  # fmt: skip
+        return self._result(state, nis, corrected)
 
     def update_yaw(self, state: EkfState, yaw_rad: float, yaw_noise_rad: float | None = None) -> UpdateResult:
         """Yaw update with the observation ``[cos psi, sin psi]`` of paper C eqs. 18-19 (eqs. 4-8).
@@ -223,7 +238,10 @@ class AttitudeAltitudeEkf:
         (h00, h01, h02, h03), (h10, h11, h12, h13) = Hq
         H = np.array([h00, h01, h02, h03, 0.0, h10, h11, h12, h13, 0.0]).reshape(2, 5)
         var = self._yaw_var if yaw_noise_rad is None else float(yaw_noise_rad) ** 2
-        return self._update(state, (math.cos(yaw_rad) - h[0], math.sin(yaw_rad) - h[1]), H, var)
+        y = (math.cos(yaw_rad) - h[0], math.sin(yaw_rad) - h[1])
+        return self._result(
+            state, *correct_step(state.q_world_body, state.pz_m, state.covariance, y, H, var, self._gate[2])
+        )
 
     def update_range(self, state: EkfState, range_m: float) -> UpdateResult:
         """Rangefinder update with the tilt model of paper C eq. 21 (eqs. 4-8)."""
@@ -232,72 +250,21 @@ class AttitudeAltitudeEkf:
         q = state.q_world_body.tolist()
         h, Hrow = rangefinder_model((q[0], q[1], q[2], q[3]), state.pz_m)
         H = np.array([Hrow])
-        return self._update(state, (range_m - h,), H, self._range_var)
-
-    def _update(
-        self, state: EkfState, innovation: tuple[float, ...], H: FloatArray, variance: float
-    ) -> UpdateResult:
-        """Kalman gain, gate and correction, paper C eqs. 6-8, with closed-form inverses of S (m <= 3)."""
-        P = state.covariance
-        PHt = np.dot(P, H.T)  # (5, m)
-        S = np.dot(H, PHt)
-        m = len(innovation)
-        Sl = S.tolist()
-        if m == 1:
-            (y0,) = innovation
-            s00 = Sl[0][0] + variance
-            if not s00 > 0.0:
-                raise EkfError(f"innovation variance {s00} is not positive")
-            Sinv: list[list[float]] = [[1.0 / s00]]
-            Sy = [y0 / s00]
-            nis = y0 * Sy[0]
-        elif m == 2:
-            y0, y1 = innovation
-            s00, s01, s11 = Sl[0][0] + variance, 0.5 * (Sl[0][1] + Sl[1][0]), Sl[1][1] + variance
-            det = s00 * s11 - s01 * s01
-            if not det > 0.0:
-                raise EkfError(f"innovation covariance is not positive definite (det {det})")
-            inv = 1.0 / det
-            i00, i01, i11 = s11 * inv, -s01 * inv, s00 * inv
-            Sinv = [[i00, i01], [i01, i11]]
-            Sy = [i00 * y0 + i01 * y1, i01 * y0 + i11 * y1]
-            nis = y0 * Sy[0] + y1 * Sy[1]
-        else:
-            y0, y1, y2 = innovation
-            s00, s11, s22 = Sl[0][0] + variance, Sl[1][1] + variance, Sl[2][2] + variance
-            s01, s02, s12 = Sl[0][1], Sl[0][2], Sl[1][2]
-            c00 = s11 * s22 - s12 * s12
-            c01 = s02 * s12 - s01 * s22
-            c02 = s01 * s12 - s02 * s11
-            det = s00 * c00 + s01 * c01 + s02 * c02
-            if not det > 0.0:
-                raise EkfError(f"innovation covariance is not positive definite (det {det})")
-            inv = 1.0 / det
-            c11 = (s00 * s22 - s02 * s02) * inv
-            c12 = (s01 * s02 - s00 * s12) * inv
-            c22 = (s00 * s11 - s01 * s01) * inv
-            c00 *= inv
-            c01 *= inv
-            c02 *= inv
-            Sinv = [[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]
-            Sy = [
-                c00 * y0 + c01 * y1 + c02 * y2,
-                c01 * y0 + c11 * y1 + c12 * y2,
-                c02 * y0 + c12 * y1 + c22 * y2,
-            ]
-            nis = y0 * Sy[0] + y1 * Sy[1] + y2 * Sy[2]
-        if not math.isfinite(nis):
-            raise InputError("innovation is not finite")
-        if nis > self._gate[m]:
-            return UpdateResult(state=state, accepted=False, nis=nis)
-        K = np.dot(PHt, np.array(Sinv))  # (5, m), eq. 6
-        dx = np.dot(PHt, np.array(Sy)).tolist()  # K y, eq. 7
-        P_new = P - np.dot(K, PHt.T)  # eq. 8, (I - K H) P
-        q = state.q_world_body.tolist()
-        qn, flipped = normalized_quaternion(q[0] + dx[0], q[1] + dx[1], q[2] + dx[2], q[3] + dx[3])
-        if flipped:
-            P_new *= self._sign_flip
-        new = EkfState(
-            q_world_body=np.array(qn), pz_m=state.pz_m + dx[4], covariance=P_new, stamp_s=state.stamp_s
+        nis, corrected = correct_step(
+            state.q_world_body,
+            state.pz_m,
+            state.covariance,
+            (range_m - h,),
+            H,
+            self._range_var,
+            self._gate[1],
         )
-        return UpdateResult(state=new, accepted=True, nis=nis)
+        return self._result(state, nis, corrected)
+
+    @staticmethod
+    def _result(state: EkfState, nis: float, corrected: Corrected) -> UpdateResult:
+        """An update's result: the corrected state, or ``state`` when the gate refused (or skipped) it."""
+        if corrected is None:
+            return UpdateResult(state=state, accepted=False, nis=nis)
+        q, pz_m, P = corrected
+        return UpdateResult(EkfState(np.array(q), pz_m, P, state.stamp_s), accepted=True, nis=nis)

@@ -1,6 +1,7 @@
-"""Paper C's EKF equations, one function each (section III-B, eqs. 12-21), the chi-square gate thresholds and
-the float helpers of the filters' hot paths. Shared by paper C's 5-state EKF (:mod:`common.estimation.ekf`)
-and the error-state filter with bias states (:mod:`common.estimation.eskf`).
+"""Paper C's EKF equations, one function each (section III-B, eqs. 12-21), the float helpers of the filters'
+hot paths and the 5-state filter's steps (predict, accelerometer update, Kalman correction) as functions of
+arrays. Shared by paper C's 5-state EKF (:mod:`common.estimation.ekf`) and the error-state filter with bias
+states (:mod:`common.estimation.eskf`). The chi-square gates are in :mod:`common.estimation.chi_square`.
 """
 
 from __future__ import annotations
@@ -54,33 +55,13 @@ def transition_matrix(a: float, b: float, c: float) -> FloatArray:
     """``F`` of :func:`state_transition` from ``a, b, c = dt/2 * (wx, wy, wz)`` (the hot path's form)."""
     return np.array(
         [
-            1.0,
-            -a,
-            -b,
-            -c,
-            0.0,
-            a,
-            1.0,
-            c,
-            -b,
-            0.0,
-            b,
-            -c,
-            1.0,
-            a,
-            0.0,
-            c,
-            b,
-            -a,
-            1.0,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            1.0,
+            1.0, -a, -b, -c, 0.0,
+            a, 1.0, c, -b, 0.0,
+            b, -c, 1.0, a, 0.0,
+            c, b, -a, 1.0, 0.0,
+            0.0, 0.0, 0.0, 0.0, 1.0,
         ]
-    ).reshape(5, 5)
+    ).reshape(5, 5)  # fmt: skip
 
 
 def transition_floats(wx: float, wy: float, wz: float, dt_s: float) -> tuple[float, float, float]:
@@ -200,40 +181,6 @@ def error_angle_covariance_world(q_world_body: npt.ArrayLike, covariance_q: npt.
 
 
 # --------------------------------------------------------------------------------------------------
-# Chi-square gate thresholds (no scipy): inverse CDF by bisection of the closed forms for 1..3 dof.
-# --------------------------------------------------------------------------------------------------
-
-
-def chi_square_cdf(x: float, dof: int) -> float:
-    """CDF of the chi-square distribution for 1, 2 or 3 degrees of freedom."""
-    if x <= 0.0:
-        return 0.0
-    if dof == 1:
-        return math.erf(math.sqrt(x / 2.0))
-    if dof == 2:
-        return 1.0 - math.exp(-x / 2.0)
-    if dof == 3:
-        return math.erf(math.sqrt(x / 2.0)) - math.sqrt(2.0 * x / math.pi) * math.exp(-x / 2.0)
-    raise InputError(f"chi_square_cdf supports 1..3 degrees of freedom, got {dof}")
-
-
-def chi_square_quantile(probability: float, dof: int) -> float:
-    """Inverse of :func:`chi_square_cdf` (bisection, 1e-9 relative)."""
-    lo, hi = 0.0, 1.0
-    while chi_square_cdf(hi, dof) < probability:
-        hi *= 2.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if chi_square_cdf(mid, dof) < probability:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo < 1e-9 * hi:
-            break
-    return 0.5 * (lo + hi)
-
-
-# --------------------------------------------------------------------------------------------------
 # The filter.
 # --------------------------------------------------------------------------------------------------
 
@@ -301,3 +248,146 @@ def with_reset_block(covariance: FloatArray, index: int | slice, variance: float
     rows = np.arange(P.shape[0])[index]
     P[rows, rows] = variance
     return P
+
+
+# --------------------------------------------------------------------------------------------------
+# Paper C's 5-state filter's steps (:class:`~common.estimation.ekf.AttitudeAltitudeEkf`): arrays in and out,
+# so that a filter step calls this module once.
+# --------------------------------------------------------------------------------------------------
+
+Quaternion = tuple[float, float, float, float]
+#: After a sign flip of the quaternion, its covariance with the altitude changes sign.
+_SIGN_FLIP = np.ones((5, 5))
+_SIGN_FLIP[4, :4] = -1.0
+_SIGN_FLIP[:4, 4] = -1.0
+_SIGN_FLIP.setflags(write=False)
+#: A correction: the new quaternion, altitude and covariance (None when the gate refused the measurement).
+Corrected = tuple[Quaternion, float, FloatArray] | None
+
+
+def predict_step(
+    q_world_body: FloatArray,
+    covariance: FloatArray,
+    gyro_rad_s: npt.ArrayLike,
+    dt_s: float,
+    gyro_var: float,
+    attitude_rw_var: float,
+    altitude_rw_var: float,
+) -> tuple[Quaternion, FloatArray]:
+    """Gyro prediction over ``dt_s`` (paper C eqs. 1-3 with the models of eqs. 12-15): the unit quaternion and
+    the covariance (:meth:`~common.estimation.ekf.AttitudeAltitudeEkf.predict` documents it)."""
+    wx, wy, wz = three_floats(gyro_rad_s)
+    a, b, c = transition_floats(wx, wy, wz, dt_s)
+    q_prev = q_world_body.tolist()
+    q0, q1, q2, q3 = propagate_quaternion((q_prev[0], q_prev[1], q_prev[2], q_prev[3]), a, b, c)
+    F = transition_matrix(a, b, c)
+    qk = 0.25 * (dt_s * dt_s * gyro_var + dt_s * attitude_rw_var)
+    qn, flipped = normalized_quaternion(q0, q1, q2, q3)
+    n0, n1, n2, n3 = qn
+    m0, m1, m2, m3 = -qk * n0, -qk * n1, -qk * n2, -qk * n3
+    Q = np.array(
+        [
+            qk + m0 * n0, m0 * n1, m0 * n2, m0 * n3, 0.0,
+            m1 * n0, qk + m1 * n1, m1 * n2, m1 * n3, 0.0,
+            m2 * n0, m2 * n1, qk + m2 * n2, m2 * n3, 0.0,
+            m3 * n0, m3 * n1, m3 * n2, qk + m3 * n3, 0.0,
+            0.0, 0.0, 0.0, 0.0, dt_s * altitude_rw_var,
+        ]
+    ).reshape(5, 5)  # fmt: skip
+    P = np.dot(np.dot(F, covariance), F.T) + Q
+    if flipped:
+        P *= _SIGN_FLIP
+    return qn, P
+
+
+def accelerometer_step(
+    q_world_body: FloatArray,
+    pz_m: float,
+    covariance: FloatArray,
+    accel_m_s2: npt.ArrayLike,
+    motion_accel_world_m_s2: tuple[float, float, float],
+    gravity_m_s2: float,
+    tolerance_m_s2: float,
+    variance: float,
+    gate: float,
+) -> tuple[float, Corrected]:
+    """Accelerometer update with the model of eq. 16 (eqs. 4-8): its NIS and the correction (NIS nan and no
+    correction when skipped by :func:`expected_specific_force`)."""
+    ax, ay, az = three_floats(accel_m_s2)
+    f_world = expected_specific_force((ax, ay, az), motion_accel_world_m_s2, gravity_m_s2, tolerance_m_s2)
+    if f_world is None:
+        return math.nan, None
+    q = q_world_body.tolist()
+    h, Hq = accelerometer_model((q[0], q[1], q[2], q[3]), f_world)
+    (h00, h01, h02, h03), (h10, h11, h12, h13), (h20, h21, h22, h23) = Hq
+    H = np.array([h00, h01, h02, h03, 0.0, h10, h11, h12, h13, 0.0, h20, h21, h22, h23, 0.0]).reshape(3, 5)
+    return correct_step(q_world_body, pz_m, covariance, (ax - h[0], ay - h[1], az - h[2]), H, variance, gate)
+
+
+def correct_step(
+    q_world_body: FloatArray,
+    pz_m: float,
+    covariance: FloatArray,
+    innovation: tuple[float, ...],
+    H: FloatArray,
+    variance: float,
+    gate: float,
+) -> tuple[float, Corrected]:
+    """Kalman gain, gate and correction, paper C eqs. 6-8, with closed-form inverses of S (m <= 3): the NIS
+    and the correction (None when the NIS is beyond ``gate``)."""
+    P = covariance
+    PHt = np.dot(P, H.T)  # (5, m)
+    S = np.dot(H, PHt)
+    m = len(innovation)
+    Sl = S.tolist()
+    if m == 1:
+        (y0,) = innovation
+        s00 = Sl[0][0] + variance
+        if not s00 > 0.0:
+            raise EkfError(f"innovation variance {s00} is not positive")
+        Sinv: list[list[float]] = [[1.0 / s00]]
+        Sy = [y0 / s00]
+        nis = y0 * Sy[0]
+    elif m == 2:
+        y0, y1 = innovation
+        s00, s01, s11 = Sl[0][0] + variance, 0.5 * (Sl[0][1] + Sl[1][0]), Sl[1][1] + variance
+        det = s00 * s11 - s01 * s01
+        if not det > 0.0:
+            raise EkfError(f"innovation covariance is not positive definite (det {det})")
+        inv = 1.0 / det
+        i00, i01, i11 = s11 * inv, -s01 * inv, s00 * inv
+        Sinv = [[i00, i01], [i01, i11]]
+        Sy = [i00 * y0 + i01 * y1, i01 * y0 + i11 * y1]
+        nis = y0 * Sy[0] + y1 * Sy[1]
+    else:
+        y0, y1, y2 = innovation
+        s00, s11, s22 = Sl[0][0] + variance, Sl[1][1] + variance, Sl[2][2] + variance
+        s01, s02, s12 = Sl[0][1], Sl[0][2], Sl[1][2]
+        c00 = s11 * s22 - s12 * s12
+        c01 = s02 * s12 - s01 * s22
+        c02 = s01 * s12 - s02 * s11
+        det = s00 * c00 + s01 * c01 + s02 * c02
+        if not det > 0.0:
+            raise EkfError(f"innovation covariance is not positive definite (det {det})")
+        inv = 1.0 / det
+        c11 = (s00 * s22 - s02 * s02) * inv
+        c12 = (s01 * s02 - s00 * s12) * inv
+        c22 = (s00 * s11 - s01 * s01) * inv
+        c00 *= inv
+        c01 *= inv
+        c02 *= inv
+        Sinv = [[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]
+        Sy = [c00 * y0 + c01 * y1 + c02 * y2, c01 * y0 + c11 * y1 + c12 * y2, c02 * y0 + c12 * y1 + c22 * y2]
+        nis = y0 * Sy[0] + y1 * Sy[1] + y2 * Sy[2]
+    if not math.isfinite(nis):
+        raise InputError("innovation is not finite")
+    if nis > gate:
+        return nis, None
+    K = np.dot(PHt, np.array(Sinv))  # (5, m), eq. 6
+    dx = np.dot(PHt, np.array(Sy)).tolist()  # K y, eq. 7
+    P_new = P - np.dot(K, PHt.T)  # eq. 8, (I - K H) P
+    q = q_world_body.tolist()
+    qn, flipped = normalized_quaternion(q[0] + dx[0], q[1] + dx[1], q[2] + dx[2], q[3] + dx[3])
+    if flipped:
+        P_new *= _SIGN_FLIP
+    return nis, (qn, pz_m + dx[4], P_new)

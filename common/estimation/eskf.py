@@ -38,15 +38,16 @@ import numpy.typing as npt
 from common.bounds import check_duration
 from common.errors import InputError
 from common.estimation import eskf_kernels as kernels
+from common.estimation.chi_square import chi_square_quantile
+from common.estimation.ekf import ImuStepResult
 from common.estimation.ekf_models import (
     EkfError,
     check_initial,
-    chi_square_quantile,
     rangefinder_model,
     with_reset_block,
     yaw_model,
 )
-from common.estimation.eskf_math import compile_kernels, error_jacobian
+from common.estimation.eskf_math import attitude_covariance_world, compile_kernels, error_jacobian
 from common.estimation.eskf_state import (
     BA,
     N_ERROR,
@@ -146,9 +147,7 @@ class BiasAwareEkf:
 
     def attitude_covariance_world(self, state: BiasEkfState) -> FloatArray:
         """3x3 covariance of world-frame error angles (``R dtheta_body``)."""
-        R = matrix_from_quaternion(state.q_world_body)
-        C = R @ state.covariance[THETA, THETA] @ R.T
-        return np.asarray(0.5 * (C + C.T), dtype=np.float64)
+        return attitude_covariance_world(state.q_world_body, state.covariance)
 
     def altitude_variance(self, state: BiasEkfState) -> float:
         return float(state.covariance[PZ, PZ])
@@ -178,6 +177,45 @@ class BiasAwareEkf:
         if status != kernels.OK:
             _raise_for(status, "predict")
         return BiasEkfState(x, P, state.stamp_s + dt_s)
+
+    def imu_step(
+        self,
+        state: BiasEkfState,
+        gyro_rad_s: npt.ArrayLike,
+        accel_m_s2: npt.ArrayLike,
+        dt_s: float,
+        measured_accel_m_s2: npt.ArrayLike | None,
+        motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> ImuStepResult[BiasEkfState]:
+        """One IMU sample: :meth:`predict` with the interval's ``gyro_rad_s`` and ``accel_m_s2`` over
+        ``dt_s``, then, unless ``measured_accel_m_s2`` is None, :meth:`update_accelerometer` with it, and the
+        read-outs. Each kernel is called once, and nothing of this module after them."""
+        gyro = _vector3(gyro_rad_s, "gyro_rad_s")
+        accel = _vector3(accel_m_s2, "accel_m_s2")
+        measured = None if measured_accel_m_s2 is None else _vector3(measured_accel_m_s2, "accel_m_s2")
+        mx, my, mz = motion_accel_world_m_s2
+        check_duration(dt_s)
+        status, x, P = kernels.predict_step(
+            state.nominal, state.covariance, gyro, accel, True, float(dt_s), self._q_rate, self._q_rate2,
+            self._gravity,
+        )  # fmt: skip
+        if status != kernels.OK:
+            _raise_for(status, "predict")
+        accepted = None
+        if measured is not None:
+            status, _, xu, Pu = kernels.accelerometer_step(
+                x, P, measured, float(mx), float(my), float(mz), self._gravity, self._accel_var,
+                self._motion_share, self._norm_tolerance, self._gate3,
+            )  # fmt: skip
+            accepted = status == kernels.OK
+            if accepted:
+                x, P = xu, Pu
+            elif status == kernels.NOT_FINITE:
+                raise InputError(f"accel_m_s2 must be finite, got {measured.tolist()}")
+            elif status not in (kernels.GATED, kernels.SKIPPED):
+                _raise_for(status, "accelerometer update")
+        covariance = attitude_covariance_world(x[0:4], P)
+        return ImuStepResult(BiasEkfState(x, P, state.stamp_s + dt_s), accepted, covariance, float(P[PZ, PZ]))
 
     # ---- updates --------------------------------------------------------------------------------------
 

@@ -1,5 +1,5 @@
 """Small closed forms of the error-state EKF (:mod:`common.estimation.eskf`): the error Jacobian of the
-quaternion and the inverse of a 1x1-3x3 innovation covariance."""
+quaternion, the inverse of a 1x1-3x3 innovation covariance and the attitude's covariance in the world."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from common.estimation.ekf_models import EkfError
 from common.estimation.eskf_kernels import inverse_small
+from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
 
 if TYPE_CHECKING:
@@ -21,6 +22,13 @@ def error_jacobian(q: Quaternion) -> FloatArray:
     """``dq/dtheta`` (4x3) of ``q * [1, dtheta/2]`` at ``dtheta = 0``: ``1/2 [-q_v^T; q0 I + [q_v]x]``."""
     q0, q1, q2, q3 = q
     return 0.5 * np.array([[-q1, -q2, -q3], [q0, -q3, q2], [q3, q0, -q1], [-q2, q1, q0]])
+
+
+def attitude_covariance_world(q_world_body: FloatArray, covariance: FloatArray) -> FloatArray:
+    """3x3 covariance of world-frame error angles (``R dtheta_body``) from the error state's covariance."""
+    R = matrix_from_quaternion(q_world_body)
+    C = R @ covariance[0:3, 0:3] @ R.T
+    return np.asarray(0.5 * (C + C.T), dtype=np.float64)
 
 
 def inverse_spd(S: FloatArray) -> FloatArray:

@@ -110,35 +110,36 @@ class FilterSide:
             s.accel_compensation and not track.fitted and m.stamp_s - self.first_imu_s < s.accel_wait_for_vo_s  # type: ignore[operator]
         )
         dt_s = m.stamp_s - self.state.stamp_s
-        previous, gyro, accel = self.state, m.gyro_rad_s, m.accel_m_s2
+        gyro, accel = m.gyro_rad_s, m.accel_m_s2
         if s.imu_midpoint and self._last_imu is not None:
             # rates at the stamps: the interval's mean (trapezoid); the newer alone leads by half a sample
             gyro, accel = 0.5 * (gyro + self._last_imu.gyro_rad_s), 0.5 * (accel + self._last_imu.accel_m_s2)
         self._last_imu = m
         try:
-            # the inertial navigation of the bias filter integrates the accelerometer too (the 5-state one
-            # ignores it)
-            self.state = self.ekf.predict(self.state, gyro, dt_s, accel)
-            accepted = True
-            if not waits:
-                update = self.ekf.update_accelerometer(self.state, m.accel_m_s2, track.accel_world_m_s2)
-                self.state, accepted = update.state, update.accepted
+            # predict (the inertial navigation of the bias filter integrates the accelerometer too, the
+            # 5-state one ignores it), the accelerometer update and the read-outs: one call
+            step = self.ekf.imu_step(
+                self.state, gyro, accel, dt_s, None if waits else m.accel_m_s2, track.accel_world_m_s2
+            )
         except EkfError as exc:
-            self.state = previous
             self.counters["ekf_errors"] += 1
             logger.warning("IMU sample at %.4f s not applied: %s", m.stamp_s, exc)
             return None
+        self.state = state = step.state
+        covariance, altitude_var_m2 = step.attitude_covariance_world, step.altitude_var_m2
         self.counters["imu_applied"] += 1
         if waits:
             self.counters["accel_waiting_for_vo"] += 1
-        elif not accepted:
+        elif not step.accepted:
             self.counters["accel_gated"] += 1
-        if s.thrust_axis_interval_s > 0.0 and isinstance(self.ekf, BiasAwareEkf):
-            self._thrust_axis(self.ekf, m)
-        state = self.state
-        # the read-outs first, together (each an entry into the filter's module)
-        altitude_var_m2 = self.ekf.altitude_variance(state)
-        covariance = self.ekf.attitude_covariance_world(state)
+        if (
+            s.thrust_axis_interval_s > 0.0
+            and isinstance(self.ekf, BiasAwareEkf)
+            and self._thrust_axis(self.ekf, m)
+        ):
+            # the thrust-axis update moved the state: its read-outs again
+            state = self.state
+            covariance, altitude_var_m2 = self.attitude_covariance(), self.altitude_variance()
         q = state.q_world_body
         if self._rect_q is None or s.rectification_smoothing_s <= 0.0:
             self._rect_q = q
@@ -153,9 +154,10 @@ class FilterSide:
             altitude_var_m2=altitude_var_m2,
         )
 
-    def _thrust_axis(self, ekf: BiasAwareEkf, m: ImuMeasurement) -> None:
+    def _thrust_axis(self, ekf: BiasAwareEkf, m: ImuMeasurement) -> bool:
         """Bias filter: the mean body-horizontal accelerometer reading over ``thrust_axis_interval_s`` as the
-        multirotor thrust-axis update (:meth:`~common.estimation.eskf.BiasAwareEkf.update_thrust_axis`)."""
+        multirotor thrust-axis update (:meth:`~common.estimation.eskf.BiasAwareEkf.update_thrust_axis`);
+        whether it moved the state."""
         window = self._accel_window.added(m.stamp_s, m.accel_m_s2)
         done = window.spans(m.stamp_s, self.settings.thrust_axis_interval_s)
         self._accel_window = AccelWindow() if done else window
@@ -163,6 +165,8 @@ class FilterSide:
             mean_xy, n = window.mean_xy_m_s2(), window.n_samples
             accepted = self._update("update_thrust_axis", lambda x: ekf.update_thrust_axis(x, mean_xy, n))
             self._count(accepted, "thrust_axis")
+            return accepted is True
+        return False
 
     # ---- updates --------------------------------------------------------------------------------------
 

@@ -1,6 +1,7 @@
 """The two attitude/altitude filters behind one :class:`AttitudeFilter` protocol: paper C's 5-state EKF (the
 reference) and the error-state EKF with bias states. The coupling holds either and calls its methods directly;
-each method takes a state and returns a new one (or an :class:`Update` carrying it)."""
+each method takes a state and returns a new one (or an :class:`Update` or :class:`ImuStepResult` carrying it).
+An IMU sample is one call, :meth:`AttitudeFilter.imu_step`."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.estimation.coupling_types import EkfKind
-from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState
+from common.estimation.ekf import AttitudeAltitudeEkf, EkfSettings, EkfState, ImuStepResult
 from common.estimation.ekf_models import propagate_quaternion
 from common.estimation.eskf import BiasAwareEkf
 from common.estimation.eskf_state import BiasEkfSettings, BiasEkfState
@@ -51,6 +52,19 @@ class AttitudeFilter(Protocol[S]):
         accel_m_s2: npt.ArrayLike,
         motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> Update[S]: ...
+
+    def imu_step(
+        self,
+        state: S,
+        gyro_rad_s: npt.ArrayLike,
+        accel_m_s2: npt.ArrayLike,
+        dt_s: float,
+        measured_accel_m_s2: npt.ArrayLike | None,
+        motion_accel_world_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> ImuStepResult[S]:
+        """:meth:`predict` then (unless ``measured_accel_m_s2`` is None) :meth:`update_accelerometer`, with
+        the new state's read-outs: the whole of one IMU sample."""
+        ...
 
     def update_yaw(self, state: S, yaw_rad: float, yaw_noise_rad: float | None = None) -> Update[S]: ...
 

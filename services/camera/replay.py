@@ -30,7 +30,7 @@ from common.wire.messages import PoseEstimate
 from common.wire.schema import WireModel
 from services.camera.settings import CameraSettings
 from services.camera.sources import CameraSource, OdometrySample, OnSkip, Sample
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 
 logger = logging.getLogger(__name__)
 

@@ -15,7 +15,6 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import TypeVar
 
 import zenoh
 
@@ -23,36 +22,31 @@ from common.streams import FrameGateState, FrameKey, GateVerdict, admit_frame
 from common.wire.messages import Frame
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
-from services.runtime.handoff import WorkQueue
+from services.runtime.handoff import FrameQueue
 from services.runtime.service import ConfiguredService
 from services.runtime.stamps import InputStamps
 from services.runtime.transport import source_of
-
-T = TypeVar("T")
 
 #: frame samples received but not gated yet, at most (beyond, the oldest is dropped and counted): the frames
 #: thread gates them all before each frame it measures, so this only fills while it is stalled
 INBOX_CAPACITY = 256
 
 
-class FrameQueue(WorkQueue[T]):
-    """A bounded FIFO that drops its oldest item when full (``dropped`` counts each drop once); the rest
-    (``take``, ``depth``, ``drain``) is the :class:`WorkQueue`'s."""
+class FrameFifo(deque[tuple[int, Frame]]):
+    """The gated frames waiting for the yaw stage, oldest first, at most ``capacity`` (beyond, the oldest is
+    dropped; :attr:`dropped` counts each drop once). Only the frames thread puts and takes (the intake's
+    turn appends to it directly, as a deque), so it needs no lock; :meth:`depth` is safe from any thread."""
 
     def __init__(self, capacity: int) -> None:
-        super().__init__(capacity)
+        super().__init__(maxlen=capacity)
         self.dropped = 0
 
-    def put(self, item: T) -> bool:
-        """Append ``item``; True when the oldest item was dropped to make room."""
-        with self._cond:
-            full = len(self._items) >= self._capacity
-            if full:
-                self._items.popleft()
-                self.dropped += 1
-            self._items.append(item)
-            self._cond.notify()
-            return full
+    def depth(self) -> int:
+        return len(self)
+
+    def take(self, timeout_s: float = 0.0) -> tuple[int, Frame] | None:
+        """The oldest frame, None when empty (``timeout_s`` is not waited: the frames thread fills it)."""
+        return self.popleft() if self else None
 
 
 @dataclass(frozen=True)
@@ -79,7 +73,7 @@ class FrameIntake:
         self.inbox: FrameQueue[Received] = FrameQueue(INBOX_CAPACITY)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
         #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
-        self.slot: FrameQueue[tuple[int, Frame]] = FrameQueue(settings.frame_queue)
+        self.slot = FrameFifo(settings.frame_queue)
         self.recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
         self.recent_lock = threading.Lock()
         #: recent refusals, for health
@@ -94,38 +88,56 @@ class FrameIntake:
         """Frames thread: every sample received so far through the gate, in arrival order; the admitted ones
         kept as recent frames and, when ``leading``, queued. The counts are added once."""
         counts: dict[str, int] = {}
-        for received in self.inbox.drain():
-            item = self._admit(received, counts)
-            if item is not None and leading and self.slot.put(item):
-                counts["frames_dropped"] = counts.get("frames_dropped", 0) + 1
+        self._turn(leading, None, counts)
         if counts:
             self.service.counters.update(counts)
 
-    def _admit(self, received: Received, counts: dict[str, int]) -> tuple[int, Frame] | None:
-        """(epoch, frame) of an admitted sample; None (counted) for a refused one."""
-        service, sample = self.service, received.sample
-        source = source_of(sample)
-        if not self.guard.admit_source(source, received.now_s):
-            return None
-        frame = service.decode_sample(sample, Frame)
-        if frame is None:
-            return None
-        counts["frames_in"] = counts.get("frames_in", 0) + 1
-        key = FrameKey(frame.width, frame.height, frame.encoding)
-        self.gate, decision = admit_frame(
-            self.gate, self.gate_settings, self.uav, frame.uav, frame.seq, frame.stamp_s, key,
-            received.now_s, received.wall_s, source,
-        )  # fmt: skip
-        if decision.verdict is GateVerdict.REFUSE:
-            service.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
-            self.refusals.note_refusal()
-            return None
-        if decision.verdict is GateVerdict.NEW_EPOCH:
-            counts["epochs"] = counts.get("epochs", 0) + 1
-            if self.gate.epoch > 0:
-                service.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
-        counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
-        item = (self.gate.epoch, frame)
+    def next_frame(self, leading: bool, wait_s: float, counts: dict[str, int]) -> tuple[int, Frame] | None:
+        """One turn of the frames thread: waits up to ``wait_s`` for a sample when none is received or
+        queued, gates them as :meth:`gate_received` (its counts added to ``counts``, for the caller to add
+        to the counters with the frame's), then the oldest queued (epoch, frame) when ``leading``."""
+        return self._turn(leading, wait_s, counts)
+
+    def _turn(self, leading: bool, wait_s: float | None, counts: dict[str, int]) -> tuple[int, Frame] | None:
+        """:meth:`next_frame` (``wait_s`` None: only the gate). Written so that nothing of this module is
+        called once it has called out: each sample's admission inline, the guard asked once for all their
+        sources, the admitted frames queued together (the FIFO as a deque)."""
+        slot = self.slot
+        if wait_s is not None and not slot and self.inbox.depth() == 0:
+            self.inbox.wait(wait_s)
+        received = self.inbox.drain()
+        service = self.service
+        sources: list[tuple[str | None, float]] = []
+        for r in received:  # a loop, not a comprehension: that would be a call into this module
+            sources.append((source_of(r.sample), r.now_s))
+        admitted: list[tuple[int, Frame]] = []
+        followed = self.guard.admit(sources)
+        for r, (source, _), from_followed in zip(received, sources, followed, strict=True):
+            frame = service.decode_sample(r.sample, Frame) if from_followed else None
+            if frame is None:
+                continue
+            counts["frames_in"] = counts.get("frames_in", 0) + 1
+            key = FrameKey(frame.width, frame.height, frame.encoding)
+            self.gate, decision = admit_frame(
+                self.gate, self.gate_settings, self.uav, frame.uav, frame.seq, frame.stamp_s, key, r.now_s,
+                r.wall_s, source,
+            )  # fmt: skip
+            if decision.verdict is GateVerdict.REFUSE:
+                service.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
+                self.refusals.note_refusal()
+                continue
+            if decision.verdict is GateVerdict.NEW_EPOCH:
+                counts["epochs"] = counts.get("epochs", 0) + 1
+                if self.gate.epoch > 0:
+                    service.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
+            counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
+            admitted.append((self.gate.epoch, frame))
         with self.recent_lock:
-            self.recent.append(item)
-        return item
+            self.recent.extend(admitted)
+        if leading:
+            for item in admitted:
+                if len(slot) == slot.maxlen:  # the oldest is dropped to make room
+                    slot.dropped += 1
+                    counts["frames_dropped"] = counts.get("frames_dropped", 0) + 1
+                slot.append(item)
+        return slot.popleft() if leading and wait_s is not None and slot else None

@@ -19,7 +19,7 @@ import numpy as np
 
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 
 #: Samples kept (10 s at 400 Hz): enough for any frame interval the master bridges.
 DEFAULT_CAPACITY = 4000
@@ -96,10 +96,15 @@ class GyroPrior:
         if imu is not None:
             self._counters.inc("imu_in" if self.buffer.add(imu) else "imu_refused")
 
-    def delta_rad(self, previous_stamp_s: float | None, stamp_s: float) -> float | None:
-        """The gyro's rotation since the previous frame (None without IMU coverage or when disabled)."""
+    def delta_rad(
+        self, previous_stamp_s: float | None, stamp_s: float, counts: dict[str, int]
+    ) -> float | None:
+        """The gyro's rotation since the previous frame (None without IMU coverage or when disabled),
+        counted as ``gyro_prior`` or ``no_gyro_prior`` in ``counts`` (the frame's, added to the service's
+        counters once, at its end)."""
         if not self.enabled or previous_stamp_s is None:
             return None
         delta = self.buffer.delta_rad(previous_stamp_s, stamp_s, self.wait_s)
-        self._counters.inc("gyro_prior" if delta is not None else "no_gyro_prior")
+        name = "gyro_prior" if delta is not None else "no_gyro_prior"
+        counts[name] = counts.get(name, 0) + 1
         return delta

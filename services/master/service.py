@@ -19,6 +19,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -41,11 +42,12 @@ from common.wire.messages import (
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
 from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
-from common.yaw.patchwork import SpectrumCache, measure_share
+from common.yaw.patchwork import SpectrumCache
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameIntake
 from services.master.gyro import GyroPrior
 from services.master.lens import CameraSource
+from services.master.own_share import OwnShare
 from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
@@ -84,6 +86,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         self.guard = DispatchGuard(self.name, self.counters, settings.trust)
         self.intake = FrameIntake(self, self.guard, settings)
         self.slot = self.intake.slot
+        #: zenoh's frame callback is the intake's: it only hands the sample off (the frames thread gates it)
+        self._on_frame = self.intake.receive
         #: protects the published yaw (zenoh's yaw callback records, the frames thread reads)
         self._recent_lock = threading.Lock()
         #: yaw published for this UAV by seq, from sessions that led it (a take-over starts there)
@@ -98,6 +102,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._entities: list[Any] = []
         self._publisher: Any = None
         self._last_shares: dict[str, float] = {}
+        #: the turn's and its frame's counts, added to the counters once when it is done (:meth:`_process`)
+        self._frame_counts: dict[str, int] = {}
         self.gyro = GyroPrior(settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters)
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
 
@@ -133,9 +139,6 @@ class MasterService(ConfiguredService[MasterSettings]):
         if self.election is not None:
             self.election.close()
 
-    def _on_frame(self, sample: zenoh.Sample) -> None:
-        self.intake.receive(sample)  # the gate runs on the frames thread
-
     def _on_imu(self, sample: zenoh.Sample) -> None:
         self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type))
 
@@ -158,8 +161,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._leaders_resolved = self.leader_sessions.resolved
 
     def _apply_membership(self, dispatcher: Dispatcher) -> None:
-        self.live.update(dispatcher)  # nothing to do unless a liveliness token came or went
-        self.guard.apply_quarantine(dispatcher.trust)  # members whose liveliness churns are paused
+        # nothing to do unless a liveliness token came or went (members whose liveliness churns are paused
+        # by the guard's admission, each turn)
+        self.live.update(dispatcher)
 
     def shares(self) -> dict[str, float]:
         return dict(self._last_shares)
@@ -194,13 +198,13 @@ class MasterService(ConfiguredService[MasterSettings]):
             if self.election.update():
                 self._take_over()
         standby = self.election is not None and not self.election.leading
-        if self.slot.depth() == 0 and self.intake.inbox.depth() == 0:
-            self.intake.inbox.wait(min(timeout_s, STANDBY_POLL_S) if standby else timeout_s)
-        self.intake.gate_received(not standby)
-        if standby:
-            return False  # frames go to the recent ones only
-        item = self.slot.take(0.0)
+        # standing by, frames go to the recent ones only
+        wait_s = min(timeout_s, STANDBY_POLL_S) if standby else timeout_s
+        item = self.intake.next_frame(not standby, wait_s, self._frame_counts)
         if item is None:
+            if self._frame_counts:  # the turn's counts (else added with its frame's, at its end)
+                self.counters.update(self._frame_counts)
+                self._frame_counts = {}
             return False
         self._process(*item)
         return True
@@ -211,18 +215,19 @@ class MasterService(ConfiguredService[MasterSettings]):
             estimate = self._estimate(epoch, frame, t0)
         except (CapatazError, ValueError) as exc:
             self.count_error("frame_errors", f"frame {frame.seq} failed", exc)
-            return
-        if estimate is None:
-            return
+            estimate = None
+        counts, self._frame_counts = self._frame_counts, {}
+        timings: dict[str, float] = {}
         # the declared source: standbys keep only yaw of sessions that led (services.master.published)
-        if not self.publish(
+        if estimate is not None and self.publish(
             self._publisher, estimate, source_info=zenoh.SourceInfo(self._publisher.id, estimate.seq)
-        ):
-            return  # shutting down: the session is closing under us
-        if self.trajectory_tap is not None:
-            self.trajectory_tap.write(estimate)
-        self.counters.inc("yaw_out")
-        self.counters.time_ms("frame", estimate.timings_ms["total"])
+        ):  # (not published: shutting down, the session is closing under us)
+            if self.trajectory_tap is not None:
+                self.trajectory_tap.write(estimate)
+            counts["yaw_out"] = 1
+            timings["frame"] = estimate.timings_ms["total"]
+        if counts or timings:
+            self.counters.update(counts, timings)  # the frame's counts, once
 
     def _take_over(self) -> None:
         """Continue from the last published yaw: anchor on the newest kept frame whose yaw was published,
@@ -305,25 +310,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         prev_level, prev_seq = stream.prev_level, stream.prev_seq
         t_level = time.perf_counter()
 
-        def crops(indices: np.ndarray) -> np.ndarray:
-            return grid.crop_level(level, indices)
-
-        def prev_crops(indices: np.ndarray) -> np.ndarray:
-            return grid.crop_level(prev_level, indices)
-
-        def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
-            share, moved_share = grid.crop_level(level, indices), grid.crop_level(prev_level, moved)
-            return measure_share(
-                stream.cache,
-                settings,
-                self.settings.uav,
-                frame.seq,
-                prev_seq,
-                indices,
-                share,
-                moved,
-                moved_share,
-            )
+        own_share = OwnShare(
+            grid, level, prev_level, stream.cache, settings, self.settings.uav, frame.seq, prev_seq
+        )
 
         work = FrameWork(
             stream=self.settings.uav,
@@ -331,9 +320,9 @@ class MasterService(ConfiguredService[MasterSettings]):
             prev_seq=prev_seq,
             settings=self.wire_settings,
             budget_s=self.settings.budget_s,
-            crops=crops,
-            prev_crops=prev_crops,
-            compute_self=compute_self,
+            crops=partial(grid.crop_level, level),
+            prev_crops=partial(grid.crop_level, prev_level),
+            compute_self=own_share,
         )
         plan = stream.dispatcher.plan(frame.seq, prev_seq, time.monotonic())
         try:
@@ -342,7 +331,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         except (CapatazError, ValueError) as exc:  # never lose a frame: compute it here
             self.count_error("local_fallback", f"frame {frame.seq}: round failed, computing locally", exc)
             stream.dispatcher.forget_history(SELF)
-            measurement = compute_self(stream.all_indices, stream.all_indices)
+            measurement = own_share(stream.all_indices, stream.all_indices)
             report = None
         t_round = time.perf_counter()
         if report is not None:
@@ -352,9 +341,10 @@ class MasterService(ConfiguredService[MasterSettings]):
         # a stamp that does not increase (a bad stamp file) leaves this pair untimed: no rate limit, no gyro
         previous_s = stream.state.stamp_s
         stamp: float | None = frame.stamp_s if previous_s is None or frame.stamp_s > previous_s else None
+        counts = self._frame_counts
         if stamp is None:
-            self.counters.inc("stamps_not_increasing")
-        gyro = self.gyro.delta_rad(previous_s, stamp) if stamp is not None else None
+            counts["stamps_not_increasing"] = counts.get("stamps_not_increasing", 0) + 1
+        gyro = self.gyro.delta_rad(previous_s, stamp, counts) if stamp is not None else None
         stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement, stamp, gyro)
         stream.prev_level, stream.prev_seq = level, frame.seq
         t_end = time.perf_counter()

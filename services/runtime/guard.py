@@ -2,8 +2,8 @@
 
 Thin glue between the pure cores (:mod:`common.dispatch.trust`, :mod:`common.dispatch.vetting`,
 :mod:`common.dispatch.admission`) and a service's counters and log: the master calls
-:meth:`admit_source` on its frames thread, :meth:`note_alive` in its liveliness callback (hands off
-only), :meth:`quarantined` when it applies membership and :meth:`vet` after each frame's round.
+:meth:`admit` on its frames thread (each turn: the received frames' sources and the churn quarantine),
+:meth:`note_alive` in its liveliness callback (hands off only) and :meth:`vet` after each frame's round.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from common.dispatch.admission import ChurnLimiter, SourceLock
 from common.dispatch.vetting import round_outcomes
 from common.yaw import YawSettings
 from common.yaw.correlation import PatchMeasurement
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 
 logger = logging.getLogger(__name__)
 
@@ -43,30 +43,33 @@ class DispatchGuard:
         """The service's trust monitor, for a new dispatcher (disabled when the guard is)."""
         return self._monitor
 
-    def admit_source(self, source: str | None, now_s: float) -> bool:
-        """Whether a frame sent by ``source`` (:func:`~services.runtime.transport.source_of` its sample),
-        received at ``now_s`` (monotonic), is the followed source's; others are dropped, counted, logged."""
-        if not self.enabled or self.sources.admit(source, now_s):
-            return True
-        n = self.counters.inc("frames_foreign")
-        if n <= 5 or n % 100 == 0:
-            logger.warning(
-                "%s: dropping frames of another source %s (#%d)", self.name, source or "anonymous", n
-            )
-        return False
+    def admit(self, received: Sequence[tuple[str | None, float]]) -> list[bool]:
+        """One turn of the frames thread, in one call: whether each received frame, sent by ``source``
+        (:func:`~services.runtime.transport.source_of` its sample) and received at ``now_s`` (monotonic), is
+        the followed source's (others are dropped, counted, logged); and the members whose liveliness
+        churns are paused in the service's trust monitor (which every dispatcher of the service holds)
+        until their quarantine ends. Nothing of this module is called once it has called out."""
+        if not self.enabled:
+            return [True] * len(received)
+        admitted: list[bool] = []
+        for source, now_s in received:
+            followed = self.sources.admit(source, now_s)
+            admitted.append(followed)
+            if not followed:
+                n = self.counters.inc("frames_foreign")
+                if n <= 5 or n % 100 == 0:
+                    logger.warning(
+                        "%s: dropping frames of another source %s (#%d)", self.name, source or "anonymous", n
+                    )
+        with self._lock:
+            ends = self.churn.quarantine_ends(time.monotonic())
+        for member, until_s in ends.items():
+            self._monitor.suspend(member, until_s)
+        return admitted
 
     def note_alive(self, member: str, joined: bool) -> None:
         with self._lock:
             self.churn.allow(member, joined, time.monotonic())
-
-    def apply_quarantine(self, trust: TrustMonitor | None) -> None:
-        """Pause members whose liveliness churns (dispatching thread) until their quarantine ends."""
-        if not self.enabled or trust is None:
-            return
-        with self._lock:
-            ends = self.churn.quarantine_ends(time.monotonic())
-        for member, until_s in ends.items():
-            trust.suspend(member, until_s)
 
     def vet(
         self,

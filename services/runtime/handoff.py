@@ -1,14 +1,12 @@
 """Hand-off primitives, so that zenoh callbacks never block: :class:`LatestSlot` (latest wins, drops
-counted), :class:`WorkQueue` (bounded FIFO, refusals counted) and :class:`Counters` (thread-safe counts and
-recent timings for a service's stats)."""
+counted), :class:`WorkQueue` (bounded FIFO, refusals counted), :class:`FrameQueue` (bounded FIFO dropping its
+oldest). A service's counters are :class:`services.runtime.counters.Counters`."""
 
 from __future__ import annotations
 
 import threading
 from collections import deque
 from typing import Generic, TypeVar
-
-import numpy as np
 
 from common.errors import CapatazError
 
@@ -89,41 +87,21 @@ class WorkQueue(Generic[T]):
         return len(self._items)
 
 
-class Counters:
-    """Thread-safe named counters and recent timings (for stats)."""
+class FrameQueue(WorkQueue[T]):
+    """A bounded FIFO that drops its oldest item when full (``dropped`` counts each drop once); the rest
+    (``take``, ``depth``, ``drain``) is the :class:`WorkQueue`'s."""
 
-    def __init__(self, window: int = 200) -> None:
-        self._lock = threading.Lock()
-        self._counts: dict[str, int] = {}
-        self._timings: dict[str, deque[float]] = {}
-        self._window = window
+    def __init__(self, capacity: int) -> None:
+        super().__init__(capacity)
+        self.dropped = 0
 
-    def inc(self, name: str, n: int = 1) -> int:
-        with self._lock:
-            value = self._counts.get(name, 0) + n
-            self._counts[name] = value
-            return value
-
-    def get(self, name: str) -> int:
-        with self._lock:
-            return self._counts.get(name, 0)
-
-    def update(self, counts: dict[str, int], timings_ms: dict[str, float] | None = None) -> None:
-        """Several counts and timings at once (one lock)."""
-        with self._lock:
-            for name, n in counts.items():
-                self._counts[name] = self._counts.get(name, 0) + n
-            for name, value_ms in (timings_ms or {}).items():
-                self._timings.setdefault(name, deque(maxlen=self._window)).append(value_ms)
-
-    def time_ms(self, name: str, value_ms: float) -> None:
-        with self._lock:
-            self._timings.setdefault(name, deque(maxlen=self._window)).append(value_ms)
-
-    def counts(self) -> dict[str, int]:
-        with self._lock:
-            return dict(self._counts)
-
-    def median_timings_ms(self) -> dict[str, float]:
-        with self._lock:
-            return {k: float(np.median(v)) for k, v in self._timings.items() if v}
+    def put(self, item: T) -> bool:
+        """Append ``item``; True when the oldest item was dropped to make room."""
+        with self._cond:
+            full = len(self._items) >= self._capacity
+            if full:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify()
+            return full

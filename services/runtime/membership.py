@@ -17,7 +17,7 @@ from common.dispatch.membership import (
     seats,
 )
 from common.wire.keys import MemberId, Role
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 from services.runtime.scatter import Scatter
 
 

@@ -25,7 +25,7 @@ from common.dispatch import Dispatcher, Plan
 from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import PatchJob, PatchResult
 from common.wire.schema import WireError
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 from services.runtime.round import (
     Failure,
     FailureReason,

@@ -24,7 +24,7 @@ from common.wire.codec import decode, encode, error_reply
 from common.wire.messages import Health, Stats
 from common.wire.schema import WireError, WireModel
 from services.runtime.cli import transport_from_args
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 from services.runtime.presence import ConnectionMonitor, TokenWatch
 from services.runtime.transport import TransportSettings, open_session, zbytes
 

@@ -13,7 +13,7 @@ from common.estimation.measurements import FrameMeasurement, ImuMeasurement, Ran
 from services.camera.replay import replay_source
 from services.camera.settings import CameraSettings, FlightName
 from services.camera.sources import CameraSource, Sample
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 
 
 class _Camera:

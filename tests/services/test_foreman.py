@@ -17,7 +17,7 @@ from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError
 from services.foreman.service import CropStore, ForemanService, ForemanSettings
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.transport import open_session, zbytes

@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from services.runtime.handoff import Counters, HandoffError, LatestSlot, WorkQueue
+from services.runtime.handoff import HandoffError, LatestSlot, WorkQueue
 
 
 def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
@@ -29,11 +29,3 @@ def test_work_queue_refuses_when_full_and_never_blocks() -> None:
     assert queue.drain() == ["b"] and queue.take(0.0) is None
     with pytest.raises(HandoffError):
         WorkQueue(0)
-
-
-def test_counters_and_timings() -> None:
-    counters = Counters(window=3)
-    assert counters.inc("x") == 1 and counters.inc("x", 4) == 5 and counters.get("y") == 0
-    for value in (1.0, 100.0, 2.0, 3.0):
-        counters.time_ms("t", value)
-    assert counters.counts() == {"x": 5} and counters.median_timings_ms() == {"t": 3.0}

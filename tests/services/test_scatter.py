@@ -19,7 +19,7 @@ from common.dispatch import SELF, Dispatcher, DispatchSettings
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
-from services.runtime.handoff import Counters
+from services.runtime.counters import Counters
 from services.runtime.round import FailureReason, FrameWork, Request, RoundReport
 from services.runtime.scatter import Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes

@@ -8,7 +8,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.dispatch import SELF, Dispatcher, DispatchSettings, MemberOutcome, TrustMonitor, TrustSettings
-from common.dispatch.trust import cap_counts, capped_weights, doubling_suspension_s, outcomes_of_fit
+from common.dispatch.plan import cap_counts, capped_weights
+from common.dispatch.trust import doubling_suspension_s, outcomes_of_fit
 from common.dispatch.vetting import round_outcomes
 from common.errors import InputError
 from common.sim.flight import hover_flight

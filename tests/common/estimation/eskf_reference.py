@@ -11,9 +11,9 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
+from common.estimation.chi_square import chi_square_quantile
 from common.estimation.ekf_models import (
     accelerometer_model,
-    chi_square_quantile,
     normalized_quaternion,
     propagate_quaternion,
     rangefinder_model,

@@ -18,8 +18,6 @@ from common.estimation.ekf import (
 )
 from common.estimation.ekf_models import (
     accelerometer_model,
-    chi_square_cdf,
-    chi_square_quantile,
     propagate_quaternion,
     quaternion_rate_matrix,
     rangefinder_model,
@@ -129,16 +127,6 @@ def test_rangefinder_model_is_the_ray_ground_distance(r: float, p: float, y: flo
     x = np.append(q, pz)
     J = _numeric_jacobian(lambda v: [rangefinder_model(tuple(v[:4]), v[4])[0]], x)
     assert np.allclose(J[0], np.array(H), atol=1e-5)
-
-
-def test_chi_square_quantiles_match_tables() -> None:
-    assert chi_square_quantile(0.95, 1) == pytest.approx(3.841, abs=1e-3)
-    assert chi_square_quantile(0.95, 2) == pytest.approx(5.991, abs=1e-3)
-    assert chi_square_quantile(0.95, 3) == pytest.approx(7.815, abs=1e-3)
-    assert chi_square_quantile(0.999, 3) == pytest.approx(16.266, abs=1e-3)
-    assert chi_square_cdf(0.0, 2) == 0.0
-    with pytest.raises(InputError):
-        chi_square_cdf(1.0, 4)
 
 
 # ---- filter invariants ---------------------------------------------------------------------------
