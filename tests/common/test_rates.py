@@ -52,7 +52,7 @@ def test_figures_are_the_intervals_and_do_not_depend_on_the_origin(gaps: list[fl
     assert figures.mean_s == pytest.approx(float(intervals.mean()), abs=1e-9)
     if figures.mean_s > 1.0 / sys.float_info.max:
         assert figures.rate_hz * figures.mean_s == pytest.approx(1.0)
-    else:  # every arrival at one time, or a mean interval whose inverse overflows (2e-311 s: found by hypothesis)
+    else:  # all arrivals at one time, or a mean whose inverse overflows (2e-311 s, found by hypothesis)
         assert figures.rate_hz == math.inf
 
 
