@@ -164,16 +164,30 @@ def summarise(run: SystemRun, reference_rad: np.ndarray) -> dict[str, Any]:
         "all_exited_0": all(code == 0 for code in run.exit_codes.values()),
         "seconds": round(run.seconds, 1),
     }
-    out["meets_bounds"] = bool(
-        sorted(run.yaw) == list(range(run.frames))
-        and yaw_error < YAW_BOUND_DEG
-        and len(run.attitude) >= run.frames // 2
-        and rp_max < ROLL_PITCH_BOUND_DEG
-        and len(run.vo) >= run.frames // 4
-        and pf_error < PF_BOUND_M
-        and run.malformed == 0
-        and out["all_exited_0"]
-    )
+    checks = [  # (what, holds, measured against its bound): a failed run says which bound and by how much
+        (
+            "every frame has a yaw",
+            sorted(run.yaw) == list(range(run.frames)),
+            f"{len(run.yaw)} of {run.frames}",
+        ),
+        ("yaw error", yaw_error < YAW_BOUND_DEG, f"{yaw_error:.4f} deg, bound {YAW_BOUND_DEG}"),
+        (
+            "attitudes",
+            len(run.attitude) >= run.frames // 2,
+            f"{len(run.attitude)}, at least {run.frames // 2}",
+        ),
+        (
+            "roll/pitch error",
+            rp_max < ROLL_PITCH_BOUND_DEG,
+            f"{rp_max:.3f} deg, bound {ROLL_PITCH_BOUND_DEG}",
+        ),
+        ("pose/vo messages", len(run.vo) >= run.frames // 4, f"{len(run.vo)}, at least {run.frames // 4}"),
+        ("late pose/pf error", pf_error < PF_BOUND_M, f"{pf_error:.3f} m, bound {PF_BOUND_M}"),
+        ("malformed", run.malformed == 0, f"{run.malformed}"),
+        ("exit codes", out["all_exited_0"], f"{run.exit_codes}"),
+    ]
+    out["failed_bounds"] = [f"{what}: {measured}" for what, holds, measured in checks if not holds]
+    out["meets_bounds"] = not out["failed_bounds"]
     return out
 
 
