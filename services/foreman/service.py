@@ -186,8 +186,8 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         try:
             result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
-        except (CapatazError, ValueError) as exc:
-            self.count_error("rejected", f"block {job.stream}/{job.seq} rejected", exc)
+        except (CapatazError, ValueError) as exc:  # a raw ValueError is a bug: counted apart, traceback
+            self.count_failure("rejected", f"block {job.stream}/{job.seq} rejected", exc)
             self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
             return
         self.reply(query, result)

@@ -213,8 +213,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         t0 = time.perf_counter()
         try:
             estimate = self._estimate(epoch, frame, t0)
-        except (CapatazError, ValueError) as exc:
-            self.count_error("frame_errors", f"frame {frame.seq} failed", exc)
+        except (CapatazError, ValueError) as exc:  # a raw ValueError is a bug: counted apart, traceback
+            self.count_failure("frame_errors", f"frame {frame.seq} failed", exc)
             estimate = None
         counts, self._frame_counts = self._frame_counts, {}
         timings: dict[str, float] = {}
@@ -328,8 +328,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         try:
             report = self.scatter.run(work, plan)
             measurement = merge_measurements(report.parts, stream.all_indices)
-        except (CapatazError, ValueError) as exc:  # never lose a frame: compute it here
-            self.count_error("local_fallback", f"frame {frame.seq}: round failed, computing locally", exc)
+        except (CapatazError, ValueError) as exc:  # never lose a frame: compute it here (a bug counted apart)
+            self.count_failure("local_fallback", f"frame {frame.seq}: round failed, computing locally", exc)
             stream.dispatcher.forget_history(SELF)
             measurement = own_share(stream.all_indices, stream.all_indices)
             report = None

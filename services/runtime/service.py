@@ -155,6 +155,16 @@ class ServiceRuntime:
         if n <= 20 or n % 100 == 0:
             logger.warning("%s: %s (%s #%d): %s", self.name, what, counter, n, exc)
 
+    def count_failure(self, counter: str, what: str, exc: BaseException) -> None:
+        """A step that failed and is recovered from: an expected failure (a :class:`CapatazError`: a member
+        timed out, a job was refused) is counted under ``counter``; anything else is a bug in capataz,
+        counted as ``internal_errors`` and logged with its traceback, never passed off as routine."""
+        if isinstance(exc, CapatazError):
+            self.count_error(counter, what, exc)
+            return
+        n = self.counters.inc("internal_errors")
+        logger.error("%s: %s (internal error #%d, recovered: %s)", self.name, what, n, counter, exc_info=exc)
+
     def decode_sample(self, sample: zenoh.Sample, expected: type[M]) -> M | None:
         """Decode a subscription sample; a bad one is counted and logged, and None returned."""
         try:

@@ -6,6 +6,7 @@ import time
 from typing import Any, cast
 
 import numpy as np
+import pytest
 
 from common.sim.flight import hover_flight
 from common.wire.codec import encode
@@ -71,3 +72,42 @@ def test_a_foreign_or_resized_frame_never_reaches_the_yaw_stage() -> None:
     assert master.counters.get("refused_foreign_uav") == 1 and master.counters.get("refused_wrong_size") == 1
     ok, detail = master.healthy()
     assert not ok and "2 frames refused" in detail
+
+
+def test_a_bug_in_the_round_is_an_internal_error_with_its_traceback_not_a_routine_fallback_regression(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 24: a broad ``except ValueError`` turned numpy bugs into a routine "local fallback". The frame is
+    still computed here (never lost), but the bug is counted as ``internal_errors`` and logged with its
+    traceback; an expected failure (a CapatazError) stays a ``local_fallback``."""
+    import services.master.service as master_module
+    from common.errors import CapatazError
+
+    flight = hover_flight(seed=0, n_frames=3)
+    frames = [
+        Frame(uav="uav0", seq=k, stamp_s=k / 20, width=752, height=480, pixels=flight.frame(k))
+        for k in range(3)
+    ]
+    real_merge = master_module.merge_measurements
+    failures = iter([ValueError("operands could not be broadcast"), CapatazError("a member timed out")])
+
+    def failing_merge(*args: Any, **kwargs: Any) -> Any:
+        failure = next(failures, None)
+        if failure is not None:
+            raise failure
+        return real_merge(*args, **kwargs)
+
+    monkeypatch.setattr(master_module, "merge_measurements", failing_merge)
+    master = _master(frame_queue=8)
+    estimates = []
+    for frame in frames:
+        master._on_frame(_Sample(frame))  # type: ignore[arg-type]
+        master.intake.gate_received(leading=True)
+        item = master.slot.take(0.0)
+        assert item is not None
+        with caplog.at_level("ERROR"):
+            estimates.append(master._estimate(*item, time.perf_counter()))
+    assert all(e is not None for e in estimates[1:])  # frames 1 and 2 went through the failing rounds
+    assert master.counters.get("internal_errors") == 1 and master.counters.get("local_fallback") == 1
+    bug = [r for r in caplog.records if "internal error" in r.getMessage()]
+    assert len(bug) == 1 and bug[0].exc_info is not None
