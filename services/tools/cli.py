@@ -16,6 +16,7 @@ import logging
 import re
 import signal
 import sys
+import threading
 from collections.abc import Iterator, Sequence
 from importlib import metadata
 from typing import Any, NoReturn
@@ -244,6 +245,9 @@ def _exit_on_sigterm(*_args: Any) -> NoReturn:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``capataz``'s entry point; called with ``argv`` (in-process, e.g. tests), it leaves the caller's
+    SIGTERM handling as it found it."""
+    in_process = argv is not None
     argv = sys.argv[1:] if argv is None else list(argv)
     module = requested_module(argv)
     parser = build_parser(COMMAND_MODULES if module is None else (module,))
@@ -256,7 +260,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     progress.configure(quiet=args.quiet)
     # a SIGTERM before a command installs its own handling (a service still setting up: a camera rendering
     # its flight, a localizer loading its model) ends it cleanly, exit 0, instead of killing it (-15)
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM)
+    if in_main_thread:
+        signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         return int(args.handler(args) or 0)
     except (ValidationError, UsageError) as exc:
@@ -267,6 +274,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except Exception as exc:  # never a traceback for the user; -v shows it
         return _report(args, exc, 1)
+    finally:
+        # a process keeps its handler to the end (a late SIGTERM while exiting is still a clean exit)
+        if in_process and in_main_thread and previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -101,6 +101,8 @@ def _previous(path: Path) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    # a folder that cannot be written is one line before any demo runs (not after the first one, 10 s in)
+    args.out.mkdir(parents=True, exist_ok=True)
     names = [m for m in DEMO_MODULES if not args.only or m.rsplit(".", 1)[-1] == args.only]
     path = args.out / "summary.json"
     summary = _previous(path) if args.only else {}

@@ -76,6 +76,16 @@ def test_a_file_that_cannot_be_written_is_one_line_naming_it_and_exit_1(
     assert "internal error" not in err and "Traceback" not in err
 
 
+def test_an_output_folder_that_cannot_be_made_is_one_line_before_any_demo_runs(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code = main(["run", "--out", "/proc/capataz-out", "--only", "demo_localizer"])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 1 and len(lines) == 1 and "/proc/capataz-out" in lines[0], lines
+    assert "demo" not in err and "internal error" not in err
+
+
 def test_a_calibration_whose_matrix_does_not_fill_its_size_names_the_file(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
