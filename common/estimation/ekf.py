@@ -186,12 +186,8 @@ class AttitudeAltitudeEkf:
         """One IMU sample: :meth:`predict` with the interval's ``gyro_rad_s`` over ``dt_s`` (``accel_m_s2`` is
         not used), then, unless ``measured_accel_m_s2`` is None, :meth:`update_accelerometer` with it, and the
         read-outs; one call into the model module (:mod:`common.estimation.ekf_models`)."""
-        check_duration(dt_s)
-        qn, P = predict_step(
-            state.q_world_body, state.covariance, gyro_rad_s, dt_s, self._gyro_var, self._attitude_rw_var,
-            self._altitude_rw_var,
-        )  # fmt: skip
-        new = EkfState(np.array(qn), state.pz_m, P, state.stamp_s + dt_s)
+        new = self.predict(state, gyro_rad_s, dt_s)
+        P = new.covariance
         accepted = None
         if measured_accel_m_s2 is not None:
             s = self.settings

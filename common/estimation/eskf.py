@@ -189,18 +189,11 @@ class BiasAwareEkf:
     ) -> ImuStepResult[BiasEkfState]:
         """One IMU sample: :meth:`predict` with the interval's ``gyro_rad_s`` and ``accel_m_s2`` over
         ``dt_s``, then, unless ``measured_accel_m_s2`` is None, :meth:`update_accelerometer` with it, and the
-        read-outs. Each kernel is called once, and nothing of this module after them."""
-        gyro = _vector3(gyro_rad_s, "gyro_rad_s")
-        accel = _vector3(accel_m_s2, "accel_m_s2")
+        read-outs. Each kernel is called once."""
         measured = None if measured_accel_m_s2 is None else _vector3(measured_accel_m_s2, "accel_m_s2")
         mx, my, mz = motion_accel_world_m_s2
-        check_duration(dt_s)
-        status, x, P = kernels.predict_step(
-            state.nominal, state.covariance, gyro, accel, True, float(dt_s), self._q_rate, self._q_rate2,
-            self._gravity,
-        )  # fmt: skip
-        if status != kernels.OK:
-            _raise_for(status, "predict")
+        predicted = self.predict(state, gyro_rad_s, dt_s, accel_m_s2)
+        x, P = predicted.nominal, predicted.covariance
         accepted = None
         if measured is not None:
             status, _, xu, Pu = kernels.accelerometer_step(
