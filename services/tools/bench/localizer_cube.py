@@ -38,7 +38,7 @@ from common.errors import CapatazError
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.process_noise import residual_px
-from common.localization.projection import project_posed_samples, sample_edges
+from common.localization.projection import ProjectedSamples, project_posed_samples, sample_edges
 from common.localization.refine import oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
@@ -98,19 +98,23 @@ class EdgeAlignment:
         self.scene, self.camera = scene, camera
         self.samples = sample_edges(scene, 20)
 
-    def __call__(self, image: np.ndarray, pose: CameraPose) -> tuple[float, float]:
-        edges = extract_image_edges(image, canny_low=30, canny_high=90, with_gradients=True)
+    def project(self, pose: CameraPose, with_normals: bool = False) -> ProjectedSamples:
+        """The model's sample points seen from ``pose`` (hidden ones removed): one pose, particle axis 1."""
         visible = visible_points(
             self.scene, self.samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, self.camera
         )
-        proj = project_posed_samples(
+        return project_posed_samples(
             self.samples,
             pose.R_camera_world[None],
             pose.p_world_camera_m[None],
             self.camera,
-            with_normals=True,
+            with_normals=with_normals,
             visible=visible,
         )
+
+    def __call__(self, image: np.ndarray, pose: CameraPose) -> tuple[float, float]:
+        edges = extract_image_edges(image, canny_low=30, canny_high=90, with_gradients=True)
+        proj = self.project(pose, with_normals=True)
         valid = proj.valid[0]
         if valid.sum() < 10:
             return 0.0, float("inf")
@@ -217,12 +221,7 @@ def cube_runs(
 
 
 def _overlay_frame(measure: EdgeAlignment, cube: Cube, pose: CameraPose, i: int, out_dir: Path) -> None:
-    visible = visible_points(
-        cube.scene, measure.samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, cube.camera
-    )
-    proj = project_posed_samples(
-        measure.samples, pose.R_camera_world[None], pose.p_world_camera_m[None], cube.camera, visible=visible
-    )
+    proj = measure.project(pose)  # the measure's scene and camera are the cube's
     valid = proj.valid[0]
     path = out_dir / f"localizer_cube_{i:03d}.png"
     overlay(cube.images[i], (proj.u_px[0][valid], proj.v_px[0][valid]), path)
