@@ -12,10 +12,11 @@ import zenoh
 from common.dispatch import SELF
 from common.wire import keys
 from common.wire.codec import decode
-from common.wire.messages import Stats, YawEstimate
+from common.wire.messages import YawEstimate
 from common.wire.schema import WireError
 from services.runtime.transport import zbytes
 from services.tools.loadtest.plan import FrameRecord
+from services.tools.probe import decode_stats
 
 
 @dataclass
@@ -84,9 +85,8 @@ class StatsLog:
         self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
 
     def _on_stats(self, sample: zenoh.Sample) -> None:
-        try:
-            stats = decode(zbytes(sample.payload), zbytes(sample.attachment), Stats)
-        except WireError:
+        stats = decode_stats(sample)
+        if stats is None:
             return
         name = f"{stats.role}/{stats.node}/{stats.index}"
         with self._lock:
