@@ -102,12 +102,21 @@ def field_bounds(cls: Any) -> dict[str, Bounds]:
     return {f.name: f.metadata[_KEY] for f in dataclasses.fields(cls) if _KEY in f.metadata}
 
 
+class BoundError(InputError):
+    """A settings field outside its declared bound: ``owner.field`` and the ``reason`` (what it must be and
+    what it got), apart, so a command line can name its own option for the field."""
+
+    def __init__(self, owner: str, field: str, reason: str) -> None:
+        super().__init__(f"{owner}.{field} {reason}")
+        self.owner, self.field, self.reason = owner, field, reason
+
+
 def check_bounds(obj: Any) -> None:
-    """Raise :class:`InputError` naming the first field of ``obj`` outside its declared bounds."""
+    """Raise :class:`BoundError` naming the first field of ``obj`` outside its declared bounds."""
     for name, limits in field_bounds(obj).items():
         value = getattr(obj, name)
         if not limits.holds(value):
-            raise InputError(f"{type(obj).__name__}.{name} must be {limits.describe()}, got {value!r}")
+            raise BoundError(type(obj).__name__, name, f"must be {limits.describe()}, got {value!r}")
 
 
 def check_duration(value: float, name: str = "dt_s") -> float:

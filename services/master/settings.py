@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import re
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.bounds import BoundError
 from common.dispatch import DispatchSettings
 from common.errors import InputError
 from common.members import Topology
@@ -84,13 +84,12 @@ _YAW_OPTIONS = {
 }
 
 
-def _yaw_option_error(text: str) -> str:
-    """A yaw settings error named by its option: ``--grid (columns): must be ...``."""
-    found = re.match(r"YawSettings\.(\w+) (.*)", text)
-    if found is None:
-        return f"yaw options (--grid, --patch-size, --pyramid-level): {text}"
-    field, rest = found.groups()
-    return f"{_YAW_OPTIONS.get(field, '--' + field.replace('_', '-'))}: {rest}"
+def _yaw_option_error(exc: InputError) -> str:
+    """A yaw settings error named by its option (``--grid (columns): must be ...``); a rule between fields
+    names the yaw options together."""
+    if isinstance(exc, BoundError):
+        return f"{_YAW_OPTIONS.get(exc.field, '--' + exc.field.replace('_', '-'))}: {exc.reason}"
+    return f"yaw options (--grid, --patch-size, --pyramid-level): {exc}"
 
 
 def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
@@ -101,7 +100,7 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
         # --patch-size and --pyramid-level carry the yaw settings' field names
         yaw = settings_from(YawSettings, args, grid_cols=cols, grid_rows=rows)
     except InputError as exc:
-        raise UsageError(_yaw_option_error(str(exc))) from None
+        raise UsageError(_yaw_option_error(exc)) from None
     return settings_from(
         MasterSettings,
         args,
