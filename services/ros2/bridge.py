@@ -13,7 +13,6 @@ one line (the first 20, then every 100th).
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from functools import partial
 from pathlib import Path
@@ -59,7 +58,6 @@ class Ros2Bridge(ConfiguredService[Ros2Settings]):
         self.gates = SensorGates()
         self._cameras: dict[str, Any] = {}
         self._zpub: dict[tuple[str, str], Any] = {}
-        self._publish_lock = threading.Lock()
         self.context: Any = None
         self.ros_node: Any = None
         self._static: list[Any] = []
