@@ -17,9 +17,11 @@ import time
 
 import numpy as np
 
+from common.streams import GateVerdict
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
 from services.runtime.counters import Counters
+from services.runtime.gate import InputGate
 
 #: Samples kept (10 s at 400 Hz): enough for any frame interval the master bridges.
 DEFAULT_CAPACITY = 4000
@@ -35,6 +37,12 @@ class GyroBuffer:
         self._cond = threading.Condition()
         self._tolerance_s = sample_period_tolerance_s
         self.out_of_order = 0
+
+    def clear(self) -> None:
+        """Forget every sample (the stream restarted: a new epoch at the input gate)."""
+        with self._cond:
+            self._stamps.clear()
+            self._gyro.clear()
 
     def add(self, sample: ImuSample) -> bool:
         """Append a sample; False (and counted) when it is not newer than the newest held. A sample older
@@ -81,20 +89,32 @@ class GyroBuffer:
 
 
 class GyroPrior:
-    """The master's side of the yaw prior: IMU samples in, the gyro's delta between frame stamps out."""
+    """The master's side of the yaw prior: IMU samples in (through the master's input gate), the gyro's delta
+    between frame stamps out.
+
+    A sample the gate refuses (another UAV's, a second sender's, a stamp in the future or jumping) never
+    reaches the buffer, so no single sample can make the buffer refuse the real ones after it; a restart the
+    gate adopts (a new epoch) starts the buffer over."""
 
     message_type = ImuSample
 
-    def __init__(self, enabled: bool, wait_s: float, counters: Counters) -> None:
+    def __init__(self, enabled: bool, wait_s: float, counters: Counters, gate: InputGate) -> None:
         self.enabled = enabled
         self.wait_s = wait_s
         self.buffer = GyroBuffer()
         self._counters = counters
+        self._gate = gate
 
-    def on_sample(self, imu: ImuSample | None) -> None:
-        """A decoded IMU sample (None: it failed to decode, already counted by the runtime)."""
-        if imu is not None:
-            self._counters.inc("imu_in" if self.buffer.add(imu) else "imu_refused")
+    def on_sample(self, imu: ImuSample | None, source: str | None = None) -> None:
+        """A decoded IMU sample from ``source`` (None: it failed to decode, counted by the runtime)."""
+        if imu is None:
+            return
+        decision = self._gate.admit("imu", imu, source)
+        if decision.verdict is GateVerdict.REFUSE:
+            return
+        if decision.verdict is GateVerdict.NEW_EPOCH:
+            self.buffer.clear()
+        self._counters.inc("imu_in" if self.buffer.add(imu) else "imu_refused")
 
     def delta_rad(
         self, previous_stamp_s: float | None, stamp_s: float, counts: dict[str, int]

@@ -104,7 +104,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._last_shares: dict[str, float] = {}
         #: the turn's and its frame's counts, added to the counters once when it is done (:meth:`_process`)
         self._frame_counts: dict[str, int] = {}
-        self.gyro = GyroPrior(settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters)
+        self.gyro = GyroPrior(
+            settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters, self.intake.gate
+        )
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
 
     # -- wiring -----------------------------------------------------------------------------------------
@@ -140,7 +142,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             self.election.close()
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
-        self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type))
+        self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type), source_of(sample))
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
         estimate = self.decode_sample(sample, YawEstimate)
@@ -172,9 +174,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         return {"frames": self.slot.depth(), "inbox": self.intake.inbox.depth()}
 
     def healthy(self) -> tuple[bool, str]:
-        refusals = self.intake.refusals
-        if recent := refusals.recent_refusals():
-            return False, f"degraded: {recent} frames refused in the last {refusals.window_s:.0f} s"
+        gate = self.intake.gate
+        if recent := gate.recent_refusals():
+            return False, f"degraded: {recent} inputs refused in the last {gate.window_s:.0f} s"
         role = "active" if self.election is None or self.election.leading else "standby"
         return True, role
 

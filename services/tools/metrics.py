@@ -28,7 +28,7 @@ from common.errors import CapatazError
 from common.wire import keys
 from common.wire.messages import Health, Stats
 from services.runtime.usage import UsageError
-from services.tools.observe import DROPPED_COUNTERS, REFUSED_COUNTERS
+from services.tools.observe import DROPPED_COUNTERS, is_refusal
 from services.tools.probe import (
     Deadline,
     add_probe_arguments,
@@ -148,9 +148,7 @@ class StatsExporter:
                 healthy.add_metric(values, 1.0 if health[name].ok else 0.0)
             for event, count in sorted(stats.counters.items()):
                 events.add_metric([*values, event], float(count))
-            refused.add_metric(
-                values, float(sum(v for k, v in stats.counters.items() if k in REFUSED_COUNTERS))
-            )
+            refused.add_metric(values, float(sum(v for k, v in stats.counters.items() if is_refusal(k))))
             dropped.add_metric(
                 values, float(sum(v for k, v in stats.counters.items() if k in DROPPED_COUNTERS))
             )

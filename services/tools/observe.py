@@ -20,11 +20,20 @@ from common.wire.messages import Stats, YawEstimate
 from common.wire.schema import WireError, WireModel
 from services.runtime.transport import zbytes
 
-#: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service
+#: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service,
+#: besides the input gate's ``refused_<sensor>_<reason>`` (:func:`is_refusal`)
 REFUSED_COUNTERS = frozenset(
     {"malformed", "rejected", "bad_samples", "bad_frames", "bad_images", "wrong_uav", "queue_full", "busy",
      "malformed_replies", "bad_liveliness"}
 )  # fmt: skip
+
+
+def is_refusal(counter: str) -> bool:
+    """True for a counter of refused inputs: one of :data:`REFUSED_COUNTERS` or the input gate's
+    ``refused_<sensor>_<reason>`` (and a filter's ``refused_<sensor>_<stale|duplicate|overflow>``)."""
+    return counter in REFUSED_COUNTERS or counter.startswith("refused_")
+
+
 #: counters that mean "a frame was dropped" (latest-wins hand-off replaced an unread frame)
 DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames"})
 
@@ -122,7 +131,7 @@ def member_rows(
                 "start-up s": alive_after_s.get(name, float("nan")),
                 "inputs": counters.get("frames_in") or counters.get("queries", 0),
                 "dropped": sum(counters.get(k, 0) for k in DROPPED_COUNTERS),
-                "refused": sum(v for k, v in counters.items() if k in REFUSED_COUNTERS),
+                "refused": sum(v for k, v in counters.items() if is_refusal(k)),
                 "exit": exit_codes.get(name, "-"),
             }
         )
