@@ -146,7 +146,10 @@ class MasterService(ConfiguredService[MasterSettings]):
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
         estimate = self.decode_sample(sample, YawEstimate)
-        if estimate is None or estimate.uav != self.settings.uav:
+        if estimate is None:
+            return
+        if estimate.uav != self.settings.uav:
+            self.count_error("refused_yaw_foreign_uav", "yaw of another UAV refused", f"{estimate.uav!r}")
             return
         yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
         with self._recent_lock:

@@ -4,6 +4,7 @@ and docker-compose.secure.yml."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -102,11 +103,30 @@ def test_make_certs_gives_each_role_its_common_name_and_private_keys(certs: Path
         assert (certs / f"{name}.key").stat().st_mode & 0o077 == 0, f"{name}.key is readable by others"
 
 
+def test_the_ca_key_lives_apart_from_the_role_keys_and_every_folder_is_private(tmp_path: Path) -> None:
+    """Regression (issue 27): ca.key was written among the role keys, in a folder whose mode followed the
+    umask (0755 seen)."""
+    out = tmp_path / "secure" / "certs"
+    old = os.umask(0o022)
+    try:
+        make_certs(out, ("uav0",))
+    finally:
+        os.umask(old)
+    ca_dir = tmp_path / "secure" / "certs-ca"
+    assert not (out / "ca.key").exists() and (ca_dir / "ca.key").is_file()
+    assert {p.suffix for p in out.iterdir()} == {".pem", ".key"}  # no serial or CSR left behind
+    for folder in (out, ca_dir):
+        assert folder.stat().st_mode & 0o777 == 0o700, folder
+    for key in [*out.glob("*.key"), ca_dir / "ca.key"]:
+        assert key.stat().st_mode & 0o777 == 0o600, key
+
+
 def test_running_make_certs_again_rotates_role_certificates_under_the_same_ca(
     certs: Path, tmp_path: Path
 ) -> None:
     copy = tmp_path / "c"
     shutil.copytree(certs, copy)
+    shutil.copytree(certs.parent / f"{certs.name}-ca", tmp_path / "c-ca")  # the CA key, beside them
     before_ca, before_worker = (copy / "ca.pem").read_bytes(), (copy / "worker.pem").read_bytes()
     make_certs(copy, ("uav0",))
     assert (copy / "ca.pem").read_bytes() == before_ca
