@@ -8,6 +8,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,7 +16,8 @@ import yaml
 
 from common.wire import keys
 from services.runtime.acl import PolicySettings, acl_section, markdown_table, role_table
-from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, render_config
+from services.tools.cli import build_parser
+from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, profile_of, render_config
 from tests.services.tools.test_deploy import check_compose
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -173,12 +175,14 @@ def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only(
 
 
 def test_up_takes_secure_and_zenoh_config_options() -> None:
-    from services.tools.cli import build_parser
-
-    args = build_parser().parse_args(["up", "--cluster", "deploy/clusters/local2x2.yml", "--secure"])
-    assert args.secure == Path("out/secure") and args.zenoh_config is None
-    args = build_parser().parse_args(["up", "--cluster", "x.yml", "--zenoh-config", "z.json5"])
-    assert args.zenoh_config == Path("z.json5") and args.secure is None
+    args = build_parser().parse_args(["up", "--cluster", "deploy/clusters/local2x2.yml"])
+    assert args.secure == Path("out/secure") and not args.open and args.zenoh_config is None  # the default
+    args = build_parser().parse_args(["up", "--cluster", "x.yml", "--open", "--zenoh-config", "z.json5"])
+    assert args.zenoh_config == Path("z.json5") and args.open
+    args = build_parser().parse_args(["loadtest", "--zenoh-config", "z.json5"])
+    assert args.zenoh_config == Path("z.json5") and args.secure is None  # a harness on loopback: open
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["up", "--cluster", "x.yml", "--open", "--secure", "d"])
     for command in (["up", "--cluster", "x.yml"], ["loadtest"]):
         args = build_parser().parse_args([*command, "--secure", "certs-here", "--zenoh-config", "z.json5"])
         assert args.secure == Path("certs-here") and args.zenoh_config == Path("z.json5")
@@ -202,3 +206,37 @@ def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_
     # what a role may send is unchanged: no put, no queryable for a client, no yaw put for a camera
     assert allowed("client", "ingress", "put") == set()
     assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")
+
+
+SMALL_CLUSTER = """name: small
+topology: master-foreman-worker
+balance: time
+uav: uav0
+hosts:
+  - {name: h1, workers: 1}
+"""
+
+
+@pytest.mark.zenoh
+def test_capataz_up_runs_the_secure_profile_by_default_and_open_only_when_asked(tmp_path: Path) -> None:
+    """Issue 27: ``capataz up`` without a profile option is the secure profile (certificates made on first
+    start, the CA key apart); its own read-only client receives the yaw over TLS."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed (needed to make the development certificates)")
+    spec = tmp_path / "small.yml"
+    spec.write_text(SMALL_CLUSTER)
+    command = ["up", "--cluster", str(spec), "--port", "0", "--frames", "5", "--fps", "0",
+               "--in-flight", "1", "--logs", str(tmp_path / "logs")]  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "services.tools.cli", *command],
+        capture_output=True, text=True, timeout=240, cwd=tmp_path, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert re.search(r"router tls/127\.0\.0\.1:\d+", done.stdout), done.stdout
+    assert "received 5 yaw estimates" in done.stdout, done.stdout[-1000:]
+    assert "open profile" not in done.stderr
+    certs = tmp_path / "out" / "secure" / "certs"
+    assert (certs / "master.uav0.pem").is_file() and not (certs / "ca.key").exists()
+    assert (tmp_path / "out" / "secure" / "certs-ca" / "ca.key").is_file()
+    parsed = build_parser().parse_args([*command, "--open"])
+    assert parsed.open and profile_of(parsed, ("uav0",)) is None  # the lab profile: warned, not secure

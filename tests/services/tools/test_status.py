@@ -56,7 +56,7 @@ def cluster(tmp_path: Path) -> Iterator[str]:
     spec = tmp_path / "small.yml"
     spec.write_text(SMALL_CLUSTER)
     command = [sys.executable, "-m", "services.tools.cli", "up", "--cluster", str(spec), "--port", "0",
-               "--duration", "0", "--fps", "5", "--logs", str(tmp_path / "logs")]  # fmt: skip
+               "--duration", "0", "--fps", "5", "--logs", str(tmp_path / "logs"), "--open"]  # fmt: skip
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)  # type: ignore[union-attr]
