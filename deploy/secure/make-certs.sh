@@ -2,6 +2,9 @@
 # Development CA and one certificate per capataz role (CN = role, or role.uav for UAV-bound roles).
 #
 #   deploy/secure/make-certs.sh [OUT_DIR] [UAV ...]        default: out/secure/certs uav0 uav1
+#   NODES="h1 h2" deploy/secure/make-certs.sh ...           nodes of the foremen and workers (default h1 h2 h3)
+#
+# CNs: router, client; foreman.NODE and worker.NODE per node; camera/master/estimator/localizer.UAV per UAV.
 #
 # The CA's private key lives apart from the role keys, in CA_DIR (default: OUT_DIR-ca, beside it), so that the
 # folder mounted or copied to participants never holds it; OUT_DIR holds ca.pem and the role certificates
@@ -17,8 +20,12 @@ uavs=("$@")
 [ ${#uavs[@]} -gt 0 ] || uavs=(uav0 uav1)
 days="${DAYS:-30}"
 command -v openssl >/dev/null || { echo "make-certs: openssl not found" >&2; exit 2; }
+read -r -a nodes <<< "${NODES:-h1 h2 h3}"
 for uav in "${uavs[@]}"; do
-  [[ "$uav" =~ ^[A-Za-z0-9_.-]+$ ]] || { echo "make-certs: bad UAV name '$uav'" >&2; exit 2; }
+  [[ "$uav" =~ ^[A-Za-z0-9_-]+$ ]] || { echo "make-certs: bad UAV name '$uav'" >&2; exit 2; }
+done
+for node in "${nodes[@]}"; do
+  [[ "$node" =~ ^[A-Za-z0-9_-]+$ ]] || { echo "make-certs: bad node name '$node'" >&2; exit 2; }
 done
 umask 077
 ca_dir="${CA_DIR:-${out%/}-ca}"
@@ -33,7 +40,8 @@ if [ "${NEW_CA:-0}" = 1 ] || [ ! -s "$ca_dir/ca.key" ] || [ ! -s "$out/ca.pem" ]
     -addext "basicConstraints=critical,CA:TRUE" -addext "keyUsage=critical,keyCertSign,cRLSign" 2>/dev/null
   echo "make-certs: new CA $out/ca.pem"
 fi
-names=(router foreman worker client)
+names=(router client)
+for node in "${nodes[@]}"; do names+=("foreman.$node" "worker.$node"); done
 for uav in "${uavs[@]}"; do names+=("camera.$uav" "master.$uav" "estimator.$uav" "localizer.$uav"); done
 ext="$(mktemp)"
 trap 'rm -f "$ext" "$out"/*.csr' EXIT

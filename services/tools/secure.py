@@ -16,12 +16,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from common.errors import CapatazError
+from common.members import Role
 from services.runtime import acl
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -54,11 +56,13 @@ def render_config(policy: acl.PolicySettings | None = None) -> str:
     return header + json.dumps(secure_config(policy), indent=1) + "\n"
 
 
-def make_certs(out: Path, uavs: tuple[str, ...]) -> None:
-    """Run the certificate script (a CA if there is none, then every role certificate)."""
+def make_certs(out: Path, uavs: tuple[str, ...], nodes: tuple[str, ...] = acl.DEFAULT_NODES) -> None:
+    """Run the certificate script (a CA if there is none, then every role certificate of these UAVs and
+    nodes)."""
+    env = {**os.environ, "NODES": " ".join(nodes)}
     try:
         done = subprocess.run(
-            ["bash", str(CERT_SCRIPT), str(out), *uavs], capture_output=True, text=True, check=False
+            ["bash", str(CERT_SCRIPT), str(out), *uavs], capture_output=True, text=True, check=False, env=env
         )
     except OSError as exc:
         raise SecureProfileError(f"cannot run {CERT_SCRIPT}: {exc}") from None
@@ -81,14 +85,17 @@ class SecureProfile:
         return self.root / "zenoh.json5"
 
     @classmethod
-    def ensure(cls, root: Path, uavs: tuple[str, ...] = acl.DEFAULT_UAVS) -> SecureProfile:
-        """Make what is missing: certificates for ``uavs`` and the configuration."""
+    def ensure(
+        cls, root: Path, uavs: tuple[str, ...] = acl.DEFAULT_UAVS, nodes: tuple[str, ...] = acl.DEFAULT_NODES
+    ) -> SecureProfile:
+        """Make what is missing: certificates for ``uavs`` and ``nodes`` and the configuration."""
         profile = cls(Path(root))
-        names = [acl.uav_common_name(r, u) for u in uavs for r in acl.UAV_ROLES] + list(acl.GLOBAL_NAMES)
-        if not all((profile.certs / f"{n}.pem").is_file() for n in names):
-            make_certs(profile.certs, uavs)
+        uavs = tuple(sorted(set(uavs) | set(acl.DEFAULT_UAVS)))
+        nodes = tuple(sorted(set(nodes) | set(acl.DEFAULT_NODES)))
+        if not all((profile.certs / f"{n}.pem").is_file() for n in acl.common_names(uavs, nodes)):
+            make_certs(profile.certs, uavs, nodes)
         profile.root.mkdir(parents=True, exist_ok=True)
-        policy = acl.PolicySettings(uavs=tuple(sorted(set(uavs) | set(acl.DEFAULT_UAVS))))
+        policy = acl.PolicySettings(uavs=uavs, nodes=nodes)
         profile.config.write_text(render_config(policy))
         return profile
 
@@ -106,9 +113,14 @@ class SecureProfile:
 
 
 def process_common_name(name: str, uav: str) -> str:
-    """The certificate of a local process ``role/node/i`` (or ``router``) of a cluster flying ``uav``."""
-    role = name.split("/")[0]
-    return f"{role}.{uav}" if role in {r.value for r in acl.UAV_ROLES} else role
+    """The certificate of a local process ``role/node/i`` (or ``router``) of a cluster flying ``uav``: its
+    UAV's for a UAV-bound role, its node's for a foreman or worker."""
+    role, _, rest = name.partition("/")
+    if role in {r.value for r in acl.UAV_ROLES}:
+        return acl.uav_common_name(Role(role), uav)
+    if role in {r.value for r in acl.NODE_ROLES}:
+        return acl.node_common_name(Role(role), rest.split("/")[0])
+    return role
 
 
 def participant_environment(
@@ -158,7 +170,9 @@ def add_profile_arguments(parser: argparse.ArgumentParser, secure_by_default: bo
     )
 
 
-def profile_of(args: argparse.Namespace, uavs: tuple[str, ...]) -> SecureProfile | None:
+def profile_of(
+    args: argparse.Namespace, uavs: tuple[str, ...], nodes: tuple[str, ...] = acl.DEFAULT_NODES
+) -> SecureProfile | None:
     """The secure profile a command was given (made when missing), or None for the open profile (warned)."""
     if getattr(args, "open", False) or args.secure is None:
         logger.warning(
@@ -166,7 +180,7 @@ def profile_of(args: argparse.Namespace, uavs: tuple[str, ...]) -> SecureProfile
             "and steer the election (use it in a lab only; the default is the secure profile)"
         )
         return None
-    return SecureProfile.ensure(args.secure, uavs)
+    return SecureProfile.ensure(args.secure, uavs, nodes)
 
 
 def register(subparsers: Any) -> None:
@@ -176,21 +190,25 @@ def register(subparsers: Any) -> None:
     certs.add_argument(
         "--out", type=Path, default=DEFAULT_DIR / "certs", help="folder (default out/secure/certs)"
     )
-    certs.add_argument("--uav", action="append", help="UAV ids (repeatable; default uav0 uav1)")
     config = sub.add_parser("config", help="write the secure zenoh configuration (TLS only + access control)")
     config.add_argument("--out", type=Path, help="file (default: print)")
-    config.add_argument("--uav", action="append", help="UAV ids (repeatable; default uav0 uav1)")
+    for command in (certs, config):
+        command.add_argument("--uav", action="append", help="UAV ids (repeatable; default uav0 uav1)")
+        command.add_argument(
+            "--node", action="append", help="nodes of foremen and workers (repeatable; default h1 h2 h3)"
+        )
     sub.add_parser("table", help="print the role-permission table (markdown)")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     uavs = tuple(getattr(args, "uav", None) or acl.DEFAULT_UAVS)
+    nodes = tuple(getattr(args, "node", None) or acl.DEFAULT_NODES)
     if args.secure_command == "certs":
-        make_certs(args.out, uavs)
+        make_certs(args.out, uavs, nodes)
         print(f"certificates in {args.out}")
     elif args.secure_command == "config":
-        text = render_config(acl.PolicySettings(uavs=uavs))
+        text = render_config(acl.PolicySettings(uavs=uavs, nodes=nodes))
         if args.out:
             args.out.parent.mkdir(parents=True, exist_ok=True)
             args.out.write_text(text)

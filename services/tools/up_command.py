@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        secure = profile_of(args, (spec.uav,))
+        secure = profile_of(args, (spec.uav,), tuple(h.name for h in spec.hosts))
         with LocalCluster(
             spec,
             args.logs,

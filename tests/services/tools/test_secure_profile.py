@@ -52,15 +52,22 @@ def test_least_privilege_table_of_the_issue() -> None:
     # the office flight has no estimator: its camera's simulated odometry is the one exception
     assert who_may("ingress", "put", keys.pose_vo_key("uav1")) == {"estimator.uav1", "camera.uav1"}
     assert who_may("ingress", "put", keys.pose_pf_key("uav1")) == {"localizer.uav1"}
-    work = {"capataz/node/*/foreman", "capataz/node/*/worker/*"}
-    servers = {
-        n for n in {r.common_name for r in role_table()} if allowed(n, "ingress", "declare_queryable") & work
+    # identity per node (issue 27): a foreman serves only its node's block key and queries only its node's
+    # workers; a worker serves only its node's keys; tokens, stats and health only under its node
+    for node in ("h1", "h2", "h3"):
+        assert who_may("ingress", "declare_queryable", keys.foreman_key(node)) == {f"foreman.{node}"}
+        assert who_may("ingress", "declare_queryable", f"capataz/node/{node}/worker/*") == {f"worker.{node}"}
+        assert who_may("ingress", "query", f"capataz/node/{node}/worker/*") == {f"foreman.{node}"}
+        for role in ("foreman", "worker"):
+            token = f"capataz/alive/{role}/{node}/**"
+            assert who_may("ingress", "liveliness_token", token) == {f"{role}.{node}"}
+    assert "foreman" not in {r.common_name for r in role_table()}  # no certificate valid on every node
+    queriers = {
+        n
+        for n in {r.common_name for r in role_table()}
+        if "capataz/node/*/foreman" in allowed(n, "ingress", "query")
     }
-    assert servers == {"foreman", "worker"}
-    queriers = {n for n in {r.common_name for r in role_table()} if allowed(n, "ingress", "query") & work}
-    assert queriers == {"master.uav0", "master.uav1", "foreman"}
-    assert who_may("ingress", "liveliness_token", "capataz/alive/worker/**") == {"worker"}
-    assert who_may("ingress", "liveliness_token", "capataz/alive/foreman/**") == {"foreman"}
+    assert queriers == {"master.uav0", "master.uav1"}
     client = {
         m: allowed("client", "ingress", m) for m in ("put", "declare_queryable", "liveliness_token", "reply")
     }
@@ -100,7 +107,15 @@ def subject(path: Path) -> str:
 
 
 def test_make_certs_gives_each_role_its_common_name_and_private_keys(certs: Path) -> None:
-    for name in ("router", "worker", "foreman", "client", "camera.uav0", "master.uav0", "localizer.uav0"):
+    for name in (
+        "router",
+        "worker.h1",
+        "foreman.h2",
+        "client",
+        "camera.uav0",
+        "master.uav0",
+        "localizer.uav0",
+    ):
         assert re.search(rf"CN\s*=\s*{re.escape(name)}$", subject(certs / f"{name}.pem").strip()), name
         assert (certs / f"{name}.key").stat().st_mode & 0o077 == 0, f"{name}.key is readable by others"
 
@@ -129,12 +144,13 @@ def test_running_make_certs_again_rotates_role_certificates_under_the_same_ca(
     copy = tmp_path / "c"
     shutil.copytree(certs, copy)
     shutil.copytree(certs.parent / f"{certs.name}-ca", tmp_path / "c-ca")  # the CA key, beside them
-    before_ca, before_worker = (copy / "ca.pem").read_bytes(), (copy / "worker.pem").read_bytes()
+    before_ca, before_worker = (copy / "ca.pem").read_bytes(), (copy / "worker.h1.pem").read_bytes()
     make_certs(copy, ("uav0",))
     assert (copy / "ca.pem").read_bytes() == before_ca
-    assert (copy / "worker.pem").read_bytes() != before_worker
+    assert (copy / "worker.h1.pem").read_bytes() != before_worker
     check = subprocess.run(
-        ["openssl", "verify", "-CAfile", str(copy / "ca.pem"), str(copy / "worker.pem")], capture_output=True
+        ["openssl", "verify", "-CAfile", str(copy / "ca.pem"), str(copy / "worker.h1.pem")],
+        capture_output=True,
     )
     assert check.returncode == 0
 
@@ -169,7 +185,9 @@ def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only(
         role = Path(keys_mounted[0]).stem
         # the metrics exporter is a read-only client: it subscribes to stats and queries health only
         assert name.startswith(role.split(".")[0]) or (name, role) == ("metrics", "client"), name
-        if "." in role:
+        if role.startswith(("foreman.", "worker.")):  # bound to its node
+            assert f"--node {role.split('.')[1]}" in " ".join(service["command"]), name
+        elif "." in role:
             assert f"--uav {role.split('.')[1]}" in " ".join(service["command"]), name
         assert all(v.endswith(":ro") for v in service["volumes"]), name
 
@@ -202,7 +220,7 @@ def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_
     through to the master that puts ``capataz/uav/uav0/yaw``, or the client gets nothing."""
     assert "capataz/uav/*/yaw" in allowed("master.uav0", "egress", "declare_subscriber")
     assert "capataz/uav/*/camera" not in allowed("master.uav0", "egress", "declare_subscriber")
-    assert "capataz/health/**" in allowed("worker", "egress", "query")
+    assert "capataz/health/**" in allowed("worker.h1", "egress", "query")
     # what a role may send is unchanged: no put, no queryable for a client, no yaw put for a camera
     assert allowed("client", "ingress", "put") == set()
     assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")
