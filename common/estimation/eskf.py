@@ -57,6 +57,7 @@ from common.estimation.eskf_state import (
     BiasEkfSettings,
     BiasEkfState,
     BiasUpdateResult,
+    error_variances,
 )
 from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
@@ -96,14 +97,13 @@ class BiasAwareEkf:
         self._range_var = s.range_noise_m**2
         self._yaw_var = s.yaw_noise_rad**2
         # diagonal process noise Q = dt q_rate + dt^2 q_rate2 (random walks; the gyro's white noise)
-        self._q_rate = np.r_[
-            np.full(3, s.attitude_random_walk_rad_sqrt_s**2),
-            s.altitude_random_walk_m_sqrt_s**2,
-            np.full(3, s.gyro_bias_walk_rad_s_sqrt_s**2),
-            np.full(3, s.accel_bias_walk_m_s2_sqrt_s**2),
-            np.zeros(2),
-            np.full(3, s.velocity_random_walk_m_s_sqrt_s**2),
-        ]
+        self._q_rate = error_variances(
+            s.attitude_random_walk_rad_sqrt_s,
+            s.altitude_random_walk_m_sqrt_s,
+            s.gyro_bias_walk_rad_s_sqrt_s,
+            s.accel_bias_walk_m_s2_sqrt_s,
+            s.velocity_random_walk_m_s_sqrt_s,
+        )
         self._q_rate2 = np.r_[np.full(3, s.gyro_noise_rad_s**2), np.zeros(N_ERROR - 3)]
         # plain attributes for the 400 Hz calls
         self._gravity = s.gravity_m_s2
@@ -118,14 +118,13 @@ class BiasAwareEkf:
         """A state at ``stamp_s``, at rest, zero biases, the settings' initial uncertainty."""
         qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
-        diag = np.r_[
-            np.full(3, s.initial_attitude_std_rad**2),
-            s.initial_altitude_std_m**2,
-            np.full(3, s.initial_gyro_bias_std_rad_s**2),
-            np.full(3, s.initial_accel_bias_std_m_s2**2),
-            np.zeros(2),
-            np.full(3, s.initial_velocity_std_m_s**2),
-        ]
+        diag = error_variances(
+            s.initial_attitude_std_rad,
+            s.initial_altitude_std_m,
+            s.initial_gyro_bias_std_rad_s,
+            s.initial_accel_bias_std_m_s2,
+            s.initial_velocity_std_m_s,
+        )
         return BiasEkfState.from_parts(qn, pz_m, _ZERO3, _ZERO3, np.diag(diag), stamp_s)
 
     def with_altitude(self, state: BiasEkfState, pz_m: float, std_m: float) -> BiasEkfState:
