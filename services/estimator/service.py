@@ -195,7 +195,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
                 self.count_error(
                     "frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out"
                 )
-        elif not self._backlog.offer_sample(measurement):
+        elif not self._backlog.samples.offer(measurement):
             self.count_error("queue_full", "sample refused", "the sensor queue is full")
 
     # -- the estimator thread ------------------------------------------------------------------------
