@@ -92,11 +92,15 @@ class YawCollector(_Watch):
 
 
 class StatsWatch(_Watch):
-    """The latest stats message of every member (``role/node/i``), from ``capataz/stats/**``."""
+    """The latest stats message of every member (``role/node/i``) from ``capataz/stats/**``, when each
+    arrived (``time.monotonic()``) and the first of each since :meth:`start_window` (rates over a window)."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self._lock = threading.Lock()
         self.latest: dict[str, Stats] = {}
+        self.arrival_s: dict[str, float] = {}
+        self.window_first: dict[str, Stats] = {}
+        self.messages = 0
         self.malformed = 0
         self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
 
@@ -104,12 +108,34 @@ class StatsWatch(_Watch):
         stats = self._decoded(sample, Stats)
         if stats is None:
             return
+        name = stats.member
         with self._lock:
-            self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = stats
+            self.messages += 1
+            self.window_first.setdefault(name, stats)
+            self.latest[name] = stats
+            self.arrival_s[name] = time.monotonic()
+
+    def start_window(self) -> None:
+        """A window starts: each member's first message of it is its latest one so far."""
+        with self._lock:
+            self.window_first = dict(self.latest)
+
+    def forget(self, silent_s: float, keep: frozenset[str] = frozenset()) -> None:
+        """Drop the members (but those in ``keep``) whose last stats are older than ``silent_s``."""
+        now = time.monotonic()
+        with self._lock:
+            for name in [n for n, t in self.arrival_s.items() if now - t > silent_s and n not in keep]:
+                del self.latest[name], self.arrival_s[name]
+                self.window_first.pop(name, None)
 
     def snapshot(self) -> dict[str, Stats]:
         with self._lock:
             return dict(self.latest)
+
+    def window(self) -> tuple[dict[str, Stats], dict[str, Stats], dict[str, float]]:
+        """Copies of the window's first stats, the latest stats and their arrival times, by member."""
+        with self._lock:
+            return dict(self.window_first), dict(self.latest), dict(self.arrival_s)
 
     def close(self) -> None:
         self._sub.undeclare()
