@@ -27,7 +27,7 @@ from prometheus_client.registry import CollectorRegistry
 from common.errors import CapatazError
 from common.wire.messages import Health, Stats
 from services.runtime.usage import UsageError
-from services.tools.observe import DROPPED_COUNTERS, StatsWatch, is_refusal
+from services.tools.observe import StatsWatch, dropped_count, refused_count
 from services.tools.probe import (
     Deadline,
     add_probe_arguments,
@@ -143,10 +143,8 @@ class StatsExporter:
                 healthy.add_metric(values, 1.0 if health[name].ok else 0.0)
             for event, count in sorted(stats.counters.items()):
                 events.add_metric([*values, event], float(count))
-            refused.add_metric(values, float(sum(v for k, v in stats.counters.items() if is_refusal(k))))
-            dropped.add_metric(
-                values, float(sum(v for k, v in stats.counters.items() if k in DROPPED_COUNTERS))
-            )
+            refused.add_metric(values, float(refused_count(stats.counters)))
+            dropped.add_metric(values, float(dropped_count(stats.counters)))
             for step, ms in sorted(stats.timings_ms.items()):
                 timing.add_metric([*values, step], ms / 1e3)
             for name_q, depth in sorted(stats.queue_depths.items()):

@@ -38,6 +38,16 @@ def is_refusal(counter: str) -> bool:
 DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames"})
 
 
+def refused_count(counters: Mapping[str, int]) -> int:
+    """Inputs a member refused, over all its refusal counters (:func:`is_refusal`)."""
+    return sum(v for k, v in counters.items() if is_refusal(k))
+
+
+def dropped_count(counters: Mapping[str, int]) -> int:
+    """Frames a member dropped unread, over all its drop counters (:data:`DROPPED_COUNTERS`)."""
+    return sum(v for k, v in counters.items() if k in DROPPED_COUNTERS)
+
+
 M = TypeVar("M", bound=WireModel)
 
 
@@ -156,8 +166,8 @@ def member_rows(
                 "member": name,
                 "start-up s": alive_after_s.get(name, float("nan")),
                 "inputs": counters.get("frames_in") or counters.get("queries", 0),
-                "dropped": sum(counters.get(k, 0) for k in DROPPED_COUNTERS),
-                "refused": sum(v for k, v in counters.items() if is_refusal(k)),
+                "dropped": dropped_count(counters),
+                "refused": refused_count(counters),
                 "exit": exit_codes.get(name, "-"),
             }
         )

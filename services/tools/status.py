@@ -29,7 +29,7 @@ from common.errors import CapatazError
 from common.rates import counter_rates
 from common.wire import keys
 from common.wire.messages import Health, Stats
-from services.tools.observe import DROPPED_COUNTERS, StatsWatch, is_refusal
+from services.tools.observe import StatsWatch, dropped_count, refused_count
 from services.tools.probe import (
     Deadline,
     NoMembersError,
@@ -88,8 +88,8 @@ class MemberStatus:
             "why": (self.health.detail if self.health and not self.health.ok else "") or "-",
             "rates /s": ", ".join(f"{k} {r:.3g}" for r, k in busiest) or "-",
             "queues": ", ".join(f"{k}={v}" for k, v in sorted(stats.queue_depths.items())) if stats else "-",
-            "refused": sum(v for k, v in counters.items() if is_refusal(k)),
-            "dropped": sum(v for k, v in counters.items() if k in DROPPED_COUNTERS),
+            "refused": refused_count(counters),
+            "dropped": dropped_count(counters),
         }
 
     def document(self) -> dict[str, Any]:
