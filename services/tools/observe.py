@@ -1,8 +1,10 @@
 """Watching a running cluster from a session of our own: yaw estimates and members' stats.
 
 :class:`YawCollector` keeps every yaw estimate of a UAV by frame (tests, the demo, benchmarks, ``up``);
-:class:`StatsWatch` keeps each member's latest :class:`~common.wire.messages.Stats` so that ``capataz up`` can
-report dropped frames and refused inputs per member at the end.
+:class:`StatsWatch` keeps each member's latest :class:`~common.wire.messages.Stats`, when it arrived and
+the first of a window: ``capataz up`` reports dropped frames and refused inputs per member at the end from
+it, ``capataz status`` its rates and members, ``capataz metrics`` its exporter's series
+(:func:`refused_count` and :func:`dropped_count` sum those counters for all three).
 """
 
 from __future__ import annotations
