@@ -342,6 +342,11 @@ class ServiceMessage(WireModel):
     index: int = Field(ge=0)
     uptime_s: float = Field(ge=0.0)
 
+    @property
+    def member(self) -> str:
+        """The instance's name, ``role/node/index`` (the key of the member in every report)."""
+        return f"{self.role}/{self.node}/{self.index}"
+
 
 class Stats(ServiceMessage):
     """Periodic statistics of a service (``capataz/stats/{role}/{node}/{i}``)."""

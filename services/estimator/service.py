@@ -32,7 +32,6 @@ import argparse
 import math
 import time
 from collections import deque
-from pathlib import Path
 from typing import Any, TypeVar
 
 import zenoh
@@ -52,7 +51,6 @@ from common.wire.messages import (
     UavMessage,
     YawEstimate,
 )
-from common.wire.schema import WireModel
 from services.estimator.backlog import Backlog
 from services.estimator.inputs import WHAT, Input, measurement_of
 from services.estimator.outputs import Publication, VoPath
@@ -65,7 +63,7 @@ from services.estimator.settings import (
 from services.runtime.cli import add_transport_arguments
 from services.runtime.gate import InputGate
 from services.runtime.service import ConfiguredService
-from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
 
 S = TypeVar("S", bound=UavMessage)
@@ -195,7 +193,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
                 self.count_error(
                     "frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out"
                 )
-        elif not self._backlog.offer_sample(measurement):
+        elif not self._backlog.samples.offer(measurement):
             self.count_error("queue_full", "sample refused", "the sensor queue is full")
 
     # -- the estimator thread ------------------------------------------------------------------------
@@ -266,21 +264,20 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         return turn.frame is not None
 
 
-def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
-        "estimator", help="EKF + visual odometry with double coupling (paper C); publishes attitude, pose/vo"
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_transport_arguments(parser, node_default="estimator")
     add_estimator_arguments(parser)
-    add_trajectory_argument(parser, "pose/vo")
-    add_trajectory_argument(parser, "the attitude (position 0)", flag="--attitude-trajectory")
-    parser.set_defaults(handler=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    service = EstimatorService.from_args(args, settings_from_args(args))
-    paths: dict[type[WireModel], Path | None] = {
-        PoseEstimate: args.trajectory,
-        AttitudeEstimate: args.attitude_trajectory,
-    }
-    return run_with_trajectories(service, paths)
+def register(subparsers: Any) -> None:
+    register_estimating_service(
+        subparsers,
+        "estimator",
+        "EKF + visual odometry with double coupling (paper C); publishes attitude, pose/vo",
+        add_arguments,
+        lambda args: EstimatorService.from_args(args, settings_from_args(args)),
+        {
+            PoseEstimate: ("--trajectory", "pose/vo"),
+            AttitudeEstimate: ("--attitude-trajectory", "the attitude (position 0)"),
+        },
+    )

@@ -20,7 +20,6 @@ jumps, goes back or lies in the future).
 
 from __future__ import annotations
 
-import argparse
 import logging
 import threading
 import time
@@ -47,7 +46,7 @@ from services.localizer.settings import LocalizerSettings, register_arguments, s
 from services.runtime.gate import InputGate
 from services.runtime.handoff import LatestSlot
 from services.runtime.service import ConfiguredService
-from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
 
 logger = logging.getLogger(__name__)
@@ -224,16 +223,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
 
 
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
+    register_estimating_service(
+        subparsers,
         "localizer",
-        help="tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames with paper B's particle "
+        "tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames with paper B's particle "
         "filter (--use-vo odometry) or the model tracker (--filter); publishes pose/pf",
+        register_arguments,
+        lambda args: LocalizerService.from_args(args, settings_from_args(args)),
+        {PoseEstimate: ("--trajectory", "pose/pf")},
     )
-    register_arguments(parser)
-    add_trajectory_argument(parser, "pose/pf")
-    parser.set_defaults(handler=run)
-
-
-def run(args: argparse.Namespace) -> int:
-    service = LocalizerService.from_args(args, settings_from_args(args))
-    return run_with_trajectories(service, {PoseEstimate: args.trajectory})
