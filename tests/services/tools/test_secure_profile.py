@@ -18,6 +18,7 @@ from common.wire import keys
 from services.runtime.acl import PolicySettings, acl_section, markdown_table, role_table
 from services.tools.cli import build_parser
 from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, profile_of, render_config
+from tests.builders import small_cluster_file
 from tests.services.tools.test_deploy import check_compose
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -226,13 +227,7 @@ def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_
     assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")
 
 
-SMALL_CLUSTER = """name: small
-topology: master-foreman-worker
-balance: time
-uav: uav0
-hosts:
-  - {name: h1, workers: 1}
-"""
+SMALL_CLUSTER = small_cluster_file(hosts=1)
 
 
 @pytest.mark.zenoh
