@@ -18,8 +18,8 @@ from common.wire import keys
 from services.runtime.acl import PolicySettings, acl_section, markdown_table, role_table
 from services.tools.cli import build_parser
 from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, profile_of, render_config
+from tests.builders import small_cluster_file
 from tests.services.tools.test_deploy import check_compose
-from tests.services.tools.test_status import SMALL_CLUSTER
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -225,6 +225,9 @@ def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_
     # what a role may send is unchanged: no put, no queryable for a client, no yaw put for a camera
     assert allowed("client", "ingress", "put") == set()
     assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")
+
+
+SMALL_CLUSTER = small_cluster_file(hosts=1)
 
 
 @pytest.mark.zenoh

@@ -29,18 +29,12 @@ from services.tools.cli import build_parser
 from services.tools.secure import SecureProfile, participant_environment
 from services.tools.status import Snapshot, status
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from tests.builders import small_cluster_file
 from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
 
 ROOT = Path(__file__).resolve().parents[3]
 #: router, camera, master, a foreman and a worker on each of two hosts
-SMALL_CLUSTER = """name: small
-topology: master-foreman-worker
-balance: time
-uav: uav0
-hosts:
-  - {name: h1, workers: 1}
-  - {name: h2, workers: 1}
-"""
+SMALL_CLUSTER = small_cluster_file(hosts=2)
 MEMBERS = {"router/router/0", "camera/camera/0", "master/master/0", "foreman/h1/0", "foreman/h2/0",
            "worker/h1/0", "worker/h2/0"}  # fmt: skip
 
