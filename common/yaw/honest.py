@@ -116,8 +116,8 @@ def make_prior(
     """The prior of a pair: the gyro's delta when given, else the held rate (``rate_rad_s`` None: unknown)."""
     dt = dt_s if dt_s is not None else settings.frame_period_s
     if gyro_delta_rad is not None:
-        sigma = math.radians(settings.gyro_sigma_deg_s) * dt
-        return Prior(PriorSource.GYRO, gyro_delta_rad, math.radians(settings.gyro_gate_deg), sigma**2, dt_s)
+        gate = math.radians(settings.gyro_gate_deg)
+        return Prior(PriorSource.GYRO, gyro_delta_rad, gate, gyro_variance_rad2(settings, dt), dt_s)
     if rate_rad_s is None:
         spread = math.radians(settings.max_yaw_rate_deg_s) * dt if dt_s is not None else math.pi
         return Prior(PriorSource.HOLD, 0.0, spread, spread**2, dt_s)
@@ -126,6 +126,13 @@ def make_prior(
     tolerance = min(tolerance, math.pi)
     # the held rate's error grows with the time since it was measured: a third of the tolerance is 1 sigma
     return Prior(PriorSource.HOLD, rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
+
+
+def gyro_variance_rad2(settings: YawSettings, dt_s: float) -> float:
+    """Variance of the gyro's integrated yaw over ``dt_s``: its bias (``gyro_sigma_deg_s``) times the gap,
+    and its white noise (``gyro_noise_deg_s_rthz``) integrated over the gap (a random walk)."""
+    bias = math.radians(settings.gyro_sigma_deg_s) * dt_s
+    return bias**2 + math.radians(settings.gyro_noise_deg_s_rthz) ** 2 * dt_s
 
 
 def plausible(delta_rad: float, prior: Prior, settings: YawSettings) -> bool:

@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 
 from common.consistency import error_consistency
 from common.geometry import wrap_angle_rad
-from common.sim.field import field_flight
-from common.yaw import Provenance, YawSettings
-from common.yaw.honest import WARPED_FLOOR_DEG, measured_variance_rad2
+from common.sim.field import field_flight, field_trajectory
+from common.sim.sensors import ImuNoise, simulate_imu
+from common.yaw import Provenance, YawSettings, gyro_delta_yaw_rad
+from common.yaw.honest import WARPED_FLOOR_DEG, make_prior, measured_variance_rad2
 from services.tools.bench.yaw_field import run_core
 
 
@@ -50,3 +51,28 @@ def test_measured_pairs_are_honest_on_a_held_out_field_flight() -> None:
         c = error_consistency(error[kind], variance[kind])
         assert 0.6 <= c.nees_mean <= 1.6, c
         assert 0.88 <= c.within_2_sigma <= 0.995, c
+
+
+def test_bridged_pairs_are_honest_against_the_simulated_gyro() -> None:
+    """Regression (issue 26): the bridge's variance was (0.5 deg/s * dt)^2 for the simulated MEMS gyro's
+    0.3 deg/s bias (mean NEES about 0.36, every error within 2 sigma); now the gyro's bias and noise density
+    over the gap, on 100 flights' gyros (own bias each) and stamp gaps of 25-200 ms."""
+    stamps = np.arange(0.0, 8.0, 1.0 / 400.0)
+    settings = YawSettings()
+    errors, variances = [], []
+    for seed in range(100):
+        trajectory = field_trajectory(seed, duration_s=8.0)
+        imu = simulate_imu(trajectory, stamps, ImuNoise(), seed)
+        rng = np.random.default_rng(seed)
+        t = 0.5
+        while t < 7.5:
+            gap = float(rng.uniform(0.025, 0.2))
+            delta = gyro_delta_yaw_rad(imu.stamps_s, imu.gyro_rad_s, t, t + gap)
+            assert delta is not None
+            true = trajectory.sample(np.array([t, t + gap])).euler_rad[:, 2]
+            errors.append(float(wrap_angle_rad(delta - (true[1] - true[0]))))
+            variances.append(make_prior(settings, gap, delta, None, 0.0).variance_rad2)
+            t += gap
+    c = error_consistency(np.array(errors), np.array(variances))
+    assert 0.90 <= c.within_2_sigma <= 0.98, c
+    assert 0.75 <= c.nees_mean <= 1.3, c  # 100 bias draws: the mean's spread is about sqrt(2 / 100)
