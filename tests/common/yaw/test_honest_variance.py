@@ -14,9 +14,8 @@ from common.consistency import error_consistency
 from common.geometry import wrap_angle_rad
 from common.sim.field import field_flight, field_trajectory
 from common.sim.sensors import ImuNoise, simulate_imu
-from common.yaw import Provenance, YawSettings, gyro_delta_yaw_rad
+from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
 from common.yaw.honest import WARPED_FLOOR_DEG, make_prior, measured_variance_rad2
-from services.tools.bench.yaw_field import run_core
 
 
 @settings(max_examples=50, deadline=None)
@@ -41,10 +40,19 @@ def test_measured_pairs_are_honest_on_a_held_out_field_flight() -> None:
     """Regression (issue 26): raw patch pairs reported about twice their error's standard deviation (mean
     NEES 0.24) and warped (refined) pairs too little (1.15); each kind now has a mean NEES near 1."""
     flight = field_flight("checkerboard", seed=13, n_frames=160)
-    series = run_core(flight, YawSettings())
-    error = wrap_angle_rad(np.asarray(series.delta_rad) - np.diff(flight.yaw_rad))
-    variance = np.asarray(series.delta_variance_rad2)
-    measured = np.array([p is Provenance.MEASURED for p in series.provenance])
+    settings = YawSettings(camera=flight.camera)
+    frames = list(flight.frames())
+    tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
+    stamps, imu = flight.frame_stamps_s, flight.imu
+    state = tracker.initial_state(frames[0], stamp_s=float(stamps[0]))
+    estimates = []
+    for k in range(1, len(frames)):
+        gyro = gyro_delta_yaw_rad(imu.stamps_s, imu.gyro_rad_s, float(stamps[k - 1]), float(stamps[k]))
+        state, estimate = tracker.track(state, frames[k], float(stamps[k]), gyro)
+        estimates.append(estimate)
+    error = wrap_angle_rad(np.array([e.delta_yaw_rad for e in estimates]) - np.diff(flight.yaw_rad))
+    variance = np.array([e.delta_variance_rad2 for e in estimates])
+    measured = np.array([e.provenance is Provenance.MEASURED for e in estimates])
     warped = variance > math.radians(WARPED_FLOOR_DEG) ** 2
     for kind in (measured & ~warped, measured & warped):
         assert np.count_nonzero(kind) >= 30
