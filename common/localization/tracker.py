@@ -89,6 +89,12 @@ from common.types import FloatArray
 _POSE_ROWS = [0, 1, 2, 6, 7, 8]
 
 
+def shrunk_covariance(covariance: FloatArray, shrinkage: float) -> FloatArray:
+    """A tracked pose's published covariance: shrunk towards its diagonal (``covariance_shrinkage``)."""
+    s = shrinkage
+    return np.asarray((1.0 - s) * covariance + s * np.diag(np.diag(covariance)), dtype=np.float64)
+
+
 class ModelTracker(TrackerViews):
     """Tracker against a known model; holds only immutable precomputed data (no tracking state)."""
 
@@ -261,7 +267,9 @@ class ModelTracker(TrackerViews):
         if good and fused is not None:
             motion, rejected, noise_scale = fused
             pose = motion.pose
-            covariance = motion.covariance[np.ix_(_POSE_ROWS, _POSE_ROWS)]
+            covariance = shrunk_covariance(
+                motion.covariance[np.ix_(_POSE_ROWS, _POSE_ROWS)], cfg.covariance_shrinkage
+            )
             positions[1], rotations[1] = pose.p_world_camera_m, pose.R_world_camera
         # what every frame records, tracked or not
         seen = replace(

@@ -82,8 +82,13 @@ class YawSettings(Bounded):
     max_yaw_accel_deg_s2: float = bounded(1500.0, gt=0.0, le=1e7)
     #: A measured delta further than this from the gyro's is not trusted (the gyro bridges the pair).
     gyro_gate_deg: float = bounded(2.0, gt=0.0, le=180.0)
-    #: Standard deviation of the gyro's integrated yaw per second (bias and noise), for the bridge variance.
-    gyro_sigma_deg_s: float = bounded(0.5, ge=0.0, le=1e3)
+    #: The gyro's yaw-rate bias left after calibration (1 sigma, deg/s) and its white-noise density
+    #: (deg/s/sqrt(Hz)): a bridged pair of gap dt has the variance ``(bias dt)^2 + density^2 dt``. The
+    #: defaults are the simulated MEMS gyro's (MPU-6000 class, :mod:`common.sim.sensors`); set your IMU's.
+    gyro_sigma_deg_s: float = bounded(0.3, ge=0.0, le=1e3, help="gyro yaw-rate bias, 1 sigma (deg/s)")
+    gyro_noise_deg_s_rthz: float = bounded(
+        0.005, ge=0.0, le=1e3, help="gyro white-noise density (deg/s/sqrt(Hz))"
+    )
     #: Global-stage candidates r + k 90 deg whose response reaches this fraction of the best look alike.
     ambiguity_ratio: float = bounded(0.8, gt=0.0, le=1.0)
     #: Frame period assumed for the held rate when frames carry no stamps.

@@ -136,7 +136,8 @@ def _result(
         rotation_of_homography_rad(homography, lens.centre_px) if method is not EstimateMethod.NONE else 0.0
     )
     low = not good or fit.residual_px > settings.max_residual_px or method in _UNTRUSTED
-    variance = measured_variance_rad2(fit.residual_px, fit.inlier_count, lens.lever_px)
+    warped = method is not EstimateMethod.PATCHES
+    variance = measured_variance_rad2(fit.residual_px, fit.inlier_count, lens.lever_px, warped)
     trusted = not low and plausible(delta, prior, settings)
     return PairResult(homography, method, fit, measurement, low, delta, trusted, variance)
 

@@ -25,6 +25,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.compression",
     "services.tools.bench.security",
     "services.tools.bench.ros2",
+    "services.tools.bench.consistency",
 )
 
 

@@ -37,16 +37,23 @@ AME_WINDOW = 100
 
 @dataclass
 class _Series:
-    """What one method published: integrated deltas (N - 1,), ms per pair, bridged/held pairs."""
+    """What one method published: integrated deltas (N - 1,), ms per pair, bridged/held pairs; the core's
+    also each pair's provenance, delta variance and the yaw's variance after it (``bench consistency``)."""
 
     delta_rad: list[float] = field(default_factory=list)
     ms: list[float] = field(default_factory=list)
     bridged: int = 0
+    provenance: list[Provenance] = field(default_factory=list)
+    delta_variance_rad2: list[float] = field(default_factory=list)
+    yaw_variance_rad2: list[float] = field(default_factory=list)
 
 
 class _Core:
-    def __init__(self, flight: Flight, frames: list[npt.NDArray[np.uint8]], settings: YawSettings) -> None:
+    def __init__(
+        self, flight: Flight, frames: list[npt.NDArray[np.uint8]], settings: YawSettings, gyro: bool = True
+    ) -> None:
         self.flight = flight
+        self.gyro = gyro
         self.tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
         self.state = self.tracker.initial_state(frames[0], stamp_s=float(flight.frame_stamps_s[0]))
 
@@ -54,11 +61,14 @@ class _Core:
         imu = self.flight.imu
         t0, t1 = float(self.flight.frame_stamps_s[k - 1]), float(self.flight.frame_stamps_s[k])
         start = time.thread_time()
-        gyro = gyro_delta_yaw_rad(imu.stamps_s, imu.gyro_rad_s, t0, t1)
+        gyro = gyro_delta_yaw_rad(imu.stamps_s, imu.gyro_rad_s, t0, t1) if self.gyro else None
         self.state, estimate = self.tracker.track(self.state, frame, t1, gyro)
         series.ms.append((time.thread_time() - start) * 1e3)
         series.delta_rad.append(estimate.delta_yaw_rad)
         series.bridged += int(estimate.provenance is not Provenance.MEASURED)
+        series.provenance.append(estimate.provenance)
+        series.delta_variance_rad2.append(estimate.delta_variance_rad2)
+        series.yaw_variance_rad2.append(estimate.yaw_variance_rad2)
 
 
 class _Baseline:
@@ -109,6 +119,22 @@ def run_flight(flight: Flight, settings: YawSettings) -> tuple[dict[str, Any], d
         for k in block:
             base.step(k, frames[k], base_series)
     return pair_stats(core_series, flight.yaw_rad), pair_stats(base_series, flight.yaw_rad)
+
+
+def run_core(
+    flight: Flight,
+    settings: YawSettings,
+    frames: list[npt.NDArray[np.uint8]] | None = None,
+    gyro: bool = True,
+) -> _Series:
+    """The core alone on a flight (frames given: already rendered), as :func:`run_flight` runs it: the
+    flight's calibration and the gyro prior (``gyro`` False: no IMU, untrusted pairs are held)."""
+    frames = list(flight.frames()) if frames is None else frames
+    core = _Core(flight, frames, replace(settings, camera=flight.camera), gyro)
+    series = _Series()
+    for k in range(1, len(frames)):
+        core.step(k, frames[k], series)
+    return series
 
 
 def add_field_arguments(parser: argparse.ArgumentParser) -> None:

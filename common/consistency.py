@@ -1,0 +1,122 @@
+"""Whether a published uncertainty is honest: errors against truth normalised by their own covariance.
+
+For ``N`` errors ``e_i`` (each of ``d`` components) with covariances ``P_i`` the normalised estimation error
+squared is ``NEES_i = e_i^T P_i^-1 e_i``; an honest (consistent) estimator's NEES follow a chi-square law of
+``d`` degrees of freedom, so
+
+- the share of errors "within k sigma", ``NEES_i <= q_d(p_k)`` with ``p_k = P(|z| <= k)`` of a standard normal
+  (0.683, 0.954, 0.997), is about ``p_k`` for any ``d`` (for ``d = 1`` it is ``|e| <= k sigma`` exactly);
+- the mean NEES is about ``d``, and ``N`` times it is chi-square of ``N d`` degrees of freedom if the errors
+  are independent: its two-sided 95 % bounds are ``q_{Nd}(0.025) / N`` and ``q_{Nd}(0.975) / N``.
+
+Errors of a time series are correlated (an accumulated yaw, a filter's attitude): the mean NEES still says
+whether the covariance is too small (above ``d``) or too large (below), but the bounds then are narrower than
+its true spread. Shares below the normal's say the covariance is overconfident, above it too cautious.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from common.errors import InputError
+from common.estimation.chi_square import chi_square_quantile
+from common.types import FloatArray
+
+#: ``P(|z| <= k)`` of a standard normal for k = 1, 2, 3.
+NORMAL_SHARES = tuple(math.erf(k / math.sqrt(2.0)) for k in (1, 2, 3))
+#: Two-sided probability of the mean NEES bounds.
+NEES_BOUND_PROBABILITY = 0.95
+
+
+@dataclass(frozen=True)
+class Consistency:
+    """Shares of errors within 1, 2, 3 sigma, the mean NEES and its chi-square bounds (``samples`` errors of
+    ``dof`` components); NaN without samples."""
+
+    samples: int
+    dof: int
+    within_1_sigma: float
+    within_2_sigma: float
+    within_3_sigma: float
+    nees_mean: float
+    nees_lower: float
+    nees_upper: float
+
+    @property
+    def nees_within_bounds(self) -> bool:
+        return bool(self.nees_lower <= self.nees_mean <= self.nees_upper)
+
+    def as_dict(self) -> dict[str, float | int | bool]:
+        return {
+            "samples": self.samples,
+            "dof": self.dof,
+            "within_1_sigma": self.within_1_sigma,
+            "within_2_sigma": self.within_2_sigma,
+            "within_3_sigma": self.within_3_sigma,
+            "nees_mean": self.nees_mean,
+            "nees_lower": self.nees_lower,
+            "nees_upper": self.nees_upper,
+            "nees_within_bounds": self.nees_within_bounds,
+        }
+
+
+def normalised_errors_squared(errors: npt.ArrayLike, covariances: npt.ArrayLike) -> FloatArray:
+    """NEES per sample: ``errors`` (N,) with variances (N,), or (N, d) with covariances (N, d, d).
+
+    A sample whose covariance is not positive definite (or not finite) gives ``inf`` (an error the
+    estimator claimed impossible) unless its error is zero too.
+    """
+    e = np.asarray(errors, dtype=np.float64)
+    P = np.asarray(covariances, dtype=np.float64)
+    if e.ndim == 1:
+        e, P = e[:, None], P.reshape(-1, 1, 1)
+    if e.ndim != 2 or P.shape != (e.shape[0], e.shape[1], e.shape[1]):
+        raise InputError(f"need errors (N, d) and covariances (N, d, d), got {e.shape} and {P.shape}")
+    if not np.all(np.isfinite(e)):
+        raise InputError("errors must be finite")
+    out = np.full(e.shape[0], np.inf)
+    good = np.all(np.isfinite(P), axis=(1, 2))
+    if np.any(good):
+        eigen = np.linalg.eigvalsh(0.5 * (P[good] + np.swapaxes(P[good], 1, 2)))
+        definite = np.zeros(e.shape[0], dtype=bool)
+        definite[np.flatnonzero(good)] = eigen[:, 0] > 0.0
+        if np.any(definite):
+            solved = np.linalg.solve(P[definite], e[definite][:, :, None])[:, :, 0]
+            out[definite] = np.sum(e[definite] * solved, axis=1)
+    out[~np.isfinite(out) & np.all(e == 0.0, axis=1)] = 0.0
+    return out
+
+
+def nees_bounds(samples: int, dof: int, probability: float = NEES_BOUND_PROBABILITY) -> tuple[float, float]:
+    """Two-sided ``probability`` bounds of the mean of ``samples`` independent chi-square(``dof``) values."""
+    if samples < 1 or dof < 1:
+        raise InputError(f"need samples >= 1 and dof >= 1, got {samples} and {dof}")
+    tail = (1.0 - probability) / 2.0
+    total = samples * dof
+    return chi_square_quantile(tail, total) / samples, chi_square_quantile(1.0 - tail, total) / samples
+
+
+def consistency(nees: npt.ArrayLike, dof: int) -> Consistency:
+    """Shares within 1, 2, 3 sigma and the mean NEES with its bounds, of NEES values of ``dof`` components."""
+    values = np.asarray(nees, dtype=np.float64).ravel()
+    if dof < 1:
+        raise InputError(f"dof must be >= 1, got {dof}")
+    if values.size and (np.any(np.isnan(values)) or np.any(values < 0.0)):
+        raise InputError("NEES values must be >= 0 (inf allowed)")
+    if values.size == 0:
+        nan = math.nan
+        return Consistency(0, dof, nan, nan, nan, nan, nan, nan)
+    one, two, three = (float(np.mean(values <= chi_square_quantile(p, dof))) for p in NORMAL_SHARES)
+    lower, upper = nees_bounds(int(values.size), dof)
+    return Consistency(int(values.size), dof, one, two, three, float(np.mean(values)), lower, upper)
+
+
+def error_consistency(errors: npt.ArrayLike, covariances: npt.ArrayLike) -> Consistency:
+    """:func:`consistency` of errors with their covariances (:func:`normalised_errors_squared`)."""
+    e = np.asarray(errors, dtype=np.float64)
+    dof = 1 if e.ndim == 1 else int(e.shape[1])
+    return consistency(normalised_errors_squared(e, covariances), dof)

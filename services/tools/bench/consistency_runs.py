@@ -1,0 +1,186 @@
+"""The runs of ``capataz bench consistency``: each suite's errors against truth with the uncertainty the
+service publishes with them, as NEES per sample (:func:`common.consistency.normalised_errors_squared`),
+grouped by line (what is measured) for one seed.
+
+- yaw: the field suite's flights through the core as ``bench yaw --suite field`` runs it
+  (:func:`services.tools.bench.yaw_field.run_core`), once with the gyro prior and once without an IMU, on the
+  same frames. Per pair: the published delta's error against the true yaw change over its
+  ``delta_variance_rad2``, by provenance; per frame: the accumulated yaw's error against its
+  ``yaw_variance_rad2``.
+- estimator: paper C's and the agile flight through the proposal (``rectified``,
+  :func:`common.estimation.replay.standard_estimators`); the attitude (world-frame error angles against the
+  output's own covariance, every 20th IMU output: 20 Hz) and the ``pose/vo`` position against the covariance
+  :mod:`services.estimator.outputs` publishes (the VO path's horizontal variance, the filter's altitude),
+  frames whose pair tracked.
+- localizer: the field suite's scenes (the object and the office,
+  :mod:`services.tools.bench.localizer_field`) through the model tracker with its defaults; the camera centre
+  and world-frame error angles against the state's 6x6 covariance (the ``pose/pf`` message's), by tracking
+  state.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from common.consistency import normalised_errors_squared
+from common.estimation.coupling_types import AttitudeOutput, PoseOutput
+from common.estimation.replay import standard_estimators
+from common.geometry import matrix_from_quaternion, wrap_angle_rad
+from common.localization.pose import rotation_vectors
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerSettings
+from common.localization.tracking import track_model
+from common.provenance import Provenance
+from common.sim.field import FIELD_SCENARIOS, field_flight
+from common.sim.flight import Flight, agile_flight, turns_flight
+from common.sim.stream import flight_measurements
+from common.types import FloatArray
+from common.yaw import YawSettings
+from services.estimator.outputs import VoPath, advance_path, horizontal_variance, pose_message
+from services.estimator.settings import EstimatorSettings
+from services.tools.bench.localizer_field import _object_scene, _office_scene, _start
+from services.tools.bench.yaw_field import run_core
+
+logger = logging.getLogger(__name__)
+
+#: NEES per line of one seed, and each line's degrees of freedom.
+Samples = dict[str, list[float]]
+DOF: dict[str, int] = {}
+
+#: Every n-th attitude output (400 Hz IMU -> 20 Hz, the frame rate).
+ATTITUDE_STRIDE = 20
+
+
+def _add(out: Samples, line: str, dof: int, nees: FloatArray) -> None:
+    DOF[line] = dof
+    out.setdefault(line, []).extend(float(v) for v in nees)
+
+
+def world_error_angles(R_true: FloatArray, R_estimated: FloatArray) -> FloatArray:
+    """``dtheta`` (N, 3) with ``R_true = Exp(dtheta) R_estimated``: world-frame error angles."""
+    return rotation_vectors(np.einsum("nij,nkj->nik", R_true, R_estimated))
+
+
+# ------------------------------------------------------------------------------------------------------ yaw
+def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None) -> Samples:
+    """The yaw lines of one seed over the field scenarios (each rendered once, tracked with and without a
+    gyro): ``yaw pair <provenance>`` (per pair, 1 dof) and ``yaw accumulated <gyro|no imu>`` (per frame)."""
+    out: Samples = {}
+    settings = YawSettings()
+    for name in scenarios or list(FIELD_SCENARIOS):
+        flight = field_flight(name, seed=seed, n_frames=frames)
+        rendered = list(flight.frames())
+        true_delta = np.diff(flight.yaw_rad)
+        true_yaw = flight.yaw_rad - flight.yaw_rad[0]
+        for gyro in (True, False):
+            series = run_core(flight, settings, rendered, gyro)
+            error = wrap_angle_rad(np.asarray(series.delta_rad) - true_delta)
+            nees = normalised_errors_squared(error, series.delta_variance_rad2)
+            provenance = np.array([p.value for p in series.provenance])
+            for kind in Provenance:
+                chosen = provenance == kind.value
+                if np.any(chosen):
+                    _add(out, f"yaw pair {kind.value}{'' if gyro else ' (no imu)'}", 1, nees[chosen])
+            yaw = np.cumsum(series.delta_rad)
+            accumulated = wrap_angle_rad(yaw - true_yaw[1:])
+            line = f"yaw accumulated {'gyro' if gyro else 'no imu'}"
+            _add(out, line, 1, normalised_errors_squared(accumulated, series.yaw_variance_rad2))
+        logger.info("yaw seed %d %s done", seed, name)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ estimator
+FLIGHTS: dict[str, Callable[[int], Flight]] = {
+    "paper_c": lambda seed: turns_flight(seed=seed),
+    "agile": lambda seed: agile_flight(seed=seed),
+}
+
+
+def estimator_samples(seed: int, frames: int | None, flights: list[str] | None = None) -> Samples:
+    """The estimator lines of one seed: ``estimator attitude`` (3 dof), ``estimator position`` (3 dof,
+    tracking frames), ``estimator horizontal`` (x, y) and ``estimator altitude`` (z) per flight."""
+    out: Samples = {}
+    defaults = EstimatorSettings()
+    for name in flights or list(FLIGHTS):
+        flight = FLIGHTS[name](seed)
+        estimator = standard_estimators(flight, 0, ("rectified",))["rectified"]
+        outputs: list[AttitudeOutput | PoseOutput] = []
+        for m in flight_measurements(flight, 0, frames):
+            estimator.push(m)
+            outputs.extend(estimator.process_due())
+        outputs.extend(estimator.drain())
+        attitudes = [o for o in outputs if isinstance(o, AttitudeOutput)][::ATTITUDE_STRIDE]
+        imu = flight.imu
+        idx = np.searchsorted(imu.stamps_s, np.array([o.stamp_s for o in attitudes]) - 1e-9)
+        R_true = matrix_from_quaternion(imu.true_q_world_body[idx])
+        R_est = matrix_from_quaternion(np.array([o.q_world_body for o in attitudes]))
+        P = np.array([o.attitude_covariance_world for o in attitudes])
+        _add(
+            out,
+            f"estimator attitude {name}",
+            3,
+            normalised_errors_squared(world_error_angles(R_true, R_est), P),
+        )
+        path = VoPath()
+        errors, covariances = [], []
+        for o in outputs:
+            if not isinstance(o, PoseOutput):
+                continue
+            path = advance_path(path, o, defaults.max_pair_s)
+            message = pose_message("uav0", 0, o, horizontal_variance(path, defaults.vo_drift_fraction))
+            if not o.ok:
+                continue
+            k = int(np.searchsorted(flight.frame_stamps_s, o.stamp_s - 1e-9))
+            errors.append(np.asarray(message.p_world_body_m) - flight.p_world_body_m[k])
+            covariances.append(np.asarray(message.covariance)[:3, :3])
+        e, C = np.array(errors), np.array(covariances)
+        _add(out, f"estimator position {name}", 3, normalised_errors_squared(e, C))
+        _add(out, f"estimator horizontal {name}", 2, normalised_errors_squared(e[:, :2], C[:, :2, :2]))
+        _add(out, f"estimator altitude {name}", 1, normalised_errors_squared(e[:, 2], C[:, 2, 2]))
+        logger.info("estimator seed %d %s done", seed, name)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ localizer
+def localizer_samples(seed: int, frames: int, scenes: list[str] | None = None) -> Samples:
+    """The localizer lines of one seed: ``localizer <scene> <state>`` (6 dof: camera centre and world-frame
+    error angles against the state's covariance), and the position and rotation parts of tracking frames."""
+    out: Samples = {}
+    builders = {"object": _object_scene, "office": _office_scene}
+    for name in scenes or list(builders):
+        scene = builders[name](frames, seed)
+        tracker = ModelTracker(scene.model, scene.camera, TrackerSettings())
+        rng = np.random.default_rng(40_000 + seed)
+        start = tracker.start(_start(scene, seed))
+        states = list(track_model(tracker, scene.images, scene.flight.times_s, start, rng, scene.gyro))
+        n = len(states)
+        p = np.array([s.pose.p_world_camera_m for s in states])
+        R = np.array([s.pose.R_world_camera for s in states])
+        error = np.hstack(
+            [p - scene.flight.p_world_camera_m[:n], world_error_angles(scene.flight.R_world_camera[:n], R)]
+        )
+        P = np.array([s.covariance for s in states])
+        status = np.array([s.status.value for s in states])
+        for value in sorted(set(status.tolist())):
+            chosen = status == value
+            _add(out, f"localizer {name} {value}", 6, normalised_errors_squared(error[chosen], P[chosen]))
+        tracking = status == "tracking"
+        if np.any(tracking):
+            e, C = error[tracking], P[tracking]
+            _add(
+                out,
+                f"localizer {name} tracking position",
+                3,
+                normalised_errors_squared(e[:, :3], C[:, :3, :3]),
+            )
+            _add(
+                out,
+                f"localizer {name} tracking rotation",
+                3,
+                normalised_errors_squared(e[:, 3:], C[:, 3:, 3:]),
+            )
+        logger.info("localizer seed %d %s done", seed, name)
+    return out
