@@ -1,0 +1,76 @@
+"""The rig in the yaw: the gyro prior's axis from the camera's mount and the IMU's axes, the IMU's clock."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from common.errors import InputError
+from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler, matrix_from_quaternion
+from common.sim.field import mounted_camera
+from common.yaw import gyro_delta_yaw_rad
+from common.yaw.mount import image_turn_axis_imu, imu_stamp_s
+
+unit = st.floats(-1.0, 1.0, allow_nan=False)
+quaternions = st.tuples(unit, unit, unit, unit).filter(lambda q: math.hypot(*q) > 0.1)
+rates = st.tuples(*(st.floats(-5.0, 5.0, allow_nan=False),) * 3)
+
+
+def _rotation(q: tuple[float, float, float, float]) -> np.ndarray:
+    return matrix_from_quaternion(np.asarray(q) / math.hypot(*q))
+
+
+@settings(max_examples=200, deadline=None)
+@given(q_camera=quaternions, q_imu=quaternions, omega_body=rates)
+def test_gyro_about_the_axis_is_the_rotation_about_minus_the_optical_axis(
+    q_camera: tuple[float, float, float, float],
+    q_imu: tuple[float, float, float, float],
+    omega_body: tuple[float, float, float],
+) -> None:
+    """Whatever the mount and the IMU's axes: the IMU's reading about the axis is the body's rotation rate
+    about minus the camera's optical axis (the way the image turns with +yaw under a down camera)."""
+    R_body_camera, R_body_imu = _rotation(q_camera), _rotation(q_imu)
+    omega = np.asarray(omega_body)
+    gyro_imu = R_body_imu.T @ omega
+    axis = image_turn_axis_imu(R_body_camera, R_body_imu)
+    omega_camera = R_body_camera.T @ omega
+    assert np.linalg.norm(axis) == pytest.approx(1.0)
+    assert float(gyro_imu @ axis) == pytest.approx(-omega_camera[2], abs=1e-9)
+
+
+def test_down_camera_on_a_body_aligned_imu_is_body_z() -> None:
+    assert np.allclose(image_turn_axis_imu(R_BODY_CAMERA_DOWN), [0.0, 0.0, 1.0])
+    # a camera turned about its own axis turns the image the same way: the axis does not move
+    assert np.allclose(image_turn_axis_imu(mounted_camera(0.0, 90.0)), [0.0, 0.0, 1.0])
+    # an IMU upside down: the yaw is about its -z
+    upside_down = matrix_from_euler(math.pi, 0.0, 0.0)
+    assert np.allclose(image_turn_axis_imu(R_BODY_CAMERA_DOWN, upside_down), [0.0, 0.0, -1.0])
+    # a camera tilted 10 deg backward (about body y): the axis leans with it
+    tilted = image_turn_axis_imu(mounted_camera(10.0, 0.0))
+    assert np.allclose(tilted, [math.sin(math.radians(10.0)), 0.0, math.cos(math.radians(10.0))])
+
+
+def test_the_gyro_prior_of_a_rotated_imu_is_the_aligned_ones() -> None:
+    """The same body rotation read by an IMU mounted upside down and turned: the same integrated yaw."""
+    stamps = np.arange(0.0, 0.2, 0.0025)
+    omega_body = np.column_stack([0.3 * np.sin(9 * stamps), 0.2 * np.ones_like(stamps), 1.0 + stamps])
+    R_body_imu = matrix_from_euler(math.pi, 0.0, math.pi / 2.0)
+    aligned = gyro_delta_yaw_rad(stamps, omega_body, 0.01, 0.16)
+    axis = image_turn_axis_imu(R_BODY_CAMERA_DOWN, R_body_imu)
+    rotated = gyro_delta_yaw_rad(stamps, omega_body @ R_body_imu, 0.01, 0.16, axis)
+    assert aligned is not None and rotated == pytest.approx(aligned, abs=1e-12)
+
+
+def test_imu_stamp_is_the_camera_stamp_plus_the_offset() -> None:
+    assert imu_stamp_s(1.0, 0.012) == pytest.approx(1.012)
+    with pytest.raises(InputError):
+        imu_stamp_s(1.0, math.nan)
+
+
+def test_a_reflection_is_not_a_mount() -> None:
+    with pytest.raises(InputError, match="R_body_imu"):
+        image_turn_axis_imu(R_BODY_CAMERA_DOWN, np.diag([1.0, 1.0, -1.0]))
