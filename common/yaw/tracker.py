@@ -25,6 +25,7 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, make_patch_grid
+from common.yaw.held import MeasuredPair, held_rate, with_measured_pair
 from common.yaw.honest import PriorSource, Provenance, make_prior
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, conclude_pair, lens_of
@@ -68,7 +69,8 @@ class FrameYaw:
 @dataclass(frozen=True, eq=False)
 class TrackerState:
     """Explicit tracker state: the last frame (needed only by the fallbacks), in-process its spectra, and
-    what the honest integration needs (stamp, held yaw rate, time since the last measured pair, variance).
+    what the honest integration needs (stamp, the recent measured pairs whose robust rate is held over
+    untrusted pairs without a gyro (:mod:`common.yaw.held`), time since the last measured pair, variance).
 
     Frames are kept by reference: callers must not modify a frame after passing it in.
     """
@@ -78,7 +80,7 @@ class TrackerState:
     previous_frame: U8Array
     previous_spectra: PatchSpectra | None
     stamp_s: float | None = None
-    rate_rad_s: float | None = None
+    measured_pairs: tuple[MeasuredPair, ...] = ()
     since_measured_s: float = 0.0
     yaw_variance_rad2: float = 0.0
 
@@ -159,22 +161,28 @@ class YawTracker:
         dt = stamp - state.stamp_s if stamp is not None and state.stamp_s is not None else None
         if dt is not None and dt <= 0.0:
             raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
-        prior = make_prior(self.settings, dt, gyro_delta_rad, state.rate_rad_s, state.since_measured_s)
+        held = held_rate(state.measured_pairs)
+        prior = make_prior(self.settings, dt, gyro_delta_rad, held, state.since_measured_s)
         result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
             state.previous_spectra, prior, check_global,
         )  # fmt: skip
         step_s = dt if dt is not None else self.settings.frame_period_s
-        rate: float | None
+        # the pair's end on the stamps' clock, or on a nominal one (frame periods) for unstamped frames
+        stop_s = (
+            stamp if dt is not None and stamp is not None else (state.seq + 1) * self.settings.frame_period_s
+        )
+        pairs = state.measured_pairs
         if result.trusted:
             provenance, delta, variance = Provenance.MEASURED, result.delta_rad, result.variance_rad2
-            rate, since = delta / step_s, 0.0
+            pairs, since = _with_pair(pairs, MeasuredPair(stop_s, step_s, delta)), 0.0
         elif prior.source is PriorSource.GYRO:
+            # the gyro measured this pair: its rate is as good as the camera's for a later hold
             provenance, delta, variance = Provenance.BRIDGED, prior.delta_rad, prior.variance_rad2
-            rate, since = delta / step_s, 0.0
+            pairs, since = _with_pair(pairs, MeasuredPair(stop_s, step_s, delta)), 0.0
         else:
             provenance, delta, variance = Provenance.HELD, prior.delta_rad, prior.variance_rad2
-            rate, since = state.rate_rad_s, state.since_measured_s + step_s
+            since = state.since_measured_s + step_s
         yaw = state.yaw_rad + delta
         yaw_variance = state.yaw_variance_rad2 + variance
         measured = result.method is not EstimateMethod.NONE
@@ -203,7 +211,7 @@ class YawTracker:
             previous_frame=frame,
             previous_spectra=None,
             stamp_s=stamp,
-            rate_rad_s=rate,
+            measured_pairs=pairs,
             since_measured_s=since,
             yaw_variance_rad2=yaw_variance,
         ), estimate
@@ -225,6 +233,14 @@ class YawTracker:
         measurement = measure_patches(previous, current, self.settings)
         state, estimate = self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
         return replace(state, previous_spectra=current), estimate
+
+
+def _with_pair(window: tuple[MeasuredPair, ...], pair: MeasuredPair) -> tuple[MeasuredPair, ...]:
+    """The held rate's window with ``pair``; a pair not after the window's newest (the stream switched
+    between stamped and unstamped frames) starts it over."""
+    if window and pair.stop_s <= window[-1].stop_s:
+        return (pair,)
+    return with_measured_pair(window, pair)
 
 
 def _check_stamp(stamp_s: float | None) -> float | None:
