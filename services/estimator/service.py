@@ -27,6 +27,7 @@ undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong s
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import time
 from collections import deque
@@ -65,6 +66,7 @@ from services.runtime.stamps import InputStamps
 from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
 
 S = TypeVar("S", bound=UavMessage)
+logger = logging.getLogger(__name__)
 SENSOR_QUEUE = 4096
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
 RESET_AFTER_STALE = 400
@@ -83,6 +85,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
     def setup(self) -> None:
         settings = self.settings
         self.estimator = build_estimator(settings)
+        logger.info("%s: %s", self.name, settings.rig_mount.describe())
         self._shape = self.estimator.camera.shape
         #: the samples and frames handed off by the callbacks; frames wait in a short queue (a busy moment
         #: costs latency, not frames: VO pairs stay one apart), a longer backlog skips frames evenly, and the

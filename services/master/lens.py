@@ -14,12 +14,9 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
-import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.camera import CameraModel
-from common.errors import InputError
-from common.geometry import CameraMount, check_rotation_matrix
 from common.types import FloatArray
 from common.yaw.mount import image_turn_axis_imu
 from common.yaw.settings import YawSettings
@@ -29,6 +26,7 @@ from services.runtime.camera_options import (
     camera_options_from_args,
     load_camera,
 )
+from services.runtime.mount_options import MountOptions, add_mount_options, mount_options_from_args
 from services.runtime.options import add_options, flag_of, from_core
 from services.runtime.usage import UsageError, condense_validation_error
 
@@ -48,73 +46,16 @@ class YawPriorSettings(BaseModel):
     #: how long a frame may wait for IMU samples reaching its stamp (s)
     gyro_wait_s: float = Field(default=0.05, ge=0.0, le=1.0)
     max_yaw_rate_deg_s: float = from_core(YawSettings, "max_yaw_rate_deg_s")
-    mount: str = Field(
-        default="down",
-        description="how the camera sits on the body: down, forward, or R_body_camera as 9 comma-separated "
-        "numbers (row-major); the gyro prior integrates about the axis the image turns about",
-    )
-    imu_axes: str = Field(
-        default="body",
-        description="the IMU's axes on the body: body, or R_body_imu as 9 comma-separated numbers "
-        "(row-major; gyro_body = R_body_imu gyro_imu)",
-    )
-    imu_time_offset_s: float = Field(
-        default=0.0,
-        ge=-1.0,
-        le=1.0,
-        description="the IMU's clock against the camera's (s): t_imu = t_cam + offset (Kalibr's "
-        "timeshift_cam_imu)",
-    )
-
-    @field_validator("mount")
-    @classmethod
-    def _known_mount(cls, value: str) -> str:
-        mount_rotation(value, "mount")
-        return value
-
-    @field_validator("imu_axes")
-    @classmethod
-    def _known_axes(cls, value: str) -> str:
-        mount_rotation(value, "imu_axes")
-        return value
-
-    @property
-    def R_body_camera(self) -> FloatArray:
-        return mount_rotation(self.mount, "mount")
-
-    @property
-    def R_body_imu(self) -> FloatArray:
-        return mount_rotation(self.imu_axes, "imu_axes")
+    #: the camera's mount, the IMU's axes and clock offset (the shared mount option group)
+    rig_mount: MountOptions = MountOptions()
 
     def gyro_axis_imu(self) -> FloatArray:
         """The axis, in the IMU's axes, the gyro prior integrates about (:func:`image_turn_axis_imu`)."""
-        return image_turn_axis_imu(self.R_body_camera, self.R_body_imu)
+        return image_turn_axis_imu(self.rig_mount.R_body_camera, self.rig_mount.R_body_imu)
 
     def tracker_settings(self, base: YawSettings, camera: CameraModel | None) -> YawSettings:
         """The central stage's settings with ``camera`` (:meth:`CameraSource.at` the frames' size)."""
         return replace(base, camera=camera, max_yaw_rate_deg_s=self.max_yaw_rate_deg_s)
-
-
-#: the named mounts of ``--mount`` and ``--imu-axes``
-_NAMED_ROTATIONS = {**{m.value: m.R_body_camera for m in CameraMount}, "body": np.eye(3)}
-
-
-def mount_rotation(spec: str, name: str) -> FloatArray:
-    """A named mount (down, forward, body) or 9 comma-separated numbers (row-major) as a checked rotation;
-    a ValueError naming the setting otherwise (pydantic reports it as the option's error)."""
-    text = spec.strip().lower()
-    if text in _NAMED_ROTATIONS:
-        return np.asarray(_NAMED_ROTATIONS[text], dtype=np.float64)
-    try:
-        numbers = [float(v) for v in text.replace(" ", "").split(",")]
-    except ValueError:
-        numbers = []
-    if len(numbers) != 9:
-        raise ValueError(f"{name} must be one of {sorted(_NAMED_ROTATIONS)} or 9 numbers, got {spec!r}")
-    try:
-        return check_rotation_matrix(np.reshape(numbers, (3, 3)), name)
-    except InputError as exc:
-        raise ValueError(str(exc)) from None
 
 
 class CameraSource:
@@ -134,11 +75,8 @@ class CameraSource:
 def add_yaw_prior_arguments(parser: argparse.ArgumentParser) -> None:
     """The master's camera options (the shared group) and its yaw prior's (gyro, physical rate limit, the
     camera's mount, the IMU's axes and clock offset)."""
-    add_options(
-        parser,
-        YawPriorSettings,
-        ("gyro_prior", "max_yaw_rate_deg_s", "mount", "imu_axes", "imu_time_offset_s"),
-    )
+    add_options(parser, YawPriorSettings, ("gyro_prior", "max_yaw_rate_deg_s"))
+    add_mount_options(parser)
     add_camera_options(parser, None)
 
 
@@ -151,9 +89,7 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
             lens=lens,
             gyro_prior=args.gyro_prior,
             max_yaw_rate_deg_s=args.max_yaw_rate_deg_s,
-            mount=args.mount,
-            imu_axes=args.imu_axes,
-            imu_time_offset_s=args.imu_time_offset_s,
+            rig_mount=mount_options_from_args(args),
         )
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None

@@ -109,13 +109,16 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._frame_counts: dict[str, int] = {}
         prior = settings.prior
         self.gyro = GyroPrior(
-            prior.gyro_prior, prior.gyro_wait_s, self.counters, prior.gyro_axis_imu(), prior.imu_time_offset_s
+            prior.gyro_prior,
+            prior.gyro_wait_s,
+            self.counters,
+            prior.gyro_axis_imu(),
+            prior.rig_mount.imu_time_offset_s,
         )
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
         logger.info(
-            "%s: gyro prior %s, about the IMU's axis %s (mount %s, IMU axes %s), IMU clock offset %.4f s",
-            self.name, "on" if prior.gyro_prior else "off", np.round(prior.gyro_axis_imu(), 4).tolist(),
-            prior.mount, prior.imu_axes, prior.imu_time_offset_s,
+            "%s: gyro prior %s, about the IMU's axis %s (%s)", self.name, "on" if prior.gyro_prior else "off",
+            np.round(prior.gyro_axis_imu(), 4).tolist(), prior.rig_mount.describe(),
         )  # fmt: skip
 
     # -- wiring -----------------------------------------------------------------------------------------

@@ -112,7 +112,7 @@ def test_mount_options_turn_the_gyro_prior_about_the_images_axis_on_the_imus_clo
     stamps = np.arange(0.0, 1.0, 0.0025)
     rates = np.sin(stamps * 7.0)
     counters = Counters()
-    gyro = GyroPrior(True, 0.0, counters, prior.gyro_axis_imu(), prior.imu_time_offset_s)
+    gyro = GyroPrior(True, 0.0, counters, prior.gyro_axis_imu(), prior.rig_mount.imu_time_offset_s)
     aligned = GyroBuffer()
     for t, r in zip(stamps, rates, strict=True):
         gyro.on_sample(_imu(float(t) + 0.012, -float(r)))  # the IMU's -z reads the body's +z
@@ -122,7 +122,9 @@ def test_mount_options_turn_the_gyro_prior_about_the_images_axis_on_the_imus_clo
     assert delta == pytest.approx(aligned.delta_rad(0.50, 0.55), abs=1e-12) and counts == {"gyro_prior": 1}
     assert delta is not None and abs(delta) > 0.01
     default = yaw_prior_settings_from_args(_parse())
-    assert np.allclose(default.gyro_axis_imu(), [0.0, 0.0, 1.0]) and default.imu_time_offset_s == 0.0
+    assert (
+        np.allclose(default.gyro_axis_imu(), [0.0, 0.0, 1.0]) and default.rig_mount.imu_time_offset_s == 0.0
+    )
     forward = yaw_prior_settings_from_args(_parse("--mount", "forward"))
     assert np.allclose(forward.gyro_axis_imu(), [-1.0, 0.0, 0.0])  # the image turns about minus body x
 
