@@ -12,8 +12,10 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from common.errors import InputError
+from common.geometry import R_BODY_CAMERA_DOWN
 from common.images import check_grey_image
 from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
@@ -27,6 +29,7 @@ from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.held import MeasuredPair, held_rate, with_measured_pair
 from common.yaw.honest import PriorSource, Provenance, make_prior
+from common.yaw.mount import yaw_per_image_turn
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, conclude_pair, lens_of
 
@@ -41,7 +44,8 @@ class FrameYaw:
     """Yaw of frame ``seq`` relative to frame ``seq - 1`` and integrated since frame 0.
 
     ``delta_yaw_rad`` is the change of the vehicle's yaw (ZYX yaw of q_world_body, CCW seen from above)
-    for a downward camera (``R_BODY_CAMERA_DOWN``) that was *integrated*: the measured one when
+    that was *integrated* (the image's turn times the mount's :func:`~common.yaw.mount.yaw_per_image_turn`,
+    1 for ``R_BODY_CAMERA_DOWN``): the measured one when
     ``provenance`` is ``MEASURED``, else the gyro's (``BRIDGED``) or the held rate's (``HELD``);
     ``measured_delta_rad`` is what the camera stage measured (NaN when nothing). ``homography`` (3, 3) maps
     frame seq-1 pixels to frame seq pixels (undistorted pixels when the settings carry a lens model).
@@ -103,9 +107,13 @@ class YawTracker:
     the stages after that trust it.
     """
 
-    def __init__(self, settings: YawSettings, grid: PatchGrid) -> None:
+    def __init__(
+        self, settings: YawSettings, grid: PatchGrid, R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN
+    ) -> None:
         if grid.pyramid_level != settings.pyramid_level or grid.patch_size_px != settings.patch_size_px:
             raise InputError("grid was made with other settings (pyramid level / patch size differ)")
+        #: the vehicle's yaw per radian the image turns (the camera's mount; 1 for the down mount)
+        self.yaw_per_turn = yaw_per_image_turn(R_body_camera)
         self.settings = settings
         self.grid = grid
         self.lens = lens_of(grid, settings)
@@ -183,6 +191,9 @@ class YawTracker:
         else:
             provenance, delta, variance = Provenance.HELD, prior.delta_rad, prior.variance_rad2
             since = state.since_measured_s + step_s
+        # the image's turn (measured, or the gyro's about the same axis) as the vehicle's yaw
+        k = self.yaw_per_turn
+        delta, variance = k * delta, k * k * variance
         yaw = state.yaw_rad + delta
         yaw_variance = state.yaw_variance_rad2 + variance
         measured = result.method is not EstimateMethod.NONE
@@ -201,7 +212,7 @@ class YawTracker:
             homography=result.homography,
             residual_px=float(result.fit.residual_px),
             provenance=provenance,
-            measured_delta_rad=float(result.delta_rad) if measured else math.nan,
+            measured_delta_rad=float(k * result.delta_rad) if measured else math.nan,
             delta_variance_rad2=float(variance),
             yaw_variance_rad2=float(yaw_variance),
         )

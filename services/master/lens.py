@@ -17,8 +17,9 @@ from dataclasses import replace
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.camera import CameraModel
+from common.errors import InputError
 from common.types import FloatArray
-from common.yaw.mount import image_turn_axis_imu
+from common.yaw.mount import image_turn_axis_imu, yaw_per_image_turn
 from common.yaw.settings import YawSettings
 from services.runtime.camera_options import (
     CameraOptions,
@@ -93,5 +94,9 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
         )
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None
+    try:
+        yaw_per_image_turn(prior.rig_mount.R_body_camera)
+    except InputError as exc:
+        raise UsageError(f"--mount: {exc}") from None
     CameraSource(lens)
     return prior

@@ -274,6 +274,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         tracker = YawTracker(
             self.settings.prior.tracker_settings(self.yaw_settings, self.lens.at(frame.width, frame.height)),
             grid,
+            self.settings.prior.rig_mount.R_body_camera,
         )
         state = replace(
             tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad

@@ -125,14 +125,21 @@ def test_mount_options_turn_the_gyro_prior_about_the_images_axis_on_the_imus_clo
     assert (
         np.allclose(default.gyro_axis_imu(), [0.0, 0.0, 1.0]) and default.rig_mount.imu_time_offset_s == 0.0
     )
-    forward = yaw_prior_settings_from_args(_parse("--mount", "forward"))
-    assert np.allclose(forward.gyro_axis_imu(), [-1.0, 0.0, 0.0])  # the image turns about minus body x
+    # a camera tilted 10 deg backward (about body y): the axis leans with it
+    c, s = np.cos(np.radians(10.0)), np.sin(np.radians(10.0))
+    tilted = (
+        np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        @ np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    ).ravel()
+    leaning = yaw_prior_settings_from_args(_parse("--mount", ",".join(f"{v:.17g}" for v in tilted)))
+    assert np.allclose(leaning.gyro_axis_imu(), [s, 0.0, c])
 
 
 @pytest.mark.parametrize(
     "argv",
     [
         ("--mount", "sideways"),
+        ("--mount", "forward"),  # the yaw core needs a camera looking down
         ("--mount", "1,0,0,0,1,0,0,0"),  # 8 numbers
         ("--imu-axes", "1,0,0,0,1,0,0,0,-1"),  # a reflection
         ("--imu-axes", "2,0,0,0,1,0,0,0,1"),  # not orthonormal

@@ -64,7 +64,8 @@ class _Core:
         use_imu: bool = True,
     ) -> None:
         self.flight = flight
-        self.tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
+        grid = make_patch_grid(frames[0].shape, settings)
+        self.tracker = YawTracker(settings, grid, flight.R_body_camera)
         self.state = self.tracker.initial_state(frames[0], stamp_s=float(flight.frame_stamps_s[0]))
         self.use_imu = use_imu
         self.axis_imu = image_turn_axis_imu(flight.R_body_camera, flight.imu.R_body_imu)

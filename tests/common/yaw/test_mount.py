@@ -9,11 +9,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.errors import InputError
-from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler, matrix_from_quaternion
+from common.geometry import (
+    R_BODY_CAMERA_DOWN,
+    R_BODY_CAMERA_FORWARD,
+    matrix_from_euler,
+    matrix_from_quaternion,
+)
 from common.sim.field import mounted_camera
-from common.yaw import gyro_delta_yaw_rad
-from common.yaw.mount import image_turn_axis_imu, imu_stamp_s
+from common.sim.ground import GroundTexture, camera_pose_from_body, render_ground_view
+from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
+from common.yaw.mount import image_turn_axis_imu, imu_stamp_s, yaw_per_image_turn
 
 unit = st.floats(-1.0, 1.0, allow_nan=False)
 quaternions = st.tuples(unit, unit, unit, unit).filter(lambda q: math.hypot(*q) > 0.1)
@@ -74,3 +81,45 @@ def test_imu_stamp_is_the_camera_stamp_plus_the_offset() -> None:
 def test_a_reflection_is_not_a_mount() -> None:
     with pytest.raises(InputError, match="R_body_imu"):
         image_turn_axis_imu(R_BODY_CAMERA_DOWN, np.diag([1.0, 1.0, -1.0]))
+
+
+@settings(max_examples=100, deadline=None)
+@given(tilt_deg=st.floats(0.0, 59.0), turn_deg=st.floats(-180.0, 180.0))
+def test_the_yaw_per_image_turn_is_one_over_the_cosine_of_the_tilt(tilt_deg: float, turn_deg: float) -> None:
+    """A yaw rate w about body +z turns the image by w cos(tilt) (its part about the optical axis); the
+    turn of the camera about its own axis does not matter."""
+    R = mounted_camera(tilt_deg, turn_deg)
+    k = yaw_per_image_turn(R)
+    assert k == pytest.approx(1.0 / math.cos(math.radians(tilt_deg)))
+    omega_body = np.array([0.0, 0.0, 0.7])
+    turn_rate = float((R.T @ omega_body)[2] * -1.0)  # about minus the optical axis
+    assert k * turn_rate == pytest.approx(0.7)
+
+
+def test_a_camera_that_does_not_look_down_has_no_yaw() -> None:
+    assert yaw_per_image_turn(R_BODY_CAMERA_DOWN) == 1.0
+    with pytest.raises(InputError, match="looking down"):
+        yaw_per_image_turn(R_BODY_CAMERA_FORWARD)
+
+
+def test_tracker_of_a_tilted_camera_publishes_the_vehicles_yaw(texture: GroundTexture) -> None:
+    """A camera tilted 20 deg off the down mount and turned 90 deg about its axis: a 4 deg yaw turns the image
+    by 4 cos(20) = 3.76 deg; the tracker told the mount publishes 4 deg, one assuming the down mount 3.76."""
+    camera = CameraModel.from_hfov(320, 240, 90.0)
+    R_body_camera = mounted_camera(20.0, 90.0)
+
+    def view(yaw_deg: float) -> np.ndarray:
+        R_world_body = matrix_from_euler(0.0, 0.0, math.radians(yaw_deg))
+        R, p = camera_pose_from_body(R_world_body, np.array([0.02, -0.01, 1.2]), R_body_camera)
+        return render_ground_view(texture, camera, R, p)
+
+    settings_ = YawSettings()
+    grid = make_patch_grid((camera.height, camera.width), settings_)
+    published = {}
+    for name, mount in (("told", R_body_camera), ("down", R_BODY_CAMERA_DOWN)):
+        tracker = YawTracker(settings_, grid, mount)
+        _, estimate = tracker.track(tracker.initial_state(view(30.0), stamp_s=0.0), view(34.0), 0.1)
+        assert estimate.provenance is Provenance.MEASURED
+        published[name] = math.degrees(estimate.delta_yaw_rad)
+    assert published["told"] == pytest.approx(4.0, abs=0.05)
+    assert published["down"] == pytest.approx(4.0 * math.cos(math.radians(20.0)), abs=0.05)
