@@ -1,0 +1,66 @@
+"""Double coupling on flight (b) with a rig whose camera and IMU are not the ideal ones: the camera tilted
+10 deg and turned 90 deg about its axis, the IMU upside down and turned 90 deg, its clock 12 ms ahead.
+Told the rig, the estimator keeps the bounds of the ideal rig (test_coupling); not told the IMU's axes,
+it fails, counted (its diverged altitude once raised out of the VO: a crash)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.estimation.coupling import DoubleCouplingEstimator
+from common.estimation.coupling_types import CouplingSettings
+from common.estimation.replay import camera_model_of, evaluate, run_estimators
+from common.sim.field import MOUNTED_RIG
+from common.sim.flight import Flight, turns_flight
+from common.sim.ground import GroundTexture
+from common.sim.stream import flight_measurements
+
+START, STOP = 400, 480  # as test_coupling: 4 s in the middle of the manoeuvre
+
+
+@pytest.fixture(scope="module")
+def mounted_flight(texture: GroundTexture) -> Flight:
+    return turns_flight(
+        seed=0,
+        texture=texture,
+        R_body_camera=MOUNTED_RIG.R_body_camera,
+        R_body_imu=MOUNTED_RIG.R_body_imu,
+        imu_time_offset_s=MOUNTED_RIG.imu_time_offset_s,
+    )
+
+
+def _settings(flight: Flight, **kwargs: object) -> CouplingSettings:
+    q0, q1, q2, q3 = (float(v) for v in flight.q_world_body[START])
+    return CouplingSettings(
+        initial_yaw_rad=float(flight.yaw_rad[START]),
+        initial_position_m=(float(flight.p_world_body_m[START, 0]), float(flight.p_world_body_m[START, 1])),
+        initial_q_world_body=(q0, q1, q2, q3),
+        accel_wait_for_vo_s=1.0,
+        **kwargs,  # type: ignore[arg-type]
+    )
+
+
+def test_the_estimator_told_the_rig_keeps_the_ideal_rigs_bounds(mounted_flight: Flight) -> None:
+    flight = mounted_flight
+    camera = camera_model_of(flight)
+    rig = {"R_body_imu": flight.imu.R_body_imu, "imu_time_offset_s": flight.imu.time_offset_s}
+    estimators = {
+        "rectified": DoubleCouplingEstimator(camera, flight.R_body_camera, settings=_settings(flight), **rig),
+        "traditional": DoubleCouplingEstimator(
+            camera, flight.R_body_camera, settings=_settings(flight, rectify=False), **rig
+        ),
+        "imu_axes_unknown": DoubleCouplingEstimator(camera, flight.R_body_camera, settings=_settings(flight)),
+    }
+    results = run_estimators(estimators, flight_measurements(flight, START, STOP))
+    for name in ("rectified", "traditional"):
+        errors = evaluate(results[name], flight, START)
+        assert np.all(errors.att_rmse_deg < 0.5), (name, errors.att_rmse_deg)
+        assert errors.alt_rmse_m < 0.02, (name, errors.alt_rmse_m)
+        assert errors.path_length_m > 1.0
+        assert errors.vo_final_error_m < 0.01, (name, errors.vo_final_error_m)
+        assert errors.vo_max_error_m < (0.1 if name == "rectified" else 0.01), (name, errors.vo_max_error_m)
+        assert estimators[name].counters["vo_pairs"] == STOP - START - 1
+    wrong = evaluate(results["imu_axes_unknown"], flight, START)
+    assert np.max(wrong.att_max_deg) > 10.0, wrong.att_max_deg  # the gyro read in the wrong axes
+    assert estimators["imu_axes_unknown"].counters["vo_failures"] > 0  # failed pairs, counted, no crash
