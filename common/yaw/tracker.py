@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-from common.geometry import R_BODY_CAMERA_DOWN
+from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix
 from common.images import check_grey_image
 from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
@@ -112,11 +112,17 @@ class YawTracker:
     ) -> None:
         if grid.pyramid_level != settings.pyramid_level or grid.patch_size_px != settings.patch_size_px:
             raise InputError("grid was made with other settings (pyramid level / patch size differ)")
-        #: the vehicle's yaw per radian the image turns (the camera's mount; 1 for the down mount)
-        self.yaw_per_turn = yaw_per_image_turn(R_body_camera)
+        R_bc = check_rotation_matrix(R_body_camera, "R_body_camera")
+        #: the vehicle's yaw per radian the image turns about minus the optical axis (1: the down mount)
+        self.yaw_per_turn = yaw_per_image_turn(R_bc)
+        #: a camera mounted off the down mount, with intrinsics: the correspondences are fitted in the view of
+        #: a virtual down camera, where a yaw is a turn about the centre (a tilted view of the floor turns
+        #: with a translation too); without intrinsics the image's turn is scaled to the yaw
+        self.nadir_view = settings.camera is not None and not np.allclose(R_bc, R_BODY_CAMERA_DOWN, atol=1e-9)
+        R_nadir_camera = R_BODY_CAMERA_DOWN.T @ R_bc if self.nadir_view else None
         self.settings = settings
         self.grid = grid
-        self.lens = lens_of(grid, settings)
+        self.lens = lens_of(grid, settings, R_nadir_camera)
         self._n_patches = grid.n_patches
 
     def initial_state(
@@ -170,7 +176,10 @@ class YawTracker:
         if dt is not None and dt <= 0.0:
             raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
         held = held_rate(state.measured_pairs)
-        prior = make_prior(self.settings, dt, gyro_delta_rad, held, state.since_measured_s)
+        # the gyro's turn about minus the optical axis, in the measured view's units (the nadir view: yaw)
+        k_in = self.yaw_per_turn if self.nadir_view else 1.0
+        gyro = None if gyro_delta_rad is None else k_in * gyro_delta_rad
+        prior = make_prior(self.settings, dt, gyro, held, state.since_measured_s)
         result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
             state.previous_spectra, prior, check_global,
@@ -191,8 +200,8 @@ class YawTracker:
         else:
             provenance, delta, variance = Provenance.HELD, prior.delta_rad, prior.variance_rad2
             since = state.since_measured_s + step_s
-        # the image's turn (measured, or the gyro's about the same axis) as the vehicle's yaw
-        k = self.yaw_per_turn
+        # the measured view's turn (measured, or the gyro's about the same axis) as the vehicle's yaw
+        k = 1.0 if self.nadir_view else self.yaw_per_turn
         delta, variance = k * delta, k * k * variance
         yaw = state.yaw_rad + delta
         yaw_variance = state.yaw_variance_rad2 + variance

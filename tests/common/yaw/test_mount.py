@@ -102,24 +102,41 @@ def test_a_camera_that_does_not_look_down_has_no_yaw() -> None:
         yaw_per_image_turn(R_BODY_CAMERA_FORWARD)
 
 
+CAMERA = CameraModel.from_hfov(320, 240, 90.0)
+TILTED = mounted_camera(20.0, 90.0)
+
+
+def _view(texture: GroundTexture, yaw_deg: float, x_m: float = 0.02) -> np.ndarray:
+    R_world_body = matrix_from_euler(0.0, 0.0, math.radians(yaw_deg))
+    R, p = camera_pose_from_body(R_world_body, np.array([x_m, -0.01, 1.2]), TILTED)
+    return render_ground_view(texture, CAMERA, R, p)
+
+
+def _published_deg(
+    texture: GroundTexture, mount: np.ndarray, camera: CameraModel | None, b: np.ndarray
+) -> float:
+    settings_ = YawSettings(camera=camera)
+    tracker = YawTracker(settings_, make_patch_grid((CAMERA.height, CAMERA.width), settings_), mount)
+    _, estimate = tracker.track(tracker.initial_state(_view(texture, 30.0), stamp_s=0.0), b, 0.1)
+    assert estimate.provenance is Provenance.MEASURED
+    return math.degrees(estimate.delta_yaw_rad)
+
+
 def test_tracker_of_a_tilted_camera_publishes_the_vehicles_yaw(texture: GroundTexture) -> None:
     """A camera tilted 20 deg off the down mount and turned 90 deg about its axis: a 4 deg yaw turns the image
-    by 4 cos(20) = 3.76 deg; the tracker told the mount publishes 4 deg, one assuming the down mount 3.76."""
-    camera = CameraModel.from_hfov(320, 240, 90.0)
-    R_body_camera = mounted_camera(20.0, 90.0)
+    by 4 cos(20) = 3.76 deg. Told the mount, the tracker publishes 4 deg (in the nadir view with intrinsics,
+    scaled without); assuming the down mount, 3.76."""
+    turned = _view(texture, 34.0)
+    assert _published_deg(texture, TILTED, CAMERA, turned) == pytest.approx(4.0, abs=0.03)
+    assert _published_deg(texture, TILTED, None, turned) == pytest.approx(4.0, abs=0.05)
+    down = _published_deg(texture, R_BODY_CAMERA_DOWN, None, turned)
+    assert down == pytest.approx(4.0 * math.cos(math.radians(20.0)), abs=0.05)
 
-    def view(yaw_deg: float) -> np.ndarray:
-        R_world_body = matrix_from_euler(0.0, 0.0, math.radians(yaw_deg))
-        R, p = camera_pose_from_body(R_world_body, np.array([0.02, -0.01, 1.2]), R_body_camera)
-        return render_ground_view(texture, camera, R, p)
 
-    settings_ = YawSettings()
-    grid = make_patch_grid((camera.height, camera.width), settings_)
-    published = {}
-    for name, mount in (("told", R_body_camera), ("down", R_BODY_CAMERA_DOWN)):
-        tracker = YawTracker(settings_, grid, mount)
-        _, estimate = tracker.track(tracker.initial_state(view(30.0), stamp_s=0.0), view(34.0), 0.1)
-        assert estimate.provenance is Provenance.MEASURED
-        published[name] = math.degrees(estimate.delta_yaw_rad)
-    assert published["told"] == pytest.approx(4.0, abs=0.05)
-    assert published["down"] == pytest.approx(4.0 * math.cos(math.radians(20.0)), abs=0.05)
+def test_a_tilted_camera_moving_over_the_floor_is_no_yaw_in_the_nadir_view(texture: GroundTexture) -> None:
+    """Moved 6 cm sideways (no yaw): the tilted view's flow has a curl that a fit in the raw image takes
+    for a turn; in the nadir view it is a translation, no turn."""
+    moved = _view(texture, 30.0, x_m=0.08)
+    raw = _published_deg(texture, TILTED, None, moved)
+    nadir = _published_deg(texture, TILTED, CAMERA, moved)
+    assert abs(nadir) < 0.03 and abs(raw) > 3.0 * abs(nadir), (raw, nadir)
