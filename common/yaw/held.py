@@ -6,7 +6,8 @@ error in its delta makes a rate of hundreds of deg/s (issue 26: one such gap hel
 an 8.7 deg error). Here the rate is the weighted median of the rates of the measured pairs of the last
 ``window_s`` (each weighted by its gap, so a short gap counts little and one bad pair cannot move it), and
 its *lag* is how long before the newest measured stamp that rate applies (the weighted mean of the pairs'
-midpoints): the held pair's tolerance grows with the lag and the time since measured.
+midpoints). The held pair's tolerance grows with the window's spread of rates (their noise and trend) and
+the time since measured.
 
 Pure values: the window is a tuple of :class:`MeasuredPair` carried in the tracker's frozen state.
 """
@@ -23,7 +24,7 @@ from common.errors import InputError
 __all__ = ["DEFAULT_WINDOW_S", "HeldRate", "MeasuredPair", "held_rate", "with_measured_pair"]
 
 #: Measured pairs kept for the held rate: those ending within this time of the newest (s).
-DEFAULT_WINDOW_S = 0.4
+DEFAULT_WINDOW_S = 0.3
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,7 @@ def test_old_pairs_leave_the_window_and_the_lag_is_the_weighted_midpoint() -> No
         with_measured_pair(kept, MeasuredPair(2.0, 0.0, 0.0))
 
 
-def test_the_held_tolerance_grows_with_the_lag_and_the_time_since_measured() -> None:
+def test_the_held_tolerance_grows_with_the_spread_and_the_time_since_measured() -> None:
     settings_ = YawSettings()
     held = held_rate(_window(0.5, [0.05] * 8))
     assert held is not None
@@ -81,6 +81,12 @@ def test_the_held_tolerance_grows_with_the_lag_and_the_time_since_measured() -> 
     stale = make_prior(settings_, 0.05, None, held, 2.0)
     assert fresh.source is PriorSource.HOLD and fresh.delta_rad == pytest.approx(0.025)
     assert stale.tolerance_rad > fresh.tolerance_rad and stale.variance_rad2 > fresh.variance_rad2
+    # rates spread over the window (a swing speeding up): a wider tolerance for the same held rate
+    swing = tuple(MeasuredPair(1.0 + 0.05 * (i + 1), 0.05, 0.05 * (0.5 + 0.8 * i)) for i in range(8))
+    spread = held_rate(swing)
+    assert spread is not None and spread.spread_rad_s > 1.0
+    long_gap = make_prior(settings_, 0.13, None, spread, 0.0)
+    assert long_gap.tolerance_rad > make_prior(settings_, 0.13, None, held, 0.0).tolerance_rad
 
 
 CAMERA = CameraModel.from_hfov(320, 240, 90.0)
