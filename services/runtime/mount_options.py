@@ -47,7 +47,7 @@ class MountOptions(BaseModel):
     mount: str = Field(
         default="down",
         description="how the camera sits on the body: down, forward, or R_body_camera as 9 comma-separated "
-        "numbers (row-major)",
+        "numbers (row-major; --mount=-0.17,... when the first is negative)",
     )
     imu_axes: str = Field(
         default="body",
