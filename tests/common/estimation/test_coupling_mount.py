@@ -8,8 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from common.camera import CameraModel
+from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import CouplingSettings
+from common.estimation.measurements import ImuMeasurement
 from common.estimation.replay import camera_model_of, evaluate, run_estimators
 from common.sim.field import MOUNTED_RIG
 from common.sim.flight import Flight, turns_flight
@@ -64,3 +67,17 @@ def test_the_estimator_told_the_rig_keeps_the_ideal_rigs_bounds(mounted_flight: 
     wrong = evaluate(results["imu_axes_unknown"], flight, START)
     assert np.max(wrong.att_max_deg) > 10.0, wrong.att_max_deg  # the gyro read in the wrong axes
     assert estimators["imu_axes_unknown"].counters["vo_failures"] > 0  # failed pairs, counted, no crash
+
+
+def test_imu_samples_enter_in_the_body_axes_on_the_camera_clock() -> None:
+    R_body_imu = MOUNTED_RIG.R_body_imu
+    estimator = DoubleCouplingEstimator(CameraModel.default(), R_body_imu=R_body_imu, imu_time_offset_s=0.012)
+    gyro, accel = np.array([0.1, -0.2, 0.3]), np.array([0.0, 0.5, -9.8])
+    m = estimator.imu_in_body(ImuMeasurement(1.012, gyro, accel))
+    assert m.stamp_s == pytest.approx(1.0)
+    assert np.allclose(m.gyro_rad_s, R_body_imu @ gyro) and np.allclose(m.accel_m_s2, R_body_imu @ accel)
+    assert np.allclose(m.accel_m_s2, [0.5, 0.0, 9.8])  # upside down, turned 90 deg: gravity's reaction up
+    with pytest.raises(InputError, match="R_body_imu"):
+        DoubleCouplingEstimator(CameraModel.default(), R_body_imu=np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(InputError, match="offset"):
+        DoubleCouplingEstimator(CameraModel.default(), imu_time_offset_s=5.0)
