@@ -47,12 +47,16 @@ def _settings(flight: Flight, **kwargs: object) -> CouplingSettings:
 def test_the_estimator_told_the_rig_keeps_the_ideal_rigs_bounds(mounted_flight: Flight) -> None:
     flight = mounted_flight
     camera = camera_model_of(flight)
-    rig = {"R_body_imu": flight.imu.R_body_imu, "imu_time_offset_s": flight.imu.time_offset_s}
+    R_bi, offset = flight.imu.R_body_imu, flight.imu.time_offset_s
+
+    def told(settings: CouplingSettings) -> DoubleCouplingEstimator:
+        return DoubleCouplingEstimator(
+            camera, flight.R_body_camera, settings=settings, R_body_imu=R_bi, imu_time_offset_s=offset
+        )
+
     estimators = {
-        "rectified": DoubleCouplingEstimator(camera, flight.R_body_camera, settings=_settings(flight), **rig),
-        "traditional": DoubleCouplingEstimator(
-            camera, flight.R_body_camera, settings=_settings(flight, rectify=False), **rig
-        ),
+        "rectified": told(_settings(flight)),
+        "traditional": told(_settings(flight, rectify=False)),
         "imu_axes_unknown": DoubleCouplingEstimator(camera, flight.R_body_camera, settings=_settings(flight)),
     }
     results = run_estimators(estimators, flight_measurements(flight, START, STOP))
