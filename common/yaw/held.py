@@ -46,13 +46,21 @@ class MeasuredPair:
 
 @dataclass(frozen=True)
 class HeldRate:
-    """The rate to hold (rad/s), how long before the newest measured stamp it applies (s, >= 0), and the
-    weighted spread of the window's rates about it (rad/s; 0 with a single pair)."""
+    """The rate to hold (rad/s: the newest pair's, or the window's robust line at its midpoint), the line's
+    trend (rad/s^2; 0 with fewer than :data:`MIN_TREND_PAIRS` pairs), how long before the newest stamp the
+    window's pairs lie on average (s, >= 0), and the rates' weighted scatter about the line (rad/s)."""
 
     rate_rad_s: float
     lag_s: float
     spread_rad_s: float
     pairs: int
+    trend_rad_s2: float = 0.0
+
+
+#: The trend needs this many pairs.
+MIN_TREND_PAIRS = 3
+#: The newest pair's own rate is held unless its gap is shorter than this share of the window's median gap.
+SHORT_GAP_SHARE = 0.5
 
 
 def with_measured_pair(
@@ -84,13 +92,36 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
 
 
 def held_rate(window: tuple[MeasuredPair, ...]) -> HeldRate | None:
-    """The robust rate of the window's pairs (None for an empty window)."""
+    """The robust rate of the window's pairs at its newest stamp (None for an empty window): a weighted
+    Theil-Sen line through the pairs' rates at their midpoints (the slope is the weighted median of the
+    slopes between pairs, each weighted by the product of their gaps; the rate at the newest stamp the
+    weighted median of the pairs' rates carried along it to the newest pair's midpoint), so an accelerating
+    swing is not held at the rate it had a few pairs ago, and a pair far off the others (a short gap's bad
+    delta) moves nothing."""
     if not window:
         return None
     rates = np.array([p.rate_rad_s for p in window])
     weights = np.array([p.dt_s for p in window])
-    rate = _weighted_median(rates, weights)
+    mids = np.array([p.mid_s for p in window])
     newest = window[-1].stop_s
-    lag = newest - float(np.sum(weights * np.array([p.mid_s for p in window])) / np.sum(weights))
-    spread = float(np.sum(weights * np.abs(rates - rate)) / np.sum(weights))
-    return HeldRate(rate, max(lag, 0.0), spread, len(window))
+    trend = 0.0
+    if rates.size >= MIN_TREND_PAIRS:
+        i, j = np.triu_indices(rates.size, k=1)
+        apart = mids[j] - mids[i]
+        usable = apart > 1e-6
+        if np.any(usable):
+            slopes = (rates[j] - rates[i])[usable] / apart[usable]
+            trend = _weighted_median(slopes, (weights[i] * weights[j])[usable])
+    # the line at the newest pair's midpoint: no further than the old one-pair rate from its data
+    at_s = window[-1].mid_s
+    carried = rates + trend * (at_s - mids)
+    rate = _weighted_median(carried, weights)
+    residual = np.abs(carried - rate)
+    spread = float(np.sum(weights * residual) / np.sum(weights))
+    # the newest pair's own rate is the freshest, unless its gap is short: then its delta's error makes a
+    # rate error of that error over a few ms (issue 26: 155 deg/s from a 20 ms gap), and the line's is held
+    last = window[-1]
+    if last.dt_s >= SHORT_GAP_SHARE * float(np.median(weights)):
+        rate = last.rate_rad_s
+    lag = newest - float(np.sum(weights * mids) / np.sum(weights))
+    return HeldRate(rate, max(lag, 0.0), spread, len(window), trend)

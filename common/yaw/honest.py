@@ -110,10 +110,10 @@ def make_prior(
     """The prior of a pair: the gyro's delta when given, else the held rate of the recent measured pairs
     (:func:`~common.yaw.held.held_rate`; None: unknown).
 
-    The held delta's error is bounded by what the yaw acceleration limit allows over the pair's interval and
-    the time since measured, plus the window's rates' spread about the held rate (twice its weighted mean
-    absolute deviation: the noise of the rates and their trend over the window, i.e. the lag of the rate)
-    over the interval; a third of that is one sigma, so the variance grows with the time since measured.
+    The held delta's error is bounded by what the yaw acceleration limit (plus the window's own trend, up
+    to that limit) allows over the pair's interval and the time since measured, plus twice the rates'
+    scatter about the window's line over the interval; a third of that is one sigma, so the variance grows
+    with the time since measured.
     """
     dt = dt_s if dt_s is not None else settings.frame_period_s
     if gyro_delta_rad is not None:
@@ -123,7 +123,8 @@ def make_prior(
         spread = math.radians(settings.max_yaw_rate_deg_s) * dt if dt_s is not None else math.pi
         return Prior(PriorSource.HOLD, 0.0, spread, spread**2, dt_s)
     accel = math.radians(settings.max_yaw_accel_deg_s2)
-    drift = accel * dt * (dt + since_measured_s) + 2.0 * held.spread_rad_s * dt
+    trend = min(abs(held.trend_rad_s2), accel)
+    drift = (accel + trend) * dt * (dt + since_measured_s) + 2.0 * held.spread_rad_s * dt
     tolerance = min(max(drift, math.radians(MIN_HOLD_TOLERANCE_DEG)), math.pi)
     return Prior(PriorSource.HOLD, held.rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
 
