@@ -55,3 +55,11 @@ def yaw_estimate(**fields: Any) -> YawEstimate:
         "method": "patch",
     }
     return YawEstimate(**{**values, **fields})
+
+
+def small_cluster_file(hosts: int) -> str:
+    """The cluster file (YAML) of a small ``capataz up`` for ``uav0``: router, camera, master, and a foreman
+    and a worker on each of the hosts ``h1`` ... ``h<hosts>``."""
+    lines = ["name: small", "topology: master-foreman-worker", "balance: time", "uav: uav0", "hosts:"]
+    lines += [f"  - {{name: h{i}, workers: 1}}" for i in range(1, hosts + 1)]
+    return "\n".join(lines) + "\n"

@@ -54,7 +54,7 @@ def test_the_readme_is_a_map_and_every_quick_start_block_is_run() -> None:
     assert section.count("```bash") == len(QUICK_STARTS) == len(quick_starts(section)), (
         "a block with no marker"
     )
-    assert {"client", "client-tls", "recording", "model", "ros2", "loadtest", "compose"} <= set(QUICK_STARTS)
+    assert {"client", "client-open", "recording", "model", "ros2", "loadtest", "compose"} <= set(QUICK_STARTS)
 
 
 def test_every_relative_link_of_the_readme_and_docs_resolves() -> None:
@@ -113,11 +113,12 @@ def run_quick_start(quick: QuickStart, tmp_path: Path) -> tuple[Path, str]:
 
 
 @pytest.mark.zenoh
-@pytest.mark.parametrize("name", ["client", "client-tls"])
+@pytest.mark.parametrize("name", ["client", "client-open"])
 def test_a_client_reads_the_yaw_of_a_local_cluster(name: str, tmp_path: Path) -> None:
     _, output = run_quick_start(QUICK_STARTS[name], tmp_path)
     estimates = re.findall(r"^frame \d+: yaw [+-]\d+\.\d+ rad, sigma \d+\.\d+ rad \(\w+\)$", output, re.M)
     assert len(estimates) >= 20, output[-2000:]
+    assert ("open profile" in output) is (name == "client-open"), output[-2000:]  # said at start, when open
 
 
 @pytest.mark.zenoh

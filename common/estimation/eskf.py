@@ -30,8 +30,6 @@ separate as soon as the vehicle yaws, which is what these states let the filter 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
 
@@ -43,20 +41,25 @@ from common.estimation.ekf import ImuStepResult
 from common.estimation.ekf_models import (
     EkfError,
     check_initial,
-    rangefinder_model,
     with_reset_block,
-    yaw_model,
 )
-from common.estimation.eskf_math import attitude_covariance_world, compile_kernels, error_jacobian
+from common.estimation.eskf_math import (
+    attitude_covariance_world,
+    checked_position,
+    compile_kernels,
+    error_jacobian,
+    range_observation,
+    yaw_observation,
+)
 from common.estimation.eskf_state import (
     BA,
     N_ERROR,
     PXY,
     PZ,
-    THETA,
     BiasEkfSettings,
     BiasEkfState,
     BiasUpdateResult,
+    error_variances,
 )
 from common.geometry import matrix_from_quaternion
 from common.types import FloatArray
@@ -96,14 +99,13 @@ class BiasAwareEkf:
         self._range_var = s.range_noise_m**2
         self._yaw_var = s.yaw_noise_rad**2
         # diagonal process noise Q = dt q_rate + dt^2 q_rate2 (random walks; the gyro's white noise)
-        self._q_rate = np.r_[
-            np.full(3, s.attitude_random_walk_rad_sqrt_s**2),
-            s.altitude_random_walk_m_sqrt_s**2,
-            np.full(3, s.gyro_bias_walk_rad_s_sqrt_s**2),
-            np.full(3, s.accel_bias_walk_m_s2_sqrt_s**2),
-            np.zeros(2),
-            np.full(3, s.velocity_random_walk_m_s_sqrt_s**2),
-        ]
+        self._q_rate = error_variances(
+            s.attitude_random_walk_rad_sqrt_s,
+            s.altitude_random_walk_m_sqrt_s,
+            s.gyro_bias_walk_rad_s_sqrt_s,
+            s.accel_bias_walk_m_s2_sqrt_s,
+            s.velocity_random_walk_m_s_sqrt_s,
+        )
         self._q_rate2 = np.r_[np.full(3, s.gyro_noise_rad_s**2), np.zeros(N_ERROR - 3)]
         # plain attributes for the 400 Hz calls
         self._gravity = s.gravity_m_s2
@@ -118,14 +120,13 @@ class BiasAwareEkf:
         """A state at ``stamp_s``, at rest, zero biases, the settings' initial uncertainty."""
         qn, pz_m, stamp_s = check_initial(q_world_body, pz_m, stamp_s)
         s = self.settings
-        diag = np.r_[
-            np.full(3, s.initial_attitude_std_rad**2),
-            s.initial_altitude_std_m**2,
-            np.full(3, s.initial_gyro_bias_std_rad_s**2),
-            np.full(3, s.initial_accel_bias_std_m_s2**2),
-            np.zeros(2),
-            np.full(3, s.initial_velocity_std_m_s**2),
-        ]
+        diag = error_variances(
+            s.initial_attitude_std_rad,
+            s.initial_altitude_std_m,
+            s.initial_gyro_bias_std_rad_s,
+            s.initial_accel_bias_std_m_s2,
+            s.initial_velocity_std_m_s,
+        )
         return BiasEkfState.from_parts(qn, pz_m, _ZERO3, _ZERO3, np.diag(diag), stamp_s)
 
     def with_altitude(self, state: BiasEkfState, pz_m: float, std_m: float) -> BiasEkfState:
@@ -239,12 +240,8 @@ class BiasAwareEkf:
     ) -> BiasUpdateResult:
         """Horizontal position ``p_xy_m`` (navigation frame, e.g. the visual odometry's), std ``noise_m``
         (default ``settings.position_noise_m``)."""
-        p = np.asarray(p_xy_m, dtype=np.float64).reshape(-1)
-        if p.shape != (2,) or not np.all(np.isfinite(p)):
-            raise InputError(f"p_xy_m must be 2 finite numbers, got {p_xy_m!r}")
         std = self.settings.position_noise_m if noise_m is None else float(noise_m)
-        if not (math.isfinite(std) and std > 0.0):
-            raise InputError(f"position noise must be finite and > 0, got {std}")
+        p = checked_position(p_xy_m, std)
         PHt = np.ascontiguousarray(state.covariance[:, PXY])
         S = PHt[PXY] + np.eye(2) * std**2
         return self._correct(state, PHt, S, p - state.p_xy_m, "position update")
@@ -277,32 +274,18 @@ class BiasAwareEkf:
     def update_yaw(
         self, state: BiasEkfState, yaw_rad: float, yaw_noise_rad: float | None = None
     ) -> BiasUpdateResult:
-        """Yaw ``[cos psi, sin psi]`` of eq. 19 (``yaw_rad`` may be unwrapped)."""
-        if not math.isfinite(yaw_rad):
-            raise InputError(f"yaw_rad must be finite, got {yaw_rad}")
-        q = state.q_world_body.tolist()
-        qt = (q[0], q[1], q[2], q[3])
-        h, Hq = yaw_model(qt)
-        H = np.zeros((2, N_ERROR))
-        H[:, THETA] = np.array(Hq) @ error_jacobian(qt)
+        """Yaw ``[cos psi, sin psi]`` of eq. 19 (:func:`.eskf_math.yaw_observation`)."""
+        y, H = yaw_observation(state.q_world_body, yaw_rad)
         var = self._yaw_var if yaw_noise_rad is None else float(yaw_noise_rad) ** 2
-        y = np.array([math.cos(yaw_rad) - h[0], math.sin(yaw_rad) - h[1]])
         PHt = state.covariance @ H.T
         return self._correct(state, PHt, H @ PHt + np.eye(2) * var, y, "yaw update")
 
     def update_range(self, state: BiasEkfState, range_m: float) -> BiasUpdateResult:
-        """Rangefinder with the tilt model of eq. 21."""
-        if not (math.isfinite(range_m) and range_m > 0.0):
-            raise InputError(f"range_m must be finite and > 0, got {range_m}")
-        q = state.q_world_body.tolist()
-        qt = (q[0], q[1], q[2], q[3])
-        h, Hrow = rangefinder_model(qt, state.pz_m)
-        H = np.zeros((1, N_ERROR))
-        H[0, THETA] = np.array(Hrow[:4]) @ error_jacobian(qt)
-        H[0, PZ] = Hrow[4]
+        """Rangefinder with the tilt model of eq. 21 (:func:`.eskf_math.range_observation`)."""
+        y, H = range_observation(state.q_world_body, state.pz_m, range_m)
         PHt = state.covariance @ H.T
         S = H @ PHt + np.array([[self._range_var]])
-        return self._correct(state, PHt, S, np.array([range_m - h]), "range update")
+        return self._correct(state, PHt, S, y, "range update")
 
     def _correct(
         self, state: BiasEkfState, PHt: FloatArray, S: FloatArray, y: FloatArray, what: str

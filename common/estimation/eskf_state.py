@@ -26,6 +26,24 @@ THETA, PZ, BG, BA, PXY, VXY, VZ = slice(0, 3), 3, slice(4, 7), slice(7, 10), sli
 N_ERROR = kernels.N_ERR
 
 
+def error_variances(
+    attitude_rad: float,
+    altitude_m: float,
+    gyro_bias_rad_s: float,
+    accel_bias_m_s2: float,
+    velocity_m_s: float,
+) -> FloatArray:
+    """The (N_ERROR,) diagonal of squares of per-block standard deviations (or random-walk densities), in the
+    error-state layout: the same value on each axis of a block, 0 for the horizontal position."""
+    diag = np.zeros(N_ERROR)
+    diag[THETA] = attitude_rad**2
+    diag[PZ] = altitude_m**2
+    diag[BG] = gyro_bias_rad_s**2
+    diag[BA] = accel_bias_m_s2**2
+    diag[VXY] = diag[VZ] = velocity_m_s**2
+    return diag
+
+
 @dataclass(frozen=True)
 class BiasEkfSettings(EkfSettings):
     """:class:`EkfSettings` plus the bias states' priors and random walks, and the inertial navigation's."""

@@ -374,3 +374,23 @@ def project_posed_samples(
         normal_u=normal_u,
         normal_v=normal_v,
     )
+
+
+def project_pose_samples(
+    samples: EdgeSamples,
+    R_camera_world: FloatArray,
+    p_world_camera: FloatArray,
+    camera: CameraModel,
+    with_normals: bool = False,
+    visible: BoolArray | None = None,
+) -> ProjectedSamples:
+    """:func:`project_posed_samples` for one camera ``R_camera_world`` (3, 3) at ``p_world_camera`` (3,): the
+    result keeps the particle axis, of length 1."""
+    return project_posed_samples(
+        samples,
+        R_camera_world[None],
+        p_world_camera[None],
+        camera,
+        with_normals=with_normals,
+        visible=visible,
+    )

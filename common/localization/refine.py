@@ -25,7 +25,7 @@ import numpy.typing as npt
 from common.bounds import Bounded, bounded
 from common.camera import CameraModel
 from common.localization.pose import CameraPose, rotation_matrices
-from common.localization.projection import EdgeSamples, project_posed_samples
+from common.localization.projection import EdgeSamples, project_pose_samples
 from common.localization.scoring import ImageEdges
 from common.types import BoolArray, Float32Array, FloatArray
 
@@ -151,13 +151,8 @@ def _visible_projection(
     """Pixels, unit normals and camera-frame points of the valid sample points of one pose."""
     p_world_camera = -R_camera_world.T @ t_camera_world
     samples = fit.samples
-    proj = project_posed_samples(
-        samples,
-        R_camera_world[None],
-        p_world_camera[None],
-        fit.camera,
-        with_normals=True,
-        visible=fit.visible,
+    proj = project_pose_samples(
+        samples, R_camera_world, p_world_camera, fit.camera, with_normals=True, visible=fit.visible
     )
     assert proj.normal_u is not None and proj.normal_v is not None
     valid = proj.valid[0]
@@ -188,9 +183,7 @@ def match_measures(
     matches an edge in spots, not along it (the square); the whole outline on the object's edges scores
     most."""
     R, t = R_camera_world, t_camera_world
-    proj = project_posed_samples(
-        fit.samples, R[None], (-R.T @ t)[None], fit.camera, with_normals=True, visible=fit.visible
-    )
+    proj = project_pose_samples(fit.samples, R, -R.T @ t, fit.camera, with_normals=True, visible=fit.visible)
     assert proj.normal_u is not None and proj.normal_v is not None
     valid = proj.valid[0]
     n = int(valid.sum())

@@ -21,7 +21,12 @@ from common.localization.fused import (
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.process_noise import NoiseState, observe_interval, pixel_scale
-from common.localization.projection import EdgeSamples, project_posed_samples, sample_edges
+from common.localization.projection import (
+    EdgeSamples,
+    project_pose_samples,
+    project_posed_samples,
+    sample_edges,
+)
 from common.localization.scoring import (
     ImageEdges,
     ScoringMethod,
@@ -182,10 +187,10 @@ class TrackerViews:
         """The search centre turned by :func:`~common.localization.search.chamfer_turn` (the model's
         projection shifted to where the image's edges fit it best), or unchanged."""
         oriented = edges.oriented_lookup is not None
-        projected = project_posed_samples(
+        projected = project_pose_samples(
             self.samples,
-            centre.R_camera_world[None],
-            centre.p_world_camera_m[None],
+            centre.R_camera_world,
+            centre.p_world_camera_m,
             self.camera,
             with_normals=oriented,
             visible=self._visible(centre),
@@ -212,12 +217,8 @@ class TrackerViews:
 
     def _points_in_view(self, pose: CameraPose) -> int:
         """Sample points of the model in view from ``pose`` (culled, inside the image, not hidden)."""
-        projected = project_posed_samples(
-            self.samples,
-            pose.R_camera_world[None],
-            pose.p_world_camera_m[None],
-            self.camera,
-            visible=self._visible(pose),
+        projected = project_pose_samples(
+            self.samples, pose.R_camera_world, pose.p_world_camera_m, self.camera, visible=self._visible(pose)
         )
         return int(projected.valid.sum())
 

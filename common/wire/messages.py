@@ -18,6 +18,7 @@ from common.bounds import field_bounds
 from common.errors import InputError
 from common.provenance import Provenance
 from common.wire.schema import (
+    MAX_BUDGET_S,
     MAX_CROP_SIDE_PX,
     MAX_FRAME_SIDE_PX,
     MAX_JOB_PATCHES,
@@ -245,7 +246,7 @@ class PatchJob(WireModel):
     prev_indices: np.ndarray
     prev_crops: np.ndarray
     #: time budget of the request in seconds (a foreman gives its workers part of it).
-    budget_s: float = Field(gt=0.0, default=1.0)
+    budget_s: float = Field(gt=0.0, le=MAX_BUDGET_S, default=1.0)
 
     @model_validator(mode="after")
     def _consistent(self) -> PatchJob:
@@ -340,6 +341,11 @@ class ServiceMessage(WireModel):
     node: str
     index: int = Field(ge=0)
     uptime_s: float = Field(ge=0.0)
+
+    @property
+    def member(self) -> str:
+        """The instance's name, ``role/node/index`` (the key of the member in every report)."""
+        return f"{self.role}/{self.node}/{self.index}"
 
 
 class Stats(ServiceMessage):

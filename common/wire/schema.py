@@ -33,6 +33,7 @@ MAX_FRAME_SIDE_PX = 8192
 MAX_JOB_PATCHES = 4096
 MAX_CROP_SIDE_PX = 512
 MAX_JOB_PIXELS = 1 << 24  # crops + previous crops of one job (16 MB)
+MAX_BUDGET_S = 10.0  # a job's time budget: a worker may hold a job (and its crops) this long at most
 
 
 class WireError(CapatazError):

@@ -126,6 +126,74 @@ class SpectrumCache:
                 self.evicted += 1
 
 
+@dataclasses.dataclass
+class _FrameCrops:
+    """One frame's crops as they came (each add's array) and where each patch's crop is in them."""
+
+    arrays: list[np.ndarray] = dataclasses.field(default_factory=list)
+    rows: dict[int, tuple[int, int]] = dataclasses.field(default_factory=dict)
+    nbytes: int = 0
+
+
+class CropStore:
+    """Crops of the two newest frames of each stream, by patch index (a foreman's: a share moved to another
+    worker, or re-dispatched after a failure, needs the previous frame's crops); bounded in total, across
+    streams: beyond ``max_bytes`` of crops the least recently stored streams are evicted (never the one just
+    stored). Each add's crops are held as one array, copied when it is a view (a decoded message's arrays
+    view its whole payload), so what is held is what is counted.
+
+    Two frames are kept because a second block of frame k (re-dispatched by the master) still refers to frame
+    k-1 after the first block of frame k was stored. Not thread-safe: one thread serves a foreman's blocks.
+    """
+
+    def __init__(self, max_bytes: int | None = None, frames: int = 2) -> None:
+        self._frames: OrderedDict[str, dict[int, _FrameCrops]] = OrderedDict()
+        self._keep = frames
+        #: the budget across streams (None: unbounded; a foreman's comes from its ``--cache-mb``)
+        self.max_bytes = max_bytes
+        self.nbytes = 0
+        self.evicted = 0
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
+        frames = self._frames.setdefault(stream, {})
+        self._frames.move_to_end(stream)
+        if frames and seq + self._keep < min(frames):
+            self._drop(frames, list(frames))  # the stream restarted (a new camera run counts from 0 again)
+        elif frames and seq < min(frames) and len(frames) >= self._keep:
+            return  # older than everything kept
+        held = crops if crops.base is None and crops.flags.c_contiguous else np.array(crops, copy=True)
+        entry = frames.setdefault(seq, _FrameCrops())
+        chunk = len(entry.arrays)
+        entry.arrays.append(held)
+        entry.rows.update((index, (chunk, row)) for row, index in enumerate(indices.tolist()))
+        entry.nbytes += held.nbytes
+        self.nbytes += held.nbytes
+        self._drop(frames, sorted(frames)[: -self._keep])
+        while self.max_bytes is not None and self.nbytes > self.max_bytes and len(self._frames) > 1:
+            _, oldest = self._frames.popitem(last=False)
+            self._drop(oldest, list(oldest))
+            self.evicted += 1
+
+    def get(self, stream: str, seq: int, indices: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        if indices.size == 0:
+            return np.zeros((0, *shape), dtype=np.uint8)
+        entry = self._frames.get(stream, {}).get(seq)
+        if entry is None:
+            raise PatchWorkError(f"no crops of frame {seq} of {stream}")
+        try:
+            where = [entry.rows[int(i)] for i in indices]
+        except KeyError as exc:
+            raise PatchWorkError(f"no crop of patch {exc} in frame {seq} of {stream}") from None
+        return np.stack([entry.arrays[chunk][row] for chunk, row in where])
+
+    def _drop(self, frames: dict[int, _FrameCrops], seqs: list[int]) -> None:
+        for seq in seqs:
+            self.nbytes -= frames.pop(seq).nbytes
+
+
 def measure_share(
     cache: SpectrumCache,
     settings: YawSettings,

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Generic, Protocol, TypeVar
 
 from common.errors import InputError
+from services.runtime.handoff import WorkQueue
 
 
 class Stamped(Protocol):
@@ -148,9 +149,10 @@ class Turn(Generic[S, F]):
 
 
 class Backlog(Generic[S, F]):
-    """The sensor samples (a bounded FIFO: ``offer_sample`` refuses beyond ``sample_capacity``), the frames
-    (:class:`SpacedFrameQueue`) and the samples held back for them (:class:`HeldSamples`). Callbacks offer,
-    the estimator thread takes turns (:meth:`next`)."""
+    """The sensor samples (:attr:`samples`, a :class:`~services.runtime.handoff.WorkQueue`: its ``offer``
+    refuses beyond ``sample_capacity``), the frames (:class:`SpacedFrameQueue`) and the samples held back for
+    them (:class:`HeldSamples`). Callbacks offer, the estimator thread takes turns (:meth:`next`); a frame
+    wakes it through the sample queue."""
 
     def __init__(
         self, sample_capacity: int, frame_capacity: int, max_pair_s: float, max_backlog_s: float
@@ -158,25 +160,15 @@ class Backlog(Generic[S, F]):
         if sample_capacity < 1:
             raise InputError(f"the sample queue needs a capacity of at least 1, got {sample_capacity}")
         self.sample_capacity = sample_capacity
-        self._samples: deque[S] = deque()
-        self._cond = threading.Condition()
+        #: the sensor samples' queue: callbacks offer to it (False when full: the caller counts the refusal)
+        self.samples: WorkQueue[S] = WorkQueue(sample_capacity)
         self.frames: SpacedFrameQueue[F] = SpacedFrameQueue(frame_capacity, max_pair_s, max_backlog_s)
         self.held: HeldSamples[S] = HeldSamples(sample_capacity)
-
-    def offer_sample(self, sample: S) -> bool:
-        """Queue a sample (callbacks); False when the queue is full (the caller counts the refusal)."""
-        with self._cond:
-            if len(self._samples) >= self.sample_capacity:
-                return False
-            self._samples.append(sample)
-            self._cond.notify()
-            return True
 
     def offer_frame(self, frame: F) -> F | None:
         """Queue a frame (callbacks); the frame skipped to make room, if any."""
         skipped = self.frames.offer(frame)
-        with self._cond:
-            self._cond.notify()
+        self.samples.wake()
         return skipped
 
     def next(self, timeout_s: float) -> Turn[S, F]:
@@ -185,11 +177,9 @@ class Backlog(Generic[S, F]):
         arrived before the samples newer than it: they are held until it is applied; a frame arriving later is
         newer than them all. Samples beyond the held capacity are released at once (the oldest)."""
         idle = not self.held and self.frames.depth() == 0
-        with self._cond:
-            if idle and not self._samples:
-                self._cond.wait(timeout_s)
-            drained = list(self._samples)
-            self._samples.clear()
+        if idle:
+            self.samples.wait(timeout_s)
+        drained = self.samples.drain()
         first, rest = (drained[:1], drained[1:]) if idle else ([], drained)
         released = self.held.add(first) + self.held.add(rest)
         taken = self.frames.take()
@@ -199,4 +189,4 @@ class Backlog(Generic[S, F]):
         return Turn(released + self.held.until(frame.stamp_s), frame, spacing)
 
     def depths(self) -> dict[str, int]:
-        return {"samples": len(self._samples), "frames": self.frames.depth(), "held": len(self.held)}
+        return {"samples": self.samples.depth(), "frames": self.frames.depth(), "held": len(self.held)}

@@ -11,7 +11,7 @@ Subscribes to ``capataz/uav/{uav}/imu``, ``.../range``, ``.../camera`` (and, wit
 Callbacks only decode, check and hand off, on zenoh's receiving thread in arrival order, to the
 :class:`~services.estimator.backlog.Backlog`: IMU, range and yaw samples to a bounded FIFO (refusals counted
 as ``queue_full``), frames to a short :class:`~services.estimator.backlog.SpacedFrameQueue`. A sample's time
-is checked once, there (the stamp guard, :class:`~services.runtime.stamps.InputStamps`), and so are its
+is checked once, there (the input gate, :class:`~services.runtime.gate.InputGate`), and so are its
 values (:func:`~services.estimator.inputs.measurement_of`); the backlog and the filter's buffer only order
 what passed. One thread feeds them to
 :class:`~common.estimation.coupling.DoubleCouplingEstimator` in stamp order, one frame at a time, each after
@@ -20,8 +20,10 @@ frame queue skips frames evenly (``frames_skipped``; ``vo_spacing_<n>`` counts t
 apart), so the VO pairs the frames it gets; health reports degraded while frames are skipped or the
 filter lags (``lag_ms`` in the stats). A pose whose pair failed is published as ``lost`` with the unseen
 motion in its covariance. Bad samples are refused with a log line and a counter, never a crash:
-undecodable (``malformed``), another UAV's (``wrong_uav``), NaN/inf or a wrong shape (``bad_samples``,
-``bad_frames``), stale or duplicate stamps (``refused_<sensor>_<stale|duplicate|overflow>``).
+undecodable (``malformed``), refused by the gate (``refused_<sensor>_<reason>``: another UAV's, a second
+sender's, a frame's seq jump, a stamp in the future, jumping or going back), NaN/inf or a wrong shape
+(``bad_samples``, ``bad_frames``), stale or duplicate stamps in the filter
+(``refused_<sensor>_<stale|duplicate|overflow>``).
 """
 
 from __future__ import annotations
@@ -31,7 +33,6 @@ import logging
 import math
 import time
 from collections import deque
-from pathlib import Path
 from typing import Any, TypeVar
 
 import zenoh
@@ -40,6 +41,7 @@ from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.measurements import FrameMeasurement, Measurement
 from common.members import Role
+from common.streams import GateVerdict
 from common.wire import keys
 from common.wire.messages import (
     AttitudeEstimate,
@@ -50,7 +52,6 @@ from common.wire.messages import (
     UavMessage,
     YawEstimate,
 )
-from common.wire.schema import WireModel
 from services.estimator.backlog import Backlog
 from services.estimator.inputs import WHAT, Input, measurement_of
 from services.estimator.outputs import Publication, VoPath
@@ -61,9 +62,10 @@ from services.estimator.settings import (
     settings_from_args,
 )
 from services.runtime.cli import add_transport_arguments
+from services.runtime.gate import InputGate
 from services.runtime.service import ConfiguredService
-from services.runtime.stamps import InputStamps
-from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import register_estimating_service
+from services.runtime.transport import source_of
 
 S = TypeVar("S", bound=UavMessage)
 logger = logging.getLogger(__name__)
@@ -98,7 +100,8 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         self._newest_in_s = -math.inf
         self._mirrored: dict[str, int] = {}
         self._publication = Publication(settings.uav, settings.max_pair_s, settings.vo_drift_fraction)
-        self.stamps = InputStamps()
+        #: the one input gate: UAV, sender, seq (frames), stamps of every input, before anything else
+        self.gate = InputGate(settings.uav, self)
         self._stale_run = 0
         self._last_input_s = 0.0
         self._last_output_s = time.monotonic()
@@ -121,9 +124,9 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         self.spawn(self._estimate, "estimate")
 
     def healthy(self) -> tuple[bool, str]:
-        refused = self.stamps.recent_refusals()
+        refused = self.gate.recent_refusals()
         if refused:
-            return False, f"degraded: {refused} inputs refused in the last {self.stamps.window_s:.0f} s"
+            return False, f"degraded: {refused} inputs refused in the last {self.gate.window_s:.0f} s"
         cutoff = time.monotonic() - BEHIND_WINDOW_S
         recent = [spacing for t, spacing in list(self._skips) if t >= cutoff]
         if recent:
@@ -164,25 +167,17 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         self._receive(sample, Frame, "camera")
 
     def _receive(self, sample: zenoh.Sample, expected: type[Input], sensor: str) -> None:
-        """Decoded, this UAV's, its stamp through the guard (too far ahead of the sensor's recent ones or the
-        wall clock: refused), its values checked; then handed off. Each refusal is counted."""
+        """Decoded, then through the input gate (another UAV's, a second sender's, a frame whose seq jumps,
+        a stamp in the future or jumping: refused, counted); its values checked; then handed off."""
         msg = self.decode_sample(sample, expected)
         if msg is None:
             return
         what = WHAT[sensor]
-        if msg.uav != self.settings.uav:
-            self.count_error(
-                "wrong_uav", f"{what} of another UAV refused", f"{msg.uav!r} on {sample.key_expr}"
-            )
-            self.stamps.note_refusal()
-            return
         self._last_input_s = time.monotonic()
-        admitted, reason, detail = self.stamps.check(sensor, msg.stamp_s)
-        if not admitted:
-            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} sample refused", detail)
+        decision = self.gate.admit(sensor, msg, source_of(sample))
+        if decision.verdict is GateVerdict.REFUSE:
             return
-        if reason:
-            self.count_error("clock_jumps", f"{sensor} clock jump adopted", f"stamp {msg.stamp_s}")
+        if decision.verdict is GateVerdict.NEW_EPOCH:
             self._newest_in_s = msg.stamp_s
         else:
             self._newest_in_s = max(self._newest_in_s, msg.stamp_s)
@@ -201,7 +196,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
                 self.count_error(
                     "frames_skipped", "frame skipped", "the filter is behind: VO pairs spaced out"
                 )
-        elif not self._backlog.offer_sample(measurement):
+        elif not self._backlog.samples.offer(measurement):
             self.count_error("queue_full", "sample refused", "the sensor queue is full")
 
     # -- the estimator thread ------------------------------------------------------------------------
@@ -213,7 +208,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
             "sample refused",
             f"{refusal.value} stamp {measurement.stamp_s}",
         )
-        self.stamps.note_refusal()
+        self.gate.note_refusal()
         self._stale_run = self._stale_run + 1 if refusal is Refusal.STALE else 0
         if self._stale_run >= RESET_AFTER_STALE:
             # the stream's clock went back for good (a restarted sensor stack): start a new filter
@@ -272,21 +267,20 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         return turn.frame is not None
 
 
-def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
-        "estimator", help="EKF + visual odometry with double coupling (paper C); publishes attitude, pose/vo"
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_transport_arguments(parser, node_default="estimator")
     add_estimator_arguments(parser)
-    add_trajectory_argument(parser, "pose/vo")
-    add_trajectory_argument(parser, "the attitude (position 0)", flag="--attitude-trajectory")
-    parser.set_defaults(handler=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    service = EstimatorService.from_args(args, settings_from_args(args))
-    paths: dict[type[WireModel], Path | None] = {
-        PoseEstimate: args.trajectory,
-        AttitudeEstimate: args.attitude_trajectory,
-    }
-    return run_with_trajectories(service, paths)
+def register(subparsers: Any) -> None:
+    register_estimating_service(
+        subparsers,
+        "estimator",
+        "EKF + visual odometry with double coupling (paper C); publishes attitude, pose/vo",
+        add_arguments,
+        lambda args: EstimatorService.from_args(args, settings_from_args(args)),
+        {
+            PoseEstimate: ("--trajectory", "pose/vo"),
+            AttitudeEstimate: ("--attitude-trajectory", "the attitude (position 0)"),
+        },
+    )

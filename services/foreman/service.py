@@ -33,11 +33,7 @@ from common.streams import StreamTable
 from common.wire import keys
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.correlation import merge_measurements
-from common.yaw.patchwork import (
-    PatchWorkError,
-    SpectrumCache,
-    measure_share,
-)
+from common.yaw.patchwork import CropStore, SpectrumCache, measure_share
 from services.runtime.cli import (
     StreamBoundSettings,
     add_dispatch_arguments,
@@ -56,44 +52,9 @@ from services.runtime.service import ConfiguredService
 MAX_PATCHES = 1 << 16
 
 
-class CropStore:
-    """Crops of the two newest frames of each stream, by patch index.
-
-    A share moved to another worker, or re-dispatched after a failure, needs the previous frame's crops;
-    two frames are kept because a second block of frame k (re-dispatched by the master) still refers to
-    frame k-1 after the first block of frame k was stored.
-    """
-
-    def __init__(self, frames: int = 2) -> None:
-        self._frames: dict[str, dict[int, dict[int, np.ndarray]]] = {}
-        self._keep = frames
-
-    def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
-        frames = self._frames.setdefault(stream, {})
-        if frames and seq + self._keep < min(frames):
-            frames.clear()  # the stream restarted (a new camera run counts from 0 again)
-        elif frames and seq < min(frames) and len(frames) >= self._keep:
-            return  # older than everything kept
-        entry = frames.setdefault(seq, {})
-        entry.update(zip(indices.tolist(), crops, strict=True))
-        for old in sorted(frames)[: -self._keep]:
-            del frames[old]
-
-    def get(self, stream: str, seq: int, indices: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-        if indices.size == 0:
-            return np.zeros((0, *shape), dtype=np.uint8)
-        entry = self._frames.get(stream, {}).get(seq)
-        if entry is None:
-            raise PatchWorkError(f"no crops of frame {seq} of {stream}")
-        try:
-            return np.stack([entry[int(i)] for i in indices])
-        except KeyError as exc:
-            raise PatchWorkError(f"no crop of patch {exc} in frame {seq} of {stream}") from None
-
-
 class _StreamState:
     """What a foreman keeps per stream: its own dispatcher (sticky shares, held history, suspensions), round,
-    crops, and the roster as applied to that dispatcher."""
+    and the roster as applied to that dispatcher (the crops are in the foreman's one :class:`CropStore`)."""
 
     def __init__(
         self, session: zenoh.Session, dispatch: DispatchSettings, counters: Any, live: LiveMembers
@@ -102,7 +63,6 @@ class _StreamState:
         # no fit here to vet workers against (the master vets the foreman's whole block): share caps only
         self.dispatcher.trust = TrustMonitor(TrustSettings(earn_frames=0))
         self.scatter = Scatter(session, self.dispatcher, keys.work_key_of, PatchJob, PatchResult, counters)
-        self.crops_prev = CropStore()
         # a copy of the node's roster (the roster itself is immutable; events are fed to every copy): one
         # LiveMembers per dispatcher, so alternating streams never re-join (and un-suspend) members
         self.live = copy.copy(live)
@@ -125,9 +85,10 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         self.queue_capacity = self.settings.queue
         self._queryable: Any = None
         max_streams, ttl_s = self.settings.max_streams, self.settings.stream_ttl_s
-        self.cache = SpectrumCache(
-            max_streams=max_streams, max_age_s=ttl_s, max_bytes=int(self.settings.cache_mb * 2**20)
-        )
+        # the memory budget (--cache-mb) across all streams, half for spectra, half for previous crops
+        budget = int(self.settings.cache_mb * 2**20)
+        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=ttl_s, max_bytes=budget // 2)
+        self.crops = CropStore(max_bytes=budget - budget // 2)
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
         self.streams: StreamTable[_StreamState] = StreamTable(max_streams, ttl_s)
         self._streams_lock = threading.Lock()
@@ -192,7 +153,7 @@ class ForemanService(ConfiguredService[ForemanSettings]):
             return
         self.reply(query, result)
         # bookkeeping after the reply is on its way: none of it is needed to answer this block
-        self._stream(job.stream).crops_prev.add(job.stream, job.seq, job.indices, job.crops)
+        self.crops.add(job.stream, job.seq, job.indices, job.crops)
         self._last_shares = plan.shares()
         self.counters.inc("blocks")
         self.counters.inc("patches", int(job.indices.size))
@@ -207,7 +168,7 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         stream = self._stream(job.stream)
         dispatcher = stream.dispatcher
         if job.prev_indices.size:  # previous crops of patches this foreman did not hold (moved shares)
-            stream.crops_prev.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
+            self.crops.add(job.stream, job.prev_seq, job.prev_indices, job.prev_crops)
         crop_shape = tuple(job.crops.shape[1:])
         block_indices = job.indices
         rows: dict[int, int] = {}
@@ -220,7 +181,7 @@ class ForemanService(ConfiguredService[ForemanSettings]):
             return job.crops[[rows[i] for i in indices.tolist()]] if indices.size else job.crops[:0]
 
         def prev_crops(indices: np.ndarray) -> np.ndarray:
-            return stream.crops_prev.get(job.stream, job.prev_seq, indices, crop_shape)
+            return self.crops.get(job.stream, job.prev_seq, indices, crop_shape)
 
         def compute_self(indices: np.ndarray, moved: np.ndarray) -> Any:
             return measure_share(

@@ -175,7 +175,17 @@ def particle_pose_message(
 VO_DISAGREE_FRAMES = 10
 
 
-class ParticleFilterPath:
+class _ScenePath:
+    """What both paths start from: the settings' scene and camera, and a generator seeded with ``seed``."""
+
+    def __init__(self, settings: LocalizerSettings) -> None:
+        self.settings = settings
+        self.scene = load_scene(settings)
+        self.camera = localizer_camera(settings)
+        self.rng = np.random.default_rng(settings.seed)
+
+
+class ParticleFilterPath(_ScenePath):
     """Paper B's particle filter, predicted with the VO odometry (as the service did before the tracker).
 
     With VO poses in the model's frame (``anchor_on_vo``) they also check the filter: a cloud that settled
@@ -188,11 +198,8 @@ class ParticleFilterPath:
     kind = LocalizerKind.PARTICLE
 
     def __init__(self, settings: LocalizerSettings) -> None:
-        self.settings = settings
-        self.filter = ParticleFilter(
-            load_scene(settings), localizer_camera(settings), settings.particle_filter_settings()
-        )
-        self.rng = np.random.default_rng(settings.seed)
+        super().__init__(settings)
+        self.filter = ParticleFilter(self.scene, self.camera, settings.particle_filter_settings())
         guess = settings.start_pose().body_state(settings.R_body_camera)
         self.state: ParticleState = self.filter.initialize(guess, self.rng)
         #: frames in a row the estimate lay outside the start box around the VO pose
@@ -242,17 +249,14 @@ class ParticleFilterPath:
         return self.filter.estimate(self.state)
 
 
-class ModelTrackerPath:
+class ModelTrackerPath(_ScenePath):
     """The model tracker (no odometry needed; uses the VO motion when given)."""
 
     kind = LocalizerKind.TRACKER
 
     def __init__(self, settings: LocalizerSettings) -> None:
-        self.settings = settings
-        self.tracker = ModelTracker(
-            load_scene(settings), localizer_camera(settings), settings.tracker_settings()
-        )
-        self.rng = np.random.default_rng(settings.seed)
+        super().__init__(settings)
+        self.tracker = ModelTracker(self.scene, self.camera, settings.tracker_settings())
         self.state: TrackerState = self.tracker.start(settings.start_pose())
 
     def step(self, inputs: StepInputs) -> PoseEstimate:

@@ -12,13 +12,14 @@ error angles), ``source = "pf"``, ``tracking_state`` (tracking / searching / los
 
 Latest frame wins: the subscriber callback only decodes and hands the frame to a one-item slot; a frame
 replaced before the filter took it is counted (``dropped_frames``). Bad frames are refused with a log line
-and a counter, never a crash: undecodable (``malformed``), another UAV's (``wrong_uav``), a size that is
-not the camera's (``bad_frames``), a time stamp not after the previous frame's (``stale_frames``).
+and a counter, never a crash: undecodable (``malformed``), a size that is not the camera's (``bad_frames``),
+and what the input gate (:class:`~services.runtime.gate.InputGate`) refuses of every input, frames, VO poses
+and IMU samples alike (``refused_<sensor>_<reason>``: another UAV's, a second sender's, a seq or stamp that
+jumps, goes back or lies in the future).
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import threading
 import time
@@ -29,8 +30,9 @@ import numpy as np
 import zenoh
 
 from common.members import Role
+from common.streams import GateVerdict
 from common.wire import keys
-from common.wire.messages import Frame, ImuSample, PoseEstimate
+from common.wire.messages import Frame, ImuSample, PoseEstimate, UavMessage
 from services.localizer.filters import (
     LocalizationPath,
     StepInputs,
@@ -41,10 +43,11 @@ from services.localizer.filters import (
 )
 from services.localizer.loading import localizer_camera
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
+from services.runtime.gate import InputGate
 from services.runtime.handoff import LatestSlot
 from services.runtime.service import ConfiguredService
-from services.runtime.stamps import InputStamps
-from services.runtime.trajectory import add_trajectory_argument, run_with_trajectories
+from services.runtime.trajectory import register_estimating_service
+from services.runtime.transport import source_of
 
 logger = logging.getLogger(__name__)
 
@@ -72,20 +75,19 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         #: gyro readings (stamp, body rate), bounded: seconds of a 400 Hz IMU
         self._imu_lock = threading.Lock()
         self._imu: deque[tuple[float, np.ndarray]] = deque(maxlen=IMU_BUFFER)
-        #: future stamps refused before they can become the "previous" stamp (one would freeze the filter)
-        self.stamps = InputStamps()
+        #: the one input gate (UAV, sender, seq, stamps): a future stamp is refused before it can become the
+        #: "previous" stamp (one would freeze the filter)
+        self.gate = InputGate(settings.uav, self)
 
     def healthy(self) -> tuple[bool, str]:
-        refused = self.stamps.recent_refusals()
+        refused = self.gate.recent_refusals()
         if refused:
-            return False, f"degraded: {refused} inputs refused in the last {self.stamps.window_s:.0f} s"
+            return False, f"degraded: {refused} inputs refused in the last {self.gate.window_s:.0f} s"
         return True, "ok"
 
-    def _admit(self, sensor: str, stamp_s: float) -> bool:
-        admitted, reason, detail = self.stamps.check(sensor, stamp_s)
-        if not admitted:
-            self.count_error(f"refused_{sensor}_{reason}", f"{sensor} input refused", detail)
-        return admitted
+    def _admit(self, sensor: str, msg: UavMessage, sample: zenoh.Sample) -> bool:
+        """Through the input gate (counted there when refused)."""
+        return self.gate.admit(sensor, msg, source_of(sample)).verdict is not GateVerdict.REFUSE
 
     def start(self, session: zenoh.Session) -> None:
         uav = self.settings.uav
@@ -105,11 +107,6 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         frame = self.decode_sample(sample, Frame)
         if frame is None:
             return
-        if frame.uav != self.settings.uav:
-            self.count_error(
-                "wrong_uav", "frame of another UAV refused", f"{frame.uav!r} on {sample.key_expr}"
-            )
-            return
         if (frame.width, frame.height) != (self.camera.width, self.camera.height):
             self.count_error(
                 "bad_frames",
@@ -117,8 +114,11 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
                 f"size {frame.width}x{frame.height}, the camera is {self.camera.width}x{self.camera.height}",
             )
             return
-        if not self._admit("camera", frame.stamp_s):
+        decision = self.gate.admit("camera", frame, source_of(sample))
+        if decision.verdict is GateVerdict.REFUSE:
             return
+        if decision.verdict is GateVerdict.NEW_EPOCH:
+            self._last_received_s = None  # a restarted camera: its stamps may begin before the old ones
         if self._last_received_s is not None and frame.stamp_s <= self._last_received_s:
             self.count_error(
                 "stale_frames", "frame refused", f"stamp {frame.stamp_s} not after {self._last_received_s}"
@@ -131,7 +131,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
 
     def _on_vo(self, sample: zenoh.Sample) -> None:
         pose = self.decode_sample(sample, PoseEstimate)
-        if pose is None or pose.uav != self.settings.uav or not self._admit("vo", pose.stamp_s):
+        if pose is None or not self._admit("vo", pose, sample):
             return
         self._accept_vo(pose)
 
@@ -174,7 +174,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
         reading = self.decode_sample(sample, ImuSample)
-        if reading is None or reading.uav != self.settings.uav or not self._admit("imu", reading.stamp_s):
+        if reading is None or not self._admit("imu", reading, sample):
             return
         if not np.all(np.isfinite(reading.gyro_rad_s)):
             self.count_error("bad_imu", "IMU sample refused", "gyro not finite")
@@ -223,16 +223,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
 
 
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser(
+    register_estimating_service(
+        subparsers,
         "localizer",
-        help="tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames with paper B's particle "
+        "tracks a known 3D model (JSON, OBJ, ViSP .cao) in the camera frames with paper B's particle "
         "filter (--use-vo odometry) or the model tracker (--filter); publishes pose/pf",
+        register_arguments,
+        lambda args: LocalizerService.from_args(args, settings_from_args(args)),
+        {PoseEstimate: ("--trajectory", "pose/pf")},
     )
-    register_arguments(parser)
-    add_trajectory_argument(parser, "pose/pf")
-    parser.set_defaults(handler=run)
-
-
-def run(args: argparse.Namespace) -> int:
-    service = LocalizerService.from_args(args, settings_from_args(args))
-    return run_with_trajectories(service, {PoseEstimate: args.trajectory})

@@ -3,10 +3,10 @@
 :meth:`FrameIntake.receive` is all zenoh's callback does: the sample and its arrival times into a bounded
 inbox (as zenoh-python's examples hand samples to a channel). :meth:`FrameIntake.gate_received`, on the
 master's frames thread, takes every sample received so far through the source lock, the decoder and the
-stream gate (:func:`common.streams.admit_frame`), in arrival order and with the arrival times, so the gate
-decides as it did in the callback. Admitted frames are kept as the recent ones (a standby taking over
-measures them) and, when leading, queued for the yaw stage in a short FIFO whose oldest frame is dropped
-(counted) beyond ``frame_queue``.
+service's input gate (:class:`services.runtime.gate.InputGate`), in arrival order and with the arrival
+times, so the gate decides as it did in the callback. Admitted frames are kept as the recent ones (a standby
+taking over measures them) and, when leading, queued for the yaw stage in a short FIFO whose oldest frame is
+dropped (counted) beyond ``frame_queue``.
 """
 
 from __future__ import annotations
@@ -18,13 +18,13 @@ from dataclasses import dataclass
 
 import zenoh
 
-from common.streams import FrameGateState, FrameKey, GateVerdict, admit_frame
+from common.streams import GateVerdict
 from common.wire.messages import Frame
 from services.master.settings import MasterSettings
+from services.runtime.gate import InputGate
 from services.runtime.guard import DispatchGuard
 from services.runtime.handoff import FrameQueue
 from services.runtime.service import ConfiguredService
-from services.runtime.stamps import InputStamps
 from services.runtime.transport import source_of
 
 #: frame samples received but not gated yet, at most (beyond, the oldest is dropped and counted): the frames
@@ -67,8 +67,8 @@ class FrameIntake:
         self.service = service
         self.guard = guard
         self.uav = settings.uav
-        self.gate_settings = settings.gate_settings()
-        self.gate = FrameGateState()
+        #: the master's one input gate (frames here, IMU samples in the gyro prior); its refusals make health
+        self.gate = InputGate(settings.uav, service, settings.gate_settings())
         #: what zenoh's callback hands off
         self.inbox: FrameQueue[Received] = FrameQueue(INBOX_CAPACITY)
         #: frames wait in a short FIFO: a stalled round (a member that froze, until its deadline) delays the
@@ -76,8 +76,6 @@ class FrameIntake:
         self.slot = FrameFifo(settings.frame_queue)
         self.recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
         self.recent_lock = threading.Lock()
-        #: recent refusals, for health
-        self.refusals = InputStamps()
 
     def receive(self, sample: zenoh.Sample) -> None:
         """Zenoh's thread: hand the sample off with its arrival times."""
@@ -117,21 +115,13 @@ class FrameIntake:
             if frame is None:
                 continue
             counts["frames_in"] = counts.get("frames_in", 0) + 1
-            key = FrameKey(frame.width, frame.height, frame.encoding)
-            self.gate, decision = admit_frame(
-                self.gate, self.gate_settings, self.uav, frame.uav, frame.seq, frame.stamp_s, key, r.now_s,
-                r.wall_s, source,
-            )  # fmt: skip
+            decision = self.gate.admit("camera", frame, source, r.now_s, r.wall_s)
             if decision.verdict is GateVerdict.REFUSE:
-                service.count_error(f"refused_{decision.reason}", "frame refused", decision.detail)
-                self.refusals.note_refusal()
                 continue
             if decision.verdict is GateVerdict.NEW_EPOCH:
                 counts["epochs"] = counts.get("epochs", 0) + 1
-                if self.gate.epoch > 0:
-                    service.count_error("new_epoch", "stream restarted", decision.detail or decision.reason)
             counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
-            admitted.append((self.gate.epoch, frame))
+            admitted.append((self.gate.epoch("camera"), frame))
         with self.recent_lock:
             self.recent.extend(admitted)
         if leading:

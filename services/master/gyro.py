@@ -18,10 +18,12 @@ import time
 import numpy as np
 import numpy.typing as npt
 
+from common.streams import GateVerdict
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
 from common.yaw.mount import imu_stamp_s
 from services.runtime.counters import Counters
+from services.runtime.gate import InputGate
 
 #: Samples kept (10 s at 400 Hz): enough for any frame interval the master bridges.
 DEFAULT_CAPACITY = 4000
@@ -37,6 +39,12 @@ class GyroBuffer:
         self._cond = threading.Condition()
         self._tolerance_s = sample_period_tolerance_s
         self.out_of_order = 0
+
+    def clear(self) -> None:
+        """Forget every sample (the stream restarted: a new epoch at the input gate)."""
+        with self._cond:
+            self._stamps.clear()
+            self._gyro.clear()
 
     def add(self, sample: ImuSample) -> bool:
         """Append a sample; False (and counted) when it is not newer than the newest held. A sample older
@@ -86,9 +94,14 @@ class GyroBuffer:
 
 
 class GyroPrior:
-    """The master's side of the yaw prior: IMU samples in, the gyro's delta between frame stamps out, about
-    ``axis_imu`` (:func:`~common.yaw.mount.image_turn_axis_imu` of the mount and the IMU's axes) and between
-    the frame stamps moved onto the IMU's clock (``t_imu = t_cam + time_offset_s``)."""
+    """The master's side of the yaw prior: IMU samples in (through the master's input gate), the gyro's delta
+    between frame stamps out, about ``axis_imu`` (:func:`~common.yaw.mount.image_turn_axis_imu` of the mount
+    and the IMU's axes) and between the frame stamps moved onto the IMU's clock (``t_imu = t_cam +
+    time_offset_s``).
+
+    A sample the gate refuses (another UAV's, a second sender's, a stamp in the future or jumping) never
+    reaches the buffer, so no single sample can make the buffer refuse the real ones after it; a restart the
+    gate adopts (a new epoch) starts the buffer over."""
 
     message_type = ImuSample
 
@@ -97,6 +110,7 @@ class GyroPrior:
         enabled: bool,
         wait_s: float,
         counters: Counters,
+        gate: InputGate,
         axis_imu: npt.ArrayLike = (0.0, 0.0, 1.0),
         time_offset_s: float = 0.0,
     ) -> None:
@@ -106,11 +120,18 @@ class GyroPrior:
         self._counters = counters
         self.axis_imu = np.asarray(axis_imu, dtype=np.float64)
         self.time_offset_s = float(time_offset_s)
+        self._gate = gate
 
-    def on_sample(self, imu: ImuSample | None) -> None:
-        """A decoded IMU sample (None: it failed to decode, already counted by the runtime)."""
-        if imu is not None:
-            self._counters.inc("imu_in" if self.buffer.add(imu) else "imu_refused")
+    def on_sample(self, imu: ImuSample | None, source: str | None = None) -> None:
+        """A decoded IMU sample from ``source`` (None: it failed to decode, counted by the runtime)."""
+        if imu is None:
+            return
+        decision = self._gate.admit("imu", imu, source)
+        if decision.verdict is GateVerdict.REFUSE:
+            return
+        if decision.verdict is GateVerdict.NEW_EPOCH:
+            self.buffer.clear()
+        self._counters.inc("imu_in" if self.buffer.add(imu) else "imu_refused")
 
     def delta_rad(
         self, previous_stamp_s: float | None, stamp_s: float, counts: dict[str, int]

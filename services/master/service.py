@@ -112,6 +112,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             prior.gyro_prior,
             prior.gyro_wait_s,
             self.counters,
+            self.intake.gate,
             prior.gyro_axis_imu(),
             prior.rig_mount.imu_time_offset_s,
         )
@@ -154,11 +155,14 @@ class MasterService(ConfiguredService[MasterSettings]):
             self.election.close()
 
     def _on_imu(self, sample: zenoh.Sample) -> None:
-        self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type))
+        self.gyro.on_sample(self.decode_sample(sample, self.gyro.message_type), source_of(sample))
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
         estimate = self.decode_sample(sample, YawEstimate)
-        if estimate is None or estimate.uav != self.settings.uav:
+        if estimate is None:
+            return
+        if estimate.uav != self.settings.uav:
+            self.count_error("refused_yaw_foreign_uav", "yaw of another UAV refused", f"{estimate.uav!r}")
             return
         yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
         with self._recent_lock:
@@ -186,9 +190,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         return {"frames": self.slot.depth(), "inbox": self.intake.inbox.depth()}
 
     def healthy(self) -> tuple[bool, str]:
-        refusals = self.intake.refusals
-        if recent := refusals.recent_refusals():
-            return False, f"degraded: {recent} frames refused in the last {refusals.window_s:.0f} s"
+        gate = self.intake.gate
+        if recent := gate.recent_refusals():
+            return False, f"degraded: {recent} inputs refused in the last {gate.window_s:.0f} s"
         role = "active" if self.election is None or self.election.leading else "standby"
         return True, role
 

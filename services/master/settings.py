@@ -11,6 +11,7 @@ from common.dispatch import DispatchSettings
 from common.errors import InputError
 from common.members import Topology
 from common.streams import FrameGateSettings
+from common.wire.schema import MAX_BUDGET_S
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
 from services.runtime.cli import add_dispatch_arguments, dispatch_from_args, parse_size
@@ -35,7 +36,7 @@ class MasterSettings(BaseModel):
     #: how its dispatcher shares a frame's patches among the members (as a foreman's does a block's)
     dispatch: DispatchSettings = Field(default_factory=DispatchSettings)
     #: time budget of one frame's round (s); shares that miss it are re-dispatched
-    budget_s: float = Field(default=1.0, gt=0.0)
+    budget_s: float = Field(default=1.0, gt=0.0, le=MAX_BUDGET_S)
     #: the yaw stage (patch grid, patch size, pyramid level; the correlation's constants)
     yaw: YawSettings = Field(default_factory=YawSettings)
     #: take part in the election of the UAV's active master (off: always active, the paper's single master)
@@ -96,6 +97,8 @@ def master_settings_from_args(args: argparse.Namespace) -> MasterSettings:
     """The settings of the command line (a value out of its bound: one line, exit 2)."""
     cols, rows = parse_size(args.grid, "--grid", "8x5")
     prior = yaw_prior_settings_from_args(args)
+    if not 0.0 < args.budget_ms <= 1e3 * MAX_BUDGET_S:
+        raise UsageError(f"--budget-ms: must be in (0, {1e3 * MAX_BUDGET_S:.0f}] ms, got {args.budget_ms}")
     try:
         # --patch-size and --pyramid-level carry the yaw settings' field names
         yaw = settings_from(YawSettings, args, grid_cols=cols, grid_rows=rows)

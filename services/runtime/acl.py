@@ -1,9 +1,11 @@
 """The least-privilege policy of capataz, per role, as a Zenoh 1.x ``access_control`` section.
 
 A participant is identified by the common name (CN) of its TLS certificate (mutual TLS): ``router``,
-``foreman``, ``worker``, ``client``, and, bound to one UAV, ``camera.{uav}``, ``master.{uav}``,
-``estimator.{uav}``, ``localizer.{uav}``. :data:`ROLE_TABLE` says what each may do; :func:`acl_section`
-turns it into ``rules`` / ``subjects`` / ``policies`` with ``default_permission: deny``:
+``client``, bound to one node, ``foreman.{node}`` and ``worker.{node}`` (a foreman serves only its node's
+block key and queries only its node's workers; a worker serves only its node's keys), and, bound to one
+UAV, ``camera.{uav}``, ``master.{uav}``, ``estimator.{uav}``, ``localizer.{uav}``. :func:`role_table` says
+what each may do; :func:`acl_section` turns it into ``rules`` / ``subjects`` / ``policies`` with
+``default_permission: deny``:
 
 - ingress from a subject: what it may *send* (puts, subscriptions, queryables and their replies, queries,
   liveliness tokens and liveliness watches);
@@ -45,9 +47,13 @@ WORKER_WORK = f"{ROOT}/node/*/worker/*"
 #: what a read-only client may see: the outputs of every UAV, stats, health and membership
 OUTPUTS = ("yaw", "attitude", "pose/vo", "pose/pf")
 DEFAULT_UAVS = ("uav0", "uav1")
-#: roles whose certificate is bound to one UAV (CN ``role.uav``) and the names that are not
+#: the nodes of the described clusters (deploy/clusters/*.yml, docker-compose.yml)
+DEFAULT_NODES = ("h1", "h2", "h3")
+#: roles whose certificate is bound to one UAV (CN ``role.uav``), to one node (CN ``role.node``), and the
+#: names bound to neither
 UAV_ROLES = (Role.CAMERA, Role.MASTER, Role.ESTIMATOR, Role.LOCALIZER)
-GLOBAL_NAMES = ("router", "foreman", "worker", "client")
+NODE_ROLES = (Role.FOREMAN, Role.WORKER)
+GLOBAL_NAMES = ("router", "client")
 
 
 @dataclass(frozen=True)
@@ -63,9 +69,10 @@ class RolePermissions:
     watch: tuple[str, ...] = ()
     note: str = ""
 
-    def with_own_runtime(self, role: Role) -> RolePermissions:
-        """Add what every service runtime does: stats, health queryable and liveliness token of its role."""
-        r = role.value
+    def with_own_runtime(self, role: Role, node: str | None = None) -> RolePermissions:
+        """Add what every service runtime does: stats, health queryable and liveliness token of its role
+        (of its node only, for a node-bound role)."""
+        r = role.value if node is None else f"{role.value}/{check_name(node, 'node')}"
         return RolePermissions(
             common_name=self.common_name,
             put=(*self.put, f"{ROOT}/stats/{r}/**"),
@@ -83,6 +90,8 @@ class PolicySettings:
     """Which UAVs exist, and which of them get simulated odometry from their camera on ``pose/vo``."""
 
     uavs: tuple[str, ...] = DEFAULT_UAVS
+    #: the nodes whose foreman and workers may join (each its own certificate, ``foreman.{node}``)
+    nodes: tuple[str, ...] = DEFAULT_NODES
     #: the office flight has no estimator: its camera publishes the simulator's odometry on pose/vo
     camera_odometry_uavs: tuple[str, ...] = ("uav1",)
     extra_client_names: tuple[str, ...] = field(default=())
@@ -90,11 +99,25 @@ class PolicySettings:
     def __post_init__(self) -> None:
         for uav in (*self.uavs, *self.camera_odometry_uavs):
             check_name(uav, "uav")
+        for node in self.nodes:
+            check_name(node, "node")
 
 
 def uav_common_name(role: Role, uav: str) -> str:
     """CN of a UAV-bound role's certificate, e.g. ``camera.uav0``."""
     return f"{role.value}.{check_name(uav, 'uav')}"
+
+
+def node_common_name(role: Role, node: str) -> str:
+    """CN of a node-bound role's certificate, e.g. ``foreman.h1``."""
+    return f"{role.value}.{check_name(node, 'node')}"
+
+
+def common_names(uavs: Iterable[str], nodes: Iterable[str]) -> list[str]:
+    """Every certificate common name of a deployment of these UAVs and nodes."""
+    per_uav = [uav_common_name(r, u) for u in uavs for r in UAV_ROLES]
+    per_node = [node_common_name(r, n) for n in nodes for r in NODE_ROLES]
+    return [*per_uav, *per_node, *GLOBAL_NAMES]
 
 
 def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
@@ -142,20 +165,23 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
                 note="its UAV's pose/pf",
             ).with_own_runtime(Role.LOCALIZER)
         )
-    out.append(
-        RolePermissions(
-            Role.FOREMAN.value,
-            serve=(FOREMAN_WORK,),
-            query=(WORKER_WORK,),
-            watch=(f"{ROOT}/alive/{Role.WORKER.value}/*/*",),
-            note="serves blocks; queries workers",
-        ).with_own_runtime(Role.FOREMAN)
-    )
-    out.append(
-        RolePermissions(Role.WORKER.value, serve=(WORKER_WORK,), note="serves patches").with_own_runtime(
-            Role.WORKER
+    for node in s.nodes:
+        out.append(
+            RolePermissions(
+                node_common_name(Role.FOREMAN, node),
+                serve=(keys.foreman_key(node),),
+                query=(f"{ROOT}/node/{node}/worker/*",),
+                watch=(keys.alive_node_workers(node),),
+                note=f"serves {node}'s blocks; queries {node}'s workers",
+            ).with_own_runtime(Role.FOREMAN, node)
         )
-    )
+        out.append(
+            RolePermissions(
+                node_common_name(Role.WORKER, node),
+                serve=(f"{ROOT}/node/{node}/worker/*",),
+                note=f"serves {node}'s patches",
+            ).with_own_runtime(Role.WORKER, node)
+        )
     readable = tuple(f"{ROOT}/uav/*/{topic}" for topic in OUTPUTS)
     for name in ("client", *s.extra_client_names):
         out.append(

@@ -137,7 +137,8 @@ class StreamBoundSettings(BaseModel):
         default=512.0,
         gt=0.0,
         le=65536.0,
-        description="memory budget of the cached spectra across all streams (MB; LRU evicted beyond it)",
+        description="memory budget across all streams (MB; LRU evicted beyond it): cached spectra, and a "
+        "foreman's previous crops (half each)",
     )
 
 

@@ -77,6 +77,12 @@ class WorkQueue(Generic[T]):
                 self._cond.wait(timeout_s)
             return bool(self._items)
 
+    def wake(self) -> None:
+        """Wake a thread waiting in :meth:`take` or :meth:`wait` without queueing anything (for a consumer
+        that also waits on something else, e.g. the estimator's frames beside its samples)."""
+        with self._cond:
+            self._cond.notify()
+
     def drain(self) -> list[T]:
         with self._cond:
             items = list(self._items)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +31,9 @@ from common.wire.schema import WireModel
 _ZERO = constant(np.zeros(3))
 
 
-def add_trajectory_argument(parser: argparse.ArgumentParser, what: str, flag: str = "--trajectory") -> None:
-    parser.add_argument(flag, type=Path, help=f"also write {what} as a TUM trajectory file")
+def add_trajectory_argument(parser: argparse.ArgumentParser, what: str, flag: str = "--trajectory") -> str:
+    """The option ``flag`` of a TUM file of ``what``; returns its name in the parsed arguments."""
+    return parser.add_argument(flag, type=Path, help=f"also write {what} as a TUM trajectory file").dest
 
 
 def tum_pose(message: WireModel) -> tuple[float, np.ndarray, np.ndarray]:
@@ -69,6 +71,28 @@ def run_with_trajectories(service: Any, paths: dict[type[WireModel], Path | None
         return int(service.run())
     finally:
         tap.close()
+
+
+def register_estimating_service(
+    subparsers: Any,
+    name: str,
+    help_text: str,
+    add_arguments: Callable[[argparse.ArgumentParser], None],
+    start: Callable[[argparse.Namespace], Any],
+    trajectories: dict[type[WireModel], tuple[str, str]],
+) -> None:
+    """``capataz NAME``: a service that publishes estimates. Its options (``add_arguments``), then one TUM
+    file option per estimate type (``{type: (flag, what it writes)}``); its handler builds the service
+    (``start(args)``) and runs it with those files open (:func:`run_with_trajectories`)."""
+    parser = subparsers.add_parser(name, help=help_text)
+    add_arguments(parser)
+    dests = {cls: add_trajectory_argument(parser, what, flag) for cls, (flag, what) in trajectories.items()}
+
+    def run(args: argparse.Namespace) -> int:
+        service = start(args)
+        return run_with_trajectories(service, {cls: getattr(args, dest) for cls, dest in dests.items()})
+
+    parser.set_defaults(handler=run)
 
 
 def write_with_truth(out_dir: Path, name: str, estimate: Trajectory, truth: Trajectory) -> dict[str, Any]:

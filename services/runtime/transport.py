@@ -172,8 +172,29 @@ class TransportSettings(BaseModel):
         return entries
 
 
+def open_beyond_loopback(settings: TransportSettings) -> list[str]:
+    """The endpoints of ``settings`` that are neither TLS nor on loopback (what any peer on the network can
+    reach or be reached by without a certificate); empty when the session stays secure or local."""
+    endpoints = [*settings.listen, *settings.connect]
+    if settings.zenoh_config is not None or settings.tls_cert is not None:
+        return []  # a configuration file or TLS credentials: the deployment chose its profile
+    return [e for e in endpoints if not e.startswith(("tls/", "quic/")) and not _loopback(e)]
+
+
+def _loopback(endpoint: str) -> bool:
+    address = endpoint.split("/", 1)[-1].rsplit(":", 1)[0].strip("[]")
+    return address in ("localhost", "::1") or address.startswith("127.")
+
+
 def open_session(settings: TransportSettings) -> zenoh.Session:
-    """Open a session (the caller closes it, or uses it in a ``with``)."""
+    """Open a session (the caller closes it, or uses it in a ``with``); warns, at start, when the session is
+    open (no TLS) on an endpoint beyond loopback: the open profile, for a lab."""
+    if beyond := open_beyond_loopback(settings):
+        logger.warning(
+            "open profile: %s without TLS or access control; any peer that reaches it can read, forge and "
+            "steer (a lab only; the default deployment is the secure profile)",
+            ", ".join(beyond),
+        )
     try:
         return zenoh.open(settings.to_config())
     except Exception as exc:

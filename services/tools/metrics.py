@@ -25,15 +25,13 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import CollectorRegistry
 
 from common.errors import CapatazError
-from common.wire import keys
 from common.wire.messages import Health, Stats
 from services.runtime.usage import UsageError
-from services.tools.observe import DROPPED_COUNTERS, REFUSED_COUNTERS
+from services.tools.observe import StatsWatch, dropped_count, refused_count
 from services.tools.probe import (
     Deadline,
     add_probe_arguments,
     check_positive,
-    decode_stats,
     health_replies,
     open_probe_session,
     stop_on_signals,
@@ -65,36 +63,33 @@ class StatsExporter:
         self.forget_s = forget_s
         self.health_timeout_s = health_timeout_s
         self._lock = threading.Lock()
-        self._seen: dict[str, Seen] = {}
         self._health: dict[str, Health] = {}
-        self.messages = 0
-        self.malformed = 0
-        self._subscriber = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
+        self._bad_health = 0
+        self._watch = StatsWatch(session)
 
-    def _on_stats(self, sample: zenoh.Sample) -> None:
-        stats = decode_stats(sample)
-        if stats is None:
-            with self._lock:
-                self.malformed += 1
-            return
+    @property
+    def messages(self) -> int:
+        """Stats messages received."""
+        return self._watch.messages
+
+    @property
+    def malformed(self) -> int:
+        """Stats messages and health replies that did not decode."""
         with self._lock:
-            self.messages += 1
-            self._seen[f"{stats.role}/{stats.node}/{stats.index}"] = Seen(stats, time.monotonic())
+            return self._watch.malformed + self._bad_health
 
     def poll_health(self) -> None:
         """Ask every member for its health (consolidation NONE) and keep the answers."""
         replies, bad = health_replies(self.session, self.health_timeout_s)
         with self._lock:
             self._health = replies
-            self.malformed += bad
+            self._bad_health += bad
 
     def members(self) -> dict[str, Seen]:
         """The members heard from within ``forget_s`` (older ones are dropped)."""
-        now = time.monotonic()
-        with self._lock:
-            for name in [n for n, s in self._seen.items() if now - s.arrival_s > self.forget_s]:
-                del self._seen[name]
-            return dict(self._seen)
+        self._watch.forget(self.forget_s)
+        _, latest, arrival_s = self._watch.window()
+        return {name: Seen(stats, arrival_s[name]) for name, stats in latest.items()}
 
     def describe(self) -> list[Metric]:
         return []  # the families depend on the members: nothing to check at registration
@@ -104,7 +99,7 @@ class StatsExporter:
         members = self.members()
         with self._lock:
             health = dict(self._health)
-            messages, malformed = self.messages, self.malformed
+        messages, malformed = self.messages, self.malformed
         now = time.monotonic()
         labels = list(MEMBER_LABELS)
         up = GaugeMetricFamily(
@@ -148,12 +143,8 @@ class StatsExporter:
                 healthy.add_metric(values, 1.0 if health[name].ok else 0.0)
             for event, count in sorted(stats.counters.items()):
                 events.add_metric([*values, event], float(count))
-            refused.add_metric(
-                values, float(sum(v for k, v in stats.counters.items() if k in REFUSED_COUNTERS))
-            )
-            dropped.add_metric(
-                values, float(sum(v for k, v in stats.counters.items() if k in DROPPED_COUNTERS))
-            )
+            refused.add_metric(values, float(refused_count(stats.counters)))
+            dropped.add_metric(values, float(dropped_count(stats.counters)))
             for step, ms in sorted(stats.timings_ms.items()):
                 timing.add_metric([*values, step], ms / 1e3)
             for name_q, depth in sorted(stats.queue_depths.items()):
@@ -170,7 +161,7 @@ class StatsExporter:
         yield from (heard, received, bad)
 
     def close(self) -> None:
-        self._subscriber.undeclare()
+        self._watch.close()
 
 
 def serve(

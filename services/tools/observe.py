@@ -1,8 +1,10 @@
 """Watching a running cluster from a session of our own: yaw estimates and members' stats.
 
 :class:`YawCollector` keeps every yaw estimate of a UAV by frame (tests, the demo, benchmarks, ``up``);
-:class:`StatsWatch` keeps each member's latest :class:`~common.wire.messages.Stats` so that ``capataz up`` can
-report dropped frames and refused inputs per member at the end.
+:class:`StatsWatch` keeps each member's latest :class:`~common.wire.messages.Stats`, when it arrived and
+the first of a window: ``capataz up`` reports dropped frames and refused inputs per member at the end from
+it, ``capataz status`` its rates and members, ``capataz metrics`` its exporter's series
+(:func:`refused_count` and :func:`dropped_count` sum those counters for all three).
 """
 
 from __future__ import annotations
@@ -20,13 +22,32 @@ from common.wire.messages import Stats, YawEstimate
 from common.wire.schema import WireError, WireModel
 from services.runtime.transport import zbytes
 
-#: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service
+#: counters that mean "an input was refused" (malformed, foreign, out of range, no room) in any service,
+#: besides the input gate's ``refused_<sensor>_<reason>`` (:func:`is_refusal`)
 REFUSED_COUNTERS = frozenset(
     {"malformed", "rejected", "bad_samples", "bad_frames", "bad_images", "wrong_uav", "queue_full", "busy",
      "malformed_replies", "bad_liveliness"}
 )  # fmt: skip
+
+
+def is_refusal(counter: str) -> bool:
+    """True for a counter of refused inputs: one of :data:`REFUSED_COUNTERS` or the input gate's
+    ``refused_<sensor>_<reason>`` (and a filter's ``refused_<sensor>_<stale|duplicate|overflow>``)."""
+    return counter in REFUSED_COUNTERS or counter.startswith("refused_")
+
+
 #: counters that mean "a frame was dropped" (latest-wins hand-off replaced an unread frame)
 DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames"})
+
+
+def refused_count(counters: Mapping[str, int]) -> int:
+    """Inputs a member refused, over all its refusal counters (:func:`is_refusal`)."""
+    return sum(v for k, v in counters.items() if is_refusal(k))
+
+
+def dropped_count(counters: Mapping[str, int]) -> int:
+    """Frames a member dropped unread, over all its drop counters (:data:`DROPPED_COUNTERS`)."""
+    return sum(v for k, v in counters.items() if k in DROPPED_COUNTERS)
 
 
 M = TypeVar("M", bound=WireModel)
@@ -83,11 +104,15 @@ class YawCollector(_Watch):
 
 
 class StatsWatch(_Watch):
-    """The latest stats message of every member (``role/node/i``), from ``capataz/stats/**``."""
+    """The latest stats message of every member (``role/node/i``) from ``capataz/stats/**``, when each
+    arrived (``time.monotonic()``) and the first of each since :meth:`start_window` (rates over a window)."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self._lock = threading.Lock()
         self.latest: dict[str, Stats] = {}
+        self.arrival_s: dict[str, float] = {}
+        self.window_first: dict[str, Stats] = {}
+        self.messages = 0
         self.malformed = 0
         self._sub = session.declare_subscriber(keys.STATS_ALL, self._on_stats)
 
@@ -95,12 +120,34 @@ class StatsWatch(_Watch):
         stats = self._decoded(sample, Stats)
         if stats is None:
             return
+        name = stats.member
         with self._lock:
-            self.latest[f"{stats.role}/{stats.node}/{stats.index}"] = stats
+            self.messages += 1
+            self.window_first.setdefault(name, stats)
+            self.latest[name] = stats
+            self.arrival_s[name] = time.monotonic()
+
+    def start_window(self) -> None:
+        """A window starts: each member's first message of it is its latest one so far."""
+        with self._lock:
+            self.window_first = dict(self.latest)
+
+    def forget(self, silent_s: float, keep: frozenset[str] = frozenset()) -> None:
+        """Drop the members (but those in ``keep``) whose last stats are older than ``silent_s``."""
+        now = time.monotonic()
+        with self._lock:
+            for name in [n for n, t in self.arrival_s.items() if now - t > silent_s and n not in keep]:
+                del self.latest[name], self.arrival_s[name]
+                self.window_first.pop(name, None)
 
     def snapshot(self) -> dict[str, Stats]:
         with self._lock:
             return dict(self.latest)
+
+    def window(self) -> tuple[dict[str, Stats], dict[str, Stats], dict[str, float]]:
+        """Copies of the window's first stats, the latest stats and their arrival times, by member."""
+        with self._lock:
+            return dict(self.window_first), dict(self.latest), dict(self.arrival_s)
 
     def close(self) -> None:
         self._sub.undeclare()
@@ -121,8 +168,8 @@ def member_rows(
                 "member": name,
                 "start-up s": alive_after_s.get(name, float("nan")),
                 "inputs": counters.get("frames_in") or counters.get("queries", 0),
-                "dropped": sum(counters.get(k, 0) for k in DROPPED_COUNTERS),
-                "refused": sum(v for k, v in counters.items() if k in REFUSED_COUNTERS),
+                "dropped": dropped_count(counters),
+                "refused": refused_count(counters),
                 "exit": exit_codes.get(name, "-"),
             }
         )

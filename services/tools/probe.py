@@ -202,5 +202,5 @@ def health_replies(session: zenoh.Session, timeout_s: float) -> tuple[dict[str, 
         except WireError:
             bad += 1
             continue
-        replies[f"{health.role}/{health.node}/{health.index}"] = health
+        replies[health.member] = health
     return replies, bad

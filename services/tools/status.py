@@ -29,14 +29,13 @@ from common.errors import CapatazError
 from common.rates import counter_rates
 from common.wire import keys
 from common.wire.messages import Health, Stats
-from services.tools.observe import DROPPED_COUNTERS, REFUSED_COUNTERS
+from services.tools.observe import StatsWatch, dropped_count, refused_count
 from services.tools.probe import (
     Deadline,
     NoMembersError,
     SampleQueue,
     add_probe_arguments,
     check_positive,
-    decode_stats,
     health_replies,
     open_probe_session,
     stop_on_signals,
@@ -89,8 +88,8 @@ class MemberStatus:
             "why": (self.health.detail if self.health and not self.health.ok else "") or "-",
             "rates /s": ", ".join(f"{k} {r:.3g}" for r, k in busiest) or "-",
             "queues": ", ".join(f"{k}={v}" for k, v in sorted(stats.queue_depths.items())) if stats else "-",
-            "refused": sum(v for k, v in counters.items() if k in REFUSED_COUNTERS),
-            "dropped": sum(v for k, v in counters.items() if k in DROPPED_COUNTERS),
+            "refused": refused_count(counters),
+            "dropped": dropped_count(counters),
         }
 
     def document(self) -> dict[str, Any]:
@@ -146,30 +145,14 @@ class ClusterObserver:
         self.session = session
         self.timeout_s = timeout_s
         self._lock = threading.Lock()
-        self._first: dict[str, Stats] = {}
-        self._latest: dict[str, Stats] = {}
-        self._heard_s: dict[str, float] = {}
-        self._malformed = 0
+        self._stats = StatsWatch(session)
         self._streams = SampleQueue(1 << 16, keep_bytes=False)
         self._alive: set[str] = set()
         self._subscribers = [
-            session.declare_subscriber(keys.STATS_ALL, self._on_stats),
             session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_alive, history=True),
         ]
         if streams:
             self._subscribers.append(session.declare_subscriber(streams, self._streams))
-
-    def _on_stats(self, sample: zenoh.Sample) -> None:
-        stats = decode_stats(sample)
-        if stats is None:
-            with self._lock:
-                self._malformed += 1
-            return
-        name = f"{stats.role}/{stats.node}/{stats.index}"
-        with self._lock:
-            self._first.setdefault(name, stats)
-            self._latest[name] = stats
-            self._heard_s[name] = time.monotonic()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         try:
@@ -188,8 +171,7 @@ class ClusterObserver:
         The queries come at the end of the window: a query sent as soon as the session opened reached only
         the members whose routes had arrived yet (5 of 7 in a run).
         """
-        with self._lock:
-            self._first = dict(self._latest)  # rates over this window start at the last message seen
+        self._stats.start_window()  # rates over this window start at the last message seen
         t0 = time.monotonic()
         streams: dict[str, StreamRate] = {}
         deadline = Deadline(window_s)
@@ -203,17 +185,11 @@ class ClusterObserver:
                 break
         health, bad = health_replies(self.session, self.timeout_s)
         with self._lock:
-            # a member that left is listed as gone while its last stats are recent, then forgotten
-            silent = [n for n, t in self._heard_s.items() if time.monotonic() - t > FORGET_S]
-            for name in set(silent) - self._alive:
-                del self._latest[name], self._heard_s[name]
-                self._first.pop(name, None)
-            first, latest, malformed, alive = (
-                dict(self._first),
-                dict(self._latest),
-                self._malformed,
-                set(self._alive),
-            )
+            alive = set(self._alive)
+        # a member that left is listed as gone while its last stats are recent, then forgotten
+        self._stats.forget(FORGET_S, keep=frozenset(alive))
+        first, latest, _ = self._stats.window()
+        malformed = self._stats.malformed
         names = alive | set(health) | set(latest)
         members = {
             n: MemberStatus(n, n in alive, health.get(n), first.get(n), latest.get(n)) for n in sorted(names)
@@ -221,6 +197,7 @@ class ClusterObserver:
         return Snapshot(time.monotonic() - t0, members, dict(sorted(streams.items())), malformed + bad)
 
     def close(self) -> None:
+        self._stats.close()
         for subscriber in self._subscribers:
             subscriber.undeclare()
 

@@ -24,7 +24,7 @@ from services.tools.cluster_file import ClusterSpec, load_cluster
 from services.tools.compose import compose_from_cluster
 from services.tools.observe import StatsWatch, YawCollector, member_rows
 from services.tools.report import print_table
-from services.tools.secure import SecureProfile, add_profile_arguments
+from services.tools.secure import add_profile_arguments, profile_of
 from services.tools.up import LocalCluster
 
 
@@ -86,7 +86,7 @@ def register(subparsers: Any) -> None:
         default="",
         help='extra master options (yaw settings), e.g. "--grid 8x5 --patch-size 32"',
     )
-    add_profile_arguments(parser)
+    add_profile_arguments(parser, secure_by_default=True)
     parser.set_defaults(handler=run)
 
 
@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        secure = SecureProfile.ensure(args.secure, (spec.uav,)) if args.secure else None
+        secure = profile_of(args, (spec.uav,), tuple(h.name for h in spec.hosts))
         with LocalCluster(
             spec,
             args.logs,

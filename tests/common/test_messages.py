@@ -330,3 +330,12 @@ def test_nan_in_job_settings_is_a_wire_error() -> None:
     job = patch_job(1, 4, validate=False, settings=settings, crops=crops, prev_crops=crops[:0])
     with pytest.raises(WireError, match="finite"):
         decode(*encode(job), m.PatchJob)
+
+
+def test_a_service_message_names_its_member_as_its_liveliness_key_does() -> None:
+    from common.wire import keys
+
+    stats = m.Stats(role="worker", node="h1", index=2, uptime_s=1.0, stamp_s=0.0)
+    health = m.Health(role="worker", node="h1", index=2, uptime_s=1.0, ok=True)
+    alive = keys.parse_alive_key(keys.alive_key("worker", "h1", 2))
+    assert stats.member == health.member == alive.name == "worker/h1/2"

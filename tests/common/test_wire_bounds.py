@@ -8,7 +8,7 @@ import pytest
 from common.streams import StreamTable
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob
-from common.wire.schema import MAX_JOB_PATCHES, WireError
+from common.wire.schema import MAX_BUDGET_S, MAX_JOB_PATCHES, WireError
 from common.yaw import YawSettings
 from common.yaw.correlation import patch_spectra_from_crops
 from common.yaw.patchwork import SpectrumCache
@@ -35,7 +35,8 @@ def _job(n: int, side: int = 32, stream: str = "uav0") -> PatchJob:
 @pytest.mark.parametrize(
     ("job", "match"),
     [(_job(MAX_JOB_PATCHES + 1, 8), "patches"), (_job(1, 1024), "square"),
-     (_job(40, stream="x" * 65), "stream"), (_job(400, 256), "pixels")],
+     (_job(40, stream="x" * 65), "stream"), (_job(400, 256), "pixels"),
+     (patch_job(40, validate=False, budget_s=MAX_BUDGET_S * 100), "budget_s")],
 )  # fmt: skip
 def test_oversized_jobs_are_refused_at_decode(job: PatchJob, match: str) -> None:
     payload, header = encode(job)

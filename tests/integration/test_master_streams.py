@@ -134,10 +134,10 @@ def test_hostile_frames_are_refused_counted_and_the_yaw_stays_exact(
                 time.sleep(1 / FPS)
             assert yaws.wait(lambda: N - 60 - 3 in yaws.by_seq() and 59 in yaws.by_seq())
             counters = health(session, "master", "master").counters
-    assert counters.get("refused_seq_jump", 0) >= 1
-    assert counters.get("refused_stamp_jump", 0) >= 1
-    assert counters.get("refused_foreign_uav", 0) == 1
-    assert counters.get("refused_wrong_size", 0) == 2
+    assert counters.get("refused_camera_seq_jump", 0) >= 1
+    assert counters.get("refused_camera_stamp_jump", 0) >= 1
+    assert counters.get("refused_camera_foreign_uav", 0) == 1
+    assert counters.get("refused_camera_wrong_size", 0) == 2
     assert counters.get("epochs", 0) == 2, counters
     first_epoch = {y.seq: y for y in yaws.items if y.stamp_s < 60 / FPS}
     second_epoch = {y.seq + 60: y for y in yaws.items if y.stamp_s >= 60 / FPS}

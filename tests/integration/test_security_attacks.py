@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from common.members import Role
 from services.tools.bench import hostile, takeover
 from services.tools.bench.security import small_cluster
 from services.tools.secure import SecureProfile
@@ -63,6 +64,19 @@ def test_fake_worker_gets_crops_only_in_the_open_profile(cluster: LocalCluster) 
         assert result.evidence["frames_lost"] <= 1
     else:
         assert result.evidence["jobs_received"] > 0
+
+
+@pytest.mark.parametrize(("holder", "role"), [("worker.h2", Role.WORKER), ("foreman.h2", Role.FOREMAN)])
+def test_another_nodes_certificate_serves_nothing_on_this_node(
+    cluster: LocalCluster, holder: str, role: Role
+) -> None:
+    """Issue 27: identity was per role, not per node: a foreman certificate served jobs on another node's
+    foreman key, and a worker certificate joined any node."""
+    if not cluster.secure:
+        pytest.skip("the open profile has no identity to steal (the fake worker test measures it)")
+    result = hostile.attack_fake_worker(cluster, "secure", frames=30, fps=FPS, holder=holder, role=role)
+    assert result.evidence["jobs_received"] == 0 and result.evidence["crop_bytes_received"] == 0
+    assert result.evidence["frames_lost"] <= 1
 
 
 def test_liveliness_flood(cluster: LocalCluster) -> None:

@@ -16,9 +16,16 @@ from common.wire.measurements import message_of
 
 
 def publish_measurements(
-    session: zenoh.Session, uav: str, measurements: list[Measurement], speed: float = 1.0, block: bool = False
+    session: zenoh.Session,
+    uav: str,
+    measurements: list[Measurement],
+    speed: float = 1.0,
+    block: bool = False,
+    first_seq: int = 0,
 ) -> int:
-    """Publish the samples (stamp order) on ``uav``'s keys; returns how many were sent.
+    """Publish the samples (stamp order) on ``uav``'s keys, numbered from ``first_seq`` (a later part of a
+    stream continues its numbering: a restart from 0 is a new epoch at the input gate); returns how many
+    were sent.
 
     ``block`` uses ``CongestionControl.BLOCK`` (nothing dropped on the way: for tests that compare every
     estimate); the default drops like a live sensor stream.
@@ -33,7 +40,7 @@ def publish_measurements(
                 delay = (m.stamp_s - t_sim0) / speed - (time.monotonic() - t_wall0)
                 if delay > 0.0:
                     time.sleep(delay)
-            key, message = message_of(uav, seq, m)
+            key, message = message_of(uav, first_seq + seq, m)
             if key not in publishers:
                 publishers[key] = session.declare_publisher(
                     key,

@@ -15,8 +15,8 @@ from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.wire import keys
 from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import BlockJob, PatchJob, PatchResult
-from common.yaw.patchwork import PatchWorkError
-from services.foreman.service import CropStore, ForemanService, ForemanSettings
+from common.yaw.patchwork import CropStore, PatchWorkError
+from services.foreman.service import ForemanService, ForemanSettings
 from services.runtime.counters import Counters
 from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.foreman.service import CropStore
+from common.yaw.patchwork import CropStore
 
 
 def test_crop_store_after_a_camera_restart_regression() -> None:

@@ -29,3 +29,16 @@ def test_work_queue_refuses_when_full_and_never_blocks() -> None:
     assert queue.drain() == ["b"] and queue.take(0.0) is None
     with pytest.raises(HandoffError):
         WorkQueue(0)
+
+
+def test_wake_ends_a_wait_with_nothing_queued() -> None:
+    queue: WorkQueue[str] = WorkQueue(1)
+    result: list[bool] = []
+    waiter = threading.Thread(target=lambda: result.append(queue.wait(60.0)))
+    waiter.start()
+    for _ in range(600):  # wake until the waiter has returned (a wake before it waits is lost)
+        queue.wake()
+        waiter.join(0.05)
+        if not waiter.is_alive():
+            break
+    assert result == [False] and queue.depth() == 0

@@ -1,6 +1,7 @@
 """The localizer service over Zenoh on loopback: the same poses as the in-process tracker (the office with
 its defaults; the object flight from a model file, a calibration file and a camera-from-world initial pose),
-and it survives malformed, foreign, wrong-size, stale and future-stamped frames (refused and counted)."""
+and it survives malformed, foreign, wrong-size, stale and future-stamped frames (refused by the input gate
+and counted)."""
 
 from __future__ import annotations
 
@@ -81,10 +82,10 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
         assert np.all(np.linalg.eigvalsh(pose.covariance) >= -1e-12)
     counts = service.counters.counts()
     assert counts.get("malformed") == 1
-    assert counts.get("wrong_uav") == 1
+    assert counts.get("refused_camera_foreign_uav") == 1
     assert counts.get("bad_frames") == 1
-    assert counts.get("stale_frames") == 1
-    assert counts.get("refused_camera_future_stamp") == 1
+    assert counts.get("refused_camera_stamp_backward") == 1
+    assert counts.get("refused_camera_stamp_jump") == 1
     assert counts.get("poses_out") == N_FRAMES
     assert counts.get("thread_crashes", 0) == 0
 
@@ -175,10 +176,10 @@ def _run_the_service(
                         counts.get(k, 0)
                         for k in (
                             "malformed",
-                            "wrong_uav",
+                            "refused_camera_foreign_uav",
                             "bad_frames",
-                            "stale_frames",
-                            "refused_camera_future_stamp",
+                            "refused_camera_stamp_backward",
+                            "refused_camera_stamp_jump",
                         )
                     )
                     >= 5

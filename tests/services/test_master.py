@@ -69,9 +69,12 @@ def test_a_foreign_or_resized_frame_never_reaches_the_yaw_stage() -> None:
     assert master.slot.depth() == 0 and master.counters.get("frames_in") == 0  # the callback only hands off
     master.intake.gate_received(leading=True)
     assert master.slot.depth() == 1
-    assert master.counters.get("refused_foreign_uav") == 1 and master.counters.get("refused_wrong_size") == 1
+    assert (
+        master.counters.get("refused_camera_foreign_uav") == 1
+        and master.counters.get("refused_camera_wrong_size") == 1
+    )
     ok, detail = master.healthy()
-    assert not ok and "2 frames refused" in detail
+    assert not ok and "2 inputs refused" in detail
 
 
 def test_a_bug_in_the_round_is_an_internal_error_with_its_traceback_not_a_routine_fallback_regression(

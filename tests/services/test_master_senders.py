@@ -71,11 +71,11 @@ def test_a_second_sender_is_refused_within_the_epoch_and_a_restarted_camera_star
                     camera.send(k, flight.frame(k))
                     assert wait_until(lambda k=k: len(yaws) == k + 1)
                 counts = master.counters
-                assert counts.get("refused_foreign_sender") + counts.get("frames_foreign") == 10
+                assert counts.get("refused_camera_foreign_sender") + counts.get("frames_foreign") == 10
                 if not trust:  # the gate alone saw (and refused) every forged frame
-                    assert master.counters.get("refused_foreign_sender") == 10
+                    assert master.counters.get("refused_camera_foreign_sender") == 10
                 assert master.counters.get("epochs") == 1
-                assert master.counters.get("refused_seq_backward") == 0  # no forged frame was adopted
+                assert master.counters.get("refused_camera_seq_backward") == 0  # no forged frame was adopted
                 assert [seq for seq, _ in yaws] == list(range(12))
                 # a restarted camera: a new session from seq 0, once the old one is gone
                 camera.close()

@@ -18,6 +18,7 @@ from common.yaw import YawSettings, gyro_delta_yaw_rad
 from services.master.gyro import GyroBuffer, GyroPrior
 from services.master.lens import CameraSource, add_yaw_prior_arguments, yaw_prior_settings_from_args
 from services.runtime.counters import Counters
+from services.runtime.gate import InputGate
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -103,6 +104,16 @@ def test_gyro_buffer_gives_the_in_process_bits_and_refuses_disorder() -> None:
     assert len(buffer) == 1
 
 
+class _Service:
+    """What the input gate counts and logs with."""
+
+    def __init__(self) -> None:
+        self.counters = Counters()
+
+    def count_error(self, counter: str, what: str, exc: BaseException | str) -> None:
+        self.counters.inc(counter)
+
+
 def test_mount_options_turn_the_gyro_prior_about_the_images_axis_on_the_imus_clock() -> None:
     """A down camera on an IMU mounted upside down, its clock 12 ms ahead: the prior integrates the IMU's
     -z between the frame stamps plus 12 ms, and equals the body-aligned IMU's prior of the same motion."""
@@ -111,8 +122,11 @@ def test_mount_options_turn_the_gyro_prior_about_the_images_axis_on_the_imus_clo
     assert np.allclose(prior.gyro_axis_imu(), [0.0, 0.0, -1.0])
     stamps = np.arange(0.0, 1.0, 0.0025)
     rates = np.sin(stamps * 7.0)
-    counters = Counters()
-    gyro = GyroPrior(True, 0.0, counters, prior.gyro_axis_imu(), prior.rig_mount.imu_time_offset_s)
+    service = _Service()
+    gate = InputGate("uav0", service)
+    gyro = GyroPrior(
+        True, 0.0, service.counters, gate, prior.gyro_axis_imu(), prior.rig_mount.imu_time_offset_s
+    )
     aligned = GyroBuffer()
     for t, r in zip(stamps, rates, strict=True):
         gyro.on_sample(_imu(float(t) + 0.012, -float(r)))  # the IMU's -z reads the body's +z

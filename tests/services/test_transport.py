@@ -8,7 +8,13 @@ from pathlib import Path
 import pytest
 
 from services.router.service import RouterService
-from services.runtime.transport import TransportError, TransportSettings, listening_endpoints, open_session
+from services.runtime.transport import (
+    TransportError,
+    TransportSettings,
+    listening_endpoints,
+    open_beyond_loopback,
+    open_session,
+)
 from tests.zenoh_helpers import WAIT_S, wait_until
 
 
@@ -84,3 +90,21 @@ def test_the_router_started_on_port_zero_writes_its_endpoint_file(tmp_path: Path
         router.request_stop()
         runner.join(10.0)
     assert not runner.is_alive()
+
+
+@pytest.mark.parametrize(
+    ("listen", "connect", "warned"),
+    [
+        (("tcp/127.0.0.1:0",), (), False),
+        (("tcp/[::1]:0",), ("tcp/localhost:7447",), False),
+        (("tcp/0.0.0.0:0",), (), True),
+        (("tcp/127.0.0.1:0",), ("tcp/router:7447",), True),
+        (("tls/0.0.0.0:0",), ("tls/router:7447",), False),
+    ],
+)
+def test_an_open_session_beyond_loopback_is_named_at_start(
+    listen: tuple[str, ...], connect: tuple[str, ...], warned: bool
+) -> None:
+    """Issue 27: a client of the open profile is warned at start that anyone can read, forge and steer."""
+    settings = TransportSettings(listen=listen, connect=connect)
+    assert bool(open_beyond_loopback(settings)) is warned

@@ -73,8 +73,9 @@ def test_an_imu_sample_enters_no_module_more_than_twice_from_the_callback_to_the
     assert counts[filter_module] == 1 and counts[math_module] == 1, entries
     # the filters are called directly (no dispatch on method names in common/estimation/filters.py)
     assert "common/estimation/filters.py" not in counts
-    # time checked once (the stamp guard), values once (the checked measurement), each where it arrives
-    assert counts["services/runtime/stamps.py"] == 1 and counts["services/estimator/inputs.py"] == 1
+    # UAV, sender and time checked once (the input gate), values once (the checked measurement), each where it
+    # arrives
+    assert counts["services/runtime/gate.py"] == 1 and counts["services/estimator/inputs.py"] == 1
     assert counts["common/estimation/coupling.py"] <= 2 and counts["services/estimator/service.py"] <= 2
 
 

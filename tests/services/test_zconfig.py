@@ -79,13 +79,13 @@ def test_credentials_come_from_environment_files(tmp_path: Path, certs: Path) ->
     config = TransportSettings.from_env(
         environ={
             "CAPATAZ_ZENOH_TLS_CA": str(certs / "ca.pem"),
-            "CAPATAZ_ZENOH_TLS_CERT": str(certs / "worker.pem"),
-            "CAPATAZ_ZENOH_TLS_KEY": str(certs / "worker.key"),
+            "CAPATAZ_ZENOH_TLS_CERT": str(certs / "worker.h1.pem"),
+            "CAPATAZ_ZENOH_TLS_KEY": str(certs / "worker.h1.key"),
             "CAPATAZ_ZENOH_USRPWD_FILE": str(secret),
         }
     ).to_config()
     tls = zconfig.get(config, "transport/link/tls")
-    assert tls["enable_mtls"] is True and tls["listen_private_key"].endswith("worker.key")
+    assert tls["enable_mtls"] is True and tls["listen_private_key"].endswith("worker.h1.key")
     assert zconfig.get(config, "transport/auth/usrpwd/user") == "camera"
 
 

@@ -55,9 +55,10 @@ class AttackResult:
         return asdict(self)
 
 
-def attacker_transport(cluster: LocalCluster) -> TransportSettings:
-    """A peer connected to the router; in the secure profile it holds the ``client`` certificate."""
-    env = cluster.secure.environment("client") if cluster.secure else {}
+def attacker_transport(cluster: LocalCluster, holder: str = "client") -> TransportSettings:
+    """A peer connected to the router; in the secure profile it holds the ``holder`` certificate (the
+    read-only ``client``'s, or a stolen one of another role or node)."""
+    env = cluster.secure.environment(holder) if cluster.secure else {}
     return TransportSettings.from_env(
         environ=env,
         connect=(cluster.router,),
@@ -67,8 +68,8 @@ def attacker_transport(cluster: LocalCluster) -> TransportSettings:
 
 
 @contextmanager
-def attacker(cluster: LocalCluster) -> Iterator[zenoh.Session]:
-    with open_session(attacker_transport(cluster)) as session:
+def attacker(cluster: LocalCluster, holder: str = "client") -> Iterator[zenoh.Session]:
+    with open_session(attacker_transport(cluster, holder)) as session:
         time.sleep(0.5)  # links to the router and the peers it learns about
         yield session
 
@@ -307,18 +308,27 @@ def watching(cluster: LocalCluster, uav: str) -> Iterator[YawWatch]:
             watch.close()
 
 
-def attack_fake_worker(cluster: LocalCluster, profile: str, frames: int, fps: float) -> AttackResult:
-    """A worker token and queryable on host h1 (index 9): does its foreman send it real crops?"""
+def attack_fake_worker(
+    cluster: LocalCluster,
+    profile: str,
+    frames: int,
+    fps: float,
+    holder: str = "client",
+    role: Role = Role.WORKER,
+) -> AttackResult:
+    """A ``role`` token and work queryable on host h1 (worker 9; a foreman on h1's own block key), from a
+    session holding ``holder``'s certificate (e.g. ``worker.h2``: another node's): does it get crops?"""
     host = cluster.spec.hosts[0].name
     with (
         watching(cluster, cluster.spec.uav) as watch,
-        attacker(cluster) as session,
-        fake_member(session, Role.WORKER, host, index=9) as seen,
+        attacker(cluster, holder) as session,
+        fake_member(session, role, host, index=9 if role is Role.WORKER else 0) as seen,
     ):
         fly(cluster, watch, frames, fps, timeout_s=60.0 + frames / fps)
     evidence = {"jobs_received": seen["jobs"], "crop_bytes_received": seen["crop_bytes"], "frames": frames,
-                "frames_lost": frames_lost(watch, frames)}  # fmt: skip
-    return AttackResult("fake_worker_crops", profile, seen["jobs"] > 0, evidence)
+                "frames_lost": frames_lost(watch, frames), "holder": holder}  # fmt: skip
+    name = "fake_worker_crops" if holder == "client" else f"{role.value}_on_{host}_as_{holder}"
+    return AttackResult(name, profile, seen["jobs"] > 0, evidence)
 
 
 def attack_fake_foreman(

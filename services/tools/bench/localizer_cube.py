@@ -38,7 +38,7 @@ from common.errors import CapatazError
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.process_noise import residual_px
-from common.localization.projection import ProjectedSamples, project_posed_samples, sample_edges
+from common.localization.projection import ProjectedSamples, project_pose_samples, sample_edges
 from common.localization.refine import oriented_offsets
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
@@ -103,10 +103,10 @@ class EdgeAlignment:
         visible = visible_points(
             self.scene, self.samples.points_world_m, pose.R_camera_world, pose.p_world_camera_m, self.camera
         )
-        return project_posed_samples(
+        return project_pose_samples(
             self.samples,
-            pose.R_camera_world[None],
-            pose.p_world_camera_m[None],
+            pose.R_camera_world,
+            pose.p_world_camera_m,
             self.camera,
             with_normals=with_normals,
             visible=visible,

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from common.dispatch import Balance
-from common.members import Topology
+from common.members import Role, Topology
 from services.camera import CameraSettings, simulated_flight
 from services.tools.bench import hostile, secure_system, takeover
 from services.tools.bench.cluster_workload import write_frame_folder
@@ -59,8 +59,8 @@ def small_cluster() -> ClusterSpec:
 
 #: in this order: the last one kills the cluster's master (a standby takes over)
 ATTACKS = (
-    "forged_outputs", "fake_worker_crops", "liveliness_flood", "forged_frame_flood", "fake_foreman",
-    "forged_yaw_takeover",
+    "forged_outputs", "fake_worker_crops", "other_node_member", "liveliness_flood", "forged_frame_flood",
+    "fake_foreman", "forged_yaw_takeover",
 )  # fmt: skip
 
 
@@ -86,6 +86,11 @@ def run_attacks(
                 result = hostile.attack_forged_outputs(cluster, profile, spec.uav)
             elif name == "fake_worker_crops":
                 result = hostile.attack_fake_worker(cluster, profile, frames=40, fps=fps)
+            elif name == "other_node_member":  # another node's stolen certificates, on h1
+                worker = hostile.attack_fake_worker(cluster, profile, 40, fps, "worker.h2")
+                result = hostile.attack_fake_worker(cluster, profile, 40, fps, "foreman.h2", Role.FOREMAN)
+                result.evidence["worker"] = worker.evidence
+                result.succeeded = result.succeeded or worker.succeeded
             elif name == "liveliness_flood":
                 result = hostile.attack_liveliness_flood(cluster, profile, flood_frames, fps)
             elif name == "forged_frame_flood":

@@ -84,7 +84,12 @@ class LoadCluster:
     def __init__(self, spec: ClusterSpec, settings: RunSettings, log_dir: Path) -> None:
         self.settings = settings
         self.uavs = [f"uav{i}" for i in range(settings.streams)]
-        secure = SecureProfile.ensure(settings.secure_dir, tuple(self.uavs)) if settings.secure_dir else None
+        nodes = tuple(h.name for h in spec.hosts)
+        secure = (
+            SecureProfile.ensure(settings.secure_dir, tuple(self.uavs), nodes)
+            if settings.secure_dir
+            else None
+        )
         self.cluster = LocalCluster(
             spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms, secure=secure,
             zenoh_config=settings.zenoh_config,

@@ -88,7 +88,7 @@ class StatsLog:
         stats = decode_stats(sample)
         if stats is None:
             return
-        name = f"{stats.role}/{stats.node}/{stats.index}"
+        name = stats.member
         with self._lock:
             self.latest[name] = dict(stats.counters)
             self.arrived_monotonic_s[name] = time.monotonic()

@@ -16,11 +16,15 @@ from common.estimation.ekf_models import (
     accelerometer_model,
     normalized_quaternion,
     propagate_quaternion,
-    rangefinder_model,
     three_floats,
-    yaw_model,
 )
-from common.estimation.eskf_math import error_jacobian, inverse_spd
+from common.estimation.eskf_math import (
+    checked_position,
+    error_jacobian,
+    inverse_spd,
+    range_observation,
+    yaw_observation,
+)
 from common.estimation.eskf_state import BiasEkfSettings
 from common.types import FloatArray
 
@@ -231,12 +235,8 @@ class ReferenceEskf:
     ) -> ReferenceResult:
         """Horizontal position ``p_xy_m`` (navigation frame, e.g. the visual odometry's), std ``noise_m``
         (default ``settings.position_noise_m``)."""
-        p = np.asarray(p_xy_m, dtype=np.float64).reshape(-1)
-        if p.shape != (2,) or not np.all(np.isfinite(p)):
-            raise InputError(f"p_xy_m must be 2 finite numbers, got {p_xy_m!r}")
         std = self.settings.position_noise_m if noise_m is None else float(noise_m)
-        if not (math.isfinite(std) and std > 0.0):
-            raise InputError(f"position noise must be finite and > 0, got {std}")
+        p = checked_position(p_xy_m, std)
         P = state.covariance
         PHt = P[:, PXY]
         S = PHt[PXY] + np.eye(2) * std**2
@@ -247,29 +247,15 @@ class ReferenceEskf:
     def update_yaw(
         self, state: ReferenceState, yaw_rad: float, yaw_noise_rad: float | None = None
     ) -> ReferenceResult:
-        """Yaw ``[cos psi, sin psi]`` of eq. 19 (``yaw_rad`` may be unwrapped)."""
-        if not math.isfinite(yaw_rad):
-            raise InputError(f"yaw_rad must be finite, got {yaw_rad}")
-        q = state.q_world_body.tolist()
-        qt = (q[0], q[1], q[2], q[3])
-        h, Hq = yaw_model(qt)
-        H = np.zeros((2, N_ERROR))
-        H[:, THETA] = np.array(Hq) @ error_jacobian(qt)
+        """Yaw: the filter's innovation and Jacobian (not compiled), the reference's correction."""
+        y, H = yaw_observation(state.q_world_body, yaw_rad)
         var = self._yaw_var if yaw_noise_rad is None else float(yaw_noise_rad) ** 2
-        y = np.array([math.cos(yaw_rad) - h[0], math.sin(yaw_rad) - h[1]])
         return self._update(state, y, H, np.eye(2) * var)
 
     def update_range(self, state: ReferenceState, range_m: float) -> ReferenceResult:
-        """Rangefinder with the tilt model of eq. 21."""
-        if not (math.isfinite(range_m) and range_m > 0.0):
-            raise InputError(f"range_m must be finite and > 0, got {range_m}")
-        q = state.q_world_body.tolist()
-        qt = (q[0], q[1], q[2], q[3])
-        h, Hrow = rangefinder_model(qt, state.pz_m)
-        H = np.zeros((1, N_ERROR))
-        H[0, THETA] = np.array(Hrow[:4]) @ error_jacobian(qt)
-        H[0, PZ] = Hrow[4]
-        return self._update(state, np.array([range_m - h]), H, np.array([[self._range_var]]))
+        """Rangefinder: the filter's innovation and Jacobian (not compiled), the reference's correction."""
+        y, H = range_observation(state.q_world_body, state.pz_m, range_m)
+        return self._update(state, y, H, np.array([[self._range_var]]))
 
     def _update(self, state: ReferenceState, y: FloatArray, H: FloatArray, R: FloatArray) -> ReferenceResult:
         """Update with a dense ``H`` (range, yaw)."""

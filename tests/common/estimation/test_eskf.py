@@ -23,7 +23,19 @@ from common.estimation.ekf_models import (
 )
 from common.estimation.eskf import BiasAwareEkf, error_jacobian
 from common.estimation.eskf_math import inverse_spd
-from common.estimation.eskf_state import N_ERROR, BiasEkfSettings, BiasEkfState
+from common.estimation.eskf_state import (
+    BA,
+    BG,
+    N_ERROR,
+    PXY,
+    PZ,
+    THETA,
+    VXY,
+    VZ,
+    BiasEkfSettings,
+    BiasEkfState,
+    error_variances,
+)
 from common.geometry import (
     quaternion_from_euler,
     quaternion_multiply,
@@ -99,6 +111,21 @@ def test_altitude_from_range_inverts_eq21(r: float, p: float, y: float, pz: floa
     q = tuple(float(v) for v in quaternion_from_euler(r, p, y))
     s, _ = rangefinder_model(q, pz)  # type: ignore[arg-type]
     assert altitude_from_range(q, s) == pytest.approx(pz, rel=1e-12)  # type: ignore[arg-type]
+
+
+def test_the_initial_covariance_puts_each_settings_std_on_its_block() -> None:
+    s = BiasEkfSettings(
+        initial_attitude_std_rad=0.1, initial_altitude_std_m=0.2, initial_velocity_std_m_s=0.7
+    )
+    P = BiasAwareEkf(s).initial_state([1.0, 0.0, 0.0, 0.0], 1.0, 0.0).covariance
+    diag = P.diagonal()
+    assert np.array_equal(P, np.diag(diag))
+    g, a = s.initial_gyro_bias_std_rad_s**2, s.initial_accel_bias_std_m_s2**2
+    blocks: list[tuple[slice | int, float]] = [(THETA, 0.01), (PZ, 0.04), (BG, g), (BA, a), (PXY, 0.0)]
+    for block, variance in [*blocks, (VXY, 0.49), (VZ, 0.49)]:
+        assert np.allclose(diag[block], variance, rtol=1e-15, atol=0.0)
+    gyro, accel = s.initial_gyro_bias_std_rad_s, s.initial_accel_bias_std_m_s2
+    assert np.array_equal(diag, error_variances(0.1, 0.2, gyro, accel, 0.7))
 
 
 def test_predict_propagates_the_bias_corrected_gyro_and_grows_the_covariance() -> None:

@@ -11,7 +11,13 @@ from common.camera import CameraModel
 from common.errors import InputError
 from common.localization.model import SceneModel, build_scene
 from common.localization.pose import perturb
-from common.localization.projection import project_samples, projection_matrices, sample_edges
+from common.localization.projection import (
+    camera_poses,
+    project_pose_samples,
+    project_samples,
+    projection_matrices,
+    sample_edges,
+)
 
 CAMERA = CameraModel(width=320, height=240, fx=200.0, fy=210.0, cx=159.5, cy=119.5)
 
@@ -127,10 +133,22 @@ def test_batched_projection_equals_one_particle_at_a_time(
         assert np.allclose(batch.normal_u[p, rows][ok], single.normal_u[0][ok], atol=1e-4)
 
 
+def test_one_pose_projection_is_the_batch_of_one(office: SceneModel) -> None:
+    samples = sample_edges(office, points_per_edge=5)
+    state = np.array([[5.0, 4.0, 1.5, 0.1, -0.05, 0.7]])
+    R_camera_world, p_world_camera = camera_poses(state)
+    one = project_pose_samples(samples, R_camera_world[0], p_world_camera[0], CAMERA, with_normals=True)
+    batch = project_samples(samples, state, CAMERA, with_normals=True)
+    assert one.valid.shape[0] == 1 and one.valid.any()
+    for name in ("u_px", "v_px", "valid", "pixel_index", "edge_ids", "normal_u", "normal_v"):
+        assert np.array_equal(
+            getattr(one, name), getattr(batch, name), equal_nan=name.endswith(("_px", "_u", "_v"))
+        ), name
+
+
 def test_projection_goes_through_the_lens_and_keeps_lines_and_limbs_right() -> None:
     from common.camera import Distortion, DistortionModel
     from common.localization.pose import CameraPose
-    from common.localization.projection import project_posed_samples
 
     # a standalone line (no face), a smooth edge between two faces, a sharp one
     vertices = [[-1, 2, -0.5], [1, 2, -0.5], [-1, 2, 0.5], [1, 2, 0.5], [1.4, 2.3, 0.5], [1.4, 2.3, -0.5]]
@@ -153,9 +171,7 @@ def test_projection_goes_through_the_lens_and_keeps_lines_and_limbs_right() -> N
         Distortion(DistortionModel.RADTAN, (-0.2, 0.05, 0.001, -0.001, 0.0)),
     )
     samples = sample_edges(scene, 4)
-    projected = project_posed_samples(
-        samples, pose.R_camera_world[None], pose.p_world_camera_m[None], distorted
-    )
+    projected = project_pose_samples(samples, pose.R_camera_world, pose.p_world_camera_m, distorted)
     valid = projected.valid[0]
     points = samples.points_world_m[projected.edge_ids][valid]
     expected = distorted.project((points - pose.p_world_camera_m) @ pose.R_world_camera)
@@ -169,8 +185,8 @@ def test_projection_goes_through_the_lens_and_keeps_lines_and_limbs_right() -> N
     # folded the other way the second face turns away: the smooth edge is a limb (silhouette) and is kept
     vertices[4], vertices[5] = [0.0, 2.5, 0.5], [0.0, 2.5, -0.5]
     limb = build_scene(vertices, [[0, 1, 3, 2], [1, 5, 4, 3]], [0.5, 0.5], face_groups=[0, 0])
-    folded = project_posed_samples(
-        sample_edges(limb, 4), pose.R_camera_world[None], pose.p_world_camera_m[None], distorted
+    folded = project_pose_samples(
+        sample_edges(limb, 4), pose.R_camera_world, pose.p_world_camera_m, distorted
     )
     assert int(np.flatnonzero(limb.edge_smooth)[0]) in folded.edge_ids.tolist()
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from common.localization.pose import CameraPose
-from common.localization.projection import project_posed_samples
+from common.localization.projection import project_pose_samples
 from common.localization.refine import EdgeFit, RefineSettings, match_measures, refine_best
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings
@@ -26,10 +26,10 @@ def tracker() -> ModelTracker:
 def _trap_image(tracker: ModelTracker, truth: CameraPose, trap: CameraPose) -> np.ndarray:
     """The scene at ``truth`` with the model's visible edges at ``trap`` painted on it (texture)."""
     image = render_view(tabletop_scene(), truth.R_world_camera, truth.p_world_camera_m, tracker.camera)
-    proj = project_posed_samples(
+    proj = project_pose_samples(
         tracker.samples,
-        trap.R_camera_world[None],
-        trap.p_world_camera_m[None],
+        trap.R_camera_world,
+        trap.p_world_camera_m,
         tracker.camera,
         visible=tracker._visible(trap),
     )

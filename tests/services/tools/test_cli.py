@@ -109,8 +109,9 @@ def test_up_fails_at_once_when_its_port_is_taken(tmp_path: Path) -> None:
         holder.listen()
         port = holder.getsockname()[1]
         done = capataz(
-            "up", "--cluster", "deploy/clusters/local2x2.yml", "--port", str(port), "--logs", str(tmp_path)
-        )
+            "up", "--cluster", "deploy/clusters/local2x2.yml", "--port", str(port), "--logs", str(tmp_path),
+            "--open",
+        )  # fmt: skip
     assert_one_line(done, 1, f"127.0.0.1:{port}", "in use")
     assert "cluster" not in done.stdout  # never "cluster up"
 

@@ -23,6 +23,7 @@ WRONG_COMMAND_LINES: list[tuple[list[str], str]] = [
     (["master", "--grid", "0x5"], "--grid (columns): must be a finite number >= 1"),
     (["master", "--grid", "8by5"], "--grid must look like 8x5"),
     (["master", "--patch-size", "3"], "--patch-size: must be a finite number >= 8"),
+    (["master", "--budget-ms", "1e6"], "--budget-ms: must be in (0, 10000] ms"),
     (["camera", "--resolution", "10x"], "--resolution must look like 752x480, got '10x'"),
     (["camera", "--images", "no/such/folder"], "--images no/such/folder: no such folder"),
     (["worker", "--index", "-1"], "argument --index: must be an integer >= 0, got '-1'"),

@@ -3,6 +3,7 @@ image is non-root with a real init; each described cluster comes up locally with
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -125,7 +126,9 @@ def test_image_is_non_root_with_init_and_zenoh_is_pinned() -> None:
 def test_capataz_up_brings_each_described_cluster_up(path: Path, tmp_path: Path) -> None:
     spec = load_cluster(path)
     command = [sys.executable, "-m", "services.tools.cli", "up", "--cluster", str(path), "--port", "0",
-               "--frames", "10", "--fps", "0", "--in-flight", "1", "--logs", str(tmp_path)]  # fmt: skip
+               "--frames", "10", "--fps", "0", "--in-flight", "1", "--logs", str(tmp_path),
+               "--secure", str(tmp_path / "secure")]  # fmt: skip
+    # the default profile: secure (certificates made on first start into --secure's folder)
     # flow control (one frame without a yaw at a time) instead of a frame rate: the count below does not
     # depend on how fast a loaded host is (at 10 fps a busy host dropped 3 of 10 frames)
     done = subprocess.run(command, capture_output=True, text=True, timeout=240, cwd=ROOT)
@@ -152,6 +155,13 @@ def test_zenoh_config_files_load_and_match_the_transport_settings(name: str) -> 
     assert config.get_json("transport/shared_memory/enabled") == "false"
     assert int(config.get_json("transport/link/tx/lease")) == defaults.lease_ms
     assert int(config.get_json("transport/link/tx/queue/size/data")) == defaults.tx_queue_batches
+    # issue 27: the deploy configs listen on loopback or TLS only, and link over TLS only
+    endpoints = json.loads(config.get_json("listen/endpoints")) + json.loads(
+        config.get_json("connect/endpoints")
+    )
+    assert endpoints and all(e.startswith("tls/") or e.startswith("tcp/127.") for e in endpoints), endpoints
+    assert json.loads(config.get_json("transport/link/protocols")) == ["tls"]
+    assert config.get_json("transport/link/tls/enable_mtls") == "true"
 
 
 COMPOSE_V1 = shutil.which("docker-compose")

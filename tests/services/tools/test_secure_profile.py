@@ -4,9 +4,11 @@ and docker-compose.secure.yml."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -14,7 +16,9 @@ import yaml
 
 from common.wire import keys
 from services.runtime.acl import PolicySettings, acl_section, markdown_table, role_table
-from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, render_config
+from services.tools.cli import build_parser
+from services.tools.secure import DEPLOY_CONFIG, SecureProfile, make_certs, profile_of, render_config
+from tests.builders import small_cluster_file
 from tests.services.tools.test_deploy import check_compose
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -49,15 +53,22 @@ def test_least_privilege_table_of_the_issue() -> None:
     # the office flight has no estimator: its camera's simulated odometry is the one exception
     assert who_may("ingress", "put", keys.pose_vo_key("uav1")) == {"estimator.uav1", "camera.uav1"}
     assert who_may("ingress", "put", keys.pose_pf_key("uav1")) == {"localizer.uav1"}
-    work = {"capataz/node/*/foreman", "capataz/node/*/worker/*"}
-    servers = {
-        n for n in {r.common_name for r in role_table()} if allowed(n, "ingress", "declare_queryable") & work
+    # identity per node (issue 27): a foreman serves only its node's block key and queries only its node's
+    # workers; a worker serves only its node's keys; tokens, stats and health only under its node
+    for node in ("h1", "h2", "h3"):
+        assert who_may("ingress", "declare_queryable", keys.foreman_key(node)) == {f"foreman.{node}"}
+        assert who_may("ingress", "declare_queryable", f"capataz/node/{node}/worker/*") == {f"worker.{node}"}
+        assert who_may("ingress", "query", f"capataz/node/{node}/worker/*") == {f"foreman.{node}"}
+        for role in ("foreman", "worker"):
+            token = f"capataz/alive/{role}/{node}/**"
+            assert who_may("ingress", "liveliness_token", token) == {f"{role}.{node}"}
+    assert "foreman" not in {r.common_name for r in role_table()}  # no certificate valid on every node
+    queriers = {
+        n
+        for n in {r.common_name for r in role_table()}
+        if "capataz/node/*/foreman" in allowed(n, "ingress", "query")
     }
-    assert servers == {"foreman", "worker"}
-    queriers = {n for n in {r.common_name for r in role_table()} if allowed(n, "ingress", "query") & work}
-    assert queriers == {"master.uav0", "master.uav1", "foreman"}
-    assert who_may("ingress", "liveliness_token", "capataz/alive/worker/**") == {"worker"}
-    assert who_may("ingress", "liveliness_token", "capataz/alive/foreman/**") == {"foreman"}
+    assert queriers == {"master.uav0", "master.uav1"}
     client = {
         m: allowed("client", "ingress", m) for m in ("put", "declare_queryable", "liveliness_token", "reply")
     }
@@ -97,9 +108,35 @@ def subject(path: Path) -> str:
 
 
 def test_make_certs_gives_each_role_its_common_name_and_private_keys(certs: Path) -> None:
-    for name in ("router", "worker", "foreman", "client", "camera.uav0", "master.uav0", "localizer.uav0"):
+    for name in (
+        "router",
+        "worker.h1",
+        "foreman.h2",
+        "client",
+        "camera.uav0",
+        "master.uav0",
+        "localizer.uav0",
+    ):
         assert re.search(rf"CN\s*=\s*{re.escape(name)}$", subject(certs / f"{name}.pem").strip()), name
         assert (certs / f"{name}.key").stat().st_mode & 0o077 == 0, f"{name}.key is readable by others"
+
+
+def test_the_ca_key_lives_apart_from_the_role_keys_and_every_folder_is_private(tmp_path: Path) -> None:
+    """Regression (issue 27): ca.key was written among the role keys, in a folder whose mode followed the
+    umask (0755 seen)."""
+    out = tmp_path / "secure" / "certs"
+    old = os.umask(0o022)
+    try:
+        make_certs(out, ("uav0",))
+    finally:
+        os.umask(old)
+    ca_dir = tmp_path / "secure" / "certs-ca"
+    assert not (out / "ca.key").exists() and (ca_dir / "ca.key").is_file()
+    assert {p.suffix for p in out.iterdir()} == {".pem", ".key"}  # no serial or CSR left behind
+    for folder in (out, ca_dir):
+        assert folder.stat().st_mode & 0o777 == 0o700, folder
+    for key in [*out.glob("*.key"), ca_dir / "ca.key"]:
+        assert key.stat().st_mode & 0o777 == 0o600, key
 
 
 def test_running_make_certs_again_rotates_role_certificates_under_the_same_ca(
@@ -107,12 +144,14 @@ def test_running_make_certs_again_rotates_role_certificates_under_the_same_ca(
 ) -> None:
     copy = tmp_path / "c"
     shutil.copytree(certs, copy)
-    before_ca, before_worker = (copy / "ca.pem").read_bytes(), (copy / "worker.pem").read_bytes()
+    shutil.copytree(certs.parent / f"{certs.name}-ca", tmp_path / "c-ca")  # the CA key, beside them
+    before_ca, before_worker = (copy / "ca.pem").read_bytes(), (copy / "worker.h1.pem").read_bytes()
     make_certs(copy, ("uav0",))
     assert (copy / "ca.pem").read_bytes() == before_ca
-    assert (copy / "worker.pem").read_bytes() != before_worker
+    assert (copy / "worker.h1.pem").read_bytes() != before_worker
     check = subprocess.run(
-        ["openssl", "verify", "-CAfile", str(copy / "ca.pem"), str(copy / "worker.pem")], capture_output=True
+        ["openssl", "verify", "-CAfile", str(copy / "ca.pem"), str(copy / "worker.h1.pem")],
+        capture_output=True,
     )
     assert check.returncode == 0
 
@@ -147,18 +186,22 @@ def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only(
         role = Path(keys_mounted[0]).stem
         # the metrics exporter is a read-only client: it subscribes to stats and queries health only
         assert name.startswith(role.split(".")[0]) or (name, role) == ("metrics", "client"), name
-        if "." in role:
+        if role.startswith(("foreman.", "worker.")):  # bound to its node
+            assert f"--node {role.split('.')[1]}" in " ".join(service["command"]), name
+        elif "." in role:
             assert f"--uav {role.split('.')[1]}" in " ".join(service["command"]), name
         assert all(v.endswith(":ro") for v in service["volumes"]), name
 
 
 def test_up_takes_secure_and_zenoh_config_options() -> None:
-    from services.tools.cli import build_parser
-
-    args = build_parser().parse_args(["up", "--cluster", "deploy/clusters/local2x2.yml", "--secure"])
-    assert args.secure == Path("out/secure") and args.zenoh_config is None
-    args = build_parser().parse_args(["up", "--cluster", "x.yml", "--zenoh-config", "z.json5"])
-    assert args.zenoh_config == Path("z.json5") and args.secure is None
+    args = build_parser().parse_args(["up", "--cluster", "deploy/clusters/local2x2.yml"])
+    assert args.secure == Path("out/secure") and not args.open and args.zenoh_config is None  # the default
+    args = build_parser().parse_args(["up", "--cluster", "x.yml", "--open", "--zenoh-config", "z.json5"])
+    assert args.zenoh_config == Path("z.json5") and args.open
+    args = build_parser().parse_args(["loadtest", "--zenoh-config", "z.json5"])
+    assert args.zenoh_config == Path("z.json5") and args.secure is None  # a harness on loopback: open
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["up", "--cluster", "x.yml", "--open", "--secure", "d"])
     for command in (["up", "--cluster", "x.yml"], ["loadtest"]):
         args = build_parser().parse_args([*command, "--secure", "certs-here", "--zenoh-config", "z.json5"])
         assert args.secure == Path("certs-here") and args.zenoh_config == Path("z.json5")
@@ -178,7 +221,35 @@ def test_wildcard_declarations_reach_the_roles_whose_keys_they_intersect_but_no_
     through to the master that puts ``capataz/uav/uav0/yaw``, or the client gets nothing."""
     assert "capataz/uav/*/yaw" in allowed("master.uav0", "egress", "declare_subscriber")
     assert "capataz/uav/*/camera" not in allowed("master.uav0", "egress", "declare_subscriber")
-    assert "capataz/health/**" in allowed("worker", "egress", "query")
+    assert "capataz/health/**" in allowed("worker.h1", "egress", "query")
     # what a role may send is unchanged: no put, no queryable for a client, no yaw put for a camera
     assert allowed("client", "ingress", "put") == set()
     assert keys.yaw_key("uav0") not in allowed("camera.uav0", "ingress", "put")
+
+
+SMALL_CLUSTER = small_cluster_file(hosts=1)
+
+
+@pytest.mark.zenoh
+def test_capataz_up_runs_the_secure_profile_by_default_and_open_only_when_asked(tmp_path: Path) -> None:
+    """Issue 27: ``capataz up`` without a profile option is the secure profile (certificates made on first
+    start, the CA key apart); its own read-only client receives the yaw over TLS."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed (needed to make the development certificates)")
+    spec = tmp_path / "small.yml"
+    spec.write_text(SMALL_CLUSTER)
+    command = ["up", "--cluster", str(spec), "--port", "0", "--frames", "5", "--fps", "0",
+               "--in-flight", "1", "--logs", str(tmp_path / "logs")]  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "services.tools.cli", *command],
+        capture_output=True, text=True, timeout=240, cwd=tmp_path, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert re.search(r"router tls/127\.0\.0\.1:\d+", done.stdout), done.stdout
+    assert "received 5 yaw estimates" in done.stdout, done.stdout[-1000:]
+    assert "open profile" not in done.stderr
+    certs = tmp_path / "out" / "secure" / "certs"
+    assert (certs / "master.uav0.pem").is_file() and not (certs / "ca.key").exists()
+    assert (tmp_path / "out" / "secure" / "certs-ca" / "ca.key").is_file()
+    parsed = build_parser().parse_args([*command, "--open"])
+    assert parsed.open and profile_of(parsed, ("uav0",)) is None  # the lab profile: warned, not secure

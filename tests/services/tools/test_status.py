@@ -29,18 +29,12 @@ from services.tools.cli import build_parser
 from services.tools.secure import SecureProfile, participant_environment
 from services.tools.status import Snapshot, status
 from services.tools.up import ClusterSpec, HostSpec, LocalCluster
+from tests.builders import small_cluster_file
 from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
 
 ROOT = Path(__file__).resolve().parents[3]
 #: router, camera, master, a foreman and a worker on each of two hosts
-SMALL_CLUSTER = """name: small
-topology: master-foreman-worker
-balance: time
-uav: uav0
-hosts:
-  - {name: h1, workers: 1}
-  - {name: h2, workers: 1}
-"""
+SMALL_CLUSTER = small_cluster_file(hosts=2)
 MEMBERS = {"router/router/0", "camera/camera/0", "master/master/0", "foreman/h1/0", "foreman/h2/0",
            "worker/h1/0", "worker/h2/0"}  # fmt: skip
 
@@ -56,7 +50,7 @@ def cluster(tmp_path: Path) -> Iterator[str]:
     spec = tmp_path / "small.yml"
     spec.write_text(SMALL_CLUSTER)
     command = [sys.executable, "-m", "services.tools.cli", "up", "--cluster", str(spec), "--port", "0",
-               "--duration", "0", "--fps", "5", "--logs", str(tmp_path / "logs")]  # fmt: skip
+               "--duration", "0", "--fps", "5", "--logs", str(tmp_path / "logs"), "--open"]  # fmt: skip
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)  # type: ignore[union-attr]

@@ -79,3 +79,46 @@ def test_services_trajectory_tap_writes_each_estimate_once(tmp_path: Path) -> No
     assert yaw.stamps_s.tolist() == [1.5] and np.allclose(yaw.q_world_body[0], q)
     assert pose.p_world_body_m.tolist() == [[1.0, 2.0, 3.0]] and np.allclose(pose.q_world_body[0], q)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pose.tum", "yaw.tum"]
+
+
+def test_an_estimating_service_command_runs_the_service_with_its_trajectory_files(tmp_path: Path) -> None:
+    import argparse
+
+    from services.runtime.trajectory import register_estimating_service
+
+    class Service:
+        trajectory_tap: TrajectoryTap | None = None
+
+        def __init__(self, args: argparse.Namespace) -> None:
+            self.args = args
+
+        def run(self) -> int:
+            assert self.trajectory_tap is not None
+            self.trajectory_tap.write(yaw_estimate(stamp_s=1.0, yaw_rad=0.25, inlier_count=0, patch_count=0))
+            return 3
+
+    started: list[Service] = []
+
+    def start(args: argparse.Namespace) -> Service:
+        started.append(Service(args))
+        return started[-1]
+
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--rate", type=float, default=1.0)
+
+    parser = argparse.ArgumentParser()
+    register_estimating_service(
+        parser.add_subparsers(),
+        "thing",
+        "a test service",
+        add_arguments,
+        start,
+        {YawEstimate: ("--trajectory", "yaw"), AttitudeEstimate: ("--attitude-trajectory", "attitude")},
+    )
+    args = parser.parse_args(["thing", "--rate", "2", "--attitude-trajectory", str(tmp_path / "att.tum")])
+    assert args.trajectory is None
+    assert args.handler(args) == 3 and started[0].args.rate == 2.0
+    assert len(read_tum(tmp_path / "att.tum")) == 0  # asked for, opened, nothing of its type
+    args = parser.parse_args(["thing", "--trajectory", str(tmp_path / "yaw.tum")])
+    assert args.handler(args) == 3
+    assert read_tum(tmp_path / "yaw.tum").stamps_s.tolist() == [1.0]

@@ -44,9 +44,10 @@ def test_a_short_run_with_faults_writes_the_report_and_judges_the_objectives(
         assert fault["applied_at_s"] is not None and not str(fault["hit"]).startswith("failed")
     assert stream["max_yaw_jump_deg"] < 1.0  # the hostile frames did not move the yaw
     master = report["counters"]["master/m0/0"]
-    assert master["refused_seq_jump"] == 1 and master["refused_wrong_size"] == 2  # the gate refused them
+    # the gate refused them
+    assert master["refused_camera_seq_jump"] == 1 and master["refused_camera_wrong_size"] == 2
     # the second sender's 3 frames (the camera's next seq numbers) were refused as such, none adopted
-    assert master.get("frames_foreign", 0) + master.get("refused_foreign_sender", 0) == 3
+    assert master.get("frames_foreign", 0) + master.get("refused_camera_foreign_sender", 0) == 3
     assert report["faults"][2]["lost"] == 0
     verdicts = {o["objective"]: o["met"] for o in report["objectives"]}
     assert verdicts == {"lost_pct<=100": True, "p99_ms<=0.001": False} and report["slo_passed"] is False
