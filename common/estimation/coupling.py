@@ -63,6 +63,8 @@ class DoubleCouplingEstimator:
         vo_settings: VoSettings | None = None,
         settings: CouplingSettings | None = None,
         chain_settings: VoChainSettings | None = None,
+        R_body_imu: npt.ArrayLike | None = None,
+        imu_time_offset_s: float = 0.0,
     ) -> None:
         if camera.is_distorted:
             raise InputError(
@@ -72,6 +74,13 @@ class DoubleCouplingEstimator:
         self.camera = camera
         #: mounting of the camera on the body (the camera model itself is the intrinsics only)
         self.R_body_camera = check_rotation_matrix(R_body_camera, "R_body_camera")
+        #: the IMU's axes on the body (``gyro_body = R_body_imu gyro_imu``) and its clock's offset
+        #: (``t_imu = t_cam + imu_time_offset_s``): IMU samples are turned and re-stamped where they enter
+        self.R_body_imu = np.eye(3) if R_body_imu is None else check_rotation_matrix(R_body_imu, "R_body_imu")
+        if not (math.isfinite(imu_time_offset_s) and abs(imu_time_offset_s) <= 1.0):
+            raise InputError(f"imu_time_offset_s must be finite and within 1 s, got {imu_time_offset_s}")
+        self.imu_time_offset_s = float(imu_time_offset_s)
+        self._imu_in_body = not (np.array_equal(self.R_body_imu, np.eye(3)) and self.imu_time_offset_s == 0.0)
         self.settings = settings or CouplingSettings()
         self.vo_settings = vo_settings or VoSettings()
         self.chain_settings = chain_settings or VoChainSettings()
@@ -93,8 +102,11 @@ class DoubleCouplingEstimator:
     # ---- input ------------------------------------------------------------------------------------
 
     def push(self, measurement: Measurement) -> Refusal | None:
-        """Queue one validated sample; returns why it was refused, if it was."""
+        """Queue one validated sample; returns why it was refused, if it was. An IMU sample is turned into
+        the body's axes and its stamp moved onto the camera's clock first."""
         sensor = sensor_of(measurement)
+        if self._imu_in_body and isinstance(measurement, ImuMeasurement):
+            measurement = self.imu_in_body(measurement)
         if sensor is Sensor.CAMERA:
             if measurement.stamp_s <= self._latest_frame_stamp_s:
                 self.counters["refused_camera_stale"] += 1
@@ -104,6 +116,11 @@ class DoubleCouplingEstimator:
         if refusal is not None:
             self.counters[f"refused_{sensor.value}_{refusal.value}"] += 1
         return refusal
+
+    def imu_in_body(self, m: ImuMeasurement) -> ImuMeasurement:
+        """An IMU sample in the body's axes, stamped on the camera's clock (``t_cam = t_imu - offset``)."""
+        R = self.R_body_imu
+        return ImuMeasurement(m.stamp_s - self.imu_time_offset_s, R @ m.gyro_rad_s, R @ m.accel_m_s2)
 
     def process_due(self) -> list[Output]:
         """Apply every sample that is older than the newest by ``max_lag_s``, in stamp order."""

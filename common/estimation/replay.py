@@ -52,6 +52,10 @@ class ImuSeriesLike(Protocol):
     def true_q_world_body(self) -> FloatArray: ...
     @property
     def true_p_world_body_m(self) -> FloatArray: ...
+    @property
+    def R_body_imu(self) -> FloatArray: ...
+    @property
+    def time_offset_s(self) -> float: ...
 
 
 class RangeSeriesLike(Protocol):
@@ -217,7 +221,8 @@ def evaluate(
     """
     imu = flight.imu
     keep = run.attitude_stamps_s >= run.attitude_stamps_s[0] + settle_s
-    idx = np.searchsorted(imu.stamps_s, run.attitude_stamps_s[keep] - 1e-9)
+    # the outputs are on the camera's clock; the IMU's truth at its samples' true times
+    idx = np.searchsorted(imu.stamps_s - imu.time_offset_s, run.attitude_stamps_s[keep] - 1e-9)
     err = wrap_angle_rad(
         euler_from_quaternion(run.q_world_body[keep]) - euler_from_quaternion(imu.true_q_world_body[idx])
     )
@@ -316,5 +321,11 @@ def standard_estimators(
             vo_origin_delay_s=delay_s,
             **config,
         )
-        out[name] = DoubleCouplingEstimator(flight.camera, flight.R_body_camera, settings=settings)
+        out[name] = DoubleCouplingEstimator(
+            flight.camera,
+            flight.R_body_camera,
+            settings=settings,
+            R_body_imu=flight.imu.R_body_imu,
+            imu_time_offset_s=flight.imu.time_offset_s,
+        )
     return out

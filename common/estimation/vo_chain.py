@@ -122,6 +122,13 @@ def advance_vo_chain(
     :class:`~common.estimation.vo.VoError` when no pair gives a motion."""
     cs = chain_settings or VoChainSettings()
     kf = chain.keyframe
+    for name, h in (
+        ("altitude", altitude_m),
+        ("keyframe altitude", kf.altitude_m),
+        ("last altitude", chain.altitude_m),
+    ):
+        if not (math.isfinite(h) and h > 0.0):  # a diverged filter: no metric scale, a failed pair
+            raise VoError(f"the {name} {h:.4g} m gives no metric scale")
     try:
         motion = estimate_relative_motion(
             kf.frame, frame, K, settings, model=model, guess_H_px=kf.H_to_latest_px

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import cv2
 import numpy as np
@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from common.camera import CameraModel, Distortion, DistortionModel
 from common.errors import InputError
+from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
 from common.sim.flight import CAMERA_RATE_HZ, Flight, simulate_flight
 from common.sim.ground import (
     GroundTexture,
@@ -403,7 +404,12 @@ class Floor(enum.Enum):
 
 @dataclass(frozen=True)
 class FieldScenario:
-    """One field scenario: floor, lens, altitude band, motion blur / exposure, peak yaw rate."""
+    """One field scenario: floor, lens, altitude band, motion blur / exposure, peak yaw rate, and the rig's
+    nuisances: the camera's mount (tilted off the down mount by ``camera_tilt_deg`` about the body's y axis
+    after turning ``camera_turn_deg`` about its optical axis), the IMU's axes (ZYX Euler angles of
+    ``R_body_imu``, deg) and clock offset (``t_imu = t_cam + imu_time_offset_s``), bursty frame stamps
+    (``frame_jitter_s``), dropped frames (``frame_drop_share``), and whether the flight's IMU is used
+    (``use_imu``: False, the yaw runs without a gyro prior)."""
 
     name: str
     floor: Floor = Floor.CARPET
@@ -414,9 +420,64 @@ class FieldScenario:
     exposure_s: float = 0.0
     exposure_factor: float = 1.0
     n_frames: int = 600
+    camera_tilt_deg: float = 0.0
+    camera_turn_deg: float = 0.0
+    imu_euler_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    imu_time_offset_s: float = 0.0
+    frame_jitter_s: float = 0.0
+    frame_drop_share: float = 0.0
+    use_imu: bool = True
+
+    @property
+    def R_body_camera(self) -> FloatArray:
+        """The camera's mount: the down mount turned about its optical axis, then tilted about body y."""
+        return mounted_camera(self.camera_tilt_deg, self.camera_turn_deg)
+
+    @property
+    def R_body_imu(self) -> FloatArray:
+        roll, pitch, yaw = (math.radians(a) for a in self.imu_euler_deg)
+        return np.asarray(matrix_from_euler(roll, pitch, yaw), dtype=np.float64)
 
 
-#: One scenario per field effect, and the combined ``field`` flight (30 s each at 20 fps).
+def mounted_camera(tilt_deg: float, turn_deg: float) -> FloatArray:
+    """``Ry(tilt) R_BODY_CAMERA_DOWN Rz(turn)``: a down camera turned by ``turn_deg`` about its optical axis
+    and tilted by ``tilt_deg`` about the body's y axis (positive: the optical axis leans backward)."""
+    tilt = matrix_from_euler(0.0, math.radians(tilt_deg), 0.0)
+    turn = matrix_from_euler(0.0, 0.0, math.radians(turn_deg))
+    return np.asarray(tilt @ R_BODY_CAMERA_DOWN @ turn, dtype=np.float64)
+
+
+#: The combined ``field`` flight: every effect above at once.
+FIELD = FieldScenario(
+    "field",
+    floor=Floor.CHECKERBOARD,
+    wide_angle=True,
+    altitude_m=(0.3, 1.3),
+    max_drift_m_s=0.3,
+    max_yaw_rate_deg_s=60.0,
+    exposure_s=0.02,
+    exposure_factor=1.4,
+)
+#: The rig's nuisances: a camera tilted 10 deg and turned 90 deg about its axis, an IMU upside down and
+#: turned 90 deg (a flight controller mounted rotated), its clock 12 ms ahead of the camera's.
+MOUNTED_RIG = replace(
+    FIELD,
+    name="mounted_rig",
+    camera_tilt_deg=10.0,
+    camera_turn_deg=90.0,
+    imu_euler_deg=(180.0, 0.0, 90.0),
+    imu_time_offset_s=0.012,
+)
+#: The stream's nuisances without an IMU: stamps +-40 ms around the nominal, 5 % of the frames dropped.
+BURSTY_NO_IMU = replace(
+    FIELD, name="bursty_no_imu", frame_jitter_s=0.04, frame_drop_share=0.05, use_imu=False
+)
+#: All of them with the IMU.
+FIELD_NUISANCES = replace(MOUNTED_RIG, name="field_nuisances", frame_jitter_s=0.04, frame_drop_share=0.05)
+
+#: One scenario per field effect, the combined ``field`` flight, and the combined flight with the rig's
+#: nuisances (``mounted_rig``), with bursty stamps and drops and no IMU (``bursty_no_imu``) and with all of
+#: them and the IMU (``field_nuisances``); 30 s each at 20 fps.
 FIELD_SCENARIOS: dict[str, FieldScenario] = {
     s.name: s
     for s in (
@@ -426,16 +487,10 @@ FIELD_SCENARIOS: dict[str, FieldScenario] = {
         FieldScenario("low_altitude", altitude_m=(0.3, 1.3), max_drift_m_s=0.3),
         FieldScenario("blur_exposure", exposure_s=0.02, exposure_factor=1.4, altitude_m=(0.6, 0.6)),
         FieldScenario("fast_yaw", max_yaw_rate_deg_s=60.0),
-        FieldScenario(
-            "field",
-            floor=Floor.CHECKERBOARD,
-            wide_angle=True,
-            altitude_m=(0.3, 1.3),
-            max_drift_m_s=0.3,
-            max_yaw_rate_deg_s=60.0,
-            exposure_s=0.02,
-            exposure_factor=1.4,
-        ),
+        FIELD,
+        MOUNTED_RIG,
+        BURSTY_NO_IMU,
+        FIELD_NUISANCES,
     )
 }
 
@@ -488,6 +543,11 @@ def field_flight(
         camera=camera,
         texture=texture if texture is not None else floor_texture(scenario.floor, seed),
         degradation=degradation,
+        R_body_camera=scenario.R_body_camera,
+        R_body_imu=scenario.R_body_imu,
+        imu_time_offset_s=scenario.imu_time_offset_s,
+        frame_jitter_s=scenario.frame_jitter_s,
+        frame_drop_share=scenario.frame_drop_share,
     )
     values = {f.name: getattr(base, f.name) for f in fields(base)}
     return FieldFlight(

@@ -1,12 +1,14 @@
 """Simulated flights: a trajectory seen by a downward camera (frames on demand), an IMU, a rangefinder.
 
 Rates: camera 20 fps, IMU 400 Hz, rangefinder 50 Hz, all stamped from t = 0 on exact multiples of their
-periods. Frames are never stored: :meth:`Flight.frame` renders frame ``i`` from the true pose each time
+periods (unless a flight asks for bursty frame stamps, dropped frames or an IMU clock offset). Frames are
+never stored: :meth:`Flight.frame` renders frame ``i`` from the true pose each time
 (about 1-2 ms), deterministic for ``(seed, i)``.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TypedDict, Unpack
@@ -43,6 +45,10 @@ IMU_RATE_HZ = 400.0
 RANGE_RATE_HZ = 50.0
 #: Paper A's dataset length.
 HOVER_FRAMES = 2041
+#: Stream label of the frame stamps' jitter and drops (mixed into the seed).
+FRAME_STREAM = 0x4A0
+#: Bursty frame stamps are never closer than this (s).
+MIN_FRAME_GAP_S = 0.002
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,10 +121,19 @@ def simulate_flight(
     camera_rate_hz: float = CAMERA_RATE_HZ,
     imu_rate_hz: float = IMU_RATE_HZ,
     range_rate_hz: float = RANGE_RATE_HZ,
+    R_body_imu: npt.ArrayLike | None = None,
+    imu_time_offset_s: float = 0.0,
+    frame_jitter_s: float = 0.0,
+    frame_drop_share: float = 0.0,
 ) -> Flight:
     """Sample a trajectory into a :class:`Flight` (frames at ``k / camera_rate_hz``, ``n_frames`` of them,
     default: the whole trajectory). IMU and rangefinder cover the same time span at their own rates.
     The texture defaults to ``make_ground_texture(seed)``; pass one to share it between flights.
+
+    Field nuisances (all deterministic by seed, the truth exact at every stamp): the camera's mount
+    ``R_body_camera``, the IMU's axes ``R_body_imu`` and clock offset ``imu_time_offset_s``
+    (:func:`~common.sim.sensors.simulate_imu`), bursty frame stamps and dropped frames
+    (:func:`frame_stamps`; ``n_frames`` counts the nominal frames before the drops).
     """
     if camera_rate_hz <= 0.0:
         raise InputError(f"camera_rate_hz must be positive, got {camera_rate_hz}")
@@ -129,10 +144,17 @@ def simulate_flight(
     R_bc = np.asarray(R_body_camera, dtype=np.float64)
     if R_bc.shape != (3, 3):
         raise InputError(f"R_body_camera must have shape (3, 3), got {R_bc.shape}")
-    frame_stamps = np.arange(int(n_frames), dtype=np.float64) / camera_rate_hz
-    span_s = float(frame_stamps[-1])
-    truth = trajectory.sample(frame_stamps)
-    imu = simulate_imu(trajectory, sample_stamps(span_s, imu_rate_hz), imu_noise or ImuNoise(), seed)
+    stamps = frame_stamps(int(n_frames), camera_rate_hz, seed, frame_jitter_s, frame_drop_share)
+    span_s = float(stamps[-1])
+    truth = trajectory.sample(stamps)
+    imu = simulate_imu(
+        trajectory,
+        sample_stamps(span_s, imu_rate_hz),
+        imu_noise or ImuNoise(),
+        seed,
+        R_body_imu=R_body_imu,
+        time_offset_s=imu_time_offset_s,
+    )
     rng_range = simulate_range(
         trajectory, sample_stamps(span_s, range_rate_hz), range_noise or RangeNoise(), seed
     )
@@ -144,7 +166,7 @@ def simulate_flight(
         R_body_camera=R_bc,
         texture=texture if texture is not None else make_ground_texture(seed),
         degradation=degradation if degradation is not None else ImageDegradation(),
-        frame_stamps_s=frame_stamps,
+        frame_stamps_s=stamps,
         p_world_body_m=truth.p_world_body_m,
         q_world_body=truth.q_world_body,
         euler_rad=truth.euler_rad,
@@ -152,6 +174,32 @@ def simulate_flight(
         imu=imu,
         range=rng_range,
     )
+
+
+def frame_stamps(
+    n_frames: int, rate_hz: float, seed: int = 0, jitter_s: float = 0.0, drop_share: float = 0.0
+) -> FloatArray:
+    """Frame stamps of ``n_frames`` nominal frames at ``k / rate_hz``: ``round(drop_share * (n - 2))`` of them
+    dropped (never the first or the last), each kept one moved by a uniform ``[-jitter_s, jitter_s]`` (the
+    first stays at 0), then put back in order at least :data:`MIN_FRAME_GAP_S` apart (bursty, as a camera
+    driver on a loaded host stamps them). Deterministic by seed; exact multiples without nuisances."""
+    nominal = np.arange(int(n_frames), dtype=np.float64) / rate_hz
+    if jitter_s == 0.0 and drop_share == 0.0:
+        return nominal
+    if not (math.isfinite(jitter_s) and 0.0 <= jitter_s <= 1.0):
+        raise InputError(f"frame jitter must be in [0, 1] s, got {jitter_s}")
+    if not (math.isfinite(drop_share) and 0.0 <= drop_share < 0.5):
+        raise InputError(f"frame drop share must be in [0, 0.5), got {drop_share}")
+    rng = np.random.default_rng([FRAME_STREAM, int(seed)])
+    inner = np.arange(1, n_frames - 1)
+    dropped = rng.choice(inner, size=round(drop_share * inner.size), replace=False) if inner.size else inner
+    kept = nominal[np.setdiff1d(np.arange(n_frames), dropped)]
+    moved = kept + rng.uniform(-jitter_s, jitter_s, kept.size)
+    moved[0] = 0.0
+    moved = np.sort(np.maximum(moved, 0.0))
+    # strictly increasing by at least MIN_FRAME_GAP_S: s_i - i g, running maximum, + i g
+    ramp = MIN_FRAME_GAP_S * np.arange(moved.size)
+    return np.asarray(np.maximum.accumulate(moved - ramp) + ramp, dtype=np.float64)
 
 
 class FlightOptions(TypedDict, total=False):
@@ -162,6 +210,9 @@ class FlightOptions(TypedDict, total=False):
     degradation: ImageDegradation | None
     imu_noise: ImuNoise | None
     range_noise: RangeNoise | None
+    R_body_camera: npt.ArrayLike
+    R_body_imu: npt.ArrayLike | None
+    imu_time_offset_s: float
 
 
 def hover_flight(

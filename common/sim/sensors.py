@@ -17,7 +17,8 @@ Every random draw comes from a generator seeded by ``(stream label, seed, ...)``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -25,6 +26,7 @@ import numpy.typing as npt
 
 from common.bounds import Bounded, bounded
 from common.errors import CapatazError, InputError
+from common.geometry import check_rotation_matrix
 from common.sim.trajectory import Trajectory
 from common.types import FloatArray, U8Array
 
@@ -119,12 +121,23 @@ class ImuSeries:
     true_p_world_body_m: FloatArray  # (M, 3)
     true_gyro_rad_s: FloatArray  # (M, 3)
     true_accel_m_s2: FloatArray  # (M, 3)
-    gyro_bias_rad_s: FloatArray  # (M, 3) the bias actually added
+    gyro_bias_rad_s: FloatArray  # (M, 3) the bias actually added (IMU axes)
     accel_bias_m_s2: FloatArray  # (M, 3)
+    #: the IMU's axes on the body: ``gyro_rad_s`` and ``accel_m_s2`` are in the IMU's axes,
+    #: ``R_body_imu @ gyro`` is the body rate (the truth fields stay in the body's axes)
+    R_body_imu: FloatArray = field(default_factory=lambda: np.eye(3))
+    #: the IMU's clock against the camera's: ``stamps_s = t_cam + time_offset_s`` (Kalibr's
+    #: ``timeshift_cam_imu``); the truth fields are at the true times ``stamps_s - time_offset_s``
+    time_offset_s: float = 0.0
 
     @property
     def n_samples(self) -> int:
         return int(self.stamps_s.shape[0])
+
+    @property
+    def true_stamps_s(self) -> FloatArray:
+        """The samples' times on the camera's clock (the simulation's true time)."""
+        return np.asarray(self.stamps_s - self.time_offset_s, dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,9 +176,21 @@ def _bias_path(
     return np.asarray(b0 + np.cumsum(steps, axis=0), dtype=np.float64)
 
 
-def simulate_imu(trajectory: Trajectory, stamps_s: FloatArray, noise: ImuNoise, seed: int) -> ImuSeries:
-    """IMU samples at ``stamps_s`` (evenly spaced): exact body rate / specific force + white noise + bias."""
+def simulate_imu(
+    trajectory: Trajectory,
+    stamps_s: FloatArray,
+    noise: ImuNoise,
+    seed: int,
+    R_body_imu: npt.ArrayLike | None = None,
+    time_offset_s: float = 0.0,
+) -> ImuSeries:
+    """IMU samples at the true times ``stamps_s`` (evenly spaced): exact body rate / specific force turned
+    into the IMU's axes (``R_body_imu``, default the body's) + white noise + bias, stamped on the IMU's clock
+    (``stamps_s + time_offset_s``)."""
     stamps = np.asarray(stamps_s, dtype=np.float64)
+    R_bi = np.eye(3) if R_body_imu is None else check_rotation_matrix(R_body_imu, "R_body_imu")
+    if not math.isfinite(time_offset_s) or abs(time_offset_s) > 1.0:
+        raise InputError(f"time_offset_s must be finite and within 1 s, got {time_offset_s}")
     if stamps.ndim != 1 or stamps.size < 2:
         raise InputError(f"stamps_s must be (M,) with M >= 2, got shape {stamps.shape}")
     dt = float(stamps[1] - stamps[0])
@@ -180,16 +205,19 @@ def simulate_imu(trajectory: Trajectory, stamps_s: FloatArray, noise: ImuNoise, 
     accel_bias = _bias_path(rngs[1], n, dt, noise.accel_bias_sigma_m_s2, noise.accel_bias_walk_m_s3_sqrt_hz)
     gyro_white = rngs[2].standard_normal((n, 3)) * (noise.gyro_noise_density_rad_s_sqrt_hz * np.sqrt(rate))
     accel_white = rngs[3].standard_normal((n, 3)) * (noise.accel_noise_density_m_s2_sqrt_hz * np.sqrt(rate))
+    # body vectors v into the IMU's axes: R_body_imu^T v, i.e. v @ R_body_imu for rows
     return ImuSeries(
-        stamps_s=stamps,
-        gyro_rad_s=truth.omega_body_rad_s + gyro_bias + gyro_white,
-        accel_m_s2=truth.specific_force_body_m_s2 + accel_bias + accel_white,
+        stamps_s=stamps + float(time_offset_s),
+        gyro_rad_s=truth.omega_body_rad_s @ R_bi + gyro_bias + gyro_white,
+        accel_m_s2=truth.specific_force_body_m_s2 @ R_bi + accel_bias + accel_white,
         true_q_world_body=truth.q_world_body,
         true_p_world_body_m=truth.p_world_body_m,
         true_gyro_rad_s=truth.omega_body_rad_s,
         true_accel_m_s2=truth.specific_force_body_m_s2,
         gyro_bias_rad_s=gyro_bias,
         accel_bias_m_s2=accel_bias,
+        R_body_imu=R_bi,
+        time_offset_s=float(time_offset_s),
     )
 
 

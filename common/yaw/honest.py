@@ -4,9 +4,10 @@ A delta the core does not trust is never integrated as if measured. Each pair ha
 
 - ``GYRO``: the gyro's integrated rotation about the camera axis between the two frame stamps
   (:func:`gyro_delta_yaw_rad`); trusted to ``gyro_gate_deg``.
-- ``HOLD``: no gyro; the recent yaw rate held over the frame interval, trusted to what the physical yaw
-  acceleration limit allows since the last measured pair (``max_yaw_accel_deg_s2``); uninformative before
-  the first measurement.
+- ``HOLD``: no gyro; the recent yaw rate (a robust rate of the measured pairs of the last few tenths of a
+  second, :mod:`common.yaw.held`) held over the frame interval, trusted to what the physical yaw
+  acceleration limit allows since that rate applied (``max_yaw_accel_deg_s2``); uninformative before the
+  first measurement.
 
 A measured delta is integrated (``Provenance.MEASURED``) only when the patch fit is good, it lies within the
 prior's tolerance and it implies a yaw rate within ``max_yaw_rate_deg_s``; otherwise the prior's delta is
@@ -25,6 +26,7 @@ import numpy.typing as npt
 from common.errors import InputError
 from common.geometry import wrap_angle_rad
 from common.provenance import Provenance
+from common.yaw.held import HeldRate
 from common.yaw.settings import YawSettings
 
 __all__ = ["Prior", "PriorSource", "Provenance", "gyro_delta_yaw_rad", "make_prior"]
@@ -110,22 +112,29 @@ def make_prior(
     settings: YawSettings,
     dt_s: float | None,
     gyro_delta_rad: float | None,
-    rate_rad_s: float | None,
+    held: HeldRate | None,
     since_measured_s: float,
 ) -> Prior:
-    """The prior of a pair: the gyro's delta when given, else the held rate (``rate_rad_s`` None: unknown)."""
+    """The prior of a pair: the gyro's delta when given, else the held rate of the recent measured pairs
+    (:func:`~common.yaw.held.held_rate`; None: unknown).
+
+    The held delta's error is bounded by what the yaw acceleration limit (plus the window's own trend, up
+    to that limit) allows over the pair's interval and the time since measured, plus twice the rates'
+    scatter about the window's line over the interval; a third of that is one sigma, so the variance grows
+    with the time since measured.
+    """
     dt = dt_s if dt_s is not None else settings.frame_period_s
     if gyro_delta_rad is not None:
         gate = math.radians(settings.gyro_gate_deg)
         return Prior(PriorSource.GYRO, gyro_delta_rad, gate, gyro_variance_rad2(settings, dt), dt_s)
-    if rate_rad_s is None:
+    if held is None:
         spread = math.radians(settings.max_yaw_rate_deg_s) * dt if dt_s is not None else math.pi
         return Prior(PriorSource.HOLD, 0.0, spread, spread**2, dt_s)
     accel = math.radians(settings.max_yaw_accel_deg_s2)
-    tolerance = max(accel * dt * (dt + since_measured_s), math.radians(MIN_HOLD_TOLERANCE_DEG))
-    tolerance = min(tolerance, math.pi)
-    # the held rate's error grows with the time since it was measured: a third of the tolerance is 1 sigma
-    return Prior(PriorSource.HOLD, rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
+    trend = min(abs(held.trend_rad_s2), accel)
+    drift = (accel + trend) * dt * (dt + since_measured_s) + 2.0 * held.spread_rad_s * dt
+    tolerance = min(max(drift, math.radians(MIN_HOLD_TOLERANCE_DEG)), math.pi)
+    return Prior(PriorSource.HOLD, held.rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
 
 
 def gyro_variance_rad2(settings: YawSettings, dt_s: float) -> float:

@@ -48,15 +48,28 @@ class EstimateMethod(Enum):
 
 @dataclass(frozen=True)
 class Lens:
-    """Where correspondences live: undistorted patch centres, the rotation centre and the lever arm."""
+    """Where correspondences live: undistorted patch centres, the rotation centre and the lever arm; with
+    ``to_nadir`` (3, 3) they are moved on into the view of a virtual camera at the same place looking
+    straight down the body's -z (a camera mounted off the down mount: there a yaw is a turn about the
+    centre, and a translation over the floor no turn at all)."""
 
     camera: CameraModel | None
     centre_px: tuple[float, float]
-    src_px: FloatArray  # (P, 2) patch centres, undistorted
+    src_px: FloatArray  # (P, 2) patch centres, undistorted (and in the nadir view)
     lever_px: float
+    to_nadir: FloatArray | None = None
 
 
-def lens_of(grid: PatchGrid, settings: YawSettings) -> Lens:
+def _mapped(homography: FloatArray, points_px: FloatArray) -> FloatArray:
+    mapped = np.hstack([points_px, np.ones((points_px.shape[0], 1))]) @ homography.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(mapped[:, :2] / mapped[:, 2:3], dtype=np.float64)
+
+
+def lens_of(grid: PatchGrid, settings: YawSettings, R_nadir_camera: FloatArray | None = None) -> Lens:
+    """The lens of the grid's frames; ``R_nadir_camera`` (the camera's axes in the virtual down camera's,
+    ``R_BODY_CAMERA_DOWN^T R_body_camera``) rectifies the correspondences into the nadir view (needs the
+    settings' camera: its intrinsics)."""
     height, width = grid.frame_shape
     camera = settings.camera
     if camera is None:
@@ -71,8 +84,16 @@ def lens_of(grid: PatchGrid, settings: YawSettings) -> Lens:
             camera = camera.scaled(width / camera.width)
         centre = (camera.cx, camera.cy)
         src = camera.undistort_px(grid.centres_px)
+    to_nadir = None
+    if R_nadir_camera is not None:
+        if camera is None:
+            raise InputError(
+                "the nadir view of a mounted camera needs the camera's intrinsics (a calibration)"
+            )
+        to_nadir = camera.K @ R_nadir_camera @ camera.K_inv
+        src = _mapped(to_nadir, src)
     lever = float(np.median(np.hypot(src[:, 0] - centre[0], src[:, 1] - centre[1])))
-    return Lens(camera, centre, src, lever)
+    return Lens(camera, centre, src, lever, to_nadir)
 
 
 def frame_is_flat(frame_u8: U8Array) -> bool:
@@ -98,6 +119,8 @@ def fit_measurement(
     src = lens.src_px[index]
     if lens.camera is not None and dst.size:
         dst = lens.camera.undistort_px(dst) if np.all(np.isfinite(dst)) else np.full_like(dst, np.nan)
+        if lens.to_nadir is not None:
+            dst = _mapped(lens.to_nadir, dst)
         keep = np.all(np.isfinite(dst), axis=1)
         src, dst = src[keep], dst[keep]
     return fit_correspondences(src, dst, settings)

@@ -12,8 +12,10 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from common.errors import InputError
+from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix
 from common.images import check_grey_image
 from common.types import FloatArray, U8Array
 from common.yaw.correlation import (
@@ -25,7 +27,9 @@ from common.yaw.correlation import (
 )
 from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, make_patch_grid
+from common.yaw.held import MeasuredPair, held_rate, with_measured_pair
 from common.yaw.honest import PriorSource, Provenance, make_prior
+from common.yaw.mount import yaw_per_image_turn
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, conclude_pair, lens_of
 
@@ -40,7 +44,8 @@ class FrameYaw:
     """Yaw of frame ``seq`` relative to frame ``seq - 1`` and integrated since frame 0.
 
     ``delta_yaw_rad`` is the change of the vehicle's yaw (ZYX yaw of q_world_body, CCW seen from above)
-    for a downward camera (``R_BODY_CAMERA_DOWN``) that was *integrated*: the measured one when
+    that was *integrated* (the image's turn times the mount's :func:`~common.yaw.mount.yaw_per_image_turn`,
+    1 for ``R_BODY_CAMERA_DOWN``): the measured one when
     ``provenance`` is ``MEASURED``, else the gyro's (``BRIDGED``) or the held rate's (``HELD``);
     ``measured_delta_rad`` is what the camera stage measured (NaN when nothing). ``homography`` (3, 3) maps
     frame seq-1 pixels to frame seq pixels (undistorted pixels when the settings carry a lens model).
@@ -68,7 +73,8 @@ class FrameYaw:
 @dataclass(frozen=True, eq=False)
 class TrackerState:
     """Explicit tracker state: the last frame (needed only by the fallbacks), in-process its spectra, and
-    what the honest integration needs (stamp, held yaw rate, time since the last measured pair, variance).
+    what the honest integration needs (stamp, the recent measured pairs whose robust rate is held over
+    untrusted pairs without a gyro (:mod:`common.yaw.held`), time since the last measured pair, variance).
 
     Frames are kept by reference: callers must not modify a frame after passing it in.
     """
@@ -78,7 +84,7 @@ class TrackerState:
     previous_frame: U8Array
     previous_spectra: PatchSpectra | None
     stamp_s: float | None = None
-    rate_rad_s: float | None = None
+    measured_pairs: tuple[MeasuredPair, ...] = ()
     since_measured_s: float = 0.0
     yaw_variance_rad2: float = 0.0
 
@@ -101,12 +107,22 @@ class YawTracker:
     the stages after that trust it.
     """
 
-    def __init__(self, settings: YawSettings, grid: PatchGrid) -> None:
+    def __init__(
+        self, settings: YawSettings, grid: PatchGrid, R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN
+    ) -> None:
         if grid.pyramid_level != settings.pyramid_level or grid.patch_size_px != settings.patch_size_px:
             raise InputError("grid was made with other settings (pyramid level / patch size differ)")
+        R_bc = check_rotation_matrix(R_body_camera, "R_body_camera")
+        #: the vehicle's yaw per radian the image turns about minus the optical axis (1: the down mount)
+        self.yaw_per_turn = yaw_per_image_turn(R_bc)
+        #: a camera mounted off the down mount, with intrinsics: the correspondences are fitted in the view of
+        #: a virtual down camera, where a yaw is a turn about the centre (a tilted view of the floor turns
+        #: with a translation too); without intrinsics the image's turn is scaled to the yaw
+        self.nadir_view = settings.camera is not None and not np.allclose(R_bc, R_BODY_CAMERA_DOWN, atol=1e-9)
+        R_nadir_camera = R_BODY_CAMERA_DOWN.T @ R_bc if self.nadir_view else None
         self.settings = settings
         self.grid = grid
-        self.lens = lens_of(grid, settings)
+        self.lens = lens_of(grid, settings, R_nadir_camera)
         self._n_patches = grid.n_patches
 
     def initial_state(
@@ -159,22 +175,34 @@ class YawTracker:
         dt = stamp - state.stamp_s if stamp is not None and state.stamp_s is not None else None
         if dt is not None and dt <= 0.0:
             raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
-        prior = make_prior(self.settings, dt, gyro_delta_rad, state.rate_rad_s, state.since_measured_s)
+        held = held_rate(state.measured_pairs)
+        # the gyro's turn about minus the optical axis, in the measured view's units (the nadir view: yaw)
+        k_in = self.yaw_per_turn if self.nadir_view else 1.0
+        gyro = None if gyro_delta_rad is None else k_in * gyro_delta_rad
+        prior = make_prior(self.settings, dt, gyro, held, state.since_measured_s)
         result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
             state.previous_spectra, prior, check_global,
         )  # fmt: skip
         step_s = dt if dt is not None else self.settings.frame_period_s
-        rate: float | None
+        # the pair's end on the stamps' clock, or on a nominal one (frame periods) for unstamped frames
+        stop_s = (
+            stamp if dt is not None and stamp is not None else (state.seq + 1) * self.settings.frame_period_s
+        )
+        pairs = state.measured_pairs
         if result.trusted:
             provenance, delta, variance = Provenance.MEASURED, result.delta_rad, result.variance_rad2
-            rate, since = delta / step_s, 0.0
+            pairs, since = _with_pair(pairs, MeasuredPair(stop_s, step_s, delta)), 0.0
         elif prior.source is PriorSource.GYRO:
+            # the gyro measured this pair: its rate is as good as the camera's for a later hold
             provenance, delta, variance = Provenance.BRIDGED, prior.delta_rad, prior.variance_rad2
-            rate, since = delta / step_s, 0.0
+            pairs, since = _with_pair(pairs, MeasuredPair(stop_s, step_s, delta)), 0.0
         else:
             provenance, delta, variance = Provenance.HELD, prior.delta_rad, prior.variance_rad2
-            rate, since = state.rate_rad_s, state.since_measured_s + step_s
+            since = state.since_measured_s + step_s
+        # the measured view's turn (measured, or the gyro's about the same axis) as the vehicle's yaw
+        k = 1.0 if self.nadir_view else self.yaw_per_turn
+        delta, variance = k * delta, k * k * variance
         yaw = state.yaw_rad + delta
         yaw_variance = state.yaw_variance_rad2 + variance
         measured = result.method is not EstimateMethod.NONE
@@ -193,7 +221,7 @@ class YawTracker:
             homography=result.homography,
             residual_px=float(result.fit.residual_px),
             provenance=provenance,
-            measured_delta_rad=float(result.delta_rad) if measured else math.nan,
+            measured_delta_rad=float(k * result.delta_rad) if measured else math.nan,
             delta_variance_rad2=float(variance),
             yaw_variance_rad2=float(yaw_variance),
         )
@@ -203,7 +231,7 @@ class YawTracker:
             previous_frame=frame,
             previous_spectra=None,
             stamp_s=stamp,
-            rate_rad_s=rate,
+            measured_pairs=pairs,
             since_measured_s=since,
             yaw_variance_rad2=yaw_variance,
         ), estimate
@@ -225,6 +253,14 @@ class YawTracker:
         measurement = measure_patches(previous, current, self.settings)
         state, estimate = self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
         return replace(state, previous_spectra=current), estimate
+
+
+def _with_pair(window: tuple[MeasuredPair, ...], pair: MeasuredPair) -> tuple[MeasuredPair, ...]:
+    """The held rate's window with ``pair``; a pair not after the window's newest (the stream switched
+    between stamped and unstamped frames) starts it over."""
+    if window and pair.stop_s <= window[-1].stop_s:
+        return (pair,)
+    return with_measured_pair(window, pair)
 
 
 def _check_stamp(stamp_s: float | None) -> float | None:

@@ -26,6 +26,12 @@ class FlightName(StrEnum):
     FAST_YAW = "fast_yaw"
     #: all field effects together
     FIELD = "field"
+    #: the field flight on a rig: camera tilted and turned, IMU in other axes with a clock offset
+    MOUNTED_RIG = "mounted_rig"
+    #: the field flight with bursty stamps and dropped frames (the yaw bench runs it without the IMU)
+    BURSTY_NO_IMU = "bursty_no_imu"
+    #: all of them
+    FIELD_NUISANCES = "field_nuisances"
 
 
 class CameraSettings(BaseModel):

@@ -29,6 +29,7 @@ sender's, a frame's seq jump, a stamp in the future, jumping or going back), NaN
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import time
 from collections import deque
@@ -67,6 +68,7 @@ from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
 
 S = TypeVar("S", bound=UavMessage)
+logger = logging.getLogger(__name__)
 SENSOR_QUEUE = 4096
 #: samples the filter refuses as stale in a row before it is rebuilt (the stream's clock went back: a restart)
 RESET_AFTER_STALE = 400
@@ -85,6 +87,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
     def setup(self) -> None:
         settings = self.settings
         self.estimator = build_estimator(settings)
+        logger.info("%s: %s", self.name, settings.rig_mount.describe())
         self._shape = self.estimator.camera.shape
         #: the samples and frames handed off by the callbacks; frames wait in a short queue (a busy moment
         #: costs latency, not frames: VO pairs stay one apart), a longer backlog skips frames evenly, and the

@@ -23,6 +23,7 @@ from services.runtime.camera_options import (
     load_camera,
 )
 from services.runtime.fields import settings_from
+from services.runtime.mount_options import MountOptions, add_mount_options, mount_options_from_args
 from services.runtime.options import add_options, from_core
 
 
@@ -34,6 +35,8 @@ class EstimatorSettings(BaseModel):
     uav: str = Field(default="uav0", description="UAV stream id")
     #: the camera option group's values (nothing given: the simulated camera, :meth:`CameraModel.default`)
     camera: CameraOptions = CameraOptions()
+    #: the camera's mount, the IMU's axes and clock offset (the shared mount option group)
+    rig_mount: MountOptions = MountOptions()
     rectify: bool = from_core(CouplingSettings, "rectify")
     filter: EkfKind = from_core(CouplingSettings, "filter")
     visual_yaw: bool = from_core(CouplingSettings, "visual_yaw")
@@ -83,7 +86,14 @@ def estimator_camera(settings: EstimatorSettings) -> CameraModel:
 
 def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
     """The in-process estimator the service runs (also used to check the service against)."""
-    return DoubleCouplingEstimator(estimator_camera(settings), settings=settings.coupling())
+    mount = settings.rig_mount
+    return DoubleCouplingEstimator(
+        estimator_camera(settings),
+        mount.R_body_camera,
+        settings=settings.coupling(),
+        R_body_imu=mount.R_body_imu,
+        imu_time_offset_s=mount.imu_time_offset_s,
+    )
 
 
 #: the options in the order of ``--help``; each one's default, bound and help text is its field's
@@ -96,6 +106,7 @@ _OPTIONS = (
 def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
     """The estimator's own command-line options (the transport's are added by the service)."""
     add_camera_options(parser, CameraModel.default())
+    add_mount_options(parser)
     add_options(
         parser,
         EstimatorSettings,
@@ -107,6 +118,11 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
     """The settings of the command line (a value out of its bound: a ValidationError, one line, exit 2)."""
-    settings = settings_from(EstimatorSettings, args, camera=camera_options_from_args(args))
+    settings = settings_from(
+        EstimatorSettings,
+        args,
+        camera=camera_options_from_args(args),
+        rig_mount=mount_options_from_args(args),
+    )
     estimator_camera(settings)  # a bad calibration file stops the command at start, in one line
     return settings

@@ -16,10 +16,12 @@ import threading
 import time
 
 import numpy as np
+import numpy.typing as npt
 
 from common.streams import GateVerdict
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
+from common.yaw.mount import imu_stamp_s
 from services.runtime.counters import Counters
 from services.runtime.gate import InputGate
 
@@ -69,9 +71,12 @@ class GyroBuffer:
         with self._cond:
             return len(self._stamps)
 
-    def delta_rad(self, start_s: float, stop_s: float, wait_s: float = 0.0) -> float | None:
-        """The gyro's yaw rotation from ``start_s`` to ``stop_s``, or None without coverage; waits up to
-        ``wait_s`` for samples reaching ``stop_s`` (not when no sample has arrived at all)."""
+    def delta_rad(
+        self, start_s: float, stop_s: float, wait_s: float = 0.0, axis_imu: npt.ArrayLike = (0.0, 0.0, 1.0)
+    ) -> float | None:
+        """The gyro's rotation about ``axis_imu`` from ``start_s`` to ``stop_s`` (the IMU's clock), or None
+        without coverage; waits up to ``wait_s`` for samples reaching ``stop_s`` (not when no sample has
+        arrived at all)."""
         deadline = time.monotonic() + wait_s
         with self._cond:
             while self._stamps and self._stamps[-1] < stop_s - self._tolerance_s:
@@ -85,12 +90,14 @@ class GyroBuffer:
                 return None
             stamps = np.array(self._stamps[first : last + 1], dtype=np.float64)
             gyro = np.stack(self._gyro[first : last + 1])
-        return gyro_delta_yaw_rad(stamps, gyro, start_s, stop_s)
+        return gyro_delta_yaw_rad(stamps, gyro, start_s, stop_s, axis_imu)
 
 
 class GyroPrior:
     """The master's side of the yaw prior: IMU samples in (through the master's input gate), the gyro's delta
-    between frame stamps out.
+    between frame stamps out, about ``axis_imu`` (:func:`~common.yaw.mount.image_turn_axis_imu` of the mount
+    and the IMU's axes) and between the frame stamps moved onto the IMU's clock (``t_imu = t_cam +
+    time_offset_s``).
 
     A sample the gate refuses (another UAV's, a second sender's, a stamp in the future or jumping) never
     reaches the buffer, so no single sample can make the buffer refuse the real ones after it; a restart the
@@ -98,11 +105,21 @@ class GyroPrior:
 
     message_type = ImuSample
 
-    def __init__(self, enabled: bool, wait_s: float, counters: Counters, gate: InputGate) -> None:
+    def __init__(
+        self,
+        enabled: bool,
+        wait_s: float,
+        counters: Counters,
+        gate: InputGate,
+        axis_imu: npt.ArrayLike = (0.0, 0.0, 1.0),
+        time_offset_s: float = 0.0,
+    ) -> None:
         self.enabled = enabled
         self.wait_s = wait_s
         self.buffer = GyroBuffer()
         self._counters = counters
+        self.axis_imu = np.asarray(axis_imu, dtype=np.float64)
+        self.time_offset_s = float(time_offset_s)
         self._gate = gate
 
     def on_sample(self, imu: ImuSample | None, source: str | None = None) -> None:
@@ -124,7 +141,10 @@ class GyroPrior:
         counters once, at its end)."""
         if not self.enabled or previous_stamp_s is None:
             return None
-        delta = self.buffer.delta_rad(previous_stamp_s, stamp_s, self.wait_s)
+        offset = self.time_offset_s
+        delta = self.buffer.delta_rad(
+            imu_stamp_s(previous_stamp_s, offset), imu_stamp_s(stamp_s, offset), self.wait_s, self.axis_imu
+        )
         name = "gyro_prior" if delta is not None else "no_gyro_prior"
         counts[name] = counts.get(name, 0) + 1
         return delta

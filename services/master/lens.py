@@ -1,6 +1,7 @@
 """The master's yaw options: its camera (the shared camera option group: a calibration file, OpenCV YAML or
-ROS ``camera_info`` YAML, or explicit intrinsics and distortion), the gyro prior and the physical yaw-rate
-limit, on the command line and in the settings.
+ROS ``camera_info`` YAML, or explicit intrinsics and distortion), the gyro prior (the camera's mount, the
+IMU's axes and clock offset: until the stream's rig carries them) and the physical yaw-rate limit, on the
+command line and in the settings.
 
 The yaw core undistorts the correspondences (patch centres and shifted centres) before its fit, so a
 wide-angle lens measures the same rotation as a pinhole. A calibration made at another resolution of the
@@ -16,6 +17,9 @@ from dataclasses import replace
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.camera import CameraModel
+from common.errors import InputError
+from common.types import FloatArray
+from common.yaw.mount import image_turn_axis_imu, yaw_per_image_turn
 from common.yaw.settings import YawSettings
 from services.runtime.camera_options import (
     CameraOptions,
@@ -23,6 +27,7 @@ from services.runtime.camera_options import (
     camera_options_from_args,
     load_camera,
 )
+from services.runtime.mount_options import MountOptions, add_mount_options, mount_options_from_args
 from services.runtime.options import add_options, flag_of, from_core
 from services.runtime.usage import UsageError, condense_validation_error
 
@@ -42,6 +47,12 @@ class YawPriorSettings(BaseModel):
     #: how long a frame may wait for IMU samples reaching its stamp (s)
     gyro_wait_s: float = Field(default=0.05, ge=0.0, le=1.0)
     max_yaw_rate_deg_s: float = from_core(YawSettings, "max_yaw_rate_deg_s")
+    #: the camera's mount, the IMU's axes and clock offset (the shared mount option group)
+    rig_mount: MountOptions = MountOptions()
+
+    def gyro_axis_imu(self) -> FloatArray:
+        """The axis, in the IMU's axes, the gyro prior integrates about (:func:`image_turn_axis_imu`)."""
+        return image_turn_axis_imu(self.rig_mount.R_body_camera, self.rig_mount.R_body_imu)
 
     def tracker_settings(self, base: YawSettings, camera: CameraModel | None) -> YawSettings:
         """The central stage's settings with ``camera`` (:meth:`CameraSource.at` the frames' size)."""
@@ -63,8 +74,10 @@ class CameraSource:
 
 
 def add_yaw_prior_arguments(parser: argparse.ArgumentParser) -> None:
-    """The master's camera options (the shared group) and its yaw prior's (gyro, physical rate limit)."""
+    """The master's camera options (the shared group) and its yaw prior's (gyro, physical rate limit, the
+    camera's mount, the IMU's axes and clock offset)."""
     add_options(parser, YawPriorSettings, ("gyro_prior", "max_yaw_rate_deg_s"))
+    add_mount_options(parser)
     add_camera_options(parser, None)
 
 
@@ -74,9 +87,16 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
     lens = camera_options_from_args(args)
     try:
         prior = YawPriorSettings(
-            lens=lens, gyro_prior=args.gyro_prior, max_yaw_rate_deg_s=args.max_yaw_rate_deg_s
+            lens=lens,
+            gyro_prior=args.gyro_prior,
+            max_yaw_rate_deg_s=args.max_yaw_rate_deg_s,
+            rig_mount=mount_options_from_args(args),
         )
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None
+    try:
+        yaw_per_image_turn(prior.rig_mount.R_body_camera)
+    except InputError as exc:
+        raise UsageError(f"--mount: {exc}") from None
     CameraSource(lens)
     return prior

@@ -16,6 +16,7 @@ published yaw equals the in-process tracker's when no frame is dropped.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -56,6 +57,8 @@ from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 from services.runtime.transport import source_of
+
+logger = logging.getLogger(__name__)
 
 #: a standby looks at the election at least this often (s)
 STANDBY_POLL_S = 0.02
@@ -104,10 +107,20 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._last_shares: dict[str, float] = {}
         #: the turn's and its frame's counts, added to the counters once when it is done (:meth:`_process`)
         self._frame_counts: dict[str, int] = {}
+        prior = settings.prior
         self.gyro = GyroPrior(
-            settings.prior.gyro_prior, settings.prior.gyro_wait_s, self.counters, self.intake.gate
+            prior.gyro_prior,
+            prior.gyro_wait_s,
+            self.counters,
+            self.intake.gate,
+            prior.gyro_axis_imu(),
+            prior.rig_mount.imu_time_offset_s,
         )
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
+        logger.info(
+            "%s: gyro prior %s, about the IMU's axis %s (%s)", self.name, "on" if prior.gyro_prior else "off",
+            np.round(prior.gyro_axis_imu(), 4).tolist(), prior.rig_mount.describe(),
+        )  # fmt: skip
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -265,6 +278,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         tracker = YawTracker(
             self.settings.prior.tracker_settings(self.yaw_settings, self.lens.at(frame.width, frame.height)),
             grid,
+            self.settings.prior.rig_mount.R_body_camera,
         )
         state = replace(
             tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad

@@ -11,11 +11,12 @@ import pytest
 
 from common.datasets.calibration import opencv_yaml_text
 from common.provenance import Provenance
-from common.sim.field import field_flight
+from common.sim.field import MOUNTED_RIG, field_flight
 from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import Stats
 from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
+from common.yaw.mount import image_turn_axis_imu, imu_stamp_s
 from services.runtime.transport import open_session, zbytes
 from services.tools.observe import YawCollector
 from services.tools.up import LocalCluster
@@ -26,29 +27,51 @@ pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 FRAMES = 60
 
 
-def _in_process(n: int) -> tuple[np.ndarray, list[Provenance]]:
-    flight = field_flight("field", seed=0, n_frames=n)
+def _numbers(R: np.ndarray) -> str:
+    return ",".join(f"{v:.17g}" for v in np.asarray(R).ravel())
+
+
+#: the master's mount options of each flight (the rig's, until the stream carries it)
+MOUNT_ARGS = {
+    "field": (),
+    "mounted_rig": (  # a matrix may start with a minus: --option=value
+        f"--mount={_numbers(MOUNTED_RIG.R_body_camera)}",
+        f"--imu-axes={_numbers(MOUNTED_RIG.R_body_imu)}",
+        f"--imu-time-offset={MOUNTED_RIG.imu_time_offset_s:.17g}",
+    ),
+}
+
+
+def _in_process(name: str, n: int) -> tuple[np.ndarray, list[Provenance]]:
+    flight = field_flight(name, seed=0, n_frames=n)
     settings = YawSettings(camera=flight.camera)
-    tracker = YawTracker(settings, make_patch_grid(flight.camera.shape, settings))
+    tracker = YawTracker(settings, make_patch_grid(flight.camera.shape, settings), flight.R_body_camera)
+    axis = image_turn_axis_imu(flight.R_body_camera, flight.imu.R_body_imu)
+    offset = flight.imu.time_offset_s
     stamps = flight.frame_stamps_s
     state = tracker.initial_state(flight.frame(0), stamp_s=float(stamps[0]))
     yaw, provenance = [0.0], [Provenance.INITIAL]
     for k in range(1, n):
-        gyro = gyro_delta_yaw_rad(flight.imu.stamps_s, flight.imu.gyro_rad_s, stamps[k - 1], stamps[k])
+        start, stop = imu_stamp_s(float(stamps[k - 1]), offset), imu_stamp_s(float(stamps[k]), offset)
+        gyro = gyro_delta_yaw_rad(flight.imu.stamps_s, flight.imu.gyro_rad_s, start, stop, axis)
         state, estimate = tracker.track(state, flight.frame(k), float(stamps[k]), gyro)
         yaw.append(estimate.yaw_rad)
         provenance.append(estimate.provenance)
     return np.array(yaw), provenance
 
 
+@pytest.mark.parametrize("name", sorted(MOUNT_ARGS))
 def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_and_lens(
-    tmp_path: Path,
+    tmp_path: Path, name: str
 ) -> None:
+    """``mounted_rig``: the camera tilted and turned, the IMU in other axes and 12 ms ahead; the master told
+    them by its mount options."""
     calibration = tmp_path / "field.yaml"
-    calibration.write_text(opencv_yaml_text(field_flight("field", n_frames=2).camera))
-    expected_yaw, expected_provenance = _in_process(FRAMES)
+    calibration.write_text(opencv_yaml_text(field_flight(name, n_frames=2).camera))
+    expected_yaw, expected_provenance = _in_process(name, FRAMES)
     spec = two_by_two(topology="master-worker", workers=1)
-    with LocalCluster(spec, tmp_path / "logs", master_args=("--calibration", str(calibration))) as cluster:
+    master_args = ("--calibration", str(calibration), *MOUNT_ARGS[name])
+    with LocalCluster(spec, tmp_path / "logs", master_args=master_args) as cluster:
         cluster.start()
         cluster.wait_alive(cluster.expected_members())
         with open_session(cluster.observer_transport()) as session:
@@ -59,7 +82,7 @@ def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_a
             )
             collector = YawCollector(session, "uav0")
             cluster.start_camera(
-                ["--flight", "field", "--frames", str(FRAMES), "--fps", "0", "--in-flight", "1"]
+                ["--flight", name, "--frames", str(FRAMES), "--fps", "0", "--in-flight", "1"]
             )
             deadline = time.monotonic() + 120.0
             while len(collector.estimates) < FRAMES and time.monotonic() < deadline:

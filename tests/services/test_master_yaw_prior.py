@@ -15,8 +15,10 @@ from common.errors import InputError
 from common.sim.field import wide_angle_camera
 from common.wire.messages import ImuSample
 from common.yaw import YawSettings, gyro_delta_yaw_rad
-from services.master.gyro import GyroBuffer
+from services.master.gyro import GyroBuffer, GyroPrior
 from services.master.lens import CameraSource, add_yaw_prior_arguments, yaw_prior_settings_from_args
+from services.runtime.counters import Counters
+from services.runtime.gate import InputGate
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -100,3 +102,65 @@ def test_gyro_buffer_gives_the_in_process_bits_and_refuses_disorder() -> None:
     assert buffer.out_of_order == 1
     assert buffer.add(_imu(0.0, 0.5))  # older than everything: the stream restarted
     assert len(buffer) == 1
+
+
+class _Service:
+    """What the input gate counts and logs with."""
+
+    def __init__(self) -> None:
+        self.counters = Counters()
+
+    def count_error(self, counter: str, what: str, exc: BaseException | str) -> None:
+        self.counters.inc(counter)
+
+
+def test_mount_options_turn_the_gyro_prior_about_the_images_axis_on_the_imus_clock() -> None:
+    """A down camera on an IMU mounted upside down, its clock 12 ms ahead: the prior integrates the IMU's
+    -z between the frame stamps plus 12 ms, and equals the body-aligned IMU's prior of the same motion."""
+    upside_down = "1,0,0,0,-1,0,0,0,-1"
+    prior = yaw_prior_settings_from_args(_parse("--imu-axes", upside_down, "--imu-time-offset", "0.012"))
+    assert np.allclose(prior.gyro_axis_imu(), [0.0, 0.0, -1.0])
+    stamps = np.arange(0.0, 1.0, 0.0025)
+    rates = np.sin(stamps * 7.0)
+    service = _Service()
+    gate = InputGate("uav0", service)
+    gyro = GyroPrior(
+        True, 0.0, service.counters, gate, prior.gyro_axis_imu(), prior.rig_mount.imu_time_offset_s
+    )
+    aligned = GyroBuffer()
+    for t, r in zip(stamps, rates, strict=True):
+        gyro.on_sample(_imu(float(t) + 0.012, -float(r)))  # the IMU's -z reads the body's +z
+        aligned.add(_imu(float(t), float(r)))
+    counts: dict[str, int] = {}
+    delta = gyro.delta_rad(0.50, 0.55, counts)
+    assert delta == pytest.approx(aligned.delta_rad(0.50, 0.55), abs=1e-12) and counts == {"gyro_prior": 1}
+    assert delta is not None and abs(delta) > 0.01
+    default = yaw_prior_settings_from_args(_parse())
+    assert (
+        np.allclose(default.gyro_axis_imu(), [0.0, 0.0, 1.0]) and default.rig_mount.imu_time_offset_s == 0.0
+    )
+    # a camera tilted 10 deg backward (about body y): the axis leans with it
+    c, s = np.cos(np.radians(10.0)), np.sin(np.radians(10.0))
+    tilted = (
+        np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        @ np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    ).ravel()
+    leaning = yaw_prior_settings_from_args(_parse("--mount", ",".join(f"{v:.17g}" for v in tilted)))
+    assert np.allclose(leaning.gyro_axis_imu(), [s, 0.0, c])
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ("--mount", "sideways"),
+        ("--mount", "forward"),  # the yaw core needs a camera looking down
+        ("--mount", "1,0,0,0,1,0,0,0"),  # 8 numbers
+        ("--imu-axes", "1,0,0,0,1,0,0,0,-1"),  # a reflection
+        ("--imu-axes", "2,0,0,0,1,0,0,0,1"),  # not orthonormal
+        ("--imu-time-offset", "5"),
+    ],
+)
+def test_bad_mount_options_are_one_line_errors(argv: tuple[str, ...]) -> None:
+    with pytest.raises(InputError) as info:
+        yaw_prior_settings_from_args(_parse(*argv))
+    assert "\n" not in str(info.value)

@@ -27,6 +27,7 @@ from services.master.lens import YawPriorSettings
 from services.master.settings import MasterSettings, master_settings_from_args
 from services.runtime.cli import StreamBoundSettings
 from services.runtime.fields import settings_from
+from services.runtime.mount_options import MountOptions
 from services.runtime.options import core_origin
 from services.tools.cli import build_parser
 from services.worker.service import WorkerSettings
@@ -39,13 +40,17 @@ COMMANDS: dict[str, tuple[type[BaseModel], Any]] = {
     "worker": (WorkerSettings, lambda args: settings_from(WorkerSettings, args)),
 }
 #: the settings of the master's nested parts whose fields are options too
-NESTED: dict[str, tuple[type[BaseModel], ...]] = {"master": (YawPriorSettings,)}
+NESTED: dict[str, tuple[type[BaseModel], ...]] = {
+    "master": (YawPriorSettings, MountOptions),
+    "estimator": (MountOptions,),
+}
 SETTINGS_MODULES = [
     "services/localizer/settings.py",
     "services/estimator/settings.py",
     "services/master/settings.py",
     "services/master/lens.py",
     "services/runtime/camera_options.py",
+    "services/runtime/mount_options.py",
     "services/worker/service.py",
     "services/foreman/service.py",
 ]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from common.sim.field import FIELD_SCENARIOS
+from common.yaw import Provenance
 from services.tools.bench import _runner, yaw, yaw_field
 from services.tools.bench.yaw_field import _Series, pair_stats
 
@@ -22,6 +23,9 @@ FIELDS = {
     "ms_median",
     "ms_p99",
     "bridged_pairs",
+    "held_pairs",
+    "unmeasured_over_2deg",
+    "unmeasured_max_err_deg",
 }
 
 
@@ -30,10 +34,22 @@ def test_pair_stats_counts_errors_of_the_published_deltas() -> None:
     deltas = list(np.diff(truth))
     deltas[40] += math.radians(90.0)  # one 90 deg jump, then corrected: the integrated yaw is off in between
     deltas[41] -= math.radians(90.0)
-    stats = pair_stats(_Series(deltas, [1.0] * 149, bridged=3), truth)
+    provenance = [Provenance.MEASURED] * 149
+    provenance[40], provenance[41], provenance[60] = Provenance.HELD, Provenance.BRIDGED, Provenance.HELD
+    stats = pair_stats(_Series(deltas, [1.0] * 149, bridged=3, provenance=provenance), truth)
     assert set(stats) == FIELDS
     assert stats["pairs"] == 149 and stats["pairs_over_5deg"] == 2 and stats["bridged_pairs"] == 3
     assert stats["max_ame_deg"] > 0.5 and abs(stats["final_err_deg"]) < 1e-9
+    # the two jumps were held/bridged pairs: both over 2 deg; the third held pair was right
+    assert stats["held_pairs"] == 2 and stats["unmeasured_over_2deg"] == 2
+    assert stats["unmeasured_max_err_deg"] == pytest.approx(90.0)
+
+
+def test_bench_yaw_field_suite_refuses_an_unknown_scenario() -> None:
+    parser = argparse.ArgumentParser()
+    yaw.add_arguments(parser)
+    with pytest.raises(yaw.CapatazError, match="nowhere"):
+        yaw.run(parser.parse_args(["--suite", "field", "--field-scenarios", "field,nowhere"]))
 
 
 def test_bench_yaw_field_suite_refuses_too_few_frames() -> None:
@@ -47,7 +63,7 @@ def test_bench_yaw_field_suite_refuses_too_few_frames() -> None:
 def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """One field scenario (of the suite's seven) and the hover, 102 frames each: the file's layout."""
+    """One field scenario (of the suite's ten) and the hover, 102 frames each: the file's layout."""
     subset = {"checkerboard": FIELD_SCENARIOS["checkerboard"]}
     monkeypatch.setattr(yaw_field, "FIELD_SCENARIOS", subset)
     parser = argparse.ArgumentParser()
@@ -56,7 +72,13 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     args.out = tmp_path
     assert _runner(yaw)(args) == 0
     payload = json.loads((tmp_path / "yaw_field.json").read_text())
-    assert set(payload) == {"scenarios", "baseline", "worst_max_ame_deg", "total_pairs_over_5deg"}
+    assert set(payload) == {
+        "scenarios",
+        "baseline",
+        "worst_max_ame_deg",
+        "total_pairs_over_5deg",
+        "total_unmeasured_over_2deg",
+    }
     names = {*subset, "hover"}
     assert set(payload["scenarios"]) == set(payload["baseline"]) == names
     for block in (payload["scenarios"], payload["baseline"]):

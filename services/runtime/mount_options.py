@@ -1,0 +1,105 @@
+"""One option group for how the sensors sit on the body, until the stream's rig carries it: the camera's
+mount (``--mount down|forward`` or ``R_body_camera`` as 9 numbers), the IMU's axes (``--imu-axes body`` or
+``R_body_imu`` as 9 numbers) and the IMU's clock offset (``--imu-time-offset``, ``t_imu = t_cam + offset``,
+Kalibr's ``timeshift_cam_imu``). The master's gyro prior and the estimator read them.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from common.errors import InputError
+from common.geometry import CameraMount, check_rotation_matrix
+from common.types import FloatArray
+from services.runtime.options import add_options, flag_of
+from services.runtime.usage import UsageError, condense_validation_error
+
+#: the named rotations of ``--mount`` (the camera's) and ``--imu-axes`` (the IMU's: ``body``)
+NAMED_ROTATIONS = {**{m.value: m.R_body_camera for m in CameraMount}, "body": np.eye(3)}
+
+
+def mount_rotation(spec: str, name: str) -> FloatArray:
+    """A named rotation (down, forward, body) or 9 comma-separated numbers (row-major) as a checked rotation;
+    a ValueError naming the setting otherwise (pydantic reports it as the option's error)."""
+    text = spec.strip().lower()
+    if text in NAMED_ROTATIONS:
+        return np.array(NAMED_ROTATIONS[text], dtype=np.float64)
+    try:
+        numbers = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        numbers = []
+    if len(numbers) != 9:
+        raise ValueError(f"{name} must be one of {sorted(NAMED_ROTATIONS)} or 9 numbers, got {spec!r}")
+    try:
+        return check_rotation_matrix(np.reshape(numbers, (3, 3)), name)
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
+
+
+class MountOptions(BaseModel):
+    """The camera's mount, the IMU's axes and clock offset, as given on the command line."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    mount: str = Field(
+        default="down",
+        description="how the camera sits on the body: down, forward, or R_body_camera as 9 comma-separated "
+        "numbers (row-major; --mount=-0.17,... when the first is negative)",
+    )
+    imu_axes: str = Field(
+        default="body",
+        description="the IMU's axes on the body: body, or R_body_imu as 9 comma-separated numbers "
+        "(row-major; gyro_body = R_body_imu gyro_imu)",
+    )
+    imu_time_offset_s: float = Field(
+        default=0.0,
+        ge=-1.0,
+        le=1.0,
+        description="the IMU's clock against the camera's (s): t_imu = t_cam + offset (Kalibr's "
+        "timeshift_cam_imu)",
+    )
+
+    @field_validator("mount")
+    @classmethod
+    def _known_mount(cls, value: str) -> str:
+        mount_rotation(value, "mount")
+        return value
+
+    @field_validator("imu_axes")
+    @classmethod
+    def _known_axes(cls, value: str) -> str:
+        mount_rotation(value, "imu_axes")
+        return value
+
+    @property
+    def R_body_camera(self) -> FloatArray:
+        return mount_rotation(self.mount, "mount")
+
+    @property
+    def R_body_imu(self) -> FloatArray:
+        return mount_rotation(self.imu_axes, "imu_axes")
+
+    def describe(self) -> str:
+        """One log line's worth: what is used."""
+        return (
+            f"mount {self.mount}, IMU axes {self.imu_axes}, IMU clock offset {self.imu_time_offset_s:+.4f} s"
+        )
+
+
+_NAMES = ("mount", "imu_axes", "imu_time_offset_s")
+
+
+def add_mount_options(parser: argparse.ArgumentParser) -> None:
+    """``--mount``, ``--imu-axes``, ``--imu-time-offset`` (defaults, help texts: :class:`MountOptions`)."""
+    add_options(parser, MountOptions, _NAMES)
+
+
+def mount_options_from_args(args: argparse.Namespace) -> MountOptions:
+    """The group's values (a bad one: one UsageError line naming its option)."""
+    try:
+        return MountOptions(**{name: getattr(args, name) for name in _NAMES})
+    except ValidationError as exc:
+        raise UsageError(condense_validation_error(exc, flag_of)) from None
