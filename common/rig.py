@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from common.camera import CameraModel
+from common.camera import CameraModel, DistortionModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix, constant
 from common.types import FloatArray
@@ -73,6 +73,10 @@ class Rig:
     def __post_init__(self) -> None:
         if not isinstance(self.camera, CameraModel):
             raise InputError(f"camera must be a CameraModel, got {type(self.camera).__name__}")
+        if self.camera.distortion.model is not DistortionModel.NONE and self.camera.distortion.is_identity:
+            # radtan with all-zero coefficients is the pinhole it is (as the calibration readers read it):
+            # one lens, one id
+            object.__setattr__(self, "camera", self.camera.pinhole())
         for name in ("R_body_camera", "R_body_imu"):
             R = _frozen(getattr(self, name), (3, 3), name)
             check_rotation_matrix(R, name)

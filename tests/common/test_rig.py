@@ -136,3 +136,12 @@ def test_any_change_beyond_the_precision_changes_the_id(
     other = _changed(rig, which, -size if negative else size)
     assert other != rig
     assert other.rig_id != rig.rig_id, (which, rig.canonical_text(), other.canonical_text())
+
+
+def test_a_radtan_lens_with_zero_coefficients_is_the_pinhole_it_is() -> None:
+    zero = replace(CameraModel.default(), distortion=Distortion(DistortionModel.RADTAN, (0.0,) * 5))
+    rig = Rig(zero)
+    assert rig.camera == CameraModel.default()
+    assert rig == Rig(CameraModel.default()) and rig.rig_id == Rig(CameraModel.default()).rig_id
+    fisheye = Distortion(DistortionModel.FISHEYE, (0.0,) * 4)  # the ideal equidistant lens: not a pinhole
+    assert Rig(replace(zero, distortion=fisheye)).camera.distortion == fisheye
