@@ -64,35 +64,42 @@ def parse_calibration(text: str) -> CameraModel:
     """The camera described by a calibration's text (format detected: OpenCV YAML or ROS camera_info YAML)."""
     if text.lstrip().startswith("%YAML") or "!!opencv-matrix" in text:
         return _parse_opencv_yaml(text)
+    return camera_from_mapping(yaml_mapping(text, "calibration"))
+
+
+def yaml_mapping(text: str, what: str) -> Mapping[str, Any]:
+    """The YAML mapping of ``text``; not YAML (its problem and line, on one line) or not a mapping raises
+    CalibrationError saying it is not a ``what``."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise CalibrationError(f"not YAML{where}: {getattr(exc, 'problem', exc)}") from None
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        raise CalibrationError(f"not YAML{where}: {problem}") from None
     if not isinstance(data, Mapping):
-        raise CalibrationError("not a calibration: the YAML document is not a mapping")
-    return camera_from_mapping(data)
+        raise CalibrationError(f"not a {what}: the YAML document is not a mapping")
+    return data
 
 
 def camera_from_mapping(data: Mapping[str, Any]) -> CameraModel:
     """The camera of a ROS camera_info YAML document or a ``sensor_msgs/CameraInfo`` message as a mapping."""
     if "camera_matrix" in data:
         return camera_from_camera_info(
-            width=_int(data, "image_width"),
-            height=_int(data, "image_height"),
+            width=int_value(data, "image_width"),
+            height=int_value(data, "image_height"),
             distortion_model=str(data.get("distortion_model", "plumb_bob")),
-            d=_matrix_data(data.get("distortion_coefficients", {"data": []}), "distortion_coefficients"),
-            k=_matrix_data(data["camera_matrix"], "camera_matrix"),
+            d=matrix_data(data.get("distortion_coefficients", {"data": []}), "distortion_coefficients"),
+            k=matrix_data(data["camera_matrix"], "camera_matrix"),
         )
     keys = {str(k).lower(): k for k in data}
     if "k" in keys and "width" in keys:
         return camera_from_camera_info(
-            width=_int(data, keys["width"]),
-            height=_int(data, keys["height"]) if "height" in keys else _missing("height"),
+            width=int_value(data, keys["width"]),
+            height=int_value(data, keys["height"]) if "height" in keys else _missing("height"),
             distortion_model=str(data.get(keys.get("distortion_model", ""), "plumb_bob")),
-            d=_floats(data.get(keys.get("d", ""), []), "d"),
-            k=_floats(data[keys["k"]], "k"),
+            d=float_list(data.get(keys.get("d", ""), []), "d"),
+            k=float_list(data[keys["k"]], "k"),
         )
     raise CalibrationError(
         "not a calibration: expected camera_matrix (ROS camera_info YAML) or K and width (CameraInfo), "
@@ -173,10 +180,10 @@ def _parse_opencv_yaml(text: str) -> CameraModel:
         lines = str(exc).strip().splitlines()
         raise CalibrationError(f"not an OpenCV YAML file ({lines[-1] if lines else 'unreadable'})") from None
     try:
-        K = _first_mat(fs, ("camera_matrix", "K", "cameraMatrix"))
+        K = opencv_matrix(fs, ("camera_matrix", "K", "cameraMatrix"))
         if K is None:
             raise CalibrationError("OpenCV YAML without camera_matrix (or K / cameraMatrix)")
-        D = _first_mat(fs, ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs"))
+        D = opencv_matrix(fs, ("distortion_coefficients", "D", "dist_coeffs", "distCoeffs"))
         width = _first_int(fs, ("image_width", "width"))
         height = _first_int(fs, ("image_height", "height"))
         model_node = fs.getNode("distortion_model")
@@ -189,7 +196,8 @@ def _parse_opencv_yaml(text: str) -> CameraModel:
     return camera_from_camera_info(width, height, model or "radtan", d, [float(v) for v in K.ravel()])
 
 
-def _first_mat(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
+def opencv_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None:
+    """The first of the ``!!opencv-matrix`` nodes ``names`` present in ``fs`` as float64, None if none is."""
     for name in names:
         node = fs.getNode(name)
         if not node.empty():
@@ -219,7 +227,8 @@ def _missing(name: str) -> int:
     raise CalibrationError(f"missing {name}")
 
 
-def _int(data: Mapping[str, Any], key: str) -> int:
+def int_value(data: Mapping[str, Any], key: str) -> int:
+    """``data[key]``, which must be present and an integer (not a bool)."""
     if key not in data:
         raise CalibrationError(f"missing {key}")
     value = data[key]
@@ -228,7 +237,8 @@ def _int(data: Mapping[str, Any], key: str) -> int:
     return value
 
 
-def _floats(values: Any, name: str) -> list[float]:
+def float_list(values: Any, name: str) -> list[float]:
+    """``values`` as a list of finite floats (a YAML sequence of numbers)."""
     if not isinstance(values, Sequence) or isinstance(values, str | bytes):
         raise CalibrationError(f"{name} must be a list of numbers, got {type(values).__name__}")
     try:
@@ -240,10 +250,11 @@ def _floats(values: Any, name: str) -> list[float]:
     return out
 
 
-def _matrix_data(node: Any, name: str) -> list[float]:
+def matrix_data(node: Any, name: str) -> list[float]:
+    """The ``data`` of a ``{rows, cols, data}`` mapping (ROS, EuRoC), checked against rows x cols."""
     if not isinstance(node, Mapping) or "data" not in node:
         raise CalibrationError(f"{name} must be a mapping with rows, cols and data")
-    data = _floats(node["data"], f"{name}.data")
+    data = float_list(node["data"], f"{name}.data")
     rows, cols = node.get("rows"), node.get("cols")
     if rows is not None and cols is not None and rows * cols != len(data):
         raise CalibrationError(f"{name} says {rows}x{cols} but has {len(data)} values")

@@ -1,5 +1,5 @@
-"""The ONE codec that carries every message of :mod:`common.wire.messages` (their base:
-:mod:`common.wire.schema`).
+"""The ONE codec that carries every message of :mod:`common.wire.messages` and :mod:`common.wire.rig` (their
+base: :mod:`common.wire.schema`), and their registry (:data:`MESSAGE_TYPES`).
 
 Encoding (schema version :data:`SCHEMA_VERSION`): a message becomes two byte strings,
 
@@ -25,10 +25,45 @@ import msgpack
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
-from common.wire.messages import MESSAGE_TYPES, ErrorReply
+from common.wire.messages import (
+    AttitudeEstimate,
+    BlockJob,
+    BlockResult,
+    ErrorReply,
+    Frame,
+    Health,
+    ImuSample,
+    PatchJob,
+    PatchResult,
+    PoseEstimate,
+    RangeSample,
+    Stats,
+    YawEstimate,
+)
+from common.wire.rig import RigMessage
 from common.wire.schema import MAX_HEADER_BYTES, SCHEMA_VERSION, WIRE_NP_DTYPES, WireError, WireModel
 
 M = TypeVar("M", bound=WireModel)
+#: every message the codec carries, by the type name in its header
+MESSAGE_TYPES: dict[str, type[WireModel]] = {
+    cls.__name__: cls
+    for cls in (
+        Frame,
+        ImuSample,
+        RangeSample,
+        YawEstimate,
+        AttitudeEstimate,
+        PoseEstimate,
+        PatchJob,
+        BlockJob,
+        PatchResult,
+        BlockResult,
+        Stats,
+        Health,
+        ErrorReply,
+        RigMessage,
+    )
+}
 
 
 def encode(message: WireModel) -> tuple[bytes, bytes]:

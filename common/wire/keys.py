@@ -3,6 +3,7 @@
 | key expression                          | kind       | payload                       |
 | --------------------------------------- | ---------- | ----------------------------- |
 | ``capataz/uav/{uav}/camera``            | pub/sub    | Frame                         |
+| ``capataz/uav/{uav}/rig``               | pub/sub    | RigMessage                    |
 | ``capataz/uav/{uav}/imu``               | pub/sub    | ImuSample                     |
 | ``capataz/uav/{uav}/range``             | pub/sub    | RangeSample                   |
 | ``capataz/uav/{uav}/yaw``               | pub/sub    | YawEstimate                   |
@@ -32,6 +33,8 @@ def uav_key(uav: str, topic: str) -> str:
 
 # the streams of one UAV (the table above): ``camera_key("uav0") == "capataz/uav/uav0/camera"``
 camera_key = partial(uav_key, topic="camera")
+#: the stream's camera rig (RigMessage), beside its frames; each Frame carries its ``rig_id``
+rig_key = partial(uav_key, topic="rig")
 imu_key = partial(uav_key, topic="imu")
 range_key = partial(uav_key, topic="range")
 yaw_key = partial(uav_key, topic="yaw")

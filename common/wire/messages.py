@@ -1,6 +1,8 @@
-"""Every message on the wire: sensors, estimates, work and service messages, and their registry.
+"""Every message on the wire: sensors, estimates, work and service messages (the rig's:
+:mod:`common.wire.rig`).
 
-Their base and bounds: :mod:`common.wire.schema`; the one codec that carries them: :mod:`common.wire.codec`.
+Their base and bounds: :mod:`common.wire.schema`; the one codec that carries them and their registry:
+:mod:`common.wire.codec`.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from common.wire.schema import (
     MAX_JOB_PATCHES,
     MAX_JOB_PIXELS,
     MAX_SEQ,
+    RIG_ID_PATTERN,
     ArraySpec,
     Uav,
     WireModel,
@@ -51,6 +54,8 @@ class Frame(UavMessage):
     encoding: Literal["mono8"] = "mono8"
     pixels: np.ndarray
     frame_id: str = frame_id_field("camera")
+    #: the id of the stream's rig (``common.wire.rig.RigMessage``) it was taken with; None: not stated
+    rig_id: str | None = Field(default=None, pattern=RIG_ID_PATTERN)
 
     @model_validator(mode="after")
     def _shape_matches(self) -> Frame:
@@ -376,23 +381,3 @@ class ErrorReply(WireModel):
 
     kind: str
     error: str
-
-
-MESSAGE_TYPES: dict[str, type[WireModel]] = {
-    cls.__name__: cls
-    for cls in (
-        Frame,
-        ImuSample,
-        RangeSample,
-        YawEstimate,
-        AttitudeEstimate,
-        PoseEstimate,
-        PatchJob,
-        BlockJob,
-        PatchResult,
-        BlockResult,
-        Stats,
-        Health,
-        ErrorReply,
-    )
-}

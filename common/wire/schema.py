@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
 from common.errors import CapatazError
+from common.rig import RIG_ID_HEX
 
 #: Bump when a field changes meaning; decoders reject other versions.
 SCHEMA_VERSION = 1
@@ -102,6 +103,8 @@ Uav = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_CHARS)]
 #: Frames of reference (``frame_id``; docs/data.md "Keys and frames", ROS REP 103): ``world`` (ENU, z up),
 #: ``body`` (FLU: x forward, y left, z up), ``camera`` (OpenCV optical: x right, y down, z along the axis).
 FRAME_ID_PATTERN = r"^[A-Za-z0-9_./-]{1,64}$"
+#: a rig id (:attr:`common.rig.Rig.rig_id`): :data:`common.rig.RIG_ID_HEX` lower-case hex digits.
+RIG_ID_PATTERN = rf"^[0-9a-f]{{{RIG_ID_HEX}}}$"
 
 
 def frame_id_field(default: str) -> Any:

@@ -11,6 +11,7 @@ from common.wire import keys
 
 def test_key_table() -> None:
     assert keys.camera_key("uav0") == "capataz/uav/uav0/camera"
+    assert keys.rig_key("uav0") == "capataz/uav/uav0/rig"
     assert keys.imu_key("a") == "capataz/uav/a/imu" and keys.range_key("a") == "capataz/uav/a/range"
     assert keys.yaw_key("a") == "capataz/uav/a/yaw" and keys.attitude_key("a") == "capataz/uav/a/attitude"
     assert (

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from common.wire import messages as m
-from common.wire.codec import decode, encode, error_reply, read_error_reply
+from common.wire.codec import MESSAGE_TYPES, decode, encode, error_reply, read_error_reply
 from common.wire.schema import SCHEMA_VERSION, WireError, WireModel
 from common.yaw import FftBackend, YawSettings
 from tests.builders import JOB_SETTINGS, patch_job
@@ -175,9 +175,9 @@ def test_every_message_round_trips_exactly(message: WireModel) -> None:
 def test_every_message_type_of_the_key_table_is_registered() -> None:
     wanted = {
         "Frame", "ImuSample", "RangeSample", "YawEstimate", "AttitudeEstimate", "PoseEstimate",
-        "BlockJob", "BlockResult", "PatchJob", "PatchResult", "Stats", "Health",
+        "BlockJob", "BlockResult", "PatchJob", "PatchResult", "Stats", "Health", "RigMessage",
     }  # fmt: skip
-    assert wanted <= set(m.MESSAGE_TYPES)
+    assert wanted <= set(MESSAGE_TYPES)
 
 
 def test_pixels_travel_raw_in_the_payload_not_in_the_header() -> None:

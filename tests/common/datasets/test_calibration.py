@@ -185,3 +185,12 @@ def test_an_opencv_matrix_whose_data_does_not_fill_it_names_the_file_regression(
     )
     with pytest.raises(CalibrationError, match=r"short\.yaml: camera_matrix says 3x3 but has 6 values"):
         load_calibration(path)
+
+
+def test_a_yaml_reader_error_is_one_line(tmp_path: Path) -> None:
+    """Regression: PyYAML's reader error (a NUL byte) spans two lines; the calibration error is one."""
+    path = tmp_path / "nul.yaml"
+    path.write_bytes(b"\x00camera_matrix: 1")
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(path)
+    assert "not YAML" in str(info.value) and "\n" not in str(info.value)
