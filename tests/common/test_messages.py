@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+from collections.abc import Callable
 
 import msgpack
 import numpy as np
@@ -205,11 +206,11 @@ def _header(attachment: bytes) -> dict:
     return msgpack.unpackb(attachment)
 
 
-def _pack(header: dict) -> bytes:
+def _pack(header: object) -> bytes:
     return msgpack.packb(header, use_bin_type=True)
 
 
-def _with(change) -> tuple[bytes, bytes]:  # type: ignore[no-untyped-def]
+def _with(change: Callable[[dict], object]) -> tuple[bytes, bytes]:
     payload, attachment = _frame()
     header = _header(attachment)
     change(header)
@@ -327,7 +328,7 @@ def test_nan_or_inf_in_scalar_and_dict_fields_is_a_wire_error(field: str, value:
 def test_nan_in_job_settings_is_a_wire_error() -> None:
     crops = np.zeros((1, 4, 4), np.uint8)
     settings = {**JOB_SETTINGS.model_dump(mode="json"), "peak_sigma_px": math.nan}
-    job = patch_job(1, 4, validate=False, settings=settings, crops=crops, prev_crops=crops[:0])
+    job: m.PatchJob = patch_job(1, 4, validate=False, settings=settings, crops=crops, prev_crops=crops[:0])
     with pytest.raises(WireError, match="finite"):
         decode(*encode(job), m.PatchJob)
 
