@@ -1,7 +1,7 @@
 """Small closed forms of the error-state EKF (:mod:`common.estimation.eskf`): the error Jacobian of the
 quaternion, the inverse of a 1x1-3x3 innovation covariance, the attitude's covariance in the world, and the
-checked inputs, innovations and error-state Jacobians of the position, yaw and range updates (the filter and
-its test reference both take them from here)."""
+checked inputs, innovations and error-state Jacobians of the position, yaw and range updates of paper C (the
+filter and its test reference both take them from here)."""
 
 from __future__ import annotations
 
