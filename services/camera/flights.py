@@ -15,6 +15,7 @@ from common.errors import CapatazError
 from common.estimation.measurements import FrameMeasurement
 from common.localization.office import OFFICE_HFOV_DEG, default_scene
 from common.localization.tracking import noisy_odometry
+from common.rig import Rig
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
@@ -110,6 +111,12 @@ def flight_source(settings: CameraSettings) -> CameraSource:
         height=camera.height,
         truth=lambda uav, seq, stamp_s, i: truth_pose(uav, seq, stamp_s, flight, i),
         paced_by_fps=True,
+        rig=Rig(
+            camera,
+            flight.R_body_camera,
+            R_body_imu=flight.imu.R_body_imu,
+            time_offset_s=flight.imu.time_offset_s,
+        ),
     )
 
 

@@ -14,6 +14,7 @@ is a free-running camera whose frames the master takes latest-wins.
 from __future__ import annotations
 
 import argparse
+import logging
 import threading
 import time
 from pathlib import Path
@@ -24,6 +25,7 @@ import zenoh
 from common.members import Role
 from common.wire import keys
 from common.wire.messages import Frame, YawEstimate
+from common.wire.rig import message_of_rig
 from common.wire.schema import WireModel
 from services.camera.flights import flight_source, write_flight_calibration
 from services.camera.images import image_files
@@ -32,7 +34,10 @@ from services.camera.settings import CameraSettings, FlightName
 from services.camera.sources import add_source_arguments, open_camera_source, preloaded
 from services.runtime.cli import add_enum_argument, add_transport_arguments, parse_size
 from services.runtime.fields import settings_from
+from services.runtime.rig_follow import describe_rig
 from services.runtime.service import ConfiguredService
+
+logger = logging.getLogger(__name__)
 
 
 class CameraService(ConfiguredService[CameraSettings]):
@@ -45,6 +50,8 @@ class CameraService(ConfiguredService[CameraSettings]):
         if recorded is not None and settings.preload:
             recorded = preloaded(recorded)
         self.source = recorded if recorded is not None else flight_source(settings)
+        #: the rig published with the stream (its id in every frame's header); None: the source has none
+        self.rig = self.source.stream_rig()
         self._acked: dict[str, int] = dict.fromkeys(settings.uavs, -1)
         self._ack = threading.Condition()
         self.finished = threading.Event()
@@ -75,7 +82,23 @@ class CameraService(ConfiguredService[CameraSettings]):
                 keys.alive_role(Role.MASTER), self._on_master, history=True
             )
         )
+        if self.rig is not None:
+            logger.info("%s: %s", self.name, describe_rig(self.rig))
+            for uav in self.settings.uavs:
+                self._entities.append(
+                    session.declare_queryable(keys.rig_key(uav), self._on_rig_query, complete=True)
+                )
+                publisher = session.declare_publisher(keys.rig_key(uav))
+                self._entities.append(publisher)
+                self.publish(publisher, message_of_rig(uav, self.rig, time.time()))
         self.spawn(self._publish_all, "publish")
+
+    def _on_rig_query(self, query: zenoh.Query) -> None:
+        """A late joiner asks for the stream's rig: this camera's, for the UAV the key names."""
+        assert self.rig is not None
+        uav = str(query.key_expr).split("/")[2]
+        if uav in self.settings.uavs:
+            self.reply(query, message_of_rig(uav, self.rig, time.time()))
 
     def run(self) -> int:
         """The service's run; exit code 1 also when a recording broke half-way."""
@@ -97,9 +120,10 @@ class CameraService(ConfiguredService[CameraSettings]):
     def put(self, uav: str, topic: str, message: WireModel) -> bool:
         """Publish ``message`` on ``uav``'s ``topic`` (False: the service is stopping)."""
         publisher = self._pub[uav][topic]
-        if isinstance(
-            message, Frame
-        ):  # declare the source: masters follow one camera per stream (SourceLock)
+        if isinstance(message, Frame):
+            if self.rig is not None:  # the rig it was taken with, by id (the rig itself is on the rig key)
+                message = message.model_copy(update={"rig_id": self.rig.rig_id})
+            # declare the source: masters follow one camera per stream (SourceLock)
             return self.publish(publisher, message, source_info=zenoh.SourceInfo(publisher.id, message.seq))
         return self.publish(publisher, message)
 

@@ -14,13 +14,15 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from common.camera import CameraModel
-from common.datasets.calibration import CalibrationError, load_calibration
+from common.datasets.calibration import CalibrationError
 from common.datasets.euroc import open_euroc
 from common.datasets.images import open_image_folder
+from common.datasets.rig_files import load_rig
 from common.datasets.rosbag import open_bag
 from common.datasets.tum import Trajectory
 from common.errors import InputError
 from common.estimation.measurements import Measurement
+from common.rig import Rig
 from common.types import FloatArray
 from common.wire.schema import WireModel
 from services.camera.settings import CameraSettings
@@ -64,6 +66,15 @@ class CameraSource:
     #: True: frames go out at ``--fps`` frames per second (a simulation); False: at the recorded rate
     #: times ``--rate`` (a recording)
     paced_by_fps: bool = False
+    #: the rig the source carries (a simulation's, a rig file's, EuRoC's sensor.yaml with T_BS); None: only
+    #: ``camera_info`` (mounted looking down) or nothing
+    rig: Rig | None = None
+
+    def stream_rig(self) -> Rig | None:
+        """The rig the camera publishes with the stream: the source's, else its calibration looking down."""
+        if self.rig is not None:
+            return self.rig
+        return None if self.camera_info is None else Rig(self.camera_info)
 
 
 def preloaded(source: CameraSource) -> CameraSource:
@@ -73,15 +84,17 @@ def preloaded(source: CameraSource) -> CameraSource:
 
 
 def with_calibration(source: CameraSource, path: Path) -> CameraSource:
-    """``source`` with the camera of a calibration file (it replaces a recording's own CameraInfo); the
-    calibration must be of the recording's frame size."""
-    camera = load_calibration(path)
+    """``source`` with the rig of a calibration file (any format :func:`~common.datasets.rig_files.load_rig`
+    reads: OpenCV or ROS camera_info YAML, a capataz rig, EuRoC's sensor.yaml, Kalibr's camchain; it replaces
+    a recording's own CameraInfo); the calibration must be of the recording's frame size."""
+    rig = load_rig(path)
+    camera = rig.camera
     if source.width and (camera.width, camera.height) != (source.width, source.height):
         raise CalibrationError(
             f"calibration file {path}: {camera.width}x{camera.height}, but the frames are "
             f"{source.width}x{source.height}"
         )
-    return replace(source, camera_info=camera)
+    return replace(source, camera_info=camera, rig=rig)
 
 
 def open_source(
@@ -133,6 +146,7 @@ def open_source(
             f"EuRoC {folder_e.root} ({len(folder_e.camera)} frames, {len(folder_e.imu)} IMU samples)",
             lambda _skip: folder_e.measurements(),
             camera_info=folder_e.camera_info,
+            rig=_euroc_rig(folder_e.root),
             ground_truth=folder_e.ground_truth,
             frames=len(folder_e.camera),
             width=folder_e.camera.width,
@@ -150,6 +164,13 @@ def open_source(
             height=recording.height,
         )
     return None
+
+
+def _euroc_rig(root: Path) -> Rig | None:
+    """The rig of a EuRoC folder's ``mav0/cam0/sensor.yaml`` (its ``T_BS`` mounts the camera on the body, the
+    IMU's frame); None when the file is missing."""
+    path = Path(root) / "mav0" / "cam0" / "sensor.yaml"
+    return load_rig(path) if path.is_file() else None
 
 
 def open_camera_source(settings: CameraSettings) -> CameraSource | None:

@@ -11,6 +11,7 @@ bounded time for samples that reach the later stamp (another route may deliver t
 from __future__ import annotations
 
 import bisect
+import logging
 import math
 import threading
 import time
@@ -22,8 +23,11 @@ from common.streams import GateVerdict
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
 from common.yaw.mount import imu_stamp_s
+from services.master.lens import YawPriorSettings
 from services.runtime.counters import Counters
 from services.runtime.gate import InputGate
+
+logger = logging.getLogger(__name__)
 
 #: Samples kept (10 s at 400 Hz): enough for any frame interval the master bridges.
 DEFAULT_CAPACITY = 4000
@@ -121,6 +125,16 @@ class GyroPrior:
         self.axis_imu = np.asarray(axis_imu, dtype=np.float64)
         self.time_offset_s = float(time_offset_s)
         self._gate = gate
+
+    @classmethod
+    def of(cls, prior: YawPriorSettings, counters: Counters, gate: InputGate, name: str) -> GyroPrior:
+        """The prior the master's settings describe (logged in one line)."""
+        axis, mount = prior.gyro_axis_imu(), prior.rig_mount
+        logger.info(
+            "%s: gyro prior %s, about the IMU's axis %s (%s)", name, "on" if prior.gyro_prior else "off",
+            np.round(axis, 4).tolist(), mount.describe(),
+        )  # fmt: skip
+        return cls(prior.gyro_prior, prior.gyro_wait_s, counters, gate, axis, mount.imu_time_offset_s)
 
     def on_sample(self, imu: ImuSample | None, source: str | None = None) -> None:
         """A decoded IMU sample from ``source`` (None: it failed to decode, counted by the runtime)."""

@@ -12,12 +12,14 @@ same aspect ratio is scaled to the frames; another aspect ratio is refused. Noth
 from __future__ import annotations
 
 import argparse
+import logging
 from dataclasses import replace
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.camera import CameraModel
 from common.errors import InputError
+from common.rig import Rig
 from common.types import FloatArray
 from common.yaw.mount import image_turn_axis_imu, yaw_per_image_turn
 from common.yaw.settings import YawSettings
@@ -29,7 +31,10 @@ from services.runtime.camera_options import (
 )
 from services.runtime.mount_options import MountOptions, add_mount_options, mount_options_from_args
 from services.runtime.options import add_options, flag_of, from_core
+from services.runtime.rig_follow import describe_rig
 from services.runtime.usage import UsageError, condense_validation_error
+
+logger = logging.getLogger(__name__)
 
 
 class YawPriorSettings(BaseModel):
@@ -100,3 +105,18 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
         raise UsageError(f"--mount: {exc}") from None
     CameraSource(lens)
     return prior
+
+
+def stream_geometry(
+    prior: YawPriorSettings, lens: CameraSource, width: int, height: int, rig: Rig | None, name: str = ""
+) -> tuple[CameraModel | None, FloatArray, FloatArray, float]:
+    """``(camera, R_body_camera, gyro axis in the IMU's axes, IMU clock offset)`` of a stream of frames of
+    ``width`` x ``height``: the stream's ``rig`` when it has one (logged for master ``name``), else the
+    master's own options."""
+    if rig is None:
+        mount = prior.rig_mount
+        camera = lens.at(width, height)
+        return camera, mount.R_body_camera, prior.gyro_axis_imu(), mount.imu_time_offset_s
+    logger.info("%s: measuring with the stream's %s", name, describe_rig(rig))
+    axis = image_turn_axis_imu(rig.R_body_camera, rig.R_body_imu)
+    return rig.camera, rig.R_body_camera, axis, rig.time_offset_s

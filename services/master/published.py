@@ -15,10 +15,14 @@ authenticates the sender.
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from dataclasses import dataclass
 from enum import Enum
 from typing import TypeVar
+
+from common.provenance import Provenance
+from common.wire.messages import YawEstimate
 
 _K = TypeVar("_K")
 #: the declared source of samples that declare none
@@ -106,3 +110,25 @@ class PublishedLedger:
         if not self._yaw:
             return None
         return max(self._yaw.values(), key=lambda item: item[0])[1].yaw_rad
+
+
+def initial_estimate(
+    uav: str, seq: int, stamp_s: float, yaw_rad: float, t0_perf_s: float, dropped: int
+) -> YawEstimate:
+    """The estimate of a stream's first frame (a new epoch or rig): the yaw it continues from, nothing
+    measured yet (``INITIAL``, low confidence)."""
+    return YawEstimate(
+        uav=uav,
+        seq=seq,
+        stamp_s=stamp_s,
+        delta_yaw_rad=0.0,
+        yaw_rad=yaw_rad,
+        inlier_count=0,
+        patch_count=0,
+        confidence=0.0,
+        low_confidence=True,
+        method="initial",
+        provenance=Provenance.INITIAL,
+        timings_ms={"total": (time.perf_counter() - t0_perf_s) * 1e3},
+        dropped_frames=dropped,
+    )

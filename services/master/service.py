@@ -4,8 +4,9 @@ Zenoh's callback only hands each frame sample off, with its arrival times, to a 
 zenoh-python's examples do); the master's frames thread runs the rest. Every frame passes the stream gate
 (:mod:`common.streams`: foreign UAV, size, encoding, a second sender within an epoch, seq and stamp jumps
 refused and counted; a confirmed restart is a new epoch whose yaw continues the last one) and waits in a
-short FIFO. Several masters may serve one UAV: one is active
-(:mod:`services.master.election`), the others stand by warm and take over from the last published yaw.
+short FIFO. Its lens and mount are the stream's rig (:mod:`services.runtime.rig_follow`; a frame naming a
+rig not received is refused) unless the master was given camera or mount options. Several masters may
+serve one UAV: one is active (:mod:`services.master.election`), the others take over from the last yaw.
 
 Topology is a setting: ``master-worker`` (members = every worker) or ``master-foreman-worker``
 (members = foremen, each splitting its block among its workers). Balancing and self-compute are the
@@ -29,7 +30,7 @@ import zenoh
 from common.dispatch import SELF, Dispatcher
 from common.errors import CapatazError
 from common.members import Role, Topology
-from common.provenance import Provenance
+from common.rig import Rig
 from common.wire import keys
 from common.wire.messages import (
     BlockJob,
@@ -47,12 +48,21 @@ from common.yaw.patchwork import SpectrumCache
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameIntake
 from services.master.gyro import GyroPrior
-from services.master.lens import CameraSource
+from services.master.lens import CameraSource, stream_geometry
 from services.master.own_share import OwnShare
-from services.master.published import ANONYMOUS, PublishedLedger, PublishedYaw, PublishVerdict, session_of
+from services.master.published import (
+    ANONYMOUS,
+    PublishedLedger,
+    PublishedYaw,
+    PublishVerdict,
+    initial_estimate,
+    session_of,
+)
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
+from services.runtime.mount_options import MountOptions
+from services.runtime.rig_follow import RigFollower
 from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
@@ -76,6 +86,8 @@ class _Stream:
     cache: SpectrumCache = field(default_factory=SpectrumCache)
     #: every patch index of the grid (the round's expected cover)
     all_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
+    #: the id of the stream's rig the stream was started with (None: the master's own options)
+    rig_id: str | None = None
 
 
 class MasterService(ConfiguredService[MasterSettings]):
@@ -108,19 +120,11 @@ class MasterService(ConfiguredService[MasterSettings]):
         #: the turn's and its frame's counts, added to the counters once when it is done (:meth:`_process`)
         self._frame_counts: dict[str, int] = {}
         prior = settings.prior
-        self.gyro = GyroPrior(
-            prior.gyro_prior,
-            prior.gyro_wait_s,
-            self.counters,
-            self.intake.gate,
-            prior.gyro_axis_imu(),
-            prior.rig_mount.imu_time_offset_s,
-        )
+        self.gyro = GyroPrior.of(prior, self.counters, self.intake.gate, self.name)
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
-        logger.info(
-            "%s: gyro prior %s, about the IMU's axis %s (%s)", self.name, "on" if prior.gyro_prior else "off",
-            np.round(prior.gyro_axis_imu(), 4).tolist(), prior.rig_mount.describe(),
-        )  # fmt: skip
+        #: the stream's rig (capataz/uav/{uav}/rig); camera or mount options given to the master override it
+        self.rigs = RigFollower(settings.uav, self)
+        self._own_rig = prior.lens.given or prior.rig_mount != MountOptions()
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -128,6 +132,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._publisher = session.declare_publisher(keys.yaw_key(self.settings.uav))
         self._entities.append(self._publisher)
         self._entities.append(session.declare_subscriber(keys.yaw_key(self.settings.uav), self._on_yaw))
+        self._entities.append(self.rigs.start(session))
         if self.settings.election:
             self.election = Election(session, self.settings.uav, self.node, self.index)
         self._entities.append(
@@ -199,11 +204,8 @@ class MasterService(ConfiguredService[MasterSettings]):
     # -- frames -----------------------------------------------------------------------------------------
     def _serve(self) -> None:
         assert self.session is not None
-        job_type: type[PatchJob] = PatchJob if self.settings.topology is Topology.MASTER_WORKER else BlockJob
-        result_type: type[PatchResult] = (
-            PatchResult if self.settings.topology is Topology.MASTER_WORKER else BlockResult
-        )
-        self._job_types = (job_type, result_type)
+        worker = self.settings.topology is Topology.MASTER_WORKER
+        self._job_types = (PatchJob, PatchResult) if worker else (BlockJob, BlockResult)
         while not self.stop_event.is_set():
             self.serve_once(0.05)
 
@@ -272,14 +274,16 @@ class MasterService(ConfiguredService[MasterSettings]):
             newest = self.published.newest_trusted()
         return 0.0 if newest is None else newest
 
-    def _start_stream(self, frame: Frame, epoch: int, yaw_rad: float) -> _Stream:
+    def _start_stream(self, frame: Frame, epoch: int, yaw_rad: float, rig: Rig | None = None) -> _Stream:
+        """A stream from ``frame`` on: the lens and mount of the stream's ``rig`` when it has one (and the
+        master was given neither), else the master's options; the gyro prior follows the same mount."""
         assert self.session is not None
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
-        tracker = YawTracker(
-            self.settings.prior.tracker_settings(self.yaw_settings, self.lens.at(frame.width, frame.height)),
-            grid,
-            self.settings.prior.rig_mount.R_body_camera,
-        )
+        prior = self.settings.prior
+        geometry = stream_geometry(prior, self.lens, frame.width, frame.height, rig, self.name)
+        camera, R_body_camera, axis, offset = geometry
+        self.gyro.axis_imu, self.gyro.time_offset_s = axis, offset
+        tracker = YawTracker(prior.tracker_settings(self.yaw_settings, camera), grid, R_body_camera)
         state = replace(
             tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad
         )
@@ -287,8 +291,9 @@ class MasterService(ConfiguredService[MasterSettings]):
         dispatcher.trust = self.guard.monitor()
         level = grid.level_image(frame.pixels)
         stream = _Stream(
-            grid, tracker, state, frame.seq, level, dispatcher, epoch, all_indices=grid.all_indices
-        )
+            grid, tracker, state, frame.seq, level, dispatcher, epoch, all_indices=grid.all_indices,
+            rig_id=None if rig is None else rig.rig_id,
+        )  # fmt: skip
         job_type, result_type = self._job_types
         self.scatter = Scatter(
             self.session, dispatcher, keys.work_key_of, job_type, result_type, self.counters
@@ -300,25 +305,19 @@ class MasterService(ConfiguredService[MasterSettings]):
         """The yaw of one admitted frame (None: already measured, e.g. replayed at a take-over)."""
         assert self.session is not None
         stream = self.stream
-        if stream is None or epoch != stream.epoch:
-            # a new epoch (first frame, camera restart, take-over without anchor): the yaw continues
+        rig: Rig | None = None
+        if not self._own_rig:
+            rig, admitted = self.rigs.rig_of(frame)
+            if not admitted:  # a frame taken with a rig this master has not received: counted, asked for
+                return None
+        rig_id = None if rig is None else rig.rig_id
+        if stream is None or epoch != stream.epoch or rig_id != stream.rig_id:
+            # a new epoch (first frame, camera restart, take-over without anchor) or a new rig: the yaw
+            # continues
             yaw_rad = self._last_yaw()
-            stream = self._start_stream(frame, epoch, yaw_rad)
-            return YawEstimate(
-                uav=self.settings.uav,
-                seq=frame.seq,
-                stamp_s=frame.stamp_s,
-                delta_yaw_rad=0.0,
-                yaw_rad=yaw_rad,
-                inlier_count=0,
-                patch_count=0,
-                confidence=0.0,
-                low_confidence=True,
-                method="initial",
-                provenance=Provenance.INITIAL,
-                timings_ms={"total": (time.perf_counter() - t0) * 1e3},
-                dropped_frames=self.slot.dropped + self.intake.inbox.dropped,
-            )
+            stream = self._start_stream(frame, epoch, yaw_rad, rig)
+            dropped = self.slot.dropped + self.intake.inbox.dropped
+            return initial_estimate(self.settings.uav, frame.seq, frame.stamp_s, yaw_rad, t0, dropped)
         if frame.seq <= stream.prev_seq:
             self.counters.inc("frames_already_measured")
             return None

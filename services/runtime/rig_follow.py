@@ -1,0 +1,146 @@
+"""A consumer's side of the rig that travels with a stream: the camera publishes its
+:class:`~common.rig.Rig` on ``capataz/uav/{uav}/rig`` (and answers queries there, for late joiners) and puts
+its ``rig_id`` in every frame's header; :class:`RigFollower` keeps the rigs it has received (a few, the
+newest kept) and tells, for a frame, which rig it was taken with.
+
+- A rig given to the service (its camera or mount options) **overrides** the stream's: said once in the log.
+- A frame without a ``rig_id`` (a stream of an older camera, a recording made before rigs travelled) is taken
+  with the service's own options, as before.
+- A frame whose rig the follower has not received is **refused** (``refused_camera_unknown_rig``, one line)
+  and the rig is asked for again, at most once a second: a consumer never measures frames with a lens or a
+  mount it does not know.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import OrderedDict
+from typing import Any, Protocol
+
+import zenoh
+
+from common.errors import InputError
+from common.rig import Rig
+from common.wire import keys
+from common.wire.messages import Frame
+from common.wire.rig import RigMessage, rig_from_message
+from services.runtime.counters import Counters
+
+logger = logging.getLogger(__name__)
+
+#: rigs kept per stream (a camera reconfigured a few times); the oldest is forgotten beyond
+KEPT = 8
+#: a missing rig is asked for again at most this often (s)
+REQUERY_S = 1.0
+
+
+class _Service(Protocol):
+    counters: Counters
+
+    @property
+    def name(self) -> str: ...
+
+    def count_error(self, counter: str, what: str, exc: BaseException | str) -> None: ...
+
+    def decode_sample(self, sample: zenoh.Sample, expected: type[RigMessage]) -> RigMessage | None: ...
+
+
+def describe_rig(rig: Rig) -> str:
+    """One log line's worth of a rig."""
+    c = rig.camera
+    return (
+        f"rig {rig.rig_id}: {c.width}x{c.height} fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} "
+        f"{c.distortion.model.value} {list(c.distortion.coeffs)}, R_body_camera "
+        f"{rig.R_body_camera.round(4).tolist()}, R_body_imu {rig.R_body_imu.round(4).tolist()}, "
+        f"IMU clock offset {rig.time_offset_s:+.4f} s"
+    )
+
+
+class RigFollower:
+    """The rigs of one UAV's stream as its camera publishes them; thread-safe."""
+
+    def __init__(self, uav: str, service: _Service, override: Rig | None = None) -> None:
+        self.uav = uav
+        self.override = override
+        self._service = service
+        self._rigs: OrderedDict[str, Rig] = OrderedDict()
+        self._lock = threading.Lock()
+        self._session: zenoh.Session | None = None
+        self._asked_s = -float("inf")
+        self._overridden: set[str] = set()
+
+    def start(self, session: zenoh.Session) -> Any:
+        """Subscribe to the stream's rig and ask for it once (late joiners); returns the subscriber."""
+        self._session = session
+        subscriber = session.declare_subscriber(keys.rig_key(self.uav), self.on_sample)
+        self.ask()
+        return subscriber
+
+    def ask(self) -> None:
+        """Query the rig key (the camera answers with its current rig); replies arrive as samples."""
+        session = self._session
+        now = time.monotonic()
+        if session is None or now - self._asked_s < REQUERY_S:
+            return
+        self._asked_s = now
+        try:
+            session.get(keys.rig_key(self.uav), self._on_reply, timeout=2.0)
+        except zenoh.ZError as exc:  # the session is closing
+            logger.debug("%s: rig query: %s", self._service.name, exc)
+
+    def _on_reply(self, reply: zenoh.Reply) -> None:
+        if reply.ok is not None:
+            self.on_sample(reply.ok)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """A rig message (a publication or a query's reply): decoded, checked, kept, logged once."""
+        message = self._service.decode_sample(sample, RigMessage)
+        if message is None:
+            return
+        if message.uav != self.uav:
+            self._service.count_error("refused_rig_foreign_uav", "rig of another UAV refused", message.uav)
+            return
+        try:
+            rig = rig_from_message(message)
+        except InputError as exc:
+            self._service.count_error("refused_rig", "rig refused", exc)
+            return
+        self.add(rig)
+
+    def add(self, rig: Rig) -> None:
+        with self._lock:
+            known = rig.rig_id in self._rigs
+            self._rigs[rig.rig_id] = rig
+            self._rigs.move_to_end(rig.rig_id)
+            while len(self._rigs) > KEPT:
+                self._rigs.popitem(last=False)
+        if not known:
+            self._service.counters.inc("rigs_received")
+            logger.info("%s: the stream's %s", self._service.name, describe_rig(rig))
+
+    def rig_of(self, frame: Frame) -> tuple[Rig | None, bool]:
+        """``(rig, admitted)`` for a frame: the override, the stream's rig of the frame's ``rig_id``, or None
+        for a frame without one (the service's own options apply); ``admitted`` False when the frame names a
+        rig not received (counted, logged, asked for)."""
+        rig_id = frame.rig_id
+        if self.override is not None:
+            if rig_id is not None and rig_id != self.override.rig_id and rig_id not in self._overridden:
+                self._overridden.add(rig_id)
+                logger.warning(
+                    "%s: the stream's rig %s is overridden by the service's options (%s)",
+                    self._service.name, rig_id, describe_rig(self.override),
+                )  # fmt: skip
+            return self.override, True
+        if rig_id is None:
+            return None, True
+        with self._lock:
+            rig = self._rigs.get(rig_id)
+        if rig is None:
+            self._service.count_error(
+                "refused_camera_unknown_rig", "frame refused", f"seq {frame.seq}: rig {rig_id} not received"
+            )
+            self.ask()
+            return None, False
+        return rig, True
