@@ -192,14 +192,18 @@ class YawTracker:
         pairs = state.measured_pairs
         if result.trusted:
             provenance, delta, variance = Provenance.MEASURED, result.delta_rad, result.variance_rad2
-            pairs, since = _with_pair(pairs, MeasuredPair(stop_s, step_s, delta)), 0.0
         elif prior.source is PriorSource.GYRO:
             # the gyro measured this pair: its rate is as good as the camera's for a later hold
             provenance, delta, variance = Provenance.BRIDGED, prior.delta_rad, prior.variance_rad2
-            pairs, since = _with_pair(pairs, MeasuredPair(stop_s, step_s, delta)), 0.0
         else:
             provenance, delta, variance = Provenance.HELD, prior.delta_rad, prior.variance_rad2
-            since = state.since_measured_s + step_s
+        since = state.since_measured_s + step_s if provenance is Provenance.HELD else 0.0
+        if provenance is not Provenance.HELD:
+            pair = MeasuredPair(stop_s, step_s, delta)
+            # a pair not after the window's newest (the stream switched between stamped and unstamped
+            # frames) starts the window over
+            restart = bool(pairs) and pair.stop_s <= pairs[-1].stop_s
+            pairs = (pair,) if restart else with_measured_pair(pairs, pair)
         # the measured view's turn (measured, or the gyro's about the same axis) as the vehicle's yaw
         k = 1.0 if self.nadir_view else self.yaw_per_turn
         delta, variance = k * delta, k * k * variance
@@ -253,14 +257,6 @@ class YawTracker:
         measurement = measure_patches(previous, current, self.settings)
         state, estimate = self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
         return replace(state, previous_spectra=current), estimate
-
-
-def _with_pair(window: tuple[MeasuredPair, ...], pair: MeasuredPair) -> tuple[MeasuredPair, ...]:
-    """The held rate's window with ``pair``; a pair not after the window's newest (the stream switched
-    between stamped and unstamped frames) starts it over."""
-    if window and pair.stop_s <= window[-1].stop_s:
-        return (pair,)
-    return with_measured_pair(window, pair)
 
 
 def _check_stamp(stamp_s: float | None) -> float | None:

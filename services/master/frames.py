@@ -18,12 +18,14 @@ from dataclasses import dataclass
 
 import zenoh
 
+from common.rig import Rig
 from common.streams import GateVerdict
 from common.wire.messages import Frame
 from services.master.settings import MasterSettings
 from services.runtime.gate import InputGate
 from services.runtime.guard import DispatchGuard
 from services.runtime.handoff import FrameQueue
+from services.runtime.rig_follow import RigFollower
 from services.runtime.service import ConfiguredService
 from services.runtime.transport import source_of
 
@@ -75,6 +77,10 @@ class FrameIntake:
         #: next frames instead of dropping them; beyond ``frame_queue`` frames the oldest is dropped (counted)
         self.slot = FrameFifo(settings.frame_queue)
         self.recent: deque[tuple[int, Frame]] = deque(maxlen=settings.recent_frames)
+        #: the stream's rigs (None: the master measures with its own options); the rig of each admitted
+        #: frame by seq, as many as the recent frames (a take-over measures them again)
+        self.rigs: RigFollower | None = None
+        self.frame_rigs: dict[int, Rig | None] = {}
         self.recent_lock = threading.Lock()
 
     def receive(self, sample: zenoh.Sample) -> None:
@@ -121,6 +127,13 @@ class FrameIntake:
             if decision.verdict is GateVerdict.NEW_EPOCH:
                 counts["epochs"] = counts.get("epochs", 0) + 1
             counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
+            if self.rigs is not None:  # a frame naming a rig not received is refused (counted, asked for)
+                rig, known = self.rigs.rig_of(frame)
+                if not known:
+                    continue
+                self.frame_rigs[frame.seq] = rig
+                if len(self.frame_rigs) > 2 * (self.recent.maxlen or 1):
+                    del self.frame_rigs[next(iter(self.frame_rigs))]
             admitted.append((self.gate.epoch("camera"), frame))
         with self.recent_lock:
             self.recent.extend(admitted)

@@ -124,7 +124,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
         #: the stream's rig (capataz/uav/{uav}/rig); camera or mount options given to the master override it
         self.rigs = RigFollower(settings.uav, self)
-        self._own_rig = prior.lens.given or prior.rig_mount != MountOptions()
+        if not (prior.lens.given or prior.rig_mount != MountOptions()):
+            self.intake.rigs = self.rigs
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -280,6 +281,10 @@ class MasterService(ConfiguredService[MasterSettings]):
         assert self.session is not None
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
         prior = self.settings.prior
+        if rig is None and frame.rig_id is not None and self.intake.rigs is None:
+            logger.warning(
+                "%s: the stream's rig %s is overridden by the master's options", self.name, frame.rig_id
+            )
         geometry = stream_geometry(prior, self.lens, frame.width, frame.height, rig, self.name)
         camera, R_body_camera, axis, offset = geometry
         self.gyro.axis_imu, self.gyro.time_offset_s = axis, offset
@@ -305,11 +310,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         """The yaw of one admitted frame (None: already measured, e.g. replayed at a take-over)."""
         assert self.session is not None
         stream = self.stream
-        rig: Rig | None = None
-        if not self._own_rig:
-            rig, admitted = self.rigs.rig_of(frame)
-            if not admitted:  # a frame taken with a rig this master has not received: counted, asked for
-                return None
+        rig = self.intake.frame_rigs.get(frame.seq)  # the stream's rig of the frame (None: own options)
         rig_id = None if rig is None else rig.rig_id
         if stream is None or epoch != stream.epoch or rig_id != stream.rig_id:
             # a new epoch (first frame, camera restart, take-over without anchor) or a new rig: the yaw
