@@ -41,6 +41,7 @@ from common.errors import InputError
 from common.estimation.buffer import Refusal
 from common.estimation.measurements import FrameMeasurement, Measurement
 from common.members import Role
+from common.rig import Rig
 from common.streams import GateVerdict
 from common.wire import keys
 from common.wire.messages import (
@@ -59,10 +60,13 @@ from services.estimator.settings import (
     EstimatorSettings,
     add_estimator_arguments,
     build_estimator,
+    configured_rig,
+    own_rig,
     settings_from_args,
 )
 from services.runtime.cli import add_transport_arguments
 from services.runtime.gate import InputGate
+from services.runtime.rig_follow import RigFollower
 from services.runtime.service import ConfiguredService
 from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
@@ -89,6 +93,11 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         self.estimator = build_estimator(settings)
         logger.info("%s: %s", self.name, settings.rig_mount.describe())
         self._shape = self.estimator.camera.shape
+        #: the stream's rig (None: camera or mount options given, they override it); a new one is adopted by
+        #: the estimator thread at its next turn (the filter rebuilt with its camera and mount)
+        self.rigs = None if own_rig(settings) else RigFollower(settings.uav, self)
+        self._rig_id = configured_rig(settings).rig_id  # a stream rig equal to it changes nothing
+        self._pending_rig: Rig | None = None
         #: the samples and frames handed off by the callbacks; frames wait in a short queue (a busy moment
         #: costs latency, not frames: VO pairs stay one apart), a longer backlog skips frames evenly, and the
         #: VO pairs the frames it gets; samples newer than a queued frame are held until it is pushed
@@ -121,6 +130,8 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         for key, on_sample in wanted:
             handler = zenoh.handlers.Callback(on_sample, indirect=False)
             self.subscriptions.append(session.declare_subscriber(key, handler))
+        if self.rigs is not None:
+            self.subscriptions.append(self.rigs.start(session))
         self.spawn(self._estimate, "estimate")
 
     def healthy(self) -> tuple[bool, str]:
@@ -181,6 +192,13 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
             self._newest_in_s = msg.stamp_s
         else:
             self._newest_in_s = max(self._newest_in_s, msg.stamp_s)
+        if isinstance(msg, Frame) and self.rigs is not None:
+            rig, known = self.rigs.rig_of(msg)
+            if not known:  # a rig not received: counted, asked for
+                return
+            if rig is not None and rig.rig_id != self._rig_id:
+                self._rig_id, self._pending_rig = rig.rig_id, rig
+                self._shape = rig.camera.shape
         if isinstance(msg, YawEstimate) and msg.low_confidence:
             self.counters.inc("yaw_low_confidence")
             return
@@ -230,6 +248,11 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         pending would supersede it; every IMU and range sample is applied, frames or not); the outputs
         published and the counters updated once. Waits up to ``timeout_s`` for a sample when nothing is
         queued; True when a frame was taken."""
+        if (rig := self._pending_rig) is not None:  # the stream's rig, new or changed: a filter for it
+            self._pending_rig = None
+            self.estimator = build_estimator(self.settings, rig)
+            self._publication.path = VoPath()
+            self.counters.inc("rigs_adopted")
         turn = self._backlog.next(timeout_s)
         for m in turn.samples:
             if (refusal := self.estimator.push(m)) is None:

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.camera import CameraModel
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import CouplingSettings, EkfKind, Vehicle, vehicle_settings
+from common.rig import Rig
 from services.runtime.camera_options import (
     CameraOptions,
     add_camera_options,
@@ -84,16 +85,37 @@ def estimator_camera(settings: EstimatorSettings) -> CameraModel:
     return camera
 
 
-def build_estimator(settings: EstimatorSettings) -> DoubleCouplingEstimator:
-    """The in-process estimator the service runs (also used to check the service against)."""
-    mount = settings.rig_mount
+def build_estimator(settings: EstimatorSettings, rig: Rig | None = None) -> DoubleCouplingEstimator:
+    """The in-process estimator the service runs (also used to check the service against): the camera and
+    mount of the stream's ``rig`` when given, else of the settings' camera and mount options."""
+    if rig is not None:
+        camera, R_body_camera, R_body_imu, offset = (
+            rig.camera, rig.R_body_camera, rig.R_body_imu, rig.time_offset_s
+        )  # fmt: skip
+    else:
+        mount = settings.rig_mount
+        camera, R_body_camera = estimator_camera(settings), mount.R_body_camera
+        R_body_imu, offset = mount.R_body_imu, mount.imu_time_offset_s
     return DoubleCouplingEstimator(
+        camera, R_body_camera, settings=settings.coupling(), R_body_imu=R_body_imu, imu_time_offset_s=offset
+    )
+
+
+def configured_rig(settings: EstimatorSettings) -> Rig:
+    """The rig the settings' camera and mount options describe (the defaults: the simulated camera looking
+    down, the IMU in the body's axes)."""
+    mount = settings.rig_mount
+    return Rig(
         estimator_camera(settings),
         mount.R_body_camera,
-        settings=settings.coupling(),
         R_body_imu=mount.R_body_imu,
-        imu_time_offset_s=mount.imu_time_offset_s,
+        time_offset_s=mount.imu_time_offset_s,
     )
+
+
+def own_rig(settings: EstimatorSettings) -> bool:
+    """True when the estimator was given camera or mount options: they override the stream's rig."""
+    return settings.camera.given or settings.rig_mount != MountOptions()
 
 
 #: the options in the order of ``--help``; each one's default, bound and help text is its field's
