@@ -45,6 +45,7 @@ from services.localizer.loading import localizer_camera
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.gate import InputGate
 from services.runtime.handoff import LatestSlot
+from services.runtime.rig_follow import RigFollower
 from services.runtime.service import ConfiguredService
 from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
@@ -78,6 +79,10 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         #: the one input gate (UAV, sender, seq, stamps): a future stamp is refused before it can become the
         #: "previous" stamp (one would freeze the filter)
         self.gate = InputGate(settings.uav, self)
+        #: the stream's rig, checked against the localizer's own camera (no camera options given: the
+        #: stream's camera must be the one it was built with; a mismatch is refused, counted, said once)
+        self.rigs = None if settings.camera.given else RigFollower(settings.uav, self)
+        self._rig_checked: dict[str, bool] = {}
 
     def healthy(self) -> tuple[bool, str]:
         refused = self.gate.recent_refusals()
@@ -93,6 +98,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         uav = self.settings.uav
         self._publisher = session.declare_publisher(keys.pose_pf_key(uav))
         self.subscriptions.append(session.declare_subscriber(keys.camera_key(uav), self._on_frame))
+        if self.rigs is not None:
+            self.subscriptions.append(self.rigs.start(session))
         if self.settings.use_vo:
             self.subscriptions.append(session.declare_subscriber(keys.pose_vo_key(uav), self._on_vo))
         if self.settings.use_imu:
@@ -115,7 +122,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             )
             return
         decision = self.gate.admit("camera", frame, source_of(sample))
-        if decision.verdict is GateVerdict.REFUSE:
+        if decision.verdict is GateVerdict.REFUSE or not self._rig_matches(frame):
             return
         if decision.verdict is GateVerdict.NEW_EPOCH:
             self._last_received_s = None  # a restarted camera: its stamps may begin before the old ones
@@ -128,6 +135,26 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self.counters.inc("frames_in")
         if self._slot.put(frame):
             self.counters.inc("dropped_frames")
+
+    def _rig_matches(self, frame: Frame) -> bool:
+        """False (counted) for a frame of a rig not received, or whose camera is not the localizer's."""
+        if self.rigs is None:
+            return True
+        rig, known = self.rigs.rig_of(frame)
+        if rig is None:
+            return known
+        matches = self._rig_checked.get(rig.rig_id)
+        if matches is None:
+            matches = self._rig_checked[rig.rig_id] = rig.camera == self.camera
+            if not matches:
+                logger.warning(
+                    "%s: the stream's rig %s has another camera than this localizer's (%s): its frames are "
+                    "refused; give the localizer the stream's calibration (--calibration)",
+                    self.name, rig.rig_id, self.camera,
+                )  # fmt: skip
+        if not matches:
+            self.counters.inc("refused_camera_rig_mismatch")
+        return matches
 
     def _on_vo(self, sample: zenoh.Sample) -> None:
         pose = self.decode_sample(sample, PoseEstimate)
