@@ -13,7 +13,7 @@ set -euo pipefail
 TAG="${1:-capataz-base:bookworm}"
 SUITE="${SUITE:-bookworm}"
 MIRROR="${MIRROR:-http://deb.debian.org/debian}"
-PACKAGES="python3,python3-venv,python3-pip,tini,util-linux,ca-certificates"
+PACKAGES="python3,python3-venv,python3-pip,tini,util-linux,ca-certificates,openssl"
 
 for tool in debootstrap docker; do
     command -v "$tool" >/dev/null || { echo "make-base-image: $tool not found (apt-get install $tool)" >&2; exit 1; }

@@ -130,8 +130,10 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
         out.append(
             RolePermissions(
                 uav_common_name(Role.CAMERA, uav),
-                put=(*sensors, *odometry),
+                # its stream's rig: published, and answered to late joiners
+                put=(*sensors, *odometry, keys.rig_key(uav)),
                 subscribe=(keys.yaw_key(uav),),
+                serve=(keys.rig_key(uav),),
                 watch=(keys.alive_role(Role.MASTER),),
                 note="its UAV's camera, imu, range" + (" (+ simulated pose/vo)" if odometry else ""),
             ).with_own_runtime(Role.CAMERA)
@@ -141,9 +143,9 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
                 uav_common_name(Role.MASTER, uav),
                 put=(keys.yaw_key(uav),),
                 # its own UAV's yaw: a standby continues from the active master's; imu: the gyro prior
-                subscribe=(keys.camera_key(uav), keys.imu_key(uav), keys.yaw_key(uav)),
+                subscribe=(keys.camera_key(uav), keys.imu_key(uav), keys.yaw_key(uav), keys.rig_key(uav)),
                 # the other masters' health: a standby learns the active master's session id there
-                query=(FOREMAN_WORK, WORKER_WORK, f"{ROOT}/health/{Role.MASTER.value}/**"),
+                query=(FOREMAN_WORK, WORKER_WORK, f"{ROOT}/health/{Role.MASTER.value}/**", keys.rig_key(uav)),
                 token=(keys.election_all(uav),),
                 watch=(keys.ALIVE_ALL, keys.election_all(uav)),
                 note="its UAV's yaw and election; queries foremen and workers",
@@ -153,7 +155,14 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
             RolePermissions(
                 uav_common_name(Role.ESTIMATOR, uav),
                 put=(keys.attitude_key(uav), keys.pose_vo_key(uav)),
-                subscribe=(keys.camera_key(uav), keys.imu_key(uav), keys.range_key(uav), keys.yaw_key(uav)),
+                subscribe=(
+                    keys.camera_key(uav),
+                    keys.imu_key(uav),
+                    keys.range_key(uav),
+                    keys.yaw_key(uav),
+                    keys.rig_key(uav),
+                ),
+                query=(keys.rig_key(uav),),
                 note="its UAV's attitude and pose/vo",
             ).with_own_runtime(Role.ESTIMATOR)
         )
@@ -161,7 +170,8 @@ def role_table(settings: PolicySettings | None = None) -> list[RolePermissions]:
             RolePermissions(
                 uav_common_name(Role.LOCALIZER, uav),
                 put=(keys.pose_pf_key(uav),),
-                subscribe=(keys.camera_key(uav), keys.pose_vo_key(uav)),
+                subscribe=(keys.camera_key(uav), keys.pose_vo_key(uav), keys.imu_key(uav), keys.rig_key(uav)),
+                query=(keys.rig_key(uav),),
                 note="its UAV's pose/pf",
             ).with_own_runtime(Role.LOCALIZER)
         )

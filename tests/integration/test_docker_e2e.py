@@ -1,5 +1,7 @@
-"""The compose deployment on a real Docker engine: build the image, bring up docker-compose.yml, read yaw,
-attitude, pose/vo and pose/pf from a Zenoh client on the host, check them against the simulator's truth, stop.
+"""The compose deployment on a real Docker engine: build the image, bring up docker-compose.yml (the secure
+profile: certificates made on first start by its ``certs`` service), read yaw, attitude, pose/vo and pose/pf
+from a Zenoh client on the host holding the read-only ``client`` certificate the deployment exported to
+out/secure/client, over mutual TLS, check them against the simulator's truth, stop.
 
 Opt-in (``make test-docker``, which sets CAPATAZ_DOCKER_TEST=1): it builds the image (minutes). It skips with
 the reason when no engine answers or no Compose is installed. Without Docker Hub, set BASE_IMAGE to a local
@@ -177,14 +179,16 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
     env = dict(os.environ, CAPATAZ_PORT=str(port), COMPOSE_PROJECT_NAME=PROJECT, COMPOSE_HTTP_TIMEOUT="900")
     if base:
         env["BASE_IMAGE"] = base
-    down = [*compose, "-p", PROJECT, "down", "--timeout", "10"]
+    down = [*compose, "-p", PROJECT, "down", "-v", "--timeout", "10"]  # -v: the certificates' volumes too
     t_up = time.monotonic()
     try:
         _run(*compose, "-p", PROJECT, "up", "-d", "--no-build", env=env, timeout=1200)
         created_s = time.monotonic() - t_up
+        client = ROOT / "out" / "secure" / "client"  # what the deployment's certs service exported
         settings = TransportSettings(
-            mode="client", connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_ms=60000
-        )
+            mode="client", connect=(f"tls/127.0.0.1:{port}",), connect_timeout_ms=60000,
+            tls_ca=client / "ca.pem", tls_cert=client / "client.pem", tls_key=client / "client.key",
+        )  # fmt: skip
         with open_session(settings) as session:
             streams = Streams(session)
             deadline = time.monotonic() + 600

@@ -35,6 +35,11 @@ def check_compose(document: dict) -> None:
     for name, service in document["services"].items():
         assert service.get("image") or service.get("build"), f"{name}: no image"
         assert not service.get("init"), f"{name}: the image's tini is PID 1 (init: true nests a second init)"
+        if name == "certs":  # the secure file's one-shot shell step that makes the certificates
+            assert service["entrypoint"] == ["/bin/sh", "-ec"] and set(service["environment"]) == {
+                "CAPATAZ_UID"
+            }
+            continue
         command = service["command"]
         assert isinstance(command, list) and all(isinstance(c, str) for c in command), name
         assert command[0] in commands, f"{name}: unknown command {command[0]!r}"
@@ -47,8 +52,11 @@ def check_compose(document: dict) -> None:
             assert key.startswith("CAPATAZ_ZENOH_"), f"{name}: unexpected environment {key}"
 
 
-def test_docker_compose_parses_and_every_command_exists() -> None:
-    document = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+@pytest.mark.parametrize(
+    ("name", "scheme"), [("docker-compose.yml", "tls"), ("docker-compose.open.yml", "tcp")]
+)
+def test_docker_compose_parses_and_every_command_exists(name: str, scheme: str) -> None:
+    document = yaml.safe_load((ROOT / name).read_text())
     check_compose(document)
     services = document["services"]
     assert {"router", "camera", "master", "foreman-h1", "foreman-h2", "estimator", "localizer"} <= set(
@@ -59,7 +67,7 @@ def test_docker_compose_parses_and_every_command_exists() -> None:
     assert services["metrics"]["profiles"] == ["metrics"]
     assert [s for s, v in services.items() if v.get("profiles")] == ["metrics"]
     environment = services["master"]["environment"]
-    assert environment["CAPATAZ_ZENOH_CONNECT"] == "tcp/router:7447"
+    assert environment["CAPATAZ_ZENOH_CONNECT"] == f"{scheme}/router:7447"
     assert environment["CAPATAZ_ZENOH_MULTICAST"] == "false"
 
 
@@ -181,13 +189,14 @@ COMPOSE_V2 = _compose_v2()
 
 
 def compose_files(tmp_path: Path) -> list[Path]:
-    """docker-compose.yml and what `capataz up --compose` writes for every described cluster."""
+    """docker-compose.yml (secure), docker-compose.open.yml and what `capataz up --compose` writes for every
+    described cluster."""
     from services.tools.up_command import write_compose
 
     generated = [
         write_compose(load_cluster(p), tmp_path / "compose" / f"{p.stem}.yml", "127.0.0.1") for p in CLUSTERS
     ]
-    return [ROOT / "docker-compose.yml", *generated]
+    return [ROOT / "docker-compose.yml", ROOT / "docker-compose.open.yml", *generated]
 
 
 def test_compose_files_build_the_image_and_publish_on_loopback_only(tmp_path: Path) -> None:
@@ -214,7 +223,7 @@ def _assert_valid(command: list[str], paths: list[Path]) -> None:
 @pytest.mark.skipif(COMPOSE_V1 is None, reason="docker-compose (Compose v1) is not installed")
 def test_compose_files_are_valid_for_compose_v1(tmp_path: Path) -> None:
     assert COMPOSE_V1 is not None
-    _assert_valid([COMPOSE_V1], [*compose_files(tmp_path), ROOT / "docker-compose.secure.yml"])
+    _assert_valid([COMPOSE_V1], compose_files(tmp_path))
 
 
 @pytest.mark.skipif(
@@ -222,4 +231,4 @@ def test_compose_files_are_valid_for_compose_v1(tmp_path: Path) -> None:
 )
 def test_compose_files_are_valid_for_compose_v2(tmp_path: Path) -> None:
     assert COMPOSE_V2 is not None
-    _assert_valid(COMPOSE_V2, [*compose_files(tmp_path), ROOT / "docker-compose.secure.yml"])
+    _assert_valid(COMPOSE_V2, compose_files(tmp_path))

@@ -1,5 +1,5 @@
 """The secure profile's files: the least-privilege table, the committed Zenoh config, the certificate script
-and docker-compose.secure.yml."""
+and the default (secure) docker-compose.yml."""
 
 from __future__ import annotations
 
@@ -168,29 +168,39 @@ def test_secure_profile_environment_names_a_certificate_of_the_role(certs: Path,
         profile.environment("intruder")
 
 
-def test_docker_compose_secure_runs_every_service_with_its_own_certificate_only() -> None:
-    document = yaml.safe_load((ROOT / "docker-compose.secure.yml").read_text())
+def test_the_default_compose_file_is_secure_and_each_service_mounts_only_its_own_certificate() -> None:
+    """Issue 27: docker-compose.yml is the secure profile. Certificates are made on first start by the
+    one-shot ``certs`` service into the ``capataz-secure`` volume (the CA key never leaves it); each service
+    mounts, read-only, a volume of its own with ca.pem and its own certificate and key."""
+    document = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
     check_compose(document)
-    open_services = yaml.safe_load((ROOT / "docker-compose.yml").read_text())["services"]
-    services = document["services"]
+    open_services = yaml.safe_load((ROOT / "docker-compose.open.yml").read_text())["services"]
+    services = {n: s for n, s in document["services"].items() if n != "certs"}
     assert set(services) == set(open_services)
     assert services["router"]["ports"] == ["127.0.0.1:${CAPATAZ_PORT:-7447}:7447"]
+    certs = document["services"]["certs"]
+    made = {v.split(":")[0]: v.split(":")[1] for v in certs["volumes"]}
+    assert made["capataz-secure"] == "/secure"  # the CA key's only home
+    script = certs["command"][0]
+    assert "make-certs.sh /secure/certs" in script  # the CA key goes to /secure/certs-ca, in that volume
     for name, service in services.items():
         assert service["command"] == open_services[name]["command"] or name == "router", name
+        assert service["depends_on"]["certs"] == {"condition": "service_completed_successfully"}, name
         env = service["environment"]
         assert env["CAPATAZ_ZENOH_CONFIG"] == "/etc/capataz/zenoh.json5"
         assert name == "router" or env["CAPATAZ_ZENOH_CONNECT"] == "tls/router:7447"
-        mounted = [v.split(":")[0] for v in service["volumes"]]
-        keys_mounted = [m for m in mounted if m.endswith(".key")]
-        assert len(keys_mounted) == 1, name
-        role = Path(keys_mounted[0]).stem
+        assert all(v.endswith(":ro") for v in service["volumes"]), name
+        volumes = [v.split(":")[0] for v in service["volumes"] if v.split(":")[1] == "/run/capataz"]
+        assert len(volumes) == 1 and volumes[0].startswith("cert-"), name
+        assert "capataz-secure" not in " ".join(service["volumes"]), name
+        role = made[volumes[0]].removeprefix("/vol/")
+        assert 'cp "/secure/certs/$$cn.key" "$$dir/key.pem"' in script and role in script, name
         # the metrics exporter is a read-only client: it subscribes to stats and queries health only
         assert name.startswith(role.split(".")[0]) or (name, role) == ("metrics", "client"), name
         if role.startswith(("foreman.", "worker.")):  # bound to its node
             assert f"--node {role.split('.')[1]}" in " ".join(service["command"]), name
         elif "." in role:
             assert f"--uav {role.split('.')[1]}" in " ".join(service["command"]), name
-        assert all(v.endswith(":ro") for v in service["volumes"]), name
 
 
 def test_up_takes_secure_and_zenoh_config_options() -> None:
