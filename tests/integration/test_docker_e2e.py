@@ -17,6 +17,7 @@ import os
 import shutil
 import socket
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -205,6 +206,16 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
                 samples = {n: list(v) for n, v in streams.samples.items()}
             for sub in streams.subs:
                 sub.undeclare()
+        # an operator's view of the deployment, with the same read-only certificate (issue 28)
+        tls = {"CA": client / "ca.pem", "CERT": client / "client.pem", "KEY": client / "client.key"}
+        status_env = dict(os.environ, **{f"CAPATAZ_ZENOH_TLS_{k}": str(v) for k, v in tls.items()})
+        status = subprocess.run(
+            [sys.executable, "-m", "services.tools.cli", "status", "--connect", f"tls/127.0.0.1:{port}",
+             "--json"],
+            capture_output=True, text=True, cwd=ROOT, env=status_env, timeout=300,
+        )  # fmt: skip
+        assert status.returncode == 0, status.stderr[-2000:]
+        members = json.loads(status.stdout)["members"]
     finally:
         # every service's log, kept for a reader of a failure (out/ is ignored by git)
         logs = subprocess.run(
@@ -230,6 +241,8 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
         "time_to_first_s": {n: t - t_up for n, t in first.items() if t is not None},
         "rates_hz": rates,
         "counts": {n: len(v) for n, v in samples.items()},
+        "status_members": len(members),
+        "status_not_ok": [m["member"] for m in members if m["state"] != "ok"],
         **accuracy,
     }
     write_json(ROOT / "out" / f"docker_e2e_{'v2' if compose[0] == 'docker' else 'v1'}.json", figures)
@@ -237,6 +250,8 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
     assert (
         rates["yaw"] > 5.0 and rates["attitude"] > 100.0 and rates["pose/pf"] > 1.0 and rates["pose/vo"] > 1.0
     )
+    # router, 2 cameras, master, 2 foremen, 4 workers, estimator, localizer: each listed with its health
+    assert len(members) == 12 and all(m["health"] is not None for m in members), members
     assert accuracy["yaw_max_error_deg"] < 1.0
     assert accuracy["attitude_rp_rms_error_deg"] < 1.0
     assert accuracy["pf_median_xy_error_cm"] < 10.0

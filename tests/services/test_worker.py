@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import PatchJob
+from common.wire.schema import MAX_BUDGET_S
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.transport import TransportSettings
 from services.worker import service as worker_module
@@ -71,7 +72,7 @@ def test_worker_expiry_check_fires_in_the_default_channel_handoff(
     check, so a job that waited behind another longer than its budget was still computed."""
     worker, _depths = slow_worker
     assert worker.handoff == "channel"  # the default
-    first, late = _Query(1, budget_s=60.0), _Query(2, budget_s=COMPUTE_S / 5)
+    first, late = _Query(1, budget_s=MAX_BUDGET_S), _Query(2, budget_s=COMPUTE_S / 5)
     serve(worker, [first, late])
     assert first.answer == "result"
     assert late.answer is not None and late.answer.startswith("expired:")  # waited >= COMPUTE_S behind first
@@ -83,7 +84,7 @@ def test_worker_queue_depth_is_not_always_zero_in_the_channel_handoff(
 ) -> None:
     """Regression: in the channel hand-off the job queue was never used, so its depth always read 0."""
     worker, depths = slow_worker
-    queries = [_Query(seq, budget_s=60.0) for seq in range(1, 5)]
+    queries = [_Query(seq, budget_s=MAX_BUDGET_S) for seq in range(1, 5)]
     serve(worker, queries)
     assert depths == [3, 2, 1, 0]  # the backlog behind each job as it is computed
     assert all(q.answer == "result" for q in queries) and worker.counters.get("queries") == 4
@@ -95,7 +96,7 @@ def test_a_full_job_queue_leaves_queries_in_the_channel_and_refuses_none(
     worker, depths = slow_worker
     worker.queue_capacity = 2
     worker.queue = worker_module.WorkQueue(2)
-    queries = [_Query(seq, budget_s=60.0) for seq in range(1, 6)]
+    queries = [_Query(seq, budget_s=MAX_BUDGET_S) for seq in range(1, 6)]
     serve(worker, queries)
     assert depths == [2, 2, 2, 1, 0] and all(q.answer == "result" for q in queries)
     assert worker.counters.get("busy") == 0
@@ -105,10 +106,10 @@ def test_a_malformed_query_in_the_channel_is_answered_and_the_rest_computed(
     slow_worker: tuple[WorkerService, list[int]],
 ) -> None:
     worker, _depths = slow_worker
-    bad = _Query(1, budget_s=60.0)
+    bad = _Query(1, budget_s=MAX_BUDGET_S)
     bad.attachment = FakeBytes(b"\x93not-a-header")
-    good = _Query(2, budget_s=60.0)
-    serve(worker, [_Query(1, budget_s=60.0), bad, good])
+    good = _Query(2, budget_s=MAX_BUDGET_S)
+    serve(worker, [_Query(1, budget_s=MAX_BUDGET_S), bad, good])
     assert bad.answer is not None and bad.answer.startswith("malformed:")
     assert good.answer == "result" and worker.counters.get("malformed") == 1
     assert decode(good.payload.to_bytes(), good.attachment.to_bytes(), PatchJob).seq == 2
