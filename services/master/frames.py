@@ -29,6 +29,8 @@ from services.runtime.rig_follow import RigFollower
 from services.runtime.service import ConfiguredService
 from services.runtime.transport import source_of
 
+#: how long the frames thread waits for the answer when a frame names a rig not received yet (s)
+RIG_WAIT_S = 1.0
 #: frame samples received but not gated yet, at most (beyond, the oldest is dropped and counted): the frames
 #: thread gates them all before each frame it measures, so this only fills while it is stalled
 INBOX_CAPACITY = 256
@@ -128,7 +130,7 @@ class FrameIntake:
                 counts["epochs"] = counts.get("epochs", 0) + 1
             counts["frames_missing"] = counts.get("frames_missing", 0) + decision.gap
             if self.rigs is not None:  # a frame naming a rig not received is refused (counted, asked for)
-                rig, known = self.rigs.rig_of(frame)
+                rig, known = self.rigs.rig_of(frame, RIG_WAIT_S)
                 if not known:
                     continue
                 self.frame_rigs[frame.seq] = rig

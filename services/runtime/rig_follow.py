@@ -120,10 +120,26 @@ class RigFollower:
             self._service.counters.inc("rigs_received")
             logger.info("%s: the stream's %s", self._service.name, describe_rig(rig))
 
-    def rig_of(self, frame: Frame) -> tuple[Rig | None, bool]:
+    def fetch(self, timeout_s: float) -> None:
+        """Ask for the rig and wait up to ``timeout_s`` for the answers (at most once a :data:`REQUERY_S`):
+        for a thread that may block, e.g. the master's frames thread, when a frame names a rig not received
+        yet (the camera's first publication can pass a subscription still being routed)."""
+        session = self._session
+        now = time.monotonic()
+        if session is None or now - self._asked_s < REQUERY_S:
+            return
+        self._asked_s = now
+        try:
+            for reply in session.get(keys.rig_key(self.uav), timeout=timeout_s):
+                if reply.ok is not None:
+                    self.on_sample(reply.ok)
+        except zenoh.ZError as exc:  # the session is closing
+            logger.debug("%s: rig query: %s", self._service.name, exc)
+
+    def rig_of(self, frame: Frame, wait_s: float = 0.0) -> tuple[Rig | None, bool]:
         """``(rig, admitted)`` for a frame: the override, the stream's rig of the frame's ``rig_id``, or None
         for a frame without one (the service's own options apply); ``admitted`` False when the frame names a
-        rig not received (counted, logged, asked for)."""
+        rig not received (counted, logged, asked for; with ``wait_s``, asked for and waited for first)."""
         rig_id = frame.rig_id
         if self.override is not None:
             if rig_id is not None and rig_id != self.override.rig_id and rig_id not in self._overridden:
@@ -137,6 +153,10 @@ class RigFollower:
             return None, True
         with self._lock:
             rig = self._rigs.get(rig_id)
+        if rig is None and wait_s > 0.0:
+            self.fetch(wait_s)
+            with self._lock:
+                rig = self._rigs.get(rig_id)
         if rig is None:
             self._service.count_error(
                 "refused_camera_unknown_rig", "frame refused", f"seq {frame.seq}: rig {rig_id} not received"
