@@ -78,15 +78,22 @@ class RigFollower:
         self.ask()
         return subscriber
 
-    def ask(self) -> None:
-        """Query the rig key (the camera answers with its current rig); replies arrive as samples."""
+    def ask(self, wait_s: float = 0.0) -> None:
+        """Query the rig key (the camera answers with its current rig), at most once a :data:`REQUERY_S`;
+        the replies arrive as samples, or, with ``wait_s``, are waited for up to that long (for a thread that
+        may block, e.g. the master's frames thread: the camera's first publication can pass a subscription
+        still being routed)."""
         session = self._session
         now = time.monotonic()
         if session is None or now - self._asked_s < REQUERY_S:
             return
         self._asked_s = now
         try:
-            session.get(keys.rig_key(self.uav), self._on_reply, timeout=2.0)
+            if wait_s <= 0.0:
+                session.get(keys.rig_key(self.uav), self._on_reply, timeout=2.0)
+                return
+            for reply in session.get(keys.rig_key(self.uav), timeout=wait_s):
+                self._on_reply(reply)
         except zenoh.ZError as exc:  # the session is closing
             logger.debug("%s: rig query: %s", self._service.name, exc)
 
@@ -120,22 +127,6 @@ class RigFollower:
             self._service.counters.inc("rigs_received")
             logger.info("%s: the stream's %s", self._service.name, describe_rig(rig))
 
-    def fetch(self, timeout_s: float) -> None:
-        """Ask for the rig and wait up to ``timeout_s`` for the answers (at most once a :data:`REQUERY_S`):
-        for a thread that may block, e.g. the master's frames thread, when a frame names a rig not received
-        yet (the camera's first publication can pass a subscription still being routed)."""
-        session = self._session
-        now = time.monotonic()
-        if session is None or now - self._asked_s < REQUERY_S:
-            return
-        self._asked_s = now
-        try:
-            for reply in session.get(keys.rig_key(self.uav), timeout=timeout_s):
-                if reply.ok is not None:
-                    self.on_sample(reply.ok)
-        except zenoh.ZError as exc:  # the session is closing
-            logger.debug("%s: rig query: %s", self._service.name, exc)
-
     def rig_of(self, frame: Frame, wait_s: float = 0.0) -> tuple[Rig | None, bool]:
         """``(rig, admitted)`` for a frame: the override, the stream's rig of the frame's ``rig_id``, or None
         for a frame without one (the service's own options apply); ``admitted`` False when the frame names a
@@ -154,7 +145,7 @@ class RigFollower:
         with self._lock:
             rig = self._rigs.get(rig_id)
         if rig is None and wait_s > 0.0:
-            self.fetch(wait_s)
+            self.ask(wait_s)
             with self._lock:
                 rig = self._rigs.get(rig_id)
         if rig is None:
