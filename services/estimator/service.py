@@ -61,12 +61,11 @@ from services.estimator.settings import (
     add_estimator_arguments,
     build_estimator,
     configured_rig,
-    own_rig,
     settings_from_args,
 )
 from services.runtime.cli import add_transport_arguments
 from services.runtime.gate import InputGate
-from services.runtime.rig_follow import RigFollower
+from services.runtime.rig_follow import follow_stream_rig
 from services.runtime.service import ConfiguredService
 from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
@@ -95,7 +94,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         self._shape = self.estimator.camera.shape
         #: the stream's rig (None: camera or mount options given, they override it); a new one is adopted by
         #: the estimator thread at its next turn (the filter rebuilt with its camera and mount)
-        self.rigs = None if own_rig(settings) else RigFollower(settings.uav, self)
+        self.rigs = follow_stream_rig(settings.uav, self, settings.camera, settings.rig_mount)
         self._rig_id = configured_rig(settings).rig_id  # a stream rig equal to it changes nothing
         self._pending_rig: Rig | None = None
         #: the samples and frames handed off by the callbacks; frames wait in a short queue (a busy moment

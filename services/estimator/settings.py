@@ -113,11 +113,6 @@ def configured_rig(settings: EstimatorSettings) -> Rig:
     )
 
 
-def own_rig(settings: EstimatorSettings) -> bool:
-    """True when the estimator was given camera or mount options: they override the stream's rig."""
-    return settings.camera.given or settings.rig_mount != MountOptions()
-
-
 #: the options in the order of ``--help``; each one's default, bound and help text is its field's
 _OPTIONS = (
     "uav", "rectify", "filter", "visual_yaw", "external_yaw", "max_lag_s", "initial_yaw_rad",

@@ -45,7 +45,7 @@ from services.localizer.loading import localizer_camera
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.gate import InputGate
 from services.runtime.handoff import LatestSlot
-from services.runtime.rig_follow import RigFollower
+from services.runtime.rig_follow import follow_stream_rig
 from services.runtime.service import ConfiguredService
 from services.runtime.trajectory import register_estimating_service
 from services.runtime.transport import source_of
@@ -80,9 +80,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         #: "previous" stamp (one would freeze the filter)
         self.gate = InputGate(settings.uav, self)
         #: the stream's rig, checked against the localizer's own camera (no camera options given: the
-        #: stream's camera must be the one it was built with; a mismatch is refused, counted, said once)
-        self.rigs = None if settings.camera.given else RigFollower(settings.uav, self)
-        self._rig_checked: dict[str, bool] = {}
+        #: stream's camera must be the one it was built with; a mismatch is refused and counted)
+        self.rigs = follow_stream_rig(settings.uav, self, settings.camera)
 
     def healthy(self) -> tuple[bool, str]:
         refused = self.gate.recent_refusals()
@@ -143,18 +142,15 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         rig, known = self.rigs.rig_of(frame)
         if rig is None:
             return known
-        matches = self._rig_checked.get(rig.rig_id)
-        if matches is None:
-            matches = self._rig_checked[rig.rig_id] = rig.camera == self.camera
-            if not matches:
-                logger.warning(
-                    "%s: the stream's rig %s has another camera than this localizer's (%s): its frames are "
-                    "refused; give the localizer the stream's calibration (--calibration)",
-                    self.name, rig.rig_id, self.camera,
-                )  # fmt: skip
-        if not matches:
-            self.counters.inc("refused_camera_rig_mismatch")
-        return matches
+        if rig.camera != self.camera:
+            self.count_error(
+                "refused_camera_rig_mismatch",
+                "frame refused",
+                f"the stream's rig {rig.rig_id} has another camera than this localizer's ({self.camera}); "
+                "give the localizer the stream's calibration (--calibration)",
+            )
+            return False
+        return True
 
     def _on_vo(self, sample: zenoh.Sample) -> None:
         pose = self.decode_sample(sample, PoseEstimate)

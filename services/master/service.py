@@ -61,8 +61,7 @@ from services.master.published import (
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
-from services.runtime.mount_options import MountOptions
-from services.runtime.rig_follow import RigFollower
+from services.runtime.rig_follow import follow_stream_rig
 from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
@@ -123,9 +122,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self.gyro = GyroPrior.of(prior, self.counters, self.intake.gate, self.name)
         self.lens = CameraSource(settings.prior.lens)  # a calibration file is read here, once
         #: the stream's rig (capataz/uav/{uav}/rig); camera or mount options given to the master override it
-        self.rigs = RigFollower(settings.uav, self)
-        if not (prior.lens.given or prior.rig_mount != MountOptions()):
-            self.intake.rigs = self.rigs
+        self.intake.rigs = follow_stream_rig(settings.uav, self, prior.lens, prior.rig_mount)
 
     # -- wiring -----------------------------------------------------------------------------------------
     def start(self, session: zenoh.Session) -> None:
@@ -133,7 +130,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._publisher = session.declare_publisher(keys.yaw_key(self.settings.uav))
         self._entities.append(self._publisher)
         self._entities.append(session.declare_subscriber(keys.yaw_key(self.settings.uav), self._on_yaw))
-        self._entities.append(self.rigs.start(session))
+        if self.intake.rigs is not None:
+            self._entities.append(self.intake.rigs.start(session))
         if self.settings.election:
             self.election = Election(session, self.settings.uav, self.node, self.index)
         self._entities.append(

@@ -3,7 +3,8 @@
 its ``rig_id`` in every frame's header; :class:`RigFollower` keeps the rigs it has received (a few, the
 newest kept) and tells, for a frame, which rig it was taken with.
 
-- A rig given to the service (its camera or mount options) **overrides** the stream's: said once in the log.
+- Camera or mount options given to the service **override** the stream's rig: the service follows none
+  (:func:`follow_stream_rig`).
 - A frame without a ``rig_id`` (a stream of an older camera, a recording made before rigs travelled) is taken
   with the service's own options, as before.
 - A frame whose rig the follower has not received is **refused** (``refused_camera_unknown_rig``, one line)
@@ -21,12 +22,13 @@ from typing import Any, Protocol
 
 import zenoh
 
-from common.errors import InputError
 from common.rig import Rig
 from common.wire import keys
 from common.wire.messages import Frame
 from common.wire.rig import RigMessage, rig_from_message
+from services.runtime.camera_options import CameraOptions
 from services.runtime.counters import Counters
+from services.runtime.mount_options import MountOptions
 
 logger = logging.getLogger(__name__)
 
@@ -61,15 +63,13 @@ def describe_rig(rig: Rig) -> str:
 class RigFollower:
     """The rigs of one UAV's stream as its camera publishes them; thread-safe."""
 
-    def __init__(self, uav: str, service: _Service, override: Rig | None = None) -> None:
+    def __init__(self, uav: str, service: _Service) -> None:
         self.uav = uav
-        self.override = override
         self._service = service
         self._rigs: OrderedDict[str, Rig] = OrderedDict()
         self._lock = threading.Lock()
         self._session: zenoh.Session | None = None
         self._asked_s = -float("inf")
-        self._overridden: set[str] = set()
 
     def start(self, session: zenoh.Session) -> Any:
         """Subscribe to the stream's rig and ask for it once (late joiners); returns the subscriber."""
@@ -109,12 +109,7 @@ class RigFollower:
         if message.uav != self.uav:
             self._service.count_error("refused_rig_foreign_uav", "rig of another UAV refused", message.uav)
             return
-        try:
-            rig = rig_from_message(message)
-        except InputError as exc:
-            self._service.count_error("refused_rig", "rig refused", exc)
-            return
-        self.add(rig)
+        self.add(rig_from_message(message))  # checked at decode: its id is its content's
 
     def add(self, rig: Rig) -> None:
         with self._lock:
@@ -128,18 +123,10 @@ class RigFollower:
             logger.info("%s: the stream's %s", self._service.name, describe_rig(rig))
 
     def rig_of(self, frame: Frame, wait_s: float = 0.0) -> tuple[Rig | None, bool]:
-        """``(rig, admitted)`` for a frame: the override, the stream's rig of the frame's ``rig_id``, or None
-        for a frame without one (the service's own options apply); ``admitted`` False when the frame names a
-        rig not received (counted, logged, asked for; with ``wait_s``, asked for and waited for first)."""
+        """``(rig, admitted)`` for a frame: the stream's rig of the frame's ``rig_id``, or None for a frame
+        without one (the service's own options apply); ``admitted`` False when the frame names a rig not
+        received (counted, logged, asked for; with ``wait_s``, asked for and waited for first)."""
         rig_id = frame.rig_id
-        if self.override is not None:
-            if rig_id is not None and rig_id != self.override.rig_id and rig_id not in self._overridden:
-                self._overridden.add(rig_id)
-                logger.warning(
-                    "%s: the stream's rig %s is overridden by the service's options (%s)",
-                    self._service.name, rig_id, describe_rig(self.override),
-                )  # fmt: skip
-            return self.override, True
         if rig_id is None:
             return None, True
         with self._lock:
@@ -155,3 +142,13 @@ class RigFollower:
             self.ask()
             return None, False
         return rig, True
+
+
+def follow_stream_rig(
+    uav: str, service: _Service, camera: CameraOptions, mount: MountOptions | None = None
+) -> RigFollower | None:
+    """The service's follower of ``uav``'s rig, or None when it was given camera (or mount) options: they
+    override the stream's rig."""
+    if camera.given or (mount is not None and mount != MountOptions()):
+        return None
+    return RigFollower(uav, service)
