@@ -1,4 +1,5 @@
-"""Camera calibration files -> :class:`common.camera.CameraModel`.
+"""Camera calibration texts -> :class:`common.camera.CameraModel` (files are read by
+:func:`common.datasets.rig_files.load_rig`, the one reader of every camera and rig file).
 
 Two formats, detected from the text:
 
@@ -12,14 +13,12 @@ Two formats, detected from the text:
   ``equidistant``), ``distortion_coefficients: {rows, cols, data}``. A ``sensor_msgs/CameraInfo`` message as a
   mapping (``width``, ``height``, ``distortion_model``, ``d``, ``k``) is accepted too.
 
-Every problem is one :class:`CalibrationError` naming the file and what is wrong.
+Every problem is one :class:`CalibrationError` saying what is wrong.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -27,7 +26,6 @@ import numpy as np
 import yaml
 
 from common.camera import CameraModel, Distortion, DistortionModel
-from common.datasets.files import read_text_file
 from common.errors import InputError
 
 #: the largest calibration file read (a calibration is a few hundred bytes; anything larger is not one).
@@ -48,16 +46,6 @@ _DISTORTION_NAMES = {
 
 class CalibrationError(InputError):
     """A calibration file or mapping could not be read as a camera."""
-
-
-def load_calibration(path: str | os.PathLike[str]) -> CameraModel:
-    """The camera described by the calibration file at ``path`` (OpenCV YAML or ROS camera_info YAML)."""
-    p = Path(path)
-    text = read_text_file(p, MAX_CALIBRATION_BYTES, "calibration file", CalibrationError)
-    try:
-        return parse_calibration(text)
-    except CalibrationError as exc:
-        raise CalibrationError(f"calibration file {p}: {exc}") from None
 
 
 def parse_calibration(text: str) -> CameraModel:

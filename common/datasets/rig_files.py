@@ -24,6 +24,7 @@ Every problem is one :class:`RigFileError` naming the file and what is wrong.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,8 @@ MOUNT_KEYS: dict[str, tuple[int, ...]] = {
     "R_body_imu": (3, 3),
 }
 _TIME_OFFSET_KEY = "time_offset_s"
+#: a top-level key only a EuRoC sensor.yaml or a Kalibr camchain has (both may start with ``%YAML`` too)
+_EUROC_OR_KALIBR = re.compile(r"^(intrinsics|cam0)\s*:", re.MULTILINE)
 
 
 class RigFileError(CalibrationError):
@@ -75,7 +78,7 @@ def load_rig(path: str | os.PathLike[str]) -> Rig:
 
 def parse_rig(text: str) -> Rig:
     """The rig described by a rig file's text (InputError naming what is wrong, not the file)."""
-    if "!!opencv-matrix" in text:
+    if "!!opencv-matrix" in text or (text.lstrip().startswith("%YAML") and not _EUROC_OR_KALIBR.search(text)):
         return Rig(parse_calibration(text), **_opencv_mount(text))
     lines = text.splitlines()
     if lines and lines[0].startswith("%YAML"):  # EuRoC's ``%YAML:1.0`` is not YAML 1.1 PyYAML reads

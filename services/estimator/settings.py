@@ -24,7 +24,12 @@ from services.runtime.camera_options import (
     load_camera,
 )
 from services.runtime.fields import settings_from
-from services.runtime.mount_options import MountOptions, add_mount_options, mount_options_from_args
+from services.runtime.mount_options import (
+    MountOptions,
+    add_mount_options,
+    mount_of_calibration,
+    mount_options_from_args,
+)
 from services.runtime.options import add_options, from_core
 
 
@@ -135,11 +140,12 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
     """The settings of the command line (a value out of its bound: a ValidationError, one line, exit 2)."""
+    camera = camera_options_from_args(args)
     settings = settings_from(
         EstimatorSettings,
         args,
-        camera=camera_options_from_args(args),
-        rig_mount=mount_options_from_args(args),
+        camera=camera,
+        rig_mount=mount_of_calibration(camera, mount_options_from_args(args)),
     )
     estimator_camera(settings)  # a bad calibration file stops the command at start, in one line
     return settings

@@ -29,7 +29,12 @@ from services.runtime.camera_options import (
     camera_options_from_args,
     load_camera,
 )
-from services.runtime.mount_options import MountOptions, add_mount_options, mount_options_from_args
+from services.runtime.mount_options import (
+    MountOptions,
+    add_mount_options,
+    mount_of_calibration,
+    mount_options_from_args,
+)
 from services.runtime.options import add_options, flag_of, from_core
 from services.runtime.rig_follow import describe_rig
 from services.runtime.usage import UsageError, condense_validation_error
@@ -95,7 +100,7 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
             lens=lens,
             gyro_prior=args.gyro_prior,
             max_yaw_rate_deg_s=args.max_yaw_rate_deg_s,
-            rig_mount=mount_options_from_args(args),
+            rig_mount=mount_of_calibration(lens, mount_options_from_args(args)),
         )
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None

@@ -1,13 +1,14 @@
 """One camera option group for every command that needs a camera (master, estimator, localizer).
 
-``--calibration FILE`` (OpenCV YAML or ROS ``camera_info`` YAML), or explicit intrinsics (``--fx``, ``--fy``,
-``--cx``, ``--cy`` with ``--distortion`` and ``--distortion-coeffs``), or a pinhole of ``--resolution`` and
-``--hfov``; nothing given = the command's default camera (the simulated one it is run against; the master's
-is none: an undistorted camera centred on the frame). :class:`CameraOptions` holds the values (a path is a
-value); :func:`load_camera` reads the file, at the service's boundary, and is the one place a camera model
-is made from options. A fisheye file with all-zero coefficients is the ideal equidistant lens (r = f theta),
-not a pinhole; it is said in one log line.
-"""
+``--calibration FILE`` (any rig file :func:`common.datasets.rig_files.load_rig` reads: OpenCV YAML, ROS
+``camera_info`` YAML, the capataz rig YAML, EuRoC ``sensor.yaml``, Kalibr ``camchain.yaml``; a mount it
+carries reaches the services through :func:`services.runtime.mount_options.mount_of_calibration`), or explicit
+intrinsics (``--fx``, ``--fy``, ``--cx``, ``--cy`` with ``--distortion`` and ``--distortion-coeffs``), or a
+pinhole of ``--resolution`` and ``--hfov``; nothing given = the command's default camera (the simulated one it
+is run against; the master's is none: an undistorted camera centred on the frame). :class:`CameraOptions`
+holds the values (a path is a value); :func:`load_camera` reads the file, at the service's boundary, and is
+the one place a camera model is made from options. A fisheye file with all-zero coefficients is the ideal
+equidistant lens (r = f theta), not a pinhole; it is said in one log line."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from common.camera import CameraModel, Distortion, DistortionModel
-from common.datasets.calibration import load_calibration
+from common.datasets.rig_files import load_rig
 from common.errors import InputError
 from services.runtime.cli import add_enum_argument, parse_size
 from services.runtime.usage import UsageError, condense_validation_error
@@ -82,7 +83,7 @@ def load_camera(
     The size of explicit intrinsics or of a field of view is ``--resolution``, else ``frame_size`` (the
     frames', when known), else the default camera's (else the built-in 752x480)."""
     if options.calibration is not None:
-        camera = load_calibration(options.calibration)
+        camera = load_rig(options.calibration).camera
         if camera.distortion.model is DistortionModel.FISHEYE and not any(camera.distortion.coeffs):
             logger.warning(
                 "%s: fisheye with all-zero coefficients: the ideal equidistant lens (r = f theta), not a "

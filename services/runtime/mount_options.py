@@ -1,7 +1,9 @@
 """One option group for how the sensors sit on the body, until the stream's rig carries it: the camera's
 mount (``--mount down|forward`` or ``R_body_camera`` as 9 numbers), the IMU's axes (``--imu-axes body`` or
 ``R_body_imu`` as 9 numbers) and the IMU's clock offset (``--imu-time-offset``, ``t_imu = t_cam + offset``,
-Kalibr's ``timeshift_cam_imu``). The master's gyro prior and the estimator read them.
+Kalibr's ``timeshift_cam_imu``). The master's gyro prior and the estimator read them. A ``--calibration`` rig
+file that carries a mount (the capataz rig YAML, EuRoC's ``T_BS``, Kalibr's ``T_cam_imu``) gives it instead
+(:func:`mount_of_calibration`); a mount given both ways is refused.
 """
 
 from __future__ import annotations
@@ -11,9 +13,12 @@ import argparse
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from common.datasets.rig_files import load_rig
 from common.errors import InputError
 from common.geometry import CameraMount, check_rotation_matrix
+from common.rig import Rig
 from common.types import FloatArray
+from services.runtime.camera_options import CameraOptions
 from services.runtime.options import add_options, flag_of
 from services.runtime.usage import UsageError, condense_validation_error
 
@@ -103,3 +108,38 @@ def mount_options_from_args(args: argparse.Namespace) -> MountOptions:
         return MountOptions(**{name: getattr(args, name) for name in _NAMES})
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None
+
+
+def mount_of_calibration(camera: CameraOptions, mount: MountOptions) -> MountOptions:
+    """The mount a service uses: ``mount`` as given, or, when it is the default, the mount the
+    ``--calibration`` rig file carries. A file whose mount is not the default together with mount options:
+    one UsageError line (the mount would be given twice). A bad file raises its RigFileError."""
+    if camera.calibration is None:
+        return mount
+    rig = load_rig(camera.calibration)
+    default = Rig(rig.camera)
+    if (
+        np.array_equal(rig.R_body_camera, default.R_body_camera)
+        and np.array_equal(rig.R_body_imu, default.R_body_imu)
+        and rig.time_offset_s == default.time_offset_s
+    ):
+        return mount
+    if mount != MountOptions():
+        raise UsageError(
+            f"--mount/--imu-axes/--imu-time-offset: the calibration file {camera.calibration} carries a "
+            "mount already; give the mount in one place"
+        )
+    try:
+        return MountOptions(
+            mount=_numbers(rig.R_body_camera),
+            imu_axes=_numbers(rig.R_body_imu),
+            imu_time_offset_s=rig.time_offset_s,
+        )
+    except ValidationError as exc:
+        problem = condense_validation_error(exc, flag_of)
+        raise UsageError(f"--calibration {camera.calibration}: {problem}") from None
+
+
+def _numbers(R: FloatArray) -> str:
+    """A rotation as the 9 comma-separated numbers (row-major, exact repr) :func:`mount_rotation` reads."""
+    return ",".join(repr(float(v)) for v in np.asarray(R, dtype=np.float64).ravel())

@@ -12,11 +12,11 @@ from common.camera import CameraModel, Distortion, DistortionModel
 from common.datasets.calibration import (
     CalibrationError,
     camera_from_camera_info,
-    load_calibration,
     opencv_yaml_text,
     parse_calibration,
     ros_yaml_text,
 )
+from common.datasets.rig_files import load_rig
 
 CAMERAS = [
     CameraModel(640, 480, 455.2, 456.1, 318.4, 241.9),
@@ -40,7 +40,7 @@ CAMERAS = [
 def test_calibration_files_read_back_the_camera(tmp_path: Path, camera: CameraModel, writer) -> None:
     path = tmp_path / "calib.yaml"
     path.write_text(writer(camera))
-    loaded = load_calibration(path)
+    loaded = load_camera_file(path)
     assert (loaded.width, loaded.height) == (camera.width, camera.height)
     np.testing.assert_allclose(loaded.K, camera.K, rtol=1e-12)
     assert loaded.distortion.model is (
@@ -50,6 +50,11 @@ def test_calibration_files_read_back_the_camera(tmp_path: Path, camera: CameraMo
         loaded.project([[0.3, -0.2, 1.0]]), camera.project([[0.3, -0.2, 1.0]]), atol=1e-9
     )
 
+
+
+def load_camera_file(path: Path) -> CameraModel:
+    """The camera of a calibration file, read the way every ``--calibration`` is (:func:`load_rig`)."""
+    return load_rig(path).camera
 
 def test_opencv_calibration_sample_layout_is_read(tmp_path: Path) -> None:
     """The layout OpenCV's own calibration sample writes (extra keys, no distortion_model)."""
@@ -65,7 +70,7 @@ def test_opencv_calibration_sample_layout_is_read(tmp_path: Path) -> None:
     fs.write("distortion_coefficients", D)
     fs.write("avg_reprojection_error", 0.29)
     fs.release()
-    cam = load_calibration(tmp_path / "out_camera_data.yml")
+    cam = load_camera_file(tmp_path / "out_camera_data.yml")
     np.testing.assert_allclose(cam.K, K)
     assert cam.distortion.model is DistortionModel.RADTAN
     np.testing.assert_allclose(cam.distortion.coeffs, D.ravel())
@@ -124,7 +129,7 @@ def test_a_fisheye_with_all_zero_coefficients_stays_a_fisheye_not_a_pinhole(name
         (b"\x89PNG\r\n\x1a\n\x00\x00\x00", "not text"),
         (b"a: [1, 2\n", "not YAML at line"),
         (b"- 1\n- 2\n", "not a mapping"),
-        (b"foo: 1\nbar: 2\n", "not a calibration"),
+        (b"foo: 1\nbar: 2\n", "not a rig file: expected an OpenCV YAML calibration"),
         (
             b"image_width: 640\ncamera_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}\n",
             "image_height",
@@ -164,16 +169,16 @@ def test_bad_calibration_files_are_refused_in_one_line(tmp_path: Path, content: 
     path = tmp_path / "calib.yaml"
     path.write_bytes(content)
     with pytest.raises(CalibrationError, match=match) as info:
-        load_calibration(path)
+        load_camera_file(path)
     assert str(path) in str(info.value)
     assert "\n" not in str(info.value)
 
 
 def test_a_folder_or_missing_path_is_not_a_calibration(tmp_path: Path) -> None:
     with pytest.raises(CalibrationError, match="not a file"):
-        load_calibration(tmp_path)
+        load_camera_file(tmp_path)
     with pytest.raises(CalibrationError, match="not a file"):
-        load_calibration(tmp_path / "missing.yaml")
+        load_camera_file(tmp_path / "missing.yaml")
 
 
 def test_an_opencv_matrix_whose_data_does_not_fill_it_names_the_file_regression(tmp_path: Path) -> None:
@@ -184,7 +189,7 @@ def test_an_opencv_matrix_whose_data_does_not_fill_it_names_the_file_regression(
         "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 400., 0., 0., 400., 1., 2. ]\n"
     )
     with pytest.raises(CalibrationError, match=r"short\.yaml: camera_matrix says 3x3 but has 6 values"):
-        load_calibration(path)
+        load_camera_file(path)
 
 
 def test_a_yaml_reader_error_is_one_line(tmp_path: Path) -> None:
@@ -192,5 +197,5 @@ def test_a_yaml_reader_error_is_one_line(tmp_path: Path) -> None:
     path = tmp_path / "nul.yaml"
     path.write_bytes(b"\x00camera_matrix: 1")
     with pytest.raises(CalibrationError) as info:
-        load_calibration(path)
+        load_camera_file(path)
     assert "not YAML" in str(info.value) and "\n" not in str(info.value)
