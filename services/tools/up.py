@@ -86,6 +86,8 @@ class LocalCluster:
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         #: ``time.monotonic()`` when each process was started (start-up times in ``capataz up``'s summary)
         self.spawned_at: dict[str, float] = {}
+        #: how each process was started (``spawn``'s arguments), for :meth:`respawn`
+        self._spawned: dict[str, tuple[tuple[str, ...], str | None, str | None]] = {}
         self._stopped: set[str] = set()
         self._taskset = shutil.which("taskset")
 
@@ -144,7 +146,14 @@ class LocalCluster:
         log.close()
         self.processes[name] = process
         self.spawned_at[name] = time.monotonic()
+        self._spawned[name] = (tuple(args), cpus, common_name)
+        self._stopped.discard(name)
         return process
+
+    def respawn(self, name: str) -> subprocess.Popen[bytes]:
+        """Start process ``name`` again as it was started (it must have exited)."""
+        args, cpus, common_name = self._spawned[name]
+        return self.spawn(name, args, cpus, common_name)
 
     def start_router(self, timeout_s: float = 30.0) -> None:
         """Start the router and wait until it listens; with no port given it picks a free one itself and

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from common.members import Role
-from services.tools.bench import hostile, takeover
+from services.tools.bench import election, hostile, takeover
 from services.tools.bench.security import small_cluster
 from services.tools.secure import SecureProfile
 from services.tools.up import LocalCluster
@@ -105,8 +105,31 @@ def test_fake_foreman_answering_wrong_shifts_leaves_the_yaw_within_a_degree(clus
         assert "suspending foreman/evil/0" in log  # caught and reported, not merely outvoted
 
 
+def test_a_forged_leader_token_stops_the_master_only_in_the_open_profile(cluster: LocalCluster) -> None:
+    """Issue 27: a fake leader token made the real master stand down (40 of 50 frames lost while held)."""
+    result = election.attack_forged_leader(cluster, profile_of(cluster), 30, FPS)
+    evidence = result.evidence
+    if cluster.secure:
+        assert not result.succeeded and not evidence["forged_leader_visible"], evidence
+        assert evidence["frames_lost"] <= election.LOST_ALLOWED, evidence
+    else:  # a documented limit of the open profile (README, docs/security.md)
+        assert result.succeeded and evidence["forged_leader_visible"], evidence
+
+
+def test_a_forged_candidate_token_blocks_the_takeover_only_in_the_open_profile(cluster: LocalCluster) -> None:
+    """Issue 27: a fake candidate token stopped the standby from taking over (110 of 110 frames lost). Kills
+    the active master (it comes back as a standby)."""
+    result = election.attack_forged_candidate(cluster, profile_of(cluster), 40, FPS)
+    evidence = result.evidence
+    assert evidence["killed"] is not None, evidence
+    if cluster.secure:
+        assert not result.succeeded and evidence["frames_lost"] <= election.LOST_ALLOWED, evidence
+    else:  # a documented limit of the open profile
+        assert result.succeeded and evidence["frames_lost_after_kill"] > election.LOST_ALLOWED, evidence
+
+
 def test_forged_yaw_before_a_takeover_does_not_move_the_yaw(cluster: LocalCluster) -> None:
-    """Last in the module: it kills the cluster's master (a standby takes over)."""
+    """Last in the module: it kills the active master (the other one takes over)."""
     frames = 40
     result = takeover.attack_forged_yaw_takeover(
         cluster, profile_of(cluster), frames, FPS, hostile.reference_yaw_rad(frames)

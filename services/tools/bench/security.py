@@ -23,7 +23,7 @@ import numpy as np
 from common.dispatch import Balance
 from common.members import Role, Topology
 from services.camera import CameraSettings, simulated_flight
-from services.tools.bench import hostile, secure_system, takeover
+from services.tools.bench import election, hostile, secure_system, takeover
 from services.tools.bench.cluster_workload import write_frame_folder
 from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.demo_cluster import run_cluster_flight
@@ -57,10 +57,11 @@ def small_cluster() -> ClusterSpec:
     )
 
 
-#: in this order: the last one kills the cluster's master (a standby takes over)
+#: in this order: the last two kill the active master (a standby takes over; the killed one comes back as a
+#: standby after the candidate token attack)
 ATTACKS = (
     "forged_outputs", "fake_worker_crops", "other_node_member", "liveliness_flood", "forged_frame_flood",
-    "fake_foreman", "forged_yaw_takeover",
+    "fake_foreman", "forged_leader_token", "forged_candidate_token", "forged_yaw_takeover",
 )  # fmt: skip
 
 
@@ -99,6 +100,10 @@ def run_attacks(
                 frames = max(2, int(foreman_seconds * fps))
                 reference = hostile.reference_yaw_rad(frames)
                 result = hostile.attack_fake_foreman(cluster, profile, frames, fps, reference)
+            elif name == "forged_leader_token":
+                result = election.attack_forged_leader(cluster, profile, 40, fps)
+            elif name == "forged_candidate_token":
+                result = election.attack_forged_candidate(cluster, profile, 40, fps)
             elif name == "forged_yaw_takeover":
                 reference = hostile.reference_yaw_rad(flood_frames)
                 result = takeover.attack_forged_yaw_takeover(cluster, profile, flood_frames, fps, reference)

@@ -30,7 +30,10 @@ FORGED_OFFSET_RAD = 2.0
 
 
 def start_standby(cluster: LocalCluster) -> None:
-    """A second master of the cluster's UAV (``master/standby/0``), alive before it returns."""
+    """A second master of the cluster's UAV (``master/standby/0``), alive before it returns (nothing to do
+    when it runs already)."""
+    if STANDBY in cluster.processes and cluster.processes[STANDBY].poll() is None:
+        return
     spec = cluster.spec
     args = ["master", *cluster.transport_args(), "--node", "standby", "--uav", spec.uav, "--topology",
             spec.topology.value, "--balance", spec.balance.value, "--speed", spec.speed.value,

@@ -51,10 +51,10 @@ def test_calibration_files_read_back_the_camera(tmp_path: Path, camera: CameraMo
     )
 
 
-
 def load_camera_file(path: Path) -> CameraModel:
     """The camera of a calibration file, read the way every ``--calibration`` is (:func:`load_rig`)."""
     return load_rig(path).camera
+
 
 def test_opencv_calibration_sample_layout_is_read(tmp_path: Path) -> None:
     """The layout OpenCV's own calibration sample writes (extra keys, no distortion_model)."""
