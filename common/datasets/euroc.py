@@ -30,6 +30,7 @@ from common.estimation.measurements import (
     RangeMeasurement,
     sensor_of,
 )
+from common.rig import Rig
 
 
 class EurocError(InputError):
@@ -140,11 +141,14 @@ def open_euroc(folder: Path) -> EurocFolder:
 def write_euroc(
     folder: Path,
     measurements: Iterable[Measurement],
-    camera_info: CameraModel | None = None,
+    camera_info: CameraModel | Rig | None = None,
     ground_truth: Trajectory | None = None,
 ) -> Path:
     """Write ``measurements`` as a EuRoC folder (``folder/mav0/...``; frames as PNG, stamps in ns), the
-    rangefinder in capataz's ``range0`` extension. How a simulated flight is exported for EuRoC tools."""
+    rangefinder in capataz's ``range0`` extension. How a simulated flight is exported for EuRoC tools.
+
+    ``camera_info``: the camera (mounted looking down) or a whole rig, written to ``cam0/sensor.yaml`` with
+    its mount as ``T_BS`` (EuRoC's body is its IMU: a rig whose IMU axes are not the body's is refused)."""
     mav = Path(folder) / "mav0"
     for sub in ("cam0/data", "imu0", "range0", "state_groundtruth_estimate0"):
         (mav / sub).mkdir(parents=True, exist_ok=True)
@@ -167,6 +171,14 @@ def write_euroc(
         "#timestamp [ns],range [m]\n" + "".join(r + "\n" for r in range_rows)
     )
     if camera_info is not None:
+        rig = camera_info if isinstance(camera_info, Rig) else Rig(camera_info)
+        if not np.array_equal(rig.R_body_imu, np.eye(3)) or rig.time_offset_s != 0.0:
+            raise InputError(
+                "EuRoC's body is its IMU: a rig with other IMU axes or a clock offset cannot be written"
+            )
+        camera_info = rig.camera
+        T_body_camera = np.eye(4)
+        T_body_camera[:3, :3], T_body_camera[:3, 3] = rig.R_body_camera, rig.t_body_camera_m
         doc = {
             "sensor_type": "camera",
             "camera_model": "pinhole",
@@ -178,6 +190,7 @@ def write_euroc(
             else "radial-tangential",
             "distortion_coefficients": [float(c) for c in camera_info.distortion.coeffs] or [0.0] * 4,
             "resolution": [int(camera_info.width), int(camera_info.height)],
+            "T_BS": {"cols": 4, "rows": 4, "data": [float(v) for v in T_body_camera.ravel()]},
         }
         (mav / "cam0" / "sensor.yaml").write_text(yaml.safe_dump(doc))
     if ground_truth is not None:

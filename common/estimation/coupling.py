@@ -26,7 +26,7 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from common.camera import CameraModel
+from common.camera import CameraModel, PinholeResampling
 from common.errors import InputError
 from common.estimation.buffer import Refusal, Timed, TimeOrderedBuffer
 from common.estimation.coupled_vo import CoupledVo
@@ -66,11 +66,9 @@ class DoubleCouplingEstimator:
         R_body_imu: npt.ArrayLike | None = None,
         imu_time_offset_s: float = 0.0,
     ) -> None:
-        if camera.is_distorted:
-            raise InputError(
-                "the estimator needs an undistorted (pinhole) camera: undistort the frames first "
-                f"(got {camera.distortion.model.value} distortion)"
-            )
+        #: a camera with a lens: its frames are resampled onto the pinhole twin where they enter
+        self.lens = PinholeResampling.of(camera) if camera.is_distorted else None
+        camera = camera.pinhole()
         self.camera = camera
         #: mounting of the camera on the body (the camera model itself is the intrinsics only)
         self.R_body_camera = check_rotation_matrix(R_body_camera, "R_body_camera")
@@ -166,6 +164,8 @@ class DoubleCouplingEstimator:
         if side.state is None:
             self.counters["frames_before_imu"] += 1
             return None
+        if self.lens is not None:
+            m = FrameMeasurement(m.stamp_s, self.lens.apply(m.image))
         result = self.vo.on_frame(m, side.view())
         if result is None:
             return None
