@@ -1,8 +1,8 @@
-"""A recording replayed with ``capataz camera`` alone gives the consumers its rig (issue 26), per format: a ROS 2
-bag (its ``CameraInfo``, mounted looking down) and a EuRoC folder (``sensor.yaml`` with ``T_BS``: a tilted
-camera with a lever arm). The camera publishes the rig, every frame names it, the master measures every frame
-with it and the estimator adopts it. (The image folder with a calibration file, a changed rig and a frame
-naming an unknown rig: ``test_rig_stream.py``.)"""
+"""A recording replayed with ``capataz camera`` alone gives the consumers its rig (issue 26), per format: a
+ROS 2 bag (its ``CameraInfo``, mounted looking down) and a EuRoC folder (``sensor.yaml`` with ``T_BS``: a
+tilted camera with a lever arm). The camera publishes the rig, every frame names it, the master measures
+every frame with it and the estimator adopts it. (The image folder with a calibration file, a changed rig
+and a frame naming an unknown rig: ``test_rig_stream.py``.)"""
 
 from __future__ import annotations
 
