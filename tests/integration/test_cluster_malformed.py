@@ -122,14 +122,22 @@ def test_ten_thousand_malformed_messages_are_counted_answered_and_survived(tmp_p
             assert oks == 0 and len(errors) == total_queries
             assert all(e.startswith("malformed:") for e in errors), {e.split(":")[0] for e in errors}
 
-            # the last frames reach the master on its own threads: wait for its count (bounded), then compare
-            wait_until(lambda: health(session, "master", "master").counters.get("malformed", 0) >= N_FRAMES)
+            # the last frames reach the master on its own threads: wait for its count (bounded), then
+            # compare. Its inbox is bounded (256): on a busy host its oldest samples are dropped before they
+            # are decoded, counted as frames_dropped (one run under load: 3875 malformed + 125 dropped)
+            def master_accounted() -> int:
+                counters = health(session, "master", "master").counters
+                return counters.get("malformed", 0) + counters.get("frames_dropped", 0)
+
+            assert wait_until(lambda: master_accounted() >= N_FRAMES), master_accounted()
+            master = health(session, "master", "master").counters
             counts = {
                 "worker": health(session, "worker", "h1").counters.get("malformed", 0),
                 "foreman": health(session, "foreman", "h2").counters.get("malformed", 0),
-                "master": health(session, "master", "master").counters.get("malformed", 0),
+                "master": master.get("malformed", 0) + master.get("frames_dropped", 0),
             }
             assert counts == {"worker": N_QUERIES_EACH, "foreman": N_QUERIES_EACH, "master": N_FRAMES}
+            assert master.get("malformed", 0) >= N_FRAMES // 2, master  # the inbox drops only under load
             assert sum(counts.values()) == 10_000
             assert all(p.poll() is None for p in cluster.processes.values()), "a service crashed"
 
