@@ -94,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
     if args.check:
         for path in changed:
             print(f"stale: {path}")
+        if not changed:
+            print("every figure is up to date")
         return 1 if changed else 0
     for path, text in changed.items():
         path.write_text(text)

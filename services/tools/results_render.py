@@ -27,7 +27,7 @@ MACHINE_LABEL = "(machine-dependent)"
 SPAN = re.compile(r"<!-- fig:([\w.]+) -->(.*?)<!-- /fig -->", re.S)
 #: bench table columns whose values depend on the machine (speed, time, CPU)
 MACHINE_COLUMN = re.compile(
-    r"(^|_)(ms|us|s|fps|cpu|speed|speedup|speed_up|time|wall|steal|load)(_|$)|per_s", re.I
+    r"(^|_)(ms|us|s|fps|cpu|core|speed|speedup|speed_up|time|wall|steal|load)(_|$)|per_s", re.I
 )
 
 
@@ -233,6 +233,11 @@ def _bench_section(name: str, payload: Mapping[str, Any]) -> list[str]:
     command = meta.get("command") if isinstance(meta, Mapping) else None
     lines = [f"## `bench {name}`", ""]
     lines.append(f"`{command or f'capataz bench {name}'}`, {_stamp(meta)}: out/bench/{name}.json.")
+    for key in ("note", "settings"):
+        if isinstance(payload.get(key), (str, Mapping)):
+            value = payload[key]
+            text = value if isinstance(value, str) else ", ".join(f"{k} {_cell(v)}" for k, v in value.items())
+            lines.append(f"{key.capitalize()}: {text}.")
     table = payload.get("table")
     if isinstance(table, list) and table and all(isinstance(r, Mapping) for r in table):
         lines += ["", markdown_table(table)]

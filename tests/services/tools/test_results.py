@@ -73,6 +73,8 @@ def test_the_page_from_hand_made_json() -> None:
     bench: dict[str, dict[str, Any]] = {
         "yaw": {
             "metadata": {**META, "command": "capataz bench yaw --frames 300"},
+            "note": "one core",
+            "settings": {"frames": 300, "images": "simulated"},
             "table": [
                 {"method": "core", "ms_per_frame": 1.16, "max_ame_deg": 0.151},
                 {"method": "paper", "ms_per_frame": 2.72, "max_ame_deg": 0.624, "note": "a|b"},
@@ -92,6 +94,7 @@ def test_the_page_from_hand_made_json() -> None:
         in page
     )
     assert "`capataz bench record`, date and commit not recorded: out/bench/record.json." in page
+    assert "Note: one core.\nSettings: frames 300, images simulated." in page
     yaw_table = (
         "| method | ms_per_frame * | max_ame_deg | note |\n|---|---|---|---|\n"
         "| core | 1.16 | 0.151 | - |\n| paper | 2.72 | 0.624 | a\\|b |"
@@ -103,8 +106,10 @@ def test_the_page_from_hand_made_json() -> None:
 
 
 def test_machine_columns_are_marked() -> None:
-    table = markdown_table([{"fps": 1.0, "cpu_s": 2.0, "ate_cm": 0.3, "speedup": 2.0, "steps": 3}])
-    assert table.splitlines()[0] == "| fps * | cpu_s * | ate_cm | speedup * | steps |"
+    table = markdown_table(
+        [{"fps": 1.0, "cpu_s": 2.0, "ate_cm": 0.3, "speedup": 2.0, "steps": 3, "core_share": 1}]
+    )
+    assert table.splitlines()[0] == "| fps * | cpu_s * | ate_cm | speedup * | steps | core_share * |"
 
 
 def test_spans_are_filled_and_an_unknown_or_missing_figure_is_refused() -> None:
