@@ -34,6 +34,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--root", type=Path, default=ROOT, help="the checkout whose README.md and docs/ to fill"
     )
+    parser.add_argument(
+        "--docker", type=Path, default=Path("out"), help="folder of make test-docker's docker_e2e_*.json"
+    )
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 if a file would change")
     parser.set_defaults(handler=run)
 
@@ -66,10 +69,20 @@ def marked_files(root: Path) -> list[Path]:
     return [p for p in (root / "README.md", *docs) if p.exists()]
 
 
-def updates(root: Path, run: dict[str, Any] | None, bench: dict[str, dict[str, Any]]) -> dict[Path, str]:
+def read_docker(folder: Path) -> dict[str, dict[str, Any]]:
+    """``make test-docker``'s figures by run (``docker_e2e_v1``, ``docker_e2e_v2``), those that exist."""
+    return {p.stem: read_json(p) for p in sorted(folder.glob("docker_e2e_*.json"))} if folder.is_dir() else {}
+
+
+def updates(
+    root: Path,
+    run: dict[str, Any] | None,
+    bench: dict[str, dict[str, Any]],
+    docker: dict[str, dict[str, Any]] | None = None,
+) -> dict[Path, str]:
     """Each file's new text (the page, and every marked file whose spans change)."""
     page = root / "docs" / "results.md"
-    out = {page: render_page(run, bench)}
+    out = {page: render_page(run, bench, docker)}
     for path in marked_files(root):
         text = path.read_text()
         names = sorted({name for name, _ in spans(text)})
@@ -87,7 +100,7 @@ def updates(root: Path, run: dict[str, Any] | None, bench: dict[str, dict[str, A
 def run(args: argparse.Namespace) -> int:
     try:
         run_summary, bench = read_sources(args.summary, args.bench)
-        changed = updates(args.root, run_summary, bench)
+        changed = updates(args.root, run_summary, bench, read_docker(args.docker))
     except ResultsError as exc:
         logger.error("capataz results: %s", exc)
         return 1

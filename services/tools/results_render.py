@@ -27,7 +27,7 @@ MACHINE_LABEL = "(machine-dependent)"
 SPAN = re.compile(r"<!-- fig:([\w.]+) -->(.*?)<!-- /fig -->", re.S)
 #: bench table columns whose values depend on the machine (speed, time, CPU)
 MACHINE_COLUMN = re.compile(
-    r"(^|_)(ms|us|s|fps|cpu|core|speed|speedup|speed_up|time|wall|steal|load)(_|$)|per_s", re.I
+    r"(^|_)(ms|us|s|fps|cpu|core|hz|counts|speed|speedup|speed_up|time|wall|steal|load)(_|$)|per_s", re.I
 )
 
 
@@ -251,9 +251,50 @@ def _bench_section(name: str, payload: Mapping[str, Any]) -> list[str]:
     return [*lines, ""]
 
 
-def render_page(run: Mapping[str, Any] | None, bench: Mapping[str, Mapping[str, Any]]) -> str:
-    """docs/results.md: ``make run``'s figures, then one table per benchmark JSON (in name order)."""
-    if run is None and not bench:
+def _flat(payload: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Scalar leaves of a JSON object by dotted key (lists of scalars kept whole; metadata left out)."""
+    out: dict[str, Any] = {}
+    for key, value in payload.items():
+        name = f"{prefix}{key}"
+        if key == "metadata" and not prefix:
+            continue
+        if isinstance(value, Mapping):
+            out.update(_flat(value, f"{name}."))
+        elif not isinstance(value, list) or all(not isinstance(v, (Mapping, list)) for v in value):
+            out[name] = value
+    return out
+
+
+def _docker_section(docker: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """``make test-docker``'s figures, one column per run (out/docker_e2e_v1.json, _v2.json)."""
+    names = sorted(docker)
+    flat = {name: _flat(docker[name]) for name in names}
+    keys = list(dict.fromkeys(k for name in names for k in flat[name]))
+    rows = [
+        {"figure": f"{k} *" if MACHINE_COLUMN.search(k.rsplit(".", 1)[0]) else k}
+        | {name: flat[name].get(k) for name in names}
+        for k in keys
+    ]
+    stamps = "; ".join(f"{name}: {_stamp(docker[name].get('metadata'))}" for name in names)
+    return [
+        "## The compose deployment (`make test-docker`)",
+        "",
+        f"`make test-docker` on a real Docker engine, out/<run>.json ({stamps}). Rows marked `*` are times"
+        " and rates of the host that ran them.",
+        "",
+        markdown_table(rows),
+        "",
+    ]
+
+
+def render_page(
+    run: Mapping[str, Any] | None,
+    bench: Mapping[str, Mapping[str, Any]],
+    docker: Mapping[str, Mapping[str, Any]] | None = None,
+) -> str:
+    """docs/results.md: ``make run``'s figures, one table per benchmark JSON (in name order), then the
+    compose deployment's runs."""
+    if run is None and not bench and not docker:
         raise ResultsError("nothing to render: no summary and no benchmark JSON")
     lines = [
         "# Results",
@@ -270,4 +311,6 @@ def render_page(run: Mapping[str, Any] | None, bench: Mapping[str, Mapping[str, 
         lines += _run_section(run)
     for name in sorted(bench):
         lines += _bench_section(name, bench[name])
+    if docker:
+        lines += _docker_section(docker)
     return "\n".join(lines).rstrip("\n") + "\n"

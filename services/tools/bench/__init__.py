@@ -47,16 +47,16 @@ def register(subparsers: Any) -> None:
     every.set_defaults(handler=_run_all)
 
 
-def bench_metadata(name: str) -> dict[str, Any]:
-    """When, at which commit and by which command a benchmark's JSON was written (``capataz results``
-    prints it above the benchmark's table)."""
+def bench_metadata(name: str, command: str | None = None) -> dict[str, Any]:
+    """When, at which commit and by which command (default: this process's ``capataz bench`` line) a
+    measurement's JSON was written; ``capataz results`` prints it above the measurement's table."""
     from services.tools.run import git_commit
 
     argv = sys.argv[1:] if sys.argv[1:2] == ["bench"] and "all" not in sys.argv else ["bench", name]
     return {
         "time_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "git_commit": git_commit(Path(__file__).resolve().parents[3]),
-        "command": " ".join(["capataz", *argv]),
+        "command": command or " ".join(["capataz", *argv]),
     }
 
 

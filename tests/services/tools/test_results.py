@@ -144,7 +144,13 @@ def test_filling_is_idempotent_and_leaves_the_text_around_the_spans(value: float
 def _args(tmp_path: Path, **kw: Any) -> argparse.Namespace:
     root = tmp_path / "repo"
     (root / "docs").mkdir(parents=True, exist_ok=True)
-    base = {"summary": tmp_path / "summary.json", "bench": tmp_path / "bench", "root": root, "check": False}
+    base = {
+        "summary": tmp_path / "summary.json",
+        "bench": tmp_path / "bench",
+        "docker": tmp_path,
+        "root": root,
+        "check": False,
+    }
     return argparse.Namespace(**{**base, **kw})
 
 
@@ -197,3 +203,26 @@ def test_a_malformed_bench_json_names_its_file(tmp_path: Path, caplog: pytest.Lo
     with caplog.at_level(logging.ERROR):
         assert results.run(args) == 1
     assert "bench yaw: no table and no figures in its JSON" in caplog.text
+
+
+def test_the_compose_deployments_runs_side_by_side() -> None:
+    docker = {
+        "docker_e2e_v1": {
+            "compose": "docker-compose 1.29.2",
+            "rates_hz": {"yaw": 19.99},
+            "yaw_rms_error_deg": 0.12,
+        },
+        "docker_e2e_v2": {"compose": "docker compose 2.26", "status_not_ok": [], "metadata": META},
+    }
+    page = render_page(None, {}, docker)
+    assert (
+        "docker_e2e_v1: date and commit not recorded; "
+        "docker_e2e_v2: 2026-01-02T03:04:05+00:00, commit abc1234" in page
+    )
+    assert (
+        "| figure | docker_e2e_v1 | docker_e2e_v2 |\n|---|---|---|\n"
+        "| compose | docker-compose 1.29.2 | docker compose 2.26 |\n"
+        "| rates_hz.yaw * | 19.99 | - |\n| yaw_rms_error_deg | 0.12 | - |\n| status_not_ok | - |  |"
+    ) in page
+    with pytest.raises(ResultsError, match="nothing to render"):
+        render_page(None, {}, {})
