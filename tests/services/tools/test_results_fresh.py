@@ -3,8 +3,8 @@ docs/results.md) equals what a fresh run of make run's deterministic parts gives
 
 The fresh run (``services.tools.results_fresh``) is the in-process yaw core over paper A's hover (the
 cluster's yaw equals it frame for frame), the localizer part, and the estimator's rectified configuration:
-about 35 s of CPU on this 2-core host, only for the parts the marked figures need. Machine-dependent figures
-(wall time, speed) are only checked to be known figures and labelled."""
+about 40 s of CPU on this 2-core host (38-42 s measured under load), only for the parts the marked figures
+need. Machine-dependent figures (wall time, speed) are only checked to be known figures and labelled."""
 
 from __future__ import annotations
 
