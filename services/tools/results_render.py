@@ -1,7 +1,7 @@
 """The results page and the figures the README and docs quote, rendered from the JSON the runs write.
 
-Pure: dictionaries in (``make run``'s ``out/summary.json`` as ``sources["run"]``, each benchmark's
-``out/bench/<name>.json`` as ``sources["bench"][name]``), text out. ``capataz results``
+Pure: dictionaries in (``make run``'s ``out/summary.json``, each benchmark's ``out/bench/<name>.json`` by
+name, ``make test-docker``'s ``out/docker_e2e_*.json`` by run), text out. ``capataz results``
 (:mod:`services.tools.results`) reads the files and writes what this renders.
 
 A figure quoted in Markdown sits in a marked span that only the generator fills, so each figure has one home
@@ -127,7 +127,7 @@ def _path(dotted: str) -> tuple[str | int, ...]:
     return tuple(int(k) if k.isdigit() else k for k in dotted.split("."))
 
 
-#: every figure of ``make run`` the README and docs may quote (``sources["run"]`` = out/summary.json)
+#: every figure of ``make run`` the README and docs may quote (from out/summary.json)
 RUN_FIGURES: tuple[Figure, ...] = tuple(
     Figure(f"run.{name}", _path(path), fmt, _SCALE.get(name, 1.0), name in _MACHINE, what)
     for name, path, fmt, what in _RUN_ROWS
