@@ -206,7 +206,7 @@ def test_a_malformed_bench_json_names_its_file(tmp_path: Path, caplog: pytest.Lo
 
 
 def test_the_compose_deployments_runs_side_by_side() -> None:
-    docker = {
+    docker: dict[str, dict[str, Any]] = {
         "docker_e2e_v1": {
             "compose": "docker-compose 1.29.2",
             "rates_hz": {"yaw": 19.99},
