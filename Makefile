@@ -12,7 +12,7 @@ STAMP  := $(VENV)/.installed-runtime
 DEV    := $(VENV)/.installed
 UV     := $(BIN)/uv pip install --python $(BIN)/python --quiet
 
-.PHONY: run test test-loaded test-docker bench lint typecheck clean
+.PHONY: run test test-loaded test-docker bench results lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -41,6 +41,13 @@ test-loaded: $(DEV)
 
 bench: $(DEV)
 	$(BIN)/capataz bench all
+
+# docs/results.md and every marked figure of README.md and docs/*.md, from a fresh make run and every benchmark
+# (long: the benchmarks take most of an hour on 2 cores); `capataz results` alone re-renders from out/
+results: $(DEV)
+	$(BIN)/capataz run
+	$(BIN)/capataz bench all
+	$(BIN)/capataz results
 
 lint: $(DEV)
 	$(BIN)/ruff check common services tests

@@ -35,6 +35,7 @@ logger = logging.getLogger("capataz")
 COMMAND_MODULES: tuple[str, ...] = (
     "services.tools.run",
     "services.tools.bench",
+    "services.tools.results",
     "services.router",
     "services.camera",
     "services.master",
@@ -57,6 +58,7 @@ COMMAND_MODULES: tuple[str, ...] = (
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.
 EXAMPLES: dict[str, str] = {
     "run": "capataz run --only demo_localizer      # one part; merges into out/summary.json",
+    "results": "capataz results --summary out/summary.json --bench out/bench   # writes docs/results.md",
     "bench": "capataz bench yaw --frames 300 --out out/bench",
     "bench localizer": "capataz bench localizer --frames 120",
     "bench cluster": "capataz bench cluster --frames 40",

@@ -6,8 +6,8 @@ out/secure/client, over mutual TLS, check them against the simulator's truth, st
 Opt-in (``make test-docker``, which sets CAPATAZ_DOCKER_TEST=1): it builds the image (minutes). It skips with
 the reason when no engine answers or no Compose is installed. Without Docker Hub, set BASE_IMAGE to a local
 base image (deploy/make-base-image.sh builds one; ``capataz-base:bookworm`` is used when it exists). The
-figures go to out/docker_e2e_v1.json / _v2.json (the README quotes them); CAPATAZ_COMPOSE=v1|v2 picks the
-Compose.
+figures go to out/docker_e2e_v1.json / _v2.json (`capataz results` puts them in docs/results.md);
+CAPATAZ_COMPOSE=v1|v2 picks the Compose.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from common.wire.codec import decode
 from common.wire.messages import AttitudeEstimate, PoseEstimate, YawEstimate
 from common.wire.schema import WireModel
 from services.runtime.transport import TransportSettings, open_session, zbytes
+from services.tools.bench import bench_metadata
 from services.tools.report import write_json
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -218,12 +219,12 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
         members = json.loads(status.stdout)["members"]
     finally:
         # every service's log, kept for a reader of a failure (out/ is ignored by git)
-        logs = subprocess.run(
+        all_logs = subprocess.run(
             [*compose, "-p", PROJECT, "logs", "--no-color"],
             capture_output=True, text=True, cwd=ROOT, env=env, timeout=300,
         )  # fmt: skip
         (ROOT / "out").mkdir(exist_ok=True)
-        (ROOT / "out" / "docker_e2e_logs.txt").write_text(logs.stdout + logs.stderr)
+        (ROOT / "out" / "docker_e2e_logs.txt").write_text(all_logs.stdout + all_logs.stderr)
         subprocess.run(down, capture_output=True, cwd=ROOT, env=env, timeout=300)
 
     rates = {
@@ -244,6 +245,9 @@ def test_compose_deployment_publishes_the_four_outputs(engine: None, tmp_path: P
         "status_members": len(members),
         "status_not_ok": [m["member"] for m in members if m["state"] != "ok"],
         **accuracy,
+        "metadata": bench_metadata(
+            "docker", f"{'CAPATAZ_COMPOSE=v2 ' if compose[0] == 'docker' else ''}make test-docker"
+        ),
     }
     write_json(ROOT / "out" / f"docker_e2e_{'v2' if compose[0] == 'docker' else 'v1'}.json", figures)
     print(json.dumps(figures, indent=2))

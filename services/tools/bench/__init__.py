@@ -7,7 +7,9 @@ Each module in :data:`BENCH_MODULES` exposes ``NAME``, ``add_arguments(parser)``
 from __future__ import annotations
 
 import argparse
+import datetime
 import importlib
+import sys
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -45,6 +47,19 @@ def register(subparsers: Any) -> None:
     every.set_defaults(handler=_run_all)
 
 
+def bench_metadata(name: str, command: str | None = None) -> dict[str, Any]:
+    """When, at which commit and by which command (default: this process's ``capataz bench`` line) a
+    measurement's JSON was written; ``capataz results`` prints it above the measurement's table."""
+    from services.tools.run import git_commit
+
+    argv = sys.argv[1:] if sys.argv[1:2] == ["bench"] and "all" not in sys.argv else ["bench", name]
+    return {
+        "time_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "git_commit": git_commit(Path(__file__).resolve().parents[3]),
+        "command": command or " ".join(["capataz", *argv]),
+    }
+
+
 def _runner(module: ModuleType) -> Any:
     def handler(args: argparse.Namespace) -> int:
         with progress.bar(total=None, desc=f"bench {module.NAME}", unit="step"):
@@ -52,7 +67,9 @@ def _runner(module: ModuleType) -> Any:
         # a suite may name its own file and payload (e.g. ``bench yaw --suite field`` -> yaw_field.json)
         name = result.pop("json_name", None) or result.pop("bench_name", module.NAME)
         payload = result.pop("json", result)
-        path = write_json(args.out / f"{name}.json", payload)
+        if "table" not in payload and result.get("table"):
+            payload = {**payload, "table": result["table"]}
+        path = write_json(args.out / f"{name}.json", {"metadata": bench_metadata(module.NAME), **payload})
         print_table(result.get("table", []), title=f"bench {name}")
         print(f"wrote {path}")
         return 0

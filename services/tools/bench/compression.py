@@ -127,4 +127,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "images": str(args.images) if args.images else "simulated",
         },
         "note": "CPU is process time on a shared host: compare the rows of one run",
+        # a real video's figures go beside the simulator's (docs/results.md shows both)
+        **({"json_name": "compression_images"} if args.images else {}),
     }

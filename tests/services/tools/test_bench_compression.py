@@ -5,10 +5,14 @@ unless told otherwise. CPU figures are not asserted (a shared host)."""
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+import cv2
+
 from common.recordings.mcap import Compression
-from services.tools.bench import compression
+from common.sim.flight import hover_flight
+from services.tools.bench import _runner, compression
 from services.tools.cli import build_parser
 from services.tools.record import RecordSettings
 
@@ -33,3 +37,24 @@ def test_record_compresses_with_zstd_by_default() -> None:
     assert parser.parse_args(["record"]).compression == "zstd"
     assert parser.parse_args(["record", "--compression", "none"]).compression == "none"
     assert RecordSettings(out=Path("x.mcap")).compression is Compression.ZSTD
+
+
+def test_a_real_video_is_written_beside_the_simulators_figures_with_its_metadata(tmp_path: Path) -> None:
+    """``--images`` writes compression_images.json (not over compression.json), with the command, date and
+    commit that ``capataz results`` prints above its table."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    flight = hover_flight(seed=0, n_frames=4)
+    for i in range(flight.n_frames):
+        cv2.imwrite(str(folder / f"{i}.png"), flight.frame(i))
+    parser = argparse.ArgumentParser()
+    compression.add_arguments(parser)
+    args = parser.parse_args(["--frames", "4", "--images", str(folder)])
+    args.out = tmp_path / "bench"
+    assert _runner(compression)(args) == 0
+    assert not (args.out / "compression.json").exists()
+    payload = json.loads((args.out / "compression_images.json").read_text())
+    assert payload["settings"]["images"] == str(folder)
+    assert payload["metadata"]["command"].startswith("capataz bench ")
+    assert payload["metadata"]["time_utc"].endswith("+00:00") and "git_commit" in payload["metadata"]
+    assert [row["compression"] for row in payload["table"]] == ["none", "lz4", "zstd"]
