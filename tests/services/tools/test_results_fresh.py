@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -40,16 +41,30 @@ def test_the_page_is_generated_and_the_readme_quotes_generated_figures() -> None
         assert text.endswith(MACHINE_LABEL) == FIGURES[name].machine, f"{file}: {name} labelled wrong: {text}"
 
 
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """One fresh run of every part a marked figure needs, and of paper A's hover (the yaw part)."""
+    deterministic = {name for _, name, _ in quoted() if not FIGURES[name].machine}
+    parts = {str(FIGURES[name].path[0]) for name in deterministic} | {"demo_cluster"}
+    assert parts <= set(PARTS)
+    return fresh_summary(tmp_path_factory.mktemp("fresh"), parts)
+
+
 @pytest.mark.slow
-def test_every_quoted_figure_equals_a_fresh_run(tmp_path: Path) -> None:
+def test_the_full_simulated_hover_meets_paper_as_accuracy_targets(fresh: dict[str, Any]) -> None:
+    """Paper A's 2041-frame hover: max accumulated mean error (eq. 8, N = 100) <= 1 deg, final <= 2 deg."""
+    yaw = fresh["demo_cluster"]
+    assert yaw["max_ame_deg"] <= 1.0 and abs(yaw["final_deg"]) <= 2.0, yaw
+
+
+@pytest.mark.slow
+def test_every_quoted_figure_equals_a_fresh_run(fresh: dict[str, Any]) -> None:
     figures = quoted()
     deterministic = sorted({name for _, name, _ in figures if not FIGURES[name].machine})
-    parts = {str(FIGURES[name].path[0]) for name in deterministic}
-    assert parts <= set(PARTS)
-    fresh = figure_values(fresh_summary(tmp_path, parts), deterministic)
+    values = figure_values(fresh, deterministic)
     stale = [
-        f"{file}: {name} quotes {text!r}, a fresh run gives {fresh[name]!r}"
+        f"{file}: {name} quotes {text!r}, a fresh run gives {values[name]!r}"
         for file, name, text in figures
-        if name in fresh and text != fresh[name]
+        if name in values and text != values[name]
     ]
     assert stale == [], "run `capataz run` then `capataz results`:\n" + "\n".join(stale)
