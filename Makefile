@@ -35,6 +35,10 @@ test: $(DEV)
 test-docker: $(DEV)
 	CAPATAZ_DOCKER_TEST=1 $(BIN)/python -m pytest -q -s -m docker tests/integration/test_docker_e2e.py
 
+# the tests marked long (over a minute each, beside shorter tests that hold the same behaviour)
+test-long: $(DEV)
+	CAPATAZ_LONG_TESTS=1 $(BIN)/python -m pytest -q -m long
+
 # the suite on a host whose cores are all busy (busy-loop processes for the whole run)
 test-loaded: $(DEV)
 	$(BIN)/python -m tests.under_load -q

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -44,7 +45,16 @@ def _real_sessions_need_the_zenoh_marker(
 SLOW_TEST_TIMEOUT_S = 1800
 
 
+#: tests marked ``long`` run only on request (``make test-long``): the default suite stays under 15 minutes
+LONG_SKIP = pytest.mark.skip(
+    reason="long run (over a minute, what shorter tests hold too); make test-long runs it"
+)
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    long_runs = bool(os.environ.get("CAPATAZ_LONG_TESTS"))
     for item in items:
         if item.get_closest_marker("slow") is not None and item.get_closest_marker("timeout") is None:
             item.add_marker(pytest.mark.timeout(SLOW_TEST_TIMEOUT_S))
+        if item.get_closest_marker("long") is not None and not long_runs:
+            item.add_marker(LONG_SKIP)

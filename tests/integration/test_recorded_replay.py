@@ -34,7 +34,7 @@ from services.runtime.transport import open_session, zbytes
 from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.up import LocalCluster
 
-pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow, pytest.mark.long]  # shorter: test_rig_formats.py
 
 N_FRAMES = 30
 #: replay speed: 2.5 frames per second, slow enough for the estimator to take every frame on a busy host

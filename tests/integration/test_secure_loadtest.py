@@ -12,7 +12,7 @@ import pytest
 
 from services.tools.cli import main
 
-pytestmark = [pytest.mark.zenoh]
+pytestmark = [pytest.mark.zenoh, pytest.mark.long]  # shorter: test_secure_system.py, test_loadtest_run.py
 
 
 def loadtest(tmp_path: Path, profile: str) -> dict:
