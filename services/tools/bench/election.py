@@ -16,12 +16,11 @@ one of the open profile's documented limits.
 from __future__ import annotations
 
 import signal
-import threading
 import time
 
 from common.wire import keys
 from services.tools.bench.hostile import AttackResult, attacker, fly, frames_lost, watching
-from services.tools.bench.takeover import leader, start_standby
+from services.tools.bench.takeover import fly_to_halfway, leader, start_standby
 from services.tools.up import LocalCluster
 
 #: the forged master's ``node/index``: sorts before every real master's (``master/0``, ``standby/0``)
@@ -52,17 +51,7 @@ def attack_forged_candidate(cluster: LocalCluster, profile: str, frames: int, fp
     killed = None
     with watching(cluster, uav) as watch, attacker(cluster) as session:
         token = session.liveliness().declare_token(keys.master_candidate_key(uav, FORGED_NODE, 0))
-        flight = threading.Thread(
-            target=fly, args=(cluster, watch, frames, fps, 30.0 + 2 * frames / fps, 1), daemon=True
-        )
-        flight.start()
-        deadline = time.monotonic() + 30.0 + frames / fps
-        while time.monotonic() < deadline and len(watch.yaw) < frames // 2:
-            time.sleep(0.05)
-        active, leader_deadline = leader(session, uav), time.monotonic() + 20.0
-        while active is None and time.monotonic() < leader_deadline:  # polled, as in takeover.py
-            time.sleep(0.05)
-            active = leader(session, uav)
+        flight, active = fly_to_halfway(cluster, watch, session, frames, fps, 30.0)
         killed_at_seq = max(watch.yaw, default=-1)
         if active is not None and active in cluster.processes:
             cluster.signal(active, signal.SIGKILL)

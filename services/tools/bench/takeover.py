@@ -21,7 +21,15 @@ from common.wire.codec import decode, encode
 from common.wire.messages import Health, YawEstimate
 from common.wire.schema import WireError
 from services.runtime.transport import zbytes
-from services.tools.bench.hostile import AttackResult, attacker, fly, frames_lost, max_yaw_error_deg, watching
+from services.tools.bench.hostile import (
+    AttackResult,
+    YawWatch,
+    attacker,
+    fly,
+    frames_lost,
+    max_yaw_error_deg,
+    watching,
+)
 from services.tools.up import LocalCluster
 
 STANDBY = "master/standby/0"
@@ -51,6 +59,28 @@ def leader(session: zenoh.Session, uav: str) -> str | None:
     return None
 
 
+def fly_to_halfway(
+    cluster: LocalCluster, watch: YawWatch, session: zenoh.Session, frames: int, fps: float, slack_s: float
+) -> tuple[threading.Thread, str | None]:
+    """Start a flight of ``frames`` frames (flow-controlled) in a thread, wait until half of them have a yaw,
+    and return the thread and the active master then (:func:`leader`, polled for up to 20 s)."""
+    flight = threading.Thread(
+        target=fly, args=(cluster, watch, frames, fps, slack_s + 2 * frames / fps, 1), daemon=True
+    )
+    flight.start()
+    deadline = time.monotonic() + slack_s + frames / fps
+    while time.monotonic() < deadline and len(watch.yaw) < frames // 2:
+        time.sleep(0.05)
+    # polled: on a busy host the attacker's fresh session may not see the election token at once
+    # (one run of the suite under load read no leader and killed nothing)
+    # (a query that finds no token returns at once: pause between them, as the wait above does)
+    active, leader_deadline = leader(session, uav := cluster.spec.uav), time.monotonic() + 20.0
+    while active is None and time.monotonic() < leader_deadline:
+        time.sleep(0.05)
+        active = leader(session, uav)
+    return flight, active
+
+
 def counters_of(session: zenoh.Session, name: str) -> dict[str, int]:
     role, node, index = name.split("/")
     for reply in session.get(keys.health_key(role, node, int(index)), timeout=2.0):
@@ -72,20 +102,7 @@ def attack_forged_yaw_takeover(
     forged = 0
     killed = None
     with watching(cluster, uav) as watch, attacker(cluster) as session:
-        flight = threading.Thread(
-            target=fly, args=(cluster, watch, frames, fps, 60.0 + 2 * frames / fps, 1), daemon=True
-        )
-        flight.start()
-        deadline = time.monotonic() + 60.0 + frames / fps
-        while time.monotonic() < deadline and len(watch.yaw) < frames // 2:
-            time.sleep(0.05)
-        # polled: on a busy host the attacker's fresh session may not see the election token at once
-        # (one run of the suite under load read no leader and killed nothing)
-        # (a query that finds no token returns at once: pause between them, as the wait above does)
-        active, leader_deadline = leader(session, uav), time.monotonic() + 20.0
-        while active is None and time.monotonic() < leader_deadline:
-            time.sleep(0.05)
-            active = leader(session, uav)
+        flight, active = fly_to_halfway(cluster, watch, session, frames, fps, 60.0)
         publisher = session.declare_publisher(keys.yaw_key(uav))
         stop = threading.Event()
 
