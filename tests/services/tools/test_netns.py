@@ -1,0 +1,129 @@
+"""Separate network hosts on one machine: namespaces, links, rates and routers the harness makes and always
+removes. Needs root and ``ip``/``tc`` (skipped with the reason otherwise)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from common.netplan import make_plan
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.netns import NetHarness, cleanup_stale, list_namespaces, new_prefix, unavailable_reason
+from services.tools.netns_cluster import NetnsCluster, plan_for_cluster
+from tests.zenoh_helpers import wait_until
+
+pytestmark = [pytest.mark.zenoh]
+
+ROUTERS_ONLY = ClusterSpec(name="net", hosts=(HostSpec(name="h1", workers=0),))
+TEN_MB = 10_000_000
+
+
+@pytest.fixture(scope="module")
+def netns() -> None:
+    if (reason := unavailable_reason()) is not None:
+        pytest.skip(reason)
+
+
+@pytest.fixture
+def untouched_root() -> Iterator[None]:
+    """The namespaces and the root namespace's links are the same after the test as before it."""
+    before_ns, before_links = set(list_namespaces()), _root_links()
+    yield
+    assert set(list_namespaces()) == before_ns
+    assert _root_links() == before_links
+
+
+def _root_links() -> list[str]:
+    out = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, check=True).stdout
+    return sorted(line.split(":")[1].strip() for line in out.splitlines())
+
+
+def test_a_put_in_one_host_reaches_a_subscriber_in_another_through_the_routers(
+    netns: None, untouched_root: None, tmp_path: Path
+) -> None:
+    plan = plan_for_cluster(ROUTERS_ONLY, new_prefix())
+    with NetHarness(plan) as net, NetnsCluster(ROUTERS_ONLY, tmp_path, net) as cluster:
+        assert set(plan.namespaces) <= set(list_namespaces())
+        cluster.start_router()
+        sub = cluster.agent("h1", ["sub", "test/net/hello"])
+        sub.wait_ready()
+        put = cluster.agent("ground", ["put", "test/net/hello", "across the hub"])
+        assert put.result(45.0) == {"matched": True}
+        assert sub.result(45.0) == {"received": 1, "text": "across the hub"}
+
+
+def _ten_mb_seconds(tmp_path: Path, rate_bit_s: int | None) -> float:
+    plan = plan_for_cluster(ROUTERS_ONLY, new_prefix(), {"h1": rate_bit_s})
+    with NetHarness(plan) as net, NetnsCluster(ROUTERS_ONLY, tmp_path, net) as cluster:
+        cluster.start_router()
+        server = cluster.agent("h1", ["serve", "test/net/big", "--size", str(TEN_MB)], 120.0)
+        server.wait_ready()
+        got = cluster.agent("ground", ["get", "test/net/big"], 120.0).result(150.0)
+        assert server.result(30.0) == {"served": 1}
+    assert got["bytes"] == TEN_MB
+    return float(got["seconds"])
+
+
+def test_a_20_mbit_link_makes_a_10_mb_transfer_slower(
+    netns: None, untouched_root: None, tmp_path: Path
+) -> None:
+    unlimited_s = _ten_mb_seconds(tmp_path / "unlimited", None)
+    limited_s = _ten_mb_seconds(tmp_path / "limited", 20_000_000)
+    # the token bucket cannot pass 80 Mbit in less than 4 s (less its 16 KiB bursts); the unlimited veth
+    # took 0.05 s here: a ratio of 4 leaves a wide margin for a loaded host
+    assert limited_s >= 0.9 * TEN_MB * 8 / 20_000_000
+    assert limited_s > 4 * unlimited_s, (limited_s, unlimited_s)
+
+
+def test_an_exception_inside_removes_everything(netns: None, untouched_root: None) -> None:
+    plan = make_plan(new_prefix(), ["a", "b"], {"b": 1_000_000})
+    with pytest.raises(RuntimeError, match="boom"), NetHarness(plan):
+        assert set(plan.namespaces) <= set(list_namespaces())
+        raise RuntimeError("boom")
+    assert not set(plan.namespaces) & set(list_namespaces())
+
+
+HOLDER = """
+import sys, time
+from common.netplan import make_plan
+from services.tools.netns import NetHarness
+with NetHarness(make_plan(sys.argv[1], ["a", "b"])):
+    print("up", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_sigterm_removes_everything(netns: None, untouched_root: None) -> None:
+    prefix = new_prefix()
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, prefix], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "up"
+        assert any(ns.startswith(prefix + "-") for ns in list_namespaces())
+        holder.send_signal(signal.SIGTERM)
+        assert holder.wait(30.0) == 128 + signal.SIGTERM
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not [ns for ns in list_namespaces() if ns.startswith(prefix + "-")]
+
+
+def test_cleanup_stale_removes_only_namespaces_of_dead_owners(netns: None, untouched_root: None) -> None:
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    assert wait_until(lambda: not os.path.exists(f"/proc/{gone.pid}"), 10.0)
+    stale, live = f"cz{gone.pid}x0-h1", f"{new_prefix()}-h1"
+    for namespace in (stale, live):
+        subprocess.run(["ip", "netns", "add", namespace], check=True)
+    try:
+        removed = cleanup_stale()
+        assert stale in removed and live not in removed
+        assert live in list_namespaces() and stale not in list_namespaces()
+    finally:
+        for namespace in (stale, live):
+            subprocess.run(["ip", "netns", "del", namespace], capture_output=True)
