@@ -81,6 +81,7 @@ EXAMPLES: dict[str, str] = {
     "localizer": "capataz localizer --connect tcp/127.0.0.1:7447 --uav uav1 --use-vo",
     "bench ros2": "capataz bench ros2 --seconds 20",
     "bench consistency": "capataz bench consistency --quick",
+    "bench dispatch": "capataz bench dispatch --frames 100",
     "ros2": "capataz ros2 --connect tcp/127.0.0.1:7447 --uav uav0 --input-uav uav0 --domain-id 42",
     "estimator": "capataz estimator --connect tcp/127.0.0.1:7447 --uav uav0 --external-yaw",
     "status": "capataz status --connect tcp/127.0.0.1:7447 --watch",
