@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import logging
 import os
 import shutil
@@ -142,6 +143,18 @@ class NetHarness:
         taskset = ["taskset", "-c", pinned] if pinned and shutil.which("taskset") else []
         return ["ip", "netns", "exec", net_host.namespace, *taskset, *argv]
 
+    def link_bytes(self) -> dict[str, tuple[int, int]]:
+        """Bytes each host received and sent on its link since it was made (the veth's counters)."""
+        counts = {}
+        for host in self.plan.hosts:
+            out = _run(["ip", "-n", host.namespace, "-s", "-j", "link", "show", HOST_INTERFACE])
+            try:
+                stats = json.loads(out)[0]["stats64"]
+                counts[host.name] = (int(stats["rx"]["bytes"]), int(stats["tx"]["bytes"]))
+            except (ValueError, LookupError, TypeError) as exc:
+                raise NetnsError(f"no counters of {host.namespace}/{HOST_INTERFACE}: {exc}") from None
+        return counts
+
     # -- making and removing -------------------------------------------------------------------------------
     def _netns(self, namespace: str) -> None:
         _run(["ip", "netns", "add", namespace])
@@ -196,6 +209,8 @@ class NetHarness:
         raise SystemExit(128 + signum)  # unwinds the with-block: __exit__ removes everything
 
     def __enter__(self) -> NetHarness:
+        if stale := cleanup_stale():  # a harness that was SIGKILLed left these (their owner is gone)
+            logger.warning("removed namespaces of harnesses that are gone: %s", ", ".join(stale))
         if threading.current_thread() is threading.main_thread():
             self._previous_sigterm = signal.signal(signal.SIGTERM, self._on_sigterm)
         try:

@@ -64,9 +64,14 @@ def _ten_mb_seconds(tmp_path: Path, rate_bit_s: int | None) -> float:
         cluster.start_router()
         server = cluster.agent("h1", ["serve", "test/net/big", "--size", str(TEN_MB)], 120.0)
         server.wait_ready()
+        before = net.link_bytes()
         got = cluster.agent("ground", ["get", "test/net/big"], 120.0).result(150.0)
         assert server.result(30.0) == {"served": 1}
+        after = net.link_bytes()
     assert got["bytes"] == TEN_MB
+    # the reply crossed both links: sent by h1 on its link, received by the ground on its own
+    assert after["h1"][1] - before["h1"][1] >= TEN_MB
+    assert after["ground"][0] - before["ground"][0] >= TEN_MB
     return float(got["seconds"])
 
 
