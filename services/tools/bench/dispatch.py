@@ -27,6 +27,7 @@ from common.members import Topology
 from common.wire.messages import YawEstimate
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
+from services.runtime.cli import number_in
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
 from services.tools.cluster_file import ClusterSpec, HostSpec
@@ -50,9 +51,17 @@ ROLES = ("master", "foreman", "worker", "router")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=at_least(10), default=100, help="frames of each path's flight")
-    parser.add_argument("--fps", type=float, default=10.0, help="camera rate (paced: the cores are not full)")
     parser.add_argument(
-        "--idle-s", type=float, default=3.0, help="window of the idle CPU rate before a flight"
+        "--fps", type=number_in(float, 0.1, 1000.0), default=10.0, help="camera rate (paced: cores not full)"
+    )
+    parser.add_argument(
+        "--idle-s", type=number_in(float, 0.1, 600.0), default=3.0, help="window of the idle CPU rate"
+    )
+    parser.add_argument(
+        "--netns", action="store_true", help="each host in its own network namespace (root): bytes per link"
+    )
+    parser.add_argument(
+        "--link-mbit", type=number_in(float, 0.1, 100_000.0), help="with --netns: every link's rate (Mbit/s)"
     )
 
 
