@@ -132,3 +132,21 @@ def test_cleanup_stale_removes_only_namespaces_of_dead_owners(netns: None, untou
     finally:
         for namespace in (stale, live):
             subprocess.run(["ip", "netns", "del", namespace], capture_output=True)
+
+
+def test_a_host_process_sees_only_its_address_and_runs_on_its_cpu_set(
+    netns: None, untouched_root: None
+) -> None:
+    cpu = str(max(os.sched_getaffinity(0)))
+    plan = make_plan(new_prefix(), ["a", "b"], cpus={"a": cpu})
+    probe = (
+        "import os, subprocess; print(sorted(os.sched_getaffinity(0))); "
+        "print(subprocess.run(['ip', '-o', '-4', 'addr'], capture_output=True, text=True).stdout)"
+    )
+    with NetHarness(plan) as net:
+        argv = net.exec_argv("a", [sys.executable, "-c", probe])
+        out = subprocess.run(argv, capture_output=True, text=True, timeout=30, check=True).stdout
+    affinity, addresses = out.split("\n", 1)
+    assert affinity == f"[{cpu}]"
+    assert plan.host("a").address in addresses and plan.host("b").address not in addresses
+    assert "127.0.0.1" in addresses and len(addresses.strip().splitlines()) == 2  # lo and its link only
