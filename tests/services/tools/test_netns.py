@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from common.netplan import make_plan
-from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.cluster_file import ClusterError, ClusterSpec, HostSpec
 from services.tools.netns import NetHarness, cleanup_stale, list_namespaces, new_prefix, unavailable_reason
 from services.tools.netns_cluster import NetnsCluster, plan_for_cluster
 from tests.zenoh_helpers import wait_until
@@ -47,13 +47,18 @@ def _root_links() -> list[str]:
 def test_a_put_in_one_host_reaches_a_subscriber_in_another_through_the_routers(
     netns: None, untouched_root: None, tmp_path: Path
 ) -> None:
-    plan = plan_for_cluster(ROUTERS_ONLY, new_prefix())
-    with NetHarness(plan) as net, NetnsCluster(ROUTERS_ONLY, tmp_path, net) as cluster:
+    spec = ClusterSpec(name="net3", hosts=(HostSpec(name="h1", workers=0), HostSpec(name="h2", workers=0)))
+    plan = plan_for_cluster(spec, new_prefix())
+    with NetHarness(plan) as net, NetnsCluster(spec, tmp_path, net) as cluster:
         assert set(plan.namespaces) <= set(list_namespaces())
         cluster.start_router()
-        sub = cluster.agent("h1", ["sub", "test/net/hello"])
+        routers = {f"router/{h.name}/0" for h in plan.hosts}
+        cluster.wait_alive(routers)  # seen from the ground host: the three routers are one mesh
+        with pytest.raises(ClusterError, match="worker/nowhere/0"):
+            cluster.wait_alive(routers | {"worker/nowhere/0"}, timeout_s=1.0)
+        sub = cluster.agent("h2", ["sub", "test/net/hello"])
         sub.wait_ready()
-        put = cluster.agent("ground", ["put", "test/net/hello", "across the hub"])
+        put = cluster.agent("h1", ["put", "test/net/hello", "across the hub"])
         assert put.result(45.0) == {"matched": True}
         assert sub.result(45.0) == {"received": 1, "text": "across the hub"}
 
