@@ -44,11 +44,15 @@ def plan_for_cluster(
 class Agent:
     """A :mod:`services.tools.netns_agent` process inside a host: ``ready`` then one JSON line."""
 
-    def __init__(self, argv: list[str]) -> None:
+    def __init__(self, argv: list[str], log_path: Path) -> None:
         self.argv = argv
-        self.process: subprocess.Popen[str] = subprocess.Popen(
-            argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
+        #: its stderr (a file: a pipe nobody reads could fill and block it)
+        self.log_path = log_path
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        with log_path.open("ab") as log:
+            self.process: subprocess.Popen[str] = subprocess.Popen(
+                argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True
+            )
         self._lines: queue.Queue[str | None] = queue.Queue()
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -84,9 +88,12 @@ class Agent:
         raise ClusterError(f"agent {self.argv} gave no result: {self._stderr()}")
 
     def _stderr(self) -> str:
-        if self.process.poll() is None or self.process.stderr is None:
-            return "still running"
-        return str(self.process.stderr.read())[-500:]
+        try:
+            tail = self.log_path.read_text(errors="replace")[-500:].strip()
+        except OSError:
+            tail = ""
+        state = "running" if self.process.poll() is None else f"exit {self.process.returncode}"
+        return f"{state}; {tail or 'no output'} ({self.log_path})"
 
     def close(self) -> None:
         if self.process.poll() is None:
@@ -153,7 +160,8 @@ class NetnsCluster(LocalCluster):
         net_host = self.net.plan.host(host)
         argv = [sys.executable, "-m", "services.tools.netns_agent", "--connect", net_host.router_endpoint,
                 "--listen", net_host.listen_endpoint, "--timeout", str(timeout_s), *mode]  # fmt: skip
-        agent = Agent(self.net.exec_argv(host, argv))
+        log_path = self.log_dir / f"agent_{host}_{len(self.agents)}_{mode[0]}.log"
+        agent = Agent(self.net.exec_argv(host, argv), log_path)
         self.agents.append(agent)
         return agent
 
