@@ -231,3 +231,26 @@ class NetHarness:
             self.close()
         finally:
             self._restore()
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "netns", help="emulated network hosts: check the machine, remove leftovers"
+    )
+    sub = parser.add_subparsers(dest="netns_command", required=True, metavar="WHAT")
+    sub.add_parser("check", help="say whether network namespaces can be made here (root, ip, tc)")
+    cleanup = sub.add_parser("cleanup", help="delete namespaces of harnesses whose process is gone")
+    cleanup.add_argument("--prefix", default="cz", help="only namespaces starting with this (default cz)")
+    parser.set_defaults(handler=run)
+
+
+def run(args: Any) -> int:
+    if (reason := unavailable_reason()) is not None:
+        print(f"network namespaces unavailable: {reason}")
+        return 1
+    if args.netns_command == "check":
+        print("network namespaces available")
+        return 0
+    removed = cleanup_stale(args.prefix)
+    print(f"removed {len(removed)} namespace(s){': ' + ', '.join(removed) if removed else ''}")
+    return 0

@@ -3,6 +3,7 @@ removes. Needs root and ``ip``/``tc`` (skipped with the reason otherwise)."""
 
 from __future__ import annotations
 
+import argparse
 import os
 import signal
 import subprocess
@@ -14,7 +15,14 @@ import pytest
 
 from common.netplan import make_plan
 from services.tools.cluster_file import ClusterError, ClusterSpec, HostSpec
-from services.tools.netns import NetHarness, cleanup_stale, list_namespaces, new_prefix, unavailable_reason
+from services.tools.netns import (
+    NetHarness,
+    cleanup_stale,
+    list_namespaces,
+    new_prefix,
+    run,
+    unavailable_reason,
+)
 from services.tools.netns_cluster import NetnsCluster, plan_for_cluster
 from tests.zenoh_helpers import wait_until
 
@@ -123,7 +131,9 @@ def test_sigterm_removes_everything(netns: None, untouched_root: None) -> None:
     assert not [ns for ns in list_namespaces() if ns.startswith(prefix + "-")]
 
 
-def test_cleanup_stale_removes_only_namespaces_of_dead_owners(netns: None, untouched_root: None) -> None:
+def test_cleanup_stale_removes_only_namespaces_of_dead_owners(
+    netns: None, untouched_root: None, capsys: pytest.CaptureFixture[str]
+) -> None:
     gone = subprocess.Popen(["true"])
     gone.wait()
     assert wait_until(lambda: not os.path.exists(f"/proc/{gone.pid}"), 10.0)
@@ -133,6 +143,10 @@ def test_cleanup_stale_removes_only_namespaces_of_dead_owners(netns: None, untou
     try:
         removed = cleanup_stale()
         assert stale in removed and live not in removed
+        assert live in list_namespaces() and stale not in list_namespaces()
+        subprocess.run(["ip", "netns", "add", stale], check=True)  # and through ``capataz netns cleanup``
+        assert run(argparse.Namespace(netns_command="cleanup", prefix=f"cz{gone.pid}x")) == 0
+        assert capsys.readouterr().out.strip() == f"removed 1 namespace(s): {stale}"
         assert live in list_namespaces() and stale not in list_namespaces()
     finally:
         for namespace in (stale, live):
