@@ -9,7 +9,8 @@ one line on stderr and exit code 2.
 Modes (each takes ``--connect`` its host's router and ``--listen`` its host's address):
 
 - ``alive NAME...``: waits until each member has a liveliness token; ``{"alive": [...], "missing": [...]}``.
-- ``yaw --uav U --count N``: collects the UAV's yaw estimates; ``{"seqs": [...], "members": {...}}``.
+- ``yaw --uav U --count N``: collects the UAV's yaw estimates; ``{"seqs": [...], "members": {...},
+  "median_timings_ms": {...}}`` (patches per member, the master's stage timings' medians).
 - ``sub KEY``: the first sample's payload size and text head; ``put KEY TEXT``: puts once a subscriber
   matches.
 - ``serve KEY --size B``: replies ``B`` bytes to every query until stdin closes; ``get KEY``: one query
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import statistics
 import sys
 import threading
 import time
@@ -75,9 +77,14 @@ def _yaw(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:
     estimates = dict(collector.estimates)
     collector.close()
     members: Counter[str] = Counter()
+    stages: dict[str, list[float]] = {}
     for estimate in estimates.values():
         members.update(estimate.members)
-    return {"seqs": sorted(estimates), "members": dict(members), "malformed": collector.malformed}
+        for stage, ms in estimate.timings_ms.items():
+            stages.setdefault(stage, []).append(ms)
+    medians = {stage: statistics.median(v) for stage, v in sorted(stages.items())}
+    return {"seqs": sorted(estimates), "members": dict(members), "malformed": collector.malformed,
+            "median_timings_ms": medians}  # fmt: skip
 
 
 def _sub(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:

@@ -33,6 +33,7 @@ def test_master_and_camera_on_one_host_foreman_and_workers_on_another(tmp_path: 
         codes = cluster.stop()
     assert got["seqs"] == list(range(FRAMES)), f"lost: {sorted(set(range(FRAMES)) - set(got['seqs']))}"
     assert got["malformed"] == 0
+    assert got["median_timings_ms"]["total"] > 0  # the master's frame-in to yaw-out time, per frame
     # the master only dispatches: every patch was computed across the link, on host h1
     assert SELF not in got["members"] and sum(got["members"].values()) > 0, got["members"]
     assert all("/h1/" in member for member in got["members"]), got["members"]
