@@ -361,6 +361,9 @@ class Stats(ServiceMessage):
     timings_ms: dict[str, float] = Field(default_factory=dict)
     queue_depths: dict[str, int] = Field(default_factory=dict)
     shares: dict[str, float] = Field(default_factory=dict)
+    #: CPU seconds (user + system, every thread) the member's process used since it started
+    #: (``time.process_time``): a role's CPU per frame is its growth over the frames of a window
+    cpu_s: float = Field(ge=0.0, default=0.0)
     #: the machine the member runs on (its host name: a container's in compose), "" when unknown
     host: str = Field(default="", max_length=255)
     #: the UAV streams the member serves (a master's, an estimator's; a camera's several), empty for

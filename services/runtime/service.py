@@ -241,6 +241,7 @@ class ServiceRuntime:
             index=self.index,
             stamp_s=time.time(),
             uptime_s=time.monotonic() - self._t0,
+            cpu_s=time.process_time(),
             counters=self.counters.counts(),
             timings_ms=self.counters.median_timings_ms(),
             queue_depths=self.queue_depths(),

@@ -53,6 +53,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "services.tools.echo",
     "services.tools.hz",
     "services.tools.metrics",
+    "services.tools.netns",
 )
 
 #: One example per sub-command (shown at the end of its --help); keys are the words after ``capataz``.
@@ -83,6 +84,10 @@ EXAMPLES: dict[str, str] = {
     "localizer": "capataz localizer --connect tcp/127.0.0.1:7447 --uav uav1 --use-vo",
     "bench ros2": "capataz bench ros2 --seconds 20",
     "bench consistency": "capataz bench consistency --quick",
+    "bench dispatch": "capataz bench dispatch --frames 100",
+    "netns": "capataz netns check",
+    "netns check": "capataz netns check",
+    "netns cleanup": "capataz netns cleanup --prefix cz",
     "ros2": "capataz ros2 --connect tcp/127.0.0.1:7447 --uav uav0 --input-uav uav0 --domain-id 42",
     "estimator": "capataz estimator --connect tcp/127.0.0.1:7447 --uav uav0 --external-yaw",
     "status": "capataz status --connect tcp/127.0.0.1:7447 --watch",

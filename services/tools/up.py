@@ -18,7 +18,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import zenoh
 
@@ -99,7 +99,8 @@ class LocalCluster:
         return f"{self.scheme}/127.0.0.1:{self.port}"
 
     # -- processes --------------------------------------------------------------------------------------
-    def transport_args(self) -> list[str]:
+    def transport_args(self, name: str | None = None) -> list[str]:
+        """Transport options of member ``name`` (here the same for every member)."""
         return [
             "--connect",
             self.router,
@@ -131,9 +132,7 @@ class LocalCluster:
     ) -> subprocess.Popen[bytes]:
         if name in self.processes and self.processes[name].poll() is None:
             raise ClusterError(f"{name} is already running")
-        command = capataz_command(*args)
-        if cpus is not None and self._taskset:
-            command = [self._taskset, "-c", cpus, *command]
+        command = self.launch_argv(name, capataz_command(*args), cpus)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log = (self.log_dir / f"{name.replace('/', '_')}.log").open("ab")
         cn = common_name or process_common_name(name, self.spec.uav)
@@ -154,6 +153,12 @@ class LocalCluster:
         """Start process ``name`` again as it was started (it must have exited)."""
         args, cpus, common_name = self._spawned[name]
         return self.spawn(name, args, cpus, common_name)
+
+    def launch_argv(self, name: str, command: list[str], cpus: str | None) -> list[str]:
+        """How process ``name`` is started: here pinned to ``cpus`` with taskset (when given and present)."""
+        if cpus is not None and self._taskset:
+            return [self._taskset, "-c", cpus, *command]
+        return command
 
     def start_router(self, timeout_s: float = 30.0) -> None:
         """Start the router and wait until it listens; with no port given it picks a free one itself and
@@ -190,7 +195,7 @@ class LocalCluster:
         raise ClusterError(f"the router listens on no {prefix}127.0.0.1 endpoint: {endpoints}")
 
     def start_command(self, command: ServiceCommand, extra: Sequence[str] = ()) -> str:
-        self.spawn(command.name, [*command.args, *extra, *self.transport_args()], command.cpus)
+        self.spawn(command.name, [*command.args, *extra, *self.transport_args(command.name)], command.cpus)
         return command.name
 
     def start_worker(self, host: HostSpec, index: int) -> str:
@@ -205,7 +210,7 @@ class LocalCluster:
     def start_camera(self, extra: Sequence[str] = ()) -> str:
         name = "camera/camera/0"
         self.spawn(
-            name, ["camera", *self.transport_args(), "--uav", self.spec.uav, *extra], self.spec.aux_cpus
+            name, ["camera", *self.transport_args(name), "--uav", self.spec.uav, *extra], self.spec.aux_cpus
         )
         return name
 
@@ -293,7 +298,7 @@ class LocalCluster:
             codes[name] = process.returncode
         return codes
 
-    def __enter__(self) -> LocalCluster:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *_exc: Any) -> None:

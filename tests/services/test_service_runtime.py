@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -10,8 +11,8 @@ import pytest
 import zenoh
 
 from common.members import Role
-from common.wire.codec import decode
-from common.wire.messages import PoseEstimate
+from common.wire.codec import decode, encode
+from common.wire.messages import PoseEstimate, Stats
 from services.runtime.service import ServiceRuntime
 from services.runtime.transport import TransportSettings
 
@@ -82,3 +83,14 @@ def test_the_default_stop_undeclares_the_subscriptions_only() -> None:
     service.subscriptions.extend(subscriptions)
     service.stop()
     assert [s.undeclared for s in subscriptions] == [1, 1]
+
+
+def test_stats_carry_the_process_cpu_time_and_it_grows_with_work() -> None:
+    service = _service()
+    first = service.stats_message().cpu_s
+    c0 = time.process_time()
+    while time.process_time() - c0 < 0.05:  # burn 50 ms of CPU (a bound on work, not on wall time)
+        np.linalg.svd(np.ones((64, 64)))
+    second = service.stats_message()
+    assert first > 0.0 and second.cpu_s >= first + 0.04
+    assert decode(*encode(second), Stats).cpu_s == second.cpu_s  # it crosses the wire

@@ -28,6 +28,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.security",
     "services.tools.bench.ros2",
     "services.tools.bench.consistency",
+    "services.tools.bench.dispatch",
 )
 
 

@@ -1,0 +1,215 @@
+"""CPU time per frame of each role (master, foreman, worker, router) on every dispatch path.
+
+Issue 29's first measure: what dispatching costs, in CPU time (host-independent, unlike latency), for the
+same 752x480 simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker
+(1 worker) and master-foreman-worker (1 foreman x 1 worker, and 2 x 2). For a cluster path each process's
+user + system CPU time is read from /proc before the camera starts and once the last yaw arrived; its idle
+rate (keep-alives, stats), measured over a short window before the flight, is taken off. A role's figure is
+the sum over its processes divided by the frames. The camera is left out: it starts with the flight, and its
+interpreter's start-up cannot be told apart from its per-frame work. The master's share of the in-process
+cost is the issue's "dispatch cheaper than compute" figure (target <= 25 %). Shared memory is off (the
+figures stand for separate hosts). CPU seconds are not wall time, but a busy host still inflates them
+(cache, steal) and /proc counts in 10 ms ticks: run it alone, with enough frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from collections.abc import Mapping
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from common.dispatch import Balance
+from common.members import Topology
+from common.wire.messages import YawEstimate
+from common.yaw import YawSettings, YawTracker, make_patch_grid
+from services.camera import CameraSettings, simulated_flight
+from services.runtime.cli import number_in
+from services.runtime.transport import open_session
+from services.tools.bench.cluster import at_least
+from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.loadtest.harness import cpu_seconds
+from services.tools.netns import NetHarness, NetnsError, new_prefix, unavailable_reason
+from services.tools.netns_cluster import GROUND, NetnsCluster, plan_for_cluster
+from services.tools.observe import YawCollector
+from services.tools.up import LocalCluster
+
+NAME = "dispatch"
+logger = logging.getLogger(__name__)
+
+#: (label, topology, workers per host)
+PATHS: tuple[tuple[str, Topology, tuple[int, ...]], ...] = (
+    ("master-worker 1", Topology.MASTER_WORKER, (1,)),
+    ("master-foreman-worker 1x1", Topology.MASTER_FOREMAN_WORKER, (1,)),
+    ("master-foreman-worker 2x2", Topology.MASTER_FOREMAN_WORKER, (2, 2)),
+)
+ROLES = ("master", "foreman", "worker", "router")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=at_least(10), default=100, help="frames of each path's flight")
+    parser.add_argument(
+        "--fps", type=number_in(float, 0.1, 1000.0), default=10.0, help="camera rate (paced: cores not full)"
+    )
+    parser.add_argument(
+        "--idle-s", type=number_in(float, 0.1, 600.0), default=3.0, help="window of the idle CPU rate"
+    )
+    parser.add_argument(
+        "--netns", action="store_true", help="each host in its own network namespace (root): bytes per link"
+    )
+    parser.add_argument(
+        "--link-mbit", type=number_in(float, 0.1, 100_000.0), help="with --netns: every link's rate (Mbit/s)"
+    )
+
+
+def role_of(member: str) -> str:
+    return member.split("/", 1)[0]
+
+
+def cpu_ms_per_frame(
+    before_s: Mapping[str, float],
+    after_s: Mapping[str, float],
+    idle_rate: Mapping[str, float],
+    flight_s: float,
+    frames: int,
+) -> dict[str, float]:
+    """CPU ms per frame of each role: (after - before - idle rate x flight time) summed over the role's
+    processes, / frames; a process missing in either reading or of another role is left out, a negative
+    net counts as 0."""
+    per_role = dict.fromkeys(ROLES, 0.0)
+    for name in before_s.keys() & after_s.keys():
+        if (role := role_of(name)) not in per_role:
+            continue
+        net = after_s[name] - before_s[name] - idle_rate.get(name, 0.0) * flight_s
+        per_role[role] += max(0.0, net)
+    return {role: 1e3 * seconds / frames for role, seconds in per_role.items()}
+
+
+def _cpu(cluster: LocalCluster) -> dict[str, float]:
+    """Every process's CPU seconds; a process that ended but was not reaped yet (the camera after its
+    flight: nothing here polls it) still has its totals in /proc."""
+    readings = {name: cpu_seconds(p.pid) for name, p in cluster.processes.items()}
+    return {name: value for name, value in readings.items() if value is not None}
+
+
+def in_process_cpu_ms(frames: int) -> float:
+    """CPU ms per frame of the in-process tracker on the camera's simulated 752x480 hover."""
+    flight = simulated_flight(CameraSettings(frames=frames))
+    settings = YawSettings()
+    first = flight.frame(0)
+    tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
+    state = tracker.initial_state(first)
+    images = [flight.frame(i) for i in range(1, frames)]
+    c0 = time.process_time()
+    for image in images:
+        state, _ = tracker.track(state, image)
+    return 1e3 * (time.process_time() - c0) / len(images)
+
+
+def _spec(label: str, topology: Topology, workers: tuple[int, ...]) -> ClusterSpec:
+    return ClusterSpec(
+        name=label.replace(" ", "-"),
+        topology=topology,
+        balance=Balance.TIME,
+        hosts=tuple(HostSpec(name=f"h{i + 1}", workers=n) for i, n in enumerate(workers)),
+    )
+
+
+def cluster_path(
+    label: str, topology: Topology, workers: tuple[int, ...], args: argparse.Namespace
+) -> dict[str, Any]:
+    """One path's flight: on loopback, or (``--netns``) across emulated hosts with per-link bytes."""
+    spec = _spec(label, topology, workers)
+    log_dir = Path(args.out) / "dispatch_logs" / spec.name
+    if not args.netns:
+        with LocalCluster(spec, log_dir) as cluster:
+            return {"path": label, **_flight(cluster, args, None)}
+    rate = None if args.link_mbit is None else round(args.link_mbit * 1e6)
+    plan = plan_for_cluster(spec, new_prefix(), dict.fromkeys([GROUND, *(h.name for h in spec.hosts)], rate))
+    with NetHarness(plan) as net, NetnsCluster(spec, log_dir, net) as cluster:
+        return {"path": label, **_flight(cluster, args, net)}
+
+
+def _members(estimates: Mapping[int, YawEstimate]) -> dict[str, int]:
+    members: dict[str, int] = {}
+    for estimate in estimates.values():
+        for member, patches in estimate.members.items():
+            members[member] = members.get(member, 0) + patches
+    return members
+
+
+def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | None) -> dict[str, Any]:
+    """Idle window, then the camera's flight; CPU (and link bytes) read around it; the yaw watched from a
+    session of our own (loopback) or from an agent in the ground host (namespaces)."""
+    cluster.start()
+    cluster.wait_alive(cluster.expected_members())
+    timeout_s = 60.0 + 2.0 * args.frames / max(args.fps, 1.0)
+    with ExitStack() as stack:
+        if isinstance(cluster, NetnsCluster):
+            agent = cluster.agent(GROUND, ["yaw", "--count", str(args.frames)], timeout_s)
+            agent.wait_ready()
+
+            def outcome() -> tuple[int, dict[str, int]]:
+                got = agent.result(timeout_s + 15.0)
+                return len(got["seqs"]), dict(got["members"])
+        else:
+            session = stack.enter_context(open_session(cluster.observer_transport()))
+            collector = YawCollector(session, cluster.spec.uav)
+            stack.callback(collector.close)
+
+            def outcome() -> tuple[int, dict[str, int]]:
+                collector.wait_for(args.frames, timeout_s)
+                return len(collector.estimates), _members(collector.estimates)
+
+        idle0, t_idle = _cpu(cluster), time.monotonic()
+        time.sleep(args.idle_s)  # the idle window itself: a rate, not a wait for a condition
+        idle1 = _cpu(cluster)
+        idle_s = time.monotonic() - t_idle
+        idle_rate = {n: (idle1[n] - idle0[n]) / idle_s for n in idle0.keys() & idle1.keys()}
+        before, t0 = _cpu(cluster), time.monotonic()
+        bytes0 = net.link_bytes() if net is not None else {}
+        cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps), "--in-flight", "1",
+                              "--no-sensors"])  # fmt: skip
+        received, members = outcome()
+        after, flight_s = _cpu(cluster), time.monotonic() - t0
+        bytes1 = net.link_bytes() if net is not None else {}
+    cluster.stop()
+    frames = max(received, 1)
+    links = {host: {"rx_bytes_per_frame": (bytes1[host][0] - bytes0[host][0]) / frames,
+                    "tx_bytes_per_frame": (bytes1[host][1] - bytes0[host][1]) / frames}
+             for host in bytes0}  # fmt: skip
+    return {"frames": received, "lost": args.frames - received,
+            "cpu_ms_per_frame": cpu_ms_per_frame(before, after, idle_rate, flight_s, frames),
+            "patches_by_member": members, "flight_s": flight_s, "links": links}  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.netns and (reason := unavailable_reason()) is not None:
+        raise NetnsError(f"--netns: {reason}")
+    in_process = in_process_cpu_ms(args.frames)
+    runs = [cluster_path(label, topology, workers, args) for label, topology, workers in PATHS]
+    table: list[dict[str, Any]] = [{"path": "in-process", "frames": args.frames - 1, "lost": 0,
+                                    "in_process_ms": in_process, "master_ms": in_process}]  # fmt: skip
+    for r in runs:
+        cpu = r["cpu_ms_per_frame"]
+        links = {f"{host}_tx_kB": link["tx_bytes_per_frame"] / 1e3 for host, link in r["links"].items()}
+        table.append({"path": r["path"], "frames": r["frames"], "lost": r["lost"],
+                      **{f"{role}_ms": cpu.get(role) for role in ROLES},
+                      "master_share": cpu["master"] / in_process,
+                      **links})  # fmt: skip
+    return {
+        "table": table,
+        "json": {
+            "resolution": "752x480",
+            "netns": args.netns,
+            "link_mbit": args.link_mbit,
+            "frames": args.frames,
+            "fps": args.fps,
+            "in_process_cpu_ms_per_frame": in_process,
+            "paths": runs,
+            "target_master_share": 0.25,
+        },
+    }

@@ -1,0 +1,256 @@
+"""Separate network hosts on one machine: a :class:`~common.netplan.NetPlan` carried out with ``ip``/``tc``.
+
+:class:`NetHarness` (a context manager) makes the hub namespace with a bridge, one namespace per host, a veth
+link from each host to the bridge (created directly inside the namespaces: the root namespace's interfaces
+are never touched), the host's private address on its end, and a token bucket (``tc ... tbf``) on both ends
+of a link that has a rate. On exit, an exception or SIGTERM it kills what still runs inside its namespaces
+and deletes them (which deletes their links): nothing it made is left behind. :func:`cleanup_stale` removes
+the namespaces of harnesses whose process is gone. :func:`unavailable_reason` says why the harness cannot
+run here (not root, no ``ip``, ``ip netns`` refused), for tests to skip with.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Sequence
+from types import FrameType
+from typing import Any
+
+from common.errors import CapatazError
+from common.netplan import BRIDGE, HOST_INTERFACE, NetHost, NetPlan, owner_pid, tbf_burst_bytes
+
+logger = logging.getLogger(__name__)
+
+_SERIAL = itertools.count()
+#: bound of every ``ip``/``tc`` call
+COMMAND_TIMEOUT_S = 10.0
+
+
+class NetnsError(CapatazError):
+    """A namespace, link or queue discipline could not be made."""
+
+
+def new_prefix() -> str:
+    """A prefix no other harness uses: this process's pid and a serial number."""
+    return f"cz{os.getpid()}x{next(_SERIAL)}"
+
+
+def _run(argv: Sequence[str]) -> str:
+    try:
+        done = subprocess.run(list(argv), capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise NetnsError(f"{' '.join(argv)}: {exc}") from None
+    if done.returncode != 0:
+        raise NetnsError(f"{' '.join(argv)}: {done.stderr.strip() or f'exit {done.returncode}'}")
+    return done.stdout
+
+
+def list_namespaces() -> list[str]:
+    """Names in ``ip netns list`` (its lines are ``name`` or ``name (id: n)``)."""
+    return [line.split()[0] for line in _run(["ip", "netns", "list"]).splitlines() if line.strip()]
+
+
+def unavailable_reason() -> str | None:
+    """Why the harness cannot run on this machine, or None when it can (root, ``ip`` and ``tc`` present,
+    and a probe namespace can be made and deleted)."""
+    if os.geteuid() != 0:
+        return "network namespaces need root"
+    for tool in ("ip", "tc"):
+        if shutil.which(tool) is None:
+            return f"no {tool!r} command"
+    probe = f"{new_prefix()}-probe"
+    try:
+        _run(["ip", "netns", "add", probe])
+        _run(["ip", "netns", "del", probe])
+    except NetnsError as exc:
+        return f"ip netns does not work here: {exc}"
+    return None
+
+
+def _pids_in(namespace: str) -> list[int]:
+    try:
+        return [int(p) for p in _run(["ip", "netns", "pids", namespace]).split()]
+    except NetnsError:
+        return []
+
+
+def _remove_namespace(namespace: str, grace_s: float = 2.0) -> None:
+    """Stop what runs inside ``namespace`` (SIGTERM, then SIGKILL after ``grace_s``) and delete it."""
+    pids = _pids_in(namespace)
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, sig)
+        deadline = time.monotonic() + grace_s
+        while pids and time.monotonic() < deadline:
+            time.sleep(0.05)
+            pids = _pids_in(namespace)
+        if not pids:
+            break
+    try:
+        _run(["ip", "netns", "del", namespace])
+    except NetnsError as exc:
+        logger.warning("could not delete namespace %s: %s", namespace, exc)
+
+
+def cleanup_stale(prefix: str = "cz") -> list[str]:
+    """Delete harness namespaces (``cz<pid>...-<host>``) starting with ``prefix`` whose owning process is
+    gone; returns their names. A live harness's namespaces and every other namespace are left alone."""
+    removed = []
+    for namespace in list_namespaces():
+        pid = owner_pid(namespace)
+        if pid is None or not namespace.startswith(prefix) or _alive(pid):
+            continue
+        _remove_namespace(namespace)
+        removed.append(namespace)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class NetHarness:
+    """The plan's namespaces and links, made on enter and always removed on exit (also on SIGTERM)."""
+
+    def __init__(self, plan: NetPlan) -> None:
+        self.plan = plan
+        #: namespaces made so far (removed on exit, in reverse)
+        self.made: list[str] = []
+        self._previous_sigterm: Any = None
+        self._closed = False
+
+    # -- commands inside a host ---------------------------------------------------------------------------
+    def exec_argv(self, host: str, argv: Sequence[str], cpus: str | None = None) -> list[str]:
+        """``argv`` run inside ``host``'s namespace, pinned to ``cpus`` (default: the host's CPU set)."""
+        net_host = self.plan.host(host)
+        pinned = cpus if cpus is not None else net_host.cpus
+        taskset = ["taskset", "-c", pinned] if pinned and shutil.which("taskset") else []
+        return ["ip", "netns", "exec", net_host.namespace, *taskset, *argv]
+
+    def link_bytes(self) -> dict[str, tuple[int, int]]:
+        """Bytes each host received and sent on its link since it was made (the veth's counters)."""
+        counts = {}
+        for host in self.plan.hosts:
+            out = _run(["ip", "-n", host.namespace, "-s", "-j", "link", "show", HOST_INTERFACE])
+            try:
+                stats = json.loads(out)[0]["stats64"]
+                counts[host.name] = (int(stats["rx"]["bytes"]), int(stats["tx"]["bytes"]))
+            except (ValueError, LookupError, TypeError) as exc:
+                raise NetnsError(f"no counters of {host.namespace}/{HOST_INTERFACE}: {exc}") from None
+        return counts
+
+    # -- making and removing -------------------------------------------------------------------------------
+    def _netns(self, namespace: str) -> None:
+        _run(["ip", "netns", "add", namespace])
+        self.made.append(namespace)
+
+    def _in(self, namespace: str, *argv: str) -> None:
+        _run(["ip", "-n", namespace, *argv])
+
+    def _tbf(self, namespace: str, interface: str, rate_bit_s: int) -> None:
+        burst = tbf_burst_bytes(rate_bit_s)
+        _run(["tc", "-n", namespace, "qdisc", "add", "dev", interface, "root", "tbf",
+              "rate", f"{rate_bit_s}bit", "burst", str(burst), "latency", "100ms"])  # fmt: skip
+
+    def _link(self, host: NetHost) -> None:
+        hub = self.plan.hub_namespace
+        self._netns(host.namespace)
+        # both ends are born inside their namespaces: nothing appears in the root namespace
+        _run(["ip", "link", "add", HOST_INTERFACE, "netns", host.namespace, "type", "veth", "peer", "name",
+              host.hub_interface, "netns", hub])  # fmt: skip
+        self._in(hub, "link", "set", host.hub_interface, "master", BRIDGE)
+        self._in(hub, "link", "set", host.hub_interface, "up")
+        self._in(host.namespace, "link", "set", "lo", "up")
+        self._in(host.namespace, "addr", "add", f"{host.address}/24", "dev", HOST_INTERFACE)
+        self._in(host.namespace, "link", "set", HOST_INTERFACE, "up")
+        if host.rate_bit_s is not None:
+            self._tbf(host.namespace, HOST_INTERFACE, host.rate_bit_s)  # host -> hub
+            self._tbf(hub, host.hub_interface, host.rate_bit_s)  # hub -> host
+
+    def open(self) -> None:
+        hub = self.plan.hub_namespace
+        self._netns(hub)
+        self._in(hub, "link", "add", BRIDGE, "type", "bridge")
+        self._in(hub, "link", "set", BRIDGE, "up")
+        for host in self.plan.hosts:
+            self._link(host)
+        logger.info(
+            "network hosts up: %s",
+            ", ".join(f"{h.name}={h.address}" + (f"@{h.rate_bit_s}bit/s" if h.rate_bit_s else "")
+                      for h in self.plan.hosts),
+        )  # fmt: skip
+
+    def close(self) -> None:
+        """Remove every namespace this harness made (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for namespace in reversed(self.made):
+            _remove_namespace(namespace)
+        self.made.clear()
+
+    def _on_sigterm(self, signum: int, frame: FrameType | None) -> None:
+        raise SystemExit(128 + signum)  # unwinds the with-block: __exit__ removes everything
+
+    def __enter__(self) -> NetHarness:
+        if stale := cleanup_stale():  # a harness that was SIGKILLed left these (their owner is gone)
+            logger.warning("removed namespaces of harnesses that are gone: %s", ", ".join(stale))
+        if threading.current_thread() is threading.main_thread():
+            self._previous_sigterm = signal.signal(signal.SIGTERM, self._on_sigterm)
+        try:
+            self.open()
+        except BaseException:
+            self.close()
+            self._restore()
+            raise
+        return self
+
+    def _restore(self) -> None:
+        if self._previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, self._previous_sigterm)
+            self._previous_sigterm = None
+
+    def __exit__(self, *_exc: Any) -> None:
+        try:
+            self.close()
+        finally:
+            self._restore()
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "netns", help="emulated network hosts: check the machine, remove leftovers"
+    )
+    sub = parser.add_subparsers(dest="netns_command", required=True, metavar="WHAT")
+    sub.add_parser("check", help="say whether network namespaces can be made here (root, ip, tc)")
+    cleanup = sub.add_parser("cleanup", help="delete namespaces of harnesses whose process is gone")
+    cleanup.add_argument("--prefix", default="cz", help="only namespaces starting with this (default cz)")
+    parser.set_defaults(handler=run)
+
+
+def run(args: Any) -> int:
+    if (reason := unavailable_reason()) is not None:
+        print(f"network namespaces unavailable: {reason}")
+        return 1
+    if args.netns_command == "check":
+        print("network namespaces available")
+        return 0
+    removed = cleanup_stale(args.prefix)
+    print(f"removed {len(removed)} namespace(s){': ' + ', '.join(removed) if removed else ''}")
+    return 0

@@ -1,0 +1,81 @@
+"""``capataz bench dispatch``: CPU time per frame by role, from /proc readings around a flight."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from common.dispatch import SELF
+from services.tools.bench.dispatch import PATHS, ROLES, cluster_path, cpu_ms_per_frame, run
+from services.tools.netns import unavailable_reason
+
+seconds = st.floats(0.0, 100.0, allow_nan=False)
+
+
+def test_roles_sum_their_processes_net_of_idle_per_frame() -> None:
+    before = {
+        "master/master/0": 1.0,
+        "worker/h1/0": 2.0,
+        "worker/h1/1": 2.0,
+        "router": 0.5,
+        "camera/c/0": 3.0,
+    }
+    after = {"master/master/0": 1.5, "worker/h1/0": 3.0, "worker/h1/1": 2.6, "router": 0.7, "camera/c/0": 9.0}
+    idle = {"master/master/0": 0.01, "router": 0.02}
+    cpu = cpu_ms_per_frame(before, after, idle, flight_s=10.0, frames=100)
+    assert cpu == pytest.approx({"master": 4.0, "foreman": 0.0, "worker": 16.0, "router": 0.0})
+
+
+@given(st.dictionaries(st.sampled_from(["master/m/0", "worker/a/0", "foreman/a/0", "router"]), seconds),
+       seconds, seconds, st.integers(1, 1000))  # fmt: skip
+def test_figures_are_never_negative_and_idle_only_lowers_them(
+    before: dict[str, float], spent: float, idle: float, frames: int
+) -> None:
+    after = {name: value + spent for name, value in before.items()}
+    raw = cpu_ms_per_frame(before, after, {}, 1.0, frames)
+    net = cpu_ms_per_frame(before, after, dict.fromkeys(before, idle), 1.0, frames)
+    assert set(raw) == set(ROLES) == set(net)
+    assert all(0.0 <= net[r] <= raw[r] + 1e-9 for r in ROLES)
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path) -> None:
+    args = argparse.Namespace(frames=10, fps=10.0, idle_s=0.5, out=tmp_path, netns=False, link_mbit=None)
+    result = run(args)
+    paths = result["json"]["paths"]
+    assert [p["path"] for p in paths] == [
+        "master-worker 1",
+        "master-foreman-worker 1x1",
+        "master-foreman-worker 2x2",
+    ]
+    assert result["json"]["in_process_cpu_ms_per_frame"] > 0
+    for path in paths:
+        assert path["lost"] == 0 and path["frames"] == 10
+        assert path["cpu_ms_per_frame"]["master"] > 0
+        assert path["cpu_ms_per_frame"]["worker"] > 0  # the master does not compute: the workers did
+        # the master dispatches: its members compute most patches (it may take a share of a frame whose
+        # member is late, the master's fallback)
+        members = path["patches_by_member"]
+        assert sum(v for k, v in members.items() if k != SELF and ">" not in k) > 4 * members.get(SELF, 0)
+    assert len(result["table"]) == 4
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_across_emulated_hosts_the_frames_cross_the_ground_link(tmp_path: Path) -> None:
+    if (reason := unavailable_reason()) is not None:
+        pytest.skip(reason)
+    args = argparse.Namespace(frames=10, fps=10.0, idle_s=0.5, out=tmp_path, netns=True, link_mbit=100.0)
+    label, topology, workers = PATHS[1]  # master-foreman-worker 1x1
+    path = cluster_path(label, topology, workers, args)
+    assert path["lost"] == 0 and path["cpu_ms_per_frame"]["worker"] > 0
+    # the master's level image (752x480 at level 1 is 90 kB; the jobs carry at least their crops) goes out
+    # on the ground link and comes in on h1's, every frame; the replies are smaller
+    ground, h1 = path["links"]["ground"], path["links"]["h1"]
+    assert ground["tx_bytes_per_frame"] > 10_000 and h1["rx_bytes_per_frame"] > 10_000
+    assert h1["tx_bytes_per_frame"] < h1["rx_bytes_per_frame"]

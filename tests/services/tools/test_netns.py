@@ -1,0 +1,171 @@
+"""Separate network hosts on one machine: namespaces, links, rates and routers the harness makes and always
+removes. Needs root and ``ip``/``tc`` (skipped with the reason otherwise)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from common.netplan import make_plan
+from services.tools.cluster_file import ClusterError, ClusterSpec, HostSpec
+from services.tools.netns import (
+    NetHarness,
+    cleanup_stale,
+    list_namespaces,
+    new_prefix,
+    run,
+    unavailable_reason,
+)
+from services.tools.netns_cluster import NetnsCluster, plan_for_cluster
+from tests.zenoh_helpers import wait_until
+
+pytestmark = [pytest.mark.zenoh]
+
+ROUTERS_ONLY = ClusterSpec(name="net", hosts=(HostSpec(name="h1", workers=0),))
+TEN_MB = 10_000_000
+
+
+@pytest.fixture(scope="module")
+def netns() -> None:
+    if (reason := unavailable_reason()) is not None:
+        pytest.skip(reason)
+
+
+@pytest.fixture
+def untouched_root() -> Iterator[None]:
+    """The namespaces and the root namespace's links are the same after the test as before it."""
+    before_ns, before_links = set(list_namespaces()), _root_links()
+    yield
+    assert set(list_namespaces()) == before_ns
+    assert _root_links() == before_links
+
+
+def _root_links() -> list[str]:
+    out = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, check=True).stdout
+    return sorted(line.split(":")[1].strip() for line in out.splitlines())
+
+
+def test_a_put_in_one_host_reaches_a_subscriber_in_another_through_the_routers(
+    netns: None, untouched_root: None, tmp_path: Path
+) -> None:
+    spec = ClusterSpec(name="net3", hosts=(HostSpec(name="h1", workers=0), HostSpec(name="h2", workers=0)))
+    plan = plan_for_cluster(spec, new_prefix())
+    with NetHarness(plan) as net, NetnsCluster(spec, tmp_path, net) as cluster:
+        assert set(plan.namespaces) <= set(list_namespaces())
+        cluster.start_router()
+        routers = {f"router/{h.name}/0" for h in plan.hosts}
+        cluster.wait_alive(routers)  # seen from the ground host: the three routers are one mesh
+        with pytest.raises(ClusterError, match="worker/nowhere/0"):
+            cluster.wait_alive(routers | {"worker/nowhere/0"}, timeout_s=1.0)
+        sub = cluster.agent("h2", ["sub", "test/net/hello"])
+        sub.wait_ready()
+        put = cluster.agent("h1", ["put", "test/net/hello", "across the hub"])
+        assert put.result(45.0) == {"matched": True}
+        assert sub.result(45.0) == {"received": 1, "text": "across the hub"}
+
+
+def _ten_mb_seconds(tmp_path: Path, rate_bit_s: int | None) -> float:
+    plan = plan_for_cluster(ROUTERS_ONLY, new_prefix(), {"h1": rate_bit_s})
+    with NetHarness(plan) as net, NetnsCluster(ROUTERS_ONLY, tmp_path, net) as cluster:
+        cluster.start_router()
+        server = cluster.agent("h1", ["serve", "test/net/big", "--size", str(TEN_MB)], 120.0)
+        server.wait_ready()
+        before = net.link_bytes()
+        got = cluster.agent("ground", ["get", "test/net/big"], 120.0).result(150.0)
+        assert server.result(30.0) == {"served": 1}
+        after = net.link_bytes()
+    assert got["bytes"] == TEN_MB
+    # the reply crossed both links: sent by h1 on its link, received by the ground on its own
+    assert after["h1"][1] - before["h1"][1] >= TEN_MB
+    assert after["ground"][0] - before["ground"][0] >= TEN_MB
+    return float(got["seconds"])
+
+
+def test_a_20_mbit_link_makes_a_10_mb_transfer_slower(
+    netns: None, untouched_root: None, tmp_path: Path
+) -> None:
+    unlimited_s = _ten_mb_seconds(tmp_path / "unlimited", None)
+    limited_s = _ten_mb_seconds(tmp_path / "limited", 20_000_000)
+    # the token bucket cannot pass 80 Mbit in less than 4 s (less its 16 KiB bursts); the unlimited veth
+    # took 0.05 s here: a ratio of 4 leaves a wide margin for a loaded host
+    assert limited_s >= 0.9 * TEN_MB * 8 / 20_000_000
+    assert limited_s > 4 * unlimited_s, (limited_s, unlimited_s)
+
+
+def test_an_exception_inside_removes_everything(netns: None, untouched_root: None) -> None:
+    plan = make_plan(new_prefix(), ["a", "b"], {"b": 1_000_000})
+    with pytest.raises(RuntimeError, match="boom"), NetHarness(plan):
+        assert set(plan.namespaces) <= set(list_namespaces())
+        raise RuntimeError("boom")
+    assert not set(plan.namespaces) & set(list_namespaces())
+
+
+HOLDER = """
+import sys, time
+from common.netplan import make_plan
+from services.tools.netns import NetHarness
+with NetHarness(make_plan(sys.argv[1], ["a", "b"])):
+    print("up", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_sigterm_removes_everything(netns: None, untouched_root: None) -> None:
+    prefix = new_prefix()
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, prefix], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "up"
+        assert any(ns.startswith(prefix + "-") for ns in list_namespaces())
+        holder.send_signal(signal.SIGTERM)
+        assert holder.wait(30.0) == 128 + signal.SIGTERM
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not [ns for ns in list_namespaces() if ns.startswith(prefix + "-")]
+
+
+def test_cleanup_stale_removes_only_namespaces_of_dead_owners(
+    netns: None, untouched_root: None, capsys: pytest.CaptureFixture[str]
+) -> None:
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    assert wait_until(lambda: not os.path.exists(f"/proc/{gone.pid}"), 10.0)
+    stale, live = f"cz{gone.pid}x0-h1", f"{new_prefix()}-h1"
+    for namespace in (stale, live):
+        subprocess.run(["ip", "netns", "add", namespace], check=True)
+    try:
+        removed = cleanup_stale()
+        assert stale in removed and live not in removed
+        assert live in list_namespaces() and stale not in list_namespaces()
+        subprocess.run(["ip", "netns", "add", stale], check=True)  # and through ``capataz netns cleanup``
+        assert run(argparse.Namespace(netns_command="cleanup", prefix=f"cz{gone.pid}x")) == 0
+        assert capsys.readouterr().out.strip() == f"removed 1 namespace(s): {stale}"
+        assert live in list_namespaces() and stale not in list_namespaces()
+    finally:
+        for namespace in (stale, live):
+            subprocess.run(["ip", "netns", "del", namespace], capture_output=True)
+
+
+def test_a_host_process_sees_only_its_address_and_runs_on_its_cpu_set(
+    netns: None, untouched_root: None
+) -> None:
+    cpu = str(max(os.sched_getaffinity(0)))
+    plan = make_plan(new_prefix(), ["a", "b"], cpus={"a": cpu})
+    probe = (
+        "import os, subprocess; print(sorted(os.sched_getaffinity(0))); "
+        "print(subprocess.run(['ip', '-o', '-4', 'addr'], capture_output=True, text=True).stdout)"
+    )
+    with NetHarness(plan) as net:
+        argv = net.exec_argv("a", [sys.executable, "-c", probe])
+        out = subprocess.run(argv, capture_output=True, text=True, timeout=30, check=True).stdout
+    affinity, addresses = out.split("\n", 1)
+    assert affinity == f"[{cpu}]"
+    assert plan.host("a").address in addresses and plan.host("b").address not in addresses
+    assert "127.0.0.1" in addresses and len(addresses.strip().splitlines()) == 2  # lo and its link only
