@@ -26,7 +26,8 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from common.camera import CameraModel, PinholeResampling
+from common.camera import CameraModel
+from common.camera_maps import PinholeResampling
 from common.errors import InputError
 from common.estimation.buffer import Refusal, Timed, TimeOrderedBuffer
 from common.estimation.coupled_vo import CoupledVo

@@ -9,10 +9,12 @@ from collections.abc import Iterator
 
 import cv2
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from common.camera import CameraModel, Distortion, DistortionModel, PinholeResampling
+from common.camera import CameraModel, Distortion, DistortionModel
+from common.camera_maps import PinholeResampling
+from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.measurements import FrameMeasurement, Measurement
 from common.estimation.replay import camera_model_of, evaluate, run_estimators
@@ -48,7 +50,10 @@ def _smooth_image(h: int, w: int, fx: float, fy: float) -> np.ndarray:
 @settings(max_examples=20)
 @given(k1=st.floats(-0.25, 0.1), k2=st.floats(-0.05, 0.05))
 def test_resampling_undoes_the_lens_inside_the_view(k1: float, k2: float) -> None:
-    lens = _with_lens(CameraModel.from_hfov(160, 120, 70.0), k1, k2)
+    try:
+        lens = _with_lens(CameraModel.from_hfov(160, 120, 70.0), k1, k2)
+    except InputError:  # a lens whose radial map folds back inside the image is refused by the model
+        assume(False)
     scene = _smooth_image(120, 160, lens.fx, lens.fy).astype(np.float32)
     back = PinholeResampling.of(lens).apply(_through_lens(lens, scene))
     inner = (slice(30, 90), slice(40, 120))  # both remaps' borders stay outside for these lenses
