@@ -56,8 +56,10 @@ def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path)
     assert result["json"]["in_process_cpu_ms_per_frame"] > 0
     for path in paths:
         assert path["lost"] == 0 and path["frames"] == 10
+        # CPU is read from /proc in 10 ms ticks less each process's idle rate: on a loaded host a worker's
+        # 10 frames can read 0 (one run of the suite did); who computed is in the patch counts below
         assert path["cpu_ms_per_frame"]["master"] > 0
-        assert path["cpu_ms_per_frame"]["worker"] > 0  # the master does not compute: the workers did
+        assert path["cpu_ms_per_frame"]["worker"] >= 0
         # the master dispatches: its members compute most patches (it may take a share of a frame whose
         # member is late, the master's fallback)
         members = path["patches_by_member"]
