@@ -79,7 +79,7 @@ class CameraService(ConfiguredService[CameraSettings]):
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
             session.liveliness().declare_subscriber(
-                keys.alive_role(Role.MASTER), self._on_master, history=True
+                keys.alive_role(self.settings.wait_for), self._on_master, history=True
             )
         )
         if self.rig is not None:
@@ -148,8 +148,9 @@ class CameraService(ConfiguredService[CameraSettings]):
         if self.settings.wait_master_s:
             deadline = time.monotonic() + self.settings.wait_master_s
             if not self._masters.wait(self.settings.wait_master_s):
-                self.count_error("no_master", "no master alive; publishing anyway", "timeout")
-            # a master is alive: also wait until its frame subscription is routed to us
+                who = self.settings.wait_for.value
+                self.count_error(f"no_{who}", f"no {who} alive; publishing anyway", "timeout")
+            # it is alive: also wait until its frame subscription is routed to us
             while not self.stop_event.is_set() and time.monotonic() < deadline:
                 if all(p["camera"].matching_status.matching for p in self._pub.values()):
                     break
@@ -181,8 +182,14 @@ def register(subparsers: Any) -> None:
         "--in-flight", type=int, default=0, help="max frames without a yaw (0 = free running)"
     )
     parser.add_argument(
-        "--wait-master", dest="wait_master_s", type=float, default=10.0, help="seconds to wait for a master"
-    )
+        "--wait-master", dest="wait_master_s", type=float, default=10.0,
+        help="seconds to wait for a master (or the --wait-for member) before the first frame (0: no wait)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--wait-for", choices=[r.value for r in (Role.MASTER, Role.ESTIMATOR, Role.LOCALIZER)],
+        default=Role.MASTER.value,
+        help="whose frame subscription to wait for (a camera feeding only a localizer or an estimator)",
+    )  # fmt: skip
     parser.add_argument(
         "--write-calibration",
         type=Path,

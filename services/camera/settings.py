@@ -7,6 +7,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.members import Role
+
 
 class FlightName(StrEnum):
     """The simulated flights the camera can replay."""
@@ -67,7 +69,11 @@ class CameraSettings(BaseModel):
     in_flight: int = Field(default=0, ge=0)
     #: read every image of ``images`` before publishing
     preload: bool = False
-    #: wait this long for a master before the first frame (0 = do not wait)
+    #: wait this long for a member of ``wait_for`` (and its frame subscription) before the first frame
+    #: (0 = do not wait)
     wait_master_s: float = Field(default=10.0, ge=0.0)
+    #: whose frame subscription the camera waits for: the master (yaw), or the estimator or the localizer
+    #: when the camera feeds one without a master (a recording otherwise plays to nobody while it starts)
+    wait_for: Role = Role.MASTER
     #: give up waiting for a yaw after this long (flow control only)
     yaw_timeout_s: float = Field(default=5.0, gt=0.0)
