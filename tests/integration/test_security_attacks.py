@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from common.members import Role
-from services.tools.bench import election, hostile, takeover
+from services.tools.bench import election, forgery, hostile, takeover
 from services.tools.bench.security import small_cluster
 from services.tools.secure import SecureProfile
 from services.tools.up import LocalCluster
@@ -48,10 +48,10 @@ def profile_of(cluster: LocalCluster) -> str:
 
 
 def test_forged_outputs(cluster: LocalCluster) -> None:
-    result = hostile.attack_forged_outputs(cluster, profile_of(cluster), cluster.spec.uav, count=40)
+    result = forgery.attack_forged_outputs(cluster, profile_of(cluster), cluster.spec.uav, count=40)
     delivered = result.evidence["delivered"]
     if cluster.secure:
-        assert delivered == {"yaw": 0, "attitude": 0, "pose/vo": 0}
+        assert delivered == {"yaw": 0, "attitude": 0, "pose/vo": 0, "imu": 0, "range": 0}
         assert result.evidence["outsider_connected"] is False
     else:  # the open profile's weakness, measured
         assert all(n > 0 for n in delivered.values()), delivered

@@ -25,11 +25,9 @@ from common.members import Role
 from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import (
-    AttitudeEstimate,
     BlockJob,
     BlockResult,
     Frame,
-    PoseEstimate,
     YawEstimate,
     YawJobSettings,
 )
@@ -87,68 +85,6 @@ def outsider_probe(cluster: LocalCluster, timeout_ms: int = 2000) -> dict[str, A
             return {"outsider_connected": True}
     except TransportError as exc:
         return {"outsider_connected": False, "refused": str(exc).splitlines()[0][:160]}
-
-
-class _Counter:
-    """Counts decoded messages of a key that carry the forged marker (what ordinary subscribers accept)."""
-
-    def __init__(self, session: zenoh.Session, key: str, expected: type[Any]) -> None:
-        self.accepted = 0
-        self.total = 0
-        self._expected = expected
-        self._sub = session.declare_subscriber(key, self._on)
-
-    def _on(self, sample: zenoh.Sample) -> None:
-        self.total += 1
-        try:
-            message = decode(zbytes(sample.payload), zbytes(sample.attachment), self._expected)
-        except WireError:
-            return
-        if getattr(message, "seq", 0) >= FORGED_SEQ0:
-            self.accepted += 1
-
-    def close(self) -> None:
-        self._sub.undeclare()
-
-
-def forged_messages(uav: str, seq: int) -> dict[str, Any]:
-    """A valid yaw, attitude and pose/vo message of ``uav`` (the forger's payloads)."""
-    q = np.array([1.0, 0.0, 0.0, 0.0])
-    return {
-        keys.yaw_key(uav): YawEstimate(
-            uav=uav, seq=seq, stamp_s=time.time(), delta_yaw_rad=1.0, yaw_rad=3.0, inlier_count=40,
-            patch_count=40, confidence=1.0, low_confidence=False, method="patches",
-        ),
-        keys.attitude_key(uav): AttitudeEstimate(
-            uav=uav, seq=seq, stamp_s=time.time(), q_world_body=q, covariance=np.eye(3) * 1e-6
-        ),
-        keys.pose_vo_key(uav): PoseEstimate(
-            uav=uav, seq=seq, stamp_s=time.time(), p_world_body_m=np.array([100.0, 0.0, 5.0]),
-            q_world_body=q, covariance=np.eye(6) * 1e-6, source=FORGED_SOURCE,
-        ),
-    }  # fmt: skip
-
-
-def attack_forged_outputs(cluster: LocalCluster, profile: str, uav: str, count: int = 40) -> AttackResult:
-    """Forge yaw, attitude and pose/vo; count what an ordinary subscriber (a client) decodes."""
-    types = {keys.yaw_key(uav): YawEstimate, keys.attitude_key(uav): AttitudeEstimate}
-    types[keys.pose_vo_key(uav)] = PoseEstimate
-    with open_session(cluster.observer_transport()) as observer:
-        counters = {key: _Counter(observer, key, t) for key, t in types.items()}
-        time.sleep(0.3)
-        with attacker(cluster) as session:
-            publishers = {key: session.declare_publisher(key) for key in types}
-            for i in range(count):
-                for key, message in forged_messages(uav, FORGED_SEQ0 + i).items():
-                    payload, attachment = encode(message)
-                    publishers[key].put(payload, attachment=attachment)
-                time.sleep(0.005)
-            time.sleep(0.5)
-        for c in counters.values():
-            c.close()
-    delivered = {key.split(f"/{uav}/", 1)[1]: c.accepted for key, c in counters.items()}
-    evidence: dict[str, Any] = {"sent_each": count, "delivered": delivered, **outsider_probe(cluster)}
-    return AttackResult("forged_outputs", profile, sum(delivered.values()) > 0, evidence)
 
 
 @contextmanager

@@ -23,7 +23,7 @@ import numpy as np
 from common.dispatch import Balance
 from common.members import Role, Topology
 from services.camera import CameraSettings, simulated_flight
-from services.tools.bench import election, hostile, secure_system, takeover
+from services.tools.bench import election, forgery, hostile, secure_system, takeover
 from services.tools.bench.cluster_workload import write_frame_folder
 from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.demo_cluster import run_cluster_flight
@@ -84,7 +84,7 @@ def run_attacks(
         for name in attacks:
             t0 = time.monotonic()
             if name == "forged_outputs":
-                result = hostile.attack_forged_outputs(cluster, profile, spec.uav)
+                result = forgery.attack_forged_outputs(cluster, profile, spec.uav)
             elif name == "fake_worker_crops":
                 result = hostile.attack_fake_worker(cluster, profile, frames=40, fps=fps)
             elif name == "other_node_member":  # another node's stolen certificates, on h1
