@@ -186,6 +186,10 @@ def register(subparsers: Any) -> None:
         help="seconds to wait for a master (or the --wait-for member) before the first frame (0: no wait)",
     )  # fmt: skip
     parser.add_argument(
+        "--yaw-timeout", dest="yaw_timeout_s", type=float, default=5.0,
+        help="with --in-flight: seconds a frame waits for its yaw before the next goes out anyway",
+    )  # fmt: skip
+    parser.add_argument(
         "--wait-for", choices=[r.value for r in (Role.MASTER, Role.ESTIMATOR, Role.LOCALIZER)],
         default=Role.MASTER.value,
         help="whose frame subscription to wait for (a camera feeding only a localizer or an estimator)",

@@ -27,6 +27,8 @@ from services.tools.up import LocalCluster
 FORGED_NODE = "a"
 #: more frames lost than this is a successful attack (a kill may cost the frame in flight)
 LOST_ALLOWED = 1
+#: a frame waits this long for its yaw (s): where an attack stops the yaw, the flight still ends in time
+YAW_TIMEOUT_S = 0.5
 
 
 def attack_forged_leader(cluster: LocalCluster, profile: str, frames: int, fps: float) -> AttackResult:
@@ -36,7 +38,7 @@ def attack_forged_leader(cluster: LocalCluster, profile: str, frames: int, fps: 
         token = session.liveliness().declare_token(keys.master_leader_key(uav, FORGED_NODE, 0))
         time.sleep(0.5)  # the masters' next loop turn sees the token (when it is delivered)
         seen_as_leader = leader(session, uav) == f"master/{FORGED_NODE}/0"
-        fly(cluster, watch, frames, fps, 30.0 + 2 * frames / fps, 1)
+        fly(cluster, watch, frames, fps, 30.0 + 2 * frames / fps, 1, yaw_timeout_s=YAW_TIMEOUT_S)
         token.undeclare()
         lost = frames_lost(watch, frames)
     evidence = {"frames": frames, "frames_lost": lost, "forged_leader_visible": seen_as_leader}
@@ -51,7 +53,7 @@ def attack_forged_candidate(cluster: LocalCluster, profile: str, frames: int, fp
     killed = None
     with watching(cluster, uav) as watch, attacker(cluster) as session:
         token = session.liveliness().declare_token(keys.master_candidate_key(uav, FORGED_NODE, 0))
-        flight, active = fly_to_halfway(cluster, watch, session, frames, fps, 30.0)
+        flight, active = fly_to_halfway(cluster, watch, session, frames, fps, 30.0, YAW_TIMEOUT_S)
         killed_at_seq = max(watch.yaw, default=-1)
         if active is not None and active in cluster.processes:
             cluster.signal(active, signal.SIGKILL)

@@ -11,6 +11,7 @@ certificate of the CA cannot connect at all.
 from __future__ import annotations
 
 import logging
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -186,15 +187,22 @@ def fly(
     timeout_s: float,
     in_flight: int = 0,
     sensors: bool = False,
+    yaw_timeout_s: float = 5.0,
 ) -> float:
-    """Run the camera's simulated flight at ``fps`` (``in_flight`` > 0: flow-controlled; ``sensors``: with
-    IMU and rangefinder) and wait for its last yaw; wall seconds."""
+    """Run the camera's simulated flight at ``fps`` (``in_flight`` > 0: flow-controlled, a frame waiting at
+    most ``yaw_timeout_s`` for its yaw; ``sensors``: with IMU and rangefinder) and wait for its last yaw;
+    wall seconds. A camera still running at ``timeout_s`` is stopped (the next flight starts clean)."""
     t0 = time.monotonic()
     args = ["--frames", str(frames), "--fps", str(fps), "--in-flight", str(in_flight)]
+    args += ["--yaw-timeout", str(yaw_timeout_s)]
     camera = cluster.start_camera(args if sensors else [*args, "--no-sensors"])
     deadline = t0 + timeout_s
     while time.monotonic() < deadline and cluster.processes[camera].poll() is None:
         time.sleep(0.1)
+    if cluster.processes[camera].poll() is None:
+        logger.warning("the camera's flight outlasted %.0f s: stopped", timeout_s)
+        cluster.signal(camera, signal.SIGTERM)
+        cluster.processes[camera].wait(10.0)
     last = -1
     while time.monotonic() < deadline and watch.yaw and max(watch.yaw) != last:  # the last frames settle
         last = max(watch.yaw)

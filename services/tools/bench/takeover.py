@@ -60,12 +60,20 @@ def leader(session: zenoh.Session, uav: str) -> str | None:
 
 
 def fly_to_halfway(
-    cluster: LocalCluster, watch: YawWatch, session: zenoh.Session, frames: int, fps: float, slack_s: float
+    cluster: LocalCluster,
+    watch: YawWatch,
+    session: zenoh.Session,
+    frames: int,
+    fps: float,
+    slack_s: float,
+    yaw_timeout_s: float = 5.0,
 ) -> tuple[threading.Thread, str | None]:
     """Start a flight of ``frames`` frames (flow-controlled) in a thread, wait until half of them have a yaw,
     and return the thread and the active master then (:func:`leader`, polled for up to 20 s)."""
     flight = threading.Thread(
-        target=fly, args=(cluster, watch, frames, fps, slack_s + 2 * frames / fps, 1), daemon=True
+        target=fly,
+        args=(cluster, watch, frames, fps, slack_s + 2 * frames / fps, 1, False, yaw_timeout_s),
+        daemon=True,
     )
     flight.start()
     deadline = time.monotonic() + slack_s + frames / fps

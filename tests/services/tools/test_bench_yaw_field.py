@@ -78,7 +78,10 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
         "worst_max_ame_deg",
         "total_pairs_over_5deg",
         "total_unmeasured_over_2deg",
+        "metadata",  # every bench's JSON: its command, date and commit (capataz results)
+        "table",
     }
+    assert {"command", "git_commit", "time_utc"} <= set(payload["metadata"]), payload["metadata"]
     names = {*subset, "hover"}
     assert set(payload["scenarios"]) == set(payload["baseline"]) == names
     for block in (payload["scenarios"], payload["baseline"]):
