@@ -38,7 +38,9 @@ Per frame:
    a spread growing by ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1);
    after ``lost_frames`` bad frames the status is ``lost`` (the search goes on). A search's pose is only
    taken when it matches at least ``recover_ratio`` of the points matched before the loss (clutter fits
-   match a fraction of the model's points well, but not many of them).
+   match a fraction of the model's points well, but not many of them). A bad frame's pose (the cloud's
+   mean) is published with :func:`~common.localization.search.untrusted_covariance`: the cloud's spread
+   plus the next search's box and the offset from the last good pose, never a tracked frame's.
 
 Hidden-line removal: sample points hidden by the model's own faces from the predicted pose are not scored
 (:func:`~common.localization.visibility.visible_points`).
@@ -80,6 +82,7 @@ from common.localization.search import (
     anneal,
     cloud_covariance,
     twist_covariance_to_world,
+    untrusted_covariance,
 )
 from common.localization.tracker_state import TrackerState, TrackingStatus, next_spread
 from common.localization.tracker_views import TrackerViews
@@ -308,8 +311,11 @@ class ModelTracker(TrackerViews):
                 recoveries=state.recoveries + (1 if state.bad_frames > 0 else 0),
             )
         bad = state.bad_frames + 1
+        spread_factor = next_spread(state.spread_factor, cfg) if state.search_pending else 1.0
+        box = (spread_m * spread_factor, cfg.angle_spread_rad * spread_factor)
         return replace(
             seen,
+            covariance=untrusted_covariance(seen.covariance, pose, state.last_good, box),
             velocity_m_s=np.zeros(3),
             angular_rate_rad_s=np.zeros(3),
             motion=None,
@@ -317,7 +323,7 @@ class ModelTracker(TrackerViews):
             status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
             bad_frames=bad,
             search_pending=True,
-            spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
+            spread_factor=spread_factor,
         )
 
     def _adapted_noise(self, predicted: TrackerState, measured: CameraPose, searching: bool) -> NoiseState:
