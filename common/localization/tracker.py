@@ -74,8 +74,9 @@ from common.localization.pose import (
     CameraPose,
     mean_rotation,
     perturb,
+    rotation_vectors,
 )
-from common.localization.process_noise import NoiseState, adapt, residual_px
+from common.localization.process_noise import NoiseState, adapt, ceiling_px, residual_px
 from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
@@ -262,7 +263,7 @@ class ModelTracker(TrackerViews):
             measured_cov = covariance
             if np.all(np.isfinite(refined.covariance)):
                 measured_cov = twist_covariance_to_world(refined.covariance, refined_pose)
-            fused = self._fuse(state, refined_pose, measured_cov, searching)
+            fused = self._fuse(state, refined_pose, measured_cov, searching, dt_s)
             # the images and the motion model disagreeing for max_rejections frames in a row: search (with
             # the recovery test) rather than trust either
             good = not (fused[1] and state.rejected_frames + 1 >= cfg.max_rejections)
@@ -289,6 +290,7 @@ class ModelTracker(TrackerViews):
             return replace(
                 seen,
                 process_noise=self._adapted_noise(state, refined_pose, searching),
+                since_good_s=0.0,
                 distance_m=self.viewing_distance_m(pose),
                 velocity_m_s=motion.velocity_m_s,
                 angular_rate_rad_s=motion.angular_rate_rad_s,
@@ -322,6 +324,7 @@ class ModelTracker(TrackerViews):
             rejected_frames=0,
             status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
             bad_frames=bad,
+            since_good_s=state.since_good_s + dt_s,
             search_pending=True,
             spread_factor=spread_factor,
         )
@@ -347,7 +350,7 @@ class ModelTracker(TrackerViews):
         return replace(state, motion=motion, angular_rate_rad_s=motion.angular_rate_rad_s)
 
     def _fuse(
-        self, state: TrackerState, measured: CameraPose, covariance: FloatArray, searching: bool
+        self, state: TrackerState, measured: CameraPose, covariance: FloatArray, searching: bool, dt_s: float
     ) -> tuple[MotionState, bool, float]:
         """The motion model updated with a good frame's pose (restarted there after a search), whether the
         gate rejected it, and the new
@@ -358,8 +361,12 @@ class ModelTracker(TrackerViews):
         cfg = self.config
         measured_cov = covariance * (cfg.measurement_inflation * state.noise_scale)
         if state.motion is None or searching:
-            # at rest, but the camera may move at up to 5x the velocity noise and turn at 2x the angular one
-            start = motion_start(measured, measured_cov, *self.start_rates(state))
+            # moving as from the last good pose when that is recent (a search fixes a pose, not a motion:
+            # at 5 fps a camera at rest after a search is 40 px off on the next frame), else at rest; the
+            # velocity as uncertain as the ceiling of the image motion allows
+            start = motion_start(
+                measured, measured_cov, *self.start_rates(state), *self._recent_motion(state, measured, dt_s)
+            )
             return start, False, state.noise_scale
         update = motion_update(state.motion, measured, measured_cov, cfg.motion)
         scale = state.noise_scale
@@ -367,3 +374,23 @@ class ModelTracker(TrackerViews):
             step = (max(update.nis, 1e-3) / 6.0) ** cfg.noise_adaptation
             scale = float(np.clip(scale * step, 1.0, cfg.max_noise_scale))
         return update.state, update.rejected, scale
+
+    def _recent_motion(
+        self, state: TrackerState, measured: CameraPose, dt_s: float
+    ) -> tuple[FloatArray | None, FloatArray | None]:
+        """Velocity and world-frame rate from the last good pose to ``measured`` when it was at most
+        ``max_gap_frames`` frame intervals ago and the move lies within the image-motion ceiling for that
+        time; (None, None) otherwise (the first frame, a long loss, a jump)."""
+        noise = state.process_noise
+        elapsed = state.since_good_s + dt_s
+        if state.frames == 0 or noise is None or noise.frame_interval_s is None or elapsed <= 0.0:
+            return None, None
+        frames = elapsed / noise.frame_interval_s
+        if frames > self.config.noise.max_gap_frames:
+            return None, None
+        last = state.last_good
+        move_px = residual_px(last, measured, self.samples.centres_world_m, self.camera)
+        if move_px > ceiling_px(self.config.noise, noise.frame_interval_s) * frames:
+            return None, None
+        turn = rotation_vectors((measured.R_world_camera @ last.R_world_camera.T)[None])[0]
+        return (measured.p_world_camera_m - last.p_world_camera_m) / elapsed, turn / elapsed

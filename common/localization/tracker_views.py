@@ -20,7 +20,7 @@ from common.localization.fused import (
 )
 from common.localization.model import SceneModel
 from common.localization.pose import CameraPose, rotation_angle_rad
-from common.localization.process_noise import NoiseState, observe_interval, pixel_scale
+from common.localization.process_noise import NoiseState, ceiling_px, observe_interval, pixel_scale
 from common.localization.projection import (
     EdgeSamples,
     project_pose_samples,
@@ -96,13 +96,15 @@ class TrackerViews:
 
     def start_rates(self, state: TrackerState) -> tuple[float, float]:
         """Standard deviation of the velocity (m/s) and angular rate (rad/s) when the motion model starts:
-        ``ceiling_px`` per frame interval (1/30 s until measured), or 5x / 2x the overrides."""
+        the ceiling (:func:`~common.localization.process_noise.ceiling_px`) per frame interval (the
+        reference rate's until measured), or 5x / 2x the overrides."""
         cfg = self.config
         noise = state.process_noise or NoiseState.initial(cfg.noise)
-        interval = noise.frame_interval_s or 1.0 / 30.0
+        interval = noise.frame_interval_s or 1.0 / cfg.noise.reference_rate_hz
         scale = pixel_scale(state.distance_m, self.camera, self.model_radius_m)
-        v = scale.lateral_m * cfg.noise.ceiling_px / interval
-        w = scale.turn_rad * cfg.noise.ceiling_px / interval
+        ceiling = ceiling_px(cfg.noise, interval)
+        v = scale.lateral_m * ceiling / interval
+        w = scale.turn_rad * ceiling / interval
         if cfg.velocity_noise_m_s is not None:
             v = 5.0 * cfg.velocity_noise_m_s
         if cfg.angular_noise_rad_s is not None:
