@@ -182,7 +182,7 @@ class ModelTracker(TrackerViews):
         if state.search_pending:
             if cfg.oriented_search:
                 edges = with_oriented_distances(edges)
-            centre, positions, rotations = self._search_candidates(state, edges, spread_m, rng)
+            centre, positions, rotations = self._search_candidates(state, edges, spread_m, rng, dt_s)
             pos_spread = spread_m * state.spread_factor
             ang_spread = cfg.angle_spread_rad * state.spread_factor
             visible = self._visible(centre)
@@ -318,9 +318,7 @@ class ModelTracker(TrackerViews):
         return replace(
             seen,
             covariance=untrusted_covariance(seen.covariance, pose, state.last_good, box),
-            velocity_m_s=np.zeros(3),
-            angular_rate_rad_s=np.zeros(3),
-            motion=None,
+            motion=None,  # velocity_m_s / angular_rate_rad_s stay the last trusted motion (searches use it)
             rejected_frames=0,
             status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
             bad_frames=bad,

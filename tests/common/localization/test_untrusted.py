@@ -83,19 +83,26 @@ def test_an_untrusted_pose_is_published_with_the_search_s_uncertainty(
         assert float(e @ np.linalg.solve(s.covariance[:3, :3], e)) <= 16.3, i
 
 
-def test_every_recovery_search_is_centred_on_the_last_trusted_pose(
+def test_every_recovery_search_starts_from_the_last_trusted_pose(
     object_gone: tuple[ModelTracker, list[TrackerState], np.ndarray],
 ) -> None:
+    """Half the candidates about the last trusted pose, half about it carried by its last trusted motion
+    (never about the drifting guesses of the bad frames)."""
     tracker, states, _ = object_gone
     trusted = states[11]
     edges = tracker.edges(np.zeros((tracker.camera.height, tracker.camera.width), dtype=np.uint8))
+    interval = trusted.process_noise.frame_interval_s if trusted.process_noise else None
+    assert interval is not None
     for s in states[12:26]:
         assert s.status is not TrackingStatus.TRACKING and s.search_pending
         assert np.array_equal(s.last_good.p_world_camera_m, trusted.pose.p_world_camera_m)
-        # the drifting guess is not where the next search looks: the box about the last trusted pose is
+        assert np.array_equal(s.velocity_m_s, trusted.velocity_m_s)  # the last trusted motion is kept
         spread_m = tracker.position_spread_m(s.distance_m) * s.spread_factor
-        _, positions, _ = tracker._search_candidates(
-            s, edges, spread_m / s.spread_factor, np.random.default_rng(0)
-        )
-        assert np.abs(positions - trusted.pose.p_world_camera_m).max() <= spread_m + 1e-12
-    assert states[-1].status is TrackingStatus.TRACKING  # and it recovered there
+        base_m = spread_m / s.spread_factor
+        _, positions, _ = tracker._search_candidates(s, edges, base_m, np.random.default_rng(0), interval)
+        half = len(positions) // 2
+        assert np.abs(positions[-half:] - trusted.pose.p_world_camera_m).max() <= spread_m + 1e-12
+        elapsed = min(s.since_good_s + interval, tracker.config.noise.max_gap_frames * interval)
+        carried_m = trusted.pose.p_world_camera_m + trusted.velocity_m_s * elapsed
+        assert np.abs(positions[:-half] - carried_m).max() <= spread_m + 1e-12
+    assert states[-1].status is TrackingStatus.TRACKING  # and it recovered
