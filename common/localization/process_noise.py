@@ -20,10 +20,10 @@ into pose units through the scene and the stream:
   one, whatever its size, distance, lens or frame rate.
 - **Bounds per second**: the ceiling is stated at ``reference_rate_hz`` and grows with a longer frame
   interval (:func:`ceiling_px`): at 5 fps the office's fast flight moves the image 40-50 px per frame, six
-  times what the same motion does at 30 fps. It also bounds the motion model's velocity when it starts
-  (after a search, :meth:`~common.localization.tracker_views.TrackerViews.start_rates`), and the first frame
-  after a search spreads its particles by that unknown velocity too (``fresh_motion``), not by the
-  adapted noise alone: a search fixes the pose, not the motion.
+  times what the same motion does at 30 fps. It also bounds the motion model's velocity uncertainty when it
+  starts (after a search, :meth:`~common.localization.tracker_views.TrackerViews.start_rates`) and which
+  move from the last good pose a search's pose may take for a velocity (a search fixes the pose, not the
+  motion: the tracker starts moving as the camera did since the last good pose when that is recent).
 
 The explicit options (``velocity_noise_m_s``, ``angular_noise_rad_s`` of the tracker's settings;
 ``--velocity-noise`` / ``--angular-noise``) override the derived noise per frame-interval-second, as before.
