@@ -35,8 +35,9 @@ Per frame:
    shows here when right: a relative test, since absolute fractions differ between models, cameras and
    scenes) or with fewer than ``min_point_ratio`` of the points seen at the last good pose, the frame is
    bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose (half
-   of it around that pose carried by its last trusted motion to now) with a spread growing by ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1);
-   after ``lost_frames`` bad frames the status is ``lost`` (the search goes on). A search's pose is only
+   of it around that pose carried by its last trusted motion to now) with a spread growing by
+   ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1); after ``lost_frames`` bad
+   frames the status is ``lost`` (the search goes on). A search's pose is only
    taken when it matches at least ``recover_ratio`` of the points matched before the loss (clutter fits
    match a fraction of the model's points well, but not many of them). A bad frame's pose (the cloud's
    mean) is published with :func:`~common.localization.search.untrusted_covariance`: the cloud's spread
