@@ -256,13 +256,14 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             t0 = time.perf_counter()
             message = self.path.step(StepInputs(frame, dt, vo, gyro, anchor))
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
-            if self.path.searched and message.tracking_state == "tracking" and not catching_up:
-                self.counters.inc("catch_ups")
+            behind = catching_up
             catching_up = (
                 (catching_up or self.path.searched)
                 and message.tracking_state == "tracking"
                 and self._frames.depth() > 0
             )
+            if catching_up and not behind:
+                self.counters.inc("catch_ups")  # frames queued behind a search, now taken in order
             self.counters.inc(f"frames_{message.tracking_state}")
             if not self.publish(self._publisher, message):
                 return  # shutting down: the session is closing under us

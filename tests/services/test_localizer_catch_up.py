@@ -117,4 +117,4 @@ def test_frames_arriving_during_the_first_search_are_all_tracked_in_order(tmp_pa
     assert counts.get("dropped_frames", 0) == 0
     assert counts.get("backlog_overflow", 0) == 0
     assert counts.get("catch_ups") == 1
-    assert counts.get("poses_out") == N_FRAMES
+    assert counts.get("poses_out") == counts.get("frames_tracking") == N_FRAMES
