@@ -60,17 +60,23 @@ class MotionUpdate:
 
 
 def motion_start(
-    pose: CameraPose, pose_covariance: FloatArray, speed_m_s: float, rate_rad_s: float
+    pose: CameraPose,
+    pose_covariance: FloatArray,
+    speed_m_s: float,
+    rate_rad_s: float,
+    velocity_m_s: FloatArray | None = None,
+    angular_rate_rad_s: FloatArray | None = None,
 ) -> MotionState:
-    """A state at ``pose`` (6x6 covariance of centre and error angles), at rest with a velocity and rate
-    uncertainty of ``speed_m_s`` and ``rate_rad_s`` (1 sigma per axis)."""
+    """A state at ``pose`` (6x6 covariance of centre and error angles), at rest (or at the given velocity
+    and world-frame rate) with a velocity and rate uncertainty of ``speed_m_s`` and ``rate_rad_s`` (1 sigma
+    per axis)."""
     cov = np.zeros((12, 12))
     cov[np.ix_([0, 1, 2, 6, 7, 8], [0, 1, 2, 6, 7, 8])] = pose_covariance
     cov[3:6, 3:6] = np.eye(3) * speed_m_s**2
     cov[9:12, 9:12] = np.eye(3) * rate_rad_s**2
-    return MotionState(
-        pose.p_world_camera_m.copy(), np.zeros(3), pose.R_world_camera.copy(), np.zeros(3), cov
-    )
+    v = np.zeros(3) if velocity_m_s is None else np.asarray(velocity_m_s, dtype=np.float64).copy()
+    w = np.zeros(3) if angular_rate_rad_s is None else np.asarray(angular_rate_rad_s, dtype=np.float64).copy()
+    return MotionState(pose.p_world_camera_m.copy(), v, pose.R_world_camera.copy(), w, cov)
 
 
 def motion_predict(state: MotionState, dt_s: float, settings: MotionSettings) -> MotionState:

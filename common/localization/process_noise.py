@@ -18,6 +18,12 @@ into pose units through the scene and the stream:
   (:func:`residual_px`) -- enters a running mean of squares; ``noise_px = gain x`` its root, within
   [``floor_px``, ``ceiling_px``] (:func:`adapt`). A steady camera gets a tight cloud, a shaking one a wide
   one, whatever its size, distance, lens or frame rate.
+- **Bounds per second**: the ceiling is stated at ``reference_rate_hz`` and grows with a longer frame
+  interval (:func:`ceiling_px`): at 5 fps the office's fast flight moves the image 40-50 px per frame, six
+  times what the same motion does at 30 fps. It also bounds the motion model's velocity uncertainty when it
+  starts (after a search, :meth:`~common.localization.tracker_views.TrackerViews.start_rates`) and which
+  move from the last good pose a search's pose may take for a velocity (a search fixes the pose, not the
+  motion: the tracker starts moving as the camera did since the last good pose when that is recent).
 
 The explicit options (``velocity_noise_m_s``, ``angular_noise_rad_s`` of the tracker's settings;
 ``--velocity-noise`` / ``--angular-noise``) override the derived noise per frame-interval-second, as before.
@@ -52,6 +58,9 @@ class NoiseSettings(Bounded):
     memory: float = bounded(0.2, gt=0.0, le=1.0)
     #: a gap of more frames than this widens the prediction no further
     max_gap_frames: float = bounded(8.0, ge=1.0)
+    #: the frame rate ``ceiling_px`` is stated at: a camera's motion is bounded per second, not per frame, so
+    #: a longer frame interval raises the ceiling in proportion (:func:`ceiling_px`)
+    reference_rate_hz: float = bounded(30.0, gt=0.0)
 
 
 @dataclass(frozen=True)
@@ -135,9 +144,17 @@ def residual_px(
     return float(np.sqrt(np.median(np.sum((uv[0][ok] - uv[1][ok]) ** 2, axis=1))))
 
 
+def ceiling_px(settings: NoiseSettings, frame_interval_s: float | None) -> float:
+    """The largest expected image motion per frame (px): ``ceiling_px`` at ``reference_rate_hz`` or faster,
+    in proportion to the frame interval beyond it (unknown interval: the reference's)."""
+    reference_s = 1.0 / settings.reference_rate_hz
+    return settings.ceiling_px * max(1.0, (frame_interval_s or reference_s) / reference_s)
+
+
 def adapt(state: NoiseState, residual_per_frame_px: float, settings: NoiseSettings) -> NoiseState:
     """The noise after a good frame whose motion-model residual was ``residual_per_frame_px``."""
-    r = min(float(residual_per_frame_px), settings.ceiling_px / settings.gain * 2.0)  # one outlier is bounded
+    ceiling = ceiling_px(settings, state.frame_interval_s)
+    r = min(float(residual_per_frame_px), ceiling / settings.gain * 2.0)  # one outlier is bounded
     ms = (1.0 - settings.memory) * state.mean_square_px2 + settings.memory * r * r
-    px = float(np.clip(settings.gain * np.sqrt(ms), settings.floor_px, settings.ceiling_px))
+    px = float(np.clip(settings.gain * np.sqrt(ms), settings.floor_px, ceiling))
     return replace(state, noise_px=px, mean_square_px2=ms)

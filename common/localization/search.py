@@ -165,6 +165,26 @@ def cloud_covariance(positions: FloatArray, rotations: FloatArray, centre: Camer
     return np.asarray(0.5 * (cov + cov.T))
 
 
+def untrusted_covariance(
+    cloud: FloatArray, pose: CameraPose, last_good: CameraPose, spreads: tuple[float, float]
+) -> FloatArray:
+    """The covariance of a pose not trusted (a search's guess), about ``pose``: the cloud's own covariance
+    (``cloud``), plus the search box about the last trusted pose (uniform ``+- spreads``: position m per
+    axis, angle rad per axis, variance ``spread^2 / 3``), plus the outer product of the offset from the last
+    trusted pose (position, world-frame error angles). It is never tighter than the region the search
+    believes the camera in, and the last trusted pose always lies within one sigma of it: a search that
+    settled tightly on clutter does not read as measured."""
+    offset = np.concatenate(
+        [
+            last_good.p_world_camera_m - pose.p_world_camera_m,
+            rotation_vectors((last_good.R_world_camera @ pose.R_world_camera.T)[None])[0],
+        ]
+    )
+    box = np.repeat(np.square(np.asarray(spreads, dtype=np.float64)) / 3.0, 3)
+    cov = np.nan_to_num(cloud, nan=0.0) + np.diag(box) + np.outer(offset, offset)
+    return np.asarray(0.5 * (cov + cov.T))
+
+
 def twist_covariance_to_world(covariance_twist: FloatArray, pose: CameraPose) -> FloatArray:
     """Covariance of the camera twist ``(v, w)`` (camera frame) as (camera centre, world error angles)."""
     R_wc = pose.R_world_camera

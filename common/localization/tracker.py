@@ -34,11 +34,15 @@ Per frame:
    ``lost_match``, below ``trust_ratio`` of the running mean of the good frames' match (the match this model
    shows here when right: a relative test, since absolute fractions differ between models, cameras and
    scenes) or with fewer than ``min_point_ratio`` of the points seen at the last good pose, the frame is
-   bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose with
-   a spread growing by ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1);
-   after ``lost_frames`` bad frames the status is ``lost`` (the search goes on). A search's pose is only
+   bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose (half
+   of it around that pose carried by its last trusted motion to now) with a spread growing by
+   ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1); after ``lost_frames`` bad
+   frames the status is ``lost`` (the search goes on). A search's pose is only
    taken when it matches at least ``recover_ratio`` of the points matched before the loss (clutter fits
-   match a fraction of the model's points well, but not many of them).
+   match a fraction of the model's points well, but not many of them). A bad frame's pose (the cloud's
+   mean) is published with :func:`~common.localization.search.untrusted_covariance`: the cloud's spread
+   plus the next search's box and the offset from the last good pose, never a tracked frame's. A good
+   search restarts the motion model moving as the camera did since a recent last good pose.
 
 Hidden-line removal: sample points hidden by the model's own faces from the predicted pose are not scored
 (:func:`~common.localization.visibility.visible_points`).
@@ -72,14 +76,16 @@ from common.localization.pose import (
     CameraPose,
     mean_rotation,
     perturb,
+    rotation_vectors,
 )
-from common.localization.process_noise import NoiseState, adapt, residual_px
+from common.localization.process_noise import NoiseState, adapt, ceiling_px, residual_px
 from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
     anneal,
     cloud_covariance,
     twist_covariance_to_world,
+    untrusted_covariance,
 )
 from common.localization.tracker_state import TrackerState, TrackingStatus, next_spread
 from common.localization.tracker_views import TrackerViews
@@ -178,7 +184,7 @@ class ModelTracker(TrackerViews):
         if state.search_pending:
             if cfg.oriented_search:
                 edges = with_oriented_distances(edges)
-            centre, positions, rotations = self._search_candidates(state, edges, spread_m, rng)
+            centre, positions, rotations = self._search_candidates(state, edges, spread_m, rng, dt_s)
             pos_spread = spread_m * state.spread_factor
             ang_spread = cfg.angle_spread_rad * state.spread_factor
             visible = self._visible(centre)
@@ -259,7 +265,7 @@ class ModelTracker(TrackerViews):
             measured_cov = covariance
             if np.all(np.isfinite(refined.covariance)):
                 measured_cov = twist_covariance_to_world(refined.covariance, refined_pose)
-            fused = self._fuse(state, refined_pose, measured_cov, searching)
+            fused = self._fuse(state, refined_pose, measured_cov, searching, dt_s)
             # the images and the motion model disagreeing for max_rejections frames in a row: search (with
             # the recovery test) rather than trust either
             good = not (fused[1] and state.rejected_frames + 1 >= cfg.max_rejections)
@@ -286,6 +292,7 @@ class ModelTracker(TrackerViews):
             return replace(
                 seen,
                 process_noise=self._adapted_noise(state, refined_pose, searching),
+                since_good_s=0.0,
                 distance_m=self.viewing_distance_m(pose),
                 velocity_m_s=motion.velocity_m_s,
                 angular_rate_rad_s=motion.angular_rate_rad_s,
@@ -308,16 +315,18 @@ class ModelTracker(TrackerViews):
                 recoveries=state.recoveries + (1 if state.bad_frames > 0 else 0),
             )
         bad = state.bad_frames + 1
+        spread_factor = next_spread(state.spread_factor, cfg) if state.search_pending else 1.0
+        box = (spread_m * spread_factor, cfg.angle_spread_rad * spread_factor)
         return replace(
             seen,
-            velocity_m_s=np.zeros(3),
-            angular_rate_rad_s=np.zeros(3),
-            motion=None,
+            covariance=untrusted_covariance(seen.covariance, pose, state.last_good, box),
+            motion=None,  # velocity_m_s / angular_rate_rad_s stay the last trusted motion (searches use it)
             rejected_frames=0,
             status=TrackingStatus.LOST if bad > cfg.lost_frames else TrackingStatus.SEARCHING,
             bad_frames=bad,
+            since_good_s=state.since_good_s + dt_s,
             search_pending=True,
-            spread_factor=next_spread(state.spread_factor, cfg) if state.search_pending else 1.0,
+            spread_factor=spread_factor,
         )
 
     def _adapted_noise(self, predicted: TrackerState, measured: CameraPose, searching: bool) -> NoiseState:
@@ -341,7 +350,7 @@ class ModelTracker(TrackerViews):
         return replace(state, motion=motion, angular_rate_rad_s=motion.angular_rate_rad_s)
 
     def _fuse(
-        self, state: TrackerState, measured: CameraPose, covariance: FloatArray, searching: bool
+        self, state: TrackerState, measured: CameraPose, covariance: FloatArray, searching: bool, dt_s: float
     ) -> tuple[MotionState, bool, float]:
         """The motion model updated with a good frame's pose (restarted there after a search), whether the
         gate rejected it, and the new
@@ -352,8 +361,12 @@ class ModelTracker(TrackerViews):
         cfg = self.config
         measured_cov = covariance * (cfg.measurement_inflation * state.noise_scale)
         if state.motion is None or searching:
-            # at rest, but the camera may move at up to 5x the velocity noise and turn at 2x the angular one
-            start = motion_start(measured, measured_cov, *self.start_rates(state))
+            # moving as from the last good pose when that is recent (a search fixes a pose, not a motion:
+            # at 5 fps a camera at rest after a search is 40 px off on the next frame), else at rest; the
+            # velocity as uncertain as the ceiling of the image motion allows
+            start = motion_start(
+                measured, measured_cov, *self.start_rates(state), *self._recent_motion(state, measured, dt_s)
+            )
             return start, False, state.noise_scale
         update = motion_update(state.motion, measured, measured_cov, cfg.motion)
         scale = state.noise_scale
@@ -361,3 +374,23 @@ class ModelTracker(TrackerViews):
             step = (max(update.nis, 1e-3) / 6.0) ** cfg.noise_adaptation
             scale = float(np.clip(scale * step, 1.0, cfg.max_noise_scale))
         return update.state, update.rejected, scale
+
+    def _recent_motion(
+        self, state: TrackerState, measured: CameraPose, dt_s: float
+    ) -> tuple[FloatArray | None, FloatArray | None]:
+        """Velocity and world-frame rate from the last good pose to ``measured`` when it was at most
+        ``max_gap_frames`` frame intervals ago and the move lies within the image-motion ceiling for that
+        time; (None, None) otherwise (the first frame, a long loss, a jump)."""
+        noise = state.process_noise
+        elapsed = state.since_good_s + dt_s
+        if state.frames == 0 or noise is None or noise.frame_interval_s is None or elapsed <= 0.0:
+            return None, None
+        frames = elapsed / noise.frame_interval_s
+        if frames > self.config.noise.max_gap_frames:
+            return None, None
+        last = state.last_good
+        move_px = residual_px(last, measured, self.samples.centres_world_m, self.camera)
+        if move_px > ceiling_px(self.config.noise, noise.frame_interval_s) * frames:
+            return None, None
+        turn = rotation_vectors((measured.R_world_camera @ last.R_world_camera.T)[None])[0]
+        return (measured.p_world_camera_m - last.p_world_camera_m) / elapsed, turn / elapsed

@@ -139,6 +139,8 @@ class TrackerState:
     process_noise: NoiseState | None = None
     #: running mean of the good frames' match fraction (0: none yet), for the trust test
     expected_match: float = 0.0
+    #: seconds since the last good frame (the sum of the bad frames' intervals; 0 after a good one)
+    since_good_s: float = 0.0
 
 
 def next_spread(factor: float, config: TrackerSettings) -> float:

@@ -19,8 +19,8 @@ from common.localization.fused import (
     score_from_edge_sums,
 )
 from common.localization.model import SceneModel
-from common.localization.pose import CameraPose, rotation_angle_rad
-from common.localization.process_noise import NoiseState, observe_interval, pixel_scale
+from common.localization.pose import CameraPose, perturb, rotation_angle_rad
+from common.localization.process_noise import NoiseState, ceiling_px, observe_interval, pixel_scale
 from common.localization.projection import (
     EdgeSamples,
     project_pose_samples,
@@ -96,13 +96,15 @@ class TrackerViews:
 
     def start_rates(self, state: TrackerState) -> tuple[float, float]:
         """Standard deviation of the velocity (m/s) and angular rate (rad/s) when the motion model starts:
-        ``ceiling_px`` per frame interval (1/30 s until measured), or 5x / 2x the overrides."""
+        the ceiling (:func:`~common.localization.process_noise.ceiling_px`) per frame interval (the
+        reference rate's until measured), or 5x / 2x the overrides."""
         cfg = self.config
         noise = state.process_noise or NoiseState.initial(cfg.noise)
-        interval = noise.frame_interval_s or 1.0 / 30.0
+        interval = noise.frame_interval_s or 1.0 / cfg.noise.reference_rate_hz
         scale = pixel_scale(state.distance_m, self.camera, self.model_radius_m)
-        v = scale.lateral_m * cfg.noise.ceiling_px / interval
-        w = scale.turn_rad * cfg.noise.ceiling_px / interval
+        ceiling = ceiling_px(cfg.noise, interval)
+        v = scale.lateral_m * ceiling / interval
+        w = scale.turn_rad * ceiling / interval
         if cfg.velocity_noise_m_s is not None:
             v = 5.0 * cfg.velocity_noise_m_s
         if cfg.angular_noise_rad_s is not None:
@@ -165,15 +167,22 @@ class TrackerViews:
         return np.concatenate(out)
 
     def _search_candidates(
-        self, state: TrackerState, edges: ImageEdges, spread_m: float, rng: np.random.Generator
+        self,
+        state: TrackerState,
+        edges: ImageEdges,
+        spread_m: float,
+        rng: np.random.Generator,
+        dt_s: float = 0.0,
     ) -> tuple[CameraPose, FloatArray, FloatArray]:
         """A search's centre and candidates: ``search_candidates x spread`` poses, half about the last good
-        pose, half about it turned by the chamfer shift (which clutter can mislead)."""
+        pose, half about it carried by its motion to now (:meth:`_carried`) and turned by the chamfer shift
+        (which clutter can mislead)."""
         cfg = self.config
         last = state.last_good if state.frames > 0 else state.pose
         pos_spread = spread_m * state.spread_factor
         ang_spread = cfg.angle_spread_rad * state.spread_factor
-        turned = self._image_shift_prior(last, edges, ang_spread + pos_spread / state.distance_m)
+        carried = self._carried(state, last, dt_s)
+        turned = self._image_shift_prior(carried, edges, ang_spread + pos_spread / state.distance_m)
         count = int(cfg.search_candidates * max(state.spread_factor, 1.0))
         parts = [
             search_candidates(c, k, pos_spread, ang_spread, state.distance_m, rng)
@@ -182,6 +191,19 @@ class TrackerViews:
         positions = np.concatenate([p for p, _ in parts])
         rotations = np.concatenate([r for _, r in parts])
         return turned, positions, rotations
+
+    def _carried(self, state: TrackerState, last: CameraPose, dt_s: float) -> CameraPose:
+        """The last good pose moved by the last trusted velocity and rate (kept through bad frames) over the
+        time since it, up to ``max_gap_frames`` frame intervals: at 5 fps a camera moves 40 px a frame, and a
+        few frames of a sparse view leave the last good pose far behind."""
+        noise = state.process_noise
+        if state.frames == 0 or noise is None or noise.frame_interval_s is None:
+            return last
+        elapsed = min(state.since_good_s + dt_s, self.config.noise.max_gap_frames * noise.frame_interval_s)
+        return CameraPose(
+            last.p_world_camera_m + state.velocity_m_s * elapsed,
+            perturb(last.R_world_camera[None], (state.angular_rate_rad_s * elapsed)[None])[0],
+        )
 
     def _image_shift_prior(self, centre: CameraPose, edges: ImageEdges, turn_rad: float) -> CameraPose:
         """The search centre turned by :func:`~common.localization.search.chamfer_turn` (the model's

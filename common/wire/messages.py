@@ -144,7 +144,9 @@ class PoseEstimate(UavMessage):
     #: which estimator produced it, e.g. ``"vo"`` or ``"pf"``.
     source: str
     #: the localizer's tracking state: ``tracking`` (the model matches the image), ``searching`` (a few bad
-    #: frames: re-searching around the last good pose), ``lost``; None for estimators without one.
+    #: frames: re-searching around the last good pose), ``lost``; None for estimators without one. A pose
+    #: not ``tracking`` is a search's guess, not a measurement: its covariance spans the search about the last
+    #: trusted pose (:func:`~common.localization.search.untrusted_covariance`).
     tracking_state: Literal["tracking", "searching", "lost"] | None = None
     frame_id: str = frame_id_field("world")
 

@@ -67,6 +67,9 @@ class LocalizationPath(Protocol):
     """One frame in, the ``pose/pf`` message out."""
 
     kind: LocalizerKind
+    #: whether the last step searched (a long step: the service then catches up through the frames queued
+    #: meanwhile)
+    searched: bool
 
     def step(self, inputs: StepInputs) -> PoseEstimate: ...
 
@@ -196,6 +199,8 @@ class ParticleFilterPath(_ScenePath):
     frame)."""
 
     kind = LocalizerKind.PARTICLE
+    #: the cloud's steps all cost alike (no search)
+    searched = False
 
     def __init__(self, settings: LocalizerSettings) -> None:
         super().__init__(settings)
@@ -258,6 +263,7 @@ class ModelTrackerPath(_ScenePath):
         super().__init__(settings)
         self.tracker = ModelTracker(self.scene, self.camera, settings.tracker_settings())
         self.state: TrackerState = self.tracker.start(settings.start_pose())
+        self.searched = False
 
     def step(self, inputs: StepInputs) -> PoseEstimate:
         """An ``anchor`` starts the tracker again around it (its start spreads)."""
@@ -268,6 +274,7 @@ class ModelTrackerPath(_ScenePath):
             dt_s = 0.0
         odometry = None if inputs.vo is None else odometry_between(*inputs.vo)
         velocity, rates = (None, None) if odometry is None else odometry
+        self.searched = self.state.search_pending
         self.state = self.tracker.step(
             self.state,
             self.tracker.edges(frame.pixels),

@@ -10,8 +10,14 @@ between two frames measure the tracker's angular rate) and publishes ``.../pose/
 error angles), ``source = "pf"``, ``tracking_state`` (tracking / searching / lost), the frame's ``seq`` and
 ``stamp_s``. Settings and the command line: :mod:`services.localizer.settings`.
 
-Latest frame wins: the subscriber callback only decodes and hands the frame to a one-item slot; a frame
-replaced before the filter took it is counted (``dropped_frames``). Bad frames are refused with a log line
+Frames: the subscriber callback only decodes and queues the frame (:class:`~services.runtime.handoff.
+FrameQueue`, at most :data:`FRAME_BACKLOG` frames; beyond, the oldest is dropped and counted,
+``backlog_overflow``). The filter thread takes the latest frame (the ones it skipped counted,
+``dropped_frames``; the step is given the elapsed time since the last frame it used, so a skipped frame only
+widens the prediction), except after a search (the first frame's, a recovery's, a start around a VO
+anchor) that ended tracking: it then catches up through the frames that arrived meanwhile, in order, until
+the queue is empty or a frame is not tracked (the backlog is not a search's input: the next search takes the
+latest frame). Bad frames are refused with a log line
 and a counter, never a crash: undecodable (``malformed``), a size that is not the camera's (``bad_frames``),
 and what the input gate (:class:`~services.runtime.gate.InputGate`) refuses of every input, frames, VO poses
 and IMU samples alike (``refused_<sensor>_<reason>``: another UAV's, a second sender's, a seq or stamp that
@@ -44,7 +50,7 @@ from services.localizer.filters import (
 from services.localizer.loading import localizer_camera
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
 from services.runtime.gate import InputGate
-from services.runtime.handoff import LatestSlot
+from services.runtime.handoff import FrameQueue
 from services.runtime.rig_follow import follow_stream_rig
 from services.runtime.service import ConfiguredService
 from services.runtime.trajectory import register_estimating_service
@@ -54,6 +60,8 @@ logger = logging.getLogger(__name__)
 
 #: gyro readings kept between frames (10 s of a 400 Hz IMU)
 IMU_BUFFER = 4000
+#: frames kept while a search runs, to catch up through afterwards (5 s at 20 fps, 30 MB at 640x480)
+FRAME_BACKLOG = 100
 
 
 class LocalizerService(ConfiguredService[LocalizerSettings]):
@@ -63,7 +71,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         settings = self.settings
         self.camera = localizer_camera(settings)
         self.path: LocalizationPath = make_path(settings)
-        self._slot: LatestSlot[Frame] = LatestSlot()
+        self._frames: FrameQueue[Frame] = FrameQueue(FRAME_BACKLOG)
         self._last_stamp_s: float | None = None  # of the last frame the filter used
         self._last_received_s: float | None = None  # of the last frame accepted by the subscriber
         self._vo_lock = threading.Lock()
@@ -106,7 +114,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self.spawn(self._localize, "localize")
 
     def queue_depths(self) -> dict[str, int]:
-        return {"frames": self._slot.depth()}
+        return {"frames": self._frames.depth()}
 
     # -- callbacks: decode, check, hand off --------------------------------------------------------------
     def _on_frame(self, sample: zenoh.Sample) -> None:
@@ -132,8 +140,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             return
         self._last_received_s = frame.stamp_s
         self.counters.inc("frames_in")
-        if self._slot.put(frame):
-            self.counters.inc("dropped_frames")
+        if self._frames.put(frame):
+            self.counters.inc("backlog_overflow")
 
     def _rig_matches(self, frame: Frame) -> bool:
         """False (counted) for a frame of a rig not received, or whose camera is not the localizer's."""
@@ -220,10 +228,21 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         return mean_gyro_camera(stamps, rates, after_s, until_s, self.settings.R_body_camera)
 
     # -- the filter thread ------------------------------------------------------------------------------
+    def _next_frame(self, catching_up: bool) -> Frame | None:
+        """The oldest queued frame while catching up, else the newest (the skipped ones counted)."""
+        if catching_up:
+            return self._frames.take(0.1)
+        frame, skipped = self._frames.take_latest(0.1)
+        if skipped:
+            self.counters.inc("dropped_frames", skipped)
+        return frame
+
     def _localize(self) -> None:
+        catching_up = False
         while not self.stop_event.is_set():
-            frame = self._slot.take(0.1)
+            frame = self._next_frame(catching_up)
             if frame is None:
+                catching_up = False
                 continue
             dt = 0.0 if self._last_stamp_s is None else frame.stamp_s - self._last_stamp_s
             gyro = self._gyro_between(self._last_stamp_s, frame.stamp_s) if self.settings.use_imu else None
@@ -237,6 +256,14 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             t0 = time.perf_counter()
             message = self.path.step(StepInputs(frame, dt, vo, gyro, anchor))
             self.counters.time_ms("step", (time.perf_counter() - t0) * 1e3)
+            behind = catching_up
+            catching_up = (
+                (catching_up or self.path.searched)
+                and message.tracking_state == "tracking"
+                and self._frames.depth() > 0
+            )
+            if catching_up and not behind:
+                self.counters.inc("catch_ups")  # frames queued behind a search, now taken in order
             self.counters.inc(f"frames_{message.tracking_state}")
             if not self.publish(self._publisher, message):
                 return  # shutting down: the session is closing under us

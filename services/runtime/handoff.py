@@ -1,6 +1,7 @@
 """Hand-off primitives, so that zenoh callbacks never block: :class:`LatestSlot` (latest wins, drops
 counted), :class:`WorkQueue` (bounded FIFO, refusals counted), :class:`FrameQueue` (bounded FIFO dropping its
-oldest). A service's counters are :class:`services.runtime.counters.Counters`."""
+oldest; taken in order or latest-wins). A service's counters are
+:class:`services.runtime.counters.Counters`."""
 
 from __future__ import annotations
 
@@ -111,3 +112,15 @@ class FrameQueue(WorkQueue[T]):
             self._items.append(item)
             self._cond.notify()
             return full
+
+    def take_latest(self, timeout_s: float) -> tuple[T | None, int]:
+        """The newest item and how many older ones were discarded to reach it (latest wins; the caller
+        counts them); ``(None, 0)`` after ``timeout_s`` with nothing queued."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            if not self._items:
+                return None, 0
+            item, skipped = self._items[-1], len(self._items) - 1
+            self._items.clear()
+            return item, skipped

@@ -36,8 +36,8 @@ def is_refusal(counter: str) -> bool:
     return counter in REFUSED_COUNTERS or counter.startswith("refused_")
 
 
-#: counters that mean "a frame was dropped" (latest-wins hand-off replaced an unread frame)
-DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames"})
+#: counters that mean "a frame was dropped" (latest-wins hand-off replaced an unread frame, a full backlog)
+DROPPED_COUNTERS = frozenset({"frames_dropped", "dropped_frames", "backlog_overflow"})
 
 
 def refused_count(counters: Mapping[str, int]) -> int:

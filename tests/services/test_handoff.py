@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from services.runtime.handoff import HandoffError, LatestSlot, WorkQueue
+from services.runtime.handoff import FrameQueue, HandoffError, LatestSlot, WorkQueue
 
 
 def test_latest_slot_keeps_the_newest_and_counts_drops() -> None:
@@ -42,3 +42,12 @@ def test_wake_ends_a_wait_with_nothing_queued() -> None:
         if not waiter.is_alive():
             break
     assert result == [False] and queue.depth() == 0
+
+
+def test_frame_queue_in_order_or_latest_wins() -> None:
+    queue: FrameQueue[int] = FrameQueue(3)
+    assert not any(queue.put(i) for i in range(3))
+    assert queue.put(3) and queue.dropped == 1  # full: the oldest (0) made room
+    assert queue.take(0.0) == 1  # in order
+    assert queue.take_latest(0.0) == (3, 1)  # 2 skipped for the newest
+    assert queue.depth() == 0 and queue.take_latest(0.0) == (None, 0)

@@ -119,7 +119,7 @@ def test_undeclared_publisher_a_service_stopped_mid_step_exits_cleanly() -> None
         runner = threading.Thread(target=lambda: codes.append(service.run()), daemon=True)
         runner.start()
         assert service.started.wait(WAIT_S), "service did not start"
-        service._slot.put(_frame(0, float(sim.flight.times_s[0]), sim.images[0]))
+        service._frames.put(_frame(0, float(sim.flight.times_s[0]), sim.images[0]))
         assert in_step.wait(WAIT_S), "the filter thread never took the frame"
         service.request_stop()
         runner.join(WAIT_S)

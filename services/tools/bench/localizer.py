@@ -41,6 +41,7 @@ from common.sim.office_run import (
 from services.runtime import progress
 from services.tools.bench.localizer_defaults import add_defaults_arguments, run_defaults
 from services.tools.bench.localizer_field import add_field_arguments, run_field
+from services.tools.bench.localizer_step import add_step_arguments, run_step
 
 logger = logging.getLogger(__name__)
 
@@ -52,7 +53,10 @@ GOAL_YAW_RMSE_DEG = 1.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--suite", choices=["paper", "field", "defaults"], default="paper", help="which suite runs"
+        "--suite",
+        choices=["paper", "field", "defaults", "step"],
+        default="paper",
+        help="which suite runs",
     )
     parser.add_argument(
         "--frames", type=int, default=300, help="frames of the simulated flight (default 300)"
@@ -70,6 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     paper.add_argument("--timing-frames", type=int, default=10, help="frames used for timing (default 10)")
     add_field_arguments(parser)
     add_defaults_arguments(parser)
+    add_step_arguments(parser)
 
 
 @contextmanager
@@ -162,7 +167,7 @@ def _time_methods(
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    for name in ("frames", "repeats", "timing_frames", "runs", "seeds", "particles"):
+    for name in ("frames", "repeats", "timing_frames", "runs", "seeds", "particles", "step_frames"):
         value = getattr(args, name, 1)
         if value is not None and value < 1:
             raise CapatazError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
@@ -171,6 +176,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             return {**run_field(args), "core": core}
         if getattr(args, "suite", "paper") == "defaults":
             return {**run_defaults(args), "core": core}
+        if getattr(args, "suite", "paper") == "step":
+            return run_step(args, core)
         return _measure(args, core)
 
 

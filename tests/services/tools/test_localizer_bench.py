@@ -114,3 +114,27 @@ def test_defaults_suite_reports_its_cells_the_loss_flag_and_refuses_bad_input(tm
     for bad in (["--cells", "tiny/20/slow"], ["--cube-dir", str(tmp_path)]):
         with pytest.raises(CapatazError):
             localizer.run(parser.parse_args(["--suite", "defaults", "--frames", "8", *bad]))
+
+
+def test_step_suite_reports_medians_and_p95_of_every_measure_on_one_core() -> None:
+    parser = argparse.ArgumentParser()
+    localizer.add_arguments(parser)
+    before = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    result = localizer.run(parser.parse_args(["--suite", "step", "--repeats", "1", "--step-frames", "2"]))
+    if before is not None:
+        assert os.sched_getaffinity(0) == before
+    assert result["bench_name"] == "localizer_step" and result["image"] == "640x480"
+    assert result["frames_timed"] >= 1 and result["repeats"] == 1
+    timings = result["timings"]
+    assert set(timings) == {"full_step", "step_only", "edges", "scoring_alone", "first_search"}
+    for name, t in timings.items():
+        assert 0.0 < t["cpu_ms_median"] <= t["cpu_ms_p95"], name
+        assert 0.0 < t["wall_ms_median"] <= t["wall_ms_p95"], name
+    assert timings["full_step"]["samples"] == result["frames_timed"]
+    assert result["full_over_scoring"] == (
+        timings["full_step"]["cpu_ms_median"] / timings["scoring_alone"]["cpu_ms_median"]
+    )
+    assert result["meets_goal"] == (timings["full_step"]["cpu_ms_median"] <= result["goal_full_step_ms"])
+    assert [row["measure"] for row in result["table"]] == list(timings)
+    with pytest.raises(CapatazError):
+        localizer.run(parser.parse_args(["--suite", "step", "--step-frames", "0"]))
