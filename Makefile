@@ -12,7 +12,7 @@ STAMP  := $(VENV)/.installed-runtime
 DEV    := $(VENV)/.installed
 UV     := $(BIN)/uv pip install --python $(BIN)/python --quiet
 
-.PHONY: run test test-loaded test-docker bench results lint typecheck clean
+.PHONY: run test test-long test-loaded test-docker bench results lint typecheck clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -28,8 +28,11 @@ $(DEV): $(STAMP) services/ros2/tf2_msgs_build.py
 run: $(STAMP)
 	$(BIN)/capataz run
 
+# two test processes, each module kept whole in one (its fixtures, its cluster); TEST_WORKERS=0: one process.
+# Most of the suite waits on real clusters and flights at their frame rate, so two share two cores well.
+TEST_WORKERS ?= 2
 test: $(DEV)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
 
 # the compose deployment on a real Docker engine (builds the image; BASE_IMAGE=... without Docker Hub)
 test-docker: $(DEV)
