@@ -41,6 +41,7 @@ from common.sim.office_run import (
 from services.runtime import progress
 from services.tools.bench.localizer_defaults import add_defaults_arguments, run_defaults
 from services.tools.bench.localizer_field import add_field_arguments, run_field
+from services.tools.bench.localizer_service import add_service_arguments, run_service
 from services.tools.bench.localizer_step import add_step_arguments, run_step
 
 logger = logging.getLogger(__name__)
@@ -54,7 +55,7 @@ GOAL_YAW_RMSE_DEG = 1.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--suite",
-        choices=["paper", "field", "defaults", "step"],
+        choices=["paper", "field", "defaults", "step", "service"],
         default="paper",
         help="which suite runs",
     )
@@ -75,6 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_field_arguments(parser)
     add_defaults_arguments(parser)
     add_step_arguments(parser)
+    add_service_arguments(parser)
 
 
 @contextmanager
@@ -171,6 +173,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         value = getattr(args, name, 1)
         if value is not None and value < 1:
             raise CapatazError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    if getattr(args, "suite", "paper") == "service":  # processes of their own: not pinned to one core
+        return run_service(args)
     with _one_core() as core:
         if getattr(args, "suite", "paper") == "field":
             return {**run_field(args), "core": core}
