@@ -23,6 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
+from common.camera import CameraModel
 from common.geometry import (
     euler_from_quaternion,
     matrix_from_quaternion,
@@ -67,6 +68,8 @@ class LocalizationPath(Protocol):
     """One frame in, the ``pose/pf`` message out."""
 
     kind: LocalizerKind
+    #: the camera it tracks with (the settings' or an adopted stream rig's)
+    camera: CameraModel
     #: whether the last step searched (a long step: the service then catches up through the frames queued
     #: meanwhile)
     searched: bool
@@ -181,10 +184,10 @@ VO_DISAGREE_FRAMES = 10
 class _ScenePath:
     """What both paths start from: the settings' scene and camera, and a generator seeded with ``seed``."""
 
-    def __init__(self, settings: LocalizerSettings) -> None:
+    def __init__(self, settings: LocalizerSettings, camera: CameraModel | None = None) -> None:
         self.settings = settings
         self.scene = load_scene(settings)
-        self.camera = localizer_camera(settings)
+        self.camera = localizer_camera(settings) if camera is None else camera
         self.rng = np.random.default_rng(settings.seed)
 
 
@@ -202,8 +205,8 @@ class ParticleFilterPath(_ScenePath):
     #: the cloud's steps all cost alike (no search)
     searched = False
 
-    def __init__(self, settings: LocalizerSettings) -> None:
-        super().__init__(settings)
+    def __init__(self, settings: LocalizerSettings, camera: CameraModel | None = None) -> None:
+        super().__init__(settings, camera)
         self.filter = ParticleFilter(self.scene, self.camera, settings.particle_filter_settings())
         guess = settings.start_pose().body_state(settings.R_body_camera)
         self.state: ParticleState = self.filter.initialize(guess, self.rng)
@@ -259,8 +262,8 @@ class ModelTrackerPath(_ScenePath):
 
     kind = LocalizerKind.TRACKER
 
-    def __init__(self, settings: LocalizerSettings) -> None:
-        super().__init__(settings)
+    def __init__(self, settings: LocalizerSettings, camera: CameraModel | None = None) -> None:
+        super().__init__(settings, camera)
         self.tracker = ModelTracker(self.scene, self.camera, settings.tracker_settings())
         self.state: TrackerState = self.tracker.start(settings.start_pose())
         self.searched = False
@@ -289,8 +292,9 @@ class ModelTrackerPath(_ScenePath):
         )
 
 
-def make_path(settings: LocalizerSettings) -> LocalizationPath:
-    """The estimator ``settings.resolved_filter()`` names."""
+def make_path(settings: LocalizerSettings, camera: CameraModel | None = None) -> LocalizationPath:
+    """The estimator ``settings.resolved_filter()`` names, with ``camera`` (a stream rig's) or the
+    settings'."""
     if settings.resolved_filter() is LocalizerKind.PARTICLE:
-        return ParticleFilterPath(settings)
-    return ModelTrackerPath(settings)
+        return ParticleFilterPath(settings, camera)
+    return ModelTrackerPath(settings, camera)

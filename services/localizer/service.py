@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from common.camera import CameraModel
 from common.members import Role
 from common.streams import GateVerdict
 from common.wire import keys
@@ -87,9 +88,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         #: the one input gate (UAV, sender, seq, stamps): a future stamp is refused before it can become the
         #: "previous" stamp (one would freeze the filter)
         self.gate = InputGate(settings.uav, self)
-        #: the stream's rig, checked against the localizer's own camera (no camera options given: the
-        #: stream's camera must be the one it was built with; a mismatch is refused and counted)
+        #: the stream's rig (no camera options given): a camera other than the localizer's is adopted, the
+        #: filter rebuilt for it on its thread (``_pending_camera``); the mount stays the localizer's
+        #: ``--mount`` (it says which body ``pose/pf`` reports)
         self.rigs = follow_stream_rig(settings.uav, self, settings.camera)
+        self._rig_lock = threading.Lock()
+        self._pending_camera: CameraModel | None = None
 
     def healthy(self) -> tuple[bool, str]:
         refused = self.gate.recent_refusals()
@@ -119,7 +123,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
     # -- callbacks: decode, check, hand off --------------------------------------------------------------
     def _on_frame(self, sample: zenoh.Sample) -> None:
         frame = self.decode_sample(sample, Frame)
-        if frame is None:
+        if frame is None or not self._follow_rig(frame):
             return
         if (frame.width, frame.height) != (self.camera.width, self.camera.height):
             self.count_error(
@@ -129,7 +133,7 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
             )
             return
         decision = self.gate.admit("camera", frame, source_of(sample))
-        if decision.verdict is GateVerdict.REFUSE or not self._rig_matches(frame):
+        if decision.verdict is GateVerdict.REFUSE:
             return
         if decision.verdict is GateVerdict.NEW_EPOCH:
             self._last_received_s = None  # a restarted camera: its stamps may begin before the old ones
@@ -143,22 +147,30 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         if self._frames.put(frame):
             self.counters.inc("backlog_overflow")
 
-    def _rig_matches(self, frame: Frame) -> bool:
-        """False (counted) for a frame of a rig not received, or whose camera is not the localizer's."""
+    def _follow_rig(self, frame: Frame) -> bool:
+        """False (counted by the follower) for a frame of a rig not received; a rig whose camera is not the
+        localizer's is adopted (its filter rebuilt on the filter thread before the next frame)."""
         if self.rigs is None:
             return True
         rig, known = self.rigs.rig_of(frame)
         if rig is None:
             return known
         if rig.camera != self.camera:
-            self.count_error(
-                "refused_camera_rig_mismatch",
-                "frame refused",
-                f"the stream's rig {rig.rig_id} has another camera than this localizer's ({self.camera}); "
-                "give the localizer the stream's calibration (--calibration)",
-            )
-            return False
+            logger.info("%s: the stream's rig %s has another camera: tracking with %s", self.name, rig.rig_id,
+                        rig.camera)  # fmt: skip
+            with self._rig_lock:
+                self.camera = self._pending_camera = rig.camera
+            self.counters.inc("rigs_adopted")
         return True
+
+    def _take_pending_camera(self) -> None:
+        """Filter thread: a filter for an adopted camera (the frames of another size queued before it are
+        dropped, counted)."""
+        with self._rig_lock:
+            camera, self._pending_camera = self._pending_camera, None
+        if camera is not None:
+            self.path = make_path(self.settings, camera)
+            self._last_stamp_s = None
 
     def _on_vo(self, sample: zenoh.Sample) -> None:
         pose = self.decode_sample(sample, PoseEstimate)
@@ -241,8 +253,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         catching_up = False
         while not self.stop_event.is_set():
             frame = self._next_frame(catching_up)
+            self._take_pending_camera()
             if frame is None:
                 catching_up = False
+                continue
+            if (frame.width, frame.height) != (self.path.camera.width, self.path.camera.height):
+                self.counters.inc("dropped_frames")  # queued before the stream's camera changed
                 continue
             dt = 0.0 if self._last_stamp_s is None else frame.stamp_s - self._last_stamp_s
             gyro = self._gyro_between(self._last_stamp_s, frame.stamp_s) if self.settings.use_imu else None
