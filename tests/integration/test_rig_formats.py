@@ -17,6 +17,7 @@ from common.camera import CameraModel, Distortion, DistortionModel
 from common.datasets.euroc import write_euroc
 from common.datasets.rosbag_writer import write_bag
 from common.geometry import R_BODY_CAMERA_DOWN
+from common.members import Role
 from common.provenance import Provenance
 from common.rig import Rig
 from common.sim.flight import hover_flight
@@ -28,6 +29,7 @@ from common.wire.rig import RigMessage, rig_from_message
 from services.camera import CameraService, CameraSettings
 from services.estimator import EstimatorService, EstimatorSettings
 from services.master import MasterService, MasterSettings
+from services.runtime.service import ServiceRuntime
 from services.runtime.transport import open_session, zbytes
 from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
 
@@ -57,7 +59,7 @@ def _recording(kind: str, tmp_path: Path) -> tuple[CameraSettings, Rig]:
     return CameraSettings(euroc=path, fps=0.0, in_flight=1), rig
 
 
-def _run(service: MasterService | CameraService | EstimatorService) -> threading.Thread:
+def _run(service: ServiceRuntime) -> threading.Thread:
     thread = threading.Thread(target=service.run, daemon=True)
     thread.start()
     return thread
@@ -104,3 +106,42 @@ def test_a_recording_alone_gives_the_master_and_the_estimator_its_rig(kind: str,
     assert np.allclose(estimator.estimator.R_body_camera, expected.R_body_camera, atol=1e-12)
     by_seq = {e.seq: e for e in yaws}
     assert all(by_seq[k].provenance is not Provenance.INITIAL for k in wanted)
+
+
+def test_an_image_folder_with_its_calibration_gives_the_localizer_its_camera(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """The real cube video and its calibration through the camera alone: a localizer given only the model and
+    the start pose (no camera options) adopts the stream's camera and tracks the cube."""
+    from common.datasets.calibration import ros_yaml_text
+    from services.localizer.service import LocalizerService
+    from services.localizer.settings import LocalizerSettings
+    from services.tools.bench.localizer_cube import load_cube
+
+    cube_dir = shared_data / "visp_cube"
+    cube = load_cube(cube_dir)
+    calibration = tmp_path / "cube_camera.yaml"
+    calibration.write_text(ros_yaml_text(cube.camera))
+    rvec, tvec = cube.start.rvec_tvec()
+    settings = LocalizerSettings(
+        model=cube_dir / "cube.cao", camera_mount="camera", initial_pose=(*rvec, *tvec)
+    )
+    frames = 12
+    with hub() as endpoint:
+        localizer = LocalizerService("l", 0, peer(endpoint), settings)
+        assert localizer.camera != cube.camera  # built with the default camera
+        camera = CameraService(
+            "c", 0, peer(endpoint),
+            CameraSettings(images=cube_dir / "cube", stop=frames, calibration=calibration, fps=10.0,
+                           sensors=False, wait_for=Role.LOCALIZER),
+        )  # fmt: skip
+        threads = [_run(localizer)]
+        assert localizer.started.wait(WAIT_S)
+        threads.append(_run(camera))
+        assert wait_until(lambda: localizer.counters.get("poses_out") >= frames, 60.0), localizer.counters
+        for service in (camera, localizer):
+            service.request_stop()
+        for thread in threads:
+            thread.join(10.0)
+    assert localizer.counters.get("rigs_adopted") == 1 and localizer.path.camera == cube.camera
+    assert localizer.counters.get("frames_tracking") >= frames - 2, localizer.counters
