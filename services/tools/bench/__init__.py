@@ -9,7 +9,10 @@ from __future__ import annotations
 import argparse
 import datetime
 import importlib
+import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -46,6 +49,18 @@ def register(subparsers: Any) -> None:
         sub.set_defaults(handler=_runner(module))
     every = names.add_parser("all", help="every benchmark with its defaults")
     every.set_defaults(handler=_run_all)
+
+
+@contextmanager
+def busy_loops(n: int) -> Iterator[None]:
+    """``n`` processes spinning in pure Python for the duration (a busy host, for benches and tests)."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
 
 
 def bench_metadata(name: str, command: str | None = None) -> dict[str, Any]:

@@ -16,12 +16,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +30,7 @@ from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import PoseEstimate
 from services.runtime.transport import open_session, zbytes
+from services.tools.bench import busy_loops
 from services.tools.bench.localizer_cube import ALIGNED_MIN, CUBE_FPS, EdgeAlignment, cube_runs, load_cube
 from services.tools.bench.security import small_cluster
 from services.tools.bench.takeover import counters_of
@@ -48,18 +45,6 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("service suite", "the cube video through the services over Zenoh")
     group.add_argument("--rates", type=float, nargs="+", default=[1.0, 4.0], help="replay speed factors")
     group.add_argument("--busy", type=int, default=0, help="busy-loop processes during each run (0: none)")
-
-
-@contextmanager
-def busy_loops(n: int) -> Iterator[None]:
-    """``n`` processes spinning in pure Python for the duration (a busy host)."""
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
-    try:
-        yield
-    finally:
-        for p in procs:
-            p.kill()
-            p.wait()
 
 
 def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int) -> dict[str, Any]:

@@ -9,7 +9,6 @@ import os
 import queue
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -28,6 +27,7 @@ from common.wire.codec import decode, encode
 from common.wire.messages import AttitudeEstimate, Health, ImuSample, PoseEstimate, Stats
 from services.estimator import EstimatorService, EstimatorSettings
 from services.runtime.transport import TransportSettings, open_session, zbytes
+from services.tools.bench import busy_loops
 from services.tools.up import capataz_command
 from tests.services.fakes import FakePublisher
 from tests.services.publishing import publish_measurements
@@ -55,14 +55,8 @@ def settings_of(flight: Flight) -> EstimatorSettings:
 def busy_host(n: int | None = None) -> Iterator[None]:
     """Busy-loop processes on every core for the duration (the test's own load; ``CAPATAZ_LOAD_BUSY=N`` runs
     N of them instead, e.g. twice the cores for a harsher run)."""
-    n = n or int(os.environ.get("CAPATAZ_LOAD_BUSY", "0")) or os.cpu_count() or 2
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
-    try:
+    with busy_loops(n or int(os.environ.get("CAPATAZ_LOAD_BUSY", "0")) or os.cpu_count() or 2):
         yield
-    finally:
-        for p in procs:
-            p.kill()
-            p.wait()
 
 
 def test_each_output_of_a_batch_carries_its_own_covariance(flight: Flight) -> None:
