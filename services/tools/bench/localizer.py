@@ -169,7 +169,7 @@ def _time_methods(
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    for name in ("frames", "repeats", "timing_frames", "runs", "seeds", "particles", "step_frames"):
+    for name in ("frames", "repeats", "timing_frames", "runs", "seeds", "particles", "step_frames", "starts"):
         value = getattr(args, name, 1)
         if value is not None and value < 1:
             raise CapatazError(f"--{name.replace('_', '-')} must be >= 1, got {value}")

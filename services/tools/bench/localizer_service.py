@@ -26,12 +26,22 @@ import numpy as np
 from common.datasets.calibration import ros_yaml_text
 from common.geometry import matrix_from_quaternion
 from common.localization.pose import CameraPose
+from common.sim.objects import offset_pose
 from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import PoseEstimate
 from services.runtime.transport import open_session, zbytes
 from services.tools.bench import busy_loops
-from services.tools.bench.localizer_cube import ALIGNED_MIN, CUBE_FPS, EdgeAlignment, cube_runs, load_cube
+from services.tools.bench.localizer_cube import (
+    ALIGNED_MIN,
+    CUBE_FPS,
+    START_OFFSET_DEG,
+    START_OFFSET_MM,
+    Cube,
+    EdgeAlignment,
+    cube_runs,
+    load_cube,
+)
 from services.tools.bench.security import small_cluster
 from services.tools.bench.takeover import counters_of
 from services.tools.up import LocalCluster
@@ -45,15 +55,28 @@ def add_service_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("service suite", "the cube video through the services over Zenoh")
     group.add_argument("--rates", type=float, nargs="+", default=[1.0, 4.0], help="replay speed factors")
     group.add_argument("--busy", type=int, default=0, help="busy-loop processes during each run (0: none)")
+    group.add_argument(
+        "--starts",
+        type=int,
+        default=1,
+        help="starts: cube.0.pos, then the cube suite's 5 mm / 2 deg off ones",
+    )
 
 
-def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int) -> dict[str, Any]:
-    """One replay of the cube video at ``rate`` x its rate through router, localizer and camera processes."""
+def start_of(cube: Cube, r: int) -> CameraPose:
+    """Run ``r``'s start, as the cube suite's: ``cube.0.pos``, then starts 5 mm / 2 deg off it by seed."""
+    offset = (1e-3 * START_OFFSET_MM, float(np.radians(START_OFFSET_DEG)))
+    return cube.start if r == 0 else offset_pose(cube.start, *offset, 60_000 + r)
+
+
+def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int, r: int = 0) -> dict[str, Any]:
+    """One replay of the cube video at ``rate`` x its rate through router, localizer and camera processes,
+    the localizer started from run ``r``'s start (:func:`start_of`)."""
     cube = load_cube(cube_dir)
     calibration = out_dir / "cube_camera.yaml"
     calibration.parent.mkdir(parents=True, exist_ok=True)
     calibration.write_text(ros_yaml_text(cube.camera))
-    rvec, tvec = cube.start.rvec_tvec()
+    rvec, tvec = start_of(cube, r).rvec_tvec()
     poses: dict[int, PoseEstimate] = {}
     lock = threading.Lock()
 
@@ -64,7 +87,7 @@ def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int) -> dict[s
 
     n = len(cube.images)
     fps = CUBE_FPS * rate
-    with busy_loops(busy), LocalCluster(small_cluster(), out_dir / f"logs_{rate:g}x") as cluster:
+    with busy_loops(busy), LocalCluster(small_cluster(), out_dir / f"logs_{r}_{rate:g}x") as cluster:
         cluster.start_router()
         cluster.spawn(LOCALIZER, [
             "localizer", *cluster.transport_args(), "--node", "cube", "--uav", "uav0",
@@ -94,6 +117,7 @@ def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int) -> dict[s
     got = sorted(aligned)
     first_tracked = next((s for s in got if poses[s].tracking_state == "tracking"), None)
     return {
+        "start": r,
         "rate": rate,
         "fps": fps,
         "busy_loops": busy,
@@ -113,17 +137,25 @@ def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int) -> dict[s
 
 
 def run_service(args: argparse.Namespace) -> dict[str, Any]:
-    """In-process reference, then one service run per ``--rates`` factor."""
+    """The in-process runs, then one service run per start and ``--rates`` factor; a held verdict is every
+    frame aligned (and, through the services, a pose for the last frame)."""
     out_dir = Path(args.out) / "localizer_service"
-    reference = cube_runs(args.cube_dir, runs=1)["per_run"][0]
-    runs = [service_run(args.cube_dir, out_dir, rate, args.busy) for rate in args.rates]
+    reference = [
+        row["misaligned_frames"] == 0 for row in cube_runs(args.cube_dir, runs=args.starts)["per_run"]
+    ]
+    runs = [
+        service_run(args.cube_dir, out_dir, rate, args.busy, r)
+        for r in range(args.starts)
+        for rate in args.rates
+    ]
     for row in runs:
+        row["in_process_held"] = reference[row["start"]]
         logger.info("cube through the services: %s", row)
     return {
         "bench_name": "localizer_service",
-        "in_process_held": bool(reference["held"]),
-        "in_process_misaligned_frames": reference["misaligned_frames"],
+        "in_process_held": sum(reference),
+        "starts": args.starts,
         "runs": runs,
-        "same_verdicts": all(r["held"] == bool(reference["held"]) for r in runs),
+        "same_verdicts": all(r["held"] == r["in_process_held"] for r in runs),
         "table": [{k: v for k, v in r.items() if k not in ("fps",)} for r in runs],
     }
