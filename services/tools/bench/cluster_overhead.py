@@ -145,6 +145,13 @@ def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6
         cluster.wait_alive(cluster.expected_members())
         with open_session(cluster.observer_transport()) as session:
             key = zenoh.KeyExpr(keys.worker_key("handoff", 0))
+            # the worker's liveliness can reach us before its queryable's route: a query sent before that
+            # ends at once without a reply (one run of the suite on a busy host did); wait for the route
+            querier: Any = session.declare_querier(key)  # (the stubs type matching_status as a bool)
+            deadline = time.monotonic() + 30.0
+            while not querier.matching_status.matching and time.monotonic() < deadline:
+                time.sleep(0.01)
+            querier.undeclare()
             events: queue.SimpleQueue[Any] = queue.SimpleQueue()
             options: dict[str, Any] = {
                 "timeout": 5.0,
@@ -172,8 +179,8 @@ def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6
                                               attachment=attachment, **options)  # fmt: skip
                         reply = channel.recv()
                     times[mode].append((time.perf_counter() - t0) * 1e3)
-                    if mode == "callback":
-                        events.get(timeout=10.0)  # the query's end
+                    if mode == "callback" and reply is not None:
+                        events.get(timeout=10.0)  # the query's end (None: it ended without a reply)
                     if reply is None or reply.ok is None:
                         raise RuntimeError(f"the hand-off benchmark's worker did not answer job {seq}")
                     decode(zbytes(reply.ok.payload), zbytes(reply.ok.attachment), PatchResult)
