@@ -36,8 +36,13 @@ def attack_forged_leader(cluster: LocalCluster, profile: str, frames: int, fps: 
     uav = cluster.spec.uav
     with watching(cluster, uav) as watch, attacker(cluster) as session:
         token = session.liveliness().declare_token(keys.master_leader_key(uav, FORGED_NODE, 0))
+        forged = f"master/{FORGED_NODE}/0"
+        deadline = time.monotonic() + 5.0  # polled: on a busy host the token takes a while to be seen
+        seen_as_leader = leader(session, uav) == forged
+        while not seen_as_leader and time.monotonic() < deadline:
+            time.sleep(0.1)
+            seen_as_leader = leader(session, uav) == forged
         time.sleep(0.5)  # the masters' next loop turn sees the token (when it is delivered)
-        seen_as_leader = leader(session, uav) == f"master/{FORGED_NODE}/0"
         fly(cluster, watch, frames, fps, 30.0 + 2 * frames / fps, 1, yaw_timeout_s=YAW_TIMEOUT_S)
         token.undeclare()
         lost = frames_lost(watch, frames)

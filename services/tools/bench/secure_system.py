@@ -113,7 +113,7 @@ def run_system(profile: str, root: Path, frames: int = 80, fps: float = 10.0) ->
                 "camera/office/0",
                 [
                     "camera", *transport, "--node", "office", "--uav", "uav1", "--flight", "office",
-                    "--frames", str(frames), "--fps", str(fps), "--wait-master", "0",
+                    "--frames", str(frames), "--fps", str(fps / 2), "--wait-master", "0",
                 ],
                 common_name="camera.uav1",
             )  # fmt: skip
