@@ -29,8 +29,10 @@ from services.runtime.rig_follow import RigFollower
 from services.runtime.service import ConfiguredService
 from services.runtime.transport import source_of
 
-#: how long the frames thread waits for the answer when a frame names a rig not received yet (s)
-RIG_WAIT_S = 1.0
+#: how long the frames thread waits for the answer when a frame names a rig not received yet (s): at the
+#: start of a stream the camera's rig and first frame race; 1 s lost a first frame under two busy loops and a
+#: second test process
+RIG_WAIT_S = 3.0
 #: frame samples received but not gated yet, at most (beyond, the oldest is dropped and counted): the frames
 #: thread gates them all before each frame it measures, so this only fills while it is stalled
 INBOX_CAPACITY = 256
