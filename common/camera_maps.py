@@ -1,16 +1,37 @@
-"""A camera's lens undone on whole images: :class:`PinholeResampling` resamples an image seen through a
-:class:`~common.camera.CameraModel`'s lens onto its pinhole twin (the estimator's frames of a rig with a
-lens)."""
+"""A camera's lens on whole images, both ways, as ``cv2.remap`` maps: :func:`through_lens_maps` (for every
+pixel through the lens, where it falls in the pinhole twin: how the simulator renders through a lens) and
+:class:`PinholeResampling` (for every pixel of the pinhole twin, where it falls through the lens: the
+estimator's frames of a rig with a lens)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from common.camera import CameraModel
 from common.errors import InputError
+from common.types import FloatArray
+
+Maps = tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]
+
+
+def _pixel_maps(camera: CameraModel, to_source: Callable[[FloatArray], FloatArray]) -> Maps:
+    """``cv2.remap`` maps of ``camera``'s size: for every output pixel, ``to_source`` of it (a pixel the
+    model cannot map is sent outside the image, so it reads the border)."""
+    rows, cols = np.mgrid[0 : camera.height, 0 : camera.width]
+    source = to_source(np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64))
+    source = np.where(np.isfinite(source), source, -1e4)
+    shape = (camera.height, camera.width)
+    return source[:, 0].reshape(shape).astype(np.float32), source[:, 1].reshape(shape).astype(np.float32)
+
+
+def through_lens_maps(camera: CameraModel) -> Maps:
+    """For every pixel of the image through ``camera``'s lens, where it falls in the pinhole twin."""
+    return _pixel_maps(camera, camera.undistort_px)
 
 
 @dataclass(frozen=True, eq=False)
@@ -26,18 +47,7 @@ class PinholeResampling:
 
     @classmethod
     def of(cls, camera: CameraModel) -> PinholeResampling:
-        u, v = np.meshgrid(
-            np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64)
-        )
-        lens_px = camera.distort_px(np.stack([u.ravel(), v.ravel()], axis=1))
-        lens_px[~np.isfinite(lens_px)] = -1.0
-        shape = (camera.height, camera.width)
-        return cls(
-            camera.width,
-            camera.height,
-            lens_px[:, 0].reshape(shape).astype(np.float32),
-            lens_px[:, 1].reshape(shape).astype(np.float32),
-        )
+        return cls(camera.width, camera.height, *_pixel_maps(camera, camera.distort_px))
 
     def apply(self, image: np.ndarray) -> np.ndarray:
         """``image`` (through the lens, ``height x width``) as its pinhole twin sees it."""

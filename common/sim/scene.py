@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.camera import CameraModel
+from common.camera_maps import through_lens_maps
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_FORWARD, matrix_from_euler, wrap_angle_rad
 from common.localization.model import SceneModel
@@ -117,7 +118,7 @@ def render_view(
         points = p_world_camera_m + np.einsum("ni,ji->nj", scaled, R_world_camera)
         image[rows, cols] += options.texture_amplitude * _texture(points, options.texture_frequency)
     if camera.is_distorted:
-        image = cv2.remap(image.astype(np.float32), *_undistort_maps(camera), cv2.INTER_LINEAR)
+        image = cv2.remap(image.astype(np.float32), *through_lens_maps(camera), cv2.INTER_LINEAR)
     if options.blur_sigma_px > 0.0:
         image = cv2.GaussianBlur(image, (0, 0), options.blur_sigma_px)
     if options.noise_sigma > 0.0:
@@ -125,15 +126,6 @@ def render_view(
             raise InputError("render_scene needs an rng when noise_sigma > 0")
         image = image + rng.normal(0.0, options.noise_sigma, size=image.shape)
     return np.asarray(np.clip(np.rint(image), 0, 255), dtype=np.uint8)
-
-
-def _undistort_maps(camera: CameraModel) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-    """For every pixel of the distorted image, where it falls in the pinhole twin (cv2.remap's maps)."""
-    rows, cols = np.mgrid[0 : camera.height, 0 : camera.width]
-    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float64)
-    pinhole = np.nan_to_num(camera.undistort_px(pixels), nan=-1e4)
-    shape = (camera.height, camera.width)
-    return pinhole[:, 0].reshape(shape).astype(np.float32), pinhole[:, 1].reshape(shape).astype(np.float32)
 
 
 #: Degradations of the embedded default flight's frames.

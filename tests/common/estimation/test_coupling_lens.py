@@ -13,7 +13,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from common.camera import CameraModel, Distortion, DistortionModel
-from common.camera_maps import PinholeResampling
+from common.camera_maps import PinholeResampling, through_lens_maps
 from common.errors import InputError
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.measurements import FrameMeasurement, Measurement
@@ -31,15 +31,8 @@ def _with_lens(camera: CameraModel, k1: float, k2: float = 0.0) -> CameraModel:
 
 
 def _through_lens(lens: CameraModel, pinhole_image: np.ndarray) -> np.ndarray:
-    """What ``lens`` sees of a scene its pinhole twin sees as ``pinhole_image`` (the inverse resampling)."""
-    h, w = pinhole_image.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pinhole_px = lens.undistort_px(np.stack([u.ravel(), v.ravel()], axis=1)).astype(np.float32)
-    return np.asarray(
-        cv2.remap(
-            pinhole_image, pinhole_px[:, 0].reshape(h, w), pinhole_px[:, 1].reshape(h, w), cv2.INTER_LINEAR
-        )
-    )
+    """What ``lens`` sees of a scene its pinhole twin sees as ``pinhole_image`` (as the simulator renders)."""
+    return np.asarray(cv2.remap(pinhole_image, *through_lens_maps(lens), cv2.INTER_LINEAR))
 
 
 def _smooth_image(h: int, w: int, fx: float, fy: float) -> np.ndarray:
