@@ -21,7 +21,7 @@ import time
 from common.wire import keys
 from services.runtime.transport import open_session
 from services.tools.bench.hostile import AttackResult, attacker, fly, frames_lost, watching
-from services.tools.bench.takeover import fly_to_halfway, leader, start_standby
+from services.tools.bench.takeover import fly_to_halfway, poll_leader, start_standby
 from services.tools.up import LocalCluster
 
 #: the forged master's ``node/index``: sorts before every real master's (``master/0``, ``standby/0``)
@@ -41,11 +41,7 @@ def attack_forged_leader(cluster: LocalCluster, profile: str, frames: int, fps: 
         # a delivered token takes a while to be seen
         forged = f"master/{FORGED_NODE}/0"
         with open_session(cluster.observer_transport()) as observer:
-            deadline = time.monotonic() + 3.0
-            seen_as_leader = leader(observer, uav) == forged
-            while not seen_as_leader and time.monotonic() < deadline:
-                time.sleep(0.1)
-                seen_as_leader = leader(observer, uav) == forged
+            seen_as_leader = poll_leader(observer, uav, lambda active: active == forged, 3.0) == forged
         time.sleep(0.5)  # the masters' next loop turn sees the token (when it is delivered)
         fly(cluster, watch, frames, fps, 30.0 + 2 * frames / fps, 1, yaw_timeout_s=YAW_TIMEOUT_S)
         token.undeclare()
@@ -69,8 +65,8 @@ def attack_forged_candidate(cluster: LocalCluster, profile: str, frames: int, fp
             killed = active
         flight.join(30.0 + 2 * frames / fps)
         token.undeclare()
-        lost_after_kill = frames - 1 - sum(1 for s in watch.measured if killed_at_seq < s < frames)
-        lost_after_kill = min(lost_after_kill, frames - 1 - killed_at_seq)
+        after_kill = frames - 1 - killed_at_seq  # the frames flown after the kill
+        lost_after_kill = after_kill - sum(1 for s in watch.measured if killed_at_seq < s < frames)
         lost = frames_lost(watch, frames)
     if killed is not None:  # the killed master comes back as a standby
         cluster.respawn(killed)

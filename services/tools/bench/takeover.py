@@ -12,6 +12,7 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 import zenoh
@@ -81,12 +82,19 @@ def fly_to_halfway(
         time.sleep(0.05)
     # polled: on a busy host the attacker's fresh session may not see the election token at once
     # (one run of the suite under load read no leader and killed nothing)
-    # (a query that finds no token returns at once: pause between them, as the wait above does)
-    active, leader_deadline = leader(session, uav := cluster.spec.uav), time.monotonic() + 20.0
-    while active is None and time.monotonic() < leader_deadline:
+    return flight, poll_leader(session, cluster.spec.uav, lambda active: active is not None, 20.0)
+
+
+def poll_leader(
+    session: zenoh.Session, uav: str, wanted: Callable[[str | None], bool], timeout_s: float
+) -> str | None:
+    """:func:`leader`, asked again until ``wanted`` of it holds or ``timeout_s`` passed (a query that finds
+    no token returns at once: it pauses between them); the last answer."""
+    active, deadline = leader(session, uav), time.monotonic() + timeout_s
+    while not wanted(active) and time.monotonic() < deadline:
         time.sleep(0.05)
         active = leader(session, uav)
-    return flight, active
+    return active
 
 
 def counters_of(session: zenoh.Session, name: str) -> dict[str, int]:
