@@ -56,7 +56,7 @@ class CameraService(ConfiguredService[CameraSettings]):
         self._ack = threading.Condition()
         self.finished = threading.Event()
         self._entities: list[Any] = []
-        self._masters = threading.Event()
+        self._consumer_alive = threading.Event()
 
     def start(self, session: zenoh.Session) -> None:
         self._pub: dict[str, dict[str, Any]] = {}
@@ -79,7 +79,7 @@ class CameraService(ConfiguredService[CameraSettings]):
             self._entities.append(session.declare_subscriber(keys.yaw_key(uav), self._on_yaw))
         self._entities.append(
             session.liveliness().declare_subscriber(
-                keys.alive_role(self.settings.wait_for), self._on_master, history=True
+                keys.alive_role(self.settings.wait_for), self._on_consumer, history=True
             )
         )
         if self.rig is not None:
@@ -105,9 +105,9 @@ class CameraService(ConfiguredService[CameraSettings]):
         code = super().run()
         return code or (1 if self.counters.get("recording_errors") else 0)
 
-    def _on_master(self, sample: zenoh.Sample) -> None:
+    def _on_consumer(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
-            self._masters.set()
+            self._consumer_alive.set()
 
     def _on_yaw(self, sample: zenoh.Sample) -> None:
         estimate = self.decode_sample(sample, YawEstimate)
@@ -141,13 +141,13 @@ class CameraService(ConfiguredService[CameraSettings]):
                 self._ack.wait(min(left, 0.1))
 
     def _publish_all(self) -> None:
-        self._wait_for_master()
+        self._wait_for_consumer()
         replay_source(self, self.source)
 
-    def _wait_for_master(self) -> None:
+    def _wait_for_consumer(self) -> None:
         if self.settings.wait_master_s:
             deadline = time.monotonic() + self.settings.wait_master_s
-            if not self._masters.wait(self.settings.wait_master_s):
+            if not self._consumer_alive.wait(self.settings.wait_master_s):
                 who = self.settings.wait_for.value
                 self.count_error(f"no_{who}", f"no {who} alive; publishing anyway", "timeout")
             # it is alive: also wait until its frame subscription is routed to us
