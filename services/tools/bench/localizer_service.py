@@ -69,10 +69,11 @@ def start_of(cube: Cube, r: int) -> CameraPose:
     return cube.start if r == 0 else offset_pose(cube.start, *offset, 60_000 + r)
 
 
-def service_run(cube_dir: Path, out_dir: Path, rate: float, busy: int, r: int = 0) -> dict[str, Any]:
+def service_run(
+    cube_dir: Path, cube: Cube, out_dir: Path, rate: float, busy: int, r: int = 0
+) -> dict[str, Any]:
     """One replay of the cube video at ``rate`` x its rate through router, localizer and camera processes,
     the localizer started from run ``r``'s start (:func:`start_of`)."""
-    cube = load_cube(cube_dir)
     calibration = out_dir / "cube_camera.yaml"
     calibration.parent.mkdir(parents=True, exist_ok=True)
     calibration.write_text(ros_yaml_text(cube.camera))
@@ -143,8 +144,9 @@ def run_service(args: argparse.Namespace) -> dict[str, Any]:
     reference = [
         row["misaligned_frames"] == 0 for row in cube_runs(args.cube_dir, runs=args.starts)["per_run"]
     ]
+    cube = load_cube(args.cube_dir)  # read once: every run replays the same video
     runs = [
-        service_run(args.cube_dir, out_dir, rate, args.busy, r)
+        service_run(args.cube_dir, cube, out_dir, rate, args.busy, r)
         for r in range(args.starts)
         for rate in args.rates
     ]
