@@ -61,7 +61,7 @@ def test_the_store_accounts_every_byte_it_holds_and_stays_within_budget(
     for stream, seq, n, side in adds:
         crops = np.full((n, side, side), seq, np.uint8)
         store.add(f"s{stream}", seq, np.arange(n), crops)
-        held = sum(a.nbytes for frames in store._frames.values() for f in frames.values() for a in f.arrays)
+        held = sum(a.nbytes for frames in store._streams.values() for f in frames.values() for a in f.arrays)
         assert held == store.nbytes
         assert store.nbytes <= budget or len(store) == 1  # only the stream just stored may exceed it
-        assert all(len(frames) <= 2 for frames in store._frames.values())
+        assert all(len(frames) <= 2 for frames in store._streams.values())
