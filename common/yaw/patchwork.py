@@ -14,7 +14,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -28,6 +28,35 @@ class PatchWorkError(CapatazError):
     """A job cannot be computed (missing previous spectra, inconsistent settings or crops)."""
 
 
+E = TypeVar("E")
+
+
+class _StreamBudget(Generic[E]):
+    """An entry per stream, least recently stored first, and the bytes the entries hold against one budget
+    across streams (``max_bytes``; None: unbounded); ``evicted`` counts the streams evicted for it."""
+
+    def __init__(self, max_bytes: int | None) -> None:
+        self._streams: OrderedDict[str, E] = OrderedDict()
+        #: the budget across streams (None: unbounded; a member's comes from its ``--cache-mb``)
+        self.max_bytes = max_bytes
+        self.nbytes = 0
+        self.evicted = 0
+
+    def __len__(self) -> int:
+        return len(self._streams)
+
+    def _entry_bytes(self, entry: E) -> int:
+        raise NotImplementedError
+
+    def _over_budget(self) -> bool:
+        return self.max_bytes is not None and self.nbytes > self.max_bytes
+
+    def _evict_oldest(self) -> None:
+        _, oldest = self._streams.popitem(last=False)
+        self.nbytes -= self._entry_bytes(oldest)
+        self.evicted += 1
+
+
 @dataclasses.dataclass
 class _StreamCache:
     seq: int
@@ -39,7 +68,7 @@ class _StreamCache:
     nbytes: int = 0
 
 
-class SpectrumCache:
+class SpectrumCache(_StreamBudget[_StreamCache]):
     """Newest-frame spectra per (stream, patch index); thread-safe; bounded in total, across streams: the
     least recently stored streams are evicted beyond ``max_streams``, beyond ``max_bytes`` of spectra, and
     when not stored to for ``max_age_s`` (a share larger than the whole budget is not kept: its next frame is
@@ -52,18 +81,14 @@ class SpectrumCache:
         clock: Any = time.monotonic,
         max_bytes: int | None = None,
     ) -> None:
-        self._streams: OrderedDict[str, _StreamCache] = OrderedDict()
+        super().__init__(max_bytes)
         self._lock = threading.Lock()
         self._max_streams = max_streams
         self._max_age_s = max_age_s
         self._clock = clock
-        #: the budget across streams (None: unbounded; a member's comes from its ``--cache-mb``)
-        self.max_bytes = max_bytes
-        self.nbytes = 0
-        self.evicted = 0
 
-    def __len__(self) -> int:
-        return len(self._streams)
+    def _entry_bytes(self, entry: _StreamCache) -> int:
+        return entry.nbytes
 
     def held(self, stream: str) -> tuple[int, frozenset[int]]:
         with self._lock:
@@ -118,12 +143,10 @@ class SpectrumCache:
                 self.nbytes += spectra.spectra[row].nbytes
             while self._streams and (
                 len(self._streams) > self._max_streams
-                or (self.max_bytes is not None and self.nbytes > self.max_bytes)
+                or self._over_budget()
                 or now - next(iter(self._streams.values())).stored_s > self._max_age_s
             ):
-                _, evicted = self._streams.popitem(last=False)
-                self.nbytes -= evicted.nbytes
-                self.evicted += 1
+                self._evict_oldest()
 
 
 @dataclasses.dataclass
@@ -135,7 +158,7 @@ class _FrameCrops:
     nbytes: int = 0
 
 
-class CropStore:
+class CropStore(_StreamBudget[dict[int, _FrameCrops]]):
     """Crops of the two newest frames of each stream, by patch index (a foreman's: a share moved to another
     worker, or re-dispatched after a failure, needs the previous frame's crops); bounded in total, across
     streams: beyond ``max_bytes`` of crops the least recently stored streams are evicted (never the one just
@@ -147,19 +170,15 @@ class CropStore:
     """
 
     def __init__(self, max_bytes: int | None = None, frames: int = 2) -> None:
-        self._frames: OrderedDict[str, dict[int, _FrameCrops]] = OrderedDict()
+        super().__init__(max_bytes)
         self._keep = frames
-        #: the budget across streams (None: unbounded; a foreman's comes from its ``--cache-mb``)
-        self.max_bytes = max_bytes
-        self.nbytes = 0
-        self.evicted = 0
 
-    def __len__(self) -> int:
-        return len(self._frames)
+    def _entry_bytes(self, entry: dict[int, _FrameCrops]) -> int:
+        return sum(crops.nbytes for crops in entry.values())
 
     def add(self, stream: str, seq: int, indices: np.ndarray, crops: np.ndarray) -> None:
-        frames = self._frames.setdefault(stream, {})
-        self._frames.move_to_end(stream)
+        frames = self._streams.setdefault(stream, {})
+        self._streams.move_to_end(stream)
         if frames and seq + self._keep < min(frames):
             self._drop(frames, list(frames))  # the stream restarted (a new camera run counts from 0 again)
         elif frames and seq < min(frames) and len(frames) >= self._keep:
@@ -172,15 +191,13 @@ class CropStore:
         entry.nbytes += held.nbytes
         self.nbytes += held.nbytes
         self._drop(frames, sorted(frames)[: -self._keep])
-        while self.max_bytes is not None and self.nbytes > self.max_bytes and len(self._frames) > 1:
-            _, oldest = self._frames.popitem(last=False)
-            self._drop(oldest, list(oldest))
-            self.evicted += 1
+        while self._over_budget() and len(self._streams) > 1:
+            self._evict_oldest()
 
     def get(self, stream: str, seq: int, indices: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
         if indices.size == 0:
             return np.zeros((0, *shape), dtype=np.uint8)
-        entry = self._frames.get(stream, {}).get(seq)
+        entry = self._streams.get(stream, {}).get(seq)
         if entry is None:
             raise PatchWorkError(f"no crops of frame {seq} of {stream}")
         try:

@@ -32,9 +32,8 @@ from typing import Any
 import zenoh
 
 from common.errors import CapatazError
-from common.wire import keys
 from services.runtime.transport import TransportSettings, open_session
-from services.tools.observe import YawCollector
+from services.tools.observe import AliveWatch, YawCollector
 
 
 def _say(line: str) -> None:
@@ -47,27 +46,12 @@ def _transport(args: argparse.Namespace) -> TransportSettings:
 
 def _alive(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:
     wanted = set(args.names)
-    seen: set[str] = set()
-    cond = threading.Condition()
-
-    def on_alive(sample: zenoh.Sample) -> None:
-        try:
-            member = keys.parse_alive_key(str(sample.key_expr)).name
-        except CapatazError:
-            return
-        with cond:
-            (seen.add if sample.kind == zenoh.SampleKind.PUT else seen.discard)(member)
-            cond.notify_all()
-
-    sub = session.liveliness().declare_subscriber(keys.ALIVE_ALL, on_alive, history=True)
+    watch = AliveWatch(session)
     _say("ready")
-    deadline = time.monotonic() + args.timeout
-    with cond:
-        while not wanted <= seen and time.monotonic() < deadline:
-            cond.wait(min(0.2, max(0.0, deadline - time.monotonic())))
-        result = {"alive": sorted(seen & wanted), "missing": sorted(wanted - seen)}
-    sub.undeclare()
-    return result
+    watch.wait_for(wanted, args.timeout)
+    seen = watch.names()
+    watch.close()
+    return {"alive": sorted(seen & wanted), "missing": sorted(wanted - seen)}
 
 
 def _yaw(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:

@@ -1,5 +1,7 @@
-"""Watching a running cluster from a session of our own: yaw estimates and members' stats.
+"""Watching a running cluster from a session of our own: who is alive, yaw estimates and members' stats.
 
+:class:`AliveWatch` keeps the members that hold a liveliness token (``capataz up`` waits on it at start-up,
+the network harness's agent reports it, ``capataz status`` lists it);
 :class:`YawCollector` keeps every yaw estimate of a UAV by frame (tests, the demo, benchmarks, ``up``);
 :class:`StatsWatch` keeps each member's latest :class:`~common.wire.messages.Stats`, when it arrived and
 the first of a window: ``capataz up`` reports dropped frames and refused inputs per member at the end from
@@ -11,11 +13,12 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TypeVar
 
 import zenoh
 
+from common.errors import CapatazError
 from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import Stats, YawEstimate
@@ -66,6 +69,62 @@ class _Watch:
             return None
 
 
+def _wait(
+    cond: threading.Condition,
+    done: Callable[[], bool],
+    timeout_s: float,
+    check: Callable[[], None] | None = None,
+) -> bool:
+    """Wait on ``cond`` until ``done()`` (True) or ``timeout_s`` passed (False); ``check`` runs on every
+    wake-up (at least every 0.2 s) while not done, and may raise to give up early."""
+    deadline = time.monotonic() + timeout_s
+    with cond:
+        while not done():
+            if check is not None:
+                check()
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            cond.wait(min(left, 0.2))
+        return True
+
+
+class AliveWatch:
+    """The members (``role/node/i``) that hold a liveliness token now, and when each was first seen alive
+    (``time.monotonic()``); a token whose key is not a member's is passed over."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._cond = threading.Condition()
+        self._alive: set[str] = set()
+        self.first_seen_s: dict[str, float] = {}
+        self._sub = session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_alive, history=True)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            name = keys.parse_alive_key(str(sample.key_expr)).name
+        except CapatazError:
+            return
+        with self._cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(name)
+                self.first_seen_s.setdefault(name, time.monotonic())
+            else:
+                self._alive.discard(name)
+            self._cond.notify_all()
+
+    def names(self) -> set[str]:
+        with self._cond:
+            return set(self._alive)
+
+    def wait_for(self, names: set[str], timeout_s: float, check: Callable[[], None] | None = None) -> bool:
+        """Wait until every one of ``names`` is alive (True) or ``timeout_s`` passed (False); ``check`` runs
+        on every wake-up (at least every 0.2 s) and may raise to give up early."""
+        return _wait(self._cond, lambda: names <= self._alive, timeout_s, check)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
 class YawCollector(_Watch):
     """Subscribes to a UAV's yaw and keeps every estimate by frame seq (for tests, the demo, benches)."""
 
@@ -86,14 +145,7 @@ class YawCollector(_Watch):
             self._cond.notify_all()
 
     def wait_for(self, count: int, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while len(self.estimates) < count:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(min(left, 0.2))
-            return True
+        return _wait(self._cond, lambda: len(self.estimates) >= count, timeout_s)
 
     def newest(self) -> int:
         with self._cond:

@@ -204,6 +204,11 @@ def markdown_table(rows: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _section(title: str, intro: str, rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """A page section: its heading, one paragraph, its table."""
+    return [f"## {title}", "", intro, "", markdown_table(rows), ""]
+
+
 def _run_section(run: Mapping[str, Any]) -> list[str]:
     meta = run.get("metadata")
     parts = {str(f.path[0]) for f in RUN_FIGURES} - {"metadata"}
@@ -215,17 +220,14 @@ def _run_section(run: Mapping[str, Any]) -> list[str]:
         for f in RUN_FIGURES
         if f.path[0] in run and (f.path[0] != "metadata" or f.path[2] in run)
     ]
-    return [
-        "## The embedded default (`make run`)",
-        "",
+    return _section(
+        "The embedded default (`make run`)",
         f"`make run` (`capataz run`), {_stamp(meta)}: out/summary.json. Paper A's hover through the local"
         " cluster (whose yaw equals the in-process core's), the localizer over the built-in office and"
         " the estimator over paper C's flight (b); deterministic by seed except the figures marked"
         f" {MACHINE_LABEL}.",
-        "",
-        markdown_table(rows),
-        "",
-    ]
+        rows,
+    )
 
 
 def _bench_section(name: str, payload: Mapping[str, Any]) -> list[str]:
@@ -276,15 +278,12 @@ def _docker_section(docker: Mapping[str, Mapping[str, Any]]) -> list[str]:
         for k in keys
     ]
     stamps = "; ".join(f"{name}: {_stamp(docker[name].get('metadata'))}" for name in names)
-    return [
-        "## The compose deployment (`make test-docker`)",
-        "",
+    return _section(
+        "The compose deployment (`make test-docker`)",
         f"`make test-docker` on a real Docker engine, out/<run>.json ({stamps}). Rows marked `*` are times"
         " and rates of the host that ran them.",
-        "",
-        markdown_table(rows),
-        "",
-    ]
+        rows,
+    )
 
 
 def render_page(

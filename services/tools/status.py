@@ -25,11 +25,10 @@ from typing import Any, TextIO
 
 import zenoh
 
-from common.errors import CapatazError
 from common.rates import counter_rates
 from common.wire import keys
 from common.wire.messages import Health, Stats
-from services.tools.observe import StatsWatch, dropped_count, refused_count
+from services.tools.observe import AliveWatch, StatsWatch, dropped_count, refused_count
 from services.tools.probe import (
     Deadline,
     NoMembersError,
@@ -144,26 +143,10 @@ class ClusterObserver:
     def __init__(self, session: zenoh.Session, streams: str | None, timeout_s: float) -> None:
         self.session = session
         self.timeout_s = timeout_s
-        self._lock = threading.Lock()
         self._stats = StatsWatch(session)
         self._streams = SampleQueue(1 << 16, keep_bytes=False)
-        self._alive: set[str] = set()
-        self._subscribers = [
-            session.liveliness().declare_subscriber(keys.ALIVE_ALL, self._on_alive, history=True),
-        ]
-        if streams:
-            self._subscribers.append(session.declare_subscriber(streams, self._streams))
-
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        try:
-            name = keys.parse_alive_key(str(sample.key_expr)).name
-        except CapatazError:
-            return
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                self._alive.add(name)
-            else:
-                self._alive.discard(name)
+        self._alive = AliveWatch(session)
+        self._subscribers = [session.declare_subscriber(streams, self._streams)] if streams else []
 
     def snapshot(self, window_s: float, stop: threading.Event) -> Snapshot:
         """The streams' rates and the members' stats over ``window_s``, then who is alive and their health.
@@ -184,8 +167,7 @@ class ClusterObserver:
             elif deadline.passed():
                 break
         health, bad = health_replies(self.session, self.timeout_s)
-        with self._lock:
-            alive = set(self._alive)
+        alive = self._alive.names()
         # a member that left is listed as gone while its last stats are recent, then forgotten
         self._stats.forget(FORGET_S, keep=frozenset(alive))
         first, latest, _ = self._stats.window()
@@ -198,6 +180,7 @@ class ClusterObserver:
 
     def close(self) -> None:
         self._stats.close()
+        self._alive.close()
         for subscriber in self._subscribers:
             subscriber.undeclare()
 

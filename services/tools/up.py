@@ -14,16 +14,11 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Self
 
-import zenoh
-
-from common.errors import CapatazError
-from common.wire import keys
 from services.runtime.transport import TransportSettings, open_session
 from services.tools.cluster_file import (
     ClusterError,
@@ -35,6 +30,7 @@ from services.tools.cluster_file import (
     master_command,
     worker_command,
 )
+from services.tools.observe import AliveWatch
 from services.tools.secure import SecureProfile, participant_environment, process_common_name
 
 logger = logging.getLogger(__name__)
@@ -229,43 +225,27 @@ class LocalCluster:
     def wait_alive(self, names: set[str], timeout_s: float = 60.0) -> dict[str, float]:
         """Wait until every name has a liveliness token (observed from a session of our own); returns the
         seconds each member took from its start to its token (as first seen here)."""
-        seen: set[str] = set()
-        alive_after_s: dict[str, float] = {}
         t0 = time.monotonic()
-        lock = threading.Condition()
 
-        def on_alive(sample: zenoh.Sample) -> None:
-            try:
-                member = keys.parse_alive_key(str(sample.key_expr)).name
-            except CapatazError:
-                return
-            with lock:
-                if sample.kind == zenoh.SampleKind.PUT:
-                    seen.add(member)
-                    alive_after_s.setdefault(member, time.monotonic() - self.spawned_at.get(member, t0))
-                else:
-                    seen.discard(member)
-                lock.notify_all()
+        def give_up_on_exits() -> None:
+            # a process awaited, or any that failed (a camera whose flight ended is not a failure)
+            dead = [
+                n
+                for n, p in self.processes.items()
+                if p.poll() is not None and n not in self._stopped and (n in names or p.returncode)
+            ]
+            if dead:
+                raise ClusterError(f"{dead} exited during start-up; see logs in {self.log_dir}")
 
         with open_session(self.observer_transport()) as session:
-            sub = session.liveliness().declare_subscriber(keys.ALIVE_ALL, on_alive, history=True)
-            deadline = time.monotonic() + timeout_s
-            with lock:
-                while not names <= seen:
-                    # a process awaited, or any that failed (a camera whose flight ended is not a failure)
-                    dead = [
-                        n
-                        for n, p in self.processes.items()
-                        if p.poll() is not None and n not in self._stopped and (n in names or p.returncode)
-                    ]
-                    if dead:
-                        raise ClusterError(f"{dead} exited during start-up; see logs in {self.log_dir}")
-                    left = deadline - time.monotonic()
-                    if left <= 0:
-                        raise ClusterError(f"not alive after {timeout_s:.0f} s: {sorted(names - seen)}")
-                    lock.wait(min(left, 0.2))
-            sub.undeclare()
-        return alive_after_s
+            watch = AliveWatch(session)
+            try:
+                if not watch.wait_for(names, timeout_s, give_up_on_exits):
+                    missing = sorted(names - watch.names())
+                    raise ClusterError(f"not alive after {timeout_s:.0f} s: {missing}")
+            finally:
+                watch.close()
+        return {n: t - self.spawned_at.get(n, t0) for n, t in watch.first_seen_s.items()}
 
     def signal(self, name: str, sig: int) -> None:
         process = self.processes[name]

@@ -5,7 +5,6 @@ and counted)."""
 
 from __future__ import annotations
 
-import queue
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -13,50 +12,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from common.datasets.calibration import opencv_yaml_text
 from common.geometry import R_BODY_CAMERA_FORWARD, quaternion_from_matrix
 from common.localization.pose import rotation_angle_rad
 from common.localization.scoring import ScoringMethod
-from common.localization.tracker import ModelTracker
-from common.localization.tracker_state import TrackerState
-from common.localization.tracking import track_model
-from common.sim.objects import (
-    object_camera,
-    offset_pose,
-    rendered_object_flight,
-    tabletop_model,
-)
+from common.sim.objects import object_camera, offset_pose, rendered_object_flight
 from common.sim.office_run import simulate_run
-from common.wire import keys
-from common.wire.codec import decode, encode
-from common.wire.messages import Frame, PoseEstimate
+from common.wire.messages import PoseEstimate
 from services.localizer import LocalizerService, LocalizerSettings
 from services.localizer.filters import StepInputs
-from services.localizer.loading import load_scene, localizer_camera
-from services.runtime.camera_options import CameraOptions
-from services.runtime.transport import open_session, zbytes
-from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
+from tests.services.localizer_harness import frame, in_process, linked, object_settings, put_frame
+from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
 
 pytestmark = pytest.mark.zenoh
 
 N_FRAMES = 12
 PARTICLES = 60
 SEED = 5
-
-
-def _frame(seq: int, stamp_s: float, pixels: np.ndarray, uav: str = "uav0") -> Frame:
-    return Frame(
-        uav=uav, seq=seq, stamp_s=stamp_s, width=pixels.shape[1], height=pixels.shape[0], pixels=pixels
-    )
-
-
-def _in_process(
-    settings: LocalizerSettings, images: Sequence[np.ndarray], times_s: np.ndarray
-) -> list[TrackerState]:
-    """What the service must publish: the tracker run in this process with the service's settings."""
-    tracker = ModelTracker(load_scene(settings), localizer_camera(settings), settings.tracker_settings())
-    rng = np.random.default_rng(settings.seed)
-    return list(track_model(tracker, images, times_s, tracker.start(settings.start_pose()), rng))
 
 
 def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> None:
@@ -68,7 +39,7 @@ def test_service_publishes_the_in_process_poses_and_survives_bad_frames() -> Non
         initial_state=tuple(float(v) for v in sim.guess),  # type: ignore[arg-type]
     )
     # the in-process reference: same scene, camera, settings and seed
-    expected = _in_process(settings, sim.images, sim.flight.times_s)
+    expected = in_process(settings, sim.images, sim.flight.times_s)
 
     with hub() as endpoint:
         service, received = _run_the_service(sim.images, sim.flight.times_s, settings, endpoint)
@@ -119,7 +90,7 @@ def test_undeclared_publisher_a_service_stopped_mid_step_exits_cleanly() -> None
         runner = threading.Thread(target=lambda: codes.append(service.run()), daemon=True)
         runner.start()
         assert service.started.wait(WAIT_S), "service did not start"
-        service._frames.put(_frame(0, float(sim.flight.times_s[0]), sim.images[0]))
+        service._frames.put(frame(0, float(sim.flight.times_s[0]), sim.images[0]))
         assert in_step.wait(WAIT_S), "the filter thread never took the frame"
         service.request_stop()
         runner.join(WAIT_S)
@@ -135,93 +106,51 @@ def _run_the_service(
     bad_frames: bool = True,
 ) -> tuple[LocalizerService, list[PoseEstimate]]:
     service = LocalizerService("test", 0, peer(endpoint), settings, stats_period_s=0.2)
-    runner = threading.Thread(target=service.run, daemon=True)
-    runner.start()
-    poses: queue.Queue[PoseEstimate] = queue.Queue()
-    try:
-        assert service.started.wait(WAIT_S), "service did not start"
-        with open_session(peer(endpoint)) as session:
-            subscriber = session.declare_subscriber(
-                keys.pose_pf_key("uav0"),
-                lambda s: poses.put(decode(zbytes(s.payload), zbytes(s.attachment), PoseEstimate)),
-            )
-            publisher = session.declare_publisher(keys.camera_key("uav0"))
-            assert matched(publisher) and matched(service._publisher)  # both directions are routed
+    with linked(service, endpoint) as (publisher, poses):
+        received: list[PoseEstimate] = []
+        for i, image in enumerate(images):
+            stamp = float(times_s[i])
+            if (
+                bad_frames and i == 3
+            ):  # garbage, another UAV's frame, a wrong size, a stale stamp: all refused
+                publisher.put(b"\x00garbage", attachment=b"\x93not-a-header")
+                put_frame(publisher, frame(99, stamp, image, uav="uav7"))
+                put_frame(publisher, frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
+                put_frame(publisher, frame(99, float(times_s[i - 1]), image))
+            if bad_frames and i == 5:  # a frame 1e5 s in the future: refused, it must not freeze the filter
+                put_frame(publisher, frame(99, stamp + 1e5, image))
+            put_frame(publisher, frame(i, stamp, image))
+            received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
 
-            def put(message: Frame) -> None:
-                payload, attachment = encode(message)
-                publisher.put(payload, attachment=attachment)
-
-            received: list[PoseEstimate] = []
-            for i, image in enumerate(images):
-                stamp = float(times_s[i])
-                if (
-                    bad_frames and i == 3
-                ):  # garbage, another UAV's frame, a wrong size, a stale stamp: all refused
-                    publisher.put(b"\x00garbage", attachment=b"\x93not-a-header")
-                    put(_frame(99, stamp, image, uav="uav7"))
-                    put(_frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
-                    put(_frame(99, float(times_s[i - 1]), image))
-                if (
-                    bad_frames and i == 5
-                ):  # a frame 1e5 s in the future: refused, it must not freeze the filter
-                    put(_frame(99, stamp + 1e5, image))
-                put(_frame(i, stamp, image))
-                received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
-
-            def all_refused() -> bool:
-                counts = service.counters.counts()
-                return (
-                    sum(
-                        counts.get(k, 0)
-                        for k in (
-                            "malformed",
-                            "refused_camera_foreign_uav",
-                            "bad_frames",
-                            "refused_camera_stamp_backward",
-                            "refused_camera_stamp_jump",
-                        )
+        def all_refused() -> bool:
+            counts = service.counters.counts()
+            return (
+                sum(
+                    counts.get(k, 0)
+                    for k in (
+                        "malformed",
+                        "refused_camera_foreign_uav",
+                        "bad_frames",
+                        "refused_camera_stamp_backward",
+                        "refused_camera_stamp_jump",
                     )
-                    >= 5
                 )
+                >= 5
+            )
 
-            assert not bad_frames or wait_until(all_refused), service.counters.counts()
-            assert poses.empty(), "a refused frame produced a pose"
-            subscriber.undeclare()
-            publisher.undeclare()
-    finally:
-        service.request_stop()
-        runner.join(5.0)
-    assert not runner.is_alive()
+        assert not bad_frames or wait_until(all_refused), service.counters.counts()
+        assert poses.empty(), "a refused frame produced a pose"
     return service, received
-
-
-def _obj_text(scene: object) -> str:
-    """The tabletop model as a Wavefront OBJ file (what a user exports from CAD)."""
-    vertices = scene.vertices_world_m
-    faces = scene.faces
-    lines = [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in vertices]
-    lines += ["f " + " ".join(str(i + 1) for i in face) for face in faces]
-    return "\n".join(lines) + "\n"
 
 
 def test_service_tracks_the_object_flight_from_model_calibration_and_initial_pose(tmp_path: Path) -> None:
     n_frames = 20
-    camera = object_camera()
-    flight, images = rendered_object_flight(n_frames, 3, camera)
-    (tmp_path / "tabletop.obj").write_text(_obj_text(tabletop_model()))
-    (tmp_path / "camera.yaml").write_text(opencv_yaml_text(camera))
+    flight, images = rendered_object_flight(n_frames, 3, object_camera())
     # start 30 mm and 5 deg off, given as OpenCV rvec + tvec (camera-from-world)
     start = offset_pose(flight.pose(0), 0.03, np.radians(5.0), 7)
     rvec, tvec = start.rvec_tvec()
-    settings = LocalizerSettings(
-        model=tmp_path / "tabletop.obj",
-        camera=CameraOptions(calibration=tmp_path / "camera.yaml"),
-        camera_mount="camera",
-        initial_pose=(*rvec.tolist(), *tvec.tolist()),
-        seed=SEED,
-    )
-    expected = _in_process(settings, images, flight.times_s)
+    settings = object_settings(tmp_path, (*rvec.tolist(), *tvec.tolist()), SEED)
+    expected = in_process(settings, images, flight.times_s)
     with hub() as endpoint:
         _, received = _run_the_service(images, flight.times_s, settings, endpoint, bad_frames=False)
     assert [p.seq for p in received] == list(range(n_frames))

@@ -84,19 +84,15 @@ def _write(tmp_path: Path, name: str, text: str) -> Path:
     return path
 
 
+def _size_and_intrinsics(camera: CameraModel) -> tuple[float, ...]:
+    return (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
+
+
 def test_euroc_sensor_yaml_gives_the_camera_and_its_mount(tmp_path: Path) -> None:
     rig = load_rig(_write(tmp_path, "sensor.yaml", EUROC_CAM0))
-    cam = rig.camera
-    assert (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy) == (
-        752,
-        480,
-        458.654,
-        457.296,
-        367.215,
-        248.375,
-    )
-    assert cam.distortion.model is DistortionModel.RADTAN
-    assert cam.distortion.coeffs == (-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0)
+    assert _size_and_intrinsics(rig.camera) == (752, 480, 458.654, 457.296, 367.215, 248.375)
+    assert rig.camera.distortion.model is DistortionModel.RADTAN
+    assert rig.camera.distortion.coeffs == (-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0)
     assert np.array_equal(rig.R_body_camera, EUROC_T_BS[:3, :3])
     assert np.array_equal(rig.t_body_camera_m, EUROC_T_BS[:3, 3])
     assert np.array_equal(rig.R_body_imu, np.eye(3)) and rig.time_offset_s == 0.0
@@ -115,16 +111,8 @@ def test_euroc_files_in_the_shared_data_read(shared_data: Path) -> None:
 
 def test_kalibr_camchain_is_inverted_into_the_body_imu_frame(tmp_path: Path) -> None:
     rig = load_rig(_write(tmp_path, "camchain-imucam.yaml", KALIBR_CAMCHAIN))
-    cam = rig.camera
-    assert (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy) == (
-        752,
-        480,
-        461.629,
-        460.152,
-        362.680,
-        246.049,
-    )
-    assert cam.distortion.coeffs == (-0.27695497, 0.06712482, 0.00087538, 0.00011556, 0.0)
+    assert _size_and_intrinsics(rig.camera) == (752, 480, 461.629, 460.152, 362.680, 246.049)
+    assert rig.camera.distortion.coeffs == (-0.27695497, 0.06712482, 0.00087538, 0.00011556, 0.0)
     assert rig.time_offset_s == -8.121e-05  # Kalibr's t_imu = t_cam + shift: the same sign as the rig's
     assert np.array_equal(rig.R_body_imu, np.eye(3))
     # a point given in the camera frame, moved into the body (IMU) frame by the rig, maps back by T_cam_imu

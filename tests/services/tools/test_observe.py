@@ -1,19 +1,25 @@
 """The cluster observers' pure parts: a member's refused inputs and dropped frames, one sum each, read the
-same way by ``status``, ``metrics`` and ``up``'s summary."""
+same way by ``status``, ``metrics`` and ``up``'s summary; and who is alive, one watch for ``up``, ``status``
+and the network harness's agent."""
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from common.wire import keys
 from common.wire.messages import Stats
+from services.runtime.transport import open_session
 from services.tools.observe import (
     DROPPED_COUNTERS,
     REFUSED_COUNTERS,
+    AliveWatch,
     dropped_count,
     member_rows,
     refused_count,
 )
+from tests.zenoh_helpers import hub, peer, wait_until
 
 #: the input gate's refusal counters (``refused_<sensor>_<reason>``) and counters of no refusal or drop
 GATE = {"refused_imu_stale", "refused_camera_foreign"}
@@ -36,3 +42,37 @@ def test_up_summary_rows_count_like_status() -> None:
     stats = Stats(role="worker", node="h1", index=0, uptime_s=1.0, stamp_s=0.0, counters=counters)
     (row,) = member_rows(["worker/h1/0"], {}, {"worker/h1/0": stats}, {})
     assert (row["inputs"], row["dropped"], row["refused"]) == (5, 2, 6)
+
+
+class _GaveUpError(Exception):
+    pass
+
+
+@pytest.mark.zenoh
+def test_alive_watch_follows_the_members_tokens_and_passes_over_foreign_ones() -> None:
+    with hub() as endpoint, open_session(peer(endpoint)) as members, open_session(peer(endpoint)) as ours:
+        worker = members.liveliness().declare_token(keys.alive_key("worker", "h1", 0))
+        foreign = members.liveliness().declare_token(f"{keys.ROOT}/alive/not-a-member")
+        watch = AliveWatch(ours)
+        try:
+            assert watch.wait_for({"worker/h1/0"}, 10.0)  # a token declared before the watch: its history
+            camera = members.liveliness().declare_token(keys.alive_key("camera", "c", 0))
+            assert watch.wait_for({"worker/h1/0", "camera/c/0"}, 10.0)
+            assert watch.names() == {"worker/h1/0", "camera/c/0"}
+            assert set(watch.first_seen_s) == {"worker/h1/0", "camera/c/0"}
+            first_s = watch.first_seen_s["camera/c/0"]
+            camera.undeclare()
+            assert wait_until(lambda: watch.names() == {"worker/h1/0"})
+            assert watch.first_seen_s["camera/c/0"] == first_s  # still when it was first seen
+            assert not watch.wait_for({"master/m/0"}, 0.3)
+
+            def give_up() -> None:
+                raise _GaveUpError
+
+            with pytest.raises(_GaveUpError):
+                watch.wait_for({"master/m/0"}, 10.0, give_up)
+            assert watch.wait_for({"worker/h1/0"}, 10.0, give_up)  # no check once all are alive
+        finally:
+            watch.close()
+            worker.undeclare()
+            foreign.undeclare()
