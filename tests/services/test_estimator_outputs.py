@@ -76,7 +76,7 @@ def test_a_pair_wider_than_the_trusted_spacing_adds_a_share_of_its_step() -> Non
     assert wide.unseen_var_m2 == pytest.approx((WIDE_PAIR_FRACTION * 0.1) ** 2)
 
 
-# ---------------------------------------------------------------------------- the published uncertainty (issue 26)
+# ---------------------------------------------------------------------- the published uncertainty (issue 26)
 def _yawed(stamp_s: float, yaw_rad: float) -> PoseOutput:
     return replace(_pose(stamp_s, 0.0), vo_yaw_rad=yaw_rad)
 
