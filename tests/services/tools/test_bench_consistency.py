@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,8 @@ def test_the_estimators_published_covariances_are_honest_on_a_held_out_seed() ->
             assert 3.0 / spread < nees < 3.0 * spread, (line, nees)
             if name == "agile":
                 assert float(np.mean(as_filtered[line])) < 3.0 / spread, line
-        # the altitude: the filter's variance was too cautious (mean NEES 0.64 and 0.67 here)
-        altitude = float(np.mean(published[f"estimator altitude {name}"]))
-        assert 0.8 < altitude < 1.25, altitude
+        # the altitude (1 dof): the filter's variance was too cautious (mean NEES 0.64 and 0.67 here); the
+        # fit seeds' per-seed means ranged 0.81-1.12
+        line = f"estimator altitude {name}"
+        altitude, before = float(np.mean(published[line])), float(np.mean(as_filtered[line]))
+        assert 0.7 < altitude < 1.5 and abs(math.log(altitude)) < abs(math.log(before)), (altitude, before)
