@@ -12,11 +12,15 @@ squared is ``NEES_i = e_i^T P_i^-1 e_i``; an honest (consistent) estimator's NEE
 Errors of a time series are correlated (an accumulated yaw, a filter's attitude): the mean NEES still says
 whether the covariance is too small (above ``d``) or too large (below), but the bounds then are narrower than
 its true spread. Shares below the normal's say the covariance is overconfident, above it too cautious.
+:func:`seed_bounds` gives the spread such a mean really has over independent runs (seeds): the bootstrap
+over whole runs (a block bootstrap with a run as the block; Efron and Tibshirani, *An Introduction to the
+Bootstrap*, 1993), which keeps each run's correlation.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +34,8 @@ from common.types import FloatArray
 NORMAL_SHARES = tuple(math.erf(k / math.sqrt(2.0)) for k in (1, 2, 3))
 #: Two-sided probability of the mean NEES bounds.
 NEES_BOUND_PROBABILITY = 0.95
+#: Resamples of :func:`seed_bounds`.
+SEED_RESAMPLES = 2000
 
 
 @dataclass(frozen=True)
@@ -120,3 +126,29 @@ def error_consistency(errors: npt.ArrayLike, covariances: npt.ArrayLike) -> Cons
     e = np.asarray(errors, dtype=np.float64)
     dof = 1 if e.ndim == 1 else int(e.shape[1])
     return consistency(normalised_errors_squared(e, covariances), dof)
+
+
+def seed_bounds(
+    runs: Sequence[npt.ArrayLike],
+    probability: float = NEES_BOUND_PROBABILITY,
+    resamples: int = SEED_RESAMPLES,
+    rng_seed: int = 0,
+) -> tuple[float, float]:
+    """Two-sided ``probability`` bounds of the pooled mean NEES of independent ``runs`` (each run's NEES
+    values, correlated within the run): the percentiles of the pooled mean over ``resamples`` draws of as
+    many runs with replacement (``rng_seed``: the same runs give the same bounds). NaN with fewer than 2
+    runs that have samples; always within the runs' smallest and largest mean."""
+    values = [np.asarray(r, dtype=np.float64).ravel() for r in runs]
+    values = [v for v in values if v.size]
+    if not 0.0 < probability < 1.0 or resamples < 1:
+        raise InputError(f"need 0 < probability < 1 and resamples >= 1, got {probability} and {resamples}")
+    if len(values) < 2:
+        return math.nan, math.nan
+    sums = np.array([float(np.sum(v)) for v in values])
+    counts = np.array([v.size for v in values], dtype=np.float64)
+    rng = np.random.default_rng(rng_seed)
+    drawn = rng.integers(0, len(values), size=(resamples, len(values)))
+    means = np.sum(sums[drawn], axis=1) / np.sum(counts[drawn], axis=1)
+    tail = (1.0 - probability) / 2.0
+    lower, upper = np.quantile(means, [tail, 1.0 - tail])
+    return float(lower), float(upper)

@@ -107,7 +107,7 @@ class EstimatorService(ConfiguredService[EstimatorSettings]):
         self._skips: deque[tuple[float, int]] = deque(maxlen=1024)
         self._newest_in_s = -math.inf
         self._mirrored: dict[str, int] = {}
-        self._publication = Publication(settings.uav, settings.max_pair_s, settings.vo_drift_fraction)
+        self._publication = Publication(settings.uav, settings.max_pair_s, settings.published_uncertainty())
         #: the one input gate: UAV, sender, seq (frames), stamps of every input, before anything else
         self.gate = InputGate(settings.uav, self)
         self._stale_run = 0

@@ -17,6 +17,7 @@ from common.camera import CameraModel
 from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import CouplingSettings, EkfKind, Vehicle, vehicle_settings
 from common.rig import Rig
+from services.estimator.outputs import PublishedUncertainty
 from services.runtime.camera_options import (
     CameraOptions,
     add_camera_options,
@@ -54,7 +55,7 @@ class EstimatorSettings(BaseModel):
     initial_position_m: tuple[float, float] = from_core(CouplingSettings, "initial_position_m")
     vo_origin_delay_s: float = from_core(CouplingSettings, "vo_origin_delay_s")
     #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
-    vo_drift_fraction: float = Field(default=0.001, gt=0.0)
+    vo_drift_fraction: float = Field(default=PublishedUncertainty.drift_fraction, gt=0.0)
     #: the frame backlog when the filter is behind (:class:`~services.estimator.backlog.SpacedFrameQueue`):
     #: frames queued before one is skipped, the widest VO pair made by skipping (s; every 5th frame of
     #: paper C's 20 fps flight keeps its accuracy), and how far behind the queue may grow to keep pairs that
@@ -76,6 +77,10 @@ class EstimatorSettings(BaseModel):
         description="what the filter may assume: any or still_air_multirotor (indoors: the thrust-axis "
         "update separates the accelerometer bias from the tilt at hover; wind breaks it)",
     )
+
+    def published_uncertainty(self) -> PublishedUncertainty:
+        """How the filter's and the VO path's uncertainties are published (the drift fraction is ours)."""
+        return PublishedUncertainty(drift_fraction=self.vo_drift_fraction)
 
     def coupling(self) -> CouplingSettings:
         """The coupling's settings: its fields of the same name, and what the vehicle sets."""

@@ -1,5 +1,6 @@
 """Consistency statistics (:mod:`common.consistency`): shares within k sigma and the mean NEES against its
-chi-square bounds, on Gaussian samples with known covariances."""
+chi-square bounds, on Gaussian samples with known covariances; the bounds over runs for errors correlated
+within a run."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from common.consistency import (
     error_consistency,
     nees_bounds,
     normalised_errors_squared,
+    seed_bounds,
 )
 from common.errors import InputError
 
@@ -96,3 +98,38 @@ def test_degenerate_covariances_and_bad_input() -> None:
         consistency([-1.0], 1)
     with pytest.raises(InputError):
         nees_bounds(0, 1)
+
+
+@given(
+    st.lists(st.lists(st.floats(0.0, 100.0), min_size=1, max_size=20), min_size=2, max_size=8),
+    st.integers(0, 2**31),
+)
+def test_seed_bounds_lie_within_the_runs_means_and_repeat(runs: list[list[float]], rng_seed: int) -> None:
+    lower, upper = seed_bounds(runs, resamples=200, rng_seed=rng_seed)
+    means = [float(np.mean(r)) for r in runs]
+    assert min(means) - 1e-9 <= lower <= upper <= max(means) + 1e-9
+    assert (lower, upper) == seed_bounds(runs, resamples=200, rng_seed=rng_seed)
+
+
+def test_seed_bounds_widen_for_errors_correlated_within_a_run() -> None:
+    """Runs whose errors share a run-wide scale (a correlated error): the independent samples' bounds are
+    far too narrow, the bounds over runs contain the dof; independent runs give bounds about as wide."""
+    rng = np.random.default_rng(3)
+    dof, n_runs, n = 3, 20, 400
+    scales = np.exp(rng.normal(0.0, 0.5, n_runs))
+    scales /= np.mean(scales)
+    correlated = [scale * rng.chisquare(dof, n) for scale in scales]
+    independent = [rng.chisquare(dof, n) for _ in range(n_runs)]
+    chi_lo, chi_hi = nees_bounds(n_runs * n, dof)
+    lo, hi = seed_bounds(correlated)
+    assert lo <= dof <= hi and lo <= float(np.mean(np.concatenate(correlated))) <= hi
+    assert hi - lo > 3.0 * (chi_hi - chi_lo)
+    ind_lo, ind_hi = seed_bounds(independent)
+    assert ind_lo <= dof <= ind_hi
+    assert 0.5 < (ind_hi - ind_lo) / (chi_hi - chi_lo) < 2.0
+
+
+def test_seed_bounds_need_two_runs_and_a_probability() -> None:
+    assert all(math.isnan(b) for b in seed_bounds([[1.0, 2.0], []]))
+    with pytest.raises(InputError):
+        seed_bounds([[1.0], [2.0]], probability=1.0)

@@ -1,7 +1,11 @@
 """The VO pose's horizontal uncertainty: drift with the distance travelled, and for good the motion a
-failed pair did not see; such a pose is published as ``lost``."""
+failed pair did not see; such a pose is published as ``lost``. What is published of the filter's
+covariances (:class:`PublishedUncertainty`): the tilt scaled, the yaw chain's drift over the angle turned,
+the level chain's tilt offset."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,12 +14,15 @@ from hypothesis import strategies as st
 
 from common.estimation.coupling_types import PoseOutput
 from services.estimator.outputs import (
+    AS_FILTERED,
     MIN_VAR_XY_M2,
     WIDE_PAIR_FRACTION,
+    PublishedUncertainty,
     VoPath,
     advance_path,
     horizontal_variance,
     pose_message,
+    published_attitude_covariance,
 )
 
 
@@ -67,3 +74,58 @@ def test_a_pair_wider_than_the_trusted_spacing_adds_a_share_of_its_step() -> Non
     wide = advance_path(path, _pose(0.4, 0.1), max_pair_s=0.25)
     assert close.unseen_var_m2 == 0.0
     assert wide.unseen_var_m2 == pytest.approx((WIDE_PAIR_FRACTION * 0.1) ** 2)
+
+
+# ---------------------------------------------------------------------- the published uncertainty (issue 26)
+def _yawed(stamp_s: float, yaw_rad: float) -> PoseOutput:
+    return replace(_pose(stamp_s, 0.0), vo_yaw_rad=yaw_rad)
+
+
+def test_the_angle_turned_adds_each_pairs_wrapped_yaw_change() -> None:
+    path = VoPath()
+    for k, yaw in enumerate([3.0, 3.1, -3.1, -3.0, float("nan"), -3.1]):  # across +-pi, one yaw missing
+        path = advance_path(path, _yawed(0.05 * k, yaw))
+    expected = 0.1 + (2 * np.pi - 6.2) + 0.1 + 0.1
+    assert path.turned_rad == pytest.approx(expected)
+    assert path.last_vo_yaw_rad == pytest.approx(-3.1)
+
+
+def test_the_published_attitude_scales_the_tilt_and_adds_the_yaw_chains_drift() -> None:
+    P = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 0.2], [0.5, 0.2, 1.0]]) * 1e-6
+    model = PublishedUncertainty(tilt_variance_scale=0.25, yaw_drift_per_rad=0.01)
+    published = published_attitude_covariance(P, 2.0, model)
+    assert np.allclose(published[:2, :2], 0.25 * P[:2, :2])
+    assert np.allclose(published[:2, 2], 0.5 * P[:2, 2])  # the correlations keep the correlation coefficient
+    assert published[2, 2] == pytest.approx(P[2, 2] + (0.01 * 2.0) ** 2)
+    assert np.array_equal(published_attitude_covariance(P, 2.0, AS_FILTERED), P)
+
+
+@given(
+    st.lists(st.floats(-1.0, 1.0), min_size=9, max_size=9),
+    st.floats(1e-3, 10.0),
+    st.floats(0.0, 0.1),
+    st.floats(0.0, 20.0),
+    st.floats(0.0, 20.0),
+)
+def test_the_published_attitude_is_a_covariance_and_grows_with_the_angle_turned(
+    entries: list[float], scale: float, drift: float, turned: float, more: float
+) -> None:
+    A = np.array(entries).reshape(3, 3)
+    P = A @ A.T + 1e-9 * np.eye(3)
+    model = PublishedUncertainty(tilt_variance_scale=scale, yaw_drift_per_rad=drift)
+    published = published_attitude_covariance(P, turned, model)
+    assert np.allclose(published, published.T)
+    assert np.linalg.eigvalsh(published)[0] > 0.0
+    later = published_attitude_covariance(P, turned + more, model)
+    assert later[2, 2] >= published[2, 2]
+
+
+def test_the_pose_message_adds_the_level_chains_tilt_offset_and_scales_the_altitude() -> None:
+    out = _pose(1.0, 0.5)  # 3 m up, the filter's tilt std 1e-3 rad
+    model = PublishedUncertainty(tilt_variance_scale=0.04, altitude_variance_scale=0.5, level_tilt_factor=2.0)
+    cov = np.asarray(pose_message("uav0", 0, out, 1e-6, model).covariance)
+    assert cov[0, 0] == cov[1, 1] == pytest.approx(1e-6 + 2.0 * (3.0 * 0.2e-3) ** 2)
+    assert cov[2, 2] == pytest.approx(0.5 * 1e-4)
+    assert np.allclose(cov[3:5, 3:5], 0.04 * 1e-6 * np.eye(2))
+    as_filtered = np.asarray(pose_message("uav0", 0, out, 1e-6, AS_FILTERED).covariance)
+    assert as_filtered[0, 0] == pytest.approx(1e-6) and as_filtered[2, 2] == pytest.approx(1e-4)

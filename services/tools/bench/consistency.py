@@ -9,7 +9,10 @@ Seeds are split: the first half (``fit``) is what any variance model was tuned o
 (``held_out``) is reported in the table; the JSON has both and all seeds together. The yaw's per-pair lines
 compare each pair's published delta with the true yaw change (its ``delta_variance_rad2``); the accumulated
 lines the published yaw with the truth at every frame (its ``yaw_variance_rad2``): correlated errors, so the
-bounds (independent samples) are narrower than the mean NEES's true spread there. ``--quick`` runs one
+bounds (independent samples) are narrower than the mean NEES's true spread there. So each line also has
+its mean NEES per seed and the bounds over seeds (``seed_lo``, ``seed_hi``: a bootstrap over whole seeds,
+:func:`common.consistency.seed_bounds`), the spread the pooled mean really has for errors correlated
+within a run: ``nees_within_seed_bounds`` says whether they contain the dof. ``--quick`` runs one
 scenario, flight and scene with few frames on 2 seeds (a test runs it).
 """
 
@@ -22,8 +25,9 @@ import time
 from typing import Any
 
 import cv2
+import numpy as np
 
-from common.consistency import consistency
+from common.consistency import consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
 from services.tools.bench.consistency_runs import (
     DOF,
@@ -74,12 +78,18 @@ def _merge(into: Samples, seed_samples: Samples) -> None:
         into.setdefault(line, []).extend(values)
 
 
-def _summary(samples: Samples) -> dict[str, dict[str, Any]]:
+def _summary(samples: Samples, runs: dict[str, list[list[float]]]) -> dict[str, dict[str, Any]]:
+    """Each line's :class:`~common.consistency.Consistency`, whether it meets the 2-sigma target, and the
+    mean NEES per seed with the bounds over seeds (:func:`~common.consistency.seed_bounds`)."""
     out = {}
     for line, values in samples.items():
-        c = consistency(values, DOF[line]).as_dict()
+        c: dict[str, Any] = dict(consistency(values, DOF[line]).as_dict())
         share = c["within_2_sigma"]
         c["meets_2_sigma"] = bool(TARGET_2_SIGMA[0] <= share <= TARGET_2_SIGMA[1])
+        per_seed = [run for run in runs.get(line, []) if run]
+        c["nees_per_seed"] = [float(np.mean(run)) for run in per_seed]
+        c["nees_seed_lower"], c["nees_seed_upper"] = seed_bounds(per_seed)
+        c["nees_within_seed_bounds"] = bool(c["nees_seed_lower"] <= c["dof"] <= c["nees_seed_upper"])
         out[line] = c
     return out
 
@@ -94,19 +104,26 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     fit_seeds = list(range(args.seeds // 2))
     held_seeds = list(range(args.seeds // 2, args.seeds))
     groups: dict[str, Samples] = {"fit": {}, "held_out": {}}
+    #: per group and line, each seed's samples (for the bounds over seeds)
+    runs: dict[str, dict[str, list[list[float]]]] = {"fit": {}, "held_out": {}, "all": {}}
     for seed in held_seeds if args.held_out_only else range(args.seeds):
-        group = groups["fit" if seed in fit_seeds else "held_out"]
+        name = "fit" if seed in fit_seeds else "held_out"
+        seed_samples: Samples = {}
         if "yaw" in args.suites:
-            _merge(group, yaw_samples(seed, args.field_frames, args.scenarios))
+            _merge(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios))
         if "estimator" in args.suites:
-            _merge(group, estimator_samples(seed, args.estimator_frames, args.flights))
+            _merge(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights))
         if "localizer" in args.suites:
-            _merge(group, localizer_samples(seed, args.localizer_frames, args.scenes))
+            _merge(seed_samples, localizer_samples(seed, args.localizer_frames, args.scenes))
+        _merge(groups[name], seed_samples)
+        for line, values in seed_samples.items():
+            for kind in (name, "all"):
+                runs[kind].setdefault(line, []).append(values)
         logger.info("consistency: seed %d done (%.0f s)", seed, time.perf_counter() - t0)
     every: Samples = {}
-    for group in groups.values():
-        _merge(every, group)
-    summaries = {name: _summary(samples) for name, samples in (*groups.items(), ("all", every))}
+    for samples in groups.values():
+        _merge(every, samples)
+    summaries = {kind: _summary(samples, runs[kind]) for kind, samples in (*groups.items(), ("all", every))}
     table = [
         {
             "line": line,
@@ -120,6 +137,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "nees_lo": c["nees_lower"],
             "nees_hi": c["nees_upper"],
             "nees_ok": c["nees_within_bounds"],
+            "seed_lo": c["nees_seed_lower"],
+            "seed_hi": c["nees_seed_upper"],
             "2sd_ok": c["meets_2_sigma"],
             "fit_in_2sd": summaries["fit"].get(line, {}).get("within_2_sigma", math.nan),
             "fit_nees": summaries["fit"].get(line, {}).get("nees_mean", math.nan),

@@ -9,9 +9,9 @@ grouped by line (what is measured) for one seed.
   ``yaw_variance_rad2``.
 - estimator: paper C's and the agile flight through the proposal (``rectified``,
   :func:`common.estimation.replay.standard_estimators`); the attitude (world-frame error angles against the
-  output's own covariance, every 20th IMU output: 20 Hz) and the ``pose/vo`` position against the covariance
-  :mod:`services.estimator.outputs` publishes (the VO path's horizontal variance, the filter's altitude),
-  frames whose pair tracked.
+  covariance of the ``attitude`` message, every 20th IMU output: 20 Hz) and the ``pose/vo`` position against
+  the message's covariance, frames whose pair tracked: both as :mod:`services.estimator.outputs` publishes
+  them.
 - localizer: the field suite's scenes (the object and the office,
   :mod:`services.tools.bench.localizer_field`) through the model tracker with its defaults; the camera centre
   and world-frame error angles against the state's 6x6 covariance (the ``pose/pf`` message's), by tracking
@@ -38,8 +38,10 @@ from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, agile_flight, turns_flight
 from common.sim.stream import flight_measurements
 from common.types import FloatArray
+from common.wire.messages import AttitudeEstimate, PoseEstimate
+from common.wire.schema import WireModel
 from common.yaw import YawSettings
-from services.estimator.outputs import VoPath, advance_path, horizontal_variance, pose_message
+from services.estimator.outputs import Publication, PublishedUncertainty
 from services.estimator.settings import EstimatorSettings
 from services.tools.bench.localizer_field import _object_scene, _office_scene, _start
 from services.tools.bench.yaw_field import run_core
@@ -99,47 +101,74 @@ FLIGHTS: dict[str, Callable[[int], Flight]] = {
 }
 
 
-def estimator_samples(seed: int, frames: int | None, flights: list[str] | None = None) -> Samples:
-    """The estimator lines of one seed: ``estimator attitude`` (3 dof), ``estimator position`` (3 dof,
-    tracking frames), ``estimator horizontal`` (x, y) and ``estimator altitude`` (z) per flight."""
+def published_messages(
+    outputs: list[AttitudeOutput | PoseOutput], max_pair_s: float, model: PublishedUncertainty
+) -> list[AttitudeEstimate | PoseEstimate]:
+    """The messages the service publishes of ``outputs`` (in order), with ``model``'s uncertainties."""
+    messages: list[AttitudeEstimate | PoseEstimate] = []
+
+    def put(_publisher: object, message: WireModel) -> bool:
+        assert isinstance(message, AttitudeEstimate | PoseEstimate)
+        messages.append(message)
+        return True
+
+    Publication("uav0", max_pair_s, model).publish(outputs, put, None, None)
+    return messages
+
+
+def estimator_outputs(flight: Flight, frames: int | None) -> list[AttitudeOutput | PoseOutput]:
+    """The proposal's (``rectified``) outputs over the first ``frames`` frames of ``flight`` (None: all)."""
+    estimator = standard_estimators(flight, 0, ("rectified",))["rectified"]
+    outputs: list[AttitudeOutput | PoseOutput] = []
+    for m in flight_measurements(flight, 0, frames):
+        estimator.push(m)
+        outputs.extend(estimator.process_due())
+    outputs.extend(estimator.drain())
+    return outputs
+
+
+def estimator_lines(
+    name: str,
+    flight: Flight,
+    outputs: list[AttitudeOutput | PoseOutput],
+    model: PublishedUncertainty | None = None,
+) -> Samples:
+    """The lines of one flight's ``outputs`` published with ``model`` (None: the service's defaults)."""
     out: Samples = {}
     defaults = EstimatorSettings()
+    messages = published_messages(outputs, defaults.max_pair_s, model or defaults.published_uncertainty())
+    attitudes = [m for m in messages if isinstance(m, AttitudeEstimate)][::ATTITUDE_STRIDE]
+    imu = flight.imu
+    idx = np.searchsorted(imu.stamps_s, np.array([m.stamp_s for m in attitudes]) - 1e-9)
+    R_true = matrix_from_quaternion(imu.true_q_world_body[idx])
+    R_est = matrix_from_quaternion(np.array([m.q_world_body for m in attitudes]))
+    P = np.array([m.covariance for m in attitudes])
+    attitude_nees = normalised_errors_squared(world_error_angles(R_true, R_est), P)
+    _add(out, f"estimator attitude {name}", 3, attitude_nees)
+    errors, covariances = [], []
+    for message in messages:
+        if not isinstance(message, PoseEstimate) or message.tracking_state != "tracking":
+            continue
+        k = int(np.searchsorted(flight.frame_stamps_s, message.stamp_s - 1e-9))
+        errors.append(np.asarray(message.p_world_body_m) - flight.p_world_body_m[k])
+        covariances.append(np.asarray(message.covariance)[:3, :3])
+    e, C = np.array(errors), np.array(covariances)
+    _add(out, f"estimator position {name}", 3, normalised_errors_squared(e, C))
+    _add(out, f"estimator horizontal {name}", 2, normalised_errors_squared(e[:, :2], C[:, :2, :2]))
+    _add(out, f"estimator altitude {name}", 1, normalised_errors_squared(e[:, 2], C[:, 2, 2]))
+    return out
+
+
+def estimator_samples(seed: int, frames: int | None, flights: list[str] | None = None) -> Samples:
+    """The estimator lines of one seed: ``estimator attitude`` (3 dof), ``estimator position`` (3 dof,
+    tracking frames), ``estimator horizontal`` (x, y) and ``estimator altitude`` (z) per flight, each
+    against the covariance of the message the service publishes
+    (:class:`~services.estimator.outputs.Publication` with the default settings)."""
+    out: Samples = {}
     for name in flights or list(FLIGHTS):
         flight = FLIGHTS[name](seed)
-        estimator = standard_estimators(flight, 0, ("rectified",))["rectified"]
-        outputs: list[AttitudeOutput | PoseOutput] = []
-        for m in flight_measurements(flight, 0, frames):
-            estimator.push(m)
-            outputs.extend(estimator.process_due())
-        outputs.extend(estimator.drain())
-        attitudes = [o for o in outputs if isinstance(o, AttitudeOutput)][::ATTITUDE_STRIDE]
-        imu = flight.imu
-        idx = np.searchsorted(imu.stamps_s, np.array([o.stamp_s for o in attitudes]) - 1e-9)
-        R_true = matrix_from_quaternion(imu.true_q_world_body[idx])
-        R_est = matrix_from_quaternion(np.array([o.q_world_body for o in attitudes]))
-        P = np.array([o.attitude_covariance_world for o in attitudes])
-        _add(
-            out,
-            f"estimator attitude {name}",
-            3,
-            normalised_errors_squared(world_error_angles(R_true, R_est), P),
-        )
-        path = VoPath()
-        errors, covariances = [], []
-        for o in outputs:
-            if not isinstance(o, PoseOutput):
-                continue
-            path = advance_path(path, o, defaults.max_pair_s)
-            message = pose_message("uav0", 0, o, horizontal_variance(path, defaults.vo_drift_fraction))
-            if not o.ok:
-                continue
-            k = int(np.searchsorted(flight.frame_stamps_s, o.stamp_s - 1e-9))
-            errors.append(np.asarray(message.p_world_body_m) - flight.p_world_body_m[k])
-            covariances.append(np.asarray(message.covariance)[:3, :3])
-        e, C = np.array(errors), np.array(covariances)
-        _add(out, f"estimator position {name}", 3, normalised_errors_squared(e, C))
-        _add(out, f"estimator horizontal {name}", 2, normalised_errors_squared(e[:, :2], C[:, :2, :2]))
-        _add(out, f"estimator altitude {name}", 1, normalised_errors_squared(e[:, 2], C[:, 2, 2]))
+        for line, values in estimator_lines(name, flight, estimator_outputs(flight, frames)).items():
+            out.setdefault(line, []).extend(values)
         logger.info("estimator seed %d %s done", seed, name)
     return out
 

@@ -1,14 +1,19 @@
-"""``capataz bench consistency --quick``: every suite's lines in the file and the table, held-out seeds."""
+"""``capataz bench consistency --quick``: every suite's lines in the file and the table, held-out seeds, the
+bounds over seeds; the estimator's published covariances on a held-out seed."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from services.estimator.outputs import AS_FILTERED
 from services.tools.bench import _runner, consistency
+from services.tools.bench.consistency_runs import FLIGHTS, estimator_lines, estimator_outputs
 
 
 @pytest.mark.slow
@@ -31,6 +36,15 @@ def test_bench_consistency_quick_writes_every_suites_lines(
         assert 0.0 <= c["within_1_sigma"] <= c["within_2_sigma"] <= c["within_3_sigma"] <= 1.0
         assert c["nees_lower"] < c["dof"] < c["nees_upper"]
         assert c["nees_within_bounds"] == (c["nees_lower"] <= c["nees_mean"] <= c["nees_upper"])
+    # one held-out seed: its mean, no bounds over seeds; all seeds: two means and bounds between them
+    measured = held["yaw pair measured"]
+    assert len(measured["nees_per_seed"]) == 1 and measured["nees_seed_lower"] is None  # NaN in the file
+    pooled = payload["lines"]["all"]["estimator attitude paper_c"]
+    per_seed = pooled["nees_per_seed"]
+    assert len(per_seed) == 2
+    assert (
+        min(per_seed) - 1e-9 <= pooled["nees_seed_lower"] <= pooled["nees_seed_upper"] <= max(per_seed) + 1e-9
+    )
     # the figures of all seeds pool the two halves
     assert payload["lines"]["all"]["yaw pair measured"]["samples"] == (
         payload["lines"]["fit"]["yaw pair measured"]["samples"] + held["yaw pair measured"]["samples"]
@@ -43,3 +57,29 @@ def test_bench_consistency_needs_two_seeds() -> None:
     consistency.add_arguments(parser)
     with pytest.raises(SystemExit):
         consistency.run(parser.parse_args(["--seeds", "1", "--suites", "yaw"]))
+
+
+@pytest.mark.slow
+def test_the_estimators_published_covariances_are_honest_on_a_held_out_seed() -> None:
+    """Seed 10 (held out: the published model was fit on seeds 0-9), 300 frames of each flight: the mean
+    NEES of the published attitude and position is within a factor ``spread`` of its dof (the spread one
+    seed's mean has: errors are correlated over a flight, so one seed is about one sample; on the fit seeds
+    the per-seed means of the position ranged over about that factor). The filter's covariances as they
+    are were too cautious on the agile flight by more than that (mean NEES 0.17 and 0.90)."""
+    spread = 2.5
+    for name in ("paper_c", "agile"):
+        flight = FLIGHTS[name](10)
+        outputs = estimator_outputs(flight, 300)
+        published = estimator_lines(name, flight, outputs)
+        as_filtered = estimator_lines(name, flight, outputs, AS_FILTERED)
+        for part in ("attitude", "position"):
+            line = f"estimator {part} {name}"
+            nees = float(np.mean(published[line]))
+            assert 3.0 / spread < nees < 3.0 * spread, (line, nees)
+            if name == "agile":
+                assert float(np.mean(as_filtered[line])) < 3.0 / spread, line
+        # the altitude (1 dof): the filter's variance was too cautious (mean NEES 0.64 and 0.67 here); the
+        # fit seeds' per-seed means ranged 0.81-1.12
+        line = f"estimator altitude {name}"
+        altitude, before = float(np.mean(published[line])), float(np.mean(as_filtered[line]))
+        assert 0.7 < altitude < 1.5 and abs(math.log(altitude)) < abs(math.log(before)), (altitude, before)
