@@ -110,6 +110,10 @@ def _run_the_service(
         received: list[PoseEstimate] = []
         for i, image in enumerate(images):
             stamp = float(times_s[i])
+            # the bad frames follow a good one at once: after a second of silence, a frame with an older
+            # stamp or another size is what a restarted camera sends, and the gate starts a new epoch (on a
+            # busy host the wait for the previous pose took that long, and the stale frame was admitted)
+            put_frame(publisher, frame(i, stamp, image))
             if (
                 bad_frames and i == 3
             ):  # garbage, another UAV's frame, a wrong size, a stale stamp: all refused
@@ -119,7 +123,6 @@ def _run_the_service(
                 put_frame(publisher, frame(99, float(times_s[i - 1]), image))
             if bad_frames and i == 5:  # a frame 1e5 s in the future: refused, it must not freeze the filter
                 put_frame(publisher, frame(99, stamp + 1e5, image))
-            put_frame(publisher, frame(i, stamp, image))
             received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
 
         def all_refused() -> bool:
