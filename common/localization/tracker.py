@@ -37,12 +37,13 @@ Per frame:
    bad. Bad frames switch the status to ``searching`` and restart the search around the last good pose (half
    of it around that pose carried by its last trusted motion to now) with a spread growing by
    ``spread_growth`` per attempt up to ``max_spread_factor`` (then again from 1); after ``lost_frames`` bad
-   frames the status is ``lost`` (the search goes on). A search's pose is only
-   taken when it matches at least ``recover_ratio`` of the points matched before the loss (clutter fits
-   match a fraction of the model's points well, but not many of them). A bad frame's pose (the cloud's
-   mean) is published with :func:`~common.localization.search.untrusted_covariance`: the cloud's spread
-   plus the next search's box and the offset from the last good pose, never a tracked frame's. A good
-   search restarts the motion model moving as the camera did since a recent last good pose.
+   frames the status is ``lost`` (the search goes on). A search's pose is only taken when it matches at least
+   ``recover_ratio`` of the points matched before the loss (clutter fits match a fraction of the model's
+   points well, but not many of them); before any trusted frame, ``lost_match`` of the points the start pose
+   shows, counted. A bad frame's pose (the cloud's mean) is published with :func:`~common.localization.search.
+   untrusted_covariance`: the cloud's spread plus the next search's box and the offset from the last good
+   pose, never a tracked frame's. A good search restarts the motion model moving as the camera did since a
+   recent last good pose.
 
 Hidden-line removal: sample points hidden by the model's own faces from the predicted pose are not scored
 (:func:`~common.localization.visibility.visible_points`).
@@ -252,6 +253,9 @@ class ModelTracker(TrackerViews):
             # a search can fit the model to clutter: a recovery must match nearly as many points as the good
             # frames before the loss did, not merely a fraction of what it shows
             good = good and matched >= cfg.recover_ratio * state.expected_matched
+        if searching and state.expected_matched == 0.0:
+            # acquiring (no trusted frame to compare with): lost_match of the start pose's points, counted
+            good = good and matched >= cfg.lost_match * state.expected_points
         mean_R = mean_rotation(rotations, np.ones(n))
         covariance = cloud_covariance(
             positions, rotations, refined_pose if good else CameraPose(positions.mean(0), mean_R)

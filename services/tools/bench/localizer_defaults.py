@@ -4,7 +4,8 @@ model scales, frame rates and motions, plus the real cube video (:mod:`services.
 Scenes (rendered, exact poses, no odometry):
 
 - ``small``: the tabletop part scaled to 0.1 m (bounding-box diagonal), seen from 0.3-0.6 m;
-- ``large``: the same part scaled to 1 m, seen from 2-4 m (clutter and texture scaled alike);
+- ``large``: the same part scaled to 1 m, seen from 2-4 m (texture scaled alike);
+- (both: the clutter scaled with the orbit, :func:`object_world`, so the camera stays inside the room);
 - ``office``: the built-in office and its 320x240 camera flying its ellipse.
 
 Each at 5, 20 and 60 fps; motion ``slow`` (at most 0.6 % of the distance and 0.7 deg per frame; the office
@@ -34,6 +35,7 @@ import numpy as np
 
 from common.errors import CapatazError
 from common.geometry import R_BODY_CAMERA_FORWARD
+from common.localization.model import SceneModel, scene_from_dict, scene_to_dict
 from common.localization.office import default_scene, office_camera
 from common.localization.pose import CameraPose
 from common.localization.tracker import ModelTracker
@@ -91,9 +93,24 @@ def _object_cell(scene: str, rate: float, motion: str, frames: int, seed: int) -
                            max_step_m=share * mean_d, max_step_rad=float(np.radians(deg)))  # fmt: skip
     camera = object_camera()
     options = replace(OBJECT_RENDER, texture_frequency=OBJECT_RENDER.texture_frequency / scale)
-    world = scaled_scene(tabletop_scene(), scale)
+    world = object_world(scale, distance_scale)
     images = list(render_camera_flight(world, flight, camera, options, np.random.default_rng(seed)))
     return scaled_scene(tabletop_model(), scale), camera, flight, images
+
+
+def object_world(scale: float, distance_scale: float) -> SceneModel:
+    """What a scaled cell's camera sees: the part scaled by ``scale``, the clutter (table, markings, boxes,
+    back wall) by ``scale x distance_scale``, i.e. with the orbit, so that the camera stays where the object
+    flight keeps it, inside the room. Scaled with the part alone, the orbit left the room: the back wall hid
+    the part from seed 2's flight (and from seed 4's, fast) for most of the run, and nothing could be
+    tracked."""
+    part = scene_to_dict(scaled_scene(tabletop_model(), scale))
+    clutter = scene_to_dict(scaled_scene(tabletop_scene(with_part=False), scale * distance_scale))
+    offset = len(part["vertices"])
+    faces = part["faces"] + [{**f, "vertices": [v + offset for v in f["vertices"]]} for f in clutter["faces"]]
+    return scene_from_dict(
+        {"name": "tabletop+clutter", "vertices": part["vertices"] + clutter["vertices"], "faces": faces}
+    )
 
 
 def _office_cell(rate: float, motion: str, frames: int, seed: int) -> tuple[Any, ...]:

@@ -9,7 +9,10 @@ from pathlib import Path
 import pytest
 
 from common.errors import CapatazError
-from services.tools.bench import localizer
+from common.localization.refine import EdgeFit, match_fraction
+from common.localization.tracker import ModelTracker
+from common.localization.tracker_state import TrackerSettings
+from services.tools.bench import localizer, localizer_defaults
 from services.tools.bench.localizer_field import best_scoring
 
 
@@ -114,6 +117,19 @@ def test_defaults_suite_reports_its_cells_the_loss_flag_and_refuses_bad_input(tm
     for bad in (["--cells", "tiny/20/slow"], ["--cube-dir", str(tmp_path)]):
         with pytest.raises(CapatazError):
             localizer.run(parser.parse_args(["--suite", "defaults", "--frames", "8", *bad]))
+
+
+@pytest.mark.parametrize("scene", ["small", "large"])
+def test_defaults_cells_show_the_part_the_truth_says_is_in_view(scene: str) -> None:
+    # regression (issue 25, small/5/slow seed 2): the cells scaled the clutter with the part, not with the
+    # orbit, so seed 2's camera flew behind the back wall: frame 0 showed no part (match 0 at the truth) and
+    # every start was lost
+    model, camera, flight, images = localizer_defaults._object_cell(scene, 5.0, "slow", 2, 2)
+    tracker = ModelTracker(model, camera, TrackerSettings())
+    truth = flight.pose(0)
+    fit = EdgeFit(tracker.samples, camera, tracker.edges(images[0]), visible=tracker._visible(truth))
+    fraction, shown = match_fraction(fit, truth.R_camera_world, truth.t_camera_world_m)
+    assert shown > 100 and fraction >= 0.4
 
 
 def test_step_suite_reports_medians_and_p95_of_every_measure_on_one_core() -> None:
