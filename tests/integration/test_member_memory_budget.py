@@ -130,6 +130,9 @@ def serve_names(tmp_path: Path, n_names: int, bounds: tuple[str, ...] = ()) -> F
                     print(f"{k + 1} names in {time.monotonic() - t0:.0f} s: {ok} ok, {dict(refused)}, "
                           f"peak MB {so_far}", flush=True)  # fmt: skip
             duration_s = time.monotonic() - t0
+            # the services count a job after its reply: wait (bounded) until the last one is counted
+            wait_until(lambda: health(session, "foreman").counters.get("blocks", 0) >= ok)
+            wait_until(lambda: health(session, "worker").counters.get("jobs", 0) >= ok)
             counters = {role: health(session, role).counters for role in ROLES}
         peak = {role: memory_mb(pid, "VmHWM") for role, pid in pids.items()}
         end = {role: memory_mb(pid, "VmRSS") for role, pid in pids.items()}
