@@ -90,12 +90,17 @@ LARGEST_BLOCK_MB = 144.0
 
 
 def memory_budget_mb(settings: ForemanSettings) -> float:
-    """A foreman's whole-process memory budget in MB (2**20 bytes): its stores' bound (``--cache-mb``: spectra
-    and previous crops), the idle process and one largest block being served, plus a worker's largest job when
-    it computes a share itself (``--compute``). A block waiting in its queue adds its payload (at most 32 MB);
-    a master sends a foreman one block at a time."""
-    own_share = LARGEST_SHARE_MB if settings.dispatch.self_compute else 0.0
-    return settings.cache_mb + IDLE_MB + LARGEST_BLOCK_MB + own_share
+    """A foreman's whole-process memory budget in MB (2**20 bytes): its stores' bound (``--cache-mb``: half
+    spectra, half previous crops), the idle process, one largest block being served and one largest share
+    computed by itself (with ``--compute``, or when none of its workers is alive). A block waiting in its
+    queue adds its payload (at most 32 MB); a master sends a foreman one block at a time."""
+    return settings.cache_mb + IDLE_MB + LARGEST_BLOCK_MB + LARGEST_SHARE_MB
+
+
+def relay_memory_mb(settings: ForemanSettings) -> float:
+    """What a foreman that computes nothing itself holds at most, in MB: the crops' half of ``--cache-mb``,
+    the idle process and one largest block (the spectra's half and the share's working set stay unused)."""
+    return settings.cache_mb - settings.cache_mb / 2 + IDLE_MB + LARGEST_BLOCK_MB
 
 
 class ForemanService(ConfiguredService[ForemanSettings]):
