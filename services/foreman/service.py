@@ -193,8 +193,10 @@ class ForemanService(ConfiguredService[ForemanSettings]):
 
     def _count_evictions(self, spectra_before: int, crops_before: int) -> None:
         """Count the streams the two stores evicted since ``*_before`` (their ``evicted`` then)."""
-        self.counters.inc("spectra_evicted", self.cache.evicted - spectra_before)
-        self.counters.inc("crops_evicted", self.crops.evicted - crops_before)
+        for counter, evicted in (("spectra_evicted", self.cache.evicted - spectra_before),
+                                 ("crops_evicted", self.crops.evicted - crops_before)):  # fmt: skip
+            if evicted:
+                self.counters.inc(counter, evicted)
 
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""

@@ -209,7 +209,8 @@ class WorkerService(ConfiguredService[WorkerSettings]):
         )
         self.counters.inc("jobs")  # after the reply: not on the requester's path
         self.counters.inc("patches", n)
-        self.counters.inc("spectra_evicted", self.cache.evicted - evicted_before)
+        if self.cache.evicted > evicted_before:
+            self.counters.inc("spectra_evicted", self.cache.evicted - evicted_before)
         self.counters.time_ms("compute", elapsed * 1e3)
 
 
