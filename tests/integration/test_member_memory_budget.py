@@ -151,11 +151,12 @@ def check(figures: Figures) -> None:
     for role in ROLES:
         assert figures.peak_rss_mb[role] <= budget[role], (role, figures.peak_rss_mb[role], budget[role])
         assert figures.end_rss_mb[role] <= budget[role], (role, figures.end_rss_mb[role], budget[role])
-    # the foreman computed nothing itself: it stays within its crops' half, its idle size and one block
-    # (under 40 names it peaked at 721 MB while freed blocks stayed resident, and at 522 MB while each
-    # stream's dispatcher held a list of 2**16 indices: 2.4 MB)
-    assert foreman.get("patches_sent", 0) == foreman.get("patches", 0), foreman
-    assert figures.peak_rss_mb["foreman"] <= relay_memory_mb(foreman_settings), figures.peak_rss_mb
+    # a foreman that computed nothing itself stays within its crops' half, its idle size and one block (under
+    # 40 names it peaked at 721 MB while freed blocks stayed resident, and at 522 MB while each stream's
+    # dispatcher held a list of 2**16 indices: 2.4 MB); on a busy host a worker may miss its deadline, and
+    # the foreman then computes the share itself (counted: redispatched), within its whole budget only
+    if not foreman.get("redispatched", 0):
+        assert figures.peak_rss_mb["foreman"] <= relay_memory_mb(foreman_settings), figures.peak_rss_mb
     # the stores evicted the least recently stored names: they hold no more than their byte bounds admit
     cache_bytes = int(worker_settings.cache_mb * MB)
     held_spectra = min(worker_settings.max_streams, cache_bytes // SPECTRA_PER_NAME)
