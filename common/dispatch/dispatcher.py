@@ -59,7 +59,9 @@ class Dispatcher:
         self._owner: dict[int, str] = {}
         #: the last plan's (members, targets, indices) and assignment (:data:`~common.dispatch.plan.Memo`)
         self._memo: Memo | None = None
-        self._all = list(range(n_patches))
+        #: every patch index, built on the first plan of all patches (a foreman plans only the indices it is
+        #: given: a list of 2**16 indices made each of its per-stream dispatchers 2.4 MB)
+        self._all: list[int] | None = None
         self.last_plan: Plan | None = None
         #: defence in depth (common.dispatch.trust), and the frame's (size, patches per member) for its caps
         self.trust: TrustMonitor | None = None
@@ -133,7 +135,12 @@ class Dispatcher:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members
         (:func:`~common.dispatch.plan.sticky_plan`): the trust monitor is consulted once, then the plan is
         computed in one call, and nothing of this module runs after them."""
-        todo = self._all if indices is None else self._check_indices(indices)
+        if indices is None:
+            if self._all is None:
+                self._all = list(range(self.n_patches))
+            todo = self._all
+        else:
+            todo = self._check_indices(indices)
         joined = self.members
         remote = [m for m in joined if self._members[m].suspended_until_s <= now_s]
         trust = None

@@ -34,7 +34,9 @@ from common.wire import keys
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import CropStore, SpectrumCache, measure_share
+from services.runtime.allocator import return_large_blocks
 from services.runtime.cli import (
+    LARGEST_SHARE_MB,
     StreamBoundSettings,
     add_dispatch_arguments,
     add_stream_bound_arguments,
@@ -77,10 +79,35 @@ class ForemanSettings(StreamBoundSettings):
     queue: int = Field(default=2, ge=1)
 
 
+#: resident memory of an idle foreman process: interpreter, numpy, OpenCV, zenoh (VmRSS once alive: 83 MB)
+IDLE_MB = 90.0
+#: what one largest block holds while it is served, beyond the idle process and the stores' bounds: its
+#: payload as zenoh received it and as decoded, the share's job encoded for a worker, the crops just stored
+#: (the one stream the crop store may hold beyond its bound) (VmHWM less the idle VmRSS of a foreman whose
+#: stores keep nothing, serving blocks of 2**24 pixels: 128 MB;
+#: tests/integration/test_member_memory_budget.py)
+LARGEST_BLOCK_MB = 144.0
+
+
+def memory_budget_mb(settings: ForemanSettings) -> float:
+    """A foreman's whole-process memory budget in MB (2**20 bytes): its stores' bound (``--cache-mb``: half
+    spectra, half previous crops), the idle process, one largest block being served and one largest share
+    computed by itself (with ``--compute``, or when none of its workers is alive). A block waiting in its
+    queue adds its payload (at most 32 MB); a master sends a foreman one block at a time."""
+    return settings.cache_mb + IDLE_MB + LARGEST_BLOCK_MB + LARGEST_SHARE_MB
+
+
+def relay_memory_mb(settings: ForemanSettings) -> float:
+    """What a foreman that computes nothing itself holds at most, in MB: the crops' half of ``--cache-mb``,
+    the idle process and one largest block (the spectra's half and the share's working set stay unused)."""
+    return settings.cache_mb - settings.cache_mb / 2 + IDLE_MB + LARGEST_BLOCK_MB
+
+
 class ForemanService(ConfiguredService[ForemanSettings]):
     role = Role.FOREMAN
 
     def setup(self) -> None:
+        return_large_blocks()  # within its memory budget: freed crops and spectra leave the process
         self.dispatch_settings = self.settings.dispatch
         self.queue_capacity = self.settings.queue
         self._queryable: Any = None
@@ -144,12 +171,14 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         return dict(self._last_shares)
 
     def _answer_block(self, query: zenoh.Query, job: BlockJob, received_perf_s: float) -> None:
+        evicted_before = (self.cache.evicted, self.crops.evicted)  # this thread alone stores into both
         try:
             result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
         except (CapatazError, ValueError) as exc:  # a raw ValueError is a bug: counted apart, traceback
             self.count_failure("rejected", f"block {job.stream}/{job.seq} rejected", exc)
             self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")
+            self._count_evictions(*evicted_before)
             return
         self.reply(query, result)
         # bookkeeping after the reply is on its way: none of it is needed to answer this block
@@ -157,9 +186,17 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         self._last_shares = plan.shares()
         self.counters.inc("blocks")
         self.counters.inc("patches", int(job.indices.size))
+        self._count_evictions(*evicted_before)
         self.counters.time_ms("block", result.compute_s * 1e3)
         self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
         self.counters.time_ms("handle", (time.perf_counter() - received_perf_s) * 1e3)
+
+    def _count_evictions(self, spectra_before: int, crops_before: int) -> None:
+        """Count the streams the two stores evicted since ``*_before`` (their ``evicted`` then)."""
+        for counter, evicted in (("spectra_evicted", self.cache.evicted - spectra_before),
+                                 ("crops_evicted", self.crops.evicted - crops_before)):  # fmt: skip
+            if evicted:
+                self.counters.inc(counter, evicted)
 
     def _compute_block(self, job: BlockJob) -> tuple[BlockResult, Plan]:
         """Split the block among the workers (and itself), gather; only what the reply needs."""

@@ -126,6 +126,13 @@ def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
     )
 
 
+#: what computing one largest share holds beyond the idle process and the cache, in MB (2**20 bytes): the
+#: job's payload as zenoh received it and as decoded, its new and previous spectra, the correlation's
+#: temporaries (VmHWM less the idle VmRSS of a worker whose cache keeps nothing, serving jobs of 2**24 pixels
+#: of 256 px crops with full OpenCV spectra: 377 MB; tests/integration/test_member_memory_budget.py)
+LARGEST_SHARE_MB = 400.0
+
+
 class StreamBoundSettings(BaseModel):
     """Bounds of a member's per-stream state (spectra, dispatchers, crops): the worker's and foreman's."""
 
@@ -138,7 +145,8 @@ class StreamBoundSettings(BaseModel):
         gt=0.0,
         le=65536.0,
         description="memory budget across all streams (MB; LRU evicted beyond it): cached spectra, and a "
-        "foreman's previous crops (half each)",
+        "foreman's previous crops (half each); the whole process stays within this plus its idle size and "
+        "one largest job (docs/security.md)",
     )
 
 

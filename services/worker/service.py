@@ -15,7 +15,9 @@ from common.members import Role
 from common.wire import keys
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
+from services.runtime.allocator import return_large_blocks
 from services.runtime.cli import (
+    LARGEST_SHARE_MB,
     StreamBoundSettings,
     add_stream_bound_arguments,
     add_transport_arguments,
@@ -25,6 +27,16 @@ from services.runtime.handoff import WorkQueue
 from services.runtime.options import add_options
 from services.runtime.results import result_from_measurement
 from services.runtime.service import ConfiguredService
+
+#: resident memory of an idle worker process: interpreter, numpy, OpenCV, zenoh (VmRSS once alive: 82 MB)
+IDLE_MB = 90.0
+
+
+def memory_budget_mb(settings: StreamBoundSettings) -> float:
+    """A worker's whole-process memory budget in MB (2**20 bytes): its cache's bound (``--cache-mb``), the
+    idle process and one largest job being computed. Each further job waiting in its queue adds its payload
+    (at most 32 MB as received and decoded); a foreman or master sends a worker one job at a time."""
+    return settings.cache_mb + IDLE_MB + LARGEST_SHARE_MB
 
 
 class Handoff(StrEnum):
@@ -60,6 +72,7 @@ class WorkerService(ConfiguredService[WorkerSettings]):
     role = Role.WORKER
 
     def setup(self) -> None:
+        return_large_blocks()  # within its memory budget: freed crops and spectra leave the process
         self.handoff = self.settings.handoff
         self.queue_capacity = self.settings.queue
         self.cpu_factor = self.settings.cpu_factor
@@ -162,6 +175,7 @@ class WorkerService(ConfiguredService[WorkerSettings]):
             self.reply_error(query, "expired", f"{self.name}: job waited longer than its budget")
             return
         t0 = time.perf_counter()
+        evicted_before = self.cache.evicted  # this thread alone stores into the cache
         try:
             settings = job.settings.yaw_settings
             for _ in range(self.cpu_factor - 1):
@@ -195,6 +209,8 @@ class WorkerService(ConfiguredService[WorkerSettings]):
         )
         self.counters.inc("jobs")  # after the reply: not on the requester's path
         self.counters.inc("patches", n)
+        if self.cache.evicted > evicted_before:
+            self.counters.inc("spectra_evicted", self.cache.evicted - evicted_before)
         self.counters.time_ms("compute", elapsed * 1e3)
 
 
