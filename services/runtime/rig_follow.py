@@ -70,6 +70,9 @@ class RigFollower:
         self._lock = threading.Lock()
         self._session: zenoh.Session | None = None
         self._asked_s = -float("inf")
+        #: the last ask that waited for its replies: throttled on its own, so that the start's ask (which
+        #: finds no camera yet) does not stop the first frame's wait for the rig it names
+        self._waited_s = -float("inf")
 
     def start(self, session: zenoh.Session) -> Any:
         """Subscribe to the stream's rig and ask for it once (late joiners); returns the subscriber."""
@@ -85,9 +88,12 @@ class RigFollower:
         still being routed)."""
         session = self._session
         now = time.monotonic()
-        if session is None or now - self._asked_s < REQUERY_S:
+        last = self._waited_s if wait_s > 0.0 else self._asked_s
+        if session is None or now - last < REQUERY_S:
             return
         self._asked_s = now
+        if wait_s > 0.0:
+            self._waited_s = now
         try:
             if wait_s <= 0.0:
                 session.get(keys.rig_key(self.uav), self._on_reply, timeout=2.0)
