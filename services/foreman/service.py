@@ -36,6 +36,7 @@ from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import CropStore, SpectrumCache, measure_share
 from services.runtime.allocator import return_large_blocks
 from services.runtime.cli import (
+    IDLE_PROCESS_MB,
     LARGEST_SHARE_MB,
     StreamBoundSettings,
     add_dispatch_arguments,
@@ -79,8 +80,6 @@ class ForemanSettings(StreamBoundSettings):
     queue: int = Field(default=2, ge=1)
 
 
-#: resident memory of an idle foreman process: interpreter, numpy, OpenCV, zenoh (VmRSS once alive: 83 MB)
-IDLE_MB = 90.0
 #: what one largest block holds while it is served, beyond the idle process and the stores' bounds: its
 #: payload as zenoh received it and as decoded, the share's job encoded for a worker, the crops just stored
 #: (the one stream the crop store may hold beyond its bound) (VmHWM less the idle VmRSS of a foreman whose
@@ -94,13 +93,13 @@ def memory_budget_mb(settings: ForemanSettings) -> float:
     spectra, half previous crops), the idle process, one largest block being served and one largest share
     computed by itself (with ``--compute``, or when none of its workers is alive). A block waiting in its
     queue adds its payload (at most 32 MB); a master sends a foreman one block at a time."""
-    return settings.cache_mb + IDLE_MB + LARGEST_BLOCK_MB + LARGEST_SHARE_MB
+    return settings.cache_mb + IDLE_PROCESS_MB + LARGEST_BLOCK_MB + LARGEST_SHARE_MB
 
 
 def relay_memory_mb(settings: ForemanSettings) -> float:
     """What a foreman that computes nothing itself holds at most, in MB: the crops' half of ``--cache-mb``,
     the idle process and one largest block (the spectra's half and the share's working set stay unused)."""
-    return settings.cache_mb - settings.cache_mb / 2 + IDLE_MB + LARGEST_BLOCK_MB
+    return settings.cache_mb - settings.cache_mb / 2 + IDLE_PROCESS_MB + LARGEST_BLOCK_MB
 
 
 class ForemanService(ConfiguredService[ForemanSettings]):

@@ -126,6 +126,10 @@ def dispatch_from_args(args: argparse.Namespace) -> DispatchSettings:
     )
 
 
+#: resident memory of an idle worker or foreman process: interpreter, numpy, OpenCV, zenoh, in MB (VmRSS once
+#: alive: worker 82, foreman 83; tests/integration/test_member_memory_budget.py)
+IDLE_PROCESS_MB = 90.0
+
 #: what computing one largest share holds beyond the idle process and the cache, in MB (2**20 bytes): the
 #: job's payload as zenoh received it and as decoded, its new and previous spectra, the correlation's
 #: temporaries (VmHWM less the idle VmRSS of a worker whose cache keeps nothing, serving jobs of 2**24 pixels

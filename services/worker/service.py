@@ -17,6 +17,7 @@ from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 from services.runtime.allocator import return_large_blocks
 from services.runtime.cli import (
+    IDLE_PROCESS_MB,
     LARGEST_SHARE_MB,
     StreamBoundSettings,
     add_stream_bound_arguments,
@@ -28,15 +29,12 @@ from services.runtime.options import add_options
 from services.runtime.results import result_from_measurement
 from services.runtime.service import ConfiguredService
 
-#: resident memory of an idle worker process: interpreter, numpy, OpenCV, zenoh (VmRSS once alive: 82 MB)
-IDLE_MB = 90.0
-
 
 def memory_budget_mb(settings: StreamBoundSettings) -> float:
     """A worker's whole-process memory budget in MB (2**20 bytes): its cache's bound (``--cache-mb``), the
     idle process and one largest job being computed. Each further job waiting in its queue adds its payload
     (at most 32 MB as received and decoded); a foreman or master sends a worker one job at a time."""
-    return settings.cache_mb + IDLE_MB + LARGEST_SHARE_MB
+    return settings.cache_mb + IDLE_PROCESS_MB + LARGEST_SHARE_MB
 
 
 class Handoff(StrEnum):
