@@ -60,6 +60,7 @@ class CameraService(ConfiguredService[CameraSettings]):
 
     def start(self, session: zenoh.Session) -> None:
         self._pub: dict[str, dict[str, Any]] = {}
+        self._rig_pub: dict[str, Any] = {}
         for uav in self.settings.uavs:
             self._pub[uav] = {
                 # free-running: DROP (real time, latest wins); flow-controlled replay: BLOCK (every frame)
@@ -88,9 +89,8 @@ class CameraService(ConfiguredService[CameraSettings]):
                 self._entities.append(
                     session.declare_queryable(keys.rig_key(uav), self._on_rig_query, complete=True)
                 )
-                publisher = session.declare_publisher(keys.rig_key(uav))
-                self._entities.append(publisher)
-                self.publish(publisher, message_of_rig(uav, self.rig, time.time()))
+                self._rig_pub[uav] = session.declare_publisher(keys.rig_key(uav))
+                self._entities.append(self._rig_pub[uav])
         self.spawn(self._publish_all, "publish")
 
     def _on_rig_query(self, query: zenoh.Query) -> None:
@@ -142,6 +142,12 @@ class CameraService(ConfiguredService[CameraSettings]):
 
     def _publish_all(self) -> None:
         self._wait_for_consumer()
+        # the rig goes out once the stream's routes exist, just before the first frame (same session, same
+        # priority: it arrives first). Published at start, a consumer already up could miss it (its
+        # subscription not yet routed to us) and refuse the first frames as naming an unknown rig.
+        if self.rig is not None:
+            for uav, publisher in self._rig_pub.items():
+                self.publish(publisher, message_of_rig(uav, self.rig, time.time()))
         replay_source(self, self.source)
 
     def _wait_for_consumer(self) -> None:

@@ -77,7 +77,11 @@ class RigFollower:
     def start(self, session: zenoh.Session) -> Any:
         """Subscribe to the stream's rig and ask for it once (late joiners); returns the subscriber."""
         self._session = session
-        subscriber = session.declare_subscriber(keys.rig_key(self.uav), self.on_sample)
+        # indirect=False: on zenoh's receiving thread, in arrival order with the frames a service takes
+        # there (the estimator's): with zenoh's default (a Python thread per subscriber) the rig, published
+        # before the first frame, reached the follower after it on a busy host, and the frame was refused
+        handler = zenoh.handlers.Callback(self.on_sample, indirect=False)
+        subscriber = session.declare_subscriber(keys.rig_key(self.uav), handler)
         self.ask()
         return subscriber
 

@@ -6,12 +6,20 @@ import time
 from types import SimpleNamespace
 from typing import Any, cast
 
+import numpy as np
+import pytest
+import zenoh
+
 from common.camera import CameraModel
 from common.rig import Rig
+from common.wire import keys
+from common.wire.codec import decode, encode
 from common.wire.messages import Frame
 from common.wire.rig import RigMessage, message_of_rig
 from services.runtime.counters import Counters
 from services.runtime.rig_follow import RigFollower
+from services.runtime.transport import open_session, zbytes
+from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
 
 
 class _Service:
@@ -75,3 +83,48 @@ def test_waiting_asks_are_throttled_among_themselves() -> None:
     verdicts = [follower.rig_of(frame, wait_s=0.01)[1] for frame in frames]
     assert verdicts == [False] * 5 and service.counters.get("refused_camera_unknown_rig") == 5
     assert session.queries.count(0.01) == 1
+
+
+class _DecodingService(_Service):
+    """As :class:`_Service`, but taking real samples off the wire."""
+
+    def decode_sample(self, sample: Any, expected: type[RigMessage]) -> RigMessage | None:
+        return decode(zbytes(sample.payload), zbytes(sample.attachment), expected)
+
+
+@pytest.mark.zenoh
+def test_a_rig_published_just_before_a_frame_is_known_when_the_frame_arrives() -> None:
+    """Regression (CI, test_rig_formats[euroc], busy host): the estimator takes frames on zenoh's receiving
+    thread, and the follower took the rig on a Python thread of its own; the rig, published before the
+    first frame, reached the follower after it, and the frame was refused as naming an unknown rig. Twenty
+    rounds of a new rig and, at once, a frame naming it, taken the way the estimator takes frames."""
+    service = _DecodingService()
+    follower = RigFollower("uav0", service)
+    verdicts: list[bool] = []
+
+    def on_frame(sample: zenoh.Sample) -> None:
+        frame = decode(zbytes(sample.payload), zbytes(sample.attachment), Frame)
+        verdicts.append(follower.rig_of(frame)[1])
+
+    with hub() as endpoint, open_session(peer(endpoint)) as consumer, open_session(peer(endpoint)) as camera:
+        follower.start(consumer)
+        consumer.declare_subscriber(
+            keys.camera_key("uav0"), zenoh.handlers.Callback(on_frame, indirect=False)
+        )
+        rig_pub = camera.declare_publisher(keys.rig_key("uav0"))
+        frame_pub = camera.declare_publisher(keys.camera_key("uav0"))
+        assert wait_until(
+            lambda: rig_pub.matching_status.matching and frame_pub.matching_status.matching, WAIT_S
+        )
+        image = np.zeros((24, 32), np.uint8)
+        for k in range(20):
+            rig = Rig(CameraModel(width=32, height=24, fx=30.0 + k, fy=30.0 + k, cx=15.5, cy=11.5))
+            payload, attachment = encode(message_of_rig("uav0", rig, time.time()))
+            rig_pub.put(payload, attachment=attachment)
+            frame = Frame(
+                uav="uav0", seq=k, stamp_s=0.05 * k, width=32, height=24, pixels=image, rig_id=rig.rig_id
+            )
+            payload, attachment = encode(frame)
+            frame_pub.put(payload, attachment=attachment)
+        assert wait_until(lambda: len(verdicts) == 20, WAIT_S), verdicts
+    assert all(verdicts) and not service.counters.get("refused_camera_unknown_rig"), verdicts
