@@ -93,13 +93,13 @@ from common.localization.tracker_views import TrackerViews
 from common.types import FloatArray
 
 #: rows of the pose (centre, error angles) in the motion model's 12-D error state
-_POSE_ROWS = [0, 1, 2, 6, 7, 8]
+_POSE_BLOCK = np.ix_([0, 1, 2, 6, 7, 8], [0, 1, 2, 6, 7, 8])
 
 
-def shrunk_covariance(covariance: FloatArray, shrinkage: float) -> FloatArray:
-    """A tracked pose's published covariance: shrunk towards its diagonal (``covariance_shrinkage``)."""
+def shrunk_covariance(covariance: FloatArray, shrinkage: float, scale: float = 1.0) -> FloatArray:
+    """A tracked pose's published covariance: shrunk towards its diagonal, scaled (``covariance_*``)."""
     s = shrinkage
-    return np.asarray((1.0 - s) * covariance + s * np.diag(np.diag(covariance)), dtype=np.float64)
+    return np.asarray(scale * ((1.0 - s) * covariance + s * np.diag(np.diag(covariance))), dtype=np.float64)
 
 
 class ModelTracker(TrackerViews):
@@ -278,7 +278,7 @@ class ModelTracker(TrackerViews):
             motion, rejected, noise_scale = fused
             pose = motion.pose
             covariance = shrunk_covariance(
-                motion.covariance[np.ix_(_POSE_ROWS, _POSE_ROWS)], cfg.covariance_shrinkage
+                motion.covariance[_POSE_BLOCK], cfg.covariance_shrinkage, cfg.covariance_scale
             )
             positions[1], rotations[1] = pose.p_world_camera_m, pose.R_world_camera
         # what every frame records, tracked or not
