@@ -96,10 +96,17 @@ def memory_budget_mb(settings: ForemanSettings) -> float:
     return settings.cache_mb + IDLE_PROCESS_MB + LARGEST_BLOCK_MB + LARGEST_SHARE_MB
 
 
+def store_bytes(settings: ForemanSettings) -> tuple[int, int]:
+    """The bounds of a foreman's two stores in bytes, ``(spectra, previous crops)``: ``--cache-mb`` across all
+    streams, half each."""
+    budget = int(settings.cache_mb * 2**20)
+    return budget // 2, budget - budget // 2
+
+
 def relay_memory_mb(settings: ForemanSettings) -> float:
     """What a foreman that computes nothing itself holds at most, in MB: the crops' half of ``--cache-mb``,
     the idle process and one largest block (the spectra's half and the share's working set stay unused)."""
-    return settings.cache_mb - settings.cache_mb / 2 + IDLE_PROCESS_MB + LARGEST_BLOCK_MB
+    return store_bytes(settings)[1] / 2**20 + IDLE_PROCESS_MB + LARGEST_BLOCK_MB
 
 
 class ForemanService(ConfiguredService[ForemanSettings]):
@@ -111,10 +118,9 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         self.queue_capacity = self.settings.queue
         self._queryable: Any = None
         max_streams, ttl_s = self.settings.max_streams, self.settings.stream_ttl_s
-        # the memory budget (--cache-mb) across all streams, half for spectra, half for previous crops
-        budget = int(self.settings.cache_mb * 2**20)
-        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=ttl_s, max_bytes=budget // 2)
-        self.crops = CropStore(max_bytes=budget - budget // 2)
+        spectra_bytes, crop_bytes = store_bytes(self.settings)
+        self.cache = SpectrumCache(max_streams=max_streams, max_age_s=ttl_s, max_bytes=spectra_bytes)
+        self.crops = CropStore(max_bytes=crop_bytes)
         #: per-stream state, bounded by count and age (a stream's dispatcher knows what its workers hold)
         self.streams: StreamTable[_StreamState] = StreamTable(max_streams, ttl_s)
         self._streams_lock = threading.Lock()

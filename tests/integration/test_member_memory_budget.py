@@ -28,7 +28,7 @@ from common.wire.messages import BlockJob, BlockResult, Health, YawJobSettings
 from common.wire.schema import MAX_JOB_PIXELS
 from common.yaw import YawSettings
 from common.yaw.settings import FftBackend
-from services.foreman.service import ForemanSettings, relay_memory_mb
+from services.foreman.service import ForemanSettings, relay_memory_mb, store_bytes
 from services.foreman.service import memory_budget_mb as foreman_budget_mb
 from services.master.service import Topology
 from services.runtime.transport import open_session, zbytes
@@ -160,7 +160,7 @@ def check(figures: Figures) -> None:
     # the stores evicted the least recently stored names: they hold no more than their byte bounds admit
     cache_bytes = int(worker_settings.cache_mb * MB)
     held_spectra = min(worker_settings.max_streams, cache_bytes // SPECTRA_PER_NAME)
-    crop_bytes = int(foreman_settings.cache_mb * MB) - int(foreman_settings.cache_mb * MB) // 2
+    crop_bytes = store_bytes(foreman_settings)[1]
     assert worker.get("spectra_evicted", 0) >= worker.get("jobs", 0) - held_spectra > 0, worker
     assert foreman.get("crops_evicted", 0) >= figures.ok - crop_bytes // CROPS_PER_NAME > 0, foreman
 
