@@ -14,6 +14,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from common.wire.codec import encode
+from common.wire.schema import WireModel
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session
 
 #: bound of every wait: generous, because the suite must pass on a host whose cores are busy
@@ -49,3 +51,9 @@ def hub(lease_ms: int = 1000) -> Iterator[str]:
 def peer(endpoint: str, lease_ms: int = 1000, **fields: Any) -> TransportSettings:
     """Settings of a peer (a service or the test's client) that joins through the hub at ``endpoint``."""
     return TransportSettings(listen=("tcp/127.0.0.1:0",), connect=(endpoint,), lease_ms=lease_ms, **fields)
+
+
+def put_message(publisher: Any, message: WireModel) -> None:
+    """Publish ``message`` as the services do (payload and its attachment, ``common.wire.codec``)."""
+    payload, attachment = encode(message)
+    publisher.put(payload, attachment=attachment)

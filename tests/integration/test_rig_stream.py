@@ -20,14 +20,14 @@ from common.provenance import Provenance
 from common.rig import Rig
 from common.sim.field import field_flight
 from common.wire import keys
-from common.wire.codec import decode, encode
+from common.wire.codec import decode
 from common.wire.messages import Frame, YawEstimate
-from common.wire.rig import RigMessage, message_of_rig
+from common.wire.rig import message_of_rig
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraService, CameraSettings
 from services.master import MasterService, MasterSettings
 from services.runtime.transport import open_session, zbytes
-from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
+from tests.zenoh_helpers import WAIT_S, hub, matched, peer, put_message, wait_until
 
 pytestmark = pytest.mark.zenoh
 
@@ -38,11 +38,6 @@ N_FRAMES = 8
 def endpoint() -> Iterator[str]:
     with hub() as value:
         yield value
-
-
-def _put(publisher: zenoh.Publisher, message: Frame | RigMessage) -> None:
-    payload, attachment = encode(message)
-    publisher.put(payload, attachment=attachment)
 
 
 def _run(service: MasterService | CameraService) -> threading.Thread:
@@ -130,18 +125,18 @@ def test_an_unknown_rig_is_refused_and_a_changed_rig_is_picked_up(endpoint: str)
                 nonlocal seq
                 frame = Frame(uav="uav0", seq=seq, stamp_s=time.time(), width=752, height=480, pixels=pixels,
                               rig_id=rig.rig_id if rig is not None else rig_id)  # fmt: skip
-                _put(frames, frame)
+                put_message(frames, frame)
                 seq += 1
 
             send(None, rig_id="0123456789abcdef")  # a rig never published: refused, counted
             assert wait_until(lambda: master.counters.get("refused_camera_unknown_rig") == 1)
-            _put(rigs, message_of_rig("uav0", first, time.time()))
+            put_message(rigs, message_of_rig("uav0", first, time.time()))
             assert wait_until(lambda: master.counters.get("rigs_received") == 1)
             # one frame at a time: the master keeps the latest frame only, and a busy host could skip one
             for k in range(1, 4):
                 send(first)
                 assert wait_until(lambda k=k: len(yaws.received) == k)
-            _put(rigs, message_of_rig("uav0", second, time.time()))
+            put_message(rigs, message_of_rig("uav0", second, time.time()))
             assert wait_until(lambda: master.counters.get("rigs_received") == 2)
             for k in range(4, 7):
                 send(second)

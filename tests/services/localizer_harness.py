@@ -18,7 +18,7 @@ from common.localization.tracker_state import TrackerState
 from common.localization.tracking import track_model
 from common.sim.objects import object_camera, tabletop_model
 from common.wire import keys
-from common.wire.codec import decode, encode
+from common.wire.codec import decode
 from common.wire.messages import Frame, PoseEstimate
 from services.localizer import LocalizerService, LocalizerSettings
 from services.localizer.loading import load_scene, localizer_camera
@@ -32,11 +32,6 @@ def frame(seq: int, stamp_s: float, pixels: np.ndarray, uav: str = "uav0") -> Fr
     return Frame(
         uav=uav, seq=seq, stamp_s=stamp_s, width=pixels.shape[1], height=pixels.shape[0], pixels=pixels
     )
-
-
-def put_frame(publisher: zenoh.Publisher, message: Frame) -> None:
-    payload, attachment = encode(message)
-    publisher.put(payload, attachment=attachment)
 
 
 def obj_text(vertices_world_m: np.ndarray, faces: Sequence[Sequence[int]]) -> str:

@@ -20,8 +20,8 @@ from common.sim.office_run import simulate_run
 from common.wire.messages import PoseEstimate
 from services.localizer import LocalizerService, LocalizerSettings
 from services.localizer.filters import StepInputs
-from tests.services.localizer_harness import frame, in_process, linked, object_settings, put_frame
-from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
+from tests.services.localizer_harness import frame, in_process, linked, object_settings
+from tests.zenoh_helpers import WAIT_S, hub, peer, put_message, wait_until
 
 pytestmark = pytest.mark.zenoh
 
@@ -113,16 +113,16 @@ def _run_the_service(
             # the bad frames follow a good one at once: after a second of silence, a frame with an older
             # stamp or another size is what a restarted camera sends, and the gate starts a new epoch (on a
             # busy host the wait for the previous pose took that long, and the stale frame was admitted)
-            put_frame(publisher, frame(i, stamp, image))
+            put_message(publisher, frame(i, stamp, image))
             if (
                 bad_frames and i == 3
             ):  # garbage, another UAV's frame, a wrong size, a stale stamp: all refused
                 publisher.put(b"\x00garbage", attachment=b"\x93not-a-header")
-                put_frame(publisher, frame(99, stamp, image, uav="uav7"))
-                put_frame(publisher, frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
-                put_frame(publisher, frame(99, float(times_s[i - 1]), image))
+                put_message(publisher, frame(99, stamp, image, uav="uav7"))
+                put_message(publisher, frame(99, stamp, np.zeros((10, 12), dtype=np.uint8)))
+                put_message(publisher, frame(99, float(times_s[i - 1]), image))
             if bad_frames and i == 5:  # a frame 1e5 s in the future: refused, it must not freeze the filter
-                put_frame(publisher, frame(99, stamp + 1e5, image))
+                put_message(publisher, frame(99, stamp + 1e5, image))
             received.append(poses.get(timeout=WAIT_S))  # one frame in flight: nothing dropped
 
         def all_refused() -> bool:

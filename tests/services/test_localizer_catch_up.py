@@ -14,8 +14,8 @@ from common.sim.objects import object_camera, rendered_object_flight
 from common.wire.messages import PoseEstimate
 from services.localizer import LocalizerService
 from services.localizer.filters import StepInputs
-from tests.services.localizer_harness import frame, in_process, linked, object_settings, put_frame
-from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
+from tests.services.localizer_harness import frame, in_process, linked, object_settings
+from tests.zenoh_helpers import WAIT_S, hub, peer, put_message, wait_until
 
 pytestmark = pytest.mark.zenoh
 
@@ -47,7 +47,7 @@ def test_frames_arriving_during_the_first_search_are_all_tracked_in_order(tmp_pa
             t0 = time.monotonic()
             for i, image in enumerate(images):  # at the flight's own rate (30 fps)
                 time.sleep(max(0.0, float(flight.times_s[i] - flight.times_s[0]) - (time.monotonic() - t0)))
-                put_frame(publisher, frame(i, float(flight.times_s[i]), image))
+                put_message(publisher, frame(i, float(flight.times_s[i]), image))
             received = [poses.get(timeout=WAIT_S) for _ in range(N_FRAMES)]
     assert first.is_set()
     assert [p.seq for p in received] == list(range(N_FRAMES))

@@ -13,13 +13,13 @@ import zenoh
 from common.camera import CameraModel
 from common.rig import Rig
 from common.wire import keys
-from common.wire.codec import decode, encode
+from common.wire.codec import decode
 from common.wire.messages import Frame
 from common.wire.rig import RigMessage, message_of_rig
 from services.runtime.counters import Counters
 from services.runtime.rig_follow import RigFollower
 from services.runtime.transport import open_session, zbytes
-from tests.zenoh_helpers import WAIT_S, hub, peer, wait_until
+from tests.zenoh_helpers import WAIT_S, hub, peer, put_message, wait_until
 
 
 class _Service:
@@ -119,12 +119,10 @@ def test_a_rig_published_just_before_a_frame_is_known_when_the_frame_arrives() -
         image = np.zeros((24, 32), np.uint8)
         for k in range(20):
             rig = Rig(CameraModel(width=32, height=24, fx=30.0 + k, fy=30.0 + k, cx=15.5, cy=11.5))
-            payload, attachment = encode(message_of_rig("uav0", rig, time.time()))
-            rig_pub.put(payload, attachment=attachment)
+            put_message(rig_pub, message_of_rig("uav0", rig, time.time()))
             frame = Frame(
                 uav="uav0", seq=k, stamp_s=0.05 * k, width=32, height=24, pixels=image, rig_id=rig.rig_id
             )
-            payload, attachment = encode(frame)
-            frame_pub.put(payload, attachment=attachment)
+            put_message(frame_pub, frame)
         assert wait_until(lambda: len(verdicts) == 20, WAIT_S), verdicts
     assert all(verdicts) and not service.counters.get("refused_camera_unknown_rig"), verdicts
