@@ -182,7 +182,8 @@ class TrackerViews:
         pos_spread = spread_m * state.spread_factor
         ang_spread = cfg.angle_spread_rad * state.spread_factor
         carried = self._carried(state, last, dt_s)
-        turned = self._image_shift_prior(carried, edges, ang_spread + pos_spread / state.distance_m)
+        reach = max(ang_spread + pos_spread / state.distance_m, self._elapsed_reach_rad(state, dt_s))
+        turned = self._image_shift_prior(carried, edges, reach)
         count = int(cfg.search_candidates * max(state.spread_factor, 1.0))
         parts = [
             search_candidates(c, k, pos_spread, ang_spread, state.distance_m, rng)
@@ -191,6 +192,25 @@ class TrackerViews:
         positions = np.concatenate([p for p, _ in parts])
         rotations = np.concatenate([r for _, r in parts])
         return turned, positions, rotations
+
+    def _elapsed_reach_rad(self, state: TrackerState, dt_s: float) -> float:
+        """How far (rad) the camera may have turned since the last good pose: the image-motion ceiling per
+        frame interval times the intervals since (up to ``max_gap_frames``), at most half the image's
+        narrower field of view. A search that trails a camera turning faster than its box grows never
+        catches it (at 5 fps a fast flight turns 10 deg a frame)."""
+        noise = state.process_noise
+        if state.frames == 0 or noise is None or noise.frame_interval_s is None:
+            return 0.0
+        frames = min((state.since_good_s + dt_s) / noise.frame_interval_s, self.config.noise.max_gap_frames)
+        turn = (
+            ceiling_px(self.config.noise, noise.frame_interval_s)
+            * frames
+            / max(self.camera.fx, self.camera.fy)
+        )
+        half_fov = float(
+            np.arctan2(0.5 * min(self.camera.width, self.camera.height), max(self.camera.fx, self.camera.fy))
+        )
+        return float(min(turn, half_fov))
 
     def _carried(self, state: TrackerState, last: CameraPose, dt_s: float) -> CameraPose:
         """The last good pose moved by the last trusted velocity and rate (kept through bad frames) over the
