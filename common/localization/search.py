@@ -185,6 +185,12 @@ def untrusted_covariance(
     return np.asarray(0.5 * (cov + cov.T))
 
 
+def shrunk_covariance(covariance: FloatArray, shrinkage: float, scale: float = 1.0) -> FloatArray:
+    """A tracked pose's published covariance: shrunk towards its diagonal, scaled (``covariance_*``)."""
+    s = shrinkage
+    return np.asarray(scale * ((1.0 - s) * covariance + s * np.diag(np.diag(covariance))), dtype=np.float64)
+
+
 def twist_covariance_to_world(covariance_twist: FloatArray, pose: CameraPose) -> FloatArray:
     """Covariance of the camera twist ``(v, w)`` (camera frame) as (camera centre, world error angles)."""
     R_wc = pose.R_world_camera

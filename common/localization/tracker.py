@@ -50,7 +50,8 @@ Hidden-line removal: sample points hidden by the model's own faces from the pred
 
 Start and recovery search ``search_candidates x spread`` poses (:func:`~common.localization.search.
 search_candidates`: half uniform in the box ``pose +- spread``, half aimed at the model), half of them about
-the last good pose, half about it turned by the 2D chamfer shift, annealed over ``search_layers`` keeping
+the last good pose, half about it turned by the 2D chamfer shift (reaching over the box, or the image-motion
+ceiling times the frame intervals since the last good pose if more), annealed over ``search_layers`` keeping
 ``search_keep`` poses per layer. The default position spread scales with the scene: ``position_spread_m =
 0.1 d`` where ``d`` is the median depth of the model's points in view (:meth:`ModelTracker.
 viewing_distance_m`; from the initial pose, then from every good frame's); angles do not scale.
@@ -85,6 +86,7 @@ from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
     anneal,
     cloud_covariance,
+    shrunk_covariance,
     twist_covariance_to_world,
     untrusted_covariance,
 )
@@ -94,12 +96,6 @@ from common.types import FloatArray
 
 #: rows of the pose (centre, error angles) in the motion model's 12-D error state
 _POSE_BLOCK = np.ix_([0, 1, 2, 6, 7, 8], [0, 1, 2, 6, 7, 8])
-
-
-def shrunk_covariance(covariance: FloatArray, shrinkage: float, scale: float = 1.0) -> FloatArray:
-    """A tracked pose's published covariance: shrunk towards its diagonal, scaled (``covariance_*``)."""
-    s = shrinkage
-    return np.asarray(scale * ((1.0 - s) * covariance + s * np.diag(np.diag(covariance))), dtype=np.float64)
 
 
 class ModelTracker(TrackerViews):

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from common.consistency import normalised_errors_squared
 from common.geometry import R_BODY_CAMERA_FORWARD
 from common.localization.pose import CameraPose, rotation_vectors
-from common.localization.tracker import ModelTracker, shrunk_covariance
+from common.localization.search import shrunk_covariance
+from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackingStatus
 from common.localization.tracking import track_model
 from common.sim.objects import CameraFlight, frame_gyro, offset_pose

@@ -7,10 +7,17 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
+from common.geometry import R_BODY_CAMERA_FORWARD
+from common.localization.model import SceneModel
+from common.localization.office import office_camera
+from common.localization.pose import CameraPose, rotation_angle_rad
 from common.localization.process_noise import NoiseSettings, ceiling_px
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackingStatus
-from common.sim.objects import object_camera, rendered_object_flight, tabletop_model
+from common.localization.tracking import track_model
+from common.sim.objects import object_camera, offset_pose, rendered_object_flight, tabletop_model
+from common.sim.office_run import DEFAULT_FLIGHT_RENDER
+from common.sim.scene import default_flight, render_flight
 
 
 @given(st.floats(1.0, 240.0), st.floats(1.0, 240.0))
@@ -44,3 +51,27 @@ def test_a_recovery_search_starts_the_motion_model_at_the_camera_s_velocity() ->
     assert np.linalg.norm(true_velocity) > 0.1  # the camera moves (m/s): at rest would be far off
     assert np.linalg.norm(found.motion.velocity_m_s - true_velocity) <= 0.2 * np.linalg.norm(true_velocity)
     assert found.since_good_s == 0.0
+
+
+def test_a_search_after_the_start_catches_a_camera_turning_faster_than_its_box_grows(
+    office: SceneModel,
+) -> None:
+    """Regression (office/5/fast, seed 3, near start): at 5 fps the office's flight turns 10 deg a frame.
+    After the start the motion is unknown, frame 1 is lost, and a search box growing 1.4x per attempt from
+    8 deg trailed the camera until it took a pose 0.97 m off. The chamfer's reach now grows with the time
+    since the last good pose."""
+    sim = default_flight(n_frames=6, rate_hz=5.0)
+    poses = [CameraPose.from_body_state(s, R_BODY_CAMERA_FORWARD) for s in sim.states]
+    camera = office_camera()
+    images = list(render_flight(office, sim, camera, DEFAULT_FLIGHT_RENDER, np.random.default_rng(3)))
+    tracker = ModelTracker(office, camera, TrackerSettings())
+    d0 = tracker.viewing_distance_m(poses[0])
+    turn_deg = np.degrees(rotation_angle_rad(poses[1].R_world_camera, poses[0].R_world_camera))
+    assert turn_deg > 9.0  # the case: faster than the first searches' box grows
+    start = offset_pose(poses[0], 0.015 * d0, float(np.radians(2.0)), 90_031)
+    states = list(
+        track_model(tracker, images, np.arange(6) / 5.0, tracker.start(start), np.random.default_rng(80_031))
+    )
+    for pose, state in zip(poses[2:], states[2:], strict=True):
+        error_m = float(np.linalg.norm(state.pose.p_world_camera_m - pose.p_world_camera_m))
+        assert state.status is TrackingStatus.TRACKING and error_m < 0.02 * d0
