@@ -19,6 +19,7 @@ import logging
 import time
 from collections.abc import Mapping
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from common.members import Topology
 from common.wire.messages import YawEstimate
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
-from services.runtime.cli import number_in
+from services.runtime.cli import number_in, parse_size
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
 from services.tools.cluster_file import ClusterSpec, HostSpec
@@ -63,6 +64,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--link-mbit", type=number_in(float, 0.1, 100_000.0), help="with --netns: every link's rate (Mbit/s)"
     )
+    yaw = YawSettings()  # the workload's defaults are the yaw core's
+    workload = parser.add_argument_group("workload (the same for the in-process run and the master)")
+    workload.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
+    workload.add_argument("--grid", default=f"{yaw.grid_cols}x{yaw.grid_rows}", help="patch grid COLSxROWS")
+    workload.add_argument(
+        "--patch-size", type=number_in(int, 8, 256), default=yaw.patch_size_px, help="patch side at the level"
+    )
+    workload.add_argument(
+        "--pyramid-level", type=number_in(int, 0, 4), default=yaw.pyramid_level, help="pyramid level"
+    )
 
 
 def role_of(member: str) -> str:
@@ -95,10 +106,25 @@ def _cpu(cluster: LocalCluster) -> dict[str, float]:
     return {name: value for name, value in readings.items() if value is not None}
 
 
-def in_process_cpu_ms(frames: int) -> float:
-    """CPU ms per frame of the in-process tracker on the camera's simulated 752x480 hover."""
-    flight = simulated_flight(CameraSettings(frames=frames))
-    settings = YawSettings()
+def workload_of(args: argparse.Namespace) -> tuple[tuple[int, int], YawSettings, tuple[str, ...]]:
+    """The workload's frame size, yaw settings (in-process) and the same settings as master options."""
+    size = parse_size(getattr(args, "resolution", "752x480"), "--resolution", "752x480")
+    yaw = YawSettings()
+    grid = getattr(args, "grid", f"{yaw.grid_cols}x{yaw.grid_rows}")
+    cols, rows = parse_size(grid, "--grid", "8x5")
+    patch = getattr(args, "patch_size", yaw.patch_size_px)
+    level = getattr(args, "pyramid_level", yaw.pyramid_level)
+    settings = replace(yaw, grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level)
+    master_args = ("--grid", grid, "--patch-size", str(patch), "--pyramid-level", str(level))
+    return size, settings, master_args
+
+
+def in_process_cpu_ms(
+    frames: int, size: tuple[int, int] = (752, 480), settings: YawSettings | None = None
+) -> float:
+    """CPU ms per frame of the in-process tracker on the camera's hover (``size``: width, height)."""
+    flight = simulated_flight(CameraSettings(frames=frames, width=size[0], height=size[1]))
+    settings = settings or YawSettings()
     first = flight.frame(0)
     tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
     state = tracker.initial_state(first)
@@ -124,12 +150,13 @@ def cluster_path(
     """One path's flight: on loopback, or (``--netns``) across emulated hosts with per-link bytes."""
     spec = _spec(label, topology, workers)
     log_dir = Path(args.out) / "dispatch_logs" / spec.name
+    _, _, master_args = workload_of(args)
     if not args.netns:
-        with LocalCluster(spec, log_dir) as cluster:
+        with LocalCluster(spec, log_dir, master_args=master_args) as cluster:
             return {"path": label, **_flight(cluster, args, None)}
     rate = None if args.link_mbit is None else round(args.link_mbit * 1e6)
     plan = plan_for_cluster(spec, new_prefix(), dict.fromkeys([GROUND, *(h.name for h in spec.hosts)], rate))
-    with NetHarness(plan) as net, NetnsCluster(spec, log_dir, net) as cluster:
+    with NetHarness(plan) as net, NetnsCluster(spec, log_dir, net, master_args=master_args) as cluster:
         return {"path": label, **_flight(cluster, args, net)}
 
 
@@ -171,8 +198,9 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
         idle_rate = {n: (idle1[n] - idle0[n]) / idle_s for n in idle0.keys() & idle1.keys()}
         before, t0 = _cpu(cluster), time.monotonic()
         bytes0 = net.link_bytes() if net is not None else {}
+        resolution = "{}x{}".format(*workload_of(args)[0])
         cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps), "--in-flight", "1",
-                              "--no-sensors"])  # fmt: skip
+                              "--no-sensors", "--resolution", resolution])  # fmt: skip
         received, members = outcome()
         after, flight_s = _cpu(cluster), time.monotonic() - t0
         bytes1 = net.link_bytes() if net is not None else {}
@@ -191,7 +219,8 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.netns and (reason := unavailable_reason()) is not None:
         raise NetnsError(f"--netns: {reason}")
-    in_process = in_process_cpu_ms(args.frames)
+    size, settings, _ = workload_of(args)
+    in_process = in_process_cpu_ms(args.frames, size, settings)
     runs = [cluster_path(label, topology, workers, args) for label, topology, workers in PATHS]
     table: list[dict[str, Any]] = [{"path": "in-process", "frames": args.frames - 1, "lost": 0,
                                     "in_process_ms": in_process, "master_ms": in_process}]  # fmt: skip
@@ -205,7 +234,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "table": table,
         "json": {
-            "resolution": "752x480",
+            "resolution": "{}x{}".format(*size),
+            "grid": f"{settings.grid_cols}x{settings.grid_rows}",
+            "patch_size_px": settings.patch_size_px,
+            "pyramid_level": settings.pyramid_level,
             "netns": args.netns,
             "link_mbit": args.link_mbit,
             "frames": args.frames,

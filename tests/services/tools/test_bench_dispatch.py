@@ -10,10 +10,41 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.dispatch import SELF
-from services.tools.bench.dispatch import PATHS, ROLES, cluster_path, cpu_ms_per_frame, run
+from common.errors import CapatazError
+from common.yaw import YawSettings
+from services.tools.bench.dispatch import (
+    PATHS,
+    ROLES,
+    add_arguments,
+    cluster_path,
+    cpu_ms_per_frame,
+    run,
+    workload_of,
+)
 from services.tools.netns import unavailable_reason
 
 seconds = st.floats(0.0, 100.0, allow_nan=False)
+
+
+def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    default_size, default, default_args = workload_of(parser.parse_args([]))
+    assert default_size == (752, 480) and default == YawSettings()
+    assert default_args == ("--grid", "8x5", "--patch-size", "32", "--pyramid-level", "1")
+    args = parser.parse_args(["--resolution", "1920x1080", "--grid", "16x12", "--patch-size", "128",
+                              "--pyramid-level", "0"])  # fmt: skip
+    size, settings, master_args = workload_of(args)
+    assert size == (1920, 1080)
+    assert (settings.grid_cols, settings.grid_rows, settings.patch_size_px, settings.pyramid_level) == (
+        16,
+        12,
+        128,
+        0,
+    )
+    assert master_args == ("--grid", "16x12", "--patch-size", "128", "--pyramid-level", "0")
+    with pytest.raises(CapatazError, match="--grid"):
+        workload_of(parser.parse_args(["--grid", "16by12"]))
 
 
 def test_roles_sum_their_processes_net_of_idle_per_frame() -> None:
