@@ -1,7 +1,7 @@
 """CPU time per frame of each role (master, foreman, worker, router) on every dispatch path.
 
 Issue 29's first measure: what dispatching costs, in CPU time (host-independent, unlike latency), for the
-same 752x480 simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker
+same simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker
 (1 worker) and master-foreman-worker (1 foreman x 1 worker, and 2 x 2). For a cluster path each process's
 user + system CPU time is read from /proc before the camera starts and once the last yaw arrived; its idle
 rate (keep-alives, stats), measured over a short window before the flight, is taken off. A role's figure is
@@ -10,6 +10,10 @@ interpreter's start-up cannot be told apart from its per-frame work. The master'
 cost is the issue's "dispatch cheaper than compute" figure (target <= 25 %). Shared memory is off (the
 figures stand for separate hosts). CPU seconds are not wall time, but a busy host still inflates them
 (cache, steal) and /proc counts in 10 ms ticks: run it alone, with enough frames.
+
+The workload (``--resolution``, ``--grid``, ``--patch-size``, ``--pyramid-level``; unless given, the yaw
+core's defaults at 752x480) is the same in-process and on the master. Distributing pays on a heavy frame: the
+cluster bench's grid (``--grid 16x12 --patch-size 128 --pyramid-level 0``) at 752x480 and 1920x1080.
 """
 
 from __future__ import annotations
