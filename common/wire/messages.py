@@ -46,13 +46,9 @@ class UavMessage(WireModel):
 
 
 class Frame(UavMessage):
-    """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``).
-
-    ``encoding`` is how the pixels travel (:mod:`common.wire.frame_codec`): ``mono8`` raw, or compressed
-    (``png``, ``zstd`` lossless; ``jpeg`` at ``quality``). A compressed frame's bytes travel as the 1-D array
-    :attr:`COMPRESSED_NAME` (spec :attr:`COMPRESSED_SPEC`) instead of ``pixels``: the codec compresses at
-    encode and decodes (and checks) once at decode, so a received frame always holds its ``pixels``.
-    """
+    """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``). ``encoding`` is how the
+    pixels travel (:mod:`common.wire.frame_codec`): compressed, as the 1-D array ``COMPRESSED_NAME`` that the
+    codec decodes once at decode, so a received frame always holds its ``pixels``."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
     #: the wire array of a compressed frame: its codec's bytes
