@@ -254,3 +254,10 @@ def test_an_image_that_is_not_grey_bytes_is_not_encoded() -> None:
         frame_codec.encode(np.zeros((3, 4, 3), np.uint8), "png")
     with pytest.raises(WireError, match="need \\(height, width\\) uint8"):
         frame_codec.encode(np.zeros((3, 4), np.uint16), "zstd")
+
+
+def test_zstd_carries_each_rows_differences_to_its_left_neighbour() -> None:
+    """The format other senders must write: row deltas mod 256 (PNG's Sub filter), one zstd frame."""
+    pixels = np.array([[10, 5, 250], [0, 255, 1]], np.uint8)
+    deltas = zstandard.ZstdDecompressor().decompress(frame_codec.encode(pixels, "zstd"))
+    assert list(deltas) == [10, 251, 245, 0, 255, 2]
