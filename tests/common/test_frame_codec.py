@@ -261,3 +261,32 @@ def test_zstd_carries_each_rows_differences_to_its_left_neighbour() -> None:
     pixels = np.array([[10, 5, 250], [0, 255, 1]], np.uint8)
     deltas = zstandard.ZstdDecompressor().decompress(frame_codec.encode(pixels, "zstd"))
     assert list(deltas) == [10, 251, 245, 0, 255, 2]
+
+
+@functools.cache
+def _small_streams() -> dict[str, bytes]:
+    pixels = textured()[:60, :80].copy()
+    return {codec: frame_codec.encode(pixels, codec) for codec in ("png", "jpeg", "zstd")}
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    codec=st.sampled_from(["png", "jpeg", "zstd"]),
+    changes=st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), max_size=6),
+    cut=st.integers(0, 10**6),
+)
+def test_changed_or_cut_bytes_decode_to_the_frame_size_or_a_wire_error(
+    codec: str, changes: list[tuple[int, int]], cut: int
+) -> None:
+    """Never another exception (cv2.error, struct.error, ...): bytes changed anywhere (the headers too)
+    and the stream cut anywhere."""
+    data = bytearray(_small_streams()[codec])
+    for at, value in changes:
+        data[at % len(data)] = value
+    data = data[: max(1, len(data) - cut % len(data))] if cut % 3 == 0 else data
+    try:
+        decoded = frame_codec.decode(bytes(data), codec, 80, 60)
+    except WireError as exc:
+        assert str(exc)
+    else:
+        assert decoded.shape == (60, 80) and decoded.dtype == np.uint8
