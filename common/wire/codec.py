@@ -7,13 +7,18 @@ Encoding (schema version :data:`SCHEMA_VERSION`): a message becomes two byte str
   shape, nbytes], ...]}`` (the header), and
 - ``payload`` = the raw bytes of the message's arrays, concatenated in header order (pixels, crops).
 
+A :class:`~common.wire.messages.Frame` whose ``encoding`` is not ``mono8`` travels with its compressed
+bytes (one 1-D uint8 array, ``Frame.COMPRESSED_NAME``) instead of its pixels: :func:`encode` compresses
+(:mod:`common.wire.frame_codec`), :func:`decode` decompresses once, after checking the stream's own stated
+size against the frame's width and height, so every consumer sees ``pixels`` ``(height, width)`` uint8.
+
 Zenoh carries the header as the sample/query attachment and the raw bytes as the payload, so images
 never pass through msgpack. A message without arrays may also travel as the header alone in the payload
 (``attachment=None``), which is how error replies travel (``reply_err`` has no attachment).
 
 :func:`decode` validates everything once, at the boundary, and raises :class:`WireError` naming what is
 wrong: not msgpack, wrong version, unknown type, unknown or missing field, truncated or oversized payload,
-dtype or shape mismatch, NaN/inf.
+dtype or shape mismatch, NaN/inf, a compressed frame that is corrupt or states another size.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import msgpack
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
+from common.wire import frame_codec
 from common.wire.messages import (
     AttitudeEstimate,
     BlockJob,
@@ -41,7 +47,14 @@ from common.wire.messages import (
     YawEstimate,
 )
 from common.wire.rig import RigMessage
-from common.wire.schema import MAX_HEADER_BYTES, SCHEMA_VERSION, WIRE_NP_DTYPES, WireError, WireModel
+from common.wire.schema import (
+    MAX_FRAME_SIDE_PX,
+    MAX_HEADER_BYTES,
+    SCHEMA_VERSION,
+    WIRE_NP_DTYPES,
+    WireError,
+    WireModel,
+)
 
 M = TypeVar("M", bound=WireModel)
 #: every message the codec carries, by the type name in its header
@@ -79,8 +92,7 @@ def encode(message: WireModel) -> tuple[bytes, bytes]:
             fields[key] = value.model_dump(mode="json") if isinstance(value, BaseModel) else value
     descriptors = []
     chunks = []
-    for key in message.ARRAYS:
-        arr = np.ascontiguousarray(getattr(message, key))
+    for key, arr in _wire_arrays(message):
         descriptors.append([key, arr.dtype.str, list(arr.shape), arr.nbytes])
         chunks.append(arr.tobytes())
     try:
@@ -90,6 +102,15 @@ def encode(message: WireModel) -> tuple[bytes, bytes]:
     except (TypeError, ValueError, OverflowError) as exc:
         raise WireError(f"cannot encode {name}: {exc}") from exc
     return b"".join(chunks), header
+
+
+def _wire_arrays(message: WireModel) -> list[tuple[str, np.ndarray]]:
+    """The arrays ``message`` travels with: its :attr:`~WireModel.ARRAYS`, or a compressed frame's bytes."""
+    if isinstance(message, Frame) and message.encoding != "mono8":
+        quality = message.quality if message.quality is not None else frame_codec.DEFAULT_JPEG_QUALITY
+        data = frame_codec.encode(message.pixels, message.encoding, quality)
+        return [(Frame.COMPRESSED_NAME, np.frombuffer(data, np.uint8))]
+    return [(key, np.ascontiguousarray(getattr(message, key))) for key in message.ARRAYS]
 
 
 def encode_header_only(message: WireModel) -> bytes:
@@ -146,7 +167,7 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
         if not (isinstance(item, list) and len(item) == 4):
             raise WireError(f"{name}: array descriptor must be [name, dtype, shape, nbytes], got {item!r}")
         key, dtype, shape, nbytes = item
-        if key not in cls.ARRAYS:
+        if key not in cls.ARRAYS and not (cls is Frame and key == Frame.COMPRESSED_NAME):
             raise WireError(f"{name}: unknown array field {key!r}")
         if key in values:
             raise WireError(f"{name}: field {key!r} given twice")
@@ -169,6 +190,8 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
         offset += nbytes
     if offset != len(view):
         raise WireError(f"{name}: payload has {len(view) - offset} bytes more than its arrays declare")
+    if cls is Frame:
+        _decompress_frame(values)
     try:
         return cls.model_validate(values)  # type: ignore[return-value]
     except ValidationError as exc:
@@ -176,6 +199,31 @@ def decode(payload: bytes | None, attachment: bytes | None, expected: type[M] | 
             f"{'.'.join(map(str, err['loc'])) or 'message'}: {err['msg']}" for err in exc.errors()[:5]
         )
         raise WireError(f"{name}: {problems}") from None
+
+
+def _decompress_frame(values: dict[str, Any]) -> None:
+    """A compressed frame's ``pixels`` from its bytes (decoded once, here, and checked against its declared
+    size before anything is decompressed: :func:`common.wire.frame_codec.decode`); a mono8 frame as it is."""
+    encoding = values.get("encoding", "mono8")
+    data = values.pop(Frame.COMPRESSED_NAME, None)
+    if encoding == "mono8" or encoding not in frame_codec.FRAME_ENCODINGS:
+        if data is not None:
+            raise WireError(f"Frame: compressed bytes in a frame of encoding {encoding!r}")
+        return  # a mono8 frame's pixels (or a bad encoding, which validation names)
+    if data is None or "pixels" in values:
+        raise WireError(
+            f"Frame: a {encoding} frame carries its bytes as {Frame.COMPRESSED_NAME!r}, not pixels"
+        )
+    try:
+        data = Frame.COMPRESSED_SPEC.check(Frame.COMPRESSED_NAME, data)
+    except ValueError as exc:
+        raise WireError(f"Frame.{exc}") from None
+    width, height = values.get("width"), values.get("height")
+    for side, value in (("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_FRAME_SIDE_PX:
+            raise WireError(f"Frame.{side}: must be an integer in 1..{MAX_FRAME_SIDE_PX}, got {value!r}")
+    assert isinstance(width, int) and isinstance(height, int)
+    values["pixels"] = frame_codec.decode(data.data, encoding, width, height)
 
 
 def error_reply(kind: str, error: str) -> bytes:

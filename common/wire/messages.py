@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, create_model, mo
 from common.bounds import field_bounds
 from common.errors import InputError
 from common.provenance import Provenance
+from common.wire.frame_codec import FrameEncoding
 from common.wire.schema import (
     MAX_BUDGET_S,
     MAX_CROP_SIDE_PX,
@@ -45,13 +46,20 @@ class UavMessage(WireModel):
 
 
 class Frame(UavMessage):
-    """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``)."""
+    """One camera image of a UAV stream (8-bit grey, row-major ``(height, width)``). ``encoding`` is how the
+    pixels travel (:mod:`common.wire.frame_codec`): compressed, as the 1-D array ``COMPRESSED_NAME`` that the
+    codec decodes once at decode, so a received frame always holds its ``pixels``."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {"pixels": ArraySpec("|u1", (None, None))}
+    #: the wire array of a compressed frame: its codec's bytes
+    COMPRESSED_NAME: ClassVar[str] = "compressed"
+    COMPRESSED_SPEC: ClassVar[ArraySpec] = ArraySpec("|u1", (None,))
     seq: int = Field(ge=0, le=MAX_SEQ)  # required
     width: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
     height: int = Field(gt=0, le=MAX_FRAME_SIDE_PX)
-    encoding: Literal["mono8"] = "mono8"
+    encoding: FrameEncoding = "mono8"
+    #: the JPEG quality the pixels travel at (jpeg only; None: ``DEFAULT_JPEG_QUALITY``)
+    quality: int | None = Field(default=None, ge=1, le=100)
     pixels: np.ndarray
     frame_id: str = frame_id_field("camera")
     #: the id of the stream's rig (``common.wire.rig.RigMessage``) it was taken with; None: not stated
@@ -63,6 +71,8 @@ class Frame(UavMessage):
             raise ValueError(
                 f"pixels: shape {self.pixels.shape} != (height, width) = ({self.height}, {self.width})"
             )
+        if self.quality is not None and self.encoding != "jpeg":
+            raise ValueError(f"quality: only a jpeg frame has one, not a {self.encoding} frame")
         return self
 
 

@@ -24,6 +24,7 @@ import zenoh
 
 from common.members import Role
 from common.wire import keys
+from common.wire.codec import encode
 from common.wire.messages import Frame, YawEstimate
 from common.wire.rig import message_of_rig
 from common.wire.schema import WireModel
@@ -34,6 +35,7 @@ from services.camera.settings import CameraSettings, FlightName
 from services.camera.sources import add_source_arguments, open_camera_source, preloaded
 from services.runtime.cli import add_enum_argument, add_transport_arguments, parse_size
 from services.runtime.fields import settings_from
+from services.runtime.options import add_options
 from services.runtime.rig_follow import describe_rig
 from services.runtime.service import ConfiguredService
 
@@ -121,10 +123,18 @@ class CameraService(ConfiguredService[CameraSettings]):
         """Publish ``message`` on ``uav``'s ``topic`` (False: the service is stopping)."""
         publisher = self._pub[uav][topic]
         if isinstance(message, Frame):
-            if self.rig is not None:  # the rig it was taken with, by id (the rig itself is on the rig key)
-                message = message.model_copy(update={"rig_id": self.rig.rig_id})
+            # the rig it was taken with, by id (the rig itself is on the rig key), and how it travels
+            update = frame_codec_fields(self.settings)
+            if self.rig is not None:
+                update["rig_id"] = self.rig.rig_id
+            message = message.model_copy(update=update)
+            payload, attachment = encode(message)
+            sent = self.counters.inc("frame_bytes_out", len(payload))
+            if sent == len(payload):  # the first frame
+                logger.info("%s: frames go out as %s", self.name, describe_frame(message, len(payload)))
             # declare the source: masters follow one camera per stream (SourceLock)
-            return self.publish(publisher, message, source_info=zenoh.SourceInfo(publisher.id, message.seq))
+            source = zenoh.SourceInfo(publisher.id, message.seq)
+            return self.publish_encoded(publisher, payload, attachment, source_info=source)
         return self.publish(publisher, message)
 
     def wait_yaw(self, uav: str, seq: int) -> None:
@@ -161,6 +171,23 @@ class CameraService(ConfiguredService[CameraSettings]):
                 if all(p["camera"].matching_status.matching for p in self._pub.values()):
                     break
                 time.sleep(0.01)
+
+
+def frame_codec_fields(settings: CameraSettings) -> dict[str, Any]:
+    """The fields of a frame that say how it travels (``--frame-codec``, ``--jpeg-quality``)."""
+    if settings.frame_codec == "jpeg":
+        return {"encoding": "jpeg", "quality": settings.jpeg_quality}
+    return {"encoding": settings.frame_codec}
+
+
+def describe_frame(frame: Frame, payload_bytes: int) -> str:
+    """``752x480 jpeg q90: 119.8 kB per frame (33 % of mono8's 361.0 kB)``."""
+    raw = frame.width * frame.height
+    codec = frame.encoding + (f" q{frame.quality}" if frame.quality is not None else "")
+    return (
+        f"{frame.width}x{frame.height} {codec}: {payload_bytes / 1e3:.1f} kB per frame "
+        f"({100 * payload_bytes / raw:.0f} % of mono8's {raw / 1e3:.1f} kB)"
+    )
 
 
 def register(subparsers: Any) -> None:
@@ -206,6 +233,7 @@ def register(subparsers: Any) -> None:
         help="write the simulated flight's camera as an OpenCV YAML calibration (for the master's "
         "--calibration) and exit",
     )
+    add_options(parser, CameraSettings, ("frame_codec", "jpeg_quality"))
     add_source_arguments(parser)
     parser.set_defaults(handler=run)
 

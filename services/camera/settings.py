@@ -8,6 +8,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.members import Role
+from common.wire.frame_codec import DEFAULT_JPEG_QUALITY, FrameEncoding
 
 
 class FlightName(StrEnum):
@@ -77,3 +78,11 @@ class CameraSettings(BaseModel):
     wait_for: Role = Role.MASTER
     #: give up waiting for a yaw after this long (flow control only)
     yaw_timeout_s: float = Field(default=5.0, gt=0.0)
+    frame_codec: FrameEncoding = Field(
+        default="mono8",
+        description="how frames travel to the master: mono8 raw, png or zstd (lossless: bit-identical), "
+        "jpeg (lossy, at --jpeg-quality); receivers decode any of them",
+    )
+    jpeg_quality: int = Field(
+        default=DEFAULT_JPEG_QUALITY, ge=1, le=100, description="with --frame-codec jpeg: its quality, 1-100"
+    )

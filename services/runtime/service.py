@@ -123,7 +123,10 @@ class ServiceRuntime:
         """Encode and put ``message`` (``options``: zenoh's ``put`` keywords); False when the put failed
         because the service is stopping (the session closes under a thread still publishing). Other failures
         raise."""
-        payload, attachment = encode(message)
+        return self.publish_encoded(publisher, *encode(message), **options)
+
+    def publish_encoded(self, publisher: Any, payload: bytes, attachment: bytes, **options: Any) -> bool:
+        """:meth:`publish` of a message already encoded (a sender that also counts its bytes)."""
         try:
             publisher.put(payload, attachment=attachment, **options)
         except zenoh.ZError:

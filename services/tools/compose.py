@@ -10,6 +10,7 @@ already (and the engine's docker-init could not be mounted on this project's mac
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,8 +33,10 @@ def compose_from_cluster(
     image: str = DEFAULT_IMAGE,
     compose_dir: Path | None = None,
     publish_address: str = "127.0.0.1",
+    camera_args: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """A docker-compose document for a described cluster (router, camera, master, foremen, workers).
+    """A docker-compose document for a described cluster (router, camera, master, foremen, workers);
+    ``camera_args``: more camera options (``--frame-codec png``).
 
     A host's ``cpus`` list becomes the containers' ``cpuset`` (the compose twin of ``taskset``).
     ``compose_dir``: where the file will live (``build.context`` is relative to it; default: the repository).
@@ -63,7 +66,10 @@ def compose_from_cluster(
             "command": ["router", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}", "--no-multicast", "--no-shm"],
             "ports": [f"{publish_address}:{ROUTER_PORT}:{ROUTER_PORT}"],
         },
-        "camera": {**base(), "command": ["camera", "--node", "camera", "--uav", spec.uav, "--loop"]},
+        "camera": {
+            **base(),
+            "command": ["camera", "--node", "camera", "--uav", spec.uav, "--loop", *camera_args],
+        },
     }
     # the processes as `capataz up` starts them (one rendering of a cluster file for both)
     for command in cluster_commands(spec):

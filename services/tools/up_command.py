@@ -12,12 +12,15 @@ import shlex
 import signal
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from common.datasets.images import open_image_folder
+from services.camera.settings import CameraSettings
+from services.runtime.options import add_options
 from services.runtime.transport import open_session
 from services.runtime.usage import number_in
 from services.tools.cluster_file import ClusterSpec, load_cluster
@@ -81,6 +84,7 @@ def register(subparsers: Any) -> None:
         "--stamps", type=Path, help="per-image stamps of --images (index,stamp CSV or data.csv)"
     )
     parser.add_argument("--calibration", type=Path, help="camera calibration file for --images")
+    add_options(parser, CameraSettings, ("frame_codec", "jpeg_quality"))  # the camera's, passed on
     parser.add_argument(
         "--master-args",
         default="",
@@ -90,14 +94,28 @@ def register(subparsers: Any) -> None:
     parser.set_defaults(handler=run)
 
 
-def write_compose(spec: ClusterSpec, path: Path, publish_address: str) -> Path:
+def write_compose(
+    spec: ClusterSpec, path: Path, publish_address: str, camera_args: Sequence[str] = ()
+) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    document = compose_from_cluster(spec, compose_dir=path.parent, publish_address=publish_address)
+    document = compose_from_cluster(
+        spec, compose_dir=path.parent, publish_address=publish_address, camera_args=camera_args
+    )
     path.write_text(
         f"# capataz up --cluster ... --compose: cluster {spec.name}\n"
         + yaml.safe_dump(document, sort_keys=False)
     )
     return path
+
+
+def frame_codec_args(args: argparse.Namespace) -> list[str]:
+    """The camera's ``--frame-codec`` (and ``--jpeg-quality``) options as given (none for mono8), checked
+    here by the camera's settings (one error line before any process starts)."""
+    camera = CameraSettings(frame_codec=args.frame_codec, jpeg_quality=args.jpeg_quality)
+    if camera.frame_codec == "mono8":
+        return []
+    quality = ["--jpeg-quality", str(camera.jpeg_quality)] if camera.frame_codec == "jpeg" else []
+    return ["--frame-codec", camera.frame_codec, *quality]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,8 +127,10 @@ def run(args: argparse.Namespace) -> int:
         camera_args = ["--images", str(args.images)]
         camera_args += ["--stamps", str(args.stamps)] if args.stamps else []
         camera_args += ["--calibration", str(args.calibration)] if args.calibration else []
+    codec_args = frame_codec_args(args)
+    camera_args += codec_args
     if args.compose:
-        print(f"wrote {write_compose(spec, args.compose, args.publish_address)}")
+        print(f"wrote {write_compose(spec, args.compose, args.publish_address, codec_args)}")
         return 0
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGTERM, signal.SIGINT)}

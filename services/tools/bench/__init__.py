@@ -28,6 +28,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.estimator",
     "services.tools.bench.record",
     "services.tools.bench.compression",
+    "services.tools.bench.transport",
     "services.tools.bench.security",
     "services.tools.bench.ros2",
     "services.tools.bench.consistency",
