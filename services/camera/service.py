@@ -184,10 +184,10 @@ def describe_frame(frame: Frame, payload_bytes: int) -> str:
     """``752x480 jpeg q90: 119.8 kB per frame (33 % of mono8's 361.0 kB)``."""
     raw = frame.width * frame.height
     codec = frame.encoding + (f" q{frame.quality}" if frame.quality is not None else "")
-    return (
-        f"{frame.width}x{frame.height} {codec}: {payload_bytes / 1e3:.1f} kB per frame "
-        f"({100 * payload_bytes / raw:.0f} % of mono8's {raw / 1e3:.1f} kB)"
-    )
+    size = f"{frame.width}x{frame.height} {codec}: {payload_bytes / 1e3:.1f} kB per frame"
+    if frame.encoding == "mono8":
+        return size
+    return f"{size} ({100 * payload_bytes / raw:.0f} % of mono8's {raw / 1e3:.1f} kB)"
 
 
 def register(subparsers: Any) -> None:
