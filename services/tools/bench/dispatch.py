@@ -1,15 +1,16 @@
 """CPU time per frame of each role (master, foreman, worker, router) on every dispatch path.
 
-Issue 29's first measure: what dispatching costs, in CPU time (host-independent, unlike latency), for the
-same simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker
-(1 worker) and master-foreman-worker (1 foreman x 1 worker, and 2 x 2). For a cluster path each process's
-user + system CPU time is read from /proc before the camera starts and once the last yaw arrived; its idle
-rate (keep-alives, stats), measured over a short window before the flight, is taken off. A role's figure is
-the sum over its processes divided by the frames. The camera is left out: it starts with the flight, and its
-interpreter's start-up cannot be told apart from its per-frame work. The master's share of the in-process
-cost is the issue's "dispatch cheaper than compute" figure (target <= 25 %). Shared memory is off (the
-figures stand for separate hosts). CPU seconds are not wall time, but a busy host still inflates them
-(cache, steal) and /proc counts in 10 ms ticks: run it alone, with enough frames.
+Issue 29's first measure: what dispatching costs, in CPU time (host-independent, unlike latency), for the same
+simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker (1 worker) and
+master-foreman-worker (1 foreman x 1 worker, and 2 x 2), each flown ``--repeats`` times, interleaved: the
+table gives every role's median over the repeats and the master's p95. For a cluster path each process's user
++ system CPU time is read from /proc before the camera starts and once the last yaw arrived; its idle rate
+(keep-alives, stats), measured over a short window before the flight, is taken off. A role's figure is the sum
+over its processes divided by the frames. The camera is left out: it starts with the flight, and its
+interpreter's start-up cannot be told apart from its per-frame work. The master's share of the in-process cost
+is the issue's "dispatch cheaper than compute" figure (target <= 25 %). Shared memory is off (the figures
+stand for separate hosts). CPU seconds are not wall time, but a busy host still inflates them (cache, steal)
+and /proc counts in 10 ms ticks: run it alone, with enough frames.
 
 The workload (``--resolution``, ``--grid``, ``--patch-size``, ``--pyramid-level``; unless given, the yaw
 core's defaults at 752x480) is the same in-process and on the master. Distributing pays on a heavy frame: the
@@ -26,6 +27,8 @@ from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from common.dispatch import Balance
 from common.members import Topology
@@ -58,6 +61,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=at_least(10), default=100, help="frames of each path's flight")
     parser.add_argument(
         "--fps", type=number_in(float, 0.1, 1000.0), default=10.0, help="camera rate (paced: cores not full)"
+    )
+    parser.add_argument(
+        "--repeats",
+        type=number_in(int, 1, 50),
+        default=3,
+        help="flights of each path (median and p95 over them)",
     )
     parser.add_argument(
         "--idle-s", type=number_in(float, 0.1, 600.0), default=3.0, help="window of the idle CPU rate"
@@ -220,21 +229,53 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
             "patches_by_member": members, "flight_s": flight_s, "links": links}  # fmt: skip
 
 
+def median_p95(values: list[float]) -> tuple[float, float]:
+    """Median and 95th percentile of one figure over the repeats."""
+    array = np.asarray(values, dtype=np.float64)
+    return float(np.median(array)), float(np.percentile(array, 95))
+
+
+def summary_table(
+    in_process_runs: list[float], in_process_frames: int, runs: Mapping[str, list[dict[str, Any]]]
+) -> list[dict[str, Any]]:
+    """The table: in-process, then each path with every role's median CPU ms per frame over the repeats, the
+    master's p95, its share of the in-process median (median and p95) and each host's link kB per frame."""
+    repeats = len(in_process_runs)
+    in_process, in_process_p95 = median_p95(in_process_runs)
+    table: list[dict[str, Any]] = [{"path": "in-process", "frames": in_process_frames, "lost": 0,
+                                    "in_process_ms": in_process, "master_ms": in_process,
+                                    "master_ms_p95": in_process_p95}]  # fmt: skip
+    for label, path_runs in runs.items():
+        roles = {role: median_p95([r["cpu_ms_per_frame"][role] for r in path_runs]) for role in ROLES}
+        shares = [r["cpu_ms_per_frame"]["master"] / in_process for r in path_runs]
+        links: dict[str, float] = {}
+        for r in path_runs:
+            for host, link in r["links"].items():
+                links.setdefault(f"{host}_tx_kB", 0.0)
+                links[f"{host}_tx_kB"] += link["tx_bytes_per_frame"] / 1e3 / repeats
+        table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),
+                      "lost": sum(r["lost"] for r in path_runs),
+                      **{f"{role}_ms": roles[role][0] for role in ROLES},
+                      "master_ms_p95": roles["master"][1],
+                      "master_share": median_p95(shares)[0], "master_share_p95": median_p95(shares)[1],
+                      **links})  # fmt: skip
+    return table
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.netns and (reason := unavailable_reason()) is not None:
         raise NetnsError(f"--netns: {reason}")
     size, settings, _ = workload_of(args)
-    in_process = in_process_cpu_ms(args.frames, size, settings)
-    runs = [cluster_path(label, topology, workers, args) for label, topology, workers in PATHS]
-    table: list[dict[str, Any]] = [{"path": "in-process", "frames": args.frames - 1, "lost": 0,
-                                    "in_process_ms": in_process, "master_ms": in_process}]  # fmt: skip
-    for r in runs:
-        cpu = r["cpu_ms_per_frame"]
-        links = {f"{host}_tx_kB": link["tx_bytes_per_frame"] / 1e3 for host, link in r["links"].items()}
-        table.append({"path": r["path"], "frames": r["frames"], "lost": r["lost"],
-                      **{f"{role}_ms": cpu.get(role) for role in ROLES},
-                      "master_share": cpu["master"] / in_process,
-                      **links})  # fmt: skip
+    repeats = getattr(args, "repeats", 1)
+    in_process_runs: list[float] = []
+    runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in PATHS}
+    # repeats interleave the paths, so that a change of the (shared) host's load hits them alike
+    for _ in range(repeats):
+        in_process_runs.append(in_process_cpu_ms(args.frames, size, settings))
+        for label, topology, workers in PATHS:
+            runs[label].append(cluster_path(label, topology, workers, args))
+    table = summary_table(in_process_runs, repeats * (args.frames - 1), runs)
+    in_process = table[0]["in_process_ms"]
     return {
         "table": table,
         "json": {
@@ -246,8 +287,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "link_mbit": args.link_mbit,
             "frames": args.frames,
             "fps": args.fps,
+            "repeats": repeats,
             "in_process_cpu_ms_per_frame": in_process,
-            "paths": runs,
+            "in_process_cpu_ms_per_frame_runs": in_process_runs,
+            "paths": [r for path_runs in runs.values() for r in path_runs],
             "target_master_share": 0.25,
         },
     }

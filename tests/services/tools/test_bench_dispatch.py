@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import given
@@ -19,11 +20,32 @@ from services.tools.bench.dispatch import (
     cluster_path,
     cpu_ms_per_frame,
     run,
+    summary_table,
     workload_of,
 )
 from services.tools.netns import unavailable_reason
 
 seconds = st.floats(0.0, 100.0, allow_nan=False)
+
+
+def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_in_process_median() -> None:
+    def flight(master_ms: float, worker_ms: float, tx_bytes: float) -> dict[str, Any]:
+        cpu = {"master": master_ms, "foreman": 0.0, "worker": worker_ms, "router": 0.1}
+        return {
+            "frames": 10,
+            "lost": 0,
+            "cpu_ms_per_frame": cpu,
+            "links": {"h1": {"tx_bytes_per_frame": tx_bytes}},
+        }
+
+    runs = {"master-worker 1": [flight(2.0, 9.0, 1e3), flight(9.0, 10.0, 3e3), flight(3.0, 11.0, 2e3)]}
+    table = summary_table([10.0, 12.0, 8.0], 27, runs)
+    assert table[0]["in_process_ms"] == 10.0 and table[0]["frames"] == 27
+    row = table[1]
+    assert row["master_ms"] == 3.0 and row["worker_ms"] == 10.0 and row["frames"] == 30
+    assert row["master_share"] == pytest.approx(0.3) and 0.3 < row["master_share_p95"] <= 0.9
+    assert 3.0 < row["master_ms_p95"] <= 9.0
+    assert row["h1_tx_kB"] == pytest.approx(2.0)  # the mean over the repeats
 
 
 def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
