@@ -32,7 +32,7 @@ from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight
 from common.wire import frame_codec
 from common.yaw import YawSettings
-from services.tools.bench.yaw_field import run_core
+from services.tools.bench.yaw_field import SCENARIOS_HELP, run_core, scenario_names
 
 logger = logging.getLogger(__name__)
 
@@ -55,11 +55,7 @@ U8 = npt.NDArray[np.uint8]
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=2, help="seeds of every field flight (0..N-1)")
     parser.add_argument("--frames", type=int, default=150, help="frames of every field flight (>= 2)")
-    parser.add_argument(
-        "--scenarios",
-        default="",
-        help=f"comma-separated subset of the field suite (default all: {', '.join(FIELD_SCENARIOS)}, hover)",
-    )
+    parser.add_argument("--scenarios", default="", help=SCENARIOS_HELP)
     parser.add_argument(
         "--timing-frames", type=int, default=40, help="752x480 hover frames whose bytes and CPU are measured"
     )
@@ -144,21 +140,10 @@ def yaw_through_codecs(flight: Flight, use_imu: bool, settings: YawSettings) -> 
     return out
 
 
-def _scenario_names(text: str) -> list[str]:
-    names = [*FIELD_SCENARIOS, "hover"]
-    if not text:
-        return names
-    wanted = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = sorted(set(wanted) - set(names))
-    if unknown:
-        raise CapatazError(f"unknown field scenario(s) {unknown}; known: {', '.join(names)}")
-    return [n for n in names if n in wanted]
-
-
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.seeds < 1 or args.frames < 2 or args.timing_frames < 1 or args.repeats < 1:
         raise CapatazError("--seeds, --timing-frames and --repeats must be >= 1 and --frames >= 2")
-    names = _scenario_names(args.scenarios)
+    names = scenario_names(args.scenarios)
     cv2.setNumThreads(1)
     hover = hover_flight(seed=0, n_frames=max(args.timing_frames, 2))
     timed = list(hover.frames())[: args.timing_frames]

@@ -166,6 +166,25 @@ def run_core(
     return series
 
 
+#: the help of an option naming a subset of the field suite (:func:`scenario_names`)
+SCENARIOS_HELP = (
+    f"comma-separated subset of the field suite (default all: {', '.join(FIELD_SCENARIOS)}, hover)"
+)
+
+
+def scenario_names(text: str) -> list[str]:
+    """The field suite's scenarios and the hover named in ``text`` (comma-separated; empty: all of them), in
+    the suite's order; an unknown name is one error line."""
+    names = [*FIELD_SCENARIOS, "hover"]
+    if not text:
+        return names
+    wanted = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = sorted(set(wanted) - set(names))
+    if unknown:
+        raise CapatazError(f"unknown field scenario(s) {unknown}; known: {', '.join(names)}")
+    return [n for n in names if n in wanted]
+
+
 def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     """``bench yaw``'s options of this suite (``--suite field``), a group of its own in ``--help``."""
     group = parser.add_argument_group(
@@ -175,11 +194,7 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--field-frames", type=int, default=600, help="frames per field scenario (>= 102)")
     group.add_argument("--hover-frames", type=int, default=2041, help="hover frames of the field suite")
-    group.add_argument(
-        "--field-scenarios",
-        default="",
-        help=f"comma-separated subset of the field suite (default all: {', '.join(FIELD_SCENARIOS)}, hover)",
-    )
+    group.add_argument("--field-scenarios", default="", help=SCENARIOS_HELP)
 
 
 def run_field(args: argparse.Namespace) -> dict[str, Any]:
@@ -188,13 +203,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
     scenarios: dict[str, Any] = {}
     baseline: dict[str, Any] = {}
     rows: list[dict[str, Any]] = []
-    names = [*FIELD_SCENARIOS, "hover"]
-    if args.field_scenarios:
-        wanted = [n.strip() for n in args.field_scenarios.split(",") if n.strip()]
-        unknown = sorted(set(wanted) - set(names))
-        if unknown:
-            raise CapatazError(f"unknown field scenario(s) {unknown}; known: {', '.join(names)}")
-        names = [n for n in names if n in wanted]
+    names = scenario_names(args.field_scenarios)
     for name in names:
         logger.info("scenario %s: rendering and running", name)
         use_imu = True
