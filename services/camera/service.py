@@ -134,7 +134,7 @@ class CameraService(ConfiguredService[CameraSettings]):
                 logger.info("%s: frames go out as %s", self.name, describe_frame(message, len(payload)))
             # declare the source: masters follow one camera per stream (SourceLock)
             source = zenoh.SourceInfo(publisher.id, message.seq)
-            return self.publish_encoded(publisher, payload, attachment, source_info=source)
+            return self.publish(publisher, message, (payload, attachment), source_info=source)
         return self.publish(publisher, message)
 
     def wait_yaw(self, uav: str, seq: int) -> None:

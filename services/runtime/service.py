@@ -119,14 +119,18 @@ class ServiceRuntime:
             except Exception as exc:
                 self.count_error("undeclare_failures", "undeclare", exc)
 
-    def publish(self, publisher: Any, message: WireModel, **options: Any) -> bool:
-        """Encode and put ``message`` (``options``: zenoh's ``put`` keywords); False when the put failed
+    def publish(
+        self,
+        publisher: Any,
+        message: WireModel,
+        encoded: tuple[bytes, bytes] | None = None,
+        **options: Any,
+    ) -> bool:
+        """Encode and put ``message`` (``encoded``: its ``(payload, attachment)`` when the sender already
+        encoded it, e.g. to count its bytes; ``options``: zenoh's ``put`` keywords); False when the put failed
         because the service is stopping (the session closes under a thread still publishing). Other failures
-        raise."""
-        return self.publish_encoded(publisher, *encode(message), **options)
-
-    def publish_encoded(self, publisher: Any, payload: bytes, attachment: bytes, **options: Any) -> bool:
-        """:meth:`publish` of a message already encoded (a sender that also counts its bytes)."""
+        raise. (One function: a frame's walk enters this module once to publish.)"""
+        payload, attachment = encoded if encoded is not None else encode(message)
         try:
             publisher.put(payload, attachment=attachment, **options)
         except zenoh.ZError:
