@@ -17,7 +17,8 @@ camera: the runs that hold converge on one pose) as far as the image tells: the 
 from both within ``ALIGN_PX`` (root median square). Stricter, ``held_within_mm_deg``: within ``AGREE_MM`` /
 ``AGREE_DEG`` of it (a depth difference of 1-2 % of the distance hardly moves a small model's outline).
 Overlays (the projected model on the frame) of the first run at frames 0, 50, 100, 150, 190, 217:
-``<out>/localizer_cube_<frame>.png``.
+``<out>/localizer_cube_<frame>.png``, and the six at half size on one sheet,
+``<out>/localizer_cube_overlays.png`` (the README's picture).
 """
 
 from __future__ import annotations
@@ -141,6 +142,29 @@ def overlay(image: np.ndarray, samples_px: tuple[np.ndarray, np.ndarray], path: 
     cv2.imwrite(str(path), rgb)
 
 
+def overlay_sheet(paths: list[Path], out_path: Path, columns: int = 3) -> Path:
+    """The overlays ``paths`` (one frame each, named ``..._<frame>.png``) at half size on one sheet,
+    ``columns`` across, each labelled with its frame number (the README's picture of the cube run)."""
+    tiles = []
+    for path in paths:
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise CapatazError(f"{path}: not an image")
+        tile = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        label = f"frame {int(path.stem.rsplit('_', 1)[-1])}"
+        cv2.putText(tile, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 255), 1, cv2.LINE_AA)
+        tiles.append(tile)
+    if not tiles:
+        raise CapatazError("no overlays to put on a sheet")
+    blank = np.zeros_like(tiles[0])
+    rows = [tiles[i : i + columns] for i in range(0, len(tiles), columns)]
+    rows[-1] = rows[-1] + [blank] * (columns - len(rows[-1]))
+    sheet = np.vstack([np.hstack(row) for row in rows])
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out_path), sheet)
+    return out_path
+
+
 def cube_runs(
     directory: Path, runs: int = 12, config: TrackerSettings | None = None, out_dir: Path | None = None
 ) -> dict[str, Any]:
@@ -171,6 +195,9 @@ def cube_runs(
                 _overlay_frame(measure, cube, state.pose, i, out_dir)
             c0 = time.process_time()
         finals.append(state.pose)
+        if r == 0 and out_dir is not None:
+            frames = [out_dir / f"localizer_cube_{i:03d}.png" for i in OVERLAY_FRAMES if i < len(cube.images)]
+            overlay_sheet(frames, out_dir / "localizer_cube_overlays.png")
         bad = [i for i, a in enumerate(aligned) if a < ALIGNED_MIN]
         rows.append(
             {

@@ -6,13 +6,15 @@ import argparse
 import os
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from common.errors import CapatazError
 from common.localization.refine import EdgeFit, match_fraction
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings
-from services.tools.bench import localizer, localizer_defaults
+from services.tools.bench import localizer, localizer_cube, localizer_defaults
 from services.tools.bench.localizer_field import best_scoring
 
 
@@ -154,3 +156,18 @@ def test_step_suite_reports_medians_and_p95_of_every_measure_on_one_core() -> No
     assert [row["measure"] for row in result["table"]] == list(timings)
     with pytest.raises(CapatazError):
         localizer.run(parser.parse_args(["--suite", "step", "--step-frames", "0"]))
+
+
+def test_the_cube_overlays_go_on_one_labelled_sheet_at_half_size(tmp_path: Path) -> None:
+    paths = []
+    for k, frame in enumerate(localizer_cube.OVERLAY_FRAMES[:5]):
+        image = np.full((48, 64, 3), 40 * k, dtype=np.uint8)
+        path = tmp_path / f"localizer_cube_{frame:03d}.png"
+        cv2.imwrite(str(path), image)
+        paths.append(path)
+    sheet = cv2.imread(str(localizer_cube.overlay_sheet(paths, tmp_path / "sheet.png")))
+    assert sheet.shape == (2 * 24, 3 * 32, 3)  # 5 tiles, 3 across: the last place blank
+    assert np.all(sheet[24:, 64:] == 0) and sheet[46, 62].max() == 4 * 40  # frame 190: below its label
+    (tmp_path / "not.png").write_text("not an image")
+    with pytest.raises(CapatazError, match="not an image"):
+        localizer_cube.overlay_sheet([tmp_path / "not.png"], tmp_path / "bad.png")
