@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import statistics
 import sys
 import threading
 import time
@@ -33,7 +32,7 @@ import zenoh
 
 from common.errors import CapatazError
 from services.runtime.transport import TransportSettings, open_session
-from services.tools.observe import AliveWatch, YawCollector
+from services.tools.observe import AliveWatch, YawCollector, median_timings_ms
 
 
 def _say(line: str) -> None:
@@ -61,14 +60,10 @@ def _yaw(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:
     estimates = dict(collector.estimates)
     collector.close()
     members: Counter[str] = Counter()
-    stages: dict[str, list[float]] = {}
     for estimate in estimates.values():
         members.update(estimate.members)
-        for stage, ms in estimate.timings_ms.items():
-            stages.setdefault(stage, []).append(ms)
-    medians = {stage: statistics.median(v) for stage, v in sorted(stages.items())}
     return {"seqs": sorted(estimates), "members": dict(members), "malformed": collector.malformed,
-            "median_timings_ms": medians}  # fmt: skip
+            "median_timings_ms": median_timings_ms(estimates.values())}  # fmt: skip
 
 
 def _sub(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:

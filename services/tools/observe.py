@@ -11,9 +11,10 @@ it, ``capataz status`` its rates and members, ``capataz metrics`` its exporter's
 
 from __future__ import annotations
 
+import statistics
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import TypeVar
 
 import zenoh
@@ -123,6 +124,15 @@ class AliveWatch:
 
     def close(self) -> None:
         self._sub.undeclare()
+
+
+def median_timings_ms(estimates: Iterable[YawEstimate]) -> dict[str, float]:
+    """Each of the master's stage timings' median (``total``: frame in to yaw out, ms) over ``estimates``."""
+    stages: dict[str, list[float]] = {}
+    for estimate in estimates:
+        for stage, ms in estimate.timings_ms.items():
+            stages.setdefault(stage, []).append(ms)
+    return {stage: statistics.median(v) for stage, v in sorted(stages.items())}
 
 
 class YawCollector(_Watch):

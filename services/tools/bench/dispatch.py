@@ -3,14 +3,15 @@
 Issue 29's first measure: what dispatching costs, in CPU time (host-independent, unlike latency), for the same
 simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker (1 worker) and
 master-foreman-worker (1 foreman x 1 worker, and 2 x 2), each flown ``--repeats`` times, interleaved: the
-table gives every role's median over the repeats and the master's p95. For a cluster path each process's user
-+ system CPU time is read from /proc before the camera starts and once the last yaw arrived; its idle rate
-(keep-alives, stats), measured over a short window before the flight, is taken off. A role's figure is the sum
-over its processes divided by the frames. The camera is left out: it starts with the flight, and its
-interpreter's start-up cannot be told apart from its per-frame work. The master's share of the in-process cost
-is the issue's "dispatch cheaper than compute" figure (target <= 25 %). Shared memory is off (the figures
-stand for separate hosts). CPU seconds are not wall time, but a busy host still inflates them (cache, steal)
-and /proc counts in 10 ms ticks: run it alone, with enough frames.
+table gives every role's median over the repeats, the master's p95 and its median frame time (frame in to yaw
+out, wall ms: ``frame_ms``). For a cluster path each process's user + system CPU time is read from /proc
+before the camera starts and once the last yaw arrived; its idle rate (keep-alives, stats), measured over a
+short window before the flight, is taken off. A role's figure is the sum over its processes divided by the
+frames. The camera is left out: it starts with the flight, and its interpreter's start-up cannot be told apart
+from its per-frame work. The master's share of the in-process cost is the issue's "dispatch cheaper than
+compute" figure (target <= 25 %). Shared memory is off (the figures stand for separate hosts). CPU seconds are
+not wall time, but a busy host still inflates them (cache, steal) and /proc counts in 10 ms ticks: run it
+alone, with enough frames.
 
 The workload (``--resolution``, ``--grid``, ``--patch-size``, ``--pyramid-level``; unless given, the yaw
 core's defaults at 752x480) is the same in-process and on the master. Distributing pays on a heavy frame: the
@@ -42,7 +43,7 @@ from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.loadtest.harness import cpu_seconds
 from services.tools.netns import NetHarness, NetnsError, new_prefix, unavailable_reason
 from services.tools.netns_cluster import GROUND, NetnsCluster, plan_for_cluster
-from services.tools.observe import YawCollector
+from services.tools.observe import YawCollector, median_timings_ms
 from services.tools.up import LocalCluster
 
 NAME = "dispatch"
@@ -192,17 +193,18 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
             agent = cluster.agent(GROUND, ["yaw", "--count", str(args.frames)], timeout_s)
             agent.wait_ready()
 
-            def outcome() -> tuple[int, dict[str, int]]:
+            def outcome() -> tuple[int, dict[str, int], dict[str, float]]:
                 got = agent.result(timeout_s + 15.0)
-                return len(got["seqs"]), dict(got["members"])
+                return len(got["seqs"]), dict(got["members"]), dict(got["median_timings_ms"])
         else:
             session = stack.enter_context(open_session(cluster.observer_transport()))
             collector = YawCollector(session, cluster.spec.uav)
             stack.callback(collector.close)
 
-            def outcome() -> tuple[int, dict[str, int]]:
+            def outcome() -> tuple[int, dict[str, int], dict[str, float]]:
                 collector.wait_for(args.frames, timeout_s)
-                return len(collector.estimates), _members(collector.estimates)
+                estimates = dict(collector.estimates)
+                return len(estimates), _members(estimates), median_timings_ms(estimates.values())
 
         idle0, t_idle = _cpu(cluster), time.monotonic()
         time.sleep(args.idle_s)  # the idle window itself: a rate, not a wait for a condition
@@ -214,7 +216,7 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
         resolution = "{}x{}".format(*workload_of(args)[0])
         cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps), "--in-flight", "1",
                               "--no-sensors", "--resolution", resolution])  # fmt: skip
-        received, members = outcome()
+        received, members, timings = outcome()
         after, flight_s = _cpu(cluster), time.monotonic() - t0
         bytes1 = net.link_bytes() if net is not None else {}
     cluster.stop()
@@ -226,7 +228,9 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
             "cpu_ms_per_frame": cpu_ms_per_frame(before, after, idle_rate, flight_s, frames),
             # before the idle rate is taken off: what the processes spent, idle polling included
             "gross_cpu_ms_per_frame": cpu_ms_per_frame(before, after, {}, flight_s, frames),
-            "patches_by_member": members, "flight_s": flight_s, "links": links}  # fmt: skip
+            "patches_by_member": members, "flight_s": flight_s, "links": links,
+            # the master's median stage timings (``total``: frame in to yaw out, wall ms)
+            "median_timings_ms": timings}  # fmt: skip
 
 
 def median_p95(values: list[float]) -> tuple[float, float]:
@@ -253,12 +257,16 @@ def summary_table(
             for host, link in r["links"].items():
                 links.setdefault(f"{host}_tx_kB", 0.0)
                 links[f"{host}_tx_kB"] += link["tx_bytes_per_frame"] / 1e3 / repeats
+        frame_ms = [
+            r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})
+        ]
+        latency = {"frame_ms": median_p95(frame_ms)[0]} if frame_ms else {}
         table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),
                       "lost": sum(r["lost"] for r in path_runs),
                       **{f"{role}_ms": roles[role][0] for role in ROLES},
                       "master_ms_p95": roles["master"][1],
                       "master_share": median_p95(shares)[0], "master_share_p95": median_p95(shares)[1],
-                      **links})  # fmt: skip
+                      **latency, **links})  # fmt: skip
     return table
 
 

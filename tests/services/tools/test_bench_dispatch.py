@@ -39,6 +39,8 @@ def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_
         }
 
     runs = {"master-worker 1": [flight(2.0, 9.0, 1e3), flight(9.0, 10.0, 3e3), flight(3.0, 11.0, 2e3)]}
+    for run_, frame_ms in zip(runs["master-worker 1"], (40.0, 90.0, 50.0), strict=True):
+        run_["median_timings_ms"] = {"total": frame_ms, "round": frame_ms / 2}
     table = summary_table([10.0, 12.0, 8.0], 27, runs)
     assert table[0]["in_process_ms"] == 10.0 and table[0]["frames"] == 27
     row = table[1]
@@ -46,6 +48,7 @@ def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_
     assert row["master_share"] == pytest.approx(0.3) and 0.3 < row["master_share_p95"] <= 0.9
     assert 3.0 < row["master_ms_p95"] <= 9.0
     assert row["h1_tx_kB"] == pytest.approx(2.0)  # the mean over the repeats
+    assert row["frame_ms"] == 50.0  # the master's frame time, median over the repeats
 
 
 def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
@@ -111,6 +114,7 @@ def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path)
         assert path["lost"] == 0 and path["frames"] == 10
         # CPU is read from /proc in 10 ms ticks; less each process's idle rate, a role's 10 frames can read 0
         # on a loaded host (the master's and a worker's each did once in the suite); before it, they cannot
+        assert path["median_timings_ms"]["total"] > 0.0  # the master's frame in to yaw out
         gross, net = path["gross_cpu_ms_per_frame"], path["cpu_ms_per_frame"]
         assert gross["master"] > 0 and gross["worker"] > 0
         assert all(0 <= net[role] <= gross[role] for role in net)

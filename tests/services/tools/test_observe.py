@@ -9,13 +9,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.wire import keys
-from common.wire.messages import Stats
+from common.wire.messages import Stats, YawEstimate
 from services.runtime.transport import open_session
 from services.tools.observe import (
     DROPPED_COUNTERS,
     REFUSED_COUNTERS,
     AliveWatch,
     dropped_count,
+    median_timings_ms,
     member_rows,
     refused_count,
 )
@@ -76,3 +77,15 @@ def test_alive_watch_follows_the_members_tokens_and_passes_over_foreign_ones() -
             watch.close()
             worker.undeclare()
             foreign.undeclare()
+
+
+def test_the_master_s_stage_timings_are_the_median_over_the_estimates() -> None:
+    def estimate(seq: int, total_ms: float, round_ms: float | None) -> YawEstimate:
+        timings = {"total": total_ms} if round_ms is None else {"total": total_ms, "round": round_ms}
+        return YawEstimate(uav="uav0", seq=seq, stamp_s=seq / 20, delta_yaw_rad=0.0, yaw_rad=0.0,
+                           inlier_count=0, patch_count=0, confidence=0.0, low_confidence=True,
+                           method="initial", timings_ms=timings)  # fmt: skip
+
+    estimates = [estimate(0, 30.0, 10.0), estimate(1, 90.0, None), estimate(2, 50.0, 20.0)]
+    assert median_timings_ms(estimates) == {"round": 15.0, "total": 50.0}
+    assert median_timings_ms([]) == {}
