@@ -193,33 +193,37 @@ class TrackerViews:
         rotations = np.concatenate([r for _, r in parts])
         return turned, positions, rotations
 
+    def _since_good(self, state: TrackerState, dt_s: float) -> tuple[float, float] | None:
+        """The time since the last good pose up to ``max_gap_frames`` frame intervals, and the frame interval
+        (s); None before the first good frame or while the interval is unknown."""
+        noise = state.process_noise
+        if state.frames == 0 or noise is None or noise.frame_interval_s is None:
+            return None
+        interval = noise.frame_interval_s
+        return min(state.since_good_s + dt_s, self.config.noise.max_gap_frames * interval), interval
+
     def _elapsed_reach_rad(self, state: TrackerState, dt_s: float) -> float:
         """How far (rad) the camera may have turned since the last good pose: the image-motion ceiling per
         frame interval times the intervals since (up to ``max_gap_frames``), at most half the image's
         narrower field of view. A search that trails a camera turning faster than its box grows never
         catches it (at 5 fps a fast flight turns 10 deg a frame)."""
-        noise = state.process_noise
-        if state.frames == 0 or noise is None or noise.frame_interval_s is None:
+        since = self._since_good(state, dt_s)
+        if since is None:
             return 0.0
-        frames = min((state.since_good_s + dt_s) / noise.frame_interval_s, self.config.noise.max_gap_frames)
-        turn = (
-            ceiling_px(self.config.noise, noise.frame_interval_s)
-            * frames
-            / max(self.camera.fx, self.camera.fy)
-        )
-        half_fov = float(
-            np.arctan2(0.5 * min(self.camera.width, self.camera.height), max(self.camera.fx, self.camera.fy))
-        )
+        elapsed_s, interval_s = since
+        f = max(self.camera.fx, self.camera.fy)
+        turn = ceiling_px(self.config.noise, interval_s) * (elapsed_s / interval_s) / f
+        half_fov = float(np.arctan2(0.5 * min(self.camera.width, self.camera.height), f))
         return float(min(turn, half_fov))
 
     def _carried(self, state: TrackerState, last: CameraPose, dt_s: float) -> CameraPose:
         """The last good pose moved by the last trusted velocity and rate (kept through bad frames) over the
         time since it, up to ``max_gap_frames`` frame intervals: at 5 fps a camera moves 40 px a frame, and a
         few frames of a sparse view leave the last good pose far behind."""
-        noise = state.process_noise
-        if state.frames == 0 or noise is None or noise.frame_interval_s is None:
+        since = self._since_good(state, dt_s)
+        if since is None:
             return last
-        elapsed = min(state.since_good_s + dt_s, self.config.noise.max_gap_frames * noise.frame_interval_s)
+        elapsed = since[0]
         return CameraPose(
             last.p_world_camera_m + state.velocity_m_s * elapsed,
             perturb(last.R_world_camera[None], (state.angular_rate_rad_s * elapsed)[None])[0],
