@@ -122,14 +122,13 @@ def _cpu(cluster: LocalCluster) -> dict[str, float]:
 
 def workload_of(args: argparse.Namespace) -> tuple[tuple[int, int], YawSettings, tuple[str, ...]]:
     """The workload's frame size, yaw settings (in-process) and the same settings as master options."""
-    size = parse_size(getattr(args, "resolution", "752x480"), "--resolution", "752x480")
-    yaw = YawSettings()
-    grid = getattr(args, "grid", f"{yaw.grid_cols}x{yaw.grid_rows}")
-    cols, rows = parse_size(grid, "--grid", "8x5")
-    patch = getattr(args, "patch_size", yaw.patch_size_px)
-    level = getattr(args, "pyramid_level", yaw.pyramid_level)
-    settings = replace(yaw, grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level)
-    master_args = ("--grid", grid, "--patch-size", str(patch), "--pyramid-level", str(level))
+    size = parse_size(args.resolution, "--resolution", "752x480")
+    cols, rows = parse_size(args.grid, "--grid", "8x5")
+    patch, level = args.patch_size, args.pyramid_level
+    settings = replace(
+        YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level
+    )
+    master_args = ("--grid", args.grid, "--patch-size", str(patch), "--pyramid-level", str(level))
     return size, settings, master_args
 
 
@@ -213,9 +212,8 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
         idle_rate = {n: (idle1[n] - idle0[n]) / idle_s for n in idle0.keys() & idle1.keys()}
         before, t0 = _cpu(cluster), time.monotonic()
         bytes0 = net.link_bytes() if net is not None else {}
-        resolution = "{}x{}".format(*workload_of(args)[0])
         cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps), "--in-flight", "1",
-                              "--no-sensors", "--resolution", resolution])  # fmt: skip
+                              "--no-sensors", "--resolution", args.resolution])  # fmt: skip
         received, members, timings = outcome()
         after, flight_s = _cpu(cluster), time.monotonic() - t0
         bytes1 = net.link_bytes() if net is not None else {}
@@ -251,7 +249,7 @@ def summary_table(
                                     "master_ms_p95": in_process_p95}]  # fmt: skip
     for label, path_runs in runs.items():
         roles = {role: median_p95([r["cpu_ms_per_frame"][role] for r in path_runs]) for role in ROLES}
-        shares = [r["cpu_ms_per_frame"]["master"] / in_process for r in path_runs]
+        share, share_p95 = median_p95([r["cpu_ms_per_frame"]["master"] / in_process for r in path_runs])
         links: dict[str, float] = {}
         for r in path_runs:
             for host, link in r["links"].items():
@@ -265,7 +263,7 @@ def summary_table(
                       "lost": sum(r["lost"] for r in path_runs),
                       **{f"{role}_ms": roles[role][0] for role in ROLES},
                       "master_ms_p95": roles["master"][1],
-                      "master_share": median_p95(shares)[0], "master_share_p95": median_p95(shares)[1],
+                      "master_share": share, "master_share_p95": share_p95,
                       **latency, **links})  # fmt: skip
     return table
 
@@ -274,7 +272,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.netns and (reason := unavailable_reason()) is not None:
         raise NetnsError(f"--netns: {reason}")
     size, settings, _ = workload_of(args)
-    repeats = getattr(args, "repeats", 1)
+    repeats = args.repeats
     in_process_runs: list[float] = []
     runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in PATHS}
     # repeats interleave the paths, so that a change of the (shared) host's load hits them alike

@@ -28,6 +28,15 @@ from services.tools.netns import unavailable_reason
 seconds = st.floats(0.0, 100.0, allow_nan=False)
 
 
+def _bench_args(out: Path, *argv: str) -> argparse.Namespace:
+    """The bench's options as its parser gives them (its defaults, one home), ``out`` the output folder."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    args.out = out
+    return args
+
+
 def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_in_process_median() -> None:
     def flight(master_ms: float, worker_ms: float, tx_bytes: float) -> dict[str, Any]:
         cpu = {"master": master_ms, "foreman": 0.0, "worker": worker_ms, "router": 0.1}
@@ -101,7 +110,7 @@ def test_figures_are_never_negative_and_idle_only_lowers_them(
 @pytest.mark.zenoh
 @pytest.mark.slow
 def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path) -> None:
-    args = argparse.Namespace(frames=10, fps=10.0, idle_s=0.5, out=tmp_path, netns=False, link_mbit=None)
+    args = _bench_args(tmp_path, "--frames", "10", "--fps", "10", "--idle-s", "0.5", "--repeats", "1")
     result = run(args)
     paths = result["json"]["paths"]
     assert [p["path"] for p in paths] == [
@@ -131,7 +140,9 @@ def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path)
 def test_across_emulated_hosts_the_frames_cross_the_ground_link(tmp_path: Path) -> None:
     if (reason := unavailable_reason()) is not None:
         pytest.skip(reason)
-    args = argparse.Namespace(frames=10, fps=10.0, idle_s=0.5, out=tmp_path, netns=True, link_mbit=100.0)
+    args = _bench_args(
+        tmp_path, "--frames", "10", "--fps", "10", "--idle-s", "0.5", "--netns", "--link-mbit", "100"
+    )
     label, topology, workers = PATHS[1]  # master-foreman-worker 1x1
     path = cluster_path(label, topology, workers, args)
     assert path["lost"] == 0 and path["cpu_ms_per_frame"]["worker"] > 0
