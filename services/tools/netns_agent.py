@@ -10,7 +10,8 @@ Modes (each takes ``--connect`` its host's router and ``--listen`` its host's ad
 
 - ``alive NAME...``: waits until each member has a liveliness token; ``{"alive": [...], "missing": [...]}``.
 - ``yaw --uav U --count N``: collects the UAV's yaw estimates; ``{"seqs": [...], "members": {...},
-  "median_timings_ms": {...}}`` (patches per member, the master's stage timings' medians).
+  "redispatched": n, "median_timings_ms": {...}}`` (patches per member, shares re-dispatched, the master's
+  stage timings' medians).
 - ``sub KEY``: the first sample's payload size and text head; ``put KEY TEXT``: puts once a subscriber
   matches.
 - ``serve KEY --size B``: replies ``B`` bytes to every query until stdin closes; ``get KEY``: one query
@@ -63,6 +64,7 @@ def _yaw(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:
     for estimate in estimates.values():
         members.update(estimate.members)
     return {"seqs": sorted(estimates), "members": dict(members), "malformed": collector.malformed,
+            "redispatched": sum(e.redispatched for e in estimates.values()),
             "median_timings_ms": median_timings_ms(estimates.values())}  # fmt: skip
 
 

@@ -77,8 +77,11 @@ def test_every_frame_yields_the_in_process_yaw_despite_a_killed_foreman_and_a_fr
     assert all("foreman/h1/0" not in e.members for e in after_kill[5:])
     # the frozen worker's share went elsewhere: re-dispatched by its foreman within the block, or (when the
     # master's deadline fired first) by the master; which one wins is a race of two 0.3 s deadlines
+    # The frozen worker computed after the kill (unless paused by a missed deadline on a loaded host, as
+    # every member may be: then the master or its foreman took its share, CI once at the frame before the
+    # freeze), and a frame sent after the SIGSTOP never counts it: its share was computed elsewhere (the test
+    # reads the newest yaw every 5 ms and the camera keeps one frame in flight: 10 frames cover that lag)
     frozen = "foreman/h2/0>worker/h2/1"
-    assert frozen in estimates[events["freeze"] - 1].members
-    after_freeze = [estimates[k] for k in range(events["freeze"] + 1, min(n, events["freeze"] + 50))]
-    assert any(frozen not in e.members for e in after_freeze)
+    assert any(frozen in estimates[k].members for k in range(events["kill"] + 1, events["freeze"]))
+    assert all(frozen not in estimates[k].members for k in range(events["freeze"] + 10, n))
     assert codes["master/master/0"] == 0 and codes["foreman/h2/0"] == 0

@@ -145,7 +145,11 @@ def test_across_emulated_hosts_the_frames_cross_the_ground_link(tmp_path: Path) 
     )
     label, topology, workers = PATHS[1]  # master-foreman-worker 1x1
     path = cluster_path(label, topology, workers, args)
-    assert path["lost"] == 0 and path["cpu_ms_per_frame"]["worker"] > 0
+    # less each process's idle rate a role's CPU over 10 frames can read 0 on a loaded host (CI did for the
+    # worker): gross CPU is read; the patches were computed on h1 (the master's fallback share aside)
+    assert path["lost"] == 0 and path["gross_cpu_ms_per_frame"]["worker"] > 0
+    members = path["patches_by_member"]
+    assert sum(v for k, v in members.items() if "/h1/" in k and ">" not in k) > members.get(SELF, 0)
     # the master's level image (752x480 at level 1 is 90 kB; the jobs carry at least their crops) goes out
     # on the ground link and comes in on h1's, every frame; the replies are smaller
     ground, h1 = path["links"]["ground"], path["links"]["h1"]

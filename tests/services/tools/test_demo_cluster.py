@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from common.dispatch import SELF
 from services.tools.demo_cluster import run_demo
 from tests.services.tools.test_tum_output import assert_evo_agrees
 
@@ -19,9 +20,13 @@ def test_cluster_demo_reports_every_frame_equal_to_in_process(tmp_path: Path) ->
     assert summary["max_abs_diff_vs_in_process_deg"] <= 1e-9
     assert summary["rms_deg"] < 1.0
     top = [r for r in summary["members"] if ">" not in r["member"]]
-    assert {r["member"] for r in top} == {"foreman/h1/0", "foreman/h2/0"}
     assert sum(r["share"] for r in top) == pytest.approx(1.0)
-    assert all(r["speed_patches_s"] > 0 for r in top), top
+    foremen = [r for r in top if r["member"] != SELF]
+    assert {r["member"] for r in foremen} == {"foreman/h1/0", "foreman/h2/0"}
+    assert all(r["speed_patches_s"] > 0 for r in foremen), foremen
+    # the master only dispatches; it takes the share of a member that missed its deadline (its documented
+    # fallback, counted as a re-dispatch), which one stall of a loaded host makes happen (CI: 2 of 120)
+    assert SELF not in {r["member"] for r in top} or summary["redispatched"] > 0, top
     for path in summary["plots"]:
         assert Path(path).stat().st_size > 0
     assert (tmp_path / "cluster" / "yaw_cluster.json").is_file()
