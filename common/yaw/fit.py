@@ -124,6 +124,16 @@ def rotation_of_homography_rad(homography: npt.ArrayLike, at_px: npt.ArrayLike) 
     return math.atan2(J[1, 0] - J[0, 1], J[0, 0] + J[1, 1])
 
 
+def shift_of_homography_px(homography: npt.ArrayLike, at_px: npt.ArrayLike) -> float:
+    """How far a homography moves a point (px): ``|H(p) - p|``, infinite when it maps ``p`` to infinity."""
+    H = np.asarray(homography, dtype=np.float64)
+    x, y = (float(v) for v in np.asarray(at_px, dtype=np.float64).ravel()[:2])
+    u, v, w = H @ np.array([x, y, 1.0])
+    if not abs(w) > 1e-12:
+        return math.inf
+    return math.hypot(u / w - x, v / w - y)
+
+
 def scale_of_homography(homography: npt.ArrayLike, at_px: npt.ArrayLike) -> float:
     """Local isotropic scale (sqrt |det J|) of a homography at a point."""
     return math.sqrt(abs(float(np.linalg.det(homography_jacobian(homography, at_px)))))

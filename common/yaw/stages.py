@@ -20,7 +20,12 @@ from common.yaw.correlation import (
     patch_spectra,
     patch_spectra_from_crops,
 )
-from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad
+from common.yaw.fit import (
+    ModelFit,
+    fit_correspondences,
+    rotation_of_homography_rad,
+    shift_of_homography_px,
+)
 from common.yaw.global_align import estimate_global_alignment, warp_into
 from common.yaw.grid import PatchGrid, pyramid_image
 from common.yaw.honest import Prior, PriorSource, choose_rotation, measured_variance_rad2, plausible
@@ -155,12 +160,13 @@ def _result(
     prior: Prior,
     good: bool,
 ) -> PairResult:
-    delta = (
-        rotation_of_homography_rad(homography, lens.centre_px) if method is not EstimateMethod.NONE else 0.0
-    )
+    delta, shift_px = 0.0, 0.0
+    if method is not EstimateMethod.NONE:
+        delta = rotation_of_homography_rad(homography, lens.centre_px)
+        shift_px = shift_of_homography_px(homography, lens.centre_px)
     low = not good or fit.residual_px > settings.max_residual_px or method in _UNTRUSTED
     warped = method is not EstimateMethod.PATCHES
-    variance = measured_variance_rad2(fit.residual_px, fit.inlier_count, lens.lever_px, warped)
+    variance = measured_variance_rad2(fit.residual_px, fit.inlier_count, lens.lever_px, warped, shift_px)
     trusted = not low and plausible(delta, prior, settings)
     return PairResult(homography, method, fit, measurement, low, delta, trusted, variance)
 
