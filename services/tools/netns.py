@@ -12,6 +12,7 @@ run here (not root, no ``ip``, ``ip netns`` refused), for tests to skip with.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import itertools
 import json
 import logging
@@ -21,7 +22,7 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from types import FrameType
 from typing import Any
 
@@ -125,6 +126,26 @@ def _alive(pid: int) -> bool:
     return True
 
 
+#: ``setns``'s flag for a network namespace (linux/sched.h)
+_CLONE_NEWNET = 0x40000000
+
+
+def _setns_fd(fd: int) -> None:
+    if ctypes.CDLL(None, use_errno=True).setns(fd, _CLONE_NEWNET) != 0:
+        raise NetnsError(f"setns: {os.strerror(ctypes.get_errno())}")
+
+
+def _setns(path: str) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError as exc:
+        raise NetnsError(f"cannot open {path}: {exc}") from None
+    try:
+        _setns_fd(fd)
+    finally:
+        os.close(fd)
+
+
 class NetHarness:
     """The plan's namespaces and links, made on enter and always removed on exit (also on SIGTERM)."""
 
@@ -142,6 +163,23 @@ class NetHarness:
         pinned = cpus if cpus is not None else net_host.cpus
         taskset = ["taskset", "-c", pinned] if pinned and shutil.which("taskset") else []
         return ["ip", "netns", "exec", net_host.namespace, *taskset, *argv]
+
+    @contextlib.contextmanager
+    def joined(self, host: str) -> Iterator[None]:
+        """The calling thread inside ``host``'s namespace for the block (``setns``), then back where it was:
+        sessions and threads it opens meanwhile live in that host (a harness that publishes and watches from
+        the ground host). Join before the process opens its first Zenoh session: Zenoh's own threads stay in
+        the namespace they were started in. Leave it before the harness closes: closing stops what runs in
+        its namespaces."""
+        here = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+        try:
+            _setns(f"/run/netns/{self.plan.host(host).namespace}")
+            try:
+                yield
+            finally:
+                _setns_fd(here)
+        finally:
+            os.close(here)
 
     def link_bytes(self) -> dict[str, tuple[int, int]]:
         """Bytes each host received and sent on its link since it was made (the veth's counters)."""

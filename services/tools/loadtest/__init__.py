@@ -6,6 +6,7 @@ Examples::
     capataz loadtest --streams 1 --standby --fault kill:worker@20s --fault stop:foreman@30s+6s \\
         --fault kill:router@40s --fault kill:master@50s --duration 70 --name faults
     capataz loadtest --capacity --max-streams 10 --duration 30 --name capacity
+    capataz loadtest --hosts 2 --capacity --max-streams 8 --duration 20 --name hosts2
     capataz loadtest --replay out/flight.mcap --streams 4 --duration 30 --name replay
     capataz loadtest --streams 2 --standby --fault kill:master@10s --duration 20 --secure --name secure
 """
@@ -15,21 +16,26 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 from services.runtime.usage import number_in
-from services.tools.cluster_file import load_cluster
+from services.tools.cluster_file import ClusterSpec, load_cluster
 from services.tools.loadtest.harness import RunSettings
+from services.tools.loadtest.hosts import model_report, spec_for_hosts
 from services.tools.loadtest.plan import (
     CAPACITY_OBJECTIVES,
     DEFAULT_OBJECTIVES,
     FAULT_OBJECTIVES,
+    Fault,
     LoadtestError,
     parse_objective,
     parse_schedule,
 )
 from services.tools.loadtest.report import plot, table, write_json
+from services.tools.netns import NetHarness, new_prefix, unavailable_reason
+from services.tools.netns_cluster import GROUND, plan_for_cluster
 from services.tools.secure import add_profile_arguments
 
 logger = logging.getLogger(__name__)
@@ -92,11 +98,32 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--max-streams", type=number_in(int, 1, 256), default=16, help="upper bound of the capacity search"
     )
+    parser.add_argument(
+        "--hosts", type=number_in(int, 1, 16),
+        help="run the cluster as N emulated network hosts (namespaces; root): each shaped like the file's "
+        "first host, masters only dispatching on a ground host; the report gains bytes per link and, with "
+        "--capacity, the capacity model's prediction",
+    )  # fmt: skip
+    parser.add_argument(
+        "--link-mbit", type=number_in(float, 0.1, 100_000.0),
+        help="with --hosts: every host's link rate in Mbit/s (token bucket; default: not limited)",
+    )  # fmt: skip
     parser.add_argument("--name", default="loadtest", help="report name: out/loadtest/<name>.json/.png")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated flight")
     add_profile_arguments(parser)
     parser.set_defaults(handler=run)
+
+
+def _hosts_spec(args: argparse.Namespace, spec: ClusterSpec, faults: tuple[Fault, ...]) -> ClusterSpec:
+    """The cluster as ``--hosts`` emulated hosts, or one clear error why it cannot run here."""
+    if args.secure is not None:
+        raise LoadtestError("--hosts runs the open profile (the secure profile's certificates name loopback)")
+    if any(f.target == "router" for f in faults):
+        raise LoadtestError("--hosts: a router fault is not supported (each host has its own router)")
+    if (reason := unavailable_reason()) is not None:
+        raise LoadtestError(f"--hosts needs network namespaces: {reason}")
+    return spec_for_hosts(spec, args.hosts)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -128,6 +155,10 @@ def run(args: argparse.Namespace) -> int:
     defaults = CAPACITY_OBJECTIVES if args.capacity else FAULT_OBJECTIVES if faults else DEFAULT_OBJECTIVES
     objectives = [parse_objective(o) for o in (args.slo or defaults)]
     spec = load_cluster(args.cluster)
+    if args.hosts is not None:
+        spec = _hosts_spec(args, spec, faults)
+    elif args.link_mbit is not None:
+        raise LoadtestError("--link-mbit needs --hosts")
     settings = RunSettings(
         streams=args.streams, fps=args.fps, duration_s=args.duration, in_flight=args.in_flight,
         standby_masters=args.standby or any(f.target == "master" for f in faults), shared_memory=args.shm,
@@ -135,13 +166,25 @@ def run(args: argparse.Namespace) -> int:
         secure_dir=args.secure, zenoh_config=args.zenoh_config,
     )  # fmt: skip
     log_dir = args.out / f"{args.name}-logs"
-    if args.capacity:
-        report = capacity_search(spec, settings, objectives, log_dir, args.max_streams)
-    else:
-        report = run_once(spec, settings, log_dir)
-        judge(report, objectives)
+    link_bit_s = None if args.link_mbit is None else args.link_mbit * 1e6
+    with ExitStack() as stack:
+        net = None
+        if args.hosts is not None:
+            rates = dict.fromkeys([GROUND, *(h.name for h in spec.hosts)], None if link_bit_s is None
+                                  else int(link_bit_s))  # fmt: skip
+            net = stack.enter_context(NetHarness(plan_for_cluster(spec, new_prefix(), rates)))
+            stack.enter_context(net.joined(GROUND))  # left before the harness removes the namespaces
+        if args.capacity:
+            report = capacity_search(spec, settings, objectives, log_dir, args.max_streams, net)
+        else:
+            report = run_once(spec, settings, log_dir, net=net)
+            judge(report, objectives)
+    if args.capacity and report["capacity_streams"] > 0:
+        workers = sum(h.workers for h in spec.hosts)
+        report["model"] = model_report(report, args.fps, len(spec.hosts), link_bit_s, workers)
     report["name"] = args.name
     report["cluster"] = spec.name
+    report["hosts"] = args.hosts
     figure = plot(report, args.out / f"{args.name}.png")
     path = write_json(report, args.out / f"{args.name}.json")
     print(table(report))

@@ -29,10 +29,16 @@ from common.yaw import YawSettings
 from services.runtime.transport import open_session
 from services.tools.cluster_file import ClusterSpec
 from services.tools.loadtest.plan import Fault, FaultAction
+from services.tools.netns import NetHarness
+from services.tools.netns_cluster import NetnsCluster
 from services.tools.secure import SecureProfile
 from services.tools.up import LocalCluster
 
 logger = logging.getLogger(__name__)
+
+
+#: the name of this process (it publishes the cameras' frames) among the processes' CPU seconds
+HARNESS = "harness"
 
 
 @dataclass
@@ -79,9 +85,13 @@ def cpu_seconds(pid: int) -> float | None:
 
 
 class LoadCluster:
-    """A :class:`LocalCluster` with one master per UAV (plus a standby each, when asked)."""
+    """A :class:`LocalCluster` with one master per UAV (plus a standby each, when asked); with ``net``, a
+    :class:`~services.tools.netns_cluster.NetnsCluster` whose hosts are the harness's emulated hosts (the
+    masters on the ground host, where the caller's sessions must be: :meth:`NetHarness.joined`)."""
 
-    def __init__(self, spec: ClusterSpec, settings: RunSettings, log_dir: Path) -> None:
+    def __init__(
+        self, spec: ClusterSpec, settings: RunSettings, log_dir: Path, net: NetHarness | None = None
+    ) -> None:
         self.settings = settings
         self.uavs = [f"uav{i}" for i in range(settings.streams)]
         nodes = tuple(h.name for h in spec.hosts)
@@ -90,14 +100,22 @@ class LoadCluster:
             if settings.secure_dir
             else None
         )
-        self.cluster = LocalCluster(
-            spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms, secure=secure,
-            zenoh_config=settings.zenoh_config,
+        self.net = net
+        self.cluster: LocalCluster = (
+            NetnsCluster(spec, log_dir, net, lease_ms=settings.lease_ms, zenoh_config=settings.zenoh_config)
+            if net is not None
+            else LocalCluster(
+                spec, log_dir, shared_memory=settings.shared_memory, lease_ms=settings.lease_ms,
+                secure=secure, zenoh_config=settings.zenoh_config,
+            )
         )  # fmt: skip
         self._master_args: dict[str, list[str]] = {}
         self._master_uav: dict[str, str] = {}
         self.cpu: dict[str, float] = {}
         self._cpu0: dict[str, float] = {}
+        self._links0: dict[str, tuple[int, int]] = {}
+        #: bytes (received, sent) on each emulated host's link over the measured window
+        self.link_bytes: dict[str, tuple[int, int]] = {}
 
     def start(self) -> None:
         cluster, spec = self.cluster, self.cluster.spec
@@ -143,16 +161,27 @@ class LoadCluster:
         return None
 
     def mark_cpu(self) -> None:
+        """Start of the measured window: each process's CPU, this process's (it publishes the cameras'
+        frames) and, across hosts, each link's bytes."""
         for name, process in self.cluster.processes.items():
             value = cpu_seconds(process.pid)
             if value is not None:
                 self._cpu0[name] = value
+        self._cpu0[HARNESS] = time.process_time()
+        self._links0 = self.net.link_bytes() if self.net is not None else {}
 
     def collect_cpu(self) -> None:
         for name, process in self.cluster.processes.items():
             value = cpu_seconds(process.pid)
             if value is not None:
                 self.cpu[name] = round(value - self._cpu0.get(name, 0.0), 3)
+        self.cpu[HARNESS] = round(time.process_time() - self._cpu0[HARNESS], 3)
+        if self.net is not None:
+            before = self._links0
+            self.link_bytes = {
+                host: (rx - before[host][0], tx - before[host][1])
+                for host, (rx, tx) in self.net.link_bytes().items()
+            }
 
     def restart(self, name: str) -> None:
         """Start ``name`` again, as a supervisor (compose's restart policy) would."""

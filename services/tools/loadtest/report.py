@@ -79,6 +79,20 @@ def table(report: dict[str, Any]) -> str:
             f"{n}: {'met' if t['met'] else 'missed'}" for n, t in report["capacity_trials"].items()
         )
         lines.append(f"capacity: {report['capacity_streams']} streams ({trials})")
+    for host, link in report.get("links", {}).items():
+        lines.append(
+            f"link {host:8} in {link['rx_bytes_per_frame'] / 1e3:9.1f} kB/frame"
+            f"  out {link['tx_bytes_per_frame'] / 1e3:9.1f} kB/frame"
+        )
+    if model := report.get("model"):
+        here, fleet = model["this_machine"], model["reference_fleet"]
+        lines.append(
+            f"model: {here['streams_exact']:.2f} streams predicted here ({here['limited_by']}) against"
+            f" {model['measured_streams']} measured (ratio {_f(model['predicted_over_measured'], 2)});"
+            f" {fleet['hosts']} hosts x {fleet['cores_per_host']:g} cores on"
+            f" {fleet['link_bit_s'] / 1e9:g} Gbit: {fleet['streams']} streams ({fleet['limited_by']}),"
+            f" a frame's path {fleet['path_ms']:.1f} ms at low load"
+        )
     if report.get("cpu_s"):
         busiest = sorted(report["cpu_s"].items(), key=lambda kv: -kv[1])[:8]
         lines.append("CPU s: " + ", ".join(f"{name} {value:.1f}" for name, value in busiest))

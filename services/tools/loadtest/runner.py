@@ -20,6 +20,7 @@ from services.runtime.transport import open_session
 from services.tools.cluster_file import ClusterSpec
 from services.tools.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
 from services.tools.loadtest.harness import Hostile, LoadCluster, RunSettings, apply_fault
+from services.tools.loadtest.hosts import frames_in_window, links_per_frame
 from services.tools.loadtest.observers import StatsLog, StreamLog, YawLog
 from services.tools.loadtest.plan import (
     FaultOutcome,
@@ -34,6 +35,7 @@ from services.tools.loadtest.plan import (
     summarise,
     yaw_jumps_deg,
 )
+from services.tools.netns import NetHarness
 
 logger = logging.getLogger(__name__)
 
@@ -74,7 +76,12 @@ def frame_loop(settings: RunSettings) -> FrameLoop:
 
 
 def run_once(
-    spec: ClusterSpec, settings: RunSettings, log_dir: Path, live: bool = True, loop: FrameLoop | None = None
+    spec: ClusterSpec,
+    settings: RunSettings,
+    log_dir: Path,
+    live: bool = True,
+    loop: FrameLoop | None = None,
+    net: NetHarness | None = None,
 ) -> dict[str, Any]:
     """Run one load test; returns the report (without objectives).
 
@@ -82,7 +89,7 @@ def run_once(
     half); the clock (``t0``: faults, statistics) starts after it, with the same seq numbers going on, so the
     masters, foremen and workers meet the measured frames warm. Warm-up frames are reported apart."""
     loop = loop or frame_loop(settings)
-    load = LoadCluster(spec, settings, log_dir)
+    load = LoadCluster(spec, settings, log_dir, net)
     applied: list[tuple[float, str, str]] = []
     logs = {uav: StreamLog(uav) for uav in load.uavs}
     t0 = 0.0
@@ -147,6 +154,8 @@ def run_once(
         exit_codes = load.stop()
     report = _report(settings, logs, applied, t0, load.cpu, exit_codes)
     report["counters"] = counters
+    if net is not None:
+        report["links"] = links_per_frame(report, load.link_bytes)
     report["frames_source"] = loop.source
     report["recorded_fps"] = loop.recorded_fps
     return report
@@ -311,7 +320,12 @@ def judge(report: dict[str, Any], objectives: list[Objective]) -> bool:
 
 
 def capacity_search(
-    spec: ClusterSpec, settings: RunSettings, objectives: list[Objective], log_dir: Path, limit: int
+    spec: ClusterSpec,
+    settings: RunSettings,
+    objectives: list[Objective],
+    log_dir: Path,
+    limit: int,
+    net: NetHarness | None = None,
 ) -> dict[str, Any]:
     """The most streams that meet the objectives (doubling, then bisection); every trial's report kept."""
     tried: dict[int, bool] = {}
@@ -320,7 +334,7 @@ def capacity_search(
     while (n := next_capacity(tried, limit)) is not None:
         logger.info("capacity search: %d streams", n)
         trial = RunSettings(**{**settings.__dict__, "streams": n})
-        report = run_once(spec, trial, log_dir / f"streams{n}", loop=loop)
+        report = run_once(spec, trial, log_dir / f"streams{n}", loop=loop, net=net)
         tried[n] = judge(report, objectives)
         report.pop("timeline", None)
         trials[n] = report
@@ -340,7 +354,9 @@ def capacity_search(
     )
     best["capacity_streams"] = capacity
     best["capacity_trials"] = {
-        str(k): {"met": tried[k], "metrics": v["metrics"]} for k, v in sorted(trials.items())
-    }
+        str(k): {"met": tried[k], "metrics": v["metrics"], "frames": frames_in_window(v), "cpu_s": v["cpu_s"],
+                 **({"links": v["links"]} if "links" in v else {})}
+        for k, v in sorted(trials.items())
+    }  # fmt: skip
     best["slo_passed"] = capacity > 0
     return best
