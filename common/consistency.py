@@ -152,3 +152,31 @@ def seed_bounds(
     tail = (1.0 - probability) / 2.0
     lower, upper = np.quantile(means, [tail, 1.0 - tail])
     return float(lower), float(upper)
+
+
+def fit_variance_terms(errors: npt.ArrayLike, terms: npt.ArrayLike) -> FloatArray:
+    """Coefficients ``c >= 0`` of a variance model ``var_i = sum_k c_k terms_ik`` by Gaussian maximum
+    likelihood on scalar ``errors`` (N,) with their ``terms`` (N, K): the minimum of ``sum_i log var_i +
+    e_i^2 / var_i`` over ``log c`` (Nelder-Mead). A model with one term gives ``mean(e^2 / term)``: a mean
+    NEES of 1 on the fitted samples."""
+    e = np.asarray(errors, dtype=np.float64)
+    f = np.asarray(terms, dtype=np.float64)
+    if e.ndim != 1 or f.ndim != 2 or f.shape[0] != e.size or e.size == 0 or f.shape[1] == 0:
+        raise InputError(f"need errors (N,) and terms (N, K), got {e.shape} and {f.shape}")
+    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(f)) and np.all(f >= 0.0)):
+        raise InputError("errors must be finite and terms finite and >= 0")
+    if np.any(f.sum(axis=1) <= 0.0) or np.any(f.sum(axis=0) <= 0.0):
+        raise InputError("every sample needs a positive term and every term a positive sample")
+    from scipy.optimize import minimize  # the one core function that needs it: imported where used
+
+    e2 = e**2
+
+    def nll(log_c: FloatArray) -> float:
+        var = f @ np.exp(log_c)
+        return float(np.sum(np.log(var) + e2 / var))
+
+    # start from each term alone fitted to the whole error (a mean NEES of 1 per term), shared among terms
+    start = np.log(np.array([np.mean(e2[f[:, k] > 0] / f[f[:, k] > 0, k]) for k in range(f.shape[1])]))
+    start -= math.log(f.shape[1])
+    best = minimize(nll, start, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-7, "fatol": 1e-9})
+    return np.asarray(np.exp(best.x), dtype=np.float64)

@@ -15,6 +15,7 @@ from common.consistency import (
     NORMAL_SHARES,
     consistency,
     error_consistency,
+    fit_variance_terms,
     nees_bounds,
     normalised_errors_squared,
     seed_bounds,
@@ -133,3 +134,24 @@ def test_seed_bounds_need_two_runs_and_a_probability() -> None:
     assert all(math.isnan(b) for b in seed_bounds([[1.0, 2.0], []]))
     with pytest.raises(InputError):
         seed_bounds([[1.0], [2.0]], probability=1.0)
+
+
+@settings(max_examples=15, deadline=None)
+@given(a=st.floats(0.2, 5.0), b=st.floats(0.2, 5.0), seed=st.integers(0, 2**16))
+def test_the_variance_fit_finds_the_coefficients_that_made_the_errors(a: float, b: float, seed: int) -> None:
+    """``fit_variance_terms``: errors drawn with variance ``a f1 + b f2`` give back about ``a`` and ``b``."""
+    rng = np.random.default_rng(seed)
+    terms = np.column_stack([rng.uniform(0.0, 1.0, 4000), rng.choice([0.0, 1.0], 4000)])
+    terms[terms.sum(axis=1) == 0.0, 0] = 0.5
+    errors = rng.normal(0.0, np.sqrt(terms @ np.array([a, b])))
+    fitted = fit_variance_terms(errors, terms)
+    assert fitted == pytest.approx([a, b], rel=0.2)
+    one = fit_variance_terms(errors, terms[:, :1] + terms[:, 1:])
+    assert one[0] == pytest.approx(np.mean(errors**2 / (terms[:, 0] + terms[:, 1])), rel=1e-3)
+
+
+def test_the_variance_fit_refuses_what_it_cannot_fit() -> None:
+    with pytest.raises(InputError):
+        fit_variance_terms(np.ones(3), np.zeros((3, 2)))
+    with pytest.raises(InputError):
+        fit_variance_terms(np.ones(3), np.ones((2, 2)))

@@ -29,6 +29,7 @@ import numpy as np
 
 from common.consistency import consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
+from services.tools.bench import yaw_variance_fit
 from services.tools.bench.consistency_runs import (
     DOF,
     FLIGHTS,
@@ -61,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--held-out-only", action="store_true", help="run only the held-out half of the seeds (the table's)"
     )
+    parser.add_argument(
+        "--fit-yaw", action="store_true",
+        help="instead: fit the measured yaw pair's variance model on the fit seeds (maximum likelihood, "
+        "a two-fold check within them) and print the constants (services/tools/bench/yaw_variance_fit.py)",
+    )  # fmt: skip
 
 
 def _quick(args: argparse.Namespace) -> None:
@@ -94,6 +100,17 @@ def _summary(samples: Samples, runs: dict[str, list[list[float]]]) -> dict[str, 
     return out
 
 
+def _fit_yaw(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    result = yaw_variance_fit.fit(fit_seeds, args.field_frames, args.scenarios)
+    table = [
+        {"model": which, **result[which], **result[f"{which}_score"]} for which in ("fitted", "in_use")
+    ] + [
+        {"model": f"fit {f['fit_seeds'][0]}-{f['fit_seeds'][-1]}, scored on the others", **f}
+        for f in result["two_fold"]
+    ]
+    return {"json": result, "table": table}
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.quick:
         _quick(args)
@@ -102,6 +119,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
     fit_seeds = list(range(args.seeds // 2))
+    if args.fit_yaw:
+        return _fit_yaw(fit_seeds, args)
     held_seeds = list(range(args.seeds // 2, args.seeds))
     groups: dict[str, Samples] = {"fit": {}, "held_out": {}}
     #: per group and line, each seed's samples (for the bounds over seeds)

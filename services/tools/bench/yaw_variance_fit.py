@@ -1,0 +1,130 @@
+"""The fit behind a measured yaw pair's variance (``capataz bench consistency --fit-yaw``).
+
+A measured pair's variance is ``RESIDUAL_SHARE * r + WARPED_FLOOR_DEG^2 * w + SHIFT_SHARE^2 * s``
+(:func:`common.yaw.honest.measured_variance_rad2`). Each pair's terms ``r``, ``w``, ``s`` are read from three
+runs of the core with unit coefficients (:data:`UNIT_TERMS`; the coefficients only scale the published
+variance: the pairs, their provenance and their deltas are the same in the three runs, which is checked).
+:func:`common.consistency.fit_variance_terms` then fits the coefficients by maximum likelihood on the
+measured pairs of the fit seeds, and a two-fold split of those seeds (fit on one half, score the other)
+says how well the model carries to seeds it was not fitted on. The held-out seeds stay for ``bench
+consistency`` itself.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import numpy as np
+
+from common.consistency import fit_variance_terms
+from common.geometry import wrap_angle_rad
+from common.provenance import Provenance
+from common.sim.field import FIELD_SCENARIOS, field_flight
+from common.types import FloatArray
+from common.yaw import YawSettings, honest
+from services.tools.bench.yaw_field import run_core
+
+logger = logging.getLogger(__name__)
+
+#: (residual share, warp floor in deg, shift share) of the three runs: the residual's term alone, then with
+#: the floor's, then with the shift's (the residual's stays on, so that no published variance is 0)
+UNIT_TERMS = ((1.0, 0.0, 0.0), (1.0, 1.0, 0.0), (1.0, 0.0, 1.0))
+
+
+@contextmanager
+def _coefficients(residual_share: float, floor_deg: float, shift_share: float) -> Iterator[None]:
+    """The variance model's coefficients set for the block, then restored (this tool's runs only)."""
+    saved = (honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG, honest.SHIFT_SHARE)
+    honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG = residual_share, floor_deg
+    honest.SHIFT_SHARE = shift_share
+    try:
+        yield
+    finally:
+        honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG, honest.SHIFT_SHARE = saved
+
+
+def pair_terms(
+    seed: int, frames: int, scenarios: list[str] | None = None
+) -> tuple[FloatArray, FloatArray, list[str]]:
+    """The measured pairs of one seed over the field scenarios, with and without the gyro: errors (N,),
+    terms (N, 3) in rad^2 per unit coefficient (the floor's coefficient is in deg^2), and each pair's
+    scenario."""
+    errors: list[FloatArray] = []
+    terms: list[FloatArray] = []
+    names: list[str] = []
+    for name in scenarios or list(FIELD_SCENARIOS):
+        flight = field_flight(name, seed=seed, n_frames=frames)
+        rendered = list(flight.frames())
+        for gyro in (True, False):
+            runs = []
+            for unit in UNIT_TERMS:
+                with _coefficients(*unit):
+                    runs.append(run_core(flight, YawSettings(), rendered, gyro))
+            provenance = [r.provenance for r in runs]
+            deltas = [np.asarray(r.delta_rad) for r in runs]
+            if provenance[1:] != provenance[:-1] or not all(np.array_equal(deltas[0], d) for d in deltas):
+                raise RuntimeError(f"{name} seed {seed}: the coefficients changed more than the variances")
+            measured = np.array([p is Provenance.MEASURED for p in provenance[0]])
+            error = wrap_angle_rad(deltas[0] - np.diff(flight.yaw_rad))
+            residual, with_floor, with_shift = (np.asarray(r.delta_variance_rad2) for r in runs)
+            deg2 = math.radians(1.0) ** 2  # the floor term: rad^2 per deg^2 of floor on a warped pair, else 0
+            floor = deg2 * np.round((with_floor - residual) / deg2)
+            unit_terms = np.column_stack([residual, floor, np.maximum(with_shift - residual, 0.0)])
+            errors.append(np.asarray(error[measured], dtype=np.float64))
+            terms.append(unit_terms[measured])
+            names += [name] * int(np.count_nonzero(measured))
+        logger.info("yaw variance fit: seed %d %s done", seed, name)
+    return np.concatenate(errors), np.vstack(terms), names
+
+
+def _score(errors: FloatArray, terms: FloatArray, c: FloatArray) -> dict[str, float]:
+    var = terms @ c
+    nees = errors**2 / var
+    return {
+        "pairs": int(errors.size),
+        "mean_nees": round(float(np.mean(nees)), 4),
+        "within_2_sigma": round(float(np.mean(nees < 4.0)), 4),
+        "nll_per_pair": round(float(np.mean(np.log(var) + nees)), 4),
+    }
+
+
+def constants(c: FloatArray) -> dict[str, float]:
+    """Fitted coefficients in ``common/yaw/honest.py``'s units."""
+    return {
+        "RESIDUAL_SHARE": round(float(c[0]), 4),
+        "WARPED_FLOOR_DEG": round(math.sqrt(float(c[1])), 5),
+        "SHIFT_SHARE": round(math.sqrt(float(c[2])), 5),
+    }
+
+
+def fit(seeds: list[int], frames: int, scenarios: list[str] | None = None) -> dict[str, Any]:
+    """Fit on ``seeds``; score the fit, the constants in use, and a two-fold split of the seeds."""
+    per_seed = {seed: pair_terms(seed, frames, scenarios) for seed in seeds}
+    errors = np.concatenate([per_seed[s][0] for s in seeds])
+    terms = np.vstack([per_seed[s][1] for s in seeds])
+    fitted = fit_variance_terms(errors, terms)
+    in_use = np.array([honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG**2, honest.SHIFT_SHARE**2])
+    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
+    folds = []
+    if all(halves):
+        for train, test in (halves, halves[::-1]):
+            c = fit_variance_terms(
+                np.concatenate([per_seed[s][0] for s in train]), np.vstack([per_seed[s][1] for s in train])
+            )
+            scored = _score(
+                np.concatenate([per_seed[s][0] for s in test]), np.vstack([per_seed[s][1] for s in test]), c
+            )
+            folds.append({"fit_seeds": train, "scored_seeds": test, **scored})
+    return {
+        "seeds": seeds,
+        "frames": frames,
+        "fitted": constants(fitted),
+        "fitted_score": _score(errors, terms, fitted),
+        "in_use": constants(in_use),
+        "in_use_score": _score(errors, terms, in_use),
+        "two_fold": folds,
+    }
