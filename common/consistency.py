@@ -176,7 +176,8 @@ def fit_variance_terms(errors: npt.ArrayLike, terms: npt.ArrayLike) -> FloatArra
         return float(np.sum(np.log(var) + e2 / var))
 
     # start from each term alone fitted to the whole error (a mean NEES of 1 per term), shared among terms
-    start = np.log(np.array([np.mean(e2[f[:, k] > 0] / f[f[:, k] > 0, k]) for k in range(f.shape[1])]))
+    alone = np.array([np.mean(e2[f[:, k] > 0] / f[f[:, k] > 0, k]) for k in range(f.shape[1])])
+    start = np.log(np.maximum(alone, 1e-300))  # errors all 0: start tiny, not at log 0
     start -= math.log(f.shape[1])
     best = minimize(nll, start, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-7, "fatol": 1e-9})
     return np.asarray(np.exp(best.x), dtype=np.float64)
