@@ -10,10 +10,11 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
+from common.dispatch import SELF
 from common.wire.codec import encode
 from common.wire.schema import WireModel
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session
@@ -57,3 +58,10 @@ def put_message(publisher: Any, message: WireModel) -> None:
     """Publish ``message`` as the services do (payload and its attachment, ``common.wire.codec``)."""
     payload, attachment = encode(message)
     publisher.put(payload, attachment=attachment)
+
+
+def members_outweigh_master(members: Mapping[str, int]) -> bool:
+    """Patches per member of a cluster's yaw estimates: the members (top level, a foreman's entry counting
+    its workers' ``foreman>worker`` entries) computed more than the master itself, which takes only the
+    share of a member that missed its deadline."""
+    return sum(v for k, v in members.items() if k != SELF and ">" not in k) > members.get(SELF, 0)
