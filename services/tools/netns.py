@@ -126,6 +126,21 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def link_bytes_per_frame(
+    before: dict[str, tuple[int, int]], after: dict[str, tuple[int, int]], frames: int
+) -> dict[str, dict[str, float]]:
+    """Each host's link: bytes received and sent per frame between two readings of
+    :meth:`NetHarness.link_bytes` (``frames`` at least 1)."""
+    n = max(frames, 1)
+    return {
+        host: {
+            "rx_bytes_per_frame": (after[host][0] - rx0) / n,
+            "tx_bytes_per_frame": (after[host][1] - tx0) / n,
+        }
+        for host, (rx0, tx0) in before.items()
+    }
+
+
 #: ``setns``'s flag for a network namespace (linux/sched.h)
 _CLONE_NEWNET = 0x40000000
 

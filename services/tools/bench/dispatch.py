@@ -41,7 +41,13 @@ from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
 from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.loadtest.harness import cpu_seconds
-from services.tools.netns import NetHarness, NetnsError, new_prefix, unavailable_reason
+from services.tools.netns import (
+    NetHarness,
+    NetnsError,
+    link_bytes_per_frame,
+    new_prefix,
+    unavailable_reason,
+)
 from services.tools.netns_cluster import GROUND, NetnsCluster, plan_for_cluster
 from services.tools.observe import YawCollector, median_timings_ms
 from services.tools.up import LocalCluster
@@ -219,9 +225,7 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
         bytes1 = net.link_bytes() if net is not None else {}
     cluster.stop()
     frames = max(received, 1)
-    links = {host: {"rx_bytes_per_frame": (bytes1[host][0] - bytes0[host][0]) / frames,
-                    "tx_bytes_per_frame": (bytes1[host][1] - bytes0[host][1]) / frames}
-             for host in bytes0}  # fmt: skip
+    links = link_bytes_per_frame(bytes0, bytes1, frames)
     return {"frames": received, "lost": args.frames - received,
             "cpu_ms_per_frame": cpu_ms_per_frame(before, after, idle_rate, flight_s, frames),
             # before the idle rate is taken off: what the processes spent, idle polling included

@@ -113,9 +113,9 @@ class LoadCluster:
         self._master_uav: dict[str, str] = {}
         self.cpu: dict[str, float] = {}
         self._cpu0: dict[str, float] = {}
-        self._links0: dict[str, tuple[int, int]] = {}
-        #: bytes (received, sent) on each emulated host's link over the measured window
-        self.link_bytes: dict[str, tuple[int, int]] = {}
+        #: each emulated host's link counters (received, sent) at the measured window's start and end
+        self.links_before: dict[str, tuple[int, int]] = {}
+        self.links_after: dict[str, tuple[int, int]] = {}
 
     def start(self) -> None:
         cluster, spec = self.cluster, self.cluster.spec
@@ -168,7 +168,7 @@ class LoadCluster:
             if value is not None:
                 self._cpu0[name] = value
         self._cpu0[HARNESS] = time.process_time()
-        self._links0 = self.net.link_bytes() if self.net is not None else {}
+        self.links_before = self.net.link_bytes() if self.net is not None else {}
 
     def collect_cpu(self) -> None:
         for name, process in self.cluster.processes.items():
@@ -177,11 +177,7 @@ class LoadCluster:
                 self.cpu[name] = round(value - self._cpu0.get(name, 0.0), 3)
         self.cpu[HARNESS] = round(time.process_time() - self._cpu0[HARNESS], 3)
         if self.net is not None:
-            before = self._links0
-            self.link_bytes = {
-                host: (rx - before[host][0], tx - before[host][1])
-                for host, (rx, tx) in self.net.link_bytes().items()
-            }
+            self.links_after = self.net.link_bytes()
 
     def restart(self, name: str) -> None:
         """Start ``name`` again, as a supervisor (compose's restart policy) would."""

@@ -48,15 +48,6 @@ def frames_in_window(report: dict[str, Any]) -> int:
     return sum(int(s["published"]) + int(s["warmup"]["published"]) for s in report["per_stream"])
 
 
-def links_per_frame(report: dict[str, Any], link_bytes: dict[str, tuple[int, int]]) -> dict[str, Any]:
-    """Each host's link: bytes received and sent per frame of the window."""
-    frames = max(frames_in_window(report), 1)
-    return {
-        host: {"rx_bytes_per_frame": rx / frames, "tx_bytes_per_frame": tx / frames}
-        for host, (rx, tx) in link_bytes.items()
-    }
-
-
 def _role_cpu_s(cpu_s: dict[str, float]) -> dict[str, float]:
     """CPU seconds per role: master, foreman, worker, the ground's router, the members' routers, and this
     process (the cameras' frames and the watchers)."""

@@ -20,7 +20,7 @@ from services.runtime.transport import open_session
 from services.tools.cluster_file import ClusterSpec
 from services.tools.loadtest.frames import FrameLoop, recorded_frames, simulated_frames
 from services.tools.loadtest.harness import Hostile, LoadCluster, RunSettings, apply_fault
-from services.tools.loadtest.hosts import frames_in_window, links_per_frame
+from services.tools.loadtest.hosts import frames_in_window
 from services.tools.loadtest.observers import StatsLog, StreamLog, YawLog
 from services.tools.loadtest.plan import (
     FaultOutcome,
@@ -35,7 +35,7 @@ from services.tools.loadtest.plan import (
     summarise,
     yaw_jumps_deg,
 )
-from services.tools.netns import NetHarness
+from services.tools.netns import NetHarness, link_bytes_per_frame
 
 logger = logging.getLogger(__name__)
 
@@ -155,7 +155,7 @@ def run_once(
     report = _report(settings, logs, applied, t0, load.cpu, exit_codes)
     report["counters"] = counters
     if net is not None:
-        report["links"] = links_per_frame(report, load.link_bytes)
+        report["links"] = link_bytes_per_frame(load.links_before, load.links_after, frames_in_window(report))
     report["frames_source"] = loop.source
     report["recorded_fps"] = loop.recorded_fps
     return report

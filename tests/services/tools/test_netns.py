@@ -18,6 +18,7 @@ from services.tools.cluster_file import ClusterError, ClusterSpec, HostSpec
 from services.tools.netns import (
     NetHarness,
     cleanup_stale,
+    link_bytes_per_frame,
     list_namespaces,
     new_prefix,
     run,
@@ -175,3 +176,14 @@ def test_a_host_process_sees_only_its_address_and_runs_on_its_cpu_set(
     assert affinity == f"[{cpu}]"
     assert plan.host("a").address in addresses and plan.host("b").address not in addresses
     assert "127.0.0.1" in addresses and len(addresses.strip().splitlines()) == 2  # lo and its link only
+
+
+def test_bytes_per_frame_are_each_links_counter_changes_over_the_frames() -> None:
+    before = {"ground": (1_000, 2_000), "h1": (0, 0)}
+    after = {"ground": (3_000, 42_000), "h1": (40_000, 2_000)}
+    links = link_bytes_per_frame(before, after, 20)
+    assert links == {
+        "ground": {"rx_bytes_per_frame": 100.0, "tx_bytes_per_frame": 2_000.0},
+        "h1": {"rx_bytes_per_frame": 2_000.0, "tx_bytes_per_frame": 100.0},
+    }
+    assert link_bytes_per_frame(before, after, 0)["h1"]["rx_bytes_per_frame"] == 40_000.0  # no frame: one
