@@ -128,8 +128,9 @@ class Dispatcher:
         frame, load = self._frame if self._frame[0] else (total, {})
         by_time = self.settings.balance is Balance.TIME
         return capped_counts(
-            members, self._members, by_time, total, trust, frame, load, len(self.members), SELF
-        )
+            members, self._members, by_time, total, trust, frame, load, len(self.members), SELF,
+            self.settings.overflow_slack,
+        )  # fmt: skip
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members
@@ -149,6 +150,7 @@ class Dispatcher:
         planned = sticky_plan(
             seq, prev_seq, todo, remote, self._members, trust, self.settings.balance is Balance.TIME,
             self.settings.self_compute, self._owner, self._memo, len(joined), SELF,
+            self.settings.overflow_slack,
         )  # fmt: skip
         self._owner.update(planned.owners)
         self._memo, self._frame, self.last_plan = planned.memo, planned.frame, planned.plan

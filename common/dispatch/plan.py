@@ -131,11 +131,18 @@ def capped_counts(
     load: Mapping[str, int],
     joined: int,
     own: str,
+    slack: float,
 ) -> tuple[list[str], list[int]]:
     """Counts per member: apportioned by weight, the speed of members without credit held
     (:func:`capped_weights`), and the trust share caps (from two ``joined`` remote members on, each holds at
-    most its share limit of ``frame_total``, ``load`` being what it holds already; the overflow goes to
-    ``own``, the dispatcher itself, appended when absent)."""
+    most its share limit of ``frame_total``, ``load`` being what it holds already).
+
+    What a cap cuts goes to the members with room, the one that would finish first taking each patch
+    (:func:`cap_counts` by weight), but none beyond ``1 + slack`` times its own balanced count: a slow
+    member (a thin link, a slow CPU) is not handed the fast one's excess, which would make it the frame's
+    last. The rest goes to ``own``, the dispatcher itself, appended when absent. With two remote members
+    and a cap of a half, this is what lets the shares move away from a slow one at all (they stayed at
+    half each before)."""
     weights, capacity, measured = balance_weights([states[m] for m in members], by_time)
     if measured and trust is not None and trust.enabled:
         held = capped_weights(
@@ -153,9 +160,15 @@ def capped_counts(
     ]
     if all(limit is None or c <= limit for c, limit in zip(counts, limits, strict=True)):
         return members, counts
+    weight_sum = sum(weights)
+    for i, limit in enumerate(limits):  # no member takes overflow beyond 1 + slack times its balanced count
+        if limit is not None:
+            balanced = weights[i] / weight_sum * total if weight_sum > 0 else 0.0
+            limits[i] = min(limit, max(counts[i], math.floor((1.0 + slack) * balanced)))
     if own not in members:
         members, counts, limits = [*members, own], [*counts, 0], [*limits, None]
-    return members, cap_counts(counts, limits)
+        weights = [*weights, 0.0]
+    return members, cap_counts(counts, limits, weights)
 
 
 def missing(state: MemberState, indices: IndexArray, prev_seq: int) -> IndexArray:
@@ -182,13 +195,16 @@ def sticky_plan(
     memo: Memo | None,
     joined: int,
     own: str,
+    slack: float,
 ) -> Planned:
     """Frame ``seq``'s plan (vs ``prev_seq``) of the patches ``todo``: the ``remote`` members the trust
     monitor keeps (plus ``own`` when ``self_compute`` or alone) get counts by :func:`capped_counts`; a member
     keeps the indices it owned up to its count, the rest moves, lowest first (see the dispatcher's module)."""
     kept = remote if trust is None else list(trust.kept)
     members = [*kept, own] if self_compute or not kept else kept
-    members, counts = capped_counts(members, states, by_time, len(todo), trust, len(todo), {}, joined, own)
+    members, counts = capped_counts(
+        members, states, by_time, len(todo), trust, len(todo), {}, joined, own, slack
+    )
     key = (tuple(members), tuple(counts), tuple(todo))
     if memo is not None and memo[0] == key:
         repeated = dict(memo[1])
@@ -226,17 +242,21 @@ def sticky_plan(
     return Planned(Plan(seq, prev_seq, assignment, moved), owners, (key, assignment), frame)
 
 
-def cap_counts(counts: Sequence[int], limits: Sequence[int | None]) -> list[int]:
+def cap_counts(
+    counts: Sequence[int], limits: Sequence[int | None], weights: Sequence[float] | None = None
+) -> list[int]:
     """Move what exceeds each entry's limit to entries with room; the total is preserved.
 
-    ``limits[i]`` None means uncapped. Overflow goes first to capped entries with room (the emptiest first,
-    ties to the earlier), then to the last uncapped entry (callers put the dispatcher itself there); with no
-    uncapped entry, the last entry takes it.
+    ``limits[i]`` None means uncapped. Overflow goes first to capped entries with room, one patch at a time
+    to the one that would finish first with it (the lowest ``count / weight``; without ``weights``, the
+    emptiest; ties to the earlier), then to the last uncapped entry (callers put the dispatcher itself
+    there); with no uncapped entry, the last entry takes it.
     """
-    if len(counts) != len(limits) or not counts:
-        raise InputError("counts and limits must be non-empty and of equal length")
+    if len(counts) != len(limits) or not counts or (weights is not None and len(weights) != len(counts)):
+        raise InputError("counts, limits and weights must be non-empty and of equal length")
     if any(c < 0 for c in counts) or any(limit is not None and limit < 0 for limit in limits):
         raise InputError("counts and limits must be >= 0")
+    speed = [1.0] * len(counts) if weights is None else [max(float(w), 1e-12) for w in weights]
     out = list(counts)
     overflow = 0
     for i, limit in enumerate(limits):
@@ -247,7 +267,7 @@ def cap_counts(counts: Sequence[int], limits: Sequence[int | None]) -> list[int]
         room = [i for i, limit in enumerate(limits) if limit is not None and out[i] < limit]
         if not room:
             break
-        i = min(room, key=lambda j: (out[j], j))
+        i = min(room, key=lambda j: ((out[j] + 1) / speed[j], j))
         take = min(overflow, (limits[i] or 0) - out[i])
         # one at a time keeps the spread even among several entries with room
         take = 1 if len(room) > 1 else take

@@ -51,3 +51,7 @@ class DispatchSettings(Bounded):
     deadline_factor: float = bounded(4.0, gt=0.0)
     #: which speed measurement balances (see :class:`SpeedSource`).
     speed_source: SpeedSource = SpeedSource.ROUND_TRIP
+    #: when a share cap cuts a fast member, a member with room takes its overflow only up to ``1 +
+    #: overflow_slack`` times its own balanced count; the dispatcher computes the rest
+    #: (:func:`~common.dispatch.plan.capped_counts`)
+    overflow_slack: float = bounded(0.5, ge=0.0, le=10.0)

@@ -10,8 +10,9 @@ A member (foreman or worker) is only trusted as far as its results are consisten
 - **share cap** (:func:`~common.dispatch.plan.cap_counts`, with each member's limit from
   :meth:`TrustMonitor.view`): from two joined remote members on, none gets more than
   ``max_share`` of a frame, and ``probation_share`` until it has earned credit (the rest goes to the
-  others, else to the dispatcher itself), so no single member holds the majority the robust fit follows,
-  not even while the others are suspended.
+  others as far as their speed allows, else to the dispatcher itself:
+  :func:`~common.dispatch.plan.capped_counts`), so no single member holds the majority the robust fit
+  follows, not even while the others are suspended.
 - **earned speed**: under time balancing a member's measured speed only buys a share above its
   capacity-proportional one once it has ``earn_frames`` consistent frames (:meth:`TrustMonitor.credited`);
   a member that answers implausibly fast with wrong shifts stays at its fair share and is then suspended.

@@ -24,9 +24,11 @@ def test_cluster_demo_reports_every_frame_equal_to_in_process(tmp_path: Path) ->
     foremen = [r for r in top if r["member"] != SELF]
     assert {r["member"] for r in foremen} == {"foreman/h1/0", "foreman/h2/0"}
     assert all(r["speed_patches_s"] > 0 for r in foremen), foremen
-    # the master only dispatches; it takes the share of a member that missed its deadline (its documented
-    # fallback, counted as a re-dispatch), which one stall of a loaded host makes happen (CI: 2 of 120)
-    assert SELF not in {r["member"] for r in top} or summary["redispatched"] > 0, top
+    # the master only dispatches, but for two fallbacks: the share of a member that missed its deadline (a
+    # re-dispatch, which one stall of a loaded host makes happen: CI 2 of 120), and the overflow of a member
+    # held at half the frame by the trust cap when the other is over 2x slower (a loaded host's round trips)
+    own = sum(r["share"] for r in top if r["member"] == SELF)
+    assert own <= 0.1 or summary["redispatched"] > 0, top
     for path in summary["plots"]:
         assert Path(path).stat().st_size > 0
     assert (tmp_path / "cluster" / "yaw_cluster.json").is_file()
