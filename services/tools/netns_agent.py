@@ -10,8 +10,9 @@ Modes (each takes ``--connect`` its host's router and ``--listen`` its host's ad
 
 - ``alive NAME...``: waits until each member has a liveliness token; ``{"alive": [...], "missing": [...]}``.
 - ``yaw --uav U --count N``: collects the UAV's yaw estimates; ``{"seqs": [...], "members": {...},
-  "redispatched": n, "median_timings_ms": {...}}`` (patches per member, shares re-dispatched, the master's
-  stage timings' medians).
+  "redispatched": n, "median_timings_ms": {...}, "frames": [[seq, members, total_ms], ...]}`` (patches per
+  member, shares re-dispatched, the master's stage timings' medians; each frame's members and frame-in to
+  yaw-out time).
 - ``sub KEY``: the first sample's payload size and text head; ``put KEY TEXT``: puts once a subscriber
   matches.
 - ``serve KEY --size B``: replies ``B`` bytes to every query until stdin closes; ``get KEY``: one query
@@ -63,9 +64,10 @@ def _yaw(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:
     members: Counter[str] = Counter()
     for estimate in estimates.values():
         members.update(estimate.members)
+    frames = [[seq, e.members, e.timings_ms.get("total")] for seq, e in sorted(estimates.items())]
     return {"seqs": sorted(estimates), "members": dict(members), "malformed": collector.malformed,
             "redispatched": sum(e.redispatched for e in estimates.values()),
-            "median_timings_ms": median_timings_ms(estimates.values())}  # fmt: skip
+            "median_timings_ms": median_timings_ms(estimates.values()), "frames": frames}  # fmt: skip
 
 
 def _sub(session: zenoh.Session, args: argparse.Namespace) -> dict[str, Any]:
