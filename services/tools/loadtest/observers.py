@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from common.dispatch import SELF
 from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import YawEstimate
@@ -26,8 +25,8 @@ class StreamLog:
     #: frames of the warm-up (before the clock starts), as ``sent``
     warm: dict[int, tuple[float, float]] = field(default_factory=dict)
     received: dict[int, tuple[float, float]] = field(default_factory=dict)  # seq -> (arrival, yaw)
-    #: seq -> (patches the master computed itself, patches of the frame) from the yaw's ``members``
-    computed: dict[int, tuple[int, int]] = field(default_factory=dict)
+    #: seq -> patches per member the master addressed (``self``: its own), from the yaw's ``members``
+    computed: dict[int, dict[str, int]] = field(default_factory=dict)
     duplicates: int = 0
     reported_dropped: int = 0
 
@@ -64,8 +63,8 @@ class YawLog:
                 log.duplicates += 1
             else:
                 log.received[estimate.seq] = (arrival, estimate.yaw_rad)
-                top = {m: n for m, n in estimate.members.items() if ">" not in m}  # not foreman>worker
-                log.computed[estimate.seq] = (top.get(SELF, 0), sum(top.values()))
+                # not foreman>worker
+                log.computed[estimate.seq] = {m: n for m, n in estimate.members.items() if ">" not in m}
             log.reported_dropped = max(log.reported_dropped, estimate.dropped_frames)
             self.lock.notify_all()
 

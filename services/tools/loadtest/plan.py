@@ -7,11 +7,12 @@ import enum
 import itertools
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from common.dispatch import SELF
 from common.errors import InputError
 from common.geometry import wrap_angle_rad
 
@@ -339,16 +340,24 @@ class ComputeShare:
     frames_alone: int
     #: patches the cluster computed / all patches (0 when nothing was measured)
     cluster_share: float
+    #: each member's patches / all patches (the master as ``self``): where the balancer put the work
+    by_member: Mapping[str, float]
 
 
-def compute_share(computed: Iterable[tuple[int, int]]) -> ComputeShare:
-    """From each frame's (patches the master computed itself, patches of the frame)."""
-    frames = alone = own = total = 0
-    for self_patches, all_patches in computed:
+def compute_share(computed: Iterable[Mapping[str, int]]) -> ComputeShare:
+    """From each frame's patches per member the master addressed (``self``: its own; not a foreman's
+    workers)."""
+    frames = alone = total = 0
+    patches: dict[str, int] = {}
+    for members in computed:
+        all_patches = sum(members.values())
         if all_patches <= 0:
             continue
         frames += 1
-        alone += self_patches >= all_patches
-        own += self_patches
+        alone += members.get(SELF, 0) >= all_patches
         total += all_patches
-    return ComputeShare(frames, alone, 1.0 - own / total if total else 0.0)
+        for member, n in members.items():
+            patches[member] = patches.get(member, 0) + n
+    own = patches.get(SELF, 0)
+    by_member = {m: n / total for m, n in sorted(patches.items())} if total else {}
+    return ComputeShare(frames, alone, 1.0 - own / total if total else 0.0, by_member)

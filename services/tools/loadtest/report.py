@@ -44,7 +44,8 @@ def table(report: dict[str, Any]) -> str:
 
     Per stream ``cluster`` is the share of patches the foremen and workers computed, ``alone`` the frames
     the master computed entirely itself, ``warm-up lost`` the frames of the warm-up (before the clock,
-    not in the statistics) lost of those sent."""
+    not in the statistics) lost of those sent; ``shares`` each member's share of the patches (``self``:
+    the master's own), where the balancer put the work."""
     warm = f", warm-up {report['warmup_s']:g} s before the clock" if report.get("warmup_s") else ""
     lines = [
         f"load test: {report.get('streams')} streams at {report.get('fps')} fps"
@@ -79,6 +80,10 @@ def table(report: dict[str, Any]) -> str:
             f"{n}: {'met' if t['met'] else 'missed'}" for n, t in report["capacity_trials"].items()
         )
         lines.append(f"capacity: {report['capacity_streams']} streams ({trials})")
+    for s in report.get("per_stream", []):
+        if shares := s.get("share_by_member"):
+            text = ", ".join(f"{member} {_pct(share)}" for member, share in shares.items())
+            lines.append(f"shares {s['uav']:8} {text}")
     for host, link in report.get("links", {}).items():
         lines.append(
             f"link {host:8} in {link['rx_bytes_per_frame'] / 1e3:9.1f} kB/frame"

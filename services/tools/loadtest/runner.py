@@ -303,6 +303,7 @@ def _computed(log: StreamLog) -> dict[str, Any]:
         "computed_frames": share.frames,
         "frames_master_alone": share.frames_alone,
         "cluster_share": round(share.cluster_share, 4),
+        "share_by_member": {m: round(v, 4) for m, v in share.by_member.items()},
     }
 
 

@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from common.dispatch import SELF
 from common.netplan import owner_pid
 from services.tools.cli import main
 from services.tools.cluster_file import ClusterSpec, HostSpec
@@ -64,6 +65,7 @@ def test_the_model_reports_its_prediction_against_the_measured_capacity() -> Non
 
 def test_link_rates_without_hosts_and_hosts_with_the_secure_profile_are_refused(tmp_path: Path) -> None:
     assert main(["loadtest", "--link-mbit", "100", "--out", str(tmp_path)]) == 1
+    assert main(["loadtest", "--thin-host-mbit", "20", "--out", str(tmp_path)]) == 1
     assert main(["loadtest", "--hosts", "2", "--secure", str(tmp_path / "s"), "--out", str(tmp_path)]) == 1
 
 
@@ -76,8 +78,9 @@ def test_two_emulated_hosts_carry_a_stream_and_the_report_counts_each_links_byte
     # its first session, and a test process has opened sessions in the root namespace before
     done = subprocess.run(
         capataz_command(
-            "loadtest", "--hosts", "2", "--link-mbit", "100", "--streams", "1", "--fps", "10", "--duration",
-            "4", "--warmup", "1", "--slo", "lost_pct<=100", "--out", str(tmp_path), "--name", "h2",
+            "loadtest", "--hosts", "2", "--link-mbit", "100", "--thin-host-mbit", "20", "--streams", "1",
+            "--fps", "10", "--duration", "4", "--warmup", "1", "--slo", "lost_pct<=100", "--out",
+            str(tmp_path), "--name", "h2",
         ),
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
@@ -87,6 +90,16 @@ def test_two_emulated_hosts_carry_a_stream_and_the_report_counts_each_links_byte
     (stream,) = report["per_stream"]
     assert stream["received"] >= 20  # of 40: the cluster served across the links
     assert stream["cluster_share"] > 0.0  # the members computed (the master only takes a late member's share)
+    # where the balancer put the work: h2 (behind 20 Mbit) never gets more than h1, which the trust cap holds
+    # at half a frame; the master computes what h2 would finish last with, or a late member's share
+    shares = stream["share_by_member"]
+    assert sum(shares.values()) == pytest.approx(1.0, abs=1e-3) and set(shares) <= {
+        "foreman/h1/0",
+        "foreman/h2/0",
+        SELF,
+    }
+    assert shares.get("foreman/h2/0", 0.0) <= shares["foreman/h1/0"] + 0.01, shares
+    assert report["thin_host_mbit"] == 20.0
     links = report["links"]
     assert set(links) == {"ground", "h1", "h2"}
     # the master's blocks leave the ground host and reach both member hosts; their replies are smaller

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from common.dispatch import SELF
 from services.tools.loadtest.plan import (
     Fault,
     FaultAction,
@@ -158,7 +159,13 @@ def test_the_cluster_share_counts_patches_and_frames_the_master_did_alone(
     frames: list[tuple[int, int]],
 ) -> None:
     computed = [(min(own, total), total) for own, total in frames]
-    share = compute_share(computed)
+    # the master's own patches and the rest split between two foremen
+    halves = [((total - own) // 2, total - own - (total - own) // 2) for own, total in computed]
+    members = [
+        {SELF: own, "foreman/h1/0": h1, "foreman/h2/0": h2}
+        for (own, _), (h1, h2) in zip(computed, halves, strict=True)
+    ]
+    share = compute_share(members)
     measured = [(own, total) for own, total in computed if total > 0]  # an epoch's first frame has none
     assert share.frames == len(measured)
     assert share.frames_alone == sum(1 for own, total in measured if own == total)
@@ -167,3 +174,9 @@ def test_the_cluster_share_counts_patches_and_frames_the_master_did_alone(
         own = sum(o for o, _ in measured)
         total = sum(t for _, t in measured)
         assert share.cluster_share == pytest.approx(1 - own / total)
+        assert sum(share.by_member.values()) == pytest.approx(1.0)
+        assert share.by_member[SELF] == pytest.approx(own / total)
+        foremen = share.by_member["foreman/h1/0"] + share.by_member["foreman/h2/0"]
+        assert foremen == pytest.approx(share.cluster_share)
+    else:
+        assert share.by_member == {}
