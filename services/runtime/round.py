@@ -185,13 +185,16 @@ class Round:
             self.dispatcher.redistribute(request.indices, self.failed, time.monotonic(), self.work.prev_seq)
         )
 
-    def succeed(self, rid: int) -> None:
-        """Request ``rid`` was answered: record the member's speed and take its measurement."""
+    def succeed(self, rid: int, arrived_monotonic_s: float | None = None) -> None:
+        """Request ``rid`` was answered (its reply arrived at ``arrived_monotonic_s``; None: now): record the
+        member's speed and take its measurement."""
         request = self.pending.pop(rid)
         result = request.result
         assert result is not None
         report = self.report
-        elapsed = time.monotonic() - request.start_monotonic_s
+        # the reply's arrival, not when this thread got to it: while the dispatcher computes its own share, a
+        # member's reply waits, and a round trip read after that share made the member look as slow as it
+        elapsed = (arrived_monotonic_s or time.monotonic()) - request.start_monotonic_s
         # the member's own speed measure (a worker: its compute time; a foreman: the sum of its workers'
         # speeds); the dispatcher's speed_source decides whether it or patches / elapsed balances
         reported = sum(result.speeds.values()) if result.speeds else None
@@ -260,11 +263,12 @@ class Round:
         request = self.pending[event.rid]
         if isinstance(event, ReplyArrived):
             t_woke = time.perf_counter()
+            arrived_monotonic_s = time.monotonic() - (t_woke - event.arrived_perf_s)
             self.scatter._accept(request, event.reply, self.work)
             self.counters.time_ms("wake", (t_woke - event.arrived_perf_s) * 1e3)
             self.counters.time_ms("accept", (time.perf_counter() - t_woke) * 1e3)
             if request.result is not None:
-                self.succeed(event.rid)
+                self.succeed(event.rid, arrived_monotonic_s)
             elif request.failure is not None:
                 self.fail(event.rid, request.failure)
         else:  # QueryDone: no (usable) reply came

@@ -65,8 +65,11 @@ def answer(query: zenoh.Query) -> None:
     query.drop()
 
 
-def run_round(session: zenoh.Session, member: str, budget_s: float = 0.4) -> tuple[Scatter, RoundReport]:
-    dispatcher = Dispatcher(DispatchSettings(), N_PATCHES)
+def run_round(
+    session: zenoh.Session, member: str, budget_s: float = 0.4, own_s: float = 0.0
+) -> tuple[Scatter, RoundReport]:
+    """One round for ``member``; with ``own_s`` the dispatcher also computes a share, taking that long."""
+    dispatcher = Dispatcher(DispatchSettings(self_compute=own_s > 0), N_PATCHES)
     dispatcher.join(member)
     scatter = Scatter(
         session,
@@ -79,6 +82,7 @@ def run_round(session: zenoh.Session, member: str, budget_s: float = 0.4) -> tup
 
     def compute_self(indices: np.ndarray, moved: np.ndarray) -> PatchMeasurement:
         n = indices.size
+        time.sleep(own_s)  # the dispatcher's own compute time (the behaviour under test, not a wait)
         return PatchMeasurement(indices, np.full((n, 2), 7.0), np.ones(n), np.ones(n), np.ones(n, bool))
 
     work = FrameWork(
@@ -105,6 +109,25 @@ def test_a_solo_reply_completes_the_round(sessions: tuple[zenoh.Session, zenoh.S
     assert np.all(report.parts[0].shift_px == 0.0)  # the member's answer, not the dispatcher's own
     assert report.redispatched == 0 and scatter.counters.counts()["requests_sent"] == 1
     assert "wake" not in scatter.counters.median_timings_ms()  # no callback hand-off: its own reply channel
+    queryable.undeclare()
+
+
+def test_a_members_round_trip_ends_at_its_replys_arrival_not_after_the_dispatchers_own_share_regression(
+    sessions: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    """Seen on emulated hosts (issue 29): a master computing 167 of 192 patches took 73 ms, and the member's
+    reply, there after 45 ms, was read after that share: its round trip counted 73 ms, so the balancer gave
+    it 25 patches where its speed was worth more."""
+    member_side, dispatcher_side = sessions
+    queryable = member_side.declare_queryable(KEY.format(member="w_0"), answer, complete=True)
+    assert routed(dispatcher_side, "w_0")
+    scatter, report = run_round(dispatcher_side, "w/0", budget_s=5.0, own_s=0.6)
+    members = covered_by(report)
+    assert members[SELF] > 0 and members["w/0"] > 0  # both computed: the reply waited for the own share
+    speed = scatter.dispatcher.speed("w/0")
+    assert speed is not None
+    # the member answered at once (milliseconds): its round trip is far shorter than the 0.6 s own share
+    assert members["w/0"] / speed < 0.3, (members, speed)
     queryable.undeclare()
 
 
