@@ -136,7 +136,9 @@ class NetnsCluster(LocalCluster):
         return self.net.exec_argv(self.host_of(name), command, cpus)
 
     def start_router(self, timeout_s: float = 30.0) -> None:
-        """One router per host, in plan order, each connected to the routers already up."""
+        """One router per host, in plan order, each connected to the routers already up; a member host's
+        router runs on that host's CPU set (the ground's with the camera, on the cluster's aux CPUs)."""
+        cpus_of = {h.name: h.cpus for h in self.spec.hosts if h.name != self.ground}
         for host in self.net.plan.hosts:
             name = f"router/{host.name}/0"
             endpoint_file = self.log_dir / f"router_{host.name}.endpoint"
@@ -146,7 +148,7 @@ class NetnsCluster(LocalCluster):
                 name,
                 ["router", "--node", host.name, "--listen", host.router_endpoint, *connect, "--no-multicast",
                  "--no-shm", "--lease-ms", str(self.lease_ms), "--endpoint-file", str(endpoint_file)],
-                self.spec.aux_cpus,
+                cpus_of.get(host.name, self.spec.aux_cpus),
             )  # fmt: skip
             deadline = time.monotonic() + timeout_s
             while not endpoint_file.is_file():

@@ -59,16 +59,22 @@ def _root_links() -> list[str]:
     return sorted(line.split(":")[1].strip() for line in out.splitlines())
 
 
-def test_a_put_in_one_host_reaches_a_subscriber_in_another_through_the_routers(
+def test_a_put_in_one_host_reaches_a_subscriber_in_another_and_each_router_runs_on_its_hosts_cpus(
     netns: None, untouched_root: None, tmp_path: Path
 ) -> None:
-    spec = ClusterSpec(name="net3", hosts=(HostSpec(name="h1", workers=0), HostSpec(name="h2", workers=0)))
+    # the camera and the ground's router on the first CPU, h1 on the last: h1's router runs on h1's CPUs
+    # like its foreman and workers (it ran on the camera's before)
+    cores = sorted(os.sched_getaffinity(0))
+    hosts = (HostSpec(name="h1", workers=0, cpus=str(cores[-1])), HostSpec(name="h2", workers=0))
+    spec = ClusterSpec(name="net3", hosts=hosts, aux_cpus=str(cores[0]))
     plan = plan_for_cluster(spec, new_prefix())
     with NetHarness(plan) as net, NetnsCluster(spec, tmp_path, net) as cluster:
         assert set(plan.namespaces) <= set(list_namespaces())
         cluster.start_router()
         routers = {f"router/{h.name}/0" for h in plan.hosts}
         cluster.wait_alive(routers)  # seen from the ground host: the three routers are one mesh
+        assert os.sched_getaffinity(cluster.processes["router/h1/0"].pid) == {cores[-1]}
+        assert os.sched_getaffinity(cluster.processes["router/ground/0"].pid) == {cores[0]}
         with pytest.raises(ClusterError, match="worker/nowhere/0"):
             cluster.wait_alive(routers | {"worker/nowhere/0"}, timeout_s=1.0)
         sub = cluster.agent("h2", ["sub", "test/net/hello"])
