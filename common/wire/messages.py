@@ -1,5 +1,5 @@
 """Every message on the wire: sensors, estimates, work and service messages (the rig's:
-:mod:`common.wire.rig`).
+:mod:`common.wire.rig`; the work messages' home is :mod:`common.wire.jobs`, re-exported here).
 
 Their base and bounds: :mod:`common.wire.schema`; the one codec that carries them and their registry:
 :mod:`common.wire.codec`.
@@ -7,25 +7,21 @@ Their base and bounds: :mod:`common.wire.schema`; the one codec that carries the
 
 from __future__ import annotations
 
-import dataclasses
-import enum
-import functools
-import typing
-from typing import TYPE_CHECKING, Any, ClassVar, Literal, Self
+from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, create_model, model_validator
+from pydantic import Field, model_validator
 
-from common.bounds import field_bounds
-from common.errors import InputError
 from common.provenance import Provenance
 from common.wire.frame_codec import FrameEncoding
+from common.wire.jobs import LOCAL_YAW_SETTINGS as LOCAL_YAW_SETTINGS
+from common.wire.jobs import BlockJob as BlockJob
+from common.wire.jobs import BlockResult as BlockResult
+from common.wire.jobs import PatchJob as PatchJob
+from common.wire.jobs import PatchResult as PatchResult
+from common.wire.jobs import YawJobSettings as YawJobSettings
 from common.wire.schema import (
-    MAX_BUDGET_S,
-    MAX_CROP_SIDE_PX,
     MAX_FRAME_SIDE_PX,
-    MAX_JOB_PATCHES,
-    MAX_JOB_PIXELS,
     MAX_SEQ,
     RIG_ID_PATTERN,
     ArraySpec,
@@ -33,7 +29,6 @@ from common.wire.schema import (
     WireModel,
     frame_id_field,
 )
-from common.yaw.settings import YawSettings
 
 
 # ----------------------------------------------------------------------------------------------- sensors
@@ -159,195 +154,6 @@ class PoseEstimate(UavMessage):
     #: trusted pose (:func:`~common.localization.search.untrusted_covariance`).
     tracking_state: Literal["tracking", "searching", "lost"] | None = None
     frame_id: str = frame_id_field("world")
-
-
-# ----------------------------------------------------------------------------------------------- work
-#: Yaw settings only the central stage uses (the lens model): never sent to members.
-LOCAL_YAW_SETTINGS = frozenset({"camera"})
-
-
-class _YawJobBase(BaseModel):
-    """The yaw settings a job carries (every member measures with the dispatcher's), bounded at the wire.
-
-    Its fields are generated from :class:`~common.yaw.settings.YawSettings` (:func:`_wire_fields`): the same
-    fields but the lens model (only the central stage uses it), with the core's types and bounds, so each
-    count and size a member allocates windows and spectra by is bounded before any allocation. A decoded
-    value is also a valid ``YawSettings`` (checked once, at decode): :attr:`yaw_settings` is that object.
-    """
-
-    # strict: no bool or string for a number; enums (by value on the wire) stay lax
-    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False, strict=True)
-    _yaw_settings: YawSettings = PrivateAttr()
-
-    @model_validator(mode="after")
-    def _valid_yaw_settings(self) -> _YawJobBase:
-        try:
-            self._yaw_settings = _yaw_settings(
-                tuple((name, getattr(self, name)) for name in type(self).model_fields)
-            )
-        except InputError as exc:
-            raise ValueError(f"invalid yaw settings: {exc}") from None
-        return self
-
-    @classmethod
-    def of(cls, settings: YawSettings) -> Self:
-        """The wire form of ``settings`` (its lens model stays behind: :data:`LOCAL_YAW_SETTINGS`)."""
-        values = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
-        return cls.model_validate({k: v for k, v in values.items() if k not in LOCAL_YAW_SETTINGS})
-
-    @property
-    def yaw_settings(self) -> YawSettings:
-        """The core's settings object (no lens model)."""
-        return self._yaw_settings
-
-
-def _wire_fields() -> dict[str, Any]:
-    """The wire fields of :class:`YawSettings`: its types, its bounds; required (a job states them all)."""
-    hints = typing.get_type_hints(YawSettings)
-    bounds = field_bounds(YawSettings)
-    fields: dict[str, Any] = {}
-    for name in (f.name for f in dataclasses.fields(YawSettings) if f.name not in LOCAL_YAW_SETTINGS):
-        limits = bounds.get(name)
-        keywords: dict[str, Any] = {}
-        if limits is not None:
-            keywords = {
-                k: getattr(limits, k) for k in ("gt", "ge", "lt", "le") if getattr(limits, k) is not None
-            }
-        if isinstance(hints[name], type) and issubclass(hints[name], enum.Enum):
-            keywords["strict"] = False
-        fields[name] = (hints[name], Field(**keywords))
-    return fields
-
-
-if TYPE_CHECKING:
-
-    class YawJobSettings(_YawJobBase):
-        def __getattr__(self, name: str) -> Any: ...
-
-else:
-    YawJobSettings = create_model(
-        "YawJobSettings",
-        __base__=_YawJobBase,
-        __module__=__name__,
-        __doc__=_YawJobBase.__doc__,
-        **_wire_fields(),
-    )
-
-
-@functools.lru_cache(maxsize=16)
-def _yaw_settings(values: tuple[tuple[str, object], ...]) -> YawSettings:
-    """A job's core settings: jobs carry the same few, so each is built and checked once, then looked up."""
-    return YawSettings(**dict(values))  # type: ignore[arg-type]
-
-
-class PatchJob(WireModel):
-    """Measure the shifts of patches ``indices`` of frame ``seq`` against frame ``prev_seq``.
-
-    ``crops`` are the patches of the new frame; ``prev_crops`` are previous-frame patches for indices the
-    member does not hold yet (moved assignment, new member); the member keeps the others' spectra.
-    ``settings`` are the dispatcher's yaw settings, so every member measures with the same settings.
-    """
-
-    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
-        "indices": ArraySpec("<i4", (None,)),
-        "crops": ArraySpec("|u1", (None, None, None)),
-        "prev_indices": ArraySpec("<i4", (None,)),
-        "prev_crops": ArraySpec("|u1", (None, None, None)),
-    }
-    stream: Uav
-    seq: int = Field(ge=0, le=MAX_SEQ)
-    prev_seq: int = Field(ge=-1, le=MAX_SEQ)
-    settings: YawJobSettings
-    indices: np.ndarray
-    crops: np.ndarray
-    prev_indices: np.ndarray
-    prev_crops: np.ndarray
-    #: time budget of the request in seconds (a foreman gives its workers part of it).
-    budget_s: float = Field(gt=0.0, le=MAX_BUDGET_S, default=1.0)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> PatchJob:
-        if self.indices.shape[0] > MAX_JOB_PATCHES:
-            raise ValueError(f"indices: {self.indices.shape[0]} patches > {MAX_JOB_PATCHES}")
-        side = self.crops.shape[1:]
-        if side[0] != side[1] or not 0 < side[0] <= MAX_CROP_SIDE_PX:
-            raise ValueError(f"crops: {side} must be square, 1..{MAX_CROP_SIDE_PX} px")
-        if self.crops.size + self.prev_crops.size > MAX_JOB_PIXELS:
-            raise ValueError(f"crops: {self.crops.size + self.prev_crops.size} pixels > {MAX_JOB_PIXELS}")
-        if self.crops.shape[0] != self.indices.shape[0]:
-            raise ValueError(f"crops: {self.crops.shape[0]} crops for {self.indices.shape[0]} indices")
-        if self.prev_crops.shape[0] != self.prev_indices.shape[0]:
-            raise ValueError(
-                f"prev_crops: {self.prev_crops.shape[0]} crops for {self.prev_indices.shape[0]} prev_indices"
-            )
-        if self.prev_indices.size and self.prev_crops.shape[1:] != self.crops.shape[1:]:
-            raise ValueError(f"prev_crops: crop shape {self.prev_crops.shape[1:]} != {self.crops.shape[1:]}")
-        for name in ("indices", "prev_indices"):
-            arr = getattr(self, name)
-            if arr.size and not _distinct_non_negative(arr):
-                raise ValueError(f"{name}: must be distinct non-negative patch indices")
-        if self.prev_indices.size and not np.isin(self.prev_indices, self.indices).all():
-            raise ValueError("prev_indices: must be a subset of indices")
-        return self
-
-
-def _distinct_non_negative(indices: np.ndarray) -> bool:
-    """True when the 1-D integer ``indices`` are distinct and >= 0 (fast path: strictly ascending)."""
-    if indices[0] < 0:
-        return False
-    if indices.size == 1 or bool((indices[1:] > indices[:-1]).all()):
-        return True  # ascending (how dispatchers send them): distinct, and the first is the minimum
-    return bool(indices.min() >= 0) and np.unique(indices).size == indices.size
-
-
-class BlockJob(PatchJob):
-    """A master's block of a frame for one foreman (same fields as :class:`PatchJob`)."""
-
-
-class PatchResult(WireModel):
-    """Shifts of frame ``seq`` vs ``prev_seq`` at the patches ``indices`` (order of the job)."""
-
-    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
-        "indices": ArraySpec("<i4", (None,)),
-        "shift_px": ArraySpec("<f8", (None, 2), finite=False),
-        "confidence": ArraySpec("<f8", (None,), finite=False),
-        "peak": ArraySpec("<f8", (None,), finite=False),
-        "valid": ArraySpec("|b1", (None,)),
-    }
-    stream: str
-    seq: int = Field(ge=0)
-    prev_seq: int = Field(ge=-1)
-    member: str
-    indices: np.ndarray
-    shift_px: np.ndarray
-    confidence: np.ndarray
-    peak: np.ndarray
-    valid: np.ndarray
-    #: seconds spent computing (without transport).
-    compute_s: float = Field(ge=0.0)
-    #: patches computed by each (sub-)member, for reports (a worker: itself; a foreman: its workers).
-    members: dict[str, int] = Field(default_factory=dict)
-    #: measured speed of each (sub-)member in patches per second.
-    speeds: dict[str, float] = Field(default_factory=dict)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> PatchResult:
-        n = self.indices.shape[0]
-        for name in ("shift_px", "confidence", "peak", "valid"):
-            if getattr(self, name).shape[0] != n:
-                raise ValueError(f"{name}: {getattr(self, name).shape[0]} rows for {n} indices")
-        if np.isfinite(self.shift_px).all() and not np.isnan(self.confidence + self.peak).any():
-            return self  # nothing non-finite anywhere (the usual case): no masks to build
-        ok = self.valid
-        if not np.all(np.isfinite(self.shift_px[ok])):
-            raise ValueError("shift_px: NaN or inf at a valid patch")
-        if np.isnan(self.confidence[ok]).any() or np.isnan(self.peak[ok]).any():
-            raise ValueError("confidence/peak: NaN at a valid patch")
-        return self
-
-
-class BlockResult(PatchResult):
-    """A foreman's answer to a :class:`BlockJob` (same fields as :class:`PatchResult`)."""
 
 
 # ----------------------------------------------------------------------------------------------- service

@@ -32,6 +32,19 @@ def level_shape(frame_shape: tuple[int, int], level: int) -> tuple[int, int]:
     return height, width
 
 
+def crops_at(image_u8: U8Array, rows: npt.ArrayLike, cols: npt.ArrayLike, side_px: int) -> U8Array:
+    """The ``side_px`` square crops (n, s, s) uint8 of ``image_u8`` whose top-left corners are ``(rows[i],
+    cols[i])`` (the caller checked they fit), as one contiguous array."""
+    height, width = image_u8.shape
+    n = side_px
+    # every n x n window of the image as a read-only view, no copy (sliding_window_view's own checks cost
+    # three times as much, on a path that runs for every frame of every member)
+    windows = np.lib.stride_tricks.as_strided(
+        image_u8, (height - n + 1, width - n + 1, n, n), image_u8.strides * 2, writeable=False
+    )
+    return np.ascontiguousarray(windows[np.asarray(rows), np.asarray(cols)])
+
+
 @dataclass(frozen=True, eq=False)
 class PatchGrid:
     """Where the patches are: origins at the working pyramid level and centres at full resolution.
@@ -83,14 +96,27 @@ class PatchGrid:
         expected = level_shape(self.frame_shape, self.pyramid_level)
         if level_u8.shape != expected:
             raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        origins = self.origins_level_px[idx]
+        return crops_at(level_u8, origins[:, 1], origins[:, 0], self.patch_size_px)
+
+    def band_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> tuple[U8Array, IntArray] | None:
+        """The patches ``indices`` as one band of an image already at the grid's level, when it has fewer
+        pixels than their crops (patches that overlap, a contiguous share): the band (a view of the level
+        image) and each patch's crop corner ``[row, col]`` in it (:func:`crops_at` cuts the same crops from
+        it); None when the crops are smaller (patches apart, a scattered share)."""
+        idx = self.check_indices(indices)
+        expected = level_shape(self.frame_shape, self.pyramid_level)
+        if level_u8.shape != expected:
+            raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        if not idx.size:
+            return None
         n = self.patch_size_px
-        # every n x n window of the image as a read-only view, no copy (sliding_window_view's own checks
-        # cost three times as much, on a path that runs for every frame of every member)
-        rows, cols = level_u8.shape
-        windows = np.lib.stride_tricks.as_strided(
-            level_u8, (rows - n + 1, cols - n + 1, n, n), level_u8.strides * 2, writeable=False
-        )
-        return np.ascontiguousarray(windows[self.origins_level_px[idx, 1], self.origins_level_px[idx, 0]])
+        corners = self.origins_level_px[idx][:, ::-1]  # [row, col]
+        top, left = corners.min(axis=0)
+        bottom, right = corners.max(axis=0) + n
+        if (bottom - top) * (right - left) >= idx.size * n * n:
+            return None
+        return level_u8[top:bottom, left:right], corners - np.array([top, left])
 
     def crop(self, frame_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
         """Crops (n, s, s) uint8 at the working level of the patches ``indices`` of a full frame.

@@ -62,7 +62,7 @@ from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.rig_follow import follow_stream_rig
-from services.runtime.round import FrameWork
+from services.runtime.round import FrameWork, job_band
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
 from services.runtime.transport import source_of
@@ -340,6 +340,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             crops=partial(grid.crop_level, level),
             prev_crops=partial(grid.crop_level, prev_level),
             compute_self=own_share,
+            band=partial(job_band, grid, level, self.settings.job_encoding),
         )
         plan = stream.dispatcher.plan(frame.seq, prev_seq, time.monotonic())
         try:

@@ -16,7 +16,9 @@ import numpy as np
 import zenoh
 
 from common.dispatch import SELF, Plan
+from common.wire import frame_codec
 from common.wire.messages import PatchResult, YawJobSettings
+from common.yaw import PatchGrid
 from common.yaw.correlation import PatchMeasurement
 from services.runtime.results import measurement_of
 
@@ -74,6 +76,28 @@ class MemberLeft(NamedTuple):
 RoundEvent = ReplyArrived | QueryDone | MemberLeft
 
 
+class JobBand(NamedTuple):
+    """A share's new-frame pixels as one band (:class:`~common.wire.messages.PatchJob`): its bytes in
+    ``encoding``, its (rows, cols) and each index's crop corner ``[row, col]`` in it."""
+
+    data: np.ndarray
+    shape: tuple[int, int]
+    encoding: str
+    corners: np.ndarray
+
+
+def job_band(grid: PatchGrid, level_u8: np.ndarray, encoding: str, indices: np.ndarray) -> JobBand | None:
+    """The band of patches ``indices`` of a frame's level image (:meth:`PatchGrid.band_level`; bound with
+    ``functools.partial`` it is :attr:`FrameWork.band`) in ``encoding`` (:mod:`common.wire.frame_codec`),
+    or None where their crops are fewer pixels."""
+    got = grid.band_level(level_u8, indices)
+    if got is None:
+        return None
+    image, corners = got
+    data = np.frombuffer(frame_codec.encode(image, encoding), np.uint8)
+    return JobBand(data, (int(image.shape[0]), int(image.shape[1])), encoding, corners)
+
+
 @dataclass
 class FrameWork:
     """What a scatter round needs about the frame: crops by index, and how to compute a share locally."""
@@ -89,6 +113,9 @@ class FrameWork:
     prev_crops: Callable[[np.ndarray], np.ndarray]
     #: compute a share in-process: (indices, moved indices) -> measurement
     compute_self: Callable[[np.ndarray, np.ndarray], PatchMeasurement]
+    #: the new frame's pixels for indices as one band, or None where their crops are fewer bytes (no
+    #: callable: always crops)
+    band: Callable[[np.ndarray], JobBand | None] | None = None
 
 
 @dataclass

@@ -17,6 +17,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -98,7 +99,16 @@ class Scatter:
         with self._lock:
             rid = self._next_id
             self._next_id += 1
-        crops = work.crops(indices)
+        band = work.band(indices) if work.band is not None else None
+        pixels: dict[str, Any] = {}
+        if band is None:
+            crops = work.crops(indices)
+        else:  # one band of the frame, fewer bytes than the crops it holds (patches overlap)
+            side = int(work.settings.patch_size_px)
+            crops = np.zeros((0, side, side), np.uint8)
+            pixels = dict(band=band.data, band_shape=band.shape, band_encoding=band.encoding,
+                          corners=band.corners.astype(np.int32, copy=False))  # fmt: skip
+            self.counters.inc("bands_sent")
         # nothing moved (the usual, sticky case): no previous crops to cut
         prev_crops = work.prev_crops(moved) if moved.size else crops[:0]
         # built from our own validated data: skip re-validation here, the receiver validates at its boundary
@@ -112,6 +122,7 @@ class Scatter:
             prev_indices=moved.astype(np.int32, copy=False),
             prev_crops=prev_crops,
             budget_s=budget_s,
+            **pixels,
         )
         payload, attachment = encode(job)
         events = self._events

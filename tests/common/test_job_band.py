@@ -1,0 +1,105 @@
+"""A job's new-frame pixels as one band of the level image (:class:`~common.wire.messages.PatchJob`): the
+crops a member cuts from it are the sender's bit for bit, it travels in fewer bytes where patches overlap,
+and a band that lies about its size, its corners or its bytes is one clear refusal before any allocation."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from common.wire import frame_codec
+from common.wire.codec import decode, encode
+from common.wire.messages import BlockJob, PatchJob, YawJobSettings
+from common.wire.schema import WireError
+from common.yaw import YawSettings, make_patch_grid
+from common.yaw.grid import PatchGrid
+from tests.builders import patch_job
+
+#: issue 29's heavy workload: 128 px patches overlap on a 16 x 12 grid of a 1920x1080 frame at level 0
+HEAVY = replace(YawSettings(), grid_cols=16, grid_rows=12, patch_size_px=128, pyramid_level=0)
+
+
+def _level(grid: PatchGrid, seed: int) -> np.ndarray:
+    shape = grid.level_image(np.zeros(grid.frame_shape, np.uint8)).shape
+    return np.random.default_rng(seed).integers(0, 256, size=shape, dtype=np.uint8)
+
+
+def band_job(
+    grid: PatchGrid, level: np.ndarray, indices: np.ndarray, encoding: str, **fields: Any
+) -> PatchJob:
+    """The job a master sends for ``indices`` as a band (unchecked: the receiver validates)."""
+    got = grid.band_level(level, indices)
+    assert got is not None
+    band, corners = got
+    side = grid.patch_size_px
+    values: dict[str, Any] = {
+        "crops": np.zeros((0, side, side), np.uint8),
+        "band": np.frombuffer(frame_codec.encode(band, encoding), np.uint8),
+        "band_shape": band.shape,
+        "band_encoding": encoding,
+        "corners": corners.astype(np.int32),
+        "settings": YawJobSettings.of(HEAVY),
+    }
+    values.update(fields)
+    return patch_job(
+        int(indices.size), side, cls=BlockJob, validate=False, indices=indices.astype(np.int32), **values
+    )
+
+
+@settings(max_examples=25, deadline=None)
+@given(start=st.integers(0, 191), count=st.integers(1, 192), encoding=st.sampled_from(["mono8", "zstd"]))
+def test_a_members_crops_from_a_band_are_the_senders_bit_for_bit(
+    start: int, count: int, encoding: str
+) -> None:
+    grid = make_patch_grid((1080, 1920), HEAVY)
+    level = _level(grid, start)
+    indices = np.arange(start, min(192, start + count))
+    if grid.band_level(level, indices) is None:  # a band with more pixels than the crops is never sent
+        return
+    payload, header = encode(band_job(grid, level, indices, encoding))
+    job = decode(payload, header, BlockJob)
+    assert np.array_equal(job.crops, grid.crop_level(level, indices))
+    assert job.band.size == 0 and job.corners.size == 0  # dropped once cut: a decoded job holds crops
+
+
+def test_a_band_is_sent_only_where_it_is_fewer_pixels_than_the_crops() -> None:
+    heavy = make_patch_grid((1080, 1920), HEAVY)
+    band, _ = heavy.band_level(_level(heavy, 0), heavy.all_indices) or (np.zeros(0), None)
+    assert band.size == 1920 * 1080 < 0.7 * heavy.n_patches * 128 * 128  # the crops repeat the overlap
+    default = make_patch_grid((480, 752), YawSettings())  # 32 px patches apart at level 1
+    assert default.band_level(_level(default, 0), default.all_indices) is None
+
+
+def test_zstd_carries_the_band_in_fewer_bytes() -> None:
+    grid = make_patch_grid((1080, 1920), HEAVY)
+    level = np.asarray(np.add.outer(np.arange(1080), np.arange(1920)) // 7 % 256, np.uint8)  # smooth
+    indices = np.arange(96)
+    sizes = {enc: len(encode(band_job(grid, level, indices, enc))[0]) for enc in ("mono8", "zstd")}
+    crops = len(encode(patch_job(96, 128, validate=False, crops=grid.crop_level(level, indices)))[0])
+    assert sizes["zstd"] < sizes["mono8"] < crops
+
+
+def _hostile(**fields: Any) -> PatchJob:
+    grid = make_patch_grid((1080, 1920), HEAVY)
+    return band_job(grid, _level(grid, 1), np.arange(32), "zstd", **fields)
+
+
+@pytest.mark.parametrize(
+    ("fields", "match"),
+    [({"band_shape": (9000, 100)}, "band_shape"), ({"band_shape": (100, 100)}, "smaller than"),
+     ({"band_shape": (4096, 4096)}, "pixels"), ({"corners": np.zeros((3, 2), np.int32)}, "corners"),
+     ({"corners": np.full((32, 2), 5000, np.int32)}, "does not fit"),
+     ({"corners": np.full((32, 2), -1, np.int32)}, "does not fit"),
+     ({"band": np.zeros(64, np.uint8)}, "band"), ({"band_encoding": "jpeg"}, "band_encoding"),
+     ({"crops": np.zeros((32, 128, 128), np.uint8)}, "not both")],
+)  # fmt: skip
+def test_a_band_that_lies_is_refused_at_decode(fields: dict[str, Any], match: str) -> None:
+    payload, header = encode(_hostile(**fields))
+    with pytest.raises(WireError, match=match):
+        decode(payload, header, BlockJob)
+    assert decode(*encode(_hostile()), BlockJob).crops.shape == (32, 128, 128)
