@@ -13,6 +13,11 @@ compute" figure (target <= 25 %). Shared memory is off (the figures stand for se
 not wall time, but a busy host still inflates them (cache, steal) and /proc counts in 10 ms ticks: run it
 alone, with enough frames.
 
+Latency against one host: ``--netns --pin`` gives each emulated host one CPU (the ground host, with the
+master, the camera and its router, the first; the in-process run the same one) and the table's
+``latency_ratio`` is the master's median frame time over the in-process time per frame;
+``--master-computes`` lets the master compute a share too, as in the paper.
+
 The workload (``--resolution``, ``--grid``, ``--patch-size``, ``--pyramid-level``; unless given, the yaw
 core's defaults at 752x480) is the same in-process and on the master. Distributing pays on a heavy frame: the
 cluster bench's grid (``--grid 16x12 --patch-size 128 --pyramid-level 0``) at 752x480 and 1920x1080.
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import time
 from collections.abc import Mapping
 from contextlib import ExitStack
@@ -36,6 +42,7 @@ from common.members import Topology
 from common.wire.messages import YawEstimate
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
+from services.master.settings import MasterSettings
 from services.runtime.cli import number_in, parse_size
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
@@ -84,6 +91,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--link-mbit", type=number_in(float, 0.1, 100_000.0), help="with --netns: every link's rate (Mbit/s)"
     )
+    parser.add_argument(
+        "--master-computes", action="store_true",
+        help="the master computes a share too (the paper's configuration; default: it only dispatches)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--pin", action="store_true",
+        help="one CPU per host: the ground host (master, camera, its router) and the in-process run on the "
+        "first, each member host on one of the others (latency against one host's CPU: latency_ratio)",
+    )  # fmt: skip
     yaw = YawSettings()  # the workload's defaults are the yaw core's
     workload = parser.add_argument_group("workload (the same for the in-process run and the master)")
     workload.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
@@ -94,6 +110,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     workload.add_argument(
         "--pyramid-level", type=number_in(int, 0, 4), default=yaw.pyramid_level, help="pyramid level"
     )
+    parser.add_argument(
+        "--job-encoding", choices=("mono8", "zstd"), default=MasterSettings().job_encoding,
+        help="the master's --job-encoding (how a band of the frame travels to the members)",
+    )  # fmt: skip
 
 
 def role_of(member: str) -> str:
@@ -134,14 +154,34 @@ def workload_of(args: argparse.Namespace) -> tuple[tuple[int, int], YawSettings,
     settings = replace(
         YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level
     )
-    master_args = ("--grid", args.grid, "--patch-size", str(patch), "--pyramid-level", str(level))
+    encoding = getattr(args, "job_encoding", MasterSettings().job_encoding)
+    master_args = ("--grid", args.grid, "--patch-size", str(patch), "--pyramid-level", str(level),
+                   "--job-encoding", encoding)  # fmt: skip
     return size, settings, master_args
 
 
+def host_cpus() -> tuple[str, list[str]]:
+    """``--pin``'s CPU sets: the ground host's (the first CPU) and the member hosts' (the others, or the
+    first again on a machine of one CPU)."""
+    cores = sorted(os.sched_getaffinity(0))
+    return str(cores[0]), [str(c) for c in (cores[1:] or cores)]
+
+
 def in_process_cpu_ms(
-    frames: int, size: tuple[int, int] = (752, 480), settings: YawSettings | None = None
+    frames: int,
+    size: tuple[int, int] = (752, 480),
+    settings: YawSettings | None = None,
+    cpu: str | None = None,
 ) -> float:
-    """CPU ms per frame of the in-process tracker on the camera's hover (``size``: width, height)."""
+    """CPU ms per frame of the in-process tracker on the camera's hover (``size``: width, height), on ``cpu``
+    alone when given (one thread: its wall time per frame too)."""
+    if cpu is not None:
+        before = os.sched_getaffinity(0)
+        os.sched_setaffinity(0, {int(cpu)})
+        try:
+            return in_process_cpu_ms(frames, size, settings)
+        finally:
+            os.sched_setaffinity(0, before)
     flight = simulated_flight(CameraSettings(frames=frames, width=size[0], height=size[1]))
     settings = settings or YawSettings()
     first = flight.frame(0)
@@ -154,12 +194,21 @@ def in_process_cpu_ms(
     return 1e3 * (time.process_time() - c0) / len(images)
 
 
-def _spec(label: str, topology: Topology, workers: tuple[int, ...]) -> ClusterSpec:
+def path_spec(
+    label: str, topology: Topology, workers: tuple[int, ...], master_computes: bool = False, pin: bool = False
+) -> ClusterSpec:
+    ground, members = host_cpus() if pin else (None, [None])
     return ClusterSpec(
         name=label.replace(" ", "-"),
         topology=topology,
         balance=Balance.TIME,
-        hosts=tuple(HostSpec(name=f"h{i + 1}", workers=n) for i, n in enumerate(workers)),
+        master_computes=master_computes,
+        master_cpus=ground,
+        aux_cpus=ground,
+        hosts=tuple(
+            HostSpec(name=f"h{i + 1}", workers=n, cpus=members[i % len(members)])
+            for i, n in enumerate(workers)
+        ),
     )
 
 
@@ -167,7 +216,7 @@ def cluster_path(
     label: str, topology: Topology, workers: tuple[int, ...], args: argparse.Namespace
 ) -> dict[str, Any]:
     """One path's flight: on loopback, or (``--netns``) across emulated hosts with per-link bytes."""
-    spec = _spec(label, topology, workers)
+    spec = path_spec(label, topology, workers, args.master_computes, args.pin)
     log_dir = Path(args.out) / "dispatch_logs" / spec.name
     _, _, master_args = workload_of(args)
     if not args.netns:
@@ -262,7 +311,9 @@ def summary_table(
         frame_ms = [
             r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})
         ]
-        latency = {"frame_ms": median_p95(frame_ms)[0]} if frame_ms else {}
+        # the master's frame time (frame in to yaw out) against the in-process tracker's time per frame
+        latency = {"frame_ms": median_p95(frame_ms)[0], "latency_ratio": median_p95(frame_ms)[0] / in_process}
+        latency = latency if frame_ms else {}
         table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),
                       "lost": sum(r["lost"] for r in path_runs),
                       **{f"{role}_ms": roles[role][0] for role in ROLES},
@@ -276,12 +327,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.netns and (reason := unavailable_reason()) is not None:
         raise NetnsError(f"--netns: {reason}")
     size, settings, _ = workload_of(args)
+    ground_cpu = host_cpus()[0] if args.pin else None
     repeats = args.repeats
     in_process_runs: list[float] = []
     runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in PATHS}
     # repeats interleave the paths, so that a change of the (shared) host's load hits them alike
     for _ in range(repeats):
-        in_process_runs.append(in_process_cpu_ms(args.frames, size, settings))
+        in_process_runs.append(in_process_cpu_ms(args.frames, size, settings, ground_cpu))
         for label, topology, workers in PATHS:
             runs[label].append(cluster_path(label, topology, workers, args))
     table = summary_table(in_process_runs, repeats * (args.frames - 1), runs)
@@ -295,6 +347,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "pyramid_level": settings.pyramid_level,
             "netns": args.netns,
             "link_mbit": args.link_mbit,
+            "master_computes": args.master_computes,
+            "job_encoding": args.job_encoding,
+            "pinned": args.pin,
             "frames": args.frames,
             "fps": args.fps,
             "repeats": repeats,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 
 from common.dispatch import SELF
 from common.errors import CapatazError
+from common.members import Topology
 from common.yaw import YawSettings
 from services.tools.bench.dispatch import (
     PATHS,
@@ -19,6 +21,8 @@ from services.tools.bench.dispatch import (
     add_arguments,
     cluster_path,
     cpu_ms_per_frame,
+    host_cpus,
+    path_spec,
     run,
     summary_table,
     workload_of,
@@ -59,6 +63,16 @@ def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_
     assert 3.0 < row["master_ms_p95"] <= 9.0
     assert row["h1_tx_kB"] == pytest.approx(2.0)  # the mean over the repeats
     assert row["frame_ms"] == 50.0  # the master's frame time, median over the repeats
+    assert row["latency_ratio"] == pytest.approx(5.0)  # against the in-process median, 10 ms
+
+
+def test_pinned_hosts_take_one_cpu_each_the_ground_the_first() -> None:
+    spec = path_spec("master-foreman-worker 2x2", Topology.MASTER_FOREMAN_WORKER, (2, 2), True, pin=True)
+    ground, members = host_cpus()
+    assert spec.master_cpus == spec.aux_cpus == ground == str(min(os.sched_getaffinity(0)))
+    assert [h.cpus for h in spec.hosts] == [members[0], members[1 % len(members)]]
+    assert spec.master_computes
+    assert path_spec("p", Topology.MASTER_WORKER, (1,)).hosts[0].cpus is None  # not pinned by default
 
 
 def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
@@ -66,9 +80,10 @@ def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
     add_arguments(parser)
     default_size, default, default_args = workload_of(parser.parse_args([]))
     assert default_size == (752, 480) and default == YawSettings()
-    assert default_args == ("--grid", "8x5", "--patch-size", "32", "--pyramid-level", "1")
+    assert default_args == ("--grid", "8x5", "--patch-size", "32", "--pyramid-level", "1",
+                            "--job-encoding", "mono8")  # fmt: skip
     args = parser.parse_args(["--resolution", "1920x1080", "--grid", "16x12", "--patch-size", "128",
-                              "--pyramid-level", "0"])  # fmt: skip
+                              "--pyramid-level", "0", "--job-encoding", "zstd"])  # fmt: skip
     size, settings, master_args = workload_of(args)
     assert size == (1920, 1080)
     assert (settings.grid_cols, settings.grid_rows, settings.patch_size_px, settings.pyramid_level) == (
@@ -77,7 +92,8 @@ def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
         128,
         0,
     )
-    assert master_args == ("--grid", "16x12", "--patch-size", "128", "--pyramid-level", "0")
+    assert master_args == ("--grid", "16x12", "--patch-size", "128", "--pyramid-level", "0",
+                           "--job-encoding", "zstd")  # fmt: skip
     with pytest.raises(CapatazError, match="--grid"):
         workload_of(parser.parse_args(["--grid", "16by12"]))
 
