@@ -221,7 +221,8 @@ class Round:
         report = self.report
         # the reply's arrival, not when this thread got to it: while the dispatcher computes its own share, a
         # member's reply waits, and a round trip read after that share made the member look as slow as it
-        elapsed = (arrived_monotonic_s or time.monotonic()) - request.start_monotonic_s
+        arrived = time.monotonic() if arrived_monotonic_s is None else arrived_monotonic_s
+        elapsed = arrived - request.start_monotonic_s
         # the member's own speed measure (a worker: its compute time; a foreman: the sum of its workers'
         # speeds); the dispatcher's speed_source decides whether it or patches / elapsed balances
         reported = sum(result.speeds.values()) if result.speeds else None
