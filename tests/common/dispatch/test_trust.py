@@ -217,31 +217,32 @@ def test_a_failed_share_is_not_re_dispatched_to_members_that_never_answered_regr
     assert set(again.assignment) <= {"foreman/a/0", SELF}
 
 
-def test_at_start_nobody_is_on_probation_so_two_members_share_without_the_dispatcher() -> None:
-    """Probation (a third) applies next to credited members only: a fresh 2-member cluster is not slowed."""
+def two_member_counts(a: str, a_s: float, b: str, b_s: float, credited: bool) -> dict[str, int]:
+    """The next plan's patches per member (of 40) after ``a`` and ``b`` computed 20 each in ``a_s`` and
+    ``b_s`` seconds, with trust (and, when ``credited``, the credit of consistent frames)."""
     d = Dispatcher(DispatchSettings(), 40)
     d.trust = TrustMonitor()
-    d.join("foreman/a/0")
-    d.join("foreman/b/0")
-    d.record_success("foreman/a/0", 0, np.arange(20), 0.01)
-    d.record_success("foreman/b/0", 0, np.arange(20, 40), 0.012)
-    plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
-    assert SELF not in plan.assignment and sorted(len(v) for v in plan.assignment.values()) == [20, 20]
+    if credited:
+        credit(d.trust, a, b)
+    d.join(a)
+    d.join(b)
+    d.record_success(a, 0, np.arange(20), a_s)
+    d.record_success(b, 0, np.arange(20, 40), b_s)
+    return {m: len(v) for m, v in d.plan(seq=1, prev_seq=0, now_s=0.0).assignment.items()}
+
+
+def test_at_start_nobody_is_on_probation_so_two_members_share_without_the_dispatcher() -> None:
+    """Probation (a third) applies next to credited members only: a fresh 2-member cluster is not slowed."""
+    counts = two_member_counts("foreman/a/0", 0.01, "foreman/b/0", 0.012, credited=False)
+    assert SELF not in counts and sorted(counts.values()) == [20, 20]
 
 
 def test_a_capped_fast_members_overflow_goes_to_the_dispatcher_not_to_a_slow_member_regression() -> None:
     """Seen on emulated hosts (issue 29): one foreman behind a 0.5 Mbit link and one behind 100 Mbit got
     1180 patches each, the median round 9.6 -> 352 ms. The fast one was capped at half the frame and the
     cap's overflow went to the member with room, the slow one, undoing the balance."""
-    d = Dispatcher(DispatchSettings(), 40)
-    d.trust = TrustMonitor()
-    credit(d.trust, "foreman/fast/0", "foreman/thin/0")
-    d.join("foreman/fast/0")
-    d.join("foreman/thin/0")
-    d.record_success("foreman/fast/0", 0, np.arange(20), 0.25)  # 80 patches/s
-    d.record_success("foreman/thin/0", 0, np.arange(20, 40), 1.0)  # 20 patches/s (its link)
-    plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
-    counts = {m: len(v) for m, v in plan.assignment.items()}
+    # 80 patches/s against 20 (its link)
+    counts = two_member_counts("foreman/fast/0", 0.25, "foreman/thin/0", 1.0, credited=True)
     assert counts["foreman/fast/0"] == 20  # the cap: half the frame
     assert counts["foreman/thin/0"] <= 12  # its balanced 8, plus at most half more
     assert counts[SELF] == 40 - 20 - counts["foreman/thin/0"]
@@ -250,15 +251,8 @@ def test_a_capped_fast_members_overflow_goes_to_the_dispatcher_not_to_a_slow_mem
 def test_near_equal_members_keep_the_dispatcher_out_of_a_capped_frame() -> None:
     """Noise between equal members (here 1.8 times: a loaded host's round trips) does not make the dispatcher
     compute: the slower one takes the overflow while it stays within half more than its balanced count."""
-    d = Dispatcher(DispatchSettings(), 40)
-    d.trust = TrustMonitor()
-    credit(d.trust, "foreman/a/0", "foreman/b/0")
-    d.join("foreman/a/0")
-    d.join("foreman/b/0")
-    d.record_success("foreman/a/0", 0, np.arange(20), 0.010)
-    d.record_success("foreman/b/0", 0, np.arange(20, 40), 0.018)
-    plan = d.plan(seq=1, prev_seq=0, now_s=0.0)
-    assert SELF not in plan.assignment and sorted(len(v) for v in plan.assignment.values()) == [20, 20]
+    counts = two_member_counts("foreman/a/0", 0.010, "foreman/b/0", 0.018, credited=True)
+    assert SELF not in counts and sorted(counts.values()) == [20, 20]
 
 
 @given(
