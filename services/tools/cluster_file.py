@@ -9,6 +9,7 @@ A YAML mapping, every key checked (an unknown key is refused with the file's nam
     balance: time                   # time: shares follow each member's measured speed; none: equal shares
     speed: round_trip               # what "speed" means for time balancing: round_trip or reported
     master_computes: false          # the master computes a share as well as dispatching
+    job_encoding: mono8             # how a band of the frame travels to the members: mono8 or zstd
     master_cpus: "0"                # taskset CPU list of the master (optional)
     aux_cpus: "0"                   # taskset CPU list of the router and the camera (optional)
     uav: uav0                       # the UAV stream the master serves
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -34,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
 from common.members import Topology
+from services.master.settings import MasterSettings
 from services.runtime.usage import condense_validation_error, one_line
 
 
@@ -68,6 +71,8 @@ class ClusterSpec(BaseModel):
     #: speed measure of time balancing (master and foremen): members' own figures or round-trip rates
     speed: SpeedSource = SpeedSource.ROUND_TRIP
     master_computes: bool = False
+    #: the master's ``--job-encoding`` (zstd: members across a thin link)
+    job_encoding: Literal["mono8", "zstd"] = MasterSettings.model_fields["job_encoding"].default
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera
     aux_cpus: str | None = None
@@ -106,10 +111,12 @@ def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
 
 
 def master_command(spec: ClusterSpec) -> ServiceCommand:
-    args = ("master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
+    args = ["master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
             "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
-            "--speed", spec.speed.value)  # fmt: skip
-    return ServiceCommand("master/master/0", args, spec.master_cpus)
+            "--speed", spec.speed.value]  # fmt: skip
+    if spec.job_encoding != MasterSettings.model_fields["job_encoding"].default:
+        args += ["--job-encoding", spec.job_encoding]
+    return ServiceCommand("master/master/0", tuple(args), spec.master_cpus)
 
 
 def cluster_commands(spec: ClusterSpec) -> list[ServiceCommand]:
