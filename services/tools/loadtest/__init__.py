@@ -113,6 +113,11 @@ def register(subparsers: Any) -> None:
         help="with --hosts: the last host's link rate in Mbit/s (a radio link: the report's shares show the "
         "balancer moving work away from it)",
     )  # fmt: skip
+    parser.add_argument(
+        "--slow-host-factor", type=number_in(int, 1, 100), default=1,
+        help="with --hosts: the last host's workers do their work N times (a slower CPU: the report's shares "
+        "show the balancer moving work away from it)",
+    )  # fmt: skip
     parser.add_argument("--name", default="loadtest", help="report name: out/loadtest/<name>.json/.png")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated flight")
@@ -128,7 +133,7 @@ def _hosts_spec(args: argparse.Namespace, spec: ClusterSpec, faults: tuple[Fault
         raise LoadtestError("--hosts: a router fault is not supported (each host has its own router)")
     if (reason := unavailable_reason()) is not None:
         raise LoadtestError(f"--hosts needs network namespaces: {reason}")
-    return spec_for_hosts(spec, args.hosts)
+    return spec_for_hosts(spec, args.hosts, args.slow_host_factor)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -162,8 +167,8 @@ def run(args: argparse.Namespace) -> int:
     spec = load_cluster(args.cluster)
     if args.hosts is not None:
         spec = _hosts_spec(args, spec, faults)
-    elif args.link_mbit is not None or args.thin_host_mbit is not None:
-        raise LoadtestError("--link-mbit and --thin-host-mbit need --hosts")
+    elif args.link_mbit is not None or args.thin_host_mbit is not None or args.slow_host_factor != 1:
+        raise LoadtestError("--link-mbit, --thin-host-mbit and --slow-host-factor need --hosts")
     settings = RunSettings(
         streams=args.streams, fps=args.fps, duration_s=args.duration, in_flight=args.in_flight,
         standby_masters=args.standby or any(f.target == "master" for f in faults), shared_memory=args.shm,
@@ -186,14 +191,16 @@ def run(args: argparse.Namespace) -> int:
         else:
             report = run_once(spec, settings, log_dir, net=net)
             judge(report, objectives)
-    # the model takes one link rate for every member host: not stated for a run with a thin host
-    if args.capacity and report["capacity_streams"] > 0 and args.thin_host_mbit is None:
+    # the model takes one link rate and one CPU for every member host: not stated with a thin or slow host
+    uniform = args.thin_host_mbit is None and args.slow_host_factor == 1
+    if args.capacity and report["capacity_streams"] > 0 and uniform:
         workers = sum(h.workers for h in spec.hosts)
         report["model"] = model_report(report, args.fps, len(spec.hosts), link_bit_s, workers)
     report["name"] = args.name
     report["cluster"] = spec.name
     report["hosts"] = args.hosts
     report["thin_host_mbit"] = args.thin_host_mbit
+    report["slow_host_factor"] = args.slow_host_factor
     figure = plot(report, args.out / f"{args.name}.png")
     path = write_json(report, args.out / f"{args.name}.json")
     print(table(report))

@@ -24,13 +24,17 @@ from services.tools.loadtest.harness import HARNESS
 REFERENCE_FLEET = Fleet(hosts=10, cores_per_host=16.0, ground_cores=16.0, link_bit_s=1e9)
 
 
-def spec_for_hosts(spec: ClusterSpec, hosts: int) -> ClusterSpec:
-    """``hosts`` hosts shaped like the file's first, masters that only dispatch (the paper's roles)."""
+def spec_for_hosts(spec: ClusterSpec, hosts: int, slow_factor: int = 1) -> ClusterSpec:
+    """``hosts`` hosts shaped like the file's first, masters that only dispatch (the paper's roles); the last
+    host's workers do their work ``slow_factor`` times (a slower CPU, made real in software)."""
     first = spec.hosts[0]
     shaped = tuple(
-        HostSpec(name=f"h{i + 1}", workers=first.workers, foreman_computes=first.foreman_computes)
+        HostSpec(
+            name=f"h{i + 1}", workers=first.workers, foreman_computes=first.foreman_computes,
+            cpu_factor=slow_factor if i == hosts - 1 else first.cpu_factor,
+        )
         for i in range(hosts)
-    )
+    )  # fmt: skip
     return spec.model_copy(
         update={
             "name": f"{spec.name}-{hosts}hosts",

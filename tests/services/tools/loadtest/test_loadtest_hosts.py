@@ -33,6 +33,7 @@ def test_every_host_is_shaped_like_the_first_and_the_masters_only_dispatch() -> 
     shaped = spec_for_hosts(spec, 3)
     assert [h.name for h in shaped.hosts] == ["h1", "h2", "h3"]
     assert all(h.workers == 3 for h in shaped.hosts) and shaped.master_computes is False
+    assert [h.cpu_factor for h in spec_for_hosts(spec, 3, slow_factor=4).hosts] == [1, 1, 4]  # the last: slow
 
 
 def _trial(master_s: float, worker_s: float, frames: int) -> dict[str, Any]:
@@ -66,6 +67,7 @@ def test_the_model_reports_its_prediction_against_the_measured_capacity() -> Non
 def test_link_rates_without_hosts_and_hosts_with_the_secure_profile_are_refused(tmp_path: Path) -> None:
     assert main(["loadtest", "--link-mbit", "100", "--out", str(tmp_path)]) == 1
     assert main(["loadtest", "--thin-host-mbit", "20", "--out", str(tmp_path)]) == 1
+    assert main(["loadtest", "--slow-host-factor", "3", "--out", str(tmp_path)]) == 1
     assert main(["loadtest", "--hosts", "2", "--secure", str(tmp_path / "s"), "--out", str(tmp_path)]) == 1
 
 
