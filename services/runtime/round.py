@@ -173,6 +173,14 @@ class Round:
         for member, indices in plan.assignment.items():
             moved = plan.moved[member]
             if member == SELF:
+                if (
+                    start_monotonic_s is not None
+                    and len(plan.assignment) > 1
+                    and not self.dispatcher.settings.self_compute
+                ):
+                    # a dispatcher that only dispatches computes what a trust cap cut from a fast member
+                    # and the others would have finished last with (common.dispatch.plan.capped_counts)
+                    self.counters.inc("cap_overflow_patches", int(indices.size))
                 self.self_queue.append((indices, moved))
                 continue
             timeout_s = self.dispatcher.timeout_s(member, int(indices.size), work.budget_s)

@@ -9,18 +9,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 import zenoh
 
-from common.dispatch import SELF, Dispatcher, DispatchSettings
+from common.dispatch import SELF, Dispatcher, DispatchSettings, MemberOutcome, TrustMonitor
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.counters import Counters
-from services.runtime.round import FailureReason, FrameWork, Request, RoundReport
+from services.runtime.round import FailureReason, FrameWork, Request, Round, RoundReport
 from services.runtime.scatter import Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
 from tests.builders import JOB_SETTINGS
@@ -239,3 +240,33 @@ def test_a_solo_request_nobody_answers_fails_without_waiting(
     _scatter, report = run_round(dispatcher_side, "w/9", budget_s=5.0)  # no queryable on its key
     assert covered_by(report) == {SELF: N_PATCHES}
     assert report.failures == ["w/9: no reply"]  # not "deadline missed": zenoh closed the channel at once
+
+
+def test_a_dispatch_only_master_counts_the_patches_a_trust_cap_left_it() -> None:
+    """Two credited members, one four times faster and held at half the frame by the trust cap: the master
+    computes what the slow one would have finished last with, and says so in ``cap_overflow_patches``."""
+    dispatcher = Dispatcher(DispatchSettings(), 40)
+    dispatcher.trust = TrustMonitor()
+    for k in range(dispatcher.trust.settings.earn_frames):
+        dispatcher.trust.observe([MemberOutcome(m, 13, 0) for m in ("f/fast", "f/slow")], now_s=float(k))
+    for member, seconds, first in (("f/fast", 0.25, 0), ("f/slow", 1.0, 20)):
+        dispatcher.join(member)
+        dispatcher.record_success(member, 0, np.arange(first, first + 20), seconds)
+    plan = dispatcher.plan(1, 0, time.monotonic())
+    sent: list[str] = []
+    scatter = SimpleNamespace(
+        dispatcher=dispatcher,
+        counters=Counters(),
+        _send=lambda work, member, *rest: sent.append(member) or len(sent),
+    )
+    work = FrameWork(
+        stream="s", seq=1, prev_seq=0, settings=JOB_SETTINGS, budget_s=1.0, crops=np.asarray,
+        prev_crops=np.asarray, compute_self=lambda i, m: PatchMeasurement(i, i, i, i, i),
+    )  # fmt: skip
+    round_ = Round(scatter, work)  # type: ignore[arg-type]
+    round_.dispatch(plan, round_.start_monotonic_s)
+    own = plan.assignment[SELF].size
+    assert sorted(sent) == ["f/fast", "f/slow"] and own > 0
+    assert scatter.counters.counts()["cap_overflow_patches"] == own
+    round_.dispatch(dispatcher.redistribute(plan.assignment["f/slow"], {"f/slow"}, time.monotonic(), 0))
+    assert scatter.counters.counts()["cap_overflow_patches"] == own  # a re-dispatch is counted apart
