@@ -194,9 +194,11 @@ def _crops_of_band(job: PatchJob) -> np.ndarray:
         raise ValueError(f"band_shape: {job.band_shape} must be 1..{MAX_FRAME_SIDE_PX} px a side")
     if height < side or width < side:
         raise ValueError(f"band_shape: {job.band_shape} is smaller than a {side} px patch")
-    pixels = height * width + n * side * side + job.prev_crops.size
+    # what decoding holds at once: the band's bytes and their copy, the band and its undone row deltas, the
+    # crops cut from it and the previous crops: within one job's pixel bound, as a job of crops alone is
+    pixels = 2 * job.band.size + 2 * height * width + n * side * side + job.prev_crops.size
     if pixels > MAX_JOB_PIXELS:
-        raise ValueError(f"band: {pixels} pixels with its crops > {MAX_JOB_PIXELS}")
+        raise ValueError(f"band: {pixels} bytes to decode with its crops > {MAX_JOB_PIXELS}")
     if job.corners.shape[0] != n:
         raise ValueError(f"corners: {job.corners.shape[0]} corners for {n} indices")
     corners = job.corners

@@ -75,6 +75,16 @@ def test_a_band_is_sent_only_where_it_is_fewer_pixels_than_the_crops() -> None:
     assert default.band_level(_level(default, 0), default.all_indices) is None
 
 
+@pytest.mark.parametrize("encoding", ["mono8", "zstd"])
+def test_a_whole_1080p_frame_as_one_band_is_within_the_jobs_bound(encoding: str) -> None:
+    """What decoding holds (bytes, their copy, the band, its row deltas, the crops) counts against the
+    bound: the heavy workload's whole frame (2.1 MB of band, 3.1 MB of crops) stays well within it."""
+    grid = make_patch_grid((1080, 1920), HEAVY)
+    level = _level(grid, 2)
+    job = decode(*encode(band_job(grid, level, grid.all_indices, encoding)), BlockJob)
+    assert np.array_equal(job.crops, grid.crop_level(level, grid.all_indices))
+
+
 def test_zstd_carries_the_band_in_fewer_bytes() -> None:
     grid = make_patch_grid((1080, 1920), HEAVY)
     level = np.asarray(np.add.outer(np.arange(1080), np.arange(1920)) // 7 % 256, np.uint8)  # smooth
@@ -92,7 +102,7 @@ def _hostile(**fields: Any) -> PatchJob:
 @pytest.mark.parametrize(
     ("fields", "match"),
     [({"band_shape": (9000, 100)}, "band_shape"), ({"band_shape": (100, 100)}, "smaller than"),
-     ({"band_shape": (4096, 4096)}, "pixels"), ({"corners": np.zeros((3, 2), np.int32)}, "corners"),
+     ({"band_shape": (4096, 4096)}, "to decode"), ({"corners": np.zeros((3, 2), np.int32)}, "corners"),
      ({"corners": np.full((32, 2), 5000, np.int32)}, "does not fit"),
      ({"corners": np.full((32, 2), -1, np.int32)}, "does not fit"),
      ({"band": np.zeros(64, np.uint8)}, "band"), ({"band_encoding": "jpeg"}, "band_encoding"),
