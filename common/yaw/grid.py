@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -61,6 +62,15 @@ class PatchGrid:
     @property
     def n_patches(self) -> int:
         return int(self.origins_level_px.shape[0])
+
+    @functools.cached_property
+    def patches_overlap(self) -> bool:
+        """Whether some patches may overlap: False means none does (distinct origins at least a patch apart
+        in x and in y), so a band of patches never holds fewer pixels than their crops
+        (:meth:`band_level`); True may also be said of a grid whose overlapping columns are in rows apart."""
+        n = self.patch_size_px
+        xs, ys = (np.unique(self.origins_level_px[:, axis]) for axis in (0, 1))
+        return bool((np.diff(xs) < n).any() or (np.diff(ys) < n).any())
 
     @property
     def all_indices(self) -> IntArray:

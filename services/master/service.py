@@ -340,7 +340,8 @@ class MasterService(ConfiguredService[MasterSettings]):
             crops=partial(grid.crop_level, level),
             prev_crops=partial(grid.crop_level, prev_level),
             compute_self=own_share,
-            band=partial(job_band, grid, level, self.settings.job_encoding),
+            # patches apart (the defaults): their crops are always the fewer bytes, no band is tried per share
+            band=partial(job_band, grid, level, self.settings.job_encoding) if grid.patches_overlap else None,
         )
         plan = stream.dispatcher.plan(frame.seq, prev_seq, time.monotonic())
         try:

@@ -73,6 +73,25 @@ def test_a_band_is_sent_only_where_it_is_fewer_pixels_than_the_crops() -> None:
     assert band.size == 1920 * 1080 < 0.7 * heavy.n_patches * 128 * 128  # the crops repeat the overlap
     default = make_patch_grid((480, 752), YawSettings())  # 32 px patches apart at level 1
     assert default.band_level(_level(default, 0), default.all_indices) is None
+    assert heavy.patches_overlap and not default.patches_overlap
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    cols=st.integers(2, 12), rows=st.integers(2, 9), side=st.sampled_from([16, 32, 64, 128]),
+    first=st.integers(0, 107), count=st.integers(1, 108),
+)  # fmt: skip
+def test_patches_that_never_overlap_never_make_a_band(
+    cols: int, rows: int, side: int, first: int, count: int
+) -> None:
+    """What lets the master skip bands on such grids: apart, the crops are always the fewer pixels."""
+    grid_settings = replace(
+        YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=side, pyramid_level=0
+    )
+    grid = make_patch_grid((480, 752), grid_settings)
+    indices = np.arange(min(first, grid.n_patches - 1), min(grid.n_patches, first + count))
+    if not grid.patches_overlap:
+        assert grid.band_level(_level(grid, 0), indices) is None
 
 
 @pytest.mark.parametrize("encoding", ["mono8", "zstd"])
