@@ -47,7 +47,7 @@ from services.runtime.cli import number_in, parse_size
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
 from services.tools.cluster_file import ClusterSpec, HostSpec
-from services.tools.loadtest.harness import cpu_seconds
+from services.tools.loadtest.harness import processes_cpu_seconds
 from services.tools.netns import (
     NetHarness,
     NetnsError,
@@ -137,13 +137,6 @@ def cpu_ms_per_frame(
         net = after_s[name] - before_s[name] - idle_rate.get(name, 0.0) * flight_s
         per_role[role] += max(0.0, net)
     return {role: 1e3 * seconds / frames for role, seconds in per_role.items()}
-
-
-def _cpu(cluster: LocalCluster) -> dict[str, float]:
-    """Every process's CPU seconds; a process that ended but was not reaped yet (the camera after its
-    flight: nothing here polls it) still has its totals in /proc."""
-    readings = {name: cpu_seconds(p.pid) for name, p in cluster.processes.items()}
-    return {name: value for name, value in readings.items() if value is not None}
 
 
 def workload_of(args: argparse.Namespace) -> tuple[tuple[int, int], YawSettings, tuple[str, ...]]:
@@ -260,17 +253,17 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
                 estimates = dict(collector.estimates)
                 return len(estimates), _members(estimates), median_timings_ms(estimates.values())
 
-        idle0, t_idle = _cpu(cluster), time.monotonic()
+        idle0, t_idle = processes_cpu_seconds(cluster.processes), time.monotonic()
         time.sleep(args.idle_s)  # the idle window itself: a rate, not a wait for a condition
-        idle1 = _cpu(cluster)
+        idle1 = processes_cpu_seconds(cluster.processes)
         idle_s = time.monotonic() - t_idle
         idle_rate = {n: (idle1[n] - idle0[n]) / idle_s for n in idle0.keys() & idle1.keys()}
-        before, t0 = _cpu(cluster), time.monotonic()
+        before, t0 = processes_cpu_seconds(cluster.processes), time.monotonic()
         bytes0 = net.link_bytes() if net is not None else {}
         cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps), "--in-flight", "1",
                               "--no-sensors", "--resolution", args.resolution])  # fmt: skip
         received, members, timings = outcome()
-        after, flight_s = _cpu(cluster), time.monotonic() - t0
+        after, flight_s = processes_cpu_seconds(cluster.processes), time.monotonic() - t0
         bytes1 = net.link_bytes() if net is not None else {}
     cluster.stop()
     frames = max(received, 1)

@@ -11,9 +11,10 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import subprocess
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,6 +83,13 @@ def cpu_seconds(pid: int) -> float | None:
     except OSError:
         return None
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def processes_cpu_seconds(processes: Mapping[str, subprocess.Popen[bytes]]) -> dict[str, float]:
+    """:func:`cpu_seconds` of every named process that has a reading; one that ended but was not reaped yet
+    (a camera after its flight, when nothing polls it) still has its totals in /proc."""
+    readings = {name: cpu_seconds(process.pid) for name, process in processes.items()}
+    return {name: value for name, value in readings.items() if value is not None}
 
 
 class LoadCluster:
@@ -163,18 +171,13 @@ class LoadCluster:
     def mark_cpu(self) -> None:
         """Start of the measured window: each process's CPU, this process's (it publishes the cameras'
         frames) and, across hosts, each link's bytes."""
-        for name, process in self.cluster.processes.items():
-            value = cpu_seconds(process.pid)
-            if value is not None:
-                self._cpu0[name] = value
+        self._cpu0.update(processes_cpu_seconds(self.cluster.processes))
         self._cpu0[HARNESS] = time.process_time()
         self.links_before = self.net.link_bytes() if self.net is not None else {}
 
     def collect_cpu(self) -> None:
-        for name, process in self.cluster.processes.items():
-            value = cpu_seconds(process.pid)
-            if value is not None:
-                self.cpu[name] = round(value - self._cpu0.get(name, 0.0), 3)
+        for name, value in processes_cpu_seconds(self.cluster.processes).items():
+            self.cpu[name] = round(value - self._cpu0.get(name, 0.0), 3)
         self.cpu[HARNESS] = round(time.process_time() - self._cpu0[HARNESS], 3)
         if self.net is not None:
             self.links_after = self.net.link_bytes()
