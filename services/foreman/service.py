@@ -34,7 +34,7 @@ from common.wire import keys
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.correlation import merge_measurements
 from common.yaw.patchwork import CropStore, SpectrumCache, measure_share
-from services.runtime.allocator import return_large_blocks
+from services.runtime.allocator import HeapTrim
 from services.runtime.cli import (
     IDLE_PROCESS_MB,
     LARGEST_SHARE_MB,
@@ -113,7 +113,8 @@ class ForemanService(ConfiguredService[ForemanSettings]):
     role = Role.FOREMAN
 
     def setup(self) -> None:
-        return_large_blocks()  # within its memory budget: freed crops and spectra leave the process
+        # within its relay memory: past its crops and idle size, freed heap pages leave after a block
+        self.heap = HeapTrim(relay_memory_mb(self.settings) - LARGEST_BLOCK_MB)
         self.dispatch_settings = self.settings.dispatch
         self.queue_capacity = self.settings.queue
         self._queryable: Any = None
@@ -195,6 +196,8 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         self.counters.time_ms("block", result.compute_s * 1e3)
         self.counters.time_ms("reply", (time.perf_counter() - t_rep) * 1e3)
         self.counters.time_ms("handle", (time.perf_counter() - received_perf_s) * 1e3)
+        if self.heap.after_job():
+            self.counters.inc("heap_trims")
 
     def _count_evictions(self, spectra_before: int, crops_before: int) -> None:
         """Count the streams the two stores evicted since ``*_before`` (their ``evicted`` then)."""

@@ -15,7 +15,7 @@ from common.members import Role
 from common.wire import keys
 from common.wire.messages import PatchJob, PatchResult
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
-from services.runtime.allocator import return_large_blocks
+from services.runtime.allocator import HeapTrim
 from services.runtime.cli import (
     IDLE_PROCESS_MB,
     LARGEST_SHARE_MB,
@@ -70,7 +70,8 @@ class WorkerService(ConfiguredService[WorkerSettings]):
     role = Role.WORKER
 
     def setup(self) -> None:
-        return_large_blocks()  # within its memory budget: freed crops and spectra leave the process
+        # within its memory budget: past its cache and idle size, freed heap pages leave after a job
+        self.heap = HeapTrim(memory_budget_mb(self.settings) - LARGEST_SHARE_MB)
         self.handoff = self.settings.handoff
         self.queue_capacity = self.settings.queue
         self.cpu_factor = self.settings.cpu_factor
@@ -210,6 +211,8 @@ class WorkerService(ConfiguredService[WorkerSettings]):
         if self.cache.evicted > evicted_before:
             self.counters.inc("spectra_evicted", self.cache.evicted - evicted_before)
         self.counters.time_ms("compute", elapsed * 1e3)
+        if self.heap.after_job():
+            self.counters.inc("heap_trims")
 
 
 def register(subparsers: Any) -> None:

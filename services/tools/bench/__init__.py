@@ -33,6 +33,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.ros2",
     "services.tools.bench.consistency",
     "services.tools.bench.dispatch",
+    "services.tools.bench.allocator",
 )
 
 
