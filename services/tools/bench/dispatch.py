@@ -8,7 +8,10 @@ out, wall ms: ``frame_ms``). For a cluster path each process's user + system CPU
 before the camera starts and once the last yaw arrived; its idle rate (keep-alives, stats), measured over a
 short window before the flight, is taken off. A role's figure is the sum over its processes divided by the
 frames. The camera is left out: it starts with the flight, and its interpreter's start-up cannot be told apart
-from its per-frame work. The master's share of the in-process cost is the issue's "dispatch cheaper than
+from its per-frame work. Its frames are rendered once, before any run, and replayed from memory
+(``--images --preload``): the in-process run measures the same frames, and a camera rendering 1080p on the
+ground host's CPU (about 70 ms of CPU a frame) would take that CPU from the master, where a UAV's camera is
+not. The master's share of the in-process cost is the issue's "dispatch cheaper than
 compute" figure (target <= 25 %). Shared memory is off (the figures stand for separate hosts). CPU seconds are
 not wall time, but a busy host still inflates them (cache, steal) and /proc counts in 10 ms ticks: run it
 alone, with enough frames.
@@ -46,6 +49,7 @@ from services.master.settings import MasterSettings
 from services.runtime.cli import number_in, parse_size
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
+from services.tools.bench.cluster_workload import write_frame_folder
 from services.tools.cluster_file import ClusterSpec, HostSpec
 from services.tools.loadtest.harness import processes_cpu_seconds
 from services.tools.netns import (
@@ -160,31 +164,38 @@ def host_cpus() -> tuple[str, list[str]]:
     return str(cores[0]), [str(c) for c in (cores[1:] or cores)]
 
 
+def flight_frames(args: argparse.Namespace) -> list[np.ndarray]:
+    """The camera's hover at the workload's size (``--frames``), rendered once per ``args`` and written to
+    ``<out>/dispatch_frames`` for the camera to replay (``args.frame_dir``)."""
+    if getattr(args, "frame_images", None) is None:
+        size = parse_size(args.resolution, "--resolution", "752x480")
+        flight = simulated_flight(CameraSettings(frames=args.frames, width=size[0], height=size[1]))
+        args.frame_images = [flight.frame(i) for i in range(args.frames)]
+        args.frame_dir = Path(args.out) / "dispatch_frames"
+        write_frame_folder(args.frame_dir, args.frame_images)
+    images: list[np.ndarray] = args.frame_images
+    return images
+
+
 def in_process_cpu_ms(
-    frames: int,
-    size: tuple[int, int] = (752, 480),
-    settings: YawSettings | None = None,
-    cpu: str | None = None,
+    frames: list[np.ndarray], settings: YawSettings | None = None, cpu: str | None = None
 ) -> float:
-    """CPU ms per frame of the in-process tracker on the camera's hover (``size``: width, height), on ``cpu``
-    alone when given (one thread: its wall time per frame too)."""
+    """CPU ms per frame of the in-process tracker on ``frames``, on ``cpu`` alone when given (one thread:
+    its wall time per frame too)."""
     if cpu is not None:
         before = os.sched_getaffinity(0)
         os.sched_setaffinity(0, {int(cpu)})
         try:
-            return in_process_cpu_ms(frames, size, settings)
+            return in_process_cpu_ms(frames, settings)
         finally:
             os.sched_setaffinity(0, before)
-    flight = simulated_flight(CameraSettings(frames=frames, width=size[0], height=size[1]))
     settings = settings or YawSettings()
-    first = flight.frame(0)
-    tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
-    state = tracker.initial_state(first)
-    images = [flight.frame(i) for i in range(1, frames)]
+    tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
+    state = tracker.initial_state(frames[0])
     c0 = time.process_time()
-    for image in images:
+    for image in frames[1:]:
         state, _ = tracker.track(state, image)
-    return 1e3 * (time.process_time() - c0) / len(images)
+    return 1e3 * (time.process_time() - c0) / (len(frames) - 1)
 
 
 def path_spec(
@@ -210,6 +221,7 @@ def cluster_path(
 ) -> dict[str, Any]:
     """One path's flight: on loopback, or (``--netns``) across emulated hosts with per-link bytes."""
     spec = path_spec(label, topology, workers, args.master_computes, args.pin)
+    flight_frames(args)
     log_dir = Path(args.out) / "dispatch_logs" / spec.name
     _, _, master_args = workload_of(args)
     if not args.netns:
@@ -260,8 +272,8 @@ def _flight(cluster: LocalCluster, args: argparse.Namespace, net: NetHarness | N
         idle_rate = {n: (idle1[n] - idle0[n]) / idle_s for n in idle0.keys() & idle1.keys()}
         before, t0 = processes_cpu_seconds(cluster.processes), time.monotonic()
         bytes0 = net.link_bytes() if net is not None else {}
-        cluster.start_camera(["--frames", str(args.frames), "--fps", str(args.fps), "--in-flight", "1",
-                              "--no-sensors", "--resolution", args.resolution])  # fmt: skip
+        cluster.start_camera(["--images", str(args.frame_dir), "--preload", "--fps", str(args.fps),
+                              "--in-flight", "1", "--no-sensors"])  # fmt: skip
         received, members, timings = outcome()
         after, flight_s = processes_cpu_seconds(cluster.processes), time.monotonic() - t0
         bytes1 = net.link_bytes() if net is not None else {}
@@ -321,12 +333,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         raise NetnsError(f"--netns: {reason}")
     size, settings, _ = workload_of(args)
     ground_cpu = host_cpus()[0] if args.pin else None
+    frames = flight_frames(args)
     repeats = args.repeats
     in_process_runs: list[float] = []
     runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in PATHS}
     # repeats interleave the paths, so that a change of the (shared) host's load hits them alike
     for _ in range(repeats):
-        in_process_runs.append(in_process_cpu_ms(args.frames, size, settings, ground_cpu))
+        in_process_runs.append(in_process_cpu_ms(frames, settings, ground_cpu))
         for label, topology, workers in PATHS:
             runs[label].append(cluster_path(label, topology, workers, args))
     table = summary_table(in_process_runs, repeats * (args.frames - 1), runs)
