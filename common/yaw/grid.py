@@ -46,6 +46,24 @@ def crops_at(image_u8: U8Array, rows: npt.ArrayLike, cols: npt.ArrayLike, side_p
     return np.ascontiguousarray(windows[np.asarray(rows), np.asarray(cols)])
 
 
+def crop_mosaic(crops_u8: U8Array) -> tuple[U8Array, IntArray]:
+    """Crops (n, s, s) laid side by side as one image, ``ceil(sqrt(n))`` to a row (the last row's rest zero),
+    and each crop's top-left corner ``[row, col]`` in it: :func:`crops_at` cuts the same crops back. How a
+    scattered share travels as one compressed band. At least one crop."""
+    n, side = crops_u8.shape[0], crops_u8.shape[1]
+    if n < 1:
+        raise InputError("a crop mosaic needs at least one crop")
+    per_row = int(np.ceil(np.sqrt(n)))
+    rows = -(-n // per_row)
+    padded = np.zeros((rows * per_row, side, side), np.uint8)
+    padded[:n] = crops_u8
+    tiles = padded.reshape(rows, per_row, side, side).transpose(0, 2, 1, 3)
+    image = np.ascontiguousarray(tiles).reshape(rows * side, per_row * side)
+    k = np.arange(n)
+    corners = np.stack([k // per_row * side, k % per_row * side], axis=1).astype(np.int64)
+    return image, corners
+
+
 @dataclass(frozen=True, eq=False)
 class PatchGrid:
     """Where the patches are: origins at the working pyramid level and centres at full resolution.

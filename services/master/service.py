@@ -340,8 +340,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             crops=partial(grid.crop_level, level),
             prev_crops=partial(grid.crop_level, prev_level),
             compute_self=own_share,
-            # patches apart (the defaults): their crops are always the fewer bytes, no band is tried per share
-            band=partial(job_band, grid, level, self.settings.job_encoding) if grid.patches_overlap else None,
+            band=partial(job_band, grid, level, self.settings.job_encoding),
         )
         plan = stream.dispatcher.plan(frame.seq, prev_seq, time.monotonic())
         try:

@@ -20,6 +20,7 @@ from common.wire import frame_codec
 from common.wire.messages import PatchResult, YawJobSettings
 from common.yaw import PatchGrid
 from common.yaw.correlation import PatchMeasurement
+from common.yaw.grid import crop_mosaic
 from services.runtime.results import measurement_of
 
 if TYPE_CHECKING:
@@ -88,12 +89,15 @@ class JobBand(NamedTuple):
 
 def job_band(grid: PatchGrid, level_u8: np.ndarray, encoding: str, indices: np.ndarray) -> JobBand | None:
     """The band of patches ``indices`` of a frame's level image (:meth:`PatchGrid.band_level`; bound with
-    ``functools.partial`` it is :attr:`FrameWork.band`) in ``encoding`` (:mod:`common.wire.frame_codec`),
-    or None where their crops are fewer pixels."""
+    ``functools.partial`` it is :attr:`FrameWork.band`) in ``encoding`` (:mod:`common.wire.frame_codec`).
+    Where their crops are fewer pixels: None for ``mono8`` (the crops travel as they are), and for a
+    compressing encoding their crops side by side (:func:`~common.yaw.grid.crop_mosaic`), compressed too."""
+    if not len(indices) or (encoding == "mono8" and not grid.patches_overlap):
+        return None  # patches apart (the defaults): their crops are always the fewer bytes
     got = grid.band_level(level_u8, indices)
-    if got is None:
+    if got is None and encoding == "mono8":
         return None
-    image, corners = got
+    image, corners = got if got is not None else crop_mosaic(grid.crop_level(level_u8, indices))
     data = np.frombuffer(frame_codec.encode(image, encoding), np.uint8)
     return JobBand(data, (int(image.shape[0]), int(image.shape[1])), encoding, corners)
 

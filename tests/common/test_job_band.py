@@ -12,12 +12,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from common.errors import InputError
 from common.wire import frame_codec
 from common.wire.codec import decode, encode
 from common.wire.messages import BlockJob, PatchJob, YawJobSettings
 from common.wire.schema import WireError
 from common.yaw import YawSettings, make_patch_grid
-from common.yaw.grid import PatchGrid
+from common.yaw.grid import PatchGrid, crop_mosaic, crops_at
 from tests.builders import patch_job
 
 #: issue 29's heavy workload: 128 px patches overlap on a 16 x 12 grid of a 1920x1080 frame at level 0
@@ -132,3 +133,18 @@ def test_a_band_that_lies_is_refused_at_decode(fields: dict[str, Any], match: st
     with pytest.raises(WireError, match=match):
         decode(payload, header, BlockJob)
     assert decode(*encode(_hostile()), BlockJob).crops.shape == (32, 128, 128)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 70), side=st.sampled_from([1, 8, 32, 128]), seed=st.integers(0, 9))
+def test_a_crop_mosaic_gives_the_same_crops_back(n: int, side: int, seed: int) -> None:
+    crops = np.random.default_rng(seed).integers(0, 256, (n, side, side), dtype=np.uint8)
+    image, corners = crop_mosaic(crops)
+    assert corners.shape == (n, 2) and image.flags.c_contiguous
+    assert image.size < (n + 2 * np.sqrt(n) + 1) * side * side  # the last row's rest is all it adds
+    assert np.array_equal(crops_at(image, corners[:, 0], corners[:, 1], side), crops)
+
+
+def test_a_mosaic_of_no_crops_is_refused() -> None:
+    with pytest.raises(InputError, match="at least one crop"):
+        crop_mosaic(np.zeros((0, 8, 8), np.uint8))
