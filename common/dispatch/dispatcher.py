@@ -9,9 +9,11 @@ decides:
 - shares: ``balance=none`` -> proportional to each member's declared capacity (e.g. its worker count, so
   every compute unit gets the same number of patches); ``balance=time`` -> proportional to an exponential
   moving average of each member's measured patches per second (a joiner starts at the mean speed);
-- sticky assignment: a member keeps the patch indices it had (so its cached spectra stay valid); only the
-  difference to the new targets moves, and :attr:`Plan.moved` tells which indices a member does not hold
-  for the previous frame (it must be sent the previous patches too);
+- assignment in runs: each member's share is one run of neighbouring patch indices, in the members'
+  order, so it travels as one band of the frame where patches overlap; while the shares hold a member
+  keeps its indices (its cached spectra stay valid), a change moves only indices at the runs' ends, and
+  :attr:`Plan.moved` tells which indices a member does not hold for the previous frame (it must be sent
+  the previous patches too);
 - re-dispatch of a failed member's indices among the others, within the same frame
   (:meth:`Dispatcher.redistribute`), falling back to the dispatcher itself (``SELF``).
 """
@@ -24,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from common.dispatch.plan import IndexArray, Memo, Plan, capped_counts, missing, sticky_plan
+from common.dispatch.plan import IndexArray, Memo, Plan, capped_counts, missing, run_plan
 from common.dispatch.settings import Balance, DispatchSettings, SpeedSource
 from common.dispatch.trust import TrustMonitor, doubling_suspension_s
 from common.errors import CapatazError, InputError
@@ -48,7 +50,7 @@ class _Member:
 
 
 class Dispatcher:
-    """Membership, shares, sticky assignment and re-dispatch decisions for ``n_patches`` patches."""
+    """Membership, shares, assignment in runs and re-dispatch decisions for ``n_patches`` patches."""
 
     def __init__(self, settings: DispatchSettings, n_patches: int) -> None:
         if n_patches < 1:
@@ -56,7 +58,6 @@ class Dispatcher:
         self.settings = settings
         self.n_patches = n_patches
         self._members: dict[str, _Member] = {SELF: _Member(capacity=settings.self_capacity)}
-        self._owner: dict[int, str] = {}
         #: the last plan's (members, targets, indices) and assignment (:data:`~common.dispatch.plan.Memo`)
         self._memo: Memo | None = None
         #: every patch index, built on the first plan of all patches (a foreman plans only the indices it is
@@ -94,7 +95,6 @@ class Dispatcher:
         if member == SELF:
             return
         self._members.pop(member, None)
-        self._owner = {i: o for i, o in self._owner.items() if o != member}
         self._memo = None
 
     @property
@@ -134,7 +134,7 @@ class Dispatcher:
 
     def plan(self, seq: int, prev_seq: int, now_s: float, indices: npt.ArrayLike | None = None) -> Plan:
         """Assign patches ``indices`` (default: all) of frame ``seq`` (vs ``prev_seq``) to active members
-        (:func:`~common.dispatch.plan.sticky_plan`): the trust monitor is consulted once, then the plan is
+        (:func:`~common.dispatch.plan.run_plan`): the trust monitor is consulted once, then the plan is
         computed in one call, and nothing of this module runs after them."""
         if indices is None:
             if self._all is None:
@@ -147,12 +147,11 @@ class Dispatcher:
         trust = None
         if self.trust is not None:  # suspended for inconsistent results; new members tried a few at a time
             trust = self.trust.view(remote, {m for m in remote if not self.speed(m)}, now_s)
-        planned = sticky_plan(
+        planned = run_plan(
             seq, prev_seq, todo, remote, self._members, trust, self.settings.balance is Balance.TIME,
-            self.settings.self_compute, self._owner, self._memo, len(joined), SELF,
+            self.settings.self_compute, self._memo, len(joined), SELF,
             self.settings.overflow_slack,
         )  # fmt: skip
-        self._owner.update(planned.owners)
         self._memo, self._frame, self.last_plan = planned.memo, planned.frame, planned.plan
         return planned.plan
 
@@ -172,7 +171,7 @@ class Dispatcher:
     def redistribute(self, indices: npt.ArrayLike, exclude: set[str], now_s: float, prev_seq: int) -> Plan:
         """Split a failed share among the active members not in ``exclude`` (else ``SELF``), same frame.
 
-        The receivers become the owners of those indices (sticky from the next frame on).
+        Each receiver then holds the spectra of what it computed (a later plan's :attr:`Plan.moved` knows).
         """
         idx = np.array(self._check_indices(indices), dtype=np.int32)
         members = [m for m in self.active(now_s, answered_only=True) if m not in exclude] or [SELF]
@@ -185,8 +184,6 @@ class Dispatcher:
                 continue
             part = idx[start : start + n]
             start += n
-            for i in part:
-                self._owner[int(i)] = m
             self._memo = None
             assignment[m] = part
             moved[m] = missing(self._members[m], part, prev_seq)
@@ -247,7 +244,6 @@ class Dispatcher:
         cfg = self.settings
         pause = doubling_suspension_s(cfg.suspend_s, cfg.max_suspend_s, state.failures - 1)
         state.suspended_until_s = now_s + pause
-        self._owner = {i: o for i, o in self._owner.items() if o != member}
         self._memo = None
         return pause
 

@@ -1,6 +1,6 @@
 """One frame's assignment (:class:`Plan`): the apportionment of patches to members by weight
 (:func:`largest_remainder`, Hamilton's method), held and capped by the trust monitor's view
-(:func:`capped_counts`), and the sticky assignment (:func:`sticky_plan`). Pure: the dispatcher
+(:func:`capped_counts`), and the assignment in runs (:func:`run_plan`). Pure: the dispatcher
 (:mod:`common.dispatch.dispatcher`) holds the state and calls this module once per plan."""
 
 from __future__ import annotations
@@ -89,18 +89,17 @@ class TrustView(Protocol):
     def share_limits(self) -> Mapping[str, float]: ...
 
 
-#: the last plan's (members, targets, indices) and assignment: the steady state repeats it exactly (sticky
-#: owners, same shares), so it is reused until ownership changes otherwise
+#: the last plan's (members, targets, indices) and assignment: the steady state repeats it exactly (same
+#: members, same shares), so it is reused until one of them changes
 Memo = tuple[tuple[object, ...], dict[str, IndexArray]]
 
 
 @dataclass(frozen=True)
 class Planned:
-    """A plan and what the dispatcher keeps of it: the new owners of moved indices, the memo and the frame's
-    (size, patches per member) for the share caps of a re-dispatch."""
+    """A plan and what the dispatcher keeps of it: the memo and the frame's (size, patches per member) for
+    the share caps of a re-dispatch."""
 
     plan: Plan
-    owners: dict[int, str]
     memo: Memo
     frame: tuple[int, dict[str, int]]
 
@@ -182,7 +181,7 @@ def missing(state: MemberState, indices: IndexArray, prev_seq: int) -> IndexArra
     return np.array([i for i in wanted if i not in held], dtype=np.int32)
 
 
-def sticky_plan(
+def run_plan(
     seq: int,
     prev_seq: int,
     todo: list[int],
@@ -191,15 +190,21 @@ def sticky_plan(
     trust: TrustView | None,
     by_time: bool,
     self_compute: bool,
-    owner: Mapping[int, str],
     memo: Memo | None,
     joined: int,
     own: str,
     slack: float,
 ) -> Planned:
     """Frame ``seq``'s plan (vs ``prev_seq``) of the patches ``todo``: the ``remote`` members the trust
-    monitor keeps (plus ``own`` when ``self_compute`` or alone) get counts by :func:`capped_counts`; a member
-    keeps the indices it owned up to its count, the rest moves, lowest first (see the dispatcher's module)."""
+    monitor keeps (plus ``own`` when ``self_compute`` or alone) get counts by :func:`capped_counts`, each as
+    one run of neighbouring indices of ``todo``, in the members' order.
+
+    A run of neighbouring patches travels as one band of the frame where patches overlap (a quarter fewer
+    bytes than its crops at 1920x1080 with 128 px patches; a fifth fewer compressed), and while the counts
+    hold, the plan repeats exactly (the memo). When a count changes, only indices at the runs' ends move: a
+    member is sent the previous patches of those (:attr:`Plan.moved`). Assigning moved indices lowest first
+    instead kept every unchanged index with its member but scattered a share over the frame within a few
+    frames, so that it always travelled as crops."""
     kept = remote if trust is None else list(trust.kept)
     members = [*kept, own] if self_compute or not kept else kept
     members, counts = capped_counts(
@@ -210,36 +215,21 @@ def sticky_plan(
         repeated = dict(memo[1])
         lacking = {m: missing(states[m], owned, prev_seq) for m, owned in repeated.items()}
         frame = (len(todo), {m: len(v) for m, v in repeated.items()})
-        return Planned(Plan(seq, prev_seq, repeated, lacking), {}, memo, frame)
-    targets = dict(zip(members, counts, strict=True))
-    keep: dict[str, list[int]] = {m: [] for m in members}
-    pool: list[int] = []
-    for index in todo:
-        held_by = owner.get(index)
-        if held_by in keep and len(keep[held_by]) < targets[held_by]:
-            keep[held_by].append(index)
-        else:
-            pool.append(index)
-    pool.sort()
-    cursor = 0
-    for m in members:
-        need = targets[m] - len(keep[m])
-        keep[m].extend(pool[cursor : cursor + need])
-        cursor += need
+        return Planned(Plan(seq, prev_seq, repeated, lacking), memo, frame)
+    ordered = np.array(sorted(todo), dtype=np.int32)
     assignment: dict[str, IndexArray] = {}
     moved: dict[str, IndexArray] = {}
-    owners: dict[int, str] = {}
-    for m in members:
-        owned = sorted(keep[m])
-        if not owned:
+    start = 0
+    for m, count in zip(members, counts, strict=True):
+        if not count:
             continue
-        owners.update(dict.fromkeys(owned, m))
-        indices = np.array(owned, dtype=np.int32)
+        indices = ordered[start : start + count]
+        start += count
         indices.setflags(write=False)  # shared by the plans that repeat this one
         assignment[m] = indices
         moved[m] = missing(states[m], indices, prev_seq)
     frame = (len(todo), {m: len(v) for m, v in assignment.items()})
-    return Planned(Plan(seq, prev_seq, assignment, moved), owners, (key, assignment), frame)
+    return Planned(Plan(seq, prev_seq, assignment, moved), (key, assignment), frame)
 
 
 def cap_counts(

@@ -81,7 +81,7 @@ def test_balance_none_splits_by_capacity_and_time_by_measured_speed() -> None:
     assert (len(second.assignment["fast"]), len(second.assignment["slow"])) == (75, 25)
 
 
-def test_assignment_is_sticky_and_moved_lists_only_new_indices() -> None:
+def test_assignment_is_in_runs_and_moved_lists_only_new_indices() -> None:
     d = Dispatcher(
         DispatchSettings(speed_source=SpeedSource.REPORTED, balance=Balance.TIME, ema_alpha=1.0), 60
     )
@@ -99,14 +99,41 @@ def test_assignment_is_sticky_and_moved_lists_only_new_indices() -> None:
             name, 2, second.assignment[name], 0.01, reported_speed=2000.0 if name == "a" else 1000.0
         )
     third = d.plan(3, 2, 0.0)
-    assert len(third.assignment["a"]) == 30
-    # b and c each give 5 patches to a; they keep the rest, and only a's new ones need previous patches
-    for name in ("b", "c"):
-        assert set(third.assignment[name]) <= set(second.assignment[name])
-        assert third.moved[name].size == 0
-    assert set(third.moved["a"]) == set(third.assignment["a"]) - set(second.assignment["a"])
-    assert third.moved["a"].size == 10
+    # a takes 30, b and c 15 each, every share one run in the members' order: only the runs' ends move
+    assert {m: (int(v[0]), int(v[-1])) for m, v in third.assignment.items()} == {
+        "a": (0, 29),
+        "b": (30, 44),
+        "c": (45, 59),
+    }
+    for name in ("a", "b", "c"):
+        new = set(third.assignment[name]) - set(second.assignment[name])
+        assert set(third.moved[name]) == new
+    assert (third.moved["a"].size, third.moved["b"].size, third.moved["c"].size) == (10, 5, 0)
     assert covered(third.assignment, 60)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    speeds=st.lists(st.floats(100.0, 5000.0), min_size=1, max_size=5),
+    n=st.integers(1, 200),
+)
+def test_every_share_is_one_run_and_moves_are_what_a_member_lacks(speeds: list[float], n: int) -> None:
+    """Whatever the speeds: each member's share is one run of neighbouring indices, the runs cover the frame
+    once, and a member is sent previous patches for exactly the indices it did not compute the last frame."""
+    d = Dispatcher(
+        DispatchSettings(speed_source=SpeedSource.REPORTED, balance=Balance.TIME, ema_alpha=1.0), n
+    )
+    names = [f"m{i}" for i in range(len(speeds))]
+    for name in names:
+        d.join(name)
+    before = d.plan(1, 0, 0.0)
+    for name, idx in before.assignment.items():
+        d.record_success(name, 1, idx, 0.01, reported_speed=speeds[names.index(name)])
+    plan = d.plan(2, 1, 0.0)
+    assert covered(plan.assignment, n)
+    for name, idx in plan.assignment.items():
+        assert np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size))
+        assert set(plan.moved[name]) == set(idx) - set(before.assignment.get(name, []))
 
 
 def test_a_joiner_gets_a_share_in_the_next_plan_at_the_mean_speed() -> None:
