@@ -146,6 +146,42 @@ class PatchGrid:
             return None
         return level_u8[top:bottom, left:right], corners - np.array([top, left])
 
+    def packed_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> tuple[U8Array, IntArray, int]:
+        """The patches ``indices`` of an image already at the grid's level packed into one image for a
+        compressing codec: each row of patches as the strip of rows and columns its patches span, strips of
+        consecutive rows with the same columns merged (their overlap then held once), stacked top to bottom,
+        zero to the widest. Returns the image, each patch's corner ``[row, col]`` in it (:func:`crops_at`
+        cuts the same crops) and the pixels the strips hold (the zeros aside). A run of 49 overlapping 128
+        px patches at 1080p (three rows and one patch) holds 0.74 of its crops' pixels, where the
+        :meth:`band_level` bounding it holds 0.93."""
+        idx = self.check_indices(indices)
+        expected = level_shape(self.frame_shape, self.pyramid_level)
+        if level_u8.shape != expected:
+            raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        if not idx.size:
+            raise InputError("packing needs at least one patch")
+        n = self.patch_size_px
+        corners = self.origins_level_px[idx][:, ::-1].astype(np.int64)  # [row, col] in the level image
+        strips: list[list[int]] = []  # [top, bottom, left, right]
+        strip_of = np.empty(idx.size, np.intp)
+        for top in np.unique(corners[:, 0]):
+            at = corners[:, 0] == top
+            left, right = int(corners[at, 1].min()), int(corners[at, 1].max()) + n
+            last = strips[-1] if strips else None
+            if last is not None and (last[2], last[3]) == (left, right) and top <= last[1]:
+                last[1] = int(top) + n  # the next row of the same columns, overlapping: one strip
+            else:
+                strips.append([int(top), int(top) + n, left, right])
+            strip_of[at] = len(strips) - 1
+        offsets = np.cumsum([0] + [b - t for t, b, _, _ in strips])
+        image = np.zeros((int(offsets[-1]), max(r - c for _, _, c, r in strips)), np.uint8)
+        for k, (top, bottom, left, right) in enumerate(strips):
+            image[offsets[k] : offsets[k + 1], : right - left] = level_u8[top:bottom, left:right]
+        held = np.array([(top, left) for top, _, left, _ in strips], np.int64)
+        inside = corners - held[strip_of] + np.stack([offsets[strip_of], np.zeros_like(strip_of)], axis=1)
+        pixels = sum((b - t) * (r - c) for t, b, c, r in strips)
+        return image, inside, pixels
+
     def crop(self, frame_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
         """Crops (n, s, s) uint8 at the working level of the patches ``indices`` of a full frame.
 

@@ -88,16 +88,23 @@ class JobBand(NamedTuple):
 
 
 def job_band(grid: PatchGrid, level_u8: np.ndarray, encoding: str, indices: np.ndarray) -> JobBand | None:
-    """The band of patches ``indices`` of a frame's level image (:meth:`PatchGrid.band_level`; bound with
+    """The pixels of patches ``indices`` of a frame's level image as one image (bound with
     ``functools.partial`` it is :attr:`FrameWork.band`) in ``encoding`` (:mod:`common.wire.frame_codec`).
-    Where their crops are fewer pixels: None for ``mono8`` (the crops travel as they are), and for a
-    compressing encoding their crops side by side (:func:`~common.yaw.grid.crop_mosaic`), compressed too."""
+    ``mono8``: the band bounding them (:meth:`PatchGrid.band_level`), or None where their crops are fewer
+    pixels (they travel as they are). A compressing encoding: their strips packed (the zeros between cost
+    next to nothing; :meth:`PatchGrid.packed_level`), or their crops side by side
+    (:func:`~common.yaw.grid.crop_mosaic`) where the strips hold more pixels than the crops."""
     if not len(indices) or (encoding == "mono8" and not grid.patches_overlap):
         return None  # patches apart (the defaults): their crops are always the fewer bytes
-    got = grid.band_level(level_u8, indices)
-    if got is None and encoding == "mono8":
-        return None
-    image, corners = got if got is not None else crop_mosaic(grid.crop_level(level_u8, indices))
+    if encoding == "mono8":
+        got = grid.band_level(level_u8, indices)
+        if got is None:
+            return None
+        image, corners = got
+    else:
+        image, corners, pixels = grid.packed_level(level_u8, indices)
+        if pixels >= len(indices) * grid.patch_size_px**2:
+            image, corners = crop_mosaic(grid.crop_level(level_u8, indices))
     data = np.frombuffer(frame_codec.encode(image, encoding), np.uint8)
     return JobBand(data, (int(image.shape[0]), int(image.shape[1])), encoding, corners)
 

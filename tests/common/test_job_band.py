@@ -148,3 +148,37 @@ def test_a_crop_mosaic_gives_the_same_crops_back(n: int, side: int, seed: int) -
 def test_a_mosaic_of_no_crops_is_refused() -> None:
     with pytest.raises(InputError, match="at least one crop"):
         crop_mosaic(np.zeros((0, 8, 8), np.uint8))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    cols=st.integers(2, 16), rows=st.integers(2, 12), side=st.sampled_from([16, 64, 128]),
+    picks=st.sets(st.integers(0, 191), min_size=1, max_size=80), run=st.booleans(),
+)  # fmt: skip
+def test_packed_strips_give_the_same_crops_back(
+    cols: int, rows: int, side: int, picks: set[int], run: bool
+) -> None:
+    grid = make_patch_grid(
+        (480, 752),
+        replace(YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=side, pyramid_level=0),
+    )
+    chosen = sorted(i % grid.n_patches for i in picks)
+    indices = np.arange(chosen[0], chosen[0] + len(chosen)) if run else np.unique(chosen)
+    indices = indices[indices < grid.n_patches]
+    level = _level(grid, len(chosen))
+    image, corners, pixels = grid.packed_level(level, indices)
+    assert np.array_equal(
+        crops_at(image, corners[:, 0], corners[:, 1], side), grid.crop_level(level, indices)
+    )
+    assert 0 < pixels <= image.size
+
+
+def test_a_run_with_a_partial_row_packs_into_fewer_pixels_than_its_bounding_band() -> None:
+    grid = make_patch_grid((1080, 1920), HEAVY)
+    level = _level(grid, 4)
+    run = np.arange(49)  # three rows of 16 and one patch
+    crops = run.size * 128 * 128
+    bounding = grid.band_level(level, run)
+    assert bounding is not None
+    _, _, pixels = grid.packed_level(level, run)
+    assert pixels / crops < 0.75 < 0.9 < bounding[0].size / crops
