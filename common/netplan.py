@@ -91,6 +91,23 @@ class NetPlan:
         return tuple(h.router_endpoint for h in self.hosts if h.index < index)
 
 
+def cpu_mask(cpus: str) -> int:
+    """The bit mask of a ``taskset`` CPU list (``"1"``, ``"0-3"``, ``"0,2-3"``); a NetPlanError names a list
+    that is not one."""
+    mask = 0
+    for part in cpus.split(","):
+        first, _, last = part.strip().partition("-")
+        try:
+            low, high = int(first), int(last or first)
+        except ValueError:
+            raise NetPlanError(f"CPU list {cpus!r}: {part!r} is not a CPU or a range") from None
+        if not 0 <= low <= high < 1024:
+            raise NetPlanError(f"CPU list {cpus!r}: {part!r} is not within 0..1023, low to high")
+        for cpu in range(low, high + 1):
+            mask |= 1 << cpu
+    return mask
+
+
 def tbf_burst_bytes(rate_bit_s: int) -> int:
     """A token bucket's burst for ``rate_bit_s``: 10 ms of the rate (more than one tick at any kernel HZ),
     at least 16 KiB (so that one full-size segment always fits)."""

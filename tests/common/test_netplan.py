@@ -12,6 +12,7 @@ from common.netplan import (
     MIN_RATE_BIT_S,
     ROUTER_PORT,
     NetPlanError,
+    cpu_mask,
     make_plan,
     owner_pid,
     tbf_burst_bytes,
@@ -81,3 +82,17 @@ def test_owner_pid_only_for_harness_names() -> None:
     assert owner_pid("docker-1") is None
     assert owner_pid("cz42") is None
     assert owner_pid("czx-h1") is None
+
+
+@given(st.sets(st.integers(0, 63), min_size=1, max_size=10))
+def test_a_cpu_lists_mask_has_exactly_its_cpus(cpus: set[int]) -> None:
+    listed = ",".join(str(c) for c in sorted(cpus))
+    assert cpu_mask(listed) == sum(1 << c for c in cpus)
+    low, high = min(cpus), max(cpus)
+    assert cpu_mask(f"{low}-{high}") == sum(1 << c for c in range(low, high + 1))
+
+
+@pytest.mark.parametrize("cpus", ["", "a", "3-1", "-1", "0,,1", "2048"])
+def test_a_cpu_list_that_is_not_one_is_refused(cpus: str) -> None:
+    with pytest.raises(NetPlanError, match="CPU list"):
+        cpu_mask(cpus)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from common.netplan import make_plan
+from common.netplan import HOST_INTERFACE, make_plan
 from services.tools.cluster_file import ClusterError, ClusterSpec, HostSpec
 from services.tools.netns import (
     NetHarness,
@@ -173,13 +173,16 @@ def test_a_host_process_sees_only_its_address_and_runs_on_its_cpu_set(
     plan = make_plan(new_prefix(), ["a", "b"], cpus={"a": cpu})
     probe = (
         "import os, subprocess; print(sorted(os.sched_getaffinity(0))); "
+        f"print(open('/sys/class/net/{HOST_INTERFACE}/queues/rx-0/rps_cpus').read().strip()); "
         "print(subprocess.run(['ip', '-o', '-4', 'addr'], capture_output=True, text=True).stdout)"
     )
     with NetHarness(plan) as net:
         argv = net.exec_argv("a", [sys.executable, "-c", probe])
         out = subprocess.run(argv, capture_output=True, text=True, timeout=30, check=True).stdout
-    affinity, addresses = out.split("\n", 1)
+    affinity, steering, addresses = out.split("\n", 2)
     assert affinity == f"[{cpu}]"
+    # what arrives on its link is processed on its CPU too, as on a machine of its own
+    assert int(steering.replace(",", ""), 16) == 1 << int(cpu)
     assert plan.host("a").address in addresses and plan.host("b").address not in addresses
     assert "127.0.0.1" in addresses and len(addresses.strip().splitlines()) == 2  # lo and its link only
 
