@@ -235,18 +235,29 @@ class NetHarness:
         if host.rate_bit_s is not None:
             self._tbf(host.namespace, HOST_INTERFACE, host.rate_bit_s)  # host -> hub
             self._tbf(hub, host.hub_interface, host.rate_bit_s)  # hub -> host
-        if host.cpus:
-            self._steer_receive(host)
+        if host.cpus:  # what arrives on a pinned host's link is processed on its CPUs
+            self._steer_receive(host.namespace, HOST_INTERFACE, cpu_mask(host.cpus))
 
-    def _steer_receive(self, host: NetHost) -> None:
-        """What arrives on a pinned host's link is processed on the host's CPUs (receive packet steering).
+    def _steer_links(self) -> None:
+        """Where the kernel processes each link's packets (receive packet steering): a pinned host's on its
+        own CPUs (:meth:`_link`), and what a host sends into the hub (the bridge, the hub's token bucket, the
+        hand-over to the receiver) on the other pinned hosts' CPUs.
 
-        A veth hands a packet to its peer on the sending CPU, so without it the member hosts' TCP receive work
-        for a job (a 500 kB share at 1080p: hundreds of segments) ran on the ground host's CPU while the
-        master computed its own share there; on separate machines the receiver's kernel does it."""
-        path = f"/sys/class/net/{HOST_INTERFACE}/queues/rx-0/rps_cpus"
-        mask = format(cpu_mask(host.cpus or ""), "x")
-        _run(["ip", "netns", "exec", host.namespace, "sh", "-c", f"echo {mask} > {path}"])
+        A veth hands a packet to its peer on the sending CPU, so without it everything a 500 kB job crossing
+        the link costs the kernel (the bridge, two token buckets, hundreds of segments, the receiver's TCP)
+        ran on the ground host's CPU, in the master's time, while it computed its own share; on separate
+        machines the switch and the receiver do that work."""
+        for host in self.plan.hosts:
+            others = [h.cpus for h in self.plan.hosts if h.cpus and h is not host]
+            mask = 0
+            for cpus in others:
+                mask |= cpu_mask(cpus)
+            if mask:
+                self._steer_receive(self.plan.hub_namespace, host.hub_interface, mask)
+
+    def _steer_receive(self, namespace: str, interface: str, mask: int) -> None:
+        path = f"/sys/class/net/{interface}/queues/rx-0/rps_cpus"
+        _run(["ip", "netns", "exec", namespace, "sh", "-c", f"echo {mask:x} > {path}"])
 
     def open(self) -> None:
         hub = self.plan.hub_namespace
@@ -255,6 +266,7 @@ class NetHarness:
         self._in(hub, "link", "set", BRIDGE, "up")
         for host in self.plan.hosts:
             self._link(host)
+        self._steer_links()
         logger.info(
             "network hosts up: %s",
             ", ".join(f"{h.name}={h.address}" + (f"@{h.rate_bit_s}bit/s" if h.rate_bit_s else "")

@@ -115,6 +115,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--pyramid-level", type=number_in(int, 0, 4), default=yaw.pyramid_level, help="pyramid level"
     )
     parser.add_argument(
+        "--paths", nargs="+", choices=[label.split()[-1] for label, _, _ in PATHS], metavar="PATH",
+        help="only these paths, by their last word: 1 (master-worker), 1x1, 2x2 (default: all)",
+    )  # fmt: skip
+    parser.add_argument(
         "--job-encoding", choices=("mono8", "zstd"), default=MasterSettings().job_encoding,
         help="the master's --job-encoding (how a band of the frame travels to the members)",
     )  # fmt: skip
@@ -316,8 +320,11 @@ def summary_table(
         frame_ms = [
             r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})
         ]
-        # the master's frame time (frame in to yaw out) against the in-process tracker's time per frame
+        # the master's frame time (frame in to yaw out) against the in-process tracker's time per frame: the
+        # medians' ratio, and the median of each repeat's ratio to the in-process run just before it
+        paired = [t / in_process_runs[i] for i, t in enumerate(frame_ms)] if len(frame_ms) == repeats else []
         latency = {"frame_ms": median_p95(frame_ms)[0], "latency_ratio": median_p95(frame_ms)[0] / in_process}
+        latency = {**latency, "paired_ratio": median_p95(paired)[0]} if paired else latency
         latency = latency if frame_ms else {}
         table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),
                       "lost": sum(r["lost"] for r in path_runs),
@@ -336,11 +343,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     frames = flight_frames(args)
     repeats = args.repeats
     in_process_runs: list[float] = []
-    runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in PATHS}
+    chosen = [p for p in PATHS if not getattr(args, "paths", None) or p[0].split()[-1] in args.paths]
+    runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in chosen}
     # repeats interleave the paths, so that a change of the (shared) host's load hits them alike
     for _ in range(repeats):
         in_process_runs.append(in_process_cpu_ms(frames, settings, ground_cpu))
-        for label, topology, workers in PATHS:
+        for label, topology, workers in chosen:
             runs[label].append(cluster_path(label, topology, workers, args))
     table = summary_table(in_process_runs, repeats * (args.frames - 1), runs)
     in_process = table[0]["in_process_ms"]

@@ -64,6 +64,8 @@ def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_
     assert row["h1_tx_kB"] == pytest.approx(2.0)  # the mean over the repeats
     assert row["frame_ms"] == 50.0  # the master's frame time, median over the repeats
     assert row["latency_ratio"] == pytest.approx(5.0)  # against the in-process median, 10 ms
+    # each repeat against its own in-process run (4, 7.5, 6.25): a drift of the shared host cancels out
+    assert row["paired_ratio"] == pytest.approx(6.25)
 
 
 def test_pinned_hosts_take_one_cpu_each_the_ground_the_first() -> None:

@@ -179,6 +179,16 @@ def test_a_host_process_sees_only_its_address_and_runs_on_its_cpu_set(
     with NetHarness(plan) as net:
         argv = net.exec_argv("a", [sys.executable, "-c", probe])
         out = subprocess.run(argv, capture_output=True, text=True, timeout=30, check=True).stdout
+        # what b sends into the hub is forwarded on a's CPU (the only pinned host), not on b's sending CPU
+        hub_steering = {
+            name: subprocess.run(
+                ["ip", "netns", "exec", plan.hub_namespace, "cat",
+                 f"/sys/class/net/{plan.host(name).hub_interface}/queues/rx-0/rps_cpus"],
+                capture_output=True, text=True, timeout=30, check=True,
+            ).stdout.strip().replace(",", "")
+            for name in ("a", "b")
+        }  # fmt: skip
+    assert {k: int(v, 16) for k, v in hub_steering.items()} == {"a": 0, "b": 1 << int(cpu)}
     affinity, steering, addresses = out.split("\n", 2)
     assert affinity == f"[{cpu}]"
     # what arrives on its link is processed on its CPU too, as on a machine of its own
