@@ -182,6 +182,13 @@ class PatchJob(WireModel):
         return self
 
 
+def band_decode_pixels(band_bytes: int, band_shape: tuple[int, int], crop_pixels: int) -> int:
+    """What decoding a band job holds at once, in bytes: the band's bytes and their copy, the band and its
+    undone row deltas, the crops cut from it and the previous crops (``crop_pixels``). A job is refused
+    above :data:`MAX_JOB_PIXELS`, as a job of crops alone is; a sender sends crops instead of such a band."""
+    return 2 * band_bytes + 2 * band_shape[0] * band_shape[1] + crop_pixels
+
+
 def _crops_of_band(job: PatchJob) -> np.ndarray:
     """The crops of a job that carries a band (see :class:`PatchJob`), every size checked before anything
     is decompressed or cut (a ValueError names what is wrong)."""
@@ -194,9 +201,7 @@ def _crops_of_band(job: PatchJob) -> np.ndarray:
         raise ValueError(f"band_shape: {job.band_shape} must be 1..{MAX_FRAME_SIDE_PX} px a side")
     if height < side or width < side:
         raise ValueError(f"band_shape: {job.band_shape} is smaller than a {side} px patch")
-    # what decoding holds at once: the band's bytes and their copy, the band and its undone row deltas, the
-    # crops cut from it and the previous crops: within one job's pixel bound, as a job of crops alone is
-    pixels = 2 * job.band.size + 2 * height * width + n * side * side + job.prev_crops.size
+    pixels = band_decode_pixels(job.band.size, (height, width), n * side * side + job.prev_crops.size)
     if pixels > MAX_JOB_PIXELS:
         raise ValueError(f"band: {pixels} bytes to decode with its crops > {MAX_JOB_PIXELS}")
     if job.corners.shape[0] != n:

@@ -24,8 +24,9 @@ import zenoh
 
 from common.dispatch import Dispatcher, Plan
 from common.wire.codec import decode, encode, read_error_reply
+from common.wire.jobs import band_decode_pixels
 from common.wire.messages import PatchJob, PatchResult
-from common.wire.schema import WireError
+from common.wire.schema import MAX_JOB_PIXELS, WireError
 from services.runtime.counters import Counters
 from services.runtime.round import (
     Failure,
@@ -100,11 +101,17 @@ class Scatter:
             rid = self._next_id
             self._next_id += 1
         band = work.band(indices) if work.band is not None else None
+        side = int(work.settings.patch_size_px)
+        if (
+            band is not None
+            and band_decode_pixels(band.data.size, band.shape, (indices.size + moved.size) * side * side)
+            > MAX_JOB_PIXELS
+        ):
+            band = None  # the member would refuse it (what decoding holds): the crops go as they are
         pixels: dict[str, Any] = {}
         if band is None:
             crops = work.crops(indices)
-        else:  # one band of the frame, fewer bytes than the crops it holds (patches overlap)
-            side = int(work.settings.patch_size_px)
+        else:  # the share's pixels as one image, fewer bytes than its crops
             crops = np.zeros((0, side, side), np.uint8)
             pixels = dict(band=band.data, band_shape=band.shape, band_encoding=band.encoding,
                           corners=band.corners.astype(np.int32, copy=False))  # fmt: skip

@@ -18,10 +18,12 @@ import zenoh
 
 from common.dispatch import SELF, Dispatcher, DispatchSettings, MemberOutcome, TrustMonitor
 from common.wire.codec import decode, encode
+from common.wire.jobs import band_decode_pixels
 from common.wire.messages import PatchJob, PatchResult
+from common.wire.schema import MAX_FRAME_SIDE_PX, MAX_JOB_PIXELS
 from common.yaw.patchwork import PatchMeasurement
 from services.runtime.counters import Counters
-from services.runtime.round import FailureReason, FrameWork, Request, Round, RoundReport
+from services.runtime.round import FailureReason, FrameWork, JobBand, Request, Round, RoundReport
 from services.runtime.scatter import Scatter
 from services.runtime.transport import TransportSettings, listening_endpoints, open_session, zbytes
 from tests.builders import JOB_SETTINGS
@@ -67,9 +69,10 @@ def answer(query: zenoh.Query) -> None:
 
 
 def run_round(
-    session: zenoh.Session, member: str, budget_s: float = 0.4, own_s: float = 0.0
+    session: zenoh.Session, member: str, budget_s: float = 0.4, own_s: float = 0.0, band: Any = None
 ) -> tuple[Scatter, RoundReport]:
-    """One round for ``member``; with ``own_s`` the dispatcher also computes a share, taking that long."""
+    """One round for ``member``; with ``own_s`` the dispatcher also computes a share, taking that long;
+    ``band``: the frame's band source (:attr:`FrameWork.band`)."""
     dispatcher = Dispatcher(DispatchSettings(self_compute=own_s > 0), N_PATCHES)
     dispatcher.join(member)
     scatter = Scatter(
@@ -90,7 +93,7 @@ def run_round(
         stream="s", seq=1, prev_seq=0, settings=JOB_SETTINGS, budget_s=budget_s,
         crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
         prev_crops=lambda idx: np.zeros((idx.size, 4, 4), np.uint8),
-        compute_self=compute_self,
+        compute_self=compute_self, band=band,
     )  # fmt: skip
     return scatter, scatter.run(work, dispatcher.plan(1, 0, time.monotonic()))
 
@@ -110,6 +113,30 @@ def test_a_solo_reply_completes_the_round(sessions: tuple[zenoh.Session, zenoh.S
     assert np.all(report.parts[0].shift_px == 0.0)  # the member's answer, not the dispatcher's own
     assert report.redispatched == 0 and scatter.counters.counts()["requests_sent"] == 1
     assert "wake" not in scatter.counters.median_timings_ms()  # no callback hand-off: its own reply channel
+    queryable.undeclare()
+
+
+def test_a_band_the_member_would_refuse_for_what_decoding_holds_goes_as_crops(
+    sessions: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    """A band whose decoding would hold more than a job's pixel bound is refused by every member: the
+    dispatcher sends that share's crops instead (the member measures it; no failure, no re-dispatch)."""
+    member_side, dispatcher_side = sessions
+    seen: list[PatchJob] = []
+
+    def answer_and_keep(query: zenoh.Query) -> None:
+        seen.append(decode(zbytes(query.payload), zbytes(query.attachment), PatchJob))
+        answer(query)
+
+    queryable = member_side.declare_queryable(KEY.format(member="w_0"), answer_and_keep, complete=True)
+    assert routed(dispatcher_side, "w_0")
+    side = MAX_FRAME_SIDE_PX // 2  # a band of 4096 x 4096: twice its pixels alone exceed the bound
+    huge = JobBand(np.zeros(64, np.uint8), (side, side), "zstd", np.zeros((N_PATCHES, 2), np.int64))
+    assert band_decode_pixels(64, huge.shape, 0) > MAX_JOB_PIXELS
+    scatter, report = run_round(dispatcher_side, "w/0", band=lambda indices: huge)
+    assert covered_by(report)["w/0"] == N_PATCHES and report.redispatched == 0
+    assert len(seen) == 1 and seen[0].crops.shape == (N_PATCHES, 4, 4)
+    assert "bands_sent" not in scatter.counters.counts()
     queryable.undeclare()
 
 
