@@ -118,12 +118,17 @@ class PatchGrid:
         """The frame at the grid's pyramid level (the frame was checked where it entered the core)."""
         return pyramid_image(frame_u8, self.pyramid_level)
 
-    def crop_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
-        """Crops (n, s, s) uint8 of the patches ``indices`` from an image already at the grid's level."""
+    def _level_indices(self, level_u8: U8Array, indices: npt.ArrayLike) -> IntArray:
+        """``indices`` checked, and ``level_u8`` checked to be an image at the grid's level."""
         idx = self.check_indices(indices)
         expected = level_shape(self.frame_shape, self.pyramid_level)
         if level_u8.shape != expected:
             raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        return idx
+
+    def crop_level(self, level_u8: U8Array, indices: npt.ArrayLike) -> U8Array:
+        """Crops (n, s, s) uint8 of the patches ``indices`` from an image already at the grid's level."""
+        idx = self._level_indices(level_u8, indices)
         origins = self.origins_level_px[idx]
         return crops_at(level_u8, origins[:, 1], origins[:, 0], self.patch_size_px)
 
@@ -132,10 +137,7 @@ class PatchGrid:
         pixels than their crops (patches that overlap, a contiguous share): the band (a view of the level
         image) and each patch's crop corner ``[row, col]`` in it (:func:`crops_at` cuts the same crops from
         it); None when the crops are smaller (patches apart, a scattered share)."""
-        idx = self.check_indices(indices)
-        expected = level_shape(self.frame_shape, self.pyramid_level)
-        if level_u8.shape != expected:
-            raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        idx = self._level_indices(level_u8, indices)
         if not idx.size:
             return None
         n = self.patch_size_px
@@ -154,10 +156,7 @@ class PatchGrid:
         cuts the same crops) and the pixels the strips hold (the zeros aside). A run of 49 overlapping 128
         px patches at 1080p (three rows and one patch) holds 0.74 of its crops' pixels, where the
         :meth:`band_level` bounding it holds 0.93."""
-        idx = self.check_indices(indices)
-        expected = level_shape(self.frame_shape, self.pyramid_level)
-        if level_u8.shape != expected:
-            raise InputError(f"level image must have shape {expected}, got {level_u8.shape}")
+        idx = self._level_indices(level_u8, indices)
         if not idx.size:
             raise InputError("packing needs at least one patch")
         n = self.patch_size_px
