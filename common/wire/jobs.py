@@ -33,6 +33,9 @@ from common.wire.schema import (
 from common.yaw.grid import crops_at
 from common.yaw.settings import YawSettings
 
+#: how a job's pixels travel when they go as one image (``band``): raw, or zstd-compressed (lossless)
+JobEncoding = Literal["mono8", "zstd"]
+
 # ----------------------------------------------------------------------------------------------- work
 #: Yaw settings only the central stage uses (the lens model): never sent to members.
 LOCAL_YAW_SETTINGS = frozenset({"camera"})
@@ -146,7 +149,7 @@ class PatchJob(WireModel):
     budget_s: float = Field(gt=0.0, le=MAX_BUDGET_S, default=1.0)
     band: np.ndarray = Field(default_factory=lambda: np.zeros(0, np.uint8))
     band_shape: tuple[int, int] = (0, 0)
-    band_encoding: Literal["mono8", "zstd"] = "mono8"
+    band_encoding: JobEncoding = "mono8"
     corners: np.ndarray = Field(default_factory=lambda: np.zeros((0, 2), np.int32))
 
     @model_validator(mode="after")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -12,6 +11,7 @@ from common.dispatch import DispatchSettings
 from common.errors import InputError
 from common.members import Topology
 from common.streams import FrameGateSettings
+from common.wire.jobs import JobEncoding
 from common.wire.schema import MAX_BUDGET_S
 from common.yaw import YawSettings
 from services.master.lens import YawPriorSettings, add_yaw_prior_arguments, yaw_prior_settings_from_args
@@ -56,11 +56,11 @@ class MasterSettings(BaseModel):
         "source (see common.dispatch.trust)",
     )
 
-    job_encoding: Literal["mono8", "zstd"] = Field(
+    job_encoding: JobEncoding = Field(
         default="mono8",
-        description="how a share's pixels travel when they go as one band of the frame (where patches "
-        "overlap): mono8 raw, or zstd (lossless, about 0.7 of the bytes for 1.5 ms of CPU a MB: members "
-        "across a thin link)",
+        description="how a share's pixels travel: mono8 (raw: one band of the frame where patches overlap "
+        "and that is fewer bytes, else the crops), or zstd (lossless, every share packed and compressed, "
+        "about half the bytes for about 1 ms of CPU a share: members across a thin link)",
     )
 
     def gate_settings(self) -> FrameGateSettings:

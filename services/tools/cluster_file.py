@@ -9,7 +9,7 @@ A YAML mapping, every key checked (an unknown key is refused with the file's nam
     balance: time                   # time: shares follow each member's measured speed; none: equal shares
     speed: round_trip               # what "speed" means for time balancing: round_trip or reported
     master_computes: false          # the master computes a share as well as dispatching
-    job_encoding: mono8             # how a band of the frame travels to the members: mono8 or zstd
+    job_encoding: mono8             # how a share's pixels travel to the members: mono8 or zstd
     master_cpus: "0"                # taskset CPU list of the master (optional)
     aux_cpus: "0"                   # taskset CPU list of the router and the camera (optional)
     uav: uav0                       # the UAV stream the master serves
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -36,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from common.dispatch import Balance, SpeedSource
 from common.errors import CapatazError
 from common.members import Topology
+from common.wire.jobs import JobEncoding
 from services.master.settings import MasterSettings
 from services.runtime.usage import condense_validation_error, one_line
 
@@ -72,7 +72,7 @@ class ClusterSpec(BaseModel):
     speed: SpeedSource = SpeedSource.ROUND_TRIP
     master_computes: bool = False
     #: the master's ``--job-encoding`` (zstd: members across a thin link)
-    job_encoding: Literal["mono8", "zstd"] = MasterSettings.model_fields["job_encoding"].default
+    job_encoding: JobEncoding = MasterSettings.model_fields["job_encoding"].default
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera
     aux_cpus: str | None = None

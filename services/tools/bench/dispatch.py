@@ -32,6 +32,7 @@ import argparse
 import logging
 import os
 import time
+import typing
 from collections.abc import Mapping
 from contextlib import ExitStack
 from dataclasses import replace
@@ -42,6 +43,7 @@ import numpy as np
 
 from common.dispatch import Balance
 from common.members import Topology
+from common.wire.jobs import JobEncoding
 from common.wire.messages import YawEstimate
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
@@ -119,8 +121,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="only these paths, by their last word: 1 (master-worker), 1x1, 2x2 (default: all)",
     )  # fmt: skip
     parser.add_argument(
-        "--job-encoding", choices=("mono8", "zstd"), default=MasterSettings().job_encoding,
-        help="the master's --job-encoding (how a band of the frame travels to the members)",
+        "--job-encoding", choices=typing.get_args(JobEncoding), default=MasterSettings().job_encoding,
+        help="the master's --job-encoding (how a share's pixels travel to the members)",
     )  # fmt: skip
 
 
