@@ -37,6 +37,12 @@ def memory_budget_mb(settings: StreamBoundSettings) -> float:
     return settings.cache_mb + IDLE_PROCESS_MB + LARGEST_SHARE_MB
 
 
+def heap_mark_mb(settings: StreamBoundSettings) -> float:
+    """Past this resident memory a worker hands its freed heap pages back after a job
+    (:class:`~services.runtime.allocator.HeapTrim`): its budget less one largest share's working set."""
+    return memory_budget_mb(settings) - LARGEST_SHARE_MB
+
+
 class Handoff(StrEnum):
     """How a query reaches the compute thread."""
 
@@ -71,7 +77,7 @@ class WorkerService(ConfiguredService[WorkerSettings]):
 
     def setup(self) -> None:
         # within its memory budget: past its cache and idle size, freed heap pages leave after a job
-        self.heap = HeapTrim(memory_budget_mb(self.settings) - LARGEST_SHARE_MB)
+        self.heap = HeapTrim(heap_mark_mb(self.settings))
         self.handoff = self.settings.handoff
         self.queue_capacity = self.settings.queue
         self.cpu_factor = self.settings.cpu_factor

@@ -55,14 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def after_job_hook(policy: str) -> Callable[[], object]:
     """Set this process's allocator to ``policy``; what to call after each job."""
     from services.runtime.allocator import HeapTrim
-    from services.worker.service import WorkerSettings, memory_budget_mb
+    from services.worker.service import WorkerSettings, heap_mark_mb
 
     if policy == "mmap_1mb":
         ctypes.CDLL(ctypes.util.find_library("c")).mallopt(M_MMAP_THRESHOLD, 1 << 20)
     if policy == "heap_trim":
-        from services.runtime.cli import LARGEST_SHARE_MB
-
-        return HeapTrim(memory_budget_mb(WorkerSettings()) - LARGEST_SHARE_MB).after_job
+        return HeapTrim(heap_mark_mb(WorkerSettings())).after_job
     if policy == "trim_every_job":
         return HeapTrim(1e-6).after_job
     if policy not in POLICIES:
