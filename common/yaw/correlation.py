@@ -159,10 +159,32 @@ def windowed_patches(crops_u8: U8Array, settings: YawSettings) -> tuple[Float32A
     return patches, texture_std.astype(np.float32)
 
 
+#: Pixels of the patches one numpy transform takes at a time. pocketfft transforms a batch's columns across
+#: the whole batch, which leaves the cache once a frame's patches are large: a 128 px patch's forward
+#: transform costs about twice as much in a batch of 60 as in runs of 8 (``capataz bench fft``). Runs of this
+#: many pixels keep the batched call's speed for small patches (128 patches of 32 px) and the runs' for large
+#: ones (8 of 128 px, 2 of 256 px); each patch's transform is the same 1-D passes either way, so the bits do
+#: not depend on the run.
+FFT_RUN_PIXELS = 1 << 17
+
+
+def fft_run(size_px: int) -> int:
+    """How many patches of ``size_px`` one numpy transform takes (:data:`FFT_RUN_PIXELS`; at least one)."""
+    return max(1, FFT_RUN_PIXELS // (size_px * size_px))
+
+
 def forward_transform(patches: Float32Array, backend: FftBackend) -> ComplexArray:
-    """Batched 2-D transforms of real patches (n, s, s): full spectra (OpenCV) or half spectra (numpy)."""
+    """Batched 2-D transforms of real patches (n, s, s): full spectra (OpenCV) or half spectra (numpy, in
+    runs of :func:`fft_run` patches)."""
     if backend is FftBackend.NUMPY:
-        return np.fft.rfft2(patches).astype(np.complex64, copy=False)
+        n, size = patches.shape[0], patches.shape[-1]
+        run = fft_run(size)
+        if n <= run:
+            return np.fft.rfft2(patches).astype(np.complex64, copy=False)
+        spectra = np.empty((n, size, size // 2 + 1), dtype=np.complex64)
+        for start in range(0, n, run):
+            spectra[start : start + run] = np.fft.rfft2(patches[start : start + run])
+        return spectra
     n, height, width = patches.shape
     out = np.empty((n, height, width, 2), dtype=np.float32)
     for i in range(n):
@@ -171,9 +193,15 @@ def forward_transform(patches: Float32Array, backend: FftBackend) -> ComplexArra
 
 
 def inverse_transform(spectra: ComplexArray, size_px: int, backend: FftBackend) -> Float32Array:
-    """Batched inverse of Hermitian spectra to real surfaces (n, s, s)."""
+    """Batched inverse of Hermitian spectra to real surfaces (n, s, s) (numpy: in runs of :func:`fft_run`)."""
     if backend is FftBackend.NUMPY:
-        return np.fft.irfft2(spectra, s=(size_px, size_px)).astype(np.float32, copy=False)
+        n, run, shape = spectra.shape[0], fft_run(size_px), (size_px, size_px)
+        if n <= run:
+            return np.fft.irfft2(spectra, s=shape).astype(np.float32, copy=False)
+        surfaces = np.empty((n, size_px, size_px), dtype=np.float32)
+        for start in range(0, n, run):
+            surfaces[start : start + run] = np.fft.irfft2(spectra[start : start + run], s=shape)
+        return surfaces
     n = spectra.shape[0]
     pairs = spectra[..., None].view(np.float32)  # (n, s, s, 2)
     out = np.empty((n, size_px, size_px), dtype=np.float32)

@@ -34,6 +34,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.consistency",
     "services.tools.bench.dispatch",
     "services.tools.bench.allocator",
+    "services.tools.bench.fft",
 )
 
 

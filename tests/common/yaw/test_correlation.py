@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from common.camera import CameraModel
 from common.sim.ground import GroundTexture, homography_between_views, nadir_camera_pose, render_ground_view
@@ -10,6 +12,7 @@ from common.yaw import (
     PatchMeasurement,
     YawError,
     YawSettings,
+    correlation,
     make_patch_grid,
     measure_patches,
     merge_measurements,
@@ -120,3 +123,29 @@ def test_mismatched_spectra_raise_yaw_error(texture: GroundTexture, camera: Came
     part = _measure(a, b, settings, [0])
     with pytest.raises(YawError, match="overlap"):
         merge_measurements([part, part])
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    n=st.integers(1, 13),
+    size=st.sampled_from([8, 16, 32]),
+    run_pixels=st.sampled_from([1, 256, 1024, 4096, 1 << 17]),
+    seed=st.integers(0, 2**16),
+)
+def test_numpy_transforms_in_runs_give_the_bits_of_one_batch(
+    n: int, size: int, run_pixels: int, seed: int
+) -> None:
+    """The numpy backend transforms a frame's patches in runs of FFT_RUN_PIXELS (faster for large patches,
+    capataz bench fft); each patch's transform must not depend on the run it falls in."""
+    patches = np.random.default_rng(seed).normal(0.0, 30.0, (n, size, size)).astype(np.float32)
+    batch_forward = np.fft.rfft2(patches).astype(np.complex64)
+    batch_inverse = np.fft.irfft2(batch_forward, s=(size, size)).astype(np.float32)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(correlation, "FFT_RUN_PIXELS", run_pixels)
+        assert correlation.fft_run(size) == max(1, run_pixels // (size * size))
+        forward = correlation.forward_transform(patches, FftBackend.NUMPY)
+        inverse = correlation.inverse_transform(batch_forward, size, FftBackend.NUMPY)
+    assert forward.dtype == np.complex64 and forward.shape == (n, size, size // 2 + 1)
+    assert inverse.dtype == np.float32 and inverse.shape == (n, size, size)
+    np.testing.assert_array_equal(forward, batch_forward)
+    np.testing.assert_array_equal(inverse, batch_inverse)
