@@ -239,6 +239,22 @@ def normalised_cross_power(
     return out
 
 
+def correlation_surfaces(
+    previous: ComplexArray, current: ComplexArray, weight: Float32Array, settings: YawSettings
+) -> Float32Array:
+    """The weighted cross-power spectra's inverse transforms, the correlation surfaces (n, s, s), computed in
+    runs of :func:`fft_run` patches so that each run's cross power is still in the cache when it is
+    transformed (the whole batch's is 6.4 MB for 192 patches of 128 px). Each patch's bits are the batch's."""
+    size = settings.patch_size_px
+    n, run = current.shape[0], fft_run(size)
+    surfaces = np.empty((n, size, size), dtype=np.float32)
+    for start in range(0, n, run):
+        part = slice(start, start + run)
+        cross = normalised_cross_power(previous[part], current[part], weight)
+        surfaces[part] = inverse_transform(cross.view(np.complex64)[..., 0], size, settings.fft_backend)
+    return surfaces
+
+
 def patch_spectra_from_crops(
     crops_u8: U8Array, indices: npt.ArrayLike, settings: YawSettings
 ) -> PatchSpectra:
@@ -366,10 +382,9 @@ def measure_patches(previous: PatchSpectra, current: PatchSpectra, settings: Yaw
         return PatchMeasurement(
             current.indices, np.zeros((0, 2)), empty, empty, np.zeros((0,), dtype=np.bool_)
         )
-    cross = normalised_cross_power(
-        previous.spectra, current.spectra, peak_weighting(s, settings.peak_sigma_px, half)
+    surfaces = correlation_surfaces(
+        previous.spectra, current.spectra, peak_weighting(s, settings.peak_sigma_px, half), settings
     )
-    surfaces = inverse_transform(cross.view(np.complex64)[..., 0], s, settings.fft_backend)
     overlap = window_overlap_log(s, settings.window_taper) * settings.overlap_correction
     shift_level, peak, ratio = subpixel_peaks(surfaces, overlap if settings.overlap_correction else None)
     textured = np.minimum(previous.texture_std, current.texture_std) >= settings.min_texture_std
