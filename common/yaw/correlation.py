@@ -263,8 +263,15 @@ def patch_spectra_from_crops(
     idx = np.asarray(indices, dtype=np.intp)
     if idx.shape != (crops.shape[0],):
         raise InputError(f"indices must have shape ({crops.shape[0]},) like the crops, got {idx.shape}")
-    patches, texture_std = windowed_patches(crops, settings)
-    spectra = forward_transform(patches, settings.fft_backend)
+    # windowed and transformed in runs of fft_run patches, each run's float patches still in the cache
+    n, size, run = crops.shape[0], settings.patch_size_px, fft_run(settings.patch_size_px)
+    width = size // 2 + 1 if settings.fft_backend is FftBackend.NUMPY else size
+    spectra = np.empty((n, size, width), dtype=np.complex64)
+    texture_std = np.empty((n,), dtype=np.float32)
+    for start in range(0, n, run):
+        part = slice(start, start + run)
+        patches, texture_std[part] = windowed_patches(crops[part], settings)
+        spectra[part] = forward_transform(patches, settings.fft_backend)
     return PatchSpectra(indices=idx, spectra=spectra, texture_std=texture_std)
 
 
