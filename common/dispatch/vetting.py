@@ -14,8 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.dispatch.trust import MemberOutcome, outcomes_of_fit
-from common.yaw.correlation import PatchMeasurement
 from common.yaw.fit import fit_correspondences
+from common.yaw.measurement import PatchMeasurement
 from common.yaw.settings import YawSettings
 
 

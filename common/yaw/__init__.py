@@ -4,18 +4,12 @@ Two stages, so a cluster can distribute the first: ``patch_spectra`` / ``measure
 patch subset (workers) and ``YawTracker.conclude`` (master); ``YawTracker.track`` composes both.
 """
 
-from common.yaw.correlation import (
-    PatchMeasurement,
-    PatchSpectra,
-    measure_patches,
-    merge_measurements,
-    patch_spectra,
-    patch_spectra_from_crops,
-)
+from common.yaw.correlation import PatchSpectra, measure_patches, patch_spectra, patch_spectra_from_crops
 from common.yaw.fit import ModelFit, fit_correspondences, rotation_of_homography_rad, scale_of_homography
 from common.yaw.global_align import GlobalAlignment, estimate_global_alignment
 from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.honest import Provenance, gyro_delta_yaw_rad
+from common.yaw.measurement import PatchMeasurement, merge_measurements
 from common.yaw.settings import FftBackend, FitModel, YawError, YawSettings
 from common.yaw.tracker import (
     EstimateMethod,

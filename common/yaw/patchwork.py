@@ -20,7 +20,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import CapatazError
-from common.yaw.correlation import PatchMeasurement, PatchSpectra, measure_patches, patch_spectra_from_crops
+from common.yaw.correlation import PatchSpectra, measure_patches, patch_spectra_from_crops
+from common.yaw.measurement import PatchMeasurement
 from common.yaw.settings import YawSettings
 
 

@@ -13,13 +13,7 @@ import numpy as np
 from common.camera import CameraModel
 from common.errors import InputError
 from common.types import FloatArray, U8Array
-from common.yaw.correlation import (
-    PatchMeasurement,
-    PatchSpectra,
-    measure_patches,
-    patch_spectra,
-    patch_spectra_from_crops,
-)
+from common.yaw.correlation import PatchSpectra, measure_patches, patch_spectra, patch_spectra_from_crops
 from common.yaw.fit import (
     ModelFit,
     fit_correspondences,
@@ -29,6 +23,7 @@ from common.yaw.fit import (
 from common.yaw.global_align import estimate_global_alignment, warp_into
 from common.yaw.grid import PatchGrid, pyramid_image
 from common.yaw.honest import Prior, PriorSource, choose_rotation, measured_variance_rad2, plausible
+from common.yaw.measurement import PatchMeasurement
 from common.yaw.settings import FitModel, YawSettings
 
 logger = logging.getLogger(__name__)

@@ -18,17 +18,12 @@ from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_DOWN, check_rotation_matrix
 from common.images import check_grey_image
 from common.types import FloatArray, U8Array
-from common.yaw.correlation import (
-    PatchMeasurement,
-    PatchSpectra,
-    measure_patches,
-    merge_measurements,
-    patch_spectra,
-)
+from common.yaw.correlation import PatchSpectra, measure_patches, patch_spectra
 from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, make_patch_grid
 from common.yaw.held import MeasuredPair, held_rate, with_measured_pair
 from common.yaw.honest import PriorSource, Provenance, make_prior
+from common.yaw.measurement import PatchMeasurement, merge_measurements
 from common.yaw.mount import yaw_per_image_turn
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, conclude_pair, lens_of

@@ -32,7 +32,7 @@ from common.members import Role
 from common.streams import StreamTable
 from common.wire import keys
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
-from common.yaw.correlation import merge_measurements
+from common.yaw.measurement import merge_measurements
 from common.yaw.patchwork import CropStore, SpectrumCache, measure_share
 from services.runtime.allocator import HeapTrim
 from services.runtime.cli import (

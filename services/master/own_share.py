@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.yaw import PatchGrid, YawSettings
-from common.yaw.correlation import PatchMeasurement
 from common.yaw.grid import U8Array
+from common.yaw.measurement import PatchMeasurement
 from common.yaw.patchwork import SpectrumCache, measure_share
 
 

@@ -42,8 +42,8 @@ from common.wire.messages import (
     YawJobSettings,
 )
 from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
-from common.yaw.correlation import merge_measurements
 from common.yaw.grid import U8Array
+from common.yaw.measurement import merge_measurements
 from common.yaw.patchwork import SpectrumCache
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameIntake

@@ -20,7 +20,7 @@ from common.dispatch import TrustMonitor, TrustSettings
 from common.dispatch.admission import ChurnLimiter, SourceLock
 from common.dispatch.vetting import round_outcomes
 from common.yaw import YawSettings
-from common.yaw.correlation import PatchMeasurement
+from common.yaw.measurement import PatchMeasurement
 from services.runtime.counters import Counters
 
 logger = logging.getLogger(__name__)

@@ -1,12 +1,12 @@
 """A share's measurement on the wire and back: :class:`~common.wire.messages.PatchResult` <->
-:class:`~common.yaw.correlation.PatchMeasurement` (members reply with it, the scatter reads it)."""
+:class:`~common.yaw.measurement.PatchMeasurement` (members reply with it, the scatter reads it)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from common.wire.messages import BlockJob, PatchJob, PatchResult
-from common.yaw.correlation import PatchMeasurement
+from common.yaw.measurement import PatchMeasurement
 
 
 def measurement_of(result: PatchResult) -> PatchMeasurement:

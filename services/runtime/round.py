@@ -19,8 +19,8 @@ from common.dispatch import SELF, Plan
 from common.wire import frame_codec
 from common.wire.messages import PatchResult, YawJobSettings
 from common.yaw import PatchGrid
-from common.yaw.correlation import PatchMeasurement
 from common.yaw.grid import crop_mosaic
+from common.yaw.measurement import PatchMeasurement
 from services.runtime.results import measurement_of
 
 if TYPE_CHECKING:

@@ -14,7 +14,7 @@ from common.dispatch.vetting import round_outcomes
 from common.errors import InputError
 from common.sim.flight import hover_flight
 from common.yaw import YawSettings, make_patch_grid
-from common.yaw.correlation import PatchMeasurement
+from common.yaw.measurement import PatchMeasurement
 
 
 @given(

@@ -15,7 +15,7 @@ from common.errors import InputError
 from common.sim.flight import hover_flight
 from common.wire.messages import LOCAL_YAW_SETTINGS, YawJobSettings
 from common.yaw import FftBackend, YawError, YawSettings, YawTracker, make_patch_grid
-from common.yaw.correlation import merge_measurements
+from common.yaw.measurement import merge_measurements
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 
 
