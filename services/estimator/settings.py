@@ -18,19 +18,9 @@ from common.estimation.coupling import DoubleCouplingEstimator
 from common.estimation.coupling_types import CouplingSettings, EkfKind, Vehicle, vehicle_settings
 from common.rig import Rig
 from services.estimator.outputs import PublishedUncertainty
-from services.runtime.camera_options import (
-    CameraOptions,
-    add_camera_options,
-    camera_options_from_args,
-    load_camera,
-)
+from services.runtime.camera_options import CameraOptions, load_camera
 from services.runtime.fields import settings_from
-from services.runtime.mount_options import (
-    MountOptions,
-    add_mount_options,
-    mount_of_calibration,
-    mount_options_from_args,
-)
+from services.runtime.mount_options import MountOptions, add_rig_options, rig_options_from_args
 from services.runtime.options import add_options, from_core
 
 
@@ -132,8 +122,7 @@ _OPTIONS = (
 
 def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
     """The estimator's own command-line options (the transport's are added by the service)."""
-    add_camera_options(parser, CameraModel.default())
-    add_mount_options(parser)
+    add_rig_options(parser, CameraModel.default())
     add_options(
         parser,
         EstimatorSettings,
@@ -145,12 +134,7 @@ def add_estimator_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> EstimatorSettings:
     """The settings of the command line (a value out of its bound: a ValidationError, one line, exit 2)."""
-    camera = camera_options_from_args(args)
-    settings = settings_from(
-        EstimatorSettings,
-        args,
-        camera=camera,
-        rig_mount=mount_of_calibration(camera, mount_options_from_args(args)),
-    )
+    camera, mount = rig_options_from_args(args)
+    settings = settings_from(EstimatorSettings, args, camera=camera, rig_mount=mount)
     estimator_camera(settings)  # a bad calibration file stops the command at start, in one line
     return settings

@@ -23,18 +23,8 @@ from common.rig import Rig
 from common.types import FloatArray
 from common.yaw.mount import image_turn_axis_imu, yaw_per_image_turn
 from common.yaw.settings import YawSettings
-from services.runtime.camera_options import (
-    CameraOptions,
-    add_camera_options,
-    camera_options_from_args,
-    load_camera,
-)
-from services.runtime.mount_options import (
-    MountOptions,
-    add_mount_options,
-    mount_of_calibration,
-    mount_options_from_args,
-)
+from services.runtime.camera_options import CameraOptions, load_camera
+from services.runtime.mount_options import MountOptions, add_rig_options, rig_options_from_args
 from services.runtime.options import add_options, flag_of, from_core
 from services.runtime.rig_follow import describe_rig
 from services.runtime.usage import UsageError, condense_validation_error
@@ -87,20 +77,16 @@ def add_yaw_prior_arguments(parser: argparse.ArgumentParser) -> None:
     """The master's camera options (the shared group) and its yaw prior's (gyro, physical rate limit, the
     camera's mount, the IMU's axes and clock offset)."""
     add_options(parser, YawPriorSettings, ("gyro_prior", "max_yaw_rate_deg_s"))
-    add_mount_options(parser)
-    add_camera_options(parser, None)
+    add_rig_options(parser, None)
 
 
 def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
     """Lens, gyro prior and rate limit from the command line (one UsageError line when inconsistent); a
     calibration file is read now, so that a bad one stops the service at start."""
-    lens = camera_options_from_args(args)
+    lens, mount = rig_options_from_args(args)
     try:
         prior = YawPriorSettings(
-            lens=lens,
-            gyro_prior=args.gyro_prior,
-            max_yaw_rate_deg_s=args.max_yaw_rate_deg_s,
-            rig_mount=mount_of_calibration(lens, mount_options_from_args(args)),
+            lens=lens, gyro_prior=args.gyro_prior, max_yaw_rate_deg_s=args.max_yaw_rate_deg_s, rig_mount=mount
         )
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None

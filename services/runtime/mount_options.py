@@ -3,7 +3,9 @@ mount (``--mount down|forward`` or ``R_body_camera`` as 9 numbers), the IMU's ax
 ``R_body_imu`` as 9 numbers) and the IMU's clock offset (``--imu-time-offset``, ``t_imu = t_cam + offset``,
 Kalibr's ``timeshift_cam_imu``). The master's gyro prior and the estimator read them. A ``--calibration`` rig
 file that carries a mount (the capataz rig YAML, EuRoC's ``T_BS``, Kalibr's ``T_cam_imu``) gives it instead
-(:func:`mount_of_calibration`); a mount given both ways is refused.
+(:func:`mount_of_calibration`); a mount given both ways is refused. :func:`add_rig_options` and
+:func:`rig_options_from_args` are the one rig option group (this and the camera's) of the master and the
+estimator.
 """
 
 from __future__ import annotations
@@ -13,12 +15,13 @@ import argparse
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from common.camera import CameraModel
 from common.datasets.rig_files import load_rig
 from common.errors import InputError
 from common.geometry import CameraMount, check_rotation_matrix
 from common.rig import Rig
 from common.types import FloatArray
-from services.runtime.camera_options import CameraOptions
+from services.runtime.camera_options import CameraOptions, add_camera_options, camera_options_from_args
 from services.runtime.options import add_options, flag_of
 from services.runtime.usage import UsageError, condense_validation_error
 
@@ -143,3 +146,17 @@ def mount_of_calibration(camera: CameraOptions, mount: MountOptions) -> MountOpt
 def _numbers(R: FloatArray) -> str:
     """A rotation as the 9 comma-separated numbers (row-major, exact repr) :func:`mount_rotation` reads."""
     return ",".join(repr(float(v)) for v in np.asarray(R, dtype=np.float64).ravel())
+
+
+def add_rig_options(parser: argparse.ArgumentParser, default_camera: CameraModel | None) -> None:
+    """The rig option group: the camera's (:func:`~services.runtime.camera_options.add_camera_options`,
+    ``default_camera`` when none is given) and the mount's (:func:`add_mount_options`)."""
+    add_camera_options(parser, default_camera)
+    add_mount_options(parser)
+
+
+def rig_options_from_args(args: argparse.Namespace) -> tuple[CameraOptions, MountOptions]:
+    """The rig option group's values: the camera's, and the mount as given or as its ``--calibration`` file
+    carries it (:func:`mount_of_calibration`; a bad value or a mount given twice: one UsageError line)."""
+    camera = camera_options_from_args(args)
+    return camera, mount_of_calibration(camera, mount_options_from_args(args))
