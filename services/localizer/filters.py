@@ -17,7 +17,9 @@ The cores stay state in, state out; these wrappers only hold the current state a
 
 from __future__ import annotations
 
+import bisect
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -87,6 +89,25 @@ def vo_jumped(previous: PoseEstimate, current: PoseEstimate, max_speed_m_s: floa
     odometry restarted, or the stream looped, and its motion across that step is not a motion."""
     odometry = odometry_between(previous, current)
     return odometry is not None and float(np.linalg.norm(odometry[0])) > max_speed_m_s
+
+
+def vo_over_interval(history: Sequence[PoseEstimate], after_s: float | None, until_s: float) -> VoPair:
+    """The two VO poses whose motion stands for the frame interval ``(after_s, until_s]``, from ``history``
+    (one VO epoch's poses, time advancing): the latest stamped at or before ``after_s`` and the latest at or
+    before ``until_s``. After skipped frames (a stalled host) the filter so predicts with the VO's motion over
+    the whole gap, not the last pair's velocity times it (a 3 s stall left the particle filter 0.4-0.5 m off
+    the office flight). When the two are one pose (no VO pose inside the interval yet: the VO lags the
+    frames) or there is no earlier frame, the last two poses up to ``until_s``; from the epoch's first pose
+    when it began inside the interval; the first two when all are later than ``until_s``. None with fewer
+    than two poses."""
+    if len(history) < 2:
+        return None
+    stamps = [pose.stamp_s for pose in history]
+    end = max(bisect.bisect_right(stamps, until_s) - 1, 1)
+    start = end - 1 if after_s is None else max(bisect.bisect_right(stamps, after_s) - 1, 0)
+    if start >= end:
+        start = end - 1
+    return history[start], history[end]
 
 
 def mean_gyro_camera(

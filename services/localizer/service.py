@@ -43,10 +43,12 @@ from common.wire.messages import Frame, ImuSample, PoseEstimate, UavMessage
 from services.localizer.filters import (
     LocalizationPath,
     StepInputs,
+    VoPair,
     make_path,
     mean_gyro_camera,
     odometry_between,
     vo_jumped,
+    vo_over_interval,
 )
 from services.localizer.loading import localizer_camera
 from services.localizer.settings import LocalizerSettings, register_arguments, settings_from_args
@@ -63,6 +65,8 @@ logger = logging.getLogger(__name__)
 IMU_BUFFER = 4000
 #: frames kept while a search runs, to catch up through afterwards (5 s at 20 fps, 30 MB at 640x480)
 FRAME_BACKLOG = 100
+#: VO poses kept for the frame intervals' odometry (25 s at 20 fps: longer than any stall worth bridging)
+VO_HISTORY = 512
 
 
 class LocalizerService(ConfiguredService[LocalizerSettings]):
@@ -77,7 +81,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self._last_received_s: float | None = None  # of the last frame accepted by the subscriber
         self._vo_lock = threading.Lock()
         self._vo_previous: PoseEstimate | None = None
-        self._vo_pair: tuple[PoseEstimate, PoseEstimate] | None = None  # the last two, time advancing
+        #: the current VO epoch's latest poses, time advancing (each frame interval's odometry)
+        self._vo_history: deque[PoseEstimate] = deque(maxlen=VO_HISTORY)
         #: the VO stream's epoch (+1 at its first pose and at each discontinuity) and, with anchor_on_vo,
         #: the epoch the filter last started from (around the latest VO pose)
         self._vo_epoch = -1
@@ -179,12 +184,13 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
         self._accept_vo(pose)
 
     def _accept_vo(self, pose: PoseEstimate) -> None:
-        """Keep the last two VO poses (time advancing) for the prediction; a step faster than
+        """Keep the VO poses (time advancing, bounded) for the prediction; a step faster than
         ``vo_jump_m_s`` begins a new VO epoch instead (see :meth:`_take_anchor`)."""
         with self._vo_lock:
             previous, self._vo_previous = self._vo_previous, pose
             if previous is None:
                 self._vo_epoch += 1
+                self._vo_history.append(pose)
                 return
             if odometry_between(previous, pose) is None:
                 self.count_error(
@@ -193,7 +199,8 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
                 return
             if vo_jumped(previous, pose, self.settings.vo_jump_m_s):
                 # a restart of the odometry or a loop of the stream: not a motion to predict with
-                self._vo_pair = None
+                self._vo_history.clear()
+                self._vo_history.append(pose)
                 self._vo_epoch += 1
                 self.counters.inc("vo_jumps")
                 logger.warning(
@@ -204,7 +211,12 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
                     ": starting again around the new VO pose" if self.settings.anchor_on_vo else "",
                 )
                 return
-            self._vo_pair = (previous, pose)
+            self._vo_history.append(pose)
+
+    def vo_between(self, after_s: float | None, until_s: float) -> VoPair:
+        """The VO poses whose motion stands for the frame interval (:func:`vo_over_interval`)."""
+        with self._vo_lock:
+            return vo_over_interval(list(self._vo_history), after_s, until_s)
 
     def _take_anchor(self) -> PoseEstimate | None:
         """With ``anchor_on_vo``: the latest VO pose, once per VO epoch (the first VO pose, the first after
@@ -262,10 +274,9 @@ class LocalizerService(ConfiguredService[LocalizerSettings]):
                 continue
             dt = 0.0 if self._last_stamp_s is None else frame.stamp_s - self._last_stamp_s
             gyro = self._gyro_between(self._last_stamp_s, frame.stamp_s) if self.settings.use_imu else None
+            vo = self.vo_between(self._last_stamp_s, frame.stamp_s)
             self._last_stamp_s = frame.stamp_s
             anchor = self._take_anchor()
-            with self._vo_lock:
-                vo = self._vo_pair
             if anchor is not None:
                 self.counters.inc("vo_anchors")
                 logger.info("starting around the VO pose of %.3f s", anchor.stamp_s)

@@ -168,9 +168,9 @@ def test_service_anchors_once_per_vo_epoch_and_a_vo_jump_begins_a_new_one() -> N
     first = service._take_anchor()
     assert first is not None and first.stamp_s == 1.0
     service._accept_vo(_vo(1.05, state + np.array([0.02, 0, 0, 0, 0, 0])))  # 0.4 m/s: a motion
-    assert service._take_anchor() is None and service._vo_pair is not None
+    assert service._take_anchor() is None and service.vo_between(1.0, 1.05) is not None
     service._accept_vo(_vo(1.10, state + np.array([3.0, 0, 0, 0, 0, 0])))  # 60 m/s: a jump
-    assert service._vo_pair is None and service.counters.get("vo_jumps") == 1
+    assert service.vo_between(1.05, 1.10) is None and service.counters.get("vo_jumps") == 1
     anchor = service._take_anchor()
     assert anchor is not None and anchor.stamp_s == 1.10
     assert service._take_anchor() is None
