@@ -3,6 +3,8 @@ whole gap (:func:`services.localizer.filters.vo_over_interval`), not the last VO
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
@@ -68,22 +70,25 @@ def test_a_three_second_stall_leaves_the_particle_filter_on_the_office_flight_re
     truth, times_s = sim.flight.states, sim.flight.times_s
     vos = [_vo(times_s[i], truth[i]) for i in range(n)]
 
-    def last_errors_m(seed: int, pair_of: object) -> float:
+    def last_errors_m(seed: int, pair_of: Callable[[int, float | None], VoPair]) -> float:
         path = make_path(LocalizerSettings(use_vo=True, seed=seed))
         last_s: float | None = None
         errors = []
         for i in (i for i in range(n) if i not in stall):
             stamp_s = float(times_s[i])
             frame = Frame(uav="uav0", seq=i, stamp_s=stamp_s, width=320, height=240, pixels=sim.images[i])
-            vo: VoPair = pair_of(i, last_s)  # type: ignore[operator]
+            vo = pair_of(i, last_s)
             dt_s = 0.0 if last_s is None else stamp_s - last_s
             message = path.step(StepInputs(frame, dt_s, vo, anchor=vos[0] if last_s is None else None))
             last_s = stamp_s
             errors.append(float(np.linalg.norm(message.p_world_body_m - truth[i, :3])))
         return max(errors[-5:])
 
+    def spanning(i: int, last_s: float | None) -> VoPair:
+        return vo_over_interval(vos[: i + 1], last_s, float(times_s[i]))
+
     for seed in (0, 1):
-        spanned = last_errors_m(seed, lambda i, last_s: vo_over_interval(vos[: i + 1], last_s, times_s[i]))
+        spanned = last_errors_m(seed, spanning)
         last_pair = last_errors_m(seed, lambda i, _last_s: (vos[i - 1], vos[i]) if i else None)
         assert spanned < 0.08, (seed, spanned)
         assert last_pair > 0.12, (seed, last_pair)  # what the service did
