@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -95,32 +96,31 @@ def windowed_patches(crops_u8: U8Array, settings: YawSettings) -> tuple[Float32A
     return patches, texture_std.astype(np.float32)
 
 
-#: Pixels of the patches one numpy transform takes at a time. pocketfft transforms a batch's columns across
-#: the whole batch, which leaves the cache once a frame's patches are large: a 128 px patch's forward
-#: transform costs about twice as much in a batch of 60 as in runs of 8 (``capataz bench fft``). Runs of this
-#: many pixels keep the batched call's speed for small patches (128 patches of 32 px) and the runs' for large
-#: ones (8 of 128 px, 2 of 256 px); each patch's transform is the same 1-D passes either way, so the bits do
-#: not depend on the run.
+#: Pixels of the patches the core windows, transforms and correlates at a time (:func:`run_slices`). pocketfft
+#: transforms a batch's columns across the whole batch, which leaves the cache once a frame's patches are
+#: large: a 128 px patch's forward transform costs about twice as much in a batch of 60 as in runs of 8
+#: (``capataz bench fft``). Runs of this many pixels keep the batched call's speed for small patches (128
+#: patches of 32 px) and the runs' for large ones (8 of 128 px, 2 of 256 px); each patch's transform is the
+#: same 1-D passes either way, so the bits do not depend on the run.
 FFT_RUN_PIXELS = 1 << 17
 
 
 def fft_run(size_px: int) -> int:
-    """How many patches of ``size_px`` one numpy transform takes (:data:`FFT_RUN_PIXELS`; at least one)."""
+    """How many patches of ``size_px`` one run holds (:data:`FFT_RUN_PIXELS`; at least one)."""
     return max(1, FFT_RUN_PIXELS // (size_px * size_px))
 
 
+def run_slices(n: int, size_px: int) -> Iterator[slice]:
+    """The runs of :func:`fft_run` patches of ``size_px`` that a frame's ``n`` patches are transformed in."""
+    run = fft_run(size_px)
+    for start in range(0, n, run):
+        yield slice(start, min(start + run, n))
+
+
 def forward_transform(patches: Float32Array, backend: FftBackend) -> ComplexArray:
-    """Batched 2-D transforms of real patches (n, s, s): full spectra (OpenCV) or half spectra (numpy, in
-    runs of :func:`fft_run` patches)."""
+    """Batched 2-D transforms of real patches (n, s, s): full spectra (OpenCV) or half spectra (numpy)."""
     if backend is FftBackend.NUMPY:
-        n, size = patches.shape[0], patches.shape[-1]
-        run = fft_run(size)
-        if n <= run:
-            return np.fft.rfft2(patches).astype(np.complex64, copy=False)
-        spectra = np.empty((n, size, size // 2 + 1), dtype=np.complex64)
-        for start in range(0, n, run):
-            spectra[start : start + run] = np.fft.rfft2(patches[start : start + run])
-        return spectra
+        return np.fft.rfft2(patches).astype(np.complex64, copy=False)
     n, height, width = patches.shape
     out = np.empty((n, height, width, 2), dtype=np.float32)
     for i in range(n):
@@ -129,15 +129,9 @@ def forward_transform(patches: Float32Array, backend: FftBackend) -> ComplexArra
 
 
 def inverse_transform(spectra: ComplexArray, size_px: int, backend: FftBackend) -> Float32Array:
-    """Batched inverse of Hermitian spectra to real surfaces (n, s, s) (numpy: in runs of :func:`fft_run`)."""
+    """Batched inverse of Hermitian spectra to real surfaces (n, s, s)."""
     if backend is FftBackend.NUMPY:
-        n, run, shape = spectra.shape[0], fft_run(size_px), (size_px, size_px)
-        if n <= run:
-            return np.fft.irfft2(spectra, s=shape).astype(np.float32, copy=False)
-        surfaces = np.empty((n, size_px, size_px), dtype=np.float32)
-        for start in range(0, n, run):
-            surfaces[start : start + run] = np.fft.irfft2(spectra[start : start + run], s=shape)
-        return surfaces
+        return np.fft.irfft2(spectra, s=(size_px, size_px)).astype(np.float32, copy=False)
     n = spectra.shape[0]
     pairs = spectra[..., None].view(np.float32)  # (n, s, s, 2)
     out = np.empty((n, size_px, size_px), dtype=np.float32)
@@ -182,10 +176,8 @@ def correlation_surfaces(
     runs of :func:`fft_run` patches so that each run's cross power is still in the cache when it is
     transformed (the whole batch's is 6.4 MB for 192 patches of 128 px). Each patch's bits are the batch's."""
     size = settings.patch_size_px
-    n, run = current.shape[0], fft_run(size)
-    surfaces = np.empty((n, size, size), dtype=np.float32)
-    for start in range(0, n, run):
-        part = slice(start, start + run)
+    surfaces = np.empty((current.shape[0], size, size), dtype=np.float32)
+    for part in run_slices(current.shape[0], size):
         cross = normalised_cross_power(previous[part], current[part], weight)
         surfaces[part] = inverse_transform(cross.view(np.complex64)[..., 0], size, settings.fft_backend)
     return surfaces
@@ -200,12 +192,11 @@ def patch_spectra_from_crops(
     if idx.shape != (crops.shape[0],):
         raise InputError(f"indices must have shape ({crops.shape[0]},) like the crops, got {idx.shape}")
     # windowed and transformed in runs of fft_run patches, each run's float patches still in the cache
-    n, size, run = crops.shape[0], settings.patch_size_px, fft_run(settings.patch_size_px)
+    n, size = crops.shape[0], settings.patch_size_px
     width = size // 2 + 1 if settings.fft_backend is FftBackend.NUMPY else size
     spectra = np.empty((n, size, width), dtype=np.complex64)
     texture_std = np.empty((n,), dtype=np.float32)
-    for start in range(0, n, run):
-        part = slice(start, start + run)
+    for part in run_slices(n, size):
         patches, texture_std[part] = windowed_patches(crops[part], settings)
         spectra[part] = forward_transform(patches, settings.fft_backend)
     return PatchSpectra(indices=idx, spectra=spectra, texture_std=texture_std)

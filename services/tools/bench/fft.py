@@ -2,12 +2,13 @@
 
 The run length of the core's numpy transforms (:data:`~common.yaw.correlation.FFT_RUN_PIXELS`) was chosen
 here. For each patch size a frame's worth of random windowed patches is transformed forward (real to half
-spectra) and back, one thread: ``batch`` is one ``numpy.fft.rfft2`` call over all patches, ``runs`` the
-core's :func:`~common.yaw.correlation.forward_transform` (runs of :func:`~common.yaw.correlation.fft_run`
-patches), ``opencv`` a loop of ``cv2.dft`` (full spectra, the other backend). The variants take turns within
-each repeat (the shared host's load hits them alike); the table gives each one's median microseconds a patch
-over the repeats, the p95 over every timed call, and its time over ``batch``'s in the same repeats. ``runs``
-and ``batch`` must give the same bits (checked: ``bit_identical``).
+spectra) and back, one thread: ``batch`` is one ``numpy.fft.rfft2`` call over all patches, ``runs`` the same
+calls over the core's runs (:func:`~common.yaw.correlation.run_slices`,
+:func:`~common.yaw.correlation.fft_run` patches each), ``opencv`` a loop of ``cv2.dft`` (full spectra, the
+other backend). The variants take turns within each repeat (the shared host's load hits them alike); the table
+gives each one's median microseconds a patch over the repeats, the p95 over every timed call, and its time
+over ``batch``'s in the same repeats. ``runs`` and ``batch`` must give the same bits (checked:
+``bit_identical``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from common.yaw.correlation import fft_run, forward_transform, inverse_transform
+from common.yaw.correlation import fft_run, forward_transform, inverse_transform, run_slices
 from common.yaw.settings import FftBackend
 from services.runtime.cli import number_in
 
@@ -48,12 +49,21 @@ def _transforms(size: int, patches: np.ndarray) -> dict[str, tuple[Callable[[], 
     def batch_inverse() -> Any:
         return np.fft.irfft2(half, s=(size, size)).astype(np.float32, copy=False)
 
+    def runs_forward() -> Any:
+        out = np.empty(half.shape, dtype=np.complex64)
+        for part in run_slices(len(patches), size):
+            out[part] = forward_transform(patches[part], FftBackend.NUMPY)
+        return out
+
+    def runs_inverse() -> Any:
+        out = np.empty(patches.shape, dtype=np.float32)
+        for part in run_slices(len(patches), size):
+            out[part] = inverse_transform(half[part], size, FftBackend.NUMPY)
+        return out
+
     return {
         "batch": (lambda: np.fft.rfft2(patches).astype(np.complex64, copy=False), batch_inverse),
-        "runs": (
-            lambda: forward_transform(patches, FftBackend.NUMPY),
-            lambda: inverse_transform(half, size, FftBackend.NUMPY),
-        ),
+        "runs": (runs_forward, runs_inverse),
         "opencv": (
             lambda: forward_transform(patches, FftBackend.OPENCV),
             lambda: inverse_transform(full, size, FftBackend.OPENCV),

@@ -132,20 +132,26 @@ def test_mismatched_spectra_raise_yaw_error(texture: GroundTexture, camera: Came
     run_pixels=st.sampled_from([1, 256, 1024, 4096, 1 << 17]),
     seed=st.integers(0, 2**16),
 )
-def test_numpy_transforms_in_runs_give_the_bits_of_one_batch(
-    n: int, size: int, run_pixels: int, seed: int
-) -> None:
-    """The numpy backend transforms a frame's patches in runs of FFT_RUN_PIXELS (faster for large patches,
-    capataz bench fft); each patch's transform must not depend on the run it falls in."""
-    patches = np.random.default_rng(seed).normal(0.0, 30.0, (n, size, size)).astype(np.float32)
-    batch_forward = np.fft.rfft2(patches).astype(np.complex64)
-    batch_inverse = np.fft.irfft2(batch_forward, s=(size, size)).astype(np.float32)
+def test_patches_in_runs_give_the_bits_of_one_batch(n: int, size: int, run_pixels: int, seed: int) -> None:
+    """The core windows, transforms and correlates a frame's patches in runs of FFT_RUN_PIXELS (faster for
+    large patches, capataz bench fft); each patch's spectrum and shift must not depend on the run it falls
+    in."""
+    rng = np.random.default_rng(seed)
+    crops = rng.integers(0, 256, (2, n, size, size), dtype=np.uint8)
+    yaw_settings = YawSettings(patch_size_px=size)
+    indices = np.arange(n)
+
+    def spectra_and_shifts() -> tuple[np.ndarray, np.ndarray]:
+        previous, current = (patch_spectra_from_crops(c, indices, yaw_settings) for c in crops)
+        return current.spectra, measure_patches(previous, current, yaw_settings).shift_px
+
     with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(correlation, "FFT_RUN_PIXELS", 1 << 30)  # one run: the whole batch
+        batch = spectra_and_shifts()
         patch.setattr(correlation, "FFT_RUN_PIXELS", run_pixels)
-        assert correlation.fft_run(size) == max(1, run_pixels // (size * size))
-        forward = correlation.forward_transform(patches, FftBackend.NUMPY)
-        inverse = correlation.inverse_transform(batch_forward, size, FftBackend.NUMPY)
-    assert forward.dtype == np.complex64 and forward.shape == (n, size, size // 2 + 1)
-    assert inverse.dtype == np.float32 and inverse.shape == (n, size, size)
-    np.testing.assert_array_equal(forward, batch_forward)
-    np.testing.assert_array_equal(inverse, batch_inverse)
+        run = max(1, run_pixels // (size * size))
+        expected = [(i, min(i + run, n)) for i in range(0, n, run)]
+        assert [(p.start, p.stop) for p in correlation.run_slices(n, size)] == expected
+        runs = spectra_and_shifts()
+    np.testing.assert_array_equal(runs[0], batch[0])
+    np.testing.assert_array_equal(runs[1], batch[1])
