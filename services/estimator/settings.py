@@ -44,8 +44,9 @@ class EstimatorSettings(BaseModel):
     #: filter's tilt settles first; paper C's flight hovers 5 s, the bench uses 4 s)
     initial_position_m: tuple[float, float] = from_core(CouplingSettings, "initial_position_m")
     vo_origin_delay_s: float = from_core(CouplingSettings, "vo_origin_delay_s")
-    #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only)
-    vo_drift_fraction: float = Field(default=PublishedUncertainty.drift_fraction, gt=0.0)
+    #: nominal horizontal drift of the VO as a fraction of the distance travelled (pose covariance only; the
+    #: default model's drift grows with the pairs chained instead, :class:`PublishedUncertainty`)
+    vo_drift_fraction: float = Field(default=PublishedUncertainty.drift_fraction, ge=0.0)
     #: the frame backlog when the filter is behind (:class:`~services.estimator.backlog.SpacedFrameQueue`):
     #: frames queued before one is skipped, the widest VO pair made by skipping (s; every 5th frame of
     #: paper C's 20 fps flight keeps its accuracy), and how far behind the queue may grow to keep pairs that

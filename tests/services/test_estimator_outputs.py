@@ -1,10 +1,11 @@
-"""The VO pose's horizontal uncertainty: drift with the distance travelled, and for good the motion a
-failed pair did not see; such a pose is published as ``lost``. What is published of the filter's
-covariances (:class:`PublishedUncertainty`): the tilt scaled, the yaw chain's drift over the angle turned,
-the level chain's tilt offset."""
+"""The VO pose's horizontal uncertainty: drift with the pairs chained (and optionally the distance), and
+for good the motion a failed pair did not see; such a pose is published as ``lost``. What is published of
+the filter's covariances (:class:`PublishedUncertainty`): the tilt scaled, the yaw chain's drift over the
+angle turned, the level chain's tilt offset."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -45,13 +46,13 @@ def test_a_failed_pair_adds_the_unseen_motion_for_good_and_is_published_as_lost(
     for k in range(5):  # 2 m/s along x, 20 frames a second
         path = advance_path(path, _pose(0.05 * k, 0.1 * k))
     assert path.speed_m_s == pytest.approx(2.0) and path.unseen_var_m2 == 0.0
-    before = horizontal_variance(path, 0.001)
+    before = horizontal_variance(path, AS_FILTERED)
     # the pair across 0.5 s failed: the chain restarted at the previous position
     failed = _pose(0.7, 0.4, ok=False)
     path = advance_path(path, failed)
     assert path.unseen_var_m2 == pytest.approx((2.0 * 0.5) ** 2)
-    assert horizontal_variance(path, 0.001) >= before + 1.0 - 1e-9
-    assert pose_message("uav0", 0, failed, horizontal_variance(path, 0.001)).tracking_state == "lost"
+    assert horizontal_variance(path, AS_FILTERED) >= before + 1.0 - 1e-9
+    assert pose_message("uav0", 0, failed, horizontal_variance(path, AS_FILTERED)).tracking_state == "lost"
     path = advance_path(path, _pose(0.75, 0.5))  # tracking again; the unseen motion stays
     assert path.unseen_var_m2 == pytest.approx(1.0)
     assert pose_message("uav0", 1, _pose(0.75, 0.5), 1.0).tracking_state == "tracking"
@@ -60,12 +61,38 @@ def test_a_failed_pair_adds_the_unseen_motion_for_good_and_is_published_as_lost(
 @given(st.lists(st.tuples(st.floats(-10, 10), st.booleans()), min_size=1, max_size=30))
 def test_the_horizontal_variance_never_shrinks(steps: list[tuple[float, bool]]) -> None:
     path = VoPath()
-    last = MIN_VAR_XY_M2
+    models = (AS_FILTERED, PublishedUncertainty(), PublishedUncertainty(drift_fraction=0.001))
+    last = [MIN_VAR_XY_M2] * len(models)
     for k, (x_m, ok) in enumerate(steps):
         path = advance_path(path, _pose(0.05 * (k + 1), x_m, ok))
-        var = horizontal_variance(path, 0.001)
-        assert var >= last - 1e-15
+        var = [horizontal_variance(path, model) for model in models]
+        assert all(v >= before - 1e-15 for v, before in zip(var, last, strict=True))
         last = var
+
+
+def test_each_measured_pair_adds_drift_in_proportion_to_the_height_it_was_measured_at() -> None:
+    """The published horizontal std grows by ``drift_per_pair`` times the camera height with each measured
+    pair (a failed pair adds its unseen motion instead), whatever the distance: paper C's flight at 3.8 m
+    had larger VO errors than the agile flight at 2 m over 2.6 times the distance."""
+    model = PublishedUncertainty()
+    assert model.drift_fraction == 0.0 and model.drift_per_pair > 0.0
+
+    def path_at(height_m: float, step_m: float, pairs: int, failed: int = -1) -> VoPath:
+        path = VoPath()
+        for k in range(pairs + 1):
+            pose = _pose(0.05 * k, step_m * k, ok=k != failed)
+            path = advance_path(path, replace(pose, p_world_body_m=np.array([step_m * k, 0.0, height_m])))
+        return path
+
+    def std_m(path: VoPath) -> float:
+        return math.sqrt(horizontal_variance(path, model) - MIN_VAR_XY_M2 - path.unseen_var_m2)
+
+    low = path_at(2.0, 0.01, 100)
+    assert low.height_sum_m == pytest.approx(200.0)
+    assert std_m(low) == pytest.approx(model.drift_per_pair * 200.0)
+    assert std_m(path_at(4.0, 0.01, 100)) == pytest.approx(2.0 * std_m(low))  # twice the height
+    assert std_m(path_at(2.0, 0.05, 100)) == pytest.approx(std_m(low))  # five times the distance
+    assert path_at(2.0, 0.01, 100, failed=50).height_sum_m == pytest.approx(198.0)
 
 
 def test_a_pair_wider_than_the_trusted_spacing_adds_a_share_of_its_step() -> None:
