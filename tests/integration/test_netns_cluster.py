@@ -94,9 +94,11 @@ def test_the_balancer_moves_shares_away_from_a_host_behind_a_thin_link(tmp_path:
         )
 
     thin, wide = share("h2") / n_patches, share("h1") / n_patches
-    # here: 0.31-0.33 and 0.50 (before the fix 0.50 and 0.50, a frame 715 ms against 445-455 ms now). h2
-    # takes at most 1.5 times its balanced count; a loaded host slows h1's compute and raises it, hence 0.42
-    assert thin <= 0.42, (thin, wide, late[-3:])
-    assert wide >= 0.45 and wide >= thin + 0.08, (thin, wide, late[-3:])
+    # here: 0.31-0.33 and 0.50 (before the fix 0.50 and 0.50, a frame 715 ms against 445-455 ms now). A
+    # loaded host slows the members' compute while the link stays as slow, so the balanced share of the thin
+    # host rises towards the other's: 0.42 in a CI run with a benchmark beside the suite (3 test processes
+    # and the benchmark on 2 cores). The bound keeps the bug's 0.50 and 0.50 out with that margin.
+    assert thin <= 0.45, (thin, wide, late[-3:])
+    assert wide >= 0.45 and wide >= thin + 0.05, (thin, wide, late[-3:])
     assert all(code in (0, None) for name, code in codes.items() if not name.startswith("camera")), codes
     assert not set(plan.namespaces) & set(list_namespaces())
