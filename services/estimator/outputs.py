@@ -47,8 +47,9 @@ from common.wire.schema import WireModel
 @dataclass(frozen=True)
 class PublishedUncertainty:
     """How the filter's and the VO path's uncertainties become the published ones (see the module's text).
-    Fit on seeds 0-9 (``capataz bench consistency --suites estimator --seeds 20 --estimator-frames 400``);
-    :data:`AS_FILTERED` publishes the filter's covariance as it is."""
+    Fit on seeds 0-9 (``capataz bench consistency --suites estimator --seeds 20 --estimator-frames 400``;
+    the horizontal drift and floor: ``capataz bench consistency --fit-drift --seeds 20``); :data:`AS_FILTERED`
+    publishes the filter's covariance as it is."""
 
     #: nominal horizontal drift of the VO as a fraction of the distance travelled (fit: 0 beside
     #: ``drift_per_pair``; it was 0.0002, which left paper C's position overconfident, mean NEES 3.9 of 2 on

@@ -29,7 +29,7 @@ import numpy as np
 
 from common.consistency import consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
-from services.tools.bench import yaw_variance_fit
+from services.tools.bench import estimator_drift_fit, yaw_variance_fit
 from services.tools.bench.consistency_runs import (
     DOF,
     FLIGHTS,
@@ -66,6 +66,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--fit-yaw", action="store_true",
         help="instead: fit the measured yaw pair's variance model on the fit seeds (maximum likelihood, "
         "a two-fold check within them) and print the constants (services/tools/bench/yaw_variance_fit.py)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--fit-drift", action="store_true",
+        help="instead: fit the estimator's published horizontal drift (per pair and height) and floor on "
+        "the fit seeds' flights (maximum likelihood, a two-fold check; bench/estimator_drift_fit.py)",
     )  # fmt: skip
 
 
@@ -111,6 +116,24 @@ def _fit_yaw(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     return {"json": result, "table": table}
 
 
+def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    result = estimator_drift_fit.fit(fit_seeds, args.estimator_frames, args.flights)
+    rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
+        (which, result[which], result[f"{which}_score"]) for which in ("fitted", "in_use")
+    ]
+    rows += [
+        (f"fit {f['fit_seeds'][0]}-{f['fit_seeds'][-1]}, scored on the others", f, f)
+        for f in result["two_fold"]
+    ]
+    table = [
+        {"model": model, "drift_per_pair": c["drift_per_pair"], "MIN_VAR_XY_M2": c["MIN_VAR_XY_M2"],
+         "flight": name, **score[name]}
+        for model, c, score in rows
+        for name in (args.flights or list(FLIGHTS))
+    ]  # fmt: skip
+    return {"json": result, "table": table}
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.quick:
         _quick(args)
@@ -121,6 +144,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     fit_seeds = list(range(args.seeds // 2))
     if args.fit_yaw:
         return _fit_yaw(fit_seeds, args)
+    if args.fit_drift:
+        return _fit_drift(fit_seeds, args)
     held_seeds = list(range(args.seeds // 2, args.seeds))
     groups: dict[str, Samples] = {"fit": {}, "held_out": {}}
     #: per group and line, each seed's samples (for the bounds over seeds)
