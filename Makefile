@@ -30,7 +30,7 @@ run: $(STAMP)
 
 # three test processes, each module kept whole in one (its fixtures, its cluster); TEST_WORKERS=0: one process.
 # Much of the suite waits on real clusters and flights at their frame rate: on two cores three processes
-# took 805 s where two took 982 s (1.7 cores busy); the suite also passes with two busy loops beside it.
+# took 769 s (a fresh clone) where two took 982 s; the suite also passes with two busy loops beside it.
 TEST_WORKERS ?= 3
 test: $(DEV)
 	$(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
