@@ -28,10 +28,11 @@ $(DEV): $(STAMP) services/ros2/tf2_msgs_build.py
 run: $(STAMP)
 	$(BIN)/capataz run
 
-# three test processes, each module kept whole in one (its fixtures, its cluster); TEST_WORKERS=0: one process.
-# Much of the suite waits on real clusters and flights at their frame rate: on two cores three processes
-# took 769 s (a fresh clone) where two took 982 s; the suite also passes with two busy loops beside it.
-TEST_WORKERS ?= 3
+# two test processes, each module kept whole in one (its fixtures, its cluster); TEST_WORKERS=0: one process.
+# Most of the suite waits on real clusters and flights at their frame rate, so two share two cores well.
+# Three were faster on two cores (769 s against 982 s in a fresh clone) but starved the localizer of the
+# whole-system test once (its pose/pf 0.19 m off, bound 0.10): kept at two until that holds under three.
+TEST_WORKERS ?= 2
 test: $(DEV)
 	$(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
 
