@@ -2,8 +2,8 @@
 
 The run length of the core's numpy transforms (:data:`~common.yaw.correlation.FFT_RUN_PIXELS`) was chosen
 here. For each patch size a frame's worth of random windowed patches is transformed forward (real to half
-spectra) and back, one thread: ``batch`` is one ``numpy.fft.rfft2`` call over all patches, ``runs`` the same
-calls over the core's runs (:func:`~common.yaw.correlation.run_slices`,
+spectra) and back, one thread: ``batch`` is one call of the core's numpy transforms over all patches, ``runs``
+the same calls over the core's runs (:func:`~common.yaw.correlation.run_slices`,
 :func:`~common.yaw.correlation.fft_run` patches each), ``opencv`` a loop of ``cv2.dft`` (full spectra, the
 other backend). The variants take turns within each repeat (the shared host's load hits them alike); the table
 gives each one's median microseconds a patch over the repeats, the p95 over every timed call, and its time
@@ -43,11 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _transforms(size: int, patches: np.ndarray) -> dict[str, tuple[Callable[[], Any], Callable[[], Any]]]:
     """Each variant's (forward, inverse) over ``patches`` (n, size, size) float32."""
-    half = np.fft.rfft2(patches).astype(np.complex64)
+    half = forward_transform(patches, FftBackend.NUMPY)
     full = forward_transform(patches, FftBackend.OPENCV)
-
-    def batch_inverse() -> Any:
-        return np.fft.irfft2(half, s=(size, size)).astype(np.float32, copy=False)
 
     def runs_forward() -> Any:
         out = np.empty(half.shape, dtype=np.complex64)
@@ -62,7 +59,10 @@ def _transforms(size: int, patches: np.ndarray) -> dict[str, tuple[Callable[[], 
         return out
 
     return {
-        "batch": (lambda: np.fft.rfft2(patches).astype(np.complex64, copy=False), batch_inverse),
+        "batch": (
+            lambda: forward_transform(patches, FftBackend.NUMPY),
+            lambda: inverse_transform(half, size, FftBackend.NUMPY),
+        ),
         "runs": (runs_forward, runs_inverse),
         "opencv": (
             lambda: forward_transform(patches, FftBackend.OPENCV),
