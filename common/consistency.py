@@ -154,25 +154,32 @@ def seed_bounds(
     return float(lower), float(upper)
 
 
-def fit_variance_terms(errors: npt.ArrayLike, terms: npt.ArrayLike) -> FloatArray:
-    """Coefficients ``c >= 0`` of a variance model ``var_i = sum_k c_k terms_ik`` by Gaussian maximum
-    likelihood on scalar ``errors`` (N,) with their ``terms`` (N, K): the minimum of ``sum_i log var_i +
-    e_i^2 / var_i`` over ``log c`` (Nelder-Mead). A model with one term gives ``mean(e^2 / term)``: a mean
-    NEES of 1 on the fitted samples."""
+def fit_variance_terms(
+    errors: npt.ArrayLike, terms: npt.ArrayLike, offset: npt.ArrayLike | None = None
+) -> FloatArray:
+    """Coefficients ``c >= 0`` of a variance model ``var_i = offset_i + sum_k c_k terms_ik`` by Gaussian
+    maximum likelihood on scalar ``errors`` (N,) with their ``terms`` (N, K) and a known part ``offset``
+    (N,; None: 0): the minimum of ``sum_i log var_i + e_i^2 / var_i`` over ``log c`` (Nelder-Mead). A model
+    with one term and no offset gives ``mean(e^2 / term)``: a mean NEES of 1 on the fitted samples."""
     e = np.asarray(errors, dtype=np.float64)
     f = np.asarray(terms, dtype=np.float64)
+    known = np.zeros(e.shape) if offset is None else np.asarray(offset, dtype=np.float64)
     if e.ndim != 1 or f.ndim != 2 or f.shape[0] != e.size or e.size == 0 or f.shape[1] == 0:
         raise InputError(f"need errors (N,) and terms (N, K), got {e.shape} and {f.shape}")
+    if known.shape != e.shape:
+        raise InputError(f"need an offset (N,) = {e.shape}, got {known.shape}")
     if not (np.all(np.isfinite(e)) and np.all(np.isfinite(f)) and np.all(f >= 0.0)):
         raise InputError("errors must be finite and terms finite and >= 0")
-    if np.any(f.sum(axis=1) <= 0.0) or np.any(f.sum(axis=0) <= 0.0):
-        raise InputError("every sample needs a positive term and every term a positive sample")
+    if not (np.all(np.isfinite(known)) and np.all(known >= 0.0)):
+        raise InputError("the offset must be finite and >= 0")
+    if np.any(known + f.sum(axis=1) <= 0.0) or np.any(f.sum(axis=0) <= 0.0):
+        raise InputError("every sample needs a positive term or offset and every term a positive sample")
     from scipy.optimize import minimize  # the one core function that needs it: imported where used
 
     e2 = e**2
 
     def nll(log_c: FloatArray) -> float:
-        var = f @ np.exp(log_c)
+        var = known + f @ np.exp(log_c)
         return float(np.sum(np.log(var) + e2 / var))
 
     # start from each term alone fitted to the whole error (a mean NEES of 1 per term), shared among terms

@@ -150,8 +150,25 @@ def test_the_variance_fit_finds_the_coefficients_that_made_the_errors(a: float, 
     assert one[0] == pytest.approx(np.mean(errors**2 / (terms[:, 0] + terms[:, 1])), rel=1e-3)
 
 
+@settings(max_examples=15, deadline=None)
+@given(a=st.floats(0.5, 5.0), known=st.floats(0.1, 1.0), seed=st.integers(0, 2**16))
+def test_the_variance_fit_with_a_known_part_finds_the_rest(a: float, known: float, seed: int) -> None:
+    """Errors drawn with variance ``offset + a f`` give back about ``a`` when the offset is given; fitted
+    without it, the term takes the offset's share too (the fit is larger)."""
+    rng = np.random.default_rng(seed)
+    term = rng.uniform(0.0, 2.0, (4000, 1))
+    offset = np.full(4000, known)
+    errors = rng.normal(0.0, np.sqrt(offset + a * term[:, 0]))
+    assert fit_variance_terms(errors, term, offset)[0] == pytest.approx(a, rel=0.25)
+    assert fit_variance_terms(errors, term)[0] > fit_variance_terms(errors, term, offset)[0]
+
+
 def test_the_variance_fit_refuses_what_it_cannot_fit() -> None:
     with pytest.raises(InputError):
         fit_variance_terms(np.ones(3), np.zeros((3, 2)))
     with pytest.raises(InputError):
         fit_variance_terms(np.ones(3), np.ones((2, 2)))
+    with pytest.raises(InputError):
+        fit_variance_terms(np.ones(3), np.ones((3, 1)), offset=np.ones(2))
+    with pytest.raises(InputError):
+        fit_variance_terms(np.ones(3), np.ones((3, 1)), offset=np.array([1.0, np.nan, 1.0]))

@@ -121,12 +121,25 @@ def test_the_angle_turned_adds_each_pairs_wrapped_yaw_change() -> None:
 
 def test_the_published_attitude_scales_the_tilt_and_adds_the_yaw_chains_drift() -> None:
     P = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 0.2], [0.5, 0.2, 1.0]]) * 1e-6
-    model = PublishedUncertainty(tilt_variance_scale=0.25, yaw_drift_per_rad=0.01)
+    model = PublishedUncertainty(tilt_variance_scale=0.25, yaw_drift_per_rad=0.01, yaw_floor_rad2=3e-6)
     published = published_attitude_covariance(P, 2.0, model)
     assert np.allclose(published[:2, :2], 0.25 * P[:2, :2])
     assert np.allclose(published[:2, 2], 0.5 * P[:2, 2])  # the correlations keep the correlation coefficient
-    assert published[2, 2] == pytest.approx(P[2, 2] + (0.01 * 2.0) ** 2)
+    assert published[2, 2] == pytest.approx(P[2, 2] + 3e-6 + (0.01 * 2.0) ** 2)
     assert np.array_equal(published_attitude_covariance(P, 2.0, AS_FILTERED), P)
+
+
+def test_the_published_yaw_after_two_turns_stays_near_the_chains_error_regression() -> None:
+    """The yaw drift was 0.008 rad per radian turned (fit on paper C's first 400 frames): after the flight's
+    two turns (12.6 rad) its yaw was published at a std of 5.8 deg where its error was 0.1-0.4 deg, and the
+    attitude's mean 3-dof NEES looked right only because this cautious yaw hid an overconfident tilt. Now
+    the whole flights fit it: a floor and a drift that keep the std within a few tenths of a degree."""
+    filter_yaw_var = math.radians(0.053) ** 2  # what the filter claims after the turns
+    P = np.diag([1e-6, 1e-6, filter_yaw_var])
+    published = published_attitude_covariance(P, 4.0 * math.pi, PublishedUncertainty())
+    yaw_std_deg = math.degrees(math.sqrt(published[2, 2]))
+    assert 0.1 < yaw_std_deg < 0.5
+    assert published[2, 2] > filter_yaw_var  # the chain's offset is on top of what the filter claims
 
 
 @given(

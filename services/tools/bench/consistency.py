@@ -29,7 +29,7 @@ import numpy as np
 
 from common.consistency import consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
-from services.tools.bench import estimator_drift_fit, yaw_variance_fit
+from services.tools.bench import estimator_attitude_fit, estimator_drift_fit, yaw_variance_fit
 from services.tools.bench.consistency_runs import (
     DOF,
     FLIGHTS,
@@ -71,6 +71,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--fit-drift", action="store_true",
         help="instead: fit the estimator's published horizontal drift (per pair and height) and floor on "
         "the fit seeds' flights (maximum likelihood, a two-fold check; bench/estimator_drift_fit.py)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--fit-attitude", action="store_true",
+        help="instead: fit the estimator's published tilt scale and yaw floor and drift on the fit seeds' "
+        "flights (maximum likelihood, a two-fold check; bench/estimator_attitude_fit.py)",
     )  # fmt: skip
 
 
@@ -134,6 +139,28 @@ def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]
     return {"json": result, "table": table}
 
 
+def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    result = estimator_attitude_fit.fit(fit_seeds, args.estimator_frames, args.flights)
+    rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
+        (f"fitted (yaw on {result['yaw_fitted_on']})", result["fitted"], result["fitted_score"]),
+        ("pooled yaw", result["pooled_yaw"], result["pooled_yaw_score"]),
+        ("in use", result["in_use"], result["in_use_score"]),
+    ]
+    rows += [
+        (f"fit {f['fit_seeds'][0]}-{f['fit_seeds'][-1]}, scored on the others", f, f)
+        for f in result["two_fold"]
+    ]
+    table = [
+        {"model": model, **{k: c[k] for k in estimator_attitude_fit.CONSTANTS},
+         "flight": name, "tilt_nees_per_axis": score["tilt"][name]["mean_nees"],
+         "tilt_in_2sd": score["tilt"][name]["within_2_sigma"], "yaw_nees": score["yaw"][name]["mean_nees"],
+         "yaw_in_2sd": score["yaw"][name]["within_2_sigma"]}
+        for model, c, score in rows
+        for name in (args.flights or list(FLIGHTS))
+    ]  # fmt: skip
+    return {"json": result, "table": table}
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.quick:
         _quick(args)
@@ -146,6 +173,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         return _fit_yaw(fit_seeds, args)
     if args.fit_drift:
         return _fit_drift(fit_seeds, args)
+    if args.fit_attitude:
+        return _fit_attitude(fit_seeds, args)
     held_seeds = list(range(args.seeds // 2, args.seeds))
     groups: dict[str, Samples] = {"fit": {}, "held_out": {}}
     #: per group and line, each seed's samples (for the bounds over seeds)

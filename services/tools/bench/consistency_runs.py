@@ -127,6 +127,19 @@ def estimator_outputs(flight: Flight, frames: int | None) -> list[AttitudeOutput
     return outputs
 
 
+def attitude_errors(
+    flight: Flight, messages: list[AttitudeEstimate | PoseEstimate]
+) -> tuple[FloatArray, FloatArray]:
+    """World-frame error angles (N, 3) of every ``ATTITUDE_STRIDE``-th ``attitude`` message of ``messages``
+    against the flight's truth at its stamp, and the messages' covariances (N, 3, 3)."""
+    attitudes = [m for m in messages if isinstance(m, AttitudeEstimate)][::ATTITUDE_STRIDE]
+    imu = flight.imu
+    idx = np.searchsorted(imu.stamps_s, np.array([m.stamp_s for m in attitudes]) - 1e-9)
+    R_true = matrix_from_quaternion(imu.true_q_world_body[idx])
+    R_est = matrix_from_quaternion(np.array([m.q_world_body for m in attitudes]))
+    return world_error_angles(R_true, R_est), np.array([m.covariance for m in attitudes])
+
+
 def estimator_lines(
     name: str,
     flight: Flight,
@@ -137,14 +150,10 @@ def estimator_lines(
     out: Samples = {}
     defaults = EstimatorSettings()
     messages = published_messages(outputs, defaults.max_pair_s, model or defaults.published_uncertainty())
-    attitudes = [m for m in messages if isinstance(m, AttitudeEstimate)][::ATTITUDE_STRIDE]
-    imu = flight.imu
-    idx = np.searchsorted(imu.stamps_s, np.array([m.stamp_s for m in attitudes]) - 1e-9)
-    R_true = matrix_from_quaternion(imu.true_q_world_body[idx])
-    R_est = matrix_from_quaternion(np.array([m.q_world_body for m in attitudes]))
-    P = np.array([m.covariance for m in attitudes])
-    attitude_nees = normalised_errors_squared(world_error_angles(R_true, R_est), P)
-    _add(out, f"estimator attitude {name}", 3, attitude_nees)
+    angles, P = attitude_errors(flight, messages)
+    _add(out, f"estimator attitude {name}", 3, normalised_errors_squared(angles, P))
+    _add(out, f"estimator tilt {name}", 2, normalised_errors_squared(angles[:, :2], P[:, :2, :2]))
+    _add(out, f"estimator heading {name}", 1, normalised_errors_squared(angles[:, 2], P[:, 2, 2]))
     errors, covariances = [], []
     for message in messages:
         if not isinstance(message, PoseEstimate) or message.tracking_state != "tracking":
@@ -160,7 +169,8 @@ def estimator_lines(
 
 
 def estimator_samples(seed: int, frames: int | None, flights: list[str] | None = None) -> Samples:
-    """The estimator lines of one seed: ``estimator attitude`` (3 dof), ``estimator position`` (3 dof,
+    """The estimator lines of one seed: ``estimator attitude`` (3 dof; its ``tilt``, world x and y, and its
+    ``heading``, world z, apart), ``estimator position`` (3 dof,
     tracking frames), ``estimator horizontal`` (x, y) and ``estimator altitude`` (z) per flight, each
     against the covariance of the message the service publishes
     (:class:`~services.estimator.outputs.Publication` with the default settings)."""

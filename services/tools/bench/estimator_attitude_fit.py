@@ -1,0 +1,164 @@
+"""The fit behind the estimator's published tilt and yaw (``capataz bench consistency --fit-attitude``).
+
+An ``attitude`` message's covariance is the filter's, with the tilt block (world x, y) times
+``tilt_variance_scale`` and the yaw variance plus ``yaw_floor_rad2 + (yaw_drift_per_rad * turned)^2``
+(:func:`services.estimator.outputs.published_attitude_covariance`). Each attitude's terms are read from two
+publications of the same outputs: with the tilt scale 1, no floor and the yaw drift 1 and 0 (the difference
+of their yaw variances is ``turned^2``). :func:`common.consistency.fit_variance_terms` then fits, by maximum
+likelihood on the fit seeds' whole flights:
+
+- the tilt scale on the x and y errors of both flights together (one term: the filter's tilt variance);
+- the yaw's floor and drift on each flight alone, the filter's yaw variance a known part. The constants in
+  use are the fit of the flight that needs the larger variance (summed over every flight's samples): one
+  flight's yaw errors can be several times another's, and a pooled fit would publish the first's yaw
+  overconfident; the pooled fit is reported beside it.
+
+A two-fold split of the fit seeds says how well each carries to seeds it was not fitted on. The held-out
+seeds stay for ``bench consistency`` itself.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from common.consistency import consistency, fit_variance_terms
+from common.estimation.coupling_types import AttitudeOutput, PoseOutput
+from common.sim.flight import Flight
+from common.types import FloatArray
+from services.estimator.outputs import PublishedUncertainty
+from services.estimator.settings import EstimatorSettings
+from services.tools.bench.consistency_runs import (
+    FLIGHTS,
+    attitude_errors,
+    estimator_outputs,
+    published_messages,
+)
+
+logger = logging.getLogger(__name__)
+
+#: the yaw floor's term is this many rad^2 per unit coefficient (so the coefficients are of like size)
+FLOOR_UNIT_RAD2 = 1e-6
+#: the fitted constants' names (fields of :class:`~services.estimator.outputs.PublishedUncertainty`)
+CONSTANTS = ("tilt_variance_scale", "yaw_drift_per_rad", "yaw_floor_rad2")
+
+
+def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) -> dict[str, FloatArray]:
+    """One flight's attitude errors and terms: ``tilt_errors`` (2N,: x then y) with ``tilt_terms`` (2N, 1,
+    the filter's variances), ``yaw_errors`` (N,) with ``yaw_terms`` (N, 2: ``turned^2`` in rad^2 and the
+    floor's unit) and ``yaw_offset`` (N,: the filter's yaw variance)."""
+    settings = EstimatorSettings()
+    unit = replace(
+        settings.published_uncertainty(), tilt_variance_scale=1.0, yaw_floor_rad2=0.0, yaw_drift_per_rad=1.0
+    )
+    (angles, P1), (_, P0) = (
+        attitude_errors(flight, published_messages(produced, settings.max_pair_s, model))
+        for model in (unit, replace(unit, yaw_drift_per_rad=0.0))
+    )
+    turned2 = np.maximum(P1[:, 2, 2] - P0[:, 2, 2], 0.0)
+    return {
+        "tilt_errors": np.concatenate([angles[:, 0], angles[:, 1]]),
+        "tilt_terms": np.concatenate([P0[:, 0, 0], P0[:, 1, 1]])[:, None],
+        "yaw_errors": angles[:, 2],
+        "yaw_terms": np.column_stack([turned2, np.full(turned2.size, FLOOR_UNIT_RAD2)]),
+        "yaw_offset": P0[:, 2, 2],
+    }
+
+
+def attitude_terms(seed: int, frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
+    """:func:`flight_terms` of each flight of one seed (its first ``frames`` frames; None: all)."""
+    out: dict[str, Any] = {}
+    for name in flights or list(FLIGHTS):
+        flight = FLIGHTS[name](seed)
+        out[name] = flight_terms(flight, estimator_outputs(flight, frames))
+        logger.info("estimator attitude fit: seed %d %s done", seed, name)
+    return out
+
+
+PerSeed = dict[int, dict[str, dict[str, FloatArray]]]
+
+
+def _stack(per_seed: PerSeed, seeds: list[int], flights: list[str], part: str) -> list[FloatArray]:
+    keys = [f"{part}_errors", f"{part}_terms"] + (["yaw_offset"] if part == "yaw" else [])
+    return [np.concatenate([per_seed[s][n][k] for s in seeds for n in flights]) for k in keys]
+
+
+def _variance(part: str, stacked: list[FloatArray], c: FloatArray) -> FloatArray:
+    var: FloatArray = stacked[1] @ c
+    return var + stacked[2] if part == "yaw" else var
+
+
+def _score(per_seed: PerSeed, seeds: list[int], part: str, c: FloatArray) -> dict[str, Any]:
+    """Per flight: the mean NEES per axis (tilt: of x and y each) and the share within 2 sigma."""
+    scores: dict[str, Any] = {}
+    for name in next(iter(per_seed.values())):
+        stacked = _stack(per_seed, seeds, [name], part)
+        scored = consistency(stacked[0] ** 2 / _variance(part, stacked, c), dof=1)
+        scores[name] = {
+            "mean_nees": round(scored.nees_mean, 3),
+            "within_2_sigma": round(scored.within_2_sigma, 4),
+        }
+    return scores
+
+
+def _fit(per_seed: PerSeed, seeds: list[int], part: str, flights: list[str]) -> FloatArray:
+    stacked = _stack(per_seed, seeds, flights, part)
+    return fit_variance_terms(stacked[0], stacked[1], stacked[2] if part == "yaw" else None)
+
+
+def cautious_yaw_fit(per_seed: PerSeed, seeds: list[int]) -> tuple[str, FloatArray]:
+    """The yaw fit of the flight whose constants give the larger variance over every flight's samples."""
+    flights = list(next(iter(per_seed.values())))
+    everything = _stack(per_seed, seeds, flights, "yaw")
+    fits = {name: _fit(per_seed, seeds, "yaw", [name]) for name in flights}
+    name = max(fits, key=lambda n: float(np.sum(_variance("yaw", everything, fits[n]))))
+    return name, fits[name]
+
+
+def constants(tilt: FloatArray, yaw: FloatArray) -> dict[str, float]:
+    """Fitted coefficients in ``services/estimator/outputs.py``'s units."""
+    values = (tilt[0], math.sqrt(float(yaw[0])), yaw[1] * FLOOR_UNIT_RAD2)
+    return {name: float(f"{value:.3g}") for name, value in zip(CONSTANTS, values, strict=True)}
+
+
+def _scores(per_seed: PerSeed, seeds: list[int], tilt: FloatArray, yaw: FloatArray) -> dict[str, Any]:
+    return {"tilt": _score(per_seed, seeds, "tilt", tilt), "yaw": _score(per_seed, seeds, "yaw", yaw)}
+
+
+def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
+    """Fit on ``seeds``; score the fit, the constants in use, the pooled yaw fit and a two-fold split."""
+    per_seed: PerSeed = {seed: attitude_terms(seed, frames, flights) for seed in seeds}
+    names = list(next(iter(per_seed.values())))
+    tilt = _fit(per_seed, seeds, "tilt", names)
+    yaw_flight, yaw = cautious_yaw_fit(per_seed, seeds)
+    pooled = _fit(per_seed, seeds, "yaw", names)
+    model = PublishedUncertainty()
+    in_use = (
+        np.array([model.tilt_variance_scale]),
+        np.array([model.yaw_drift_per_rad**2, model.yaw_floor_rad2 / FLOOR_UNIT_RAD2]),
+    )
+    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
+    folds = []
+    if all(halves):
+        for train, test in (halves, halves[::-1]):
+            c_tilt, (_, c_yaw) = _fit(per_seed, train, "tilt", names), cautious_yaw_fit(per_seed, train)
+            folds.append({
+                "fit_seeds": train, "scored_seeds": test, **constants(c_tilt, c_yaw),
+                **_scores(per_seed, test, c_tilt, c_yaw),
+            })  # fmt: skip
+    return {
+        "seeds": seeds,
+        "frames": frames,
+        "yaw_fitted_on": yaw_flight,
+        "fitted": constants(tilt, yaw),
+        "fitted_score": _scores(per_seed, seeds, tilt, yaw),
+        "pooled_yaw": constants(tilt, pooled),
+        "pooled_yaw_score": _scores(per_seed, seeds, tilt, pooled),
+        "in_use": constants(*in_use),
+        "in_use_score": _scores(per_seed, seeds, *in_use),
+        "two_fold": folds,
+    }
