@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 
@@ -51,6 +52,8 @@ logger = logging.getLogger(__name__)
 #: NEES per line of one seed, and each line's degrees of freedom.
 Samples = dict[str, list[float]]
 DOF: dict[str, int] = {}
+
+T = TypeVar("T")
 
 #: Every n-th attitude output (400 Hz IMU -> 20 Hz, the frame rate).
 ATTITUDE_STRIDE = 20
@@ -138,6 +141,22 @@ def attitude_errors(
     R_true = matrix_from_quaternion(imu.true_q_world_body[idx])
     R_est = matrix_from_quaternion(np.array([m.q_world_body for m in attitudes]))
     return world_error_angles(R_true, R_est), np.array([m.covariance for m in attitudes])
+
+
+def per_flight(
+    seed: int,
+    frames: int | None,
+    flights: list[str] | None,
+    read: Callable[[Flight, list[AttitudeOutput | PoseOutput]], T],
+) -> dict[str, T]:
+    """``read(flight, outputs)`` of each flight of one seed (the proposal's outputs over its first ``frames``
+    frames; None: all)."""
+    out: dict[str, T] = {}
+    for name in flights or list(FLIGHTS):
+        flight = FLIGHTS[name](seed)
+        out[name] = read(flight, estimator_outputs(flight, frames))
+        logger.info("estimator seed %d %s read", seed, name)
+    return out
 
 
 def estimator_lines(

@@ -19,7 +19,6 @@ seeds stay for ``bench consistency`` itself.
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import replace
 from typing import Any
@@ -33,13 +32,10 @@ from common.types import FloatArray
 from services.estimator.outputs import PublishedUncertainty
 from services.estimator.settings import EstimatorSettings
 from services.tools.bench.consistency_runs import (
-    FLIGHTS,
     attitude_errors,
-    estimator_outputs,
+    per_flight,
     published_messages,
 )
-
-logger = logging.getLogger(__name__)
 
 #: the yaw floor's term is this many rad^2 per unit coefficient (so the coefficients are of like size)
 FLOOR_UNIT_RAD2 = 1e-6
@@ -67,16 +63,6 @@ def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) ->
         "yaw_terms": np.column_stack([turned2, np.full(turned2.size, FLOOR_UNIT_RAD2)]),
         "yaw_offset": P0[:, 2, 2],
     }
-
-
-def attitude_terms(seed: int, frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
-    """:func:`flight_terms` of each flight of one seed (its first ``frames`` frames; None: all)."""
-    out: dict[str, Any] = {}
-    for name in flights or list(FLIGHTS):
-        flight = FLIGHTS[name](seed)
-        out[name] = flight_terms(flight, estimator_outputs(flight, frames))
-        logger.info("estimator attitude fit: seed %d %s done", seed, name)
-    return out
 
 
 PerSeed = dict[int, dict[str, dict[str, FloatArray]]]
@@ -131,7 +117,7 @@ def _scores(per_seed: PerSeed, seeds: list[int], tilt: FloatArray, yaw: FloatArr
 
 def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
     """Fit on ``seeds``; score the fit, the constants in use, the pooled yaw fit and a two-fold split."""
-    per_seed: PerSeed = {seed: attitude_terms(seed, frames, flights) for seed in seeds}
+    per_seed: PerSeed = {seed: per_flight(seed, frames, flights, flight_terms) for seed in seeds}
     names = list(next(iter(per_seed.values())))
     tilt = _fit(per_seed, seeds, "tilt", names)
     yaw_flight, yaw = cautious_yaw_fit(per_seed, seeds)

@@ -12,7 +12,6 @@ carries to seeds it was not fitted on. The held-out seeds stay for ``bench consi
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import replace
 from typing import Any
@@ -26,9 +25,7 @@ from common.types import FloatArray
 from common.wire.messages import PoseEstimate
 from services.estimator import outputs
 from services.estimator.settings import EstimatorSettings
-from services.tools.bench.consistency_runs import FLIGHTS, estimator_outputs, published_messages
-
-logger = logging.getLogger(__name__)
+from services.tools.bench.consistency_runs import per_flight, published_messages
 
 #: the floor's term is this many m^2 per unit coefficient (so the two coefficients are of like size)
 FLOOR_UNIT_M2 = 1e-6
@@ -57,16 +54,6 @@ def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) ->
     error = (p - flight.p_world_body_m[k])[plain, :2]
     terms = np.column_stack([var1 - var0, np.full(var1.size, FLOOR_UNIT_M2)])[plain]
     return {"errors": error.T.ravel(), "terms": np.vstack([terms, terms]), "left_out": int(np.sum(~plain))}
-
-
-def pose_terms(seed: int, frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
-    """:func:`flight_terms` of each flight of one seed (its first ``frames`` frames; None: all)."""
-    out: dict[str, Any] = {}
-    for name in flights or list(FLIGHTS):
-        flight = FLIGHTS[name](seed)
-        out[name] = flight_terms(flight, estimator_outputs(flight, frames))
-        logger.info("estimator drift fit: seed %d %s done", seed, name)
-    return out
 
 
 def _score(per_seed: dict[int, dict[str, Any]], seeds: list[int], c: FloatArray) -> dict[str, Any]:
@@ -102,7 +89,7 @@ def constants(c: FloatArray) -> dict[str, float]:
 
 def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
     """Fit on ``seeds``; score the fit, the constants in use, and a two-fold split of the seeds."""
-    per_seed = {seed: pose_terms(seed, frames, flights) for seed in seeds}
+    per_seed = {seed: per_flight(seed, frames, flights, flight_terms) for seed in seeds}
     fitted = fit_variance_terms(*_stack(per_seed, seeds))
     in_use = np.array(
         [outputs.PublishedUncertainty().drift_per_pair ** 2, outputs.MIN_VAR_XY_M2 / FLOOR_UNIT_M2]
