@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from common.consistency import (
@@ -139,9 +139,13 @@ def test_seed_bounds_need_two_runs_and_a_probability() -> None:
 @settings(max_examples=15, deadline=None)
 @given(a=st.floats(0.2, 5.0), b=st.floats(0.2, 5.0), seed=st.integers(0, 2**16))
 def test_the_variance_fit_finds_the_coefficients_that_made_the_errors(a: float, b: float, seed: int) -> None:
-    """``fit_variance_terms``: errors drawn with variance ``a f1 + b f2`` give back about ``a`` and ``b``."""
+    """``fit_variance_terms``: errors drawn with variance ``a f1 + b f2`` give back about ``a`` and ``b``.
+    Regression: with 4,000 samples and ratios up to 25, ``a`` 3 and ``b`` 1 at seed 2264 gave ``b`` 0.79 (a
+    draw 2.7 standard errors off: the test failed on its sample, not on the fit). With 20,000 samples and
+    ``a / b`` within 5, the worst of 150 seeds at the ends was 9 % off."""
+    assume(max(a, b) <= 5.0 * min(a, b))
     rng = np.random.default_rng(seed)
-    terms = np.column_stack([rng.uniform(0.0, 1.0, 4000), rng.choice([0.0, 1.0], 4000)])
+    terms = np.column_stack([rng.uniform(0.0, 1.0, 20_000), rng.choice([0.0, 1.0], 20_000)])
     terms[terms.sum(axis=1) == 0.0, 0] = 0.5
     errors = rng.normal(0.0, np.sqrt(terms @ np.array([a, b])))
     fitted = fit_variance_terms(errors, terms)
@@ -156,8 +160,8 @@ def test_the_variance_fit_with_a_known_part_finds_the_rest(a: float, known: floa
     """Errors drawn with variance ``offset + a f`` give back about ``a`` when the offset is given; fitted
     without it, the term takes the offset's share too (the fit is larger)."""
     rng = np.random.default_rng(seed)
-    term = rng.uniform(0.0, 2.0, (4000, 1))
-    offset = np.full(4000, known)
+    term = rng.uniform(0.0, 2.0, (10_000, 1))
+    offset = np.full(10_000, known)
     errors = rng.normal(0.0, np.sqrt(offset + a * term[:, 0]))
     assert fit_variance_terms(errors, term, offset)[0] == pytest.approx(a, rel=0.25)
     assert fit_variance_terms(errors, term)[0] > fit_variance_terms(errors, term, offset)[0]
