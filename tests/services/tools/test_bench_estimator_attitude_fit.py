@@ -44,7 +44,7 @@ def test_the_terms_read_per_attitude_rebuild_the_published_tilt_and_yaw_variance
 def test_the_attitude_fit_writes_its_constants_and_a_two_fold_check(tmp_path: Path) -> None:
     code = main([
         "bench", "--out", str(tmp_path), "consistency", "--fit-attitude", "--seeds", "4",
-        "--estimator-frames", "200",
+        "--estimator-frames", "120",
     ])  # fmt: skip
     assert code in (0, None)
     result = json.loads((tmp_path / "consistency.json").read_text())
