@@ -159,6 +159,19 @@ def per_flight(
     return out
 
 
+def tracked_poses(messages: list[AttitudeEstimate | PoseEstimate]) -> list[PoseEstimate]:
+    """The ``pose/vo`` messages of ``messages`` whose pair tracked."""
+    return [m for m in messages if isinstance(m, PoseEstimate) and m.tracking_state == "tracking"]
+
+
+def position_errors(flight: Flight, poses: list[PoseEstimate]) -> tuple[FloatArray, FloatArray]:
+    """Position errors (N, 3) of ``poses`` against the flight's truth at their frames, and their
+    covariances' position blocks (N, 3, 3)."""
+    k = np.searchsorted(flight.frame_stamps_s, np.array([m.stamp_s for m in poses]) - 1e-9)
+    errors = np.array([m.p_world_body_m for m in poses]).reshape(-1, 3) - flight.p_world_body_m[k]
+    return errors, np.array([np.asarray(m.covariance)[:3, :3] for m in poses]).reshape(-1, 3, 3)
+
+
 def estimator_lines(
     name: str,
     flight: Flight,
@@ -173,14 +186,7 @@ def estimator_lines(
     _add(out, f"estimator attitude {name}", 3, normalised_errors_squared(angles, P))
     _add(out, f"estimator tilt {name}", 2, normalised_errors_squared(angles[:, :2], P[:, :2, :2]))
     _add(out, f"estimator heading {name}", 1, normalised_errors_squared(angles[:, 2], P[:, 2, 2]))
-    errors, covariances = [], []
-    for message in messages:
-        if not isinstance(message, PoseEstimate) or message.tracking_state != "tracking":
-            continue
-        k = int(np.searchsorted(flight.frame_stamps_s, message.stamp_s - 1e-9))
-        errors.append(np.asarray(message.p_world_body_m) - flight.p_world_body_m[k])
-        covariances.append(np.asarray(message.covariance)[:3, :3])
-    e, C = np.array(errors), np.array(covariances)
+    e, C = position_errors(flight, tracked_poses(messages))
     _add(out, f"estimator position {name}", 3, normalised_errors_squared(e, C))
     _add(out, f"estimator horizontal {name}", 2, normalised_errors_squared(e[:, :2], C[:, :2, :2]))
     _add(out, f"estimator altitude {name}", 1, normalised_errors_squared(e[:, 2], C[:, 2, 2]))

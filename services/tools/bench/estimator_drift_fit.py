@@ -22,17 +22,17 @@ from common.consistency import consistency, fit_variance_terms
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.sim.flight import Flight
 from common.types import FloatArray
-from common.wire.messages import PoseEstimate
 from services.estimator import outputs
 from services.estimator.settings import EstimatorSettings
-from services.tools.bench.consistency_runs import per_flight, published_messages
+from services.tools.bench.consistency_runs import (
+    per_flight,
+    position_errors,
+    published_messages,
+    tracked_poses,
+)
 
 #: the floor's term is this many m^2 per unit coefficient (so the two coefficients are of like size)
 FLOOR_UNIT_M2 = 1e-6
-
-
-def _tracked(messages: list[Any]) -> list[PoseEstimate]:
-    return [m for m in messages if isinstance(m, PoseEstimate) and m.tracking_state == "tracking"]
 
 
 def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) -> dict[str, Any]:
@@ -43,15 +43,13 @@ def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) ->
         settings.published_uncertainty(), drift_fraction=0.0, level_tilt_factor=0.0, drift_per_pair=1.0
     )
     with_drift, without = (
-        _tracked(published_messages(produced, settings.max_pair_s, model))
+        tracked_poses(published_messages(produced, settings.max_pair_s, model))
         for model in (unit, replace(unit, drift_per_pair=0.0))
     )
     var1 = np.array([m.covariance[0, 0] for m in with_drift])
     var0 = np.array([m.covariance[0, 0] for m in without])
     plain = np.isclose(var0, outputs.MIN_VAR_XY_M2, rtol=1e-9, atol=0.0)  # no unseen motion
-    k = np.searchsorted(flight.frame_stamps_s, np.array([m.stamp_s for m in with_drift]) - 1e-9)
-    p = np.array([m.p_world_body_m for m in with_drift])
-    error = (p - flight.p_world_body_m[k])[plain, :2]
+    error = position_errors(flight, with_drift)[0][plain, :2]
     terms = np.column_stack([var1 - var0, np.full(var1.size, FLOOR_UNIT_M2)])[plain]
     return {"errors": error.T.ravel(), "terms": np.vstack([terms, terms]), "left_out": int(np.sum(~plain))}
 
