@@ -194,11 +194,10 @@ def estimator_lines(
 
 
 def estimator_samples(seed: int, frames: int | None, flights: list[str] | None = None) -> Samples:
-    """The estimator lines of one seed: ``estimator attitude`` (3 dof; its ``tilt``, world x and y, and its
-    ``heading``, world z, apart), ``estimator position`` (3 dof,
-    tracking frames), ``estimator horizontal`` (x, y) and ``estimator altitude`` (z) per flight, each
-    against the covariance of the message the service publishes
-    (:class:`~services.estimator.outputs.Publication` with the default settings)."""
+    """The estimator lines of one seed, per flight: ``estimator attitude`` (3 dof), its ``tilt`` (world x
+    and y) and its ``heading`` (world z) apart, ``estimator position`` (3 dof, tracking frames), ``estimator
+    horizontal`` (x, y) and ``estimator altitude`` (z), each against the covariance of the message the
+    service publishes (:class:`~services.estimator.outputs.Publication` with the default settings)."""
     out: Samples = {}
     for name in flights or list(FLIGHTS):
         flight = FLIGHTS[name](seed)
