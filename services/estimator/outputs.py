@@ -140,16 +140,16 @@ def advance_path(path: VoPath, out: PoseOutput, max_pair_s: float = math.inf) ->
         return VoPath(xy, out.stamp_s, last_vo_yaw_rad=yaw, turned_rad=turned)
     dt_s = out.stamp_s - path.last_stamp_s
     step_m = float(np.linalg.norm(xy - path.last_xy_m))
+    moved = replace(path, last_xy_m=xy, last_stamp_s=out.stamp_s, travelled_m=path.travelled_m + step_m,
+                    last_vo_yaw_rad=yaw, turned_rad=turned)  # fmt: skip
     if not out.ok:
-        unseen = path.unseen_var_m2 + (path.speed_m_s * dt_s) ** 2
-        return replace(path, last_xy_m=xy, last_stamp_s=out.stamp_s, travelled_m=path.travelled_m + step_m,
-                       unseen_var_m2=unseen, last_vo_yaw_rad=yaw, turned_rad=turned)  # fmt: skip
-    speed = step_m / dt_s if dt_s > 0.0 else path.speed_m_s
-    unseen = path.unseen_var_m2 + ((WIDE_PAIR_FRACTION * step_m) ** 2 if dt_s > max_pair_s else 0.0)
-    height_sum = path.height_sum_m + abs(float(out.p_world_body_m[2]))
-    return replace(path, last_xy_m=xy, last_stamp_s=out.stamp_s, travelled_m=path.travelled_m + step_m,
-                   speed_m_s=speed, unseen_var_m2=unseen, last_vo_yaw_rad=yaw, turned_rad=turned,
-                   height_sum_m=height_sum)  # fmt: skip
+        return replace(moved, unseen_var_m2=path.unseen_var_m2 + (path.speed_m_s * dt_s) ** 2)
+    return replace(
+        moved,
+        speed_m_s=step_m / dt_s if dt_s > 0.0 else path.speed_m_s,
+        unseen_var_m2=path.unseen_var_m2 + ((WIDE_PAIR_FRACTION * step_m) ** 2 if dt_s > max_pair_s else 0.0),
+        height_sum_m=path.height_sum_m + abs(float(out.p_world_body_m[2])),
+    )
 
 
 def horizontal_variance(path: VoPath, model: PublishedUncertainty) -> float:
