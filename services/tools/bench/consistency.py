@@ -110,14 +110,16 @@ def _summary(samples: Samples, runs: dict[str, list[list[float]]]) -> dict[str, 
     return out
 
 
+def _fold_label(fold: dict[str, Any]) -> str:
+    """A two-fold row's name: which fit seeds it was fitted on (it is scored on the others)."""
+    return f"fit {fold['fit_seeds'][0]}-{fold['fit_seeds'][-1]}, scored on the others"
+
+
 def _fit_yaw(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     result = yaw_variance_fit.fit(fit_seeds, args.field_frames, args.scenarios)
     table = [
         {"model": which, **result[which], **result[f"{which}_score"]} for which in ("fitted", "in_use")
-    ] + [
-        {"model": f"fit {f['fit_seeds'][0]}-{f['fit_seeds'][-1]}, scored on the others", **f}
-        for f in result["two_fold"]
-    ]
+    ] + [{"model": _fold_label(f), **f} for f in result["two_fold"]]
     return {"json": result, "table": table}
 
 
@@ -126,10 +128,7 @@ def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]
     rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         (which, result[which], result[f"{which}_score"]) for which in ("fitted", "in_use")
     ]
-    rows += [
-        (f"fit {f['fit_seeds'][0]}-{f['fit_seeds'][-1]}, scored on the others", f, f)
-        for f in result["two_fold"]
-    ]
+    rows += [(_fold_label(f), f, f) for f in result["two_fold"]]
     table = [
         {"model": model, "drift_per_pair": c["drift_per_pair"], "MIN_VAR_XY_M2": c["MIN_VAR_XY_M2"],
          "flight": name, **score[name]}
@@ -146,10 +145,7 @@ def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, A
         ("pooled yaw", result["pooled_yaw"], result["pooled_yaw_score"]),
         ("in use", result["in_use"], result["in_use_score"]),
     ]
-    rows += [
-        (f"fit {f['fit_seeds'][0]}-{f['fit_seeds'][-1]}, scored on the others", f, f)
-        for f in result["two_fold"]
-    ]
+    rows += [(_fold_label(f), f, f) for f in result["two_fold"]]
     table = [
         {"model": model, **{k: c[k] for k in estimator_attitude_fit.CONSTANTS},
          "flight": name, "tilt_nees_per_axis": score["tilt"][name]["mean_nees"],
