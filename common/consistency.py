@@ -15,6 +15,14 @@ its true spread. Shares below the normal's say the covariance is overconfident, 
 :func:`seed_bounds` gives the spread such a mean really has over independent runs (seeds): the bootstrap
 over whole runs (a block bootstrap with a run as the block; Efron and Tibshirani, *An Introduction to the
 Bootstrap*, 1993), which keeps each run's correlation.
+
+:func:`ensemble_consistency` is the chi-square test these bounds come from, as it is meant for correlated
+series (Bar-Shalom, Li and Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001,
+sec. 5.4.2): at each time step ``k`` the average NEES over ``N`` independent runs (seeds),
+``ANEES_k = (1/N) sum_i NEES_ik``, is ``1/N`` times chi-square of ``N d`` degrees of freedom for an honest
+estimator, so about 95 % of the steps fall within their two-sided 95 % bounds (:func:`nees_bounds` of ``N``
+samples); steps above them say overconfident, below them cautious. Runs are independent; a run's steps
+need not be.
 """
 
 from __future__ import annotations
@@ -126,6 +134,60 @@ def error_consistency(errors: npt.ArrayLike, covariances: npt.ArrayLike) -> Cons
     e = np.asarray(errors, dtype=np.float64)
     dof = 1 if e.ndim == 1 else int(e.shape[1])
     return consistency(normalised_errors_squared(e, covariances), dof)
+
+
+@dataclass(frozen=True)
+class EnsembleConsistency:
+    """The per-step chi-square test over independent runs (:func:`ensemble_consistency`): how many steps had
+    at least ``min_runs`` runs, the median runs per step, and the shares of those steps whose average NEES
+    is within its two-sided bounds, above them (overconfident) and below them (cautious); NaN without
+    steps."""
+
+    steps: int
+    runs_median: float
+    within: float
+    above: float
+    below: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {
+            "steps": self.steps,
+            "runs_median": self.runs_median,
+            "within": self.within,
+            "above": self.above,
+            "below": self.below,
+        }
+
+
+def ensemble_consistency(
+    steps: Sequence[npt.ArrayLike],
+    dof: int,
+    min_runs: int = 2,
+    probability: float = NEES_BOUND_PROBABILITY,
+) -> EnsembleConsistency:
+    """Bar-Shalom's Monte Carlo NEES test (the module docstring): ``steps`` holds, for each time step, the
+    NEES of the independent runs that have a sample there (one per run; a step with fewer than ``min_runs``
+    is left out); each step's average NEES is compared with :func:`nees_bounds` of that many samples."""
+    if dof < 1 or min_runs < 1:
+        raise InputError(f"need dof >= 1 and min_runs >= 1, got {dof} and {min_runs}")
+    kept = [v for v in (np.asarray(s, dtype=np.float64).ravel() for s in steps) if v.size >= min_runs]
+    if any(np.any(np.isnan(v)) or np.any(v < 0.0) for v in kept):
+        raise InputError("NEES values must be >= 0 (inf allowed)")
+    if not kept:
+        nan = math.nan
+        return EnsembleConsistency(0, nan, nan, nan, nan)
+    above = below = 0
+    bounds: dict[int, tuple[float, float]] = {}
+    for values in kept:
+        if values.size not in bounds:
+            bounds[values.size] = nees_bounds(int(values.size), dof, probability)
+        lower, upper = bounds[values.size]
+        mean = float(np.mean(values))
+        above += mean > upper
+        below += mean < lower
+    n = len(kept)
+    runs = float(np.median([v.size for v in kept]))
+    return EnsembleConsistency(n, runs, (n - above - below) / n, above / n, below / n)
 
 
 def seed_bounds(

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from common.consistency import (
     NORMAL_SHARES,
     consistency,
+    ensemble_consistency,
     error_consistency,
     fit_variance_terms,
     nees_bounds,
@@ -176,3 +177,49 @@ def test_the_variance_fit_refuses_what_it_cannot_fit() -> None:
         fit_variance_terms(np.ones(3), np.ones((3, 1)), offset=np.ones(2))
     with pytest.raises(InputError):
         fit_variance_terms(np.ones(3), np.ones((3, 1)), offset=np.array([1.0, np.nan, 1.0]))
+
+
+def _runs(seed: int, runs: int, steps: int, dof: int, rho: float, scale: float = 1.0) -> list[np.ndarray]:
+    """NEES per step of ``runs`` independent runs whose errors are an AR(1) series of correlation ``rho``
+    per step (unit variance per component), against covariances ``scale**2`` times the truth; one array
+    per step, a value per run."""
+    rng = np.random.default_rng(seed)
+    e = np.empty((runs, steps, dof))
+    e[:, 0] = rng.normal(size=(runs, dof))
+    for k in range(1, steps):
+        e[:, k] = rho * e[:, k - 1] + math.sqrt(1.0 - rho**2) * rng.normal(size=(runs, dof))
+    nees = np.sum(e**2, axis=2) / scale**2
+    return [nees[:, k] for k in range(steps)]
+
+
+@pytest.mark.parametrize(("seed", "runs", "dof", "rho"), [(0, 10, 1, 0.0), (1, 10, 3, 0.8), (2, 5, 6, 0.5),
+                                                          (3, 20, 2, 0.8), (4, 8, 3, 0.3)])  # fmt: skip
+def test_honest_runs_correlated_in_time_pass_the_per_step_test(
+    seed: int, runs: int, dof: int, rho: float
+) -> None:
+    """About 95 % of the steps' average NEES within their bounds for honest errors, however correlated in
+    time; the pooled mean against the independent samples' bounds is no such test for them (its spread
+    grows with the correlation)."""
+    steps = _runs(seed, runs, 2000, dof, rho)
+    c = ensemble_consistency(steps, dof)
+    assert c.steps == 2000 and c.runs_median == runs
+    assert 0.9 <= c.within <= 0.99, c
+    assert c.within + c.above + c.below == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(("scale", "side"), [(0.6, "above"), (1.6, "below")])
+def test_overconfident_and_cautious_runs_fall_outside_on_their_side(scale: float, side: str) -> None:
+    c = ensemble_consistency(_runs(5, 10, 500, 3, 0.5, scale), 3)
+    assert getattr(c, side) > 0.5 and c.within < 0.5, c
+
+
+def test_the_per_step_test_leaves_out_thin_steps_and_refuses_bad_input() -> None:
+    c = ensemble_consistency([[1.0], [1.0, 2.0], [0.5, 1.5, 1.0]], 1)
+    assert c.steps == 2 and c.runs_median == 2.5
+    assert math.isnan(ensemble_consistency([[1.0]], 1).within)
+    assert ensemble_consistency([[1.0]], 1, min_runs=1).steps == 1
+    for bad in ([[1.0, math.nan]], [[-1.0, 1.0]]):
+        with pytest.raises(InputError):
+            ensemble_consistency(bad, 1)
+    with pytest.raises(InputError):
+        ensemble_consistency([[1.0, 1.0]], 0)

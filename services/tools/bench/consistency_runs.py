@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
+import numpy.typing as npt
 
 from common.consistency import normalised_errors_squared
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
@@ -49,8 +51,22 @@ from services.tools.bench.yaw_field import run_core
 
 logger = logging.getLogger(__name__)
 
-#: NEES per line of one seed, and each line's degrees of freedom.
-Samples = dict[str, list[float]]
+
+@dataclass
+class LineSamples:
+    """One line's NEES of one seed (or merged seeds), each with the label of its time step: the same
+    label in another seed is the same step of the same run (scenario, flight or scene and frame index)."""
+
+    nees: list[float] = field(default_factory=list)
+    steps: list[str] = field(default_factory=list)
+
+    def extend(self, other: LineSamples) -> None:
+        self.nees.extend(other.nees)
+        self.steps.extend(other.steps)
+
+
+#: The lines of one seed, and each line's degrees of freedom.
+Samples = dict[str, LineSamples]
 DOF: dict[str, int] = {}
 
 T = TypeVar("T")
@@ -59,9 +75,15 @@ T = TypeVar("T")
 ATTITUDE_STRIDE = 20
 
 
-def _add(out: Samples, line: str, dof: int, nees: FloatArray) -> None:
+def _add(out: Samples, line: str, dof: int, nees: FloatArray, run: str, steps: npt.ArrayLike) -> None:
+    """Add the ``nees`` of ``line`` at time ``steps`` (frame or pair indices) of ``run``."""
     DOF[line] = dof
-    out.setdefault(line, []).extend(float(v) for v in nees)
+    k = np.asarray(steps).ravel()
+    if k.size != np.asarray(nees).size:
+        raise ValueError(f"{line}: {np.asarray(nees).size} NEES for {k.size} steps")
+    samples = out.setdefault(line, LineSamples())
+    samples.nees.extend(float(v) for v in nees)
+    samples.steps.extend(f"{run}:{int(i)}" for i in k)
 
 
 def world_error_angles(R_true: FloatArray, R_estimated: FloatArray) -> FloatArray:
@@ -85,14 +107,16 @@ def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None) -> S
             error = wrap_angle_rad(np.asarray(series.delta_rad) - true_delta)
             nees = normalised_errors_squared(error, series.delta_variance_rad2)
             provenance = np.array([p.value for p in series.provenance])
+            pair = np.arange(len(provenance))
             for kind in Provenance:
                 chosen = provenance == kind.value
                 if np.any(chosen):
-                    _add(out, f"yaw pair {kind.value}{'' if gyro else ' (no imu)'}", 1, nees[chosen])
+                    line = f"yaw pair {kind.value}{'' if gyro else ' (no imu)'}"
+                    _add(out, line, 1, nees[chosen], name, pair[chosen])
             yaw = np.cumsum(series.delta_rad)
             accumulated = wrap_angle_rad(yaw - true_yaw[1:])
             line = f"yaw accumulated {'gyro' if gyro else 'no imu'}"
-            _add(out, line, 1, normalised_errors_squared(accumulated, series.yaw_variance_rad2))
+            _add(out, line, 1, normalised_errors_squared(accumulated, series.yaw_variance_rad2), name, pair)
         logger.info("yaw seed %d %s done", seed, name)
     return out
 
@@ -164,10 +188,15 @@ def tracked_poses(messages: list[AttitudeEstimate | PoseEstimate]) -> list[PoseE
     return [m for m in messages if isinstance(m, PoseEstimate) and m.tracking_state == "tracking"]
 
 
+def frame_indices(flight: Flight, poses: list[PoseEstimate]) -> npt.NDArray[np.intp]:
+    """The index of each of ``poses``' frames in ``flight``."""
+    return np.searchsorted(flight.frame_stamps_s, np.array([m.stamp_s for m in poses]) - 1e-9)
+
+
 def position_errors(flight: Flight, poses: list[PoseEstimate]) -> tuple[FloatArray, FloatArray]:
     """Position errors (N, 3) of ``poses`` against the flight's truth at their frames, and their
     covariances' position blocks (N, 3, 3)."""
-    k = np.searchsorted(flight.frame_stamps_s, np.array([m.stamp_s for m in poses]) - 1e-9)
+    k = frame_indices(flight, poses)
     errors = np.array([m.p_world_body_m for m in poses]).reshape(-1, 3) - flight.p_world_body_m[k]
     return errors, np.array([np.asarray(m.covariance)[:3, :3] for m in poses]).reshape(-1, 3, 3)
 
@@ -183,13 +212,16 @@ def estimator_lines(
     defaults = EstimatorSettings()
     messages = published_messages(outputs, defaults.max_pair_s, model or defaults.published_uncertainty())
     angles, P = attitude_errors(flight, messages)
-    _add(out, f"estimator attitude {name}", 3, normalised_errors_squared(angles, P))
-    _add(out, f"estimator tilt {name}", 2, normalised_errors_squared(angles[:, :2], P[:, :2, :2]))
-    _add(out, f"estimator heading {name}", 1, normalised_errors_squared(angles[:, 2], P[:, 2, 2]))
-    e, C = position_errors(flight, tracked_poses(messages))
-    _add(out, f"estimator position {name}", 3, normalised_errors_squared(e, C))
-    _add(out, f"estimator horizontal {name}", 2, normalised_errors_squared(e[:, :2], C[:, :2, :2]))
-    _add(out, f"estimator altitude {name}", 1, normalised_errors_squared(e[:, 2], C[:, 2, 2]))
+    k = np.arange(len(angles))  # every ATTITUDE_STRIDE-th IMU output: the same stamps in every seed
+    _add(out, f"estimator attitude {name}", 3, normalised_errors_squared(angles, P), name, k)
+    _add(out, f"estimator tilt {name}", 2, normalised_errors_squared(angles[:, :2], P[:, :2, :2]), name, k)
+    _add(out, f"estimator heading {name}", 1, normalised_errors_squared(angles[:, 2], P[:, 2, 2]), name, k)
+    poses = tracked_poses(messages)
+    e, C = position_errors(flight, poses)
+    k = frame_indices(flight, poses)
+    _add(out, f"estimator position {name}", 3, normalised_errors_squared(e, C), name, k)
+    _add(out, f"estimator horizontal {name}", 2, normalised_errors_squared(e[:, :2], C[:, :2, :2]), name, k)
+    _add(out, f"estimator altitude {name}", 1, normalised_errors_squared(e[:, 2], C[:, 2, 2]), name, k)
     return out
 
 
@@ -202,7 +234,7 @@ def estimator_samples(seed: int, frames: int | None, flights: list[str] | None =
     for name in flights or list(FLIGHTS):
         flight = FLIGHTS[name](seed)
         for line, values in estimator_lines(name, flight, estimator_outputs(flight, frames)).items():
-            out.setdefault(line, []).extend(values)
+            out.setdefault(line, LineSamples()).extend(values)
         logger.info("estimator seed %d %s done", seed, name)
     return out
 
@@ -227,23 +259,17 @@ def localizer_samples(seed: int, frames: int, scenes: list[str] | None = None) -
         )
         P = np.array([s.covariance for s in states])
         status = np.array([s.status.value for s in states])
+        frame = np.arange(n)
         for value in sorted(set(status.tolist())):
             chosen = status == value
-            _add(out, f"localizer {name} {value}", 6, normalised_errors_squared(error[chosen], P[chosen]))
+            nees = normalised_errors_squared(error[chosen], P[chosen])
+            _add(out, f"localizer {name} {value}", 6, nees, name, frame[chosen])
         tracking = status == "tracking"
         if np.any(tracking):
-            e, C = error[tracking], P[tracking]
-            _add(
-                out,
-                f"localizer {name} tracking position",
-                3,
-                normalised_errors_squared(e[:, :3], C[:, :3, :3]),
-            )
-            _add(
-                out,
-                f"localizer {name} tracking rotation",
-                3,
-                normalised_errors_squared(e[:, 3:], C[:, 3:, 3:]),
-            )
+            e, C, k = error[tracking], P[tracking], frame[tracking]
+            position = normalised_errors_squared(e[:, :3], C[:, :3, :3])
+            _add(out, f"localizer {name} tracking position", 3, position, name, k)
+            rotation = normalised_errors_squared(e[:, 3:], C[:, 3:, 3:])
+            _add(out, f"localizer {name} tracking rotation", 3, rotation, name, k)
         logger.info("localizer seed %d %s done", seed, name)
     return out

@@ -42,6 +42,13 @@ def test_bench_consistency_quick_writes_every_suites_lines(
         assert 0.0 <= c["within_1_sigma"] <= c["within_2_sigma"] <= c["within_3_sigma"] <= 1.0
         assert c["nees_lower"] < c["dof"] < c["nees_upper"]
         assert c["nees_within_bounds"] == (c["nees_lower"] <= c["nees_mean"] <= c["nees_upper"])
+        # one held-out seed: no step has two seeds, so no per-step test
+        assert c["steps_steps"] == 0 and c["meets_steps"] is False
+    # all seeds: the steps both seeds share (a step is a scenario's pair, a flight's output, a frame)
+    both = payload["lines"]["all"]["estimator attitude paper_c"]
+    assert both["steps_runs_median"] == 2 and both["steps_steps"] > 0
+    assert both["steps_within"] + both["steps_above"] + both["steps_below"] == pytest.approx(1.0)
+    assert both["meets_steps"] == (both["steps_within"] >= payload["target_steps_within"])
     # one held-out seed: its mean, no bounds over seeds; all seeds: two means and bounds between them
     measured = held["yaw pair measured"]
     assert len(measured["nees_per_seed"]) == 1 and measured["nees_seed_lower"] is None  # NaN in the file
@@ -65,6 +72,16 @@ def test_bench_consistency_needs_two_seeds() -> None:
         consistency.run(parser.parse_args(["--seeds", "1", "--suites", "yaw"]))
 
 
+def test_bench_consistency_takes_one_fit_at_a_time(capsys: pytest.CaptureFixture[str]) -> None:
+    """Regression: ``--fit-yaw --fit-attitude`` ran the first fit and silently dropped the second."""
+    parser = argparse.ArgumentParser()
+    consistency.add_arguments(parser)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--fit-yaw", "--fit-attitude"])
+    assert "not allowed with argument" in capsys.readouterr().err
+    assert parser.parse_args(["--fit-drift"]).fit_drift
+
+
 @pytest.mark.slow
 def test_the_estimators_published_covariances_are_honest_on_a_held_out_seed() -> None:
     """Seed 10 (held out: the published model was fit on seeds 0-9), 300 frames of each flight: the mean
@@ -80,14 +97,14 @@ def test_the_estimators_published_covariances_are_honest_on_a_held_out_seed() ->
         as_filtered = estimator_lines(name, flight, outputs, AS_FILTERED)
         for part, dof in (("attitude", 3), ("tilt", 2), ("position", 3)):
             line = f"estimator {part} {name}"
-            nees = float(np.mean(published[line]))
+            nees = float(np.mean(published[line].nees))
             assert dof / spread < nees < dof * spread, (line, nees)
             if name == "agile":
-                assert float(np.mean(as_filtered[line])) < dof / spread, line
+                assert float(np.mean(as_filtered[line].nees)) < dof / spread, line
         # the altitude (1 dof): the filter's variance was too cautious (mean NEES 0.64 and 0.67 here); the
         # fit seeds' per-seed means ranged 0.81-1.12
         line = f"estimator altitude {name}"
-        altitude, before = float(np.mean(published[line])), float(np.mean(as_filtered[line]))
+        altitude, before = float(np.mean(published[line].nees)), float(np.mean(as_filtered[line].nees))
         assert 0.7 < altitude < 1.5 and abs(math.log(altitude)) < abs(math.log(before)), (altitude, before)
 
 
@@ -98,5 +115,5 @@ def test_the_localizers_published_covariance_is_not_twice_too_cautious_on_a_held
     twice too cautious. Shrunk by 0.35 and scaled by 0.8 (fitted on seeds 0-9), 4.6-5.5 on every seed.
     Seed 12, held out; the office's per-seed means vary little (its path is the same for every seed)."""
     samples = localizer_samples(12, 150, ["office"])
-    nees = float(np.mean(samples["localizer office tracking"]))
+    nees = float(np.mean(samples["localizer office tracking"].nees))
     assert 4.0 < nees < 7.0, nees
