@@ -114,13 +114,18 @@ def nees_bounds(samples: int, dof: int, probability: float = NEES_BOUND_PROBABIL
     return chi_square_quantile(tail, total) / samples, chi_square_quantile(1.0 - tail, total) / samples
 
 
+def check_nees(values: FloatArray) -> None:
+    """Raise :class:`~common.errors.InputError` unless every NEES of ``values`` is >= 0 (inf allowed)."""
+    if np.any(np.isnan(values)) or np.any(values < 0.0):
+        raise InputError("NEES values must be >= 0 (inf allowed)")
+
+
 def consistency(nees: npt.ArrayLike, dof: int) -> Consistency:
     """Shares within 1, 2, 3 sigma and the mean NEES with its bounds, of NEES values of ``dof`` components."""
     values = np.asarray(nees, dtype=np.float64).ravel()
     if dof < 1:
         raise InputError(f"dof must be >= 1, got {dof}")
-    if values.size and (np.any(np.isnan(values)) or np.any(values < 0.0)):
-        raise InputError("NEES values must be >= 0 (inf allowed)")
+    check_nees(values)
     if values.size == 0:
         nan = math.nan
         return Consistency(0, dof, nan, nan, nan, nan, nan, nan)
@@ -171,8 +176,8 @@ def ensemble_consistency(
     if dof < 1 or min_runs < 1:
         raise InputError(f"need dof >= 1 and min_runs >= 1, got {dof} and {min_runs}")
     kept = [v for v in (np.asarray(s, dtype=np.float64).ravel() for s in steps) if v.size >= min_runs]
-    if any(np.any(np.isnan(v)) or np.any(v < 0.0) for v in kept):
-        raise InputError("NEES values must be >= 0 (inf allowed)")
+    for values in kept:
+        check_nees(values)
     if not kept:
         nan = math.nan
         return EnsembleConsistency(0, nan, nan, nan, nan)
