@@ -41,6 +41,7 @@ from services.tools.bench.consistency_runs import (
     Samples,
     estimator_samples,
     localizer_samples,
+    merge_samples,
     yaw_samples,
 )
 
@@ -96,11 +97,6 @@ def _quick(args: argparse.Namespace) -> None:
     args.flights = args.flights or ["paper_c"]
     args.localizer_frames = min(args.localizer_frames, 12)
     args.scenes = args.scenes or ["office"]
-
-
-def _merge(into: Samples, seed_samples: Samples) -> None:
-    for line, values in seed_samples.items():
-        into.setdefault(line, LineSamples()).extend(values)
 
 
 def _per_step(samples: LineSamples) -> list[list[float]]:
@@ -200,19 +196,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         name = "fit" if seed in fit_seeds else "held_out"
         seed_samples: Samples = {}
         if "yaw" in args.suites:
-            _merge(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios))
+            merge_samples(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios))
         if "estimator" in args.suites:
-            _merge(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights))
+            merge_samples(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights))
         if "localizer" in args.suites:
-            _merge(seed_samples, localizer_samples(seed, args.localizer_frames, args.scenes))
-        _merge(groups[name], seed_samples)
+            merge_samples(seed_samples, localizer_samples(seed, args.localizer_frames, args.scenes))
+        merge_samples(groups[name], seed_samples)
         for line, values in seed_samples.items():
             for kind in (name, "all"):
                 runs[kind].setdefault(line, []).append(values.nees)
         logger.info("consistency: seed %d done (%.0f s)", seed, time.perf_counter() - t0)
     every: Samples = {}
     for samples in groups.values():
-        _merge(every, samples)
+        merge_samples(every, samples)
     summaries = {kind: _summary(samples, runs[kind]) for kind, samples in (*groups.items(), ("all", every))}
     table = [
         {

@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TypeVar
 
 import numpy as np
@@ -68,6 +69,13 @@ class LineSamples:
 #: The lines of one seed, and each line's degrees of freedom.
 Samples = dict[str, LineSamples]
 DOF: dict[str, int] = {}
+
+
+def merge_samples(into: Samples, more: Samples) -> None:
+    """Add each line of ``more`` to ``into``'s."""
+    for line, values in more.items():
+        into.setdefault(line, LineSamples()).extend(values)
+
 
 T = TypeVar("T")
 
@@ -232,10 +240,7 @@ def estimator_samples(seed: int, frames: int | None, flights: list[str] | None =
     service publishes (:class:`~services.estimator.outputs.Publication` with the default settings)."""
     out: Samples = {}
     for name in flights or list(FLIGHTS):
-        flight = FLIGHTS[name](seed)
-        for line, values in estimator_lines(name, flight, estimator_outputs(flight, frames)).items():
-            out.setdefault(line, LineSamples()).extend(values)
-        logger.info("estimator seed %d %s done", seed, name)
+        merge_samples(out, per_flight(seed, frames, [name], partial(estimator_lines, name))[name])
     return out
 
 
