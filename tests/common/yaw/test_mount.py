@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from common.camera import CameraModel
@@ -20,7 +20,7 @@ from common.geometry import (
 from common.sim.field import mounted_camera
 from common.sim.ground import GroundTexture, camera_pose_from_body, render_ground_view
 from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
-from common.yaw.mount import image_turn_axis_imu, imu_stamp_s, yaw_per_image_turn
+from common.yaw.mount import MIN_AXIS_UP, image_turn_axis_imu, imu_stamp_s, yaw_per_image_turn
 
 unit = st.floats(-1.0, 1.0, allow_nan=False)
 quaternions = st.tuples(unit, unit, unit, unit).filter(lambda q: math.hypot(*q) > 0.1)
@@ -33,20 +33,36 @@ def _rotation(q: tuple[float, float, float, float]) -> np.ndarray:
 
 @settings(max_examples=200, deadline=None)
 @given(q_camera=quaternions, q_imu=quaternions, omega_body=rates)
-def test_gyro_about_the_axis_is_the_rotation_about_minus_the_optical_axis(
+def test_gyro_about_the_axis_is_the_yaw_rate_times_the_cosine_of_the_tilt(
     q_camera: tuple[float, float, float, float],
     q_imu: tuple[float, float, float, float],
     omega_body: tuple[float, float, float],
 ) -> None:
-    """Whatever the mount and the IMU's axes: the IMU's reading about the axis is the body's rotation rate
-    about minus the camera's optical axis (the way the image turns with +yaw under a down camera)."""
+    """Whatever the mount (looking down) and the IMU's axes: the IMU's reading with the weights is the body's
+    yaw rate times ``a_z``, the part of minus the optical axis along the body's +z (how a yaw turns the image
+    under any mount), whatever the roll and pitch rates."""
     R_body_camera, R_body_imu = _rotation(q_camera), _rotation(q_imu)
+    up = -R_body_camera[2, 2]
+    assume(up >= MIN_AXIS_UP)
     omega = np.asarray(omega_body)
     gyro_imu = R_body_imu.T @ omega
     axis = image_turn_axis_imu(R_body_camera, R_body_imu)
-    omega_camera = R_body_camera.T @ omega
-    assert np.linalg.norm(axis) == pytest.approx(1.0)
-    assert float(gyro_imu @ axis) == pytest.approx(-omega_camera[2], abs=1e-9)
+    assert np.linalg.norm(axis) == pytest.approx(up)
+    assert float(gyro_imu @ axis) == pytest.approx(up * omega[2], abs=1e-9)
+
+
+def test_a_tilted_camera_s_gyro_prior_does_not_turn_with_the_roll_regression() -> None:
+    """The bug: the prior integrated the gyro about minus the optical axis, so the field suite's mounted rig
+    (tilted 10 deg, turned 90 deg) turned its bridged pairs by tan(10 deg) of the roll in each."""
+    tilted = mounted_camera(10.0, 90.0)
+    for R_body_imu in (np.eye(3), matrix_from_euler(math.pi, 0.0, math.pi / 2.0)):
+        axis = image_turn_axis_imu(tilted, R_body_imu)
+        roll, pitch, yaw = np.eye(3)
+        assert float((R_body_imu.T @ roll) @ axis) == pytest.approx(0.0, abs=1e-12)
+        assert float((R_body_imu.T @ pitch) @ axis) == pytest.approx(0.0, abs=1e-12)
+        assert float((R_body_imu.T @ yaw) @ axis) == pytest.approx(math.cos(math.radians(10.0)))
+    with pytest.raises(InputError, match="looking down"):
+        image_turn_axis_imu(mounted_camera(90.0, 0.0))
 
 
 def test_down_camera_on_a_body_aligned_imu_is_body_z() -> None:
@@ -56,9 +72,10 @@ def test_down_camera_on_a_body_aligned_imu_is_body_z() -> None:
     # an IMU upside down: the yaw is about its -z
     upside_down = matrix_from_euler(math.pi, 0.0, 0.0)
     assert np.allclose(image_turn_axis_imu(R_BODY_CAMERA_DOWN, upside_down), [0.0, 0.0, -1.0])
-    # a camera tilted 10 deg backward (about body y): the axis leans with it
+    # a camera tilted 10 deg backward (about body y): a yaw turns its image by cos(10 deg) of the angle,
+    # and the pitch rate does not turn it (the optical axis leans; the weights do not)
     tilted = image_turn_axis_imu(mounted_camera(10.0, 0.0))
-    assert np.allclose(tilted, [math.sin(math.radians(10.0)), 0.0, math.cos(math.radians(10.0))])
+    assert np.allclose(tilted, [0.0, 0.0, math.cos(math.radians(10.0))])
 
 
 def test_the_gyro_prior_of_a_rotated_imu_is_the_aligned_ones() -> None:
