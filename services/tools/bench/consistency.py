@@ -37,6 +37,7 @@ from services.tools.bench import estimator_attitude_fit, estimator_drift_fit, ya
 from services.tools.bench.consistency_runs import (
     DOF,
     FLIGHTS,
+    MAX_GLARE,
     LineSamples,
     Samples,
     estimator_samples,
@@ -61,6 +62,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--suites", nargs="+", choices=SUITES, default=list(SUITES), help="suites (all)")
     parser.add_argument("--field-frames", type=int, default=600, help="frames per yaw field scenario")
     parser.add_argument("--scenarios", nargs="+", choices=list(FIELD_SCENARIOS), help="yaw scenarios (all)")
+    parser.add_argument(
+        "--glare", type=float, default=0.0, metavar="SHARE",
+        help="share of each yaw scenario's frames washed out (sun glare, an exposure hiccup: nothing to "
+        "measure), so that the bridged (gyro) and held (no IMU) pairs have lines; 0.08 measures them "
+        "(0: off)",
+    )  # fmt: skip
     parser.add_argument("--estimator-frames", type=int, default=None, help="frames per flight (all)")
     parser.add_argument("--flights", nargs="+", choices=list(FLIGHTS), help="estimator flights (both)")
     parser.add_argument("--localizer-frames", type=int, default=150, help="frames per localizer run")
@@ -179,6 +186,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         _quick(args)
     if args.seeds < 2:
         raise SystemExit(f"--seeds must be >= 2 (half fit, half held out), got {args.seeds}")
+    if not 0.0 <= args.glare <= MAX_GLARE:
+        raise SystemExit(f"--glare must be a share in [0, {MAX_GLARE}], got {args.glare}")
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
     fit_seeds = list(range(args.seeds // 2))
@@ -196,7 +205,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         name = "fit" if seed in fit_seeds else "held_out"
         seed_samples: Samples = {}
         if "yaw" in args.suites:
-            merge_samples(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios))
+            merge_samples(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios, args.glare))
         if "estimator" in args.suites:
             merge_samples(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights))
         if "localizer" in args.suites:
@@ -246,6 +255,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "suites": list(args.suites),
             "field_frames": args.field_frames,
             "scenarios": args.scenarios or list(FIELD_SCENARIOS),
+            "glare": args.glare,
             "estimator_frames": args.estimator_frames,
             "flights": args.flights or list(FLIGHTS),
             "localizer_frames": args.localizer_frames,

@@ -100,14 +100,35 @@ def world_error_angles(R_true: FloatArray, R_estimated: FloatArray) -> FloatArra
 
 
 # ------------------------------------------------------------------------------------------------------ yaw
-def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None) -> Samples:
+#: the largest share of washed-out frames ``yaw_samples`` takes (``--glare``)
+MAX_GLARE = 0.5
+#: the grey level of a washed-out frame, and the random stream that picks them (per seed and scenario)
+GLARE_LEVEL = 250
+GLARE_STREAM = 7_707
+
+
+def with_glare(
+    frames: list[npt.NDArray[np.uint8]], share: float, seed: int, scenario: int
+) -> list[npt.NDArray[np.uint8]]:
+    """``frames`` with about ``share`` of them (never the first) washed out to one grey level, as sun glare
+    or an exposure hiccup leaves them: no texture, so the pairs on either side cannot be measured and are
+    bridged by the gyro (held without one). Which frames: drawn per ``seed`` and ``scenario``."""
+    if share <= 0.0:
+        return frames
+    washed = np.random.default_rng([GLARE_STREAM, seed, scenario]).random(len(frames)) < share
+    washed[0] = False
+    return [np.full_like(f, GLARE_LEVEL) if w else f for f, w in zip(frames, washed, strict=True)]
+
+
+def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None, glare: float = 0.0) -> Samples:
     """The yaw lines of one seed over the field scenarios (each rendered once, tracked with and without a
-    gyro): ``yaw pair <provenance>`` (per pair, 1 dof) and ``yaw accumulated <gyro|no imu>`` (per frame)."""
+    gyro): ``yaw pair <provenance>`` (per pair, 1 dof) and ``yaw accumulated <gyro|no imu>`` (per frame).
+    ``glare``: the share of frames washed out (:func:`with_glare`)."""
     out: Samples = {}
     settings = YawSettings()
     for name in scenarios or list(FIELD_SCENARIOS):
         flight = field_flight(name, seed=seed, n_frames=frames)
-        rendered = list(flight.frames())
+        rendered = with_glare(list(flight.frames()), glare, seed, list(FIELD_SCENARIOS).index(name))
         true_delta = np.diff(flight.yaw_rad)
         true_yaw = flight.yaw_rad - flight.yaw_rad[0]
         for gyro in (True, False):
