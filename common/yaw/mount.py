@@ -45,12 +45,10 @@ def image_turn_axis_imu(
     rates (``a_x w_x + a_y w_y``), and the field suite's mounted rig (10 deg) bridged its pairs with
     ``tan(10 deg)`` = 0.18 times the roll turned in each (0.17-0.27 fitted on seeds 0-2, 80-90 % of their
     error), which its measured pairs do not show."""
-    R_bc = check_rotation_matrix(R_body_camera, "R_body_camera")
+    up = _axis_up(R_body_camera)
     R_bi = np.eye(3) if R_body_imu is None else check_rotation_matrix(R_body_imu, "R_body_imu")
-    if R_bc.shape != (3, 3) or R_bi.shape != (3, 3):
-        raise InputError(f"need one (3, 3) mount each, got {R_bc.shape} and {R_bi.shape}")
-    yaw_per_image_turn(R_bc)  # refuses a camera that does not look down
-    up = float(-R_bc[2, 2])
+    if R_bi.shape != (3, 3):
+        raise InputError(f"R_body_imu must be one (3, 3) rotation, got {R_bi.shape}")
     return np.asarray(R_bi.T @ np.array([0.0, 0.0, up]), dtype=np.float64)
 
 
@@ -58,6 +56,12 @@ def yaw_per_image_turn(R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN) -> flo
     """Vehicle yaw per radian the image turns: a yaw rate ``w`` about the body's +z turns the image about
     ``a = -R_body_camera[:, 2]`` by ``w a_z``, so the yaw is the image's turn over ``a_z`` (1 for the down
     mount; ``1 / cos(tilt)`` for a camera tilted off it). InputError for a camera that does not look down."""
+    return 1.0 / _axis_up(R_body_camera)
+
+
+def _axis_up(R_body_camera: npt.ArrayLike) -> float:
+    """``a_z`` of minus the optical axis in the body (the cosine of the camera's tilt off the down mount);
+    InputError for a mount that is not one rotation or a camera that does not look down."""
     R_bc = check_rotation_matrix(R_body_camera, "R_body_camera")
     if R_bc.shape != (3, 3):
         raise InputError(f"R_body_camera must be one (3, 3) rotation, got {R_bc.shape}")
@@ -67,7 +71,7 @@ def yaw_per_image_turn(R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN) -> flo
             f"the yaw core needs a camera looking down (optical axis within 60 deg of the body's -z), got "
             f"{math.degrees(math.acos(max(-1.0, min(1.0, up)))):.1f} deg off"
         )
-    return 1.0 / up
+    return up
 
 
 def imu_stamp_s(camera_stamp_s: float, time_offset_s: float) -> float:
