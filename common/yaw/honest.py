@@ -77,7 +77,8 @@ def gyro_delta_yaw_rad(
     stop_s: float,
     axis_body: npt.ArrayLike = (0.0, 0.0, 1.0),
 ) -> float | None:
-    """Integrated body rotation about ``axis_body`` from ``start_s`` to ``stop_s`` (rad), or None without
+    """Integrated body rotation weighed by ``axis_body`` (a unit axis, or weights such as
+    :func:`~common.yaw.mount.image_turn_axis_imu`'s) from ``start_s`` to ``stop_s`` (rad), or None without
     coverage (no sample at or before ``start_s``, or the last sample more than 0.1 s before ``stop_s``).
 
     Samples hold piecewise linearly between stamps (trapezoid), the last one is held to ``stop_s``. Only the

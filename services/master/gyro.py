@@ -78,8 +78,8 @@ class GyroBuffer:
     def delta_rad(
         self, start_s: float, stop_s: float, wait_s: float = 0.0, axis_imu: npt.ArrayLike = (0.0, 0.0, 1.0)
     ) -> float | None:
-        """The gyro's rotation about ``axis_imu`` from ``start_s`` to ``stop_s`` (the IMU's clock), or None
-        without coverage; waits up to ``wait_s`` for samples reaching ``stop_s`` (not when no sample has
+        """The gyro's rotation weighed by ``axis_imu`` from ``start_s`` to ``stop_s`` (the IMU's clock), or
+        None without coverage; waits up to ``wait_s`` for samples reaching ``stop_s`` (not when no sample has
         arrived at all)."""
         deadline = time.monotonic() + wait_s
         with self._cond:
@@ -99,9 +99,9 @@ class GyroBuffer:
 
 class GyroPrior:
     """The master's side of the yaw prior: IMU samples in (through the master's input gate), the gyro's delta
-    between frame stamps out, about ``axis_imu`` (:func:`~common.yaw.mount.image_turn_axis_imu` of the mount
-    and the IMU's axes) and between the frame stamps moved onto the IMU's clock (``t_imu = t_cam +
-    time_offset_s``).
+    between frame stamps out, weighed by ``axis_imu`` (:func:`~common.yaw.mount.image_turn_axis_imu` of the
+    mount and the IMU's axes: the body's yaw rate times the cosine of the camera's tilt) and between the
+    frame stamps moved onto the IMU's clock (``t_imu = t_cam + time_offset_s``).
 
     A sample the gate refuses (another UAV's, a second sender's, a stamp in the future or jumping) never
     reaches the buffer, so no single sample can make the buffer refuse the real ones after it; a restart the
@@ -131,7 +131,7 @@ class GyroPrior:
         """The prior the master's settings describe (logged in one line)."""
         axis, mount = prior.gyro_axis_imu(), prior.rig_mount
         logger.info(
-            "%s: gyro prior %s, about the IMU's axis %s (%s)", name, "on" if prior.gyro_prior else "off",
+            "%s: gyro prior %s, the IMU's weights %s (%s)", name, "on" if prior.gyro_prior else "off",
             np.round(axis, 4).tolist(), mount.describe(),
         )  # fmt: skip
         return cls(prior.gyro_prior, prior.gyro_wait_s, counters, gate, axis, mount.imu_time_offset_s)

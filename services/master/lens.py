@@ -51,7 +51,7 @@ class YawPriorSettings(BaseModel):
     rig_mount: MountOptions = MountOptions()
 
     def gyro_axis_imu(self) -> FloatArray:
-        """The axis, in the IMU's axes, the gyro prior integrates about (:func:`image_turn_axis_imu`)."""
+        """The weights, in the IMU's axes, the gyro prior integrates with (:func:`image_turn_axis_imu`)."""
         return image_turn_axis_imu(self.rig_mount.R_body_camera, self.rig_mount.R_body_imu)
 
     def tracker_settings(self, base: YawSettings, camera: CameraModel | None) -> YawSettings:
@@ -101,7 +101,7 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
 def stream_geometry(
     prior: YawPriorSettings, lens: CameraSource, width: int, height: int, rig: Rig | None, name: str = ""
 ) -> tuple[CameraModel | None, FloatArray, FloatArray, float]:
-    """``(camera, R_body_camera, gyro axis in the IMU's axes, IMU clock offset)`` of a stream of frames of
+    """``(camera, R_body_camera, gyro weights in the IMU's axes, IMU clock offset)`` of a stream of frames of
     ``width`` x ``height``: the stream's ``rig`` when it has one (logged for master ``name``), else the
     master's own options."""
     if rig is None:

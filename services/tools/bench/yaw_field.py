@@ -2,8 +2,8 @@
 method on the same frames.
 
 The core runs as a user would fly it: the flight's calibration in its settings and the gyro's integrated
-rotation between the frame stamps as its prior (``capataz/uav/{uav}/imu`` in the cluster), about the axis
-the image turns about (the flight's camera mount and IMU axes) and on the IMU's clock; none in the
+rotation between the frame stamps as its prior (``capataz/uav/{uav}/imu`` in the cluster), the body's yaw
+rate as the image turns with it (the flight's camera mount and IMU axes) and on the IMU's clock; none in the
 scenarios without an IMU. The baseline is the paper's method (``cv2.phaseCorrelate`` per 64 px patch
 pair, RANSAC homography, no prior). Errors are per pair on the *published* (integrated) delta, wrapped;
 beside the errors of all pairs, the held and bridged pairs over 2 deg. Max AME is paper A's eq. 8 with
@@ -55,7 +55,7 @@ class _Series:
 
 
 class _Core:
-    """The core as a user wires the rig: the gyro about the image's turn axis in the IMU's axes
+    """The core as a user wires the rig: the gyro weighed by the image's turn in the IMU's axes
     (:func:`~common.yaw.mount.image_turn_axis_imu` of the flight's mount and IMU axes), between the frame
     stamps moved onto the IMU's clock; no gyro prior at all when ``use_imu`` is False."""
 
