@@ -12,6 +12,7 @@ A delta the core does not trust is never integrated as if measured. Each pair ha
 A measured delta is integrated (``Provenance.MEASURED``) only when the patch fit is good, it lies within the
 prior's tolerance and it implies a yaw rate within ``max_yaw_rate_deg_s``; otherwise the prior's delta is
 integrated instead (``BRIDGED`` by the gyro, ``HELD`` without), and the yaw's variance grows accordingly.
+The yaw's variance is not the plain sum of its pairs' variances (:mod:`common.yaw.yaw_variance`).
 """
 
 from __future__ import annotations

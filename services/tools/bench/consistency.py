@@ -33,7 +33,12 @@ import numpy as np
 
 from common.consistency import consistency, ensemble_consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
-from services.tools.bench import estimator_attitude_fit, estimator_drift_fit, yaw_variance_fit
+from services.tools.bench import (
+    estimator_attitude_fit,
+    estimator_drift_fit,
+    yaw_correlation_fit,
+    yaw_variance_fit,
+)
 from services.tools.bench.consistency_runs import (
     DOF,
     FLIGHTS,
@@ -83,6 +88,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--fit-yaw", action="store_true",
         help="instead: fit the measured yaw pair's variance model on the fit seeds (maximum likelihood, "
         "a two-fold check within them) and print the constants (services/tools/bench/yaw_variance_fit.py)",
+    )  # fmt: skip
+    fits.add_argument(
+        "--fit-yaw-correlation", action="store_true",
+        help="instead: fit the measured yaw pairs' correlation in time (share and time constant, maximum "
+        "likelihood of each run's errors, a two-fold check) and print it (bench/yaw_correlation_fit.py)",
     )  # fmt: skip
     fits.add_argument(
         "--fit-drift", action="store_true",
@@ -147,6 +157,13 @@ def _fit_yaw(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     return {"json": result, "table": table}
 
 
+def _fit_yaw_correlation(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    result = yaw_correlation_fit.fit(fit_seeds, args.field_frames, args.scenarios)
+    table = [{"model": name, **result[name]} for name in ("fitted", "in_use", "independent")]
+    table += [{"model": _fold_label(f), **f} for f in result["two_fold"]]
+    return {"json": result, "table": table}
+
+
 def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     result = estimator_drift_fit.fit(fit_seeds, args.estimator_frames, args.flights)
     rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
@@ -193,6 +210,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     fit_seeds = list(range(args.seeds // 2))
     if args.fit_yaw:
         return _fit_yaw(fit_seeds, args)
+    if args.fit_yaw_correlation:
+        return _fit_yaw_correlation(fit_seeds, args)
     if args.fit_drift:
         return _fit_drift(fit_seeds, args)
     if args.fit_attitude:
