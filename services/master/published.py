@@ -22,7 +22,7 @@ from enum import Enum
 from typing import TypeVar
 
 from common.provenance import Provenance
-from common.wire.messages import YawEstimate
+from common.wire.messages import Frame, YawEstimate
 
 _K = TypeVar("_K")
 #: the declared source of samples that declare none
@@ -42,11 +42,28 @@ class PublishVerdict(Enum):
 
 
 @dataclass(frozen=True)
+class YawAnchor:
+    """The yaw a new stream continues from (a new rig or epoch, a take-over), with its variance."""
+
+    yaw_rad: float = 0.0
+    yaw_variance_rad2: float = 0.0
+
+
+@dataclass(frozen=True)
 class PublishedYaw:
     seq: int
     stamp_s: float
     yaw_rad: float
     session: str
+    yaw_variance_rad2: float = 0.0
+
+    @classmethod
+    def of(cls, estimate: YawEstimate, session: str) -> PublishedYaw:
+        return cls(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session, estimate.yaw_variance_rad2)
+
+    @property
+    def anchor(self) -> YawAnchor:
+        return YawAnchor(self.yaw_rad, self.yaw_variance_rad2)
 
 
 class PublishedLedger:
@@ -101,28 +118,46 @@ class PublishedLedger:
         while len(kept) > self.capacity:
             kept.popitem(last=False)
 
-    def trusted_yaws(self) -> dict[int, tuple[float, float]]:
-        """seq -> (stamp, yaw) of the trusted yaws kept."""
-        return {s: (y.stamp_s, y.yaw_rad) for s, (_, y) in self._yaw.items()}
+    def trusted_yaws(self) -> dict[int, PublishedYaw]:
+        """seq -> the trusted yaws kept."""
+        return {s: y for s, (_, y) in self._yaw.items()}
 
-    def newest_trusted(self) -> float | None:
+    def newest_trusted(self) -> PublishedYaw | None:
         """The last trusted yaw to arrive, None when there is none."""
         if not self._yaw:
             return None
-        return max(self._yaw.values(), key=lambda item: item[0])[1].yaw_rad
+        return max(self._yaw.values(), key=lambda item: item[0])[1]
+
+
+def take_over_anchor(
+    recent: list[tuple[int, Frame]], published: dict[int, PublishedYaw]
+) -> tuple[int, Frame, YawAnchor] | None:
+    """Where a take-over continues: the newest kept ``(epoch, frame)`` whose yaw was published (the same seq
+    and stamp), with that yaw and its variance; None when no kept frame was."""
+    for epoch, frame in reversed(recent):
+        known = published.get(frame.seq)
+        if known is not None and known.stamp_s == frame.stamp_s:
+            return epoch, frame, known.anchor
+    return None
 
 
 def initial_estimate(
-    uav: str, seq: int, stamp_s: float, yaw_rad: float, t0_perf_s: float, dropped: int
+    uav: str,
+    seq: int,
+    stamp_s: float,
+    anchor: YawAnchor,
+    t0_perf_s: float,
+    dropped: int,
 ) -> YawEstimate:
-    """The estimate of a stream's first frame (a new epoch or rig): the yaw it continues from, nothing
-    measured yet (``INITIAL``, low confidence)."""
+    """The estimate of a stream's first frame (a new epoch or rig): the yaw it continues from with that yaw's
+    variance, nothing measured yet (``INITIAL``, low confidence)."""
     return YawEstimate(
         uav=uav,
         seq=seq,
         stamp_s=stamp_s,
         delta_yaw_rad=0.0,
-        yaw_rad=yaw_rad,
+        yaw_rad=anchor.yaw_rad,
+        yaw_variance_rad2=anchor.yaw_variance_rad2,
         inlier_count=0,
         patch_count=0,
         confidence=0.0,

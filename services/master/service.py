@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
@@ -55,8 +55,10 @@ from services.master.published import (
     PublishedLedger,
     PublishedYaw,
     PublishVerdict,
+    YawAnchor,
     initial_estimate,
     session_of,
+    take_over_anchor,
 )
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
@@ -168,7 +170,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         if estimate.uav != self.settings.uav:
             self.count_error("refused_yaw_foreign_uav", "yaw of another UAV refused", f"{estimate.uav!r}")
             return
-        yaw = PublishedYaw(estimate.seq, estimate.stamp_s, estimate.yaw_rad, session_of(source_of(sample)))
+        yaw = PublishedYaw.of(estimate, session_of(source_of(sample)))
         with self._recent_lock:
             verdict = self.published.record(yaw, self._leaders_resolved)
         if verdict is PublishVerdict.REFUSED:
@@ -255,27 +257,26 @@ class MasterService(ConfiguredService[MasterSettings]):
         with self.intake.recent_lock:
             recent = list(self.intake.recent)
         with self._recent_lock:
-            published = self.published.trusted_yaws()
-        for epoch, frame in reversed(recent):
-            known = published.get(frame.seq)
-            if known is not None and known[0] == frame.stamp_s:
-                self._start_stream(frame, epoch, known[1])
-                for later_epoch, later in recent:
-                    if later_epoch == epoch and later.seq > frame.seq:
-                        self._process(later_epoch, later)
-                return
-        # nothing to anchor on: the next frame starts a stream that continues the newest published yaw
+            found = take_over_anchor(recent, self.published.trusted_yaws())
+        if found is None:  # the next frame starts a stream that continues the newest published yaw
+            return
+        epoch, frame, anchor = found
+        self._start_stream(frame, epoch, anchor)
+        for later_epoch, later in recent:
+            if later_epoch == epoch and later.seq > frame.seq:
+                self._process(later_epoch, later)
 
-    def _last_yaw(self) -> float:
+    def _last_yaw(self) -> YawAnchor:
+        """This master's stream's yaw, else the newest trusted published one, else 0 (the first frame's)."""
         if self.stream is not None:
-            return float(self.stream.state.yaw_rad)
+            return YawAnchor(float(self.stream.state.yaw_rad), float(self.stream.state.yaw_variance_rad2))
         with self._recent_lock:
             newest = self.published.newest_trusted()
-        return 0.0 if newest is None else newest
+        return YawAnchor() if newest is None else newest.anchor
 
-    def _start_stream(self, frame: Frame, epoch: int, yaw_rad: float, rig: Rig | None = None) -> _Stream:
-        """A stream from ``frame`` on: the lens and mount of the stream's ``rig`` when it has one (and the
-        master was given neither), else the master's options; the gyro prior follows the same mount."""
+    def _start_stream(self, frame: Frame, epoch: int, anchor: YawAnchor, rig: Rig | None = None) -> _Stream:
+        """A stream from ``frame`` on, continuing ``anchor``: the lens and mount of the stream's ``rig`` when
+        it has one (and the master was given neither), else the master's options; the gyro prior follows."""
         assert self.session is not None
         grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
         prior = self.settings.prior
@@ -287,8 +288,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         camera, R_body_camera, axis, offset = geometry
         self.gyro.axis_imu, self.gyro.time_offset_s = axis, offset
         tracker = YawTracker(prior.tracker_settings(self.yaw_settings, camera), grid, R_body_camera)
-        state = replace(
-            tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s), yaw_rad=yaw_rad
+        state = tracker.initial_state(
+            frame.pixels, False, frame.stamp_s, anchor.yaw_rad, anchor.yaw_variance_rad2
         )
         dispatcher = Dispatcher(self.settings.dispatch, grid.n_patches)
         dispatcher.trust = self.guard.monitor()
@@ -313,10 +314,10 @@ class MasterService(ConfiguredService[MasterSettings]):
         if stream is None or epoch != stream.epoch or rig_id != stream.rig_id:
             # a new epoch (first frame, camera restart, take-over without anchor) or a new rig: the yaw
             # continues
-            yaw_rad = self._last_yaw()
-            stream = self._start_stream(frame, epoch, yaw_rad, rig)
+            anchor = self._last_yaw()
+            stream = self._start_stream(frame, epoch, anchor, rig)
             dropped = self.slot.dropped + self.intake.inbox.dropped
-            return initial_estimate(self.settings.uav, frame.seq, frame.stamp_s, yaw_rad, t0, dropped)
+            return initial_estimate(self.settings.uav, frame.seq, frame.stamp_s, anchor, t0, dropped)
         if frame.seq <= stream.prev_seq:
             self.counters.inc("frames_already_measured")
             return None

@@ -7,6 +7,7 @@ masters for one UAV: exactly one publishes; the active one is SIGKILLed and the 
 
 from __future__ import annotations
 
+import itertools
 import signal
 import threading
 import time
@@ -217,6 +218,9 @@ def test_one_active_master_and_a_standby_that_continues_the_yaw_when_it_is_kille
     for k, (y,) in published.items():
         if k > 0:
             assert y.yaw_rad == pytest.approx(reference[k], abs=np.radians(1.0)), (k, y.method)
+    # the standby continues the yaw's variance too (it restarted at 0: a regression of the rig test's kind)
+    variances = [published[k][0].yaw_variance_rad2 for k in sorted(published)]
+    assert all(later >= earlier for earlier, later in itertools.pairwise(variances))
 
 
 def test_forged_yaw_before_a_takeover_does_not_move_the_standbys_starting_yaw(

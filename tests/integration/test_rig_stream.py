@@ -4,6 +4,7 @@ naming a rig the master never received is refused and counted; a rig changed mid
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from collections.abc import Iterator
@@ -106,7 +107,11 @@ def _stream_rig(fx: float) -> Rig:
     return Rig(camera)
 
 
-def test_an_unknown_rig_is_refused_and_a_changed_rig_is_picked_up(endpoint: str) -> None:
+def test_an_unknown_rig_is_refused_and_a_changed_rig_is_picked_up_continuing_the_yaw_variance_regression(
+    endpoint: str,
+) -> None:
+    """The regression: a new stream (a changed rig, a new epoch, a take-over) continued the yaw but started
+    its variance over at 0, publishing a yaw many frames old as if it were exact."""
     master = MasterService("m", 0, peer(endpoint), MasterSettings(election=False))
     thread = _run(master)
     flight = field_flight("wide_angle", seed=1, n_frames=2)  # only for a textured frame
@@ -144,8 +149,13 @@ def test_an_unknown_rig_is_refused_and_a_changed_rig_is_picked_up(endpoint: str)
     finally:
         master.request_stop()
         thread.join(10.0)
-    provenance = [e.provenance for e in sorted(yaws.received, key=lambda e: e.seq)]
+    estimates = sorted(yaws.received, key=lambda e: e.seq)
+    provenance = [e.provenance for e in estimates]
     # each rig starts a stream of its own (measured with its lens), the yaw continuing across
     assert provenance[0] is Provenance.INITIAL and provenance[3] is Provenance.INITIAL
+    # ... and its variance: it never shrinks, and the second rig's first yaw is the first rig's last
+    variances = [e.yaw_variance_rad2 for e in estimates]
+    assert variances[2] > 0.0 and variances[3] == variances[2]
+    assert all(later >= earlier for earlier, later in itertools.pairwise(variances))
     assert Provenance.INITIAL not in (provenance[1], provenance[2], provenance[4], provenance[5])
     assert master.counters.get("refused_camera_unknown_rig") == 1
