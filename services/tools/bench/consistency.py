@@ -26,6 +26,7 @@ import argparse
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import cv2
@@ -84,26 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--held-out-only", action="store_true", help="run only the held-out half of the seeds (the table's)"
     )
     fits = parser.add_mutually_exclusive_group()  # one fit per run, not the first of several
-    fits.add_argument(
-        "--fit-yaw", action="store_true",
-        help="instead: fit the measured yaw pair's variance model on the fit seeds (maximum likelihood, "
-        "a two-fold check within them) and print the constants (services/tools/bench/yaw_variance_fit.py)",
-    )  # fmt: skip
-    fits.add_argument(
-        "--fit-yaw-correlation", action="store_true",
-        help="instead: fit the measured yaw pairs' correlation in time (share and time constant, maximum "
-        "likelihood of each run's errors, a two-fold check) and print it (bench/yaw_correlation_fit.py)",
-    )  # fmt: skip
-    fits.add_argument(
-        "--fit-drift", action="store_true",
-        help="instead: fit the estimator's published horizontal drift (per pair and height) and floor on "
-        "the fit seeds' flights (maximum likelihood, a two-fold check; bench/estimator_drift_fit.py)",
-    )  # fmt: skip
-    fits.add_argument(
-        "--fit-attitude", action="store_true",
-        help="instead: fit the estimator's published tilt scale and yaw floor and drift on the fit seeds' "
-        "flights (maximum likelihood, a two-fold check; bench/estimator_attitude_fit.py)",
-    )  # fmt: skip
+    for name, (what, _) in FITS.items():
+        fits.add_argument(f"--fit-{name}", action="store_true", help=f"instead: fit {what}")
 
 
 def _quick(args: argparse.Namespace) -> None:
@@ -198,6 +181,31 @@ def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, A
     return {"json": result, "table": table}
 
 
+#: ``--fit-NAME`` runs a fit instead of the bench (one per run): what it fits (its help), and the function
+FITS: dict[str, tuple[str, Callable[[list[int], argparse.Namespace], dict[str, Any]]]] = {
+    "yaw": (
+        "the measured yaw pair's variance model on the fit seeds (maximum likelihood, a two-fold check "
+        "within them) and print the constants (services/tools/bench/yaw_variance_fit.py)",
+        _fit_yaw,
+    ),
+    "yaw-correlation": (
+        "the measured yaw pairs' correlation in time (share and time constant, maximum likelihood of each "
+        "run's errors, a two-fold check) and print it (bench/yaw_correlation_fit.py)",
+        _fit_yaw_correlation,
+    ),
+    "drift": (
+        "the estimator's published horizontal drift (per pair and height) and floor on the fit seeds' "
+        "flights (maximum likelihood, a two-fold check; bench/estimator_drift_fit.py)",
+        _fit_drift,
+    ),
+    "attitude": (
+        "the estimator's published tilt scale and yaw floor and drift on the fit seeds' flights (maximum "
+        "likelihood, a two-fold check; bench/estimator_attitude_fit.py)",
+        _fit_attitude,
+    ),
+}
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.quick:
         _quick(args)
@@ -208,14 +216,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
     fit_seeds = list(range(args.seeds // 2))
-    if args.fit_yaw:
-        return _fit_yaw(fit_seeds, args)
-    if args.fit_yaw_correlation:
-        return _fit_yaw_correlation(fit_seeds, args)
-    if args.fit_drift:
-        return _fit_drift(fit_seeds, args)
-    if args.fit_attitude:
-        return _fit_attitude(fit_seeds, args)
+    for name, (_, fit) in FITS.items():
+        if getattr(args, f"fit_{name.replace('-', '_')}"):
+            return fit(fit_seeds, args)
     held_seeds = list(range(args.seeds // 2, args.seeds))
     groups: dict[str, Samples] = {"fit": {}, "held_out": {}}
     #: per group and line, each seed's samples (for the bounds over seeds)
