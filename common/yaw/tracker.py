@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -27,7 +27,7 @@ from common.yaw.measurement import PatchMeasurement, merge_measurements
 from common.yaw.mount import yaw_per_image_turn
 from common.yaw.settings import YawSettings
 from common.yaw.stages import EstimateMethod, conclude_pair, lens_of
-from common.yaw.yaw_variance import add_pair_variance
+from common.yaw.yaw_variance import YawVariance, add_pair_variance
 
 logger = logging.getLogger(__name__)
 
@@ -46,8 +46,8 @@ class FrameYaw:
     ``measured_delta_rad`` is what the camera stage measured (NaN when nothing). ``homography`` (3, 3) maps
     frame seq-1 pixels to frame seq pixels (undistorted pixels when the settings carry a lens model).
     ``confidence`` in [0, 1] is the inlier fraction of the measured patches. ``yaw_variance_rad2`` is the
-    variance of ``yaw_rad`` (it grows with every pair, fastest while bridging or holding; measured pairs add
-    their covariance with the ones before, :func:`~common.yaw.yaw_variance.add_pair_variance`).
+    variance of ``yaw_rad`` (it grows with every pair, fastest while bridging or holding; a measured or held
+    pair adds its covariance with the ones before, :func:`~common.yaw.yaw_variance.add_pair_variance`).
     """
 
     seq: int
@@ -72,7 +72,7 @@ class TrackerState:
     """Explicit tracker state: the last frame (needed only by the fallbacks), in-process its spectra, and
     what the honest integration needs (stamp, the recent measured pairs whose robust rate is held over
     untrusted pairs without a gyro (:mod:`common.yaw.held`), time since the last measured pair, the yaw's
-    variance and the measured pairs' correlated memory (:func:`~common.yaw.yaw_variance.add_pair_variance`)).
+    variance with what its next pair's covariance needs: :func:`~common.yaw.yaw_variance.add_pair_variance`).
 
     Frames are kept by reference: callers must not modify a frame after passing it in.
     """
@@ -84,8 +84,11 @@ class TrackerState:
     stamp_s: float | None = None
     measured_pairs: tuple[MeasuredPair, ...] = ()
     since_measured_s: float = 0.0
-    yaw_variance_rad2: float = 0.0
-    correlated_memory_rad: float = 0.0
+    yaw_variance: YawVariance = field(default_factory=YawVariance)
+
+    @property
+    def yaw_variance_rad2(self) -> float:
+        return self.yaw_variance.variance_rad2
 
 
 def delta_yaw_from_homography_rad(homography: FloatArray, grid: PatchGrid) -> float:
@@ -133,15 +136,15 @@ class YawTracker:
         yaw_variance_rad2: float = 0.0,
     ) -> TrackerState:
         """State at frame 0; ``with_spectra`` caches its patch spectra for in-process ``track``. A stream
-        that continues a yaw (a new rig, a take-over) starts from it and its variance (the measured pairs'
-        correlated memory starts over)."""
+        that continues a yaw (a new rig, a take-over) starts from it and its variance (the memories of the
+        pairs before start over)."""
         frame = check_grey_image(frame0_u8, "frame0_u8", shape=self.grid.frame_shape)
-        if not (math.isfinite(yaw_rad) and math.isfinite(yaw_variance_rad2) and yaw_variance_rad2 >= 0.0):
-            raise InputError(f"need a finite yaw and variance >= 0, got {yaw_rad}, {yaw_variance_rad2}")
+        if not math.isfinite(yaw_rad):
+            raise InputError(f"need a finite yaw, got {yaw_rad}")
         spectra = patch_spectra(frame, self.grid, None, self.settings) if with_spectra else None
         return TrackerState(
             seq=0, yaw_rad=yaw_rad, previous_frame=frame, previous_spectra=spectra,
-            stamp_s=_check_stamp(stamp_s), yaw_variance_rad2=yaw_variance_rad2,
+            stamp_s=_check_stamp(stamp_s), yaw_variance=YawVariance(yaw_variance_rad2),
         )  # fmt: skip
 
     def conclude(
@@ -217,10 +220,7 @@ class YawTracker:
         k = 1.0 if self.nadir_view else self.yaw_per_turn
         delta, variance = k * delta, k * k * variance
         yaw = state.yaw_rad + delta
-        yaw_variance, memory = add_pair_variance(
-            state.yaw_variance_rad2, state.correlated_memory_rad, variance, step_s,
-            provenance is Provenance.MEASURED,
-        )  # fmt: skip
+        yaw_variance = add_pair_variance(state.yaw_variance, variance, step_s, provenance)
         measured = result.method is not EstimateMethod.NONE
         patch_count = int(result.measurement.indices.size)
         inliers = result.fit.inlier_count if measured else 0
@@ -239,7 +239,7 @@ class YawTracker:
             provenance=provenance,
             measured_delta_rad=float(k * result.delta_rad) if measured else math.nan,
             delta_variance_rad2=float(variance),
-            yaw_variance_rad2=float(yaw_variance),
+            yaw_variance_rad2=yaw_variance.variance_rad2,
         )
         return TrackerState(
             seq=state.seq + 1,
@@ -249,8 +249,7 @@ class YawTracker:
             stamp_s=stamp,
             measured_pairs=pairs,
             since_measured_s=since,
-            yaw_variance_rad2=yaw_variance,
-            correlated_memory_rad=memory,
+            yaw_variance=yaw_variance,
         ), estimate
 
     def track(

@@ -34,13 +34,13 @@ STARTS = ((0.5, 0.2), (0.2, 1.0), (0.8, 0.05))
 
 @dataclass(frozen=True)
 class PairRun:
-    """One run's pairs: errors against truth, published variances, end stamps and which were measured."""
+    """One run's pairs: errors against truth, published variances, end stamps and provenance."""
 
     name: str
     errors_rad: FloatArray
     variances_rad2: FloatArray
     stop_s: FloatArray
-    measured: np.ndarray
+    provenance: tuple[Provenance, ...]
 
 
 def pair_runs(seed: int, frames: int, scenarios: list[str] | None = None) -> list[PairRun]:
@@ -59,7 +59,7 @@ def pair_runs(seed: int, frames: int, scenarios: list[str] | None = None) -> lis
                     ),
                     variances_rad2=np.asarray(series.delta_variance_rad2, dtype=np.float64),
                     stop_s=np.asarray(flight.frame_stamps_s[1:], dtype=np.float64),
-                    measured=np.array([p is Provenance.MEASURED for p in series.provenance]),
+                    provenance=tuple(series.provenance),
                 )
             )
         logger.info("yaw correlation fit: seed %d %s done", seed, name)
@@ -67,7 +67,7 @@ def pair_runs(seed: int, frames: int, scenarios: list[str] | None = None) -> lis
 
 
 def _covariance(run: PairRun, model: yaw_variance.PairErrorModel) -> FloatArray:
-    return yaw_variance.pair_covariance_rad2(run.variances_rad2, run.stop_s, run.measured, model)
+    return yaw_variance.pair_covariance_rad2(run.variances_rad2, run.stop_s, run.provenance, model)
 
 
 def negative_log_likelihood(runs: list[PairRun], model: yaw_variance.PairErrorModel) -> float:

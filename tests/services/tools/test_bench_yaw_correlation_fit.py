@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.provenance import Provenance
 from common.yaw import yaw_variance
 from services.tools.bench.yaw_correlation_fit import PairRun, accumulated_score, best_model
 from services.tools.cli import main
@@ -23,10 +24,10 @@ def _synthetic_runs(model: yaw_variance.PairErrorModel, runs: int, seed: int = 0
         n = 80
         variances = (1e-4 * 10 ** rng.uniform(-1.0, 0.0, n)) ** 2
         stops = np.cumsum(rng.uniform(0.04, 0.06, n))
-        measured = rng.random(n) > 0.1
-        covariance = yaw_variance.pair_covariance_rad2(variances, stops, measured, model)
+        provenance = tuple(Provenance.MEASURED if u > 0.1 else Provenance.BRIDGED for u in rng.random(n))
+        covariance = yaw_variance.pair_covariance_rad2(variances, stops, provenance, model)
         errors = np.linalg.cholesky(covariance) @ rng.standard_normal(n)
-        out.append(PairRun(f"synthetic {k}", errors, variances, stops, measured))
+        out.append(PairRun(f"synthetic {k}", errors, variances, stops, provenance))
     return out
 
 
