@@ -34,6 +34,16 @@ __all__ = ["Prior", "PriorSource", "Provenance", "gyro_delta_yaw_rad", "make_pri
 
 #: The held rate's tolerance never drops below this (deg): measurement noise and rate estimation noise.
 MIN_HOLD_TOLERANCE_DEG = 5.0
+#: Variance of a held pair's delta (:func:`held_variance_terms`): a multiple of the window's scatter of rates
+#: squared, a yaw acceleration (deg/s^2, 1 sigma) over the time since the held rate applied, and a rate floor
+#: (deg/s, 1 sigma). The gate keeps its tolerance (above); this is what the pair is published with. Before it
+#: the variance was the tolerance's third squared, at least (5/3 deg)^2: 16 times the errors' std (mean NEES
+#: 0.004). Fitted (Gaussian maximum likelihood) on the held pairs of the field suite's seeds 0-9 without a
+#: gyro, 8 % of the frames washed out (1,494 pairs; ``bench consistency --fit-yaw-held --seeds 20
+#: --field-frames 100``); the floor fits to 0.
+HELD_SPREAD_SHARE = 10.78
+HELD_ACCEL_DEG_S2 = 12.38
+HELD_RATE_DEG_S = 0.0
 #: Variance of a measured pair's delta: ``RESIDUAL_SHARE * (residual / lever)^2 * 2 / inliers`` (residual
 #: at least ``MIN_RESIDUAL_PX``), plus ``WARPED_FLOOR_DEG^2`` when the patches were measured on frame k warped
 #: back (refined or pre-aligned: the warp's interpolation), plus ``(SHIFT_SHARE * shift / lever)^2`` for the
@@ -140,7 +150,24 @@ def make_prior(
     trend = min(abs(held.trend_rad_s2), accel)
     drift = (accel + trend) * dt * (dt + since_measured_s) + 2.0 * held.spread_rad_s * dt
     tolerance = min(max(drift, math.radians(MIN_HOLD_TOLERANCE_DEG)), math.pi)
-    return Prior(PriorSource.HOLD, held.rate_rad_s * dt, tolerance, (tolerance / 3.0) ** 2, dt_s)
+    variance = float(held_variance_terms(held, dt, since_measured_s) @ held_coefficients())
+    return Prior(PriorSource.HOLD, held.rate_rad_s * dt, tolerance, variance, dt_s)
+
+
+def held_variance_terms(held: HeldRate, dt_s: float, since_measured_s: float) -> npt.NDArray[np.float64]:
+    """The terms of a held pair's variance, per unit coefficient (:func:`held_coefficients`): the window's
+    scatter of rates over the pair, ``(spread dt)^2``; a rate that changed since it applied,
+    ``(dt (lag + since + dt / 2))^2`` (a constant yaw acceleration's effect, per rad^2/s^4); and a rate
+    floor, ``dt^2`` (per rad^2/s^2)."""
+    reach = held.lag_s + since_measured_s + 0.5 * dt_s
+    return np.array([(held.spread_rad_s * dt_s) ** 2, (dt_s * reach) ** 2, dt_s**2])
+
+
+def held_coefficients() -> npt.NDArray[np.float64]:
+    """The held variance's coefficients in :func:`held_variance_terms`' units."""
+    return np.array(
+        [HELD_SPREAD_SHARE, math.radians(HELD_ACCEL_DEG_S2) ** 2, math.radians(HELD_RATE_DEG_S) ** 2]
+    )
 
 
 def gyro_variance_rad2(settings: YawSettings, dt_s: float) -> float:

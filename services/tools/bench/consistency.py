@@ -38,6 +38,7 @@ from services.tools.bench import (
     estimator_attitude_fit,
     estimator_drift_fit,
     yaw_correlation_fit,
+    yaw_held_fit,
     yaw_variance_fit,
 )
 from services.tools.bench.consistency_runs import (
@@ -147,6 +148,15 @@ def _fit_yaw_correlation(fit_seeds: list[int], args: argparse.Namespace) -> dict
     return {"json": result, "table": table}
 
 
+def _fit_yaw_held(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    glare = args.glare or HELD_FIT_GLARE
+    result = yaw_held_fit.fit(fit_seeds, args.field_frames, glare, args.scenarios)
+    table = [
+        {"model": which, **result[which], **result[f"{which}_score"]} for which in ("fitted", "in_use")
+    ] + [{"model": _fold_label(f), **f} for f in result["two_fold"]]
+    return {"json": result, "table": table}
+
+
 def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     result = estimator_drift_fit.fit(fit_seeds, args.estimator_frames, args.flights)
     rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
@@ -181,6 +191,9 @@ def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, A
     return {"json": result, "table": table}
 
 
+#: the share of frames washed out for ``--fit-yaw-held`` when ``--glare`` is not given (the bench's figure)
+HELD_FIT_GLARE = 0.08
+
 #: ``--fit-NAME`` runs a fit instead of the bench (one per run): what it fits (its help), and the function
 FITS: dict[str, tuple[str, Callable[[list[int], argparse.Namespace], dict[str, Any]]]] = {
     "yaw": (
@@ -192,6 +205,11 @@ FITS: dict[str, tuple[str, Callable[[list[int], argparse.Namespace], dict[str, A
         "the measured yaw pairs' correlation in time (share and time constant, maximum likelihood of each "
         "run's errors, a two-fold check) and print it (bench/yaw_correlation_fit.py)",
         _fit_yaw_correlation,
+    ),
+    "yaw-held": (
+        "a held yaw pair's variance (no gyro; the frames washed out as --glare does, 0.08 unless given) by "
+        "maximum likelihood, a two-fold check (bench/yaw_held_fit.py)",
+        _fit_yaw_held,
     ),
     "drift": (
         "the estimator's published horizontal drift (per pair and height) and floor on the fit seeds' "

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
 import numpy as np
@@ -24,7 +24,8 @@ from common.consistency import consistency, fit_variance_terms
 from common.geometry import wrap_angle_rad
 from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
-from common.types import FloatArray
+from common.sim.flight import Flight
+from common.types import FloatArray, U8Array
 from common.yaw import YawSettings, honest
 from services.tools.bench.yaw_field import run_core
 
@@ -60,17 +61,10 @@ def pair_terms(
         flight = field_flight(name, seed=seed, n_frames=frames)
         rendered = list(flight.frames())
         for gyro in (True, False):
-            runs = []
-            for unit in UNIT_TERMS:
-                with _coefficients(*unit):
-                    runs.append(run_core(flight, YawSettings(), rendered, gyro))
-            provenance = [r.provenance for r in runs]
-            deltas = [np.asarray(r.delta_rad) for r in runs]
-            if provenance[1:] != provenance[:-1] or not all(np.array_equal(deltas[0], d) for d in deltas):
-                raise RuntimeError(f"{name} seed {seed}: the coefficients changed more than the variances")
-            measured = np.array([p is Provenance.MEASURED for p in provenance[0]])
-            error = wrap_angle_rad(deltas[0] - np.diff(flight.yaw_rad))
-            residual, with_floor, with_shift = (np.asarray(r.delta_variance_rad2) for r in runs)
+            provenance, deltas, variances = unit_runs(flight, rendered, gyro, _coefficients, UNIT_TERMS)
+            measured = np.array([p is Provenance.MEASURED for p in provenance])
+            error = wrap_angle_rad(deltas - np.diff(flight.yaw_rad))
+            residual, with_floor, with_shift = variances.T
             deg2 = math.radians(1.0) ** 2  # the floor term: rad^2 per deg^2 of floor on a warped pair, else 0
             floor = deg2 * np.round((with_floor - residual) / deg2)
             unit_terms = np.column_stack([residual, floor, np.maximum(with_shift - residual, 0.0)])
@@ -104,11 +98,44 @@ def constants(c: FloatArray) -> dict[str, float]:
 
 def fit(seeds: list[int], frames: int, scenarios: list[str] | None = None) -> dict[str, Any]:
     """Fit on ``seeds``; score the fit, the constants in use, and a two-fold split of the seeds."""
-    per_seed = {seed: pair_terms(seed, frames, scenarios) for seed in seeds}
+    per_seed = {seed: pair_terms(seed, frames, scenarios)[:2] for seed in seeds}
+    in_use = np.array([honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG**2, honest.SHIFT_SHARE**2])
+    return {"seeds": seeds, "frames": frames, **fit_terms(per_seed, in_use, constants)}
+
+
+def unit_runs(
+    flight: Flight,
+    rendered: list[U8Array],
+    gyro: bool,
+    coefficients: Callable[..., AbstractContextManager[None]],
+    units: Sequence[tuple[float, ...]],
+) -> tuple[list[Provenance], FloatArray, FloatArray]:
+    """The core over ``flight`` once per unit coefficient set (each set with ``coefficients(*unit)``): the
+    pairs' provenance and deltas, the same in every run (checked: a coefficient only scales a published
+    variance), and each run's published variances as a column (N, len(units))."""
+    runs = []
+    for unit in units:
+        with coefficients(*unit):
+            runs.append(run_core(flight, YawSettings(), rendered, gyro))
+    provenance = [r.provenance for r in runs]
+    deltas = [np.asarray(r.delta_rad) for r in runs]
+    if provenance[1:] != provenance[:-1] or not all(np.array_equal(deltas[0], d) for d in deltas):
+        raise RuntimeError(f"{flight.name}: the coefficients changed more than the variances")
+    variances = np.column_stack([np.asarray(r.delta_variance_rad2, dtype=np.float64) for r in runs])
+    return provenance[0], deltas[0], variances
+
+
+def fit_terms(
+    per_seed: dict[int, tuple[FloatArray, FloatArray]],
+    in_use: FloatArray,
+    constants: Callable[[FloatArray], dict[str, float]],
+) -> dict[str, Any]:
+    """Coefficients fitted by maximum likelihood on every seed's ``(errors, terms)``, their score and the
+    ``in_use`` ones', and a two-fold split of the seeds (fit on one half, scored on the other)."""
+    seeds = sorted(per_seed)
     errors = np.concatenate([per_seed[s][0] for s in seeds])
     terms = np.vstack([per_seed[s][1] for s in seeds])
     fitted = fit_variance_terms(errors, terms)
-    in_use = np.array([honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG**2, honest.SHIFT_SHARE**2])
     halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
     folds = []
     if all(halves):
@@ -119,10 +146,8 @@ def fit(seeds: list[int], frames: int, scenarios: list[str] | None = None) -> di
             scored = _score(
                 np.concatenate([per_seed[s][0] for s in test]), np.vstack([per_seed[s][1] for s in test]), c
             )
-            folds.append({"fit_seeds": train, "scored_seeds": test, **scored})
+            folds.append({"fit_seeds": train, "scored_seeds": test, **constants(c), **scored})
     return {
-        "seeds": seeds,
-        "frames": frames,
         "fitted": constants(fitted),
         "fitted_score": _score(errors, terms, fitted),
         "in_use": constants(in_use),

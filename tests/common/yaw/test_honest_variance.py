@@ -16,7 +16,14 @@ from common.sim.field import field_flight, field_trajectory
 from common.sim.sensors import ImuNoise, simulate_imu
 from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, honest, make_patch_grid
 from common.yaw.fit import shift_of_homography_px
-from common.yaw.honest import WARPED_FLOOR_DEG, make_prior, measured_variance_rad2
+from common.yaw.held import HeldRate
+from common.yaw.honest import (
+    WARPED_FLOOR_DEG,
+    held_coefficients,
+    held_variance_terms,
+    make_prior,
+    measured_variance_rad2,
+)
 
 
 @settings(max_examples=50, deadline=None)
@@ -133,3 +140,26 @@ def test_the_shift_at_the_centre_is_the_translation_of_a_turn_about_it(
     homography = move @ to_centre @ turn @ np.linalg.inv(to_centre)
     assert shift_of_homography_px(homography, (cx, cy)) == pytest.approx(math.hypot(tx, ty), abs=1e-6)
     assert shift_of_homography_px(np.zeros((3, 3)), (cx, cy)) == math.inf
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    spread=st.floats(0.0, 2.0),
+    lag=st.floats(0.0, 0.3),
+    dt=st.floats(0.005, 0.2),
+    since=st.floats(0.0, 1.0),
+    more=st.floats(0.001, 0.5),
+)
+def test_a_held_pairs_variance_grows_with_the_time_since_measured_and_the_rates_scatter(
+    spread: float, lag: float, dt: float, since: float, more: float
+) -> None:
+    """The terms times the coefficients, never 0, growing with the time since the rate applied and with the
+    window's scatter; the gate's tolerance does not set it."""
+    settings_ = YawSettings()
+    held = HeldRate(0.3, lag, spread, 4)
+    prior = make_prior(settings_, dt, None, held, since)
+    expected = float(held_variance_terms(held, dt, since) @ held_coefficients())
+    assert prior.variance_rad2 == pytest.approx(expected) and prior.variance_rad2 > 0.0
+    assert make_prior(settings_, dt, None, held, since + more).variance_rad2 > prior.variance_rad2
+    wider = HeldRate(0.3, lag, spread + 0.1, 4)
+    assert make_prior(settings_, dt, None, wider, since).variance_rad2 > prior.variance_rad2

@@ -123,6 +123,19 @@ def test_glare_gives_the_mounted_rigs_bridged_and_held_pairs_lines_and_the_bridg
 
 
 @pytest.mark.slow
+def test_held_pairs_are_published_with_their_own_variance_not_the_gates_regression() -> None:
+    """The bug: a held pair (no gyro, nothing measured) was published with the gate's tolerance for a sigma
+    (a third of at least 5 deg), 16 times its errors' std (mean NEES 0.004 on seeds 10-19). Seed 13 (held
+    out), a fifth of the frames washed out."""
+    held = yaw_samples(seed=13, frames=60, scenarios=["checkerboard", "tiles", "fast_yaw"], glare=0.2)[
+        "yaw pair held (no imu)"
+    ]
+    scored = line_consistency(held.nees, 1)
+    assert scored.samples >= 15
+    assert 0.3 <= scored.nees_mean <= 3.0 and scored.within_2_sigma >= 0.85, scored
+
+
+@pytest.mark.slow
 def test_the_published_yaw_counts_its_pairs_correlated_errors_regression() -> None:
     """The bug: the yaw's variance summed its pairs' variances as if their errors were independent, but
     consecutive measured pairs err alike, so the published yaw was overconfident (on the held-out seeds 10-19
