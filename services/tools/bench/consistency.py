@@ -133,12 +133,17 @@ def _fold_label(fold: dict[str, Any]) -> str:
     return f"fit {fold['fit_seeds'][0]}-{fold['fit_seeds'][-1]}, scored on the others"
 
 
-def _fit_yaw(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
-    result = yaw_variance_fit.fit(fit_seeds, args.field_frames, args.scenarios)
+def _terms_fit_output(result: dict[str, Any]) -> dict[str, Any]:
+    """The JSON and table of a fit by :func:`~services.tools.bench.yaw_variance_fit.fit_terms`: the fitted
+    and in-use constants with their scores, then the two-fold rows."""
     table = [
         {"model": which, **result[which], **result[f"{which}_score"]} for which in ("fitted", "in_use")
     ] + [{"model": _fold_label(f), **f} for f in result["two_fold"]]
     return {"json": result, "table": table}
+
+
+def _fit_yaw(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    return _terms_fit_output(yaw_variance_fit.fit(fit_seeds, args.field_frames, args.scenarios))
 
 
 def _fit_yaw_correlation(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
@@ -150,11 +155,7 @@ def _fit_yaw_correlation(fit_seeds: list[int], args: argparse.Namespace) -> dict
 
 def _fit_yaw_held(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     glare = args.glare or HELD_FIT_GLARE
-    result = yaw_held_fit.fit(fit_seeds, args.field_frames, glare, args.scenarios)
-    table = [
-        {"model": which, **result[which], **result[f"{which}_score"]} for which in ("fitted", "in_use")
-    ] + [{"model": _fold_label(f), **f} for f in result["two_fold"]]
-    return {"json": result, "table": table}
+    return _terms_fit_output(yaw_held_fit.fit(fit_seeds, args.field_frames, glare, args.scenarios))
 
 
 def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
@@ -207,8 +208,8 @@ FITS: dict[str, tuple[str, Callable[[list[int], argparse.Namespace], dict[str, A
         _fit_yaw_correlation,
     ),
     "yaw-held": (
-        "a held yaw pair's variance (no gyro; the frames washed out as --glare does, 0.08 unless given) by "
-        "maximum likelihood, a two-fold check (bench/yaw_held_fit.py)",
+        "a held yaw pair's variance (no gyro; the frames washed out as --glare does, 0.08 unless a share "
+        "above 0 is given) by maximum likelihood, a two-fold check (bench/yaw_held_fit.py)",
         _fit_yaw_held,
     ),
     "drift": (
