@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import threading
 
 import zenoh
@@ -47,7 +48,11 @@ def on_yaw(sample: zenoh.Sample) -> None:  # the callback only decodes, prints a
     attachment = sample.attachment.to_bytes() if sample.attachment is not None else b""
     yaw = decode(sample.payload.to_bytes(), attachment, YawEstimate)
     sigma_rad = yaw.yaw_variance_rad2**0.5
-    print(f"frame {yaw.seq}: yaw {yaw.yaw_rad:+.4f} rad, sigma {sigma_rad:.4f} rad ({yaw.provenance.value})")
+    # one write a line: a terminal or pipe shared with other processes never gets a line cut in two
+    sys.stdout.write(
+        f"frame {yaw.seq}: yaw {yaw.yaw_rad:+.4f} rad, sigma {sigma_rad:.4f} rad ({yaw.provenance.value})\n"
+    )
+    sys.stdout.flush()
     received += 1
     if received >= args.count:
         done.set()

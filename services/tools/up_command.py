@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import signal
+import sys
 import threading
 import time
 from collections.abc import Sequence
@@ -201,10 +202,12 @@ def watch_until_done(
         newest = collector.newest()
         if newest != last:
             estimate = collector.estimates[newest]
-            print(
+            # one write a line: a client printing to the same terminal never lands inside it
+            sys.stdout.write(
                 f"yaw frame {newest}: {estimate.yaw_rad:+.4f} rad, "
-                f"{estimate.timings_ms.get('total', 0.0):.1f} ms, members {estimate.members}"
+                f"{estimate.timings_ms.get('total', 0.0):.1f} ms, members {estimate.members}\n"
             )
+            sys.stdout.flush()
             last = newest
         if duration_s and time.monotonic() - t0 > duration_s:
             return
