@@ -26,18 +26,20 @@ A YAML mapping, every key checked (an unknown key is refused with the file's nam
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from common.dispatch import Balance, SpeedSource
+from common.dispatch import Balance, DispatchSettings, SpeedSource
 from common.errors import CapatazError
 from common.members import Topology
 from common.wire.jobs import JobEncoding
+from common.wire.schema import MAX_BUDGET_S
 from services.master.settings import MasterSettings
-from services.runtime.usage import condense_validation_error, one_line
+from services.runtime.usage import condense_validation_error, number_in, one_line
 
 
 class ClusterError(CapatazError):
@@ -73,6 +75,10 @@ class ClusterSpec(BaseModel):
     master_computes: bool = False
     #: the master's ``--job-encoding`` (zstd: members across a thin link)
     job_encoding: JobEncoding = MasterSettings.model_fields["job_encoding"].default
+    #: the master's and the foremen's ``--min-deadline-ms`` (a member's smallest deadline before its share
+    #: is computed elsewhere and it is paused); None = their default. A load test or bench on a busy host
+    #: raises it to measure the balanced path rather than the fault path
+    min_deadline_ms: float | None = Field(default=None, gt=0.0, le=1e3 * MAX_BUDGET_S)
     master_cpus: str | None = None
     #: taskset CPU list of the router and the camera
     aux_cpus: str | None = None
@@ -96,6 +102,26 @@ class ServiceCommand:
     cpus: str | None = None
 
 
+def deadline_args(spec: ClusterSpec) -> list[str]:
+    """The dispatchers' ``--min-deadline-ms`` when the cluster sets one."""
+    return [] if spec.min_deadline_ms is None else ["--min-deadline-ms", f"{spec.min_deadline_ms:g}"]
+
+
+def add_deadline_argument(parser: argparse.ArgumentParser) -> None:
+    """``--min-deadline-ms`` of a tool that starts a cluster (its :attr:`ClusterSpec.min_deadline_ms`)."""
+    parser.add_argument(
+        "--min-deadline-ms", type=number_in(float, 1.0, 1e3 * MAX_BUDGET_S),
+        help="the master's and foremen's smallest per-member deadline (default: theirs, "
+        f"{1e3 * DispatchSettings().min_deadline_s:g} ms); on a busy host a larger one keeps a late member's "
+        "share from moving to the master, which the run would then measure instead of the balanced path",
+    )  # fmt: skip
+
+
+def with_deadline(spec: ClusterSpec, min_deadline_ms: float | None) -> ClusterSpec:
+    """``spec`` with the dispatchers' ``--min-deadline-ms`` (None: as it is)."""
+    return spec if min_deadline_ms is None else spec.model_copy(update={"min_deadline_ms": min_deadline_ms})
+
+
 def worker_command(spec: ClusterSpec, host: HostSpec, index: int) -> ServiceCommand:
     args = ["worker", "--node", host.name, "--index", str(index)]
     if host.cpu_factor != 1:
@@ -106,14 +132,14 @@ def worker_command(spec: ClusterSpec, host: HostSpec, index: int) -> ServiceComm
 def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
     compute = "--compute" if host.foreman_computes else "--no-compute"
     args = ("foreman", "--node", host.name, "--balance", spec.balance.value, compute,
-            "--speed", spec.speed.value)  # fmt: skip
+            "--speed", spec.speed.value, *deadline_args(spec))  # fmt: skip
     return ServiceCommand(f"foreman/{host.name}/0", args, host.cpus)
 
 
 def master_command(spec: ClusterSpec) -> ServiceCommand:
     args = ["master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
             "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
-            "--speed", spec.speed.value]  # fmt: skip
+            "--speed", spec.speed.value, *deadline_args(spec)]  # fmt: skip
     if spec.job_encoding != MasterSettings.model_fields["job_encoding"].default:
         args += ["--job-encoding", spec.job_encoding]
     return ServiceCommand("master/master/0", tuple(args), spec.master_cpus)

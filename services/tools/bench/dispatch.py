@@ -52,7 +52,7 @@ from services.runtime.cli import number_in, parse_size
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
 from services.tools.bench.cluster_workload import write_frame_folder
-from services.tools.cluster_file import ClusterSpec, HostSpec
+from services.tools.cluster_file import ClusterSpec, HostSpec, add_deadline_argument, with_deadline
 from services.tools.loadtest.harness import processes_cpu_seconds
 from services.tools.netns import (
     NetHarness,
@@ -106,6 +106,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="one CPU per host: the ground host (master, camera, its router) and the in-process run on the "
         "first, each member host on one of the others (latency against one host's CPU: latency_ratio)",
     )  # fmt: skip
+    add_deadline_argument(parser)
     yaw = YawSettings()  # the workload's defaults are the yaw core's
     workload = parser.add_argument_group("workload (the same for the in-process run and the master)")
     workload.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
@@ -226,7 +227,9 @@ def cluster_path(
     label: str, topology: Topology, workers: tuple[int, ...], args: argparse.Namespace
 ) -> dict[str, Any]:
     """One path's flight: on loopback, or (``--netns``) across emulated hosts with per-link bytes."""
-    spec = path_spec(label, topology, workers, args.master_computes, args.pin)
+    spec = with_deadline(
+        path_spec(label, topology, workers, args.master_computes, args.pin), args.min_deadline_ms
+    )
     flight_frames(args)
     log_dir = Path(args.out) / "dispatch_logs" / spec.name
     _, _, master_args = workload_of(args)

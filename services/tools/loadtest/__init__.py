@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from services.runtime.usage import number_in
-from services.tools.cluster_file import ClusterSpec, load_cluster
+from services.tools.cluster_file import ClusterSpec, add_deadline_argument, load_cluster, with_deadline
 from services.tools.loadtest.harness import RunSettings
 from services.tools.loadtest.hosts import model_report, spec_for_hosts
 from services.tools.loadtest.plan import (
@@ -118,6 +118,7 @@ def register(subparsers: Any) -> None:
         help="with --hosts: the last host's workers do their work N times (a slower CPU: the report's shares "
         "show the balancer moving work away from it)",
     )  # fmt: skip
+    add_deadline_argument(parser)
     parser.add_argument("--name", default="loadtest", help="report name: out/loadtest/<name>.json/.png")
     parser.add_argument("--out", type=Path, default=Path("out/loadtest"), help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated flight")
@@ -164,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         raise LoadtestError(f"fault {faults[-1].label} is after the end of the run ({args.duration:g} s)")
     defaults = CAPACITY_OBJECTIVES if args.capacity else FAULT_OBJECTIVES if faults else DEFAULT_OBJECTIVES
     objectives = [parse_objective(o) for o in (args.slo or defaults)]
-    spec = load_cluster(args.cluster)
+    spec = with_deadline(load_cluster(args.cluster), args.min_deadline_ms)
     if args.hosts is not None:
         spec = _hosts_spec(args, spec, faults)
     elif args.link_mbit is not None or args.thin_host_mbit is not None or args.slow_host_factor != 1:

@@ -76,13 +76,16 @@ def test_link_rates_without_hosts_and_hosts_with_the_secure_profile_are_refused(
 def test_two_emulated_hosts_carry_a_stream_and_the_report_counts_each_links_bytes(tmp_path: Path) -> None:
     if (reason := unavailable_reason()) is not None:
         pytest.skip(reason)
+    # members get 1 s (the frame's budget) before their share moves: with the default 0.3 s, h1 missed on the
+    # loaded CI host and was paused, h2 took its share up to the cap (shares 0.33 h1, 0.50 h2, 0.17 master).
+    # This test is about the balanced path; the fault path has its own tests
     # a process of its own, as a user runs it: zenoh's threads live in the namespace where the process opened
     # its first session, and a test process has opened sessions in the root namespace before
     done = subprocess.run(
         capataz_command(
             "loadtest", "--hosts", "2", "--link-mbit", "100", "--thin-host-mbit", "20", "--streams", "1",
             "--fps", "10", "--duration", "4", "--warmup", "1", "--slo", "lost_pct<=100", "--out",
-            str(tmp_path), "--name", "h2",
+            str(tmp_path), "--name", "h2", "--min-deadline-ms", "1000",
         ),
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
