@@ -33,8 +33,9 @@ from common.wire.schema import (
 from common.yaw.grid import crops_at
 from common.yaw.settings import YawSettings
 
-#: how a job's pixels travel when they go as one image (``band``): raw, or zstd-compressed (lossless)
-JobEncoding = Literal["mono8", "zstd"]
+#: how a job's pixels travel when they go as one image (``band``): raw, zstd-compressed (lossless) or JPEG
+#: (lossy, :data:`~common.wire.frame_codec.DEFAULT_JPEG_QUALITY`)
+JobEncoding = Literal["mono8", "zstd", "jpeg"]
 
 # ----------------------------------------------------------------------------------------------- work
 #: Yaw settings only the central stage uses (the lens model): never sent to members.
@@ -123,10 +124,10 @@ class PatchJob(WireModel):
     ``settings`` are the dispatcher's yaw settings, so every member measures with the same settings.
 
     The new frame's patches may travel as one ``band`` of its level image instead (``crops`` then empty):
-    fewer bytes where patches overlap. The band's bytes are in ``band_encoding`` (``mono8``, or ``zstd``:
-    :mod:`common.wire.frame_codec`'s lossless codec), its shape is ``band_shape`` and ``corners`` gives each
-    index's crop corner ``[row, col]`` in it. Decoding cuts the crops from the band (bit-identical to the
-    sender's) and drops it: a decoded job always holds ``crops``.
+    fewer bytes where patches overlap. The band's bytes are in ``band_encoding`` (``mono8``; ``zstd``,
+    :mod:`common.wire.frame_codec`'s lossless codec; or ``jpeg``, lossy), its shape is ``band_shape`` and
+    ``corners`` gives each index's crop corner ``[row, col]`` in it. Decoding cuts the crops from the band
+    (bit-identical to the sender's but for ``jpeg``) and drops it: a decoded job always holds ``crops``.
     """
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {

@@ -59,8 +59,10 @@ class MasterSettings(BaseModel):
     job_encoding: JobEncoding = Field(
         default="mono8",
         description="how a share's pixels travel: mono8 (raw: one band of the frame where patches overlap "
-        "and that is fewer bytes, else the crops), or zstd (lossless, every share packed and compressed, "
-        "about half the bytes for about 1 ms of CPU a share: members across a thin link)",
+        "and that is fewer bytes, else the crops), zstd (lossless, every share packed and compressed, "
+        "about half the bytes for about 1 ms of CPU a share: members across a thin link) or jpeg (lossy, "
+        "quality 90: about half of zstd's bytes; the members' shifts differ from the master's by the "
+        "codec's error, 0.004 px median on a 1080p hover)",
     )
 
     def gate_settings(self) -> FrameGateSettings:

@@ -9,7 +9,8 @@ A YAML mapping, every key checked (an unknown key is refused with the file's nam
     balance: time                   # time: shares follow each member's measured speed; none: equal shares
     speed: round_trip               # what "speed" means for time balancing: round_trip or reported
     master_computes: false          # the master computes a share as well as dispatching
-    job_encoding: mono8             # how a share's pixels travel to the members: mono8 or zstd
+    job_encoding: mono8             # how a share's pixels travel to the members: mono8, zstd or jpeg
+    min_deadline_ms: 300            # the dispatchers' smallest member deadline (optional; their default)
     master_cpus: "0"                # taskset CPU list of the master (optional)
     aux_cpus: "0"                   # taskset CPU list of the router and the camera (optional)
     uav: uav0                       # the UAV stream the master serves
