@@ -24,7 +24,10 @@ FRAMES = 40
 def test_master_and_camera_on_one_host_foreman_and_workers_on_another(tmp_path: Path) -> None:
     if (reason := unavailable_reason()) is not None:
         pytest.skip(reason)
-    spec = ClusterSpec(name="net", hosts=(HostSpec(name="h1", workers=2),))
+    # members get 1 s (the frame's budget), not 0.3 s: a loaded CI host made a member miss 0.3 s twice in a
+    # flight of the bench's same path (tests/services/tools/test_bench_dispatch.py), and the master computed
+    # 60 % of it. The path across hosts is measured here; the fault path has its own tests
+    spec = ClusterSpec(name="net", hosts=(HostSpec(name="h1", workers=2),), min_deadline_ms=1000.0)
     plan = plan_for_cluster(spec, new_prefix(), {"h1": 100_000_000})
     with NetHarness(plan) as net, NetnsCluster(spec, tmp_path / "logs", net) as cluster:
         cluster.start()
@@ -38,8 +41,8 @@ def test_master_and_camera_on_one_host_foreman_and_workers_on_another(tmp_path: 
     assert got["malformed"] == 0
     assert got["median_timings_ms"]["total"] > 0  # the master's frame-in to yaw-out time, per frame
     # the master only dispatches: the patches are computed across the link, on host h1. It takes the share
-    # of a member that missed its deadline (its documented fallback, counted as a re-dispatch): on a loaded
-    # host one 0.3 s stall is enough, so a master share is asserted to come with one
+    # of a member that missed its deadline (its documented fallback, counted as a re-dispatch), so a master
+    # share is asserted to come with one
     members = got["members"]
     assert members_outweigh_master(members), members
     assert SELF not in members or got["redispatched"] > 0, got
