@@ -32,11 +32,12 @@ import numpy.typing as npt
 from common.consistency import normalised_errors_squared
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.replay import standard_estimators
-from common.geometry import matrix_from_quaternion, wrap_angle_rad
+from common.geometry import matrix_from_quaternion
 from common.localization.pose import rotation_vectors
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings
 from common.localization.tracking import track_model
+from common.metrics import yaw_error_rad
 from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, agile_flight, turns_flight
@@ -133,7 +134,7 @@ def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None, glar
         true_yaw = flight.yaw_rad - flight.yaw_rad[0]
         for gyro in (True, False):
             series = run_core(flight, settings, rendered, gyro)
-            error = wrap_angle_rad(np.asarray(series.delta_rad) - true_delta)
+            error = yaw_error_rad(series.delta_rad, true_delta)
             nees = normalised_errors_squared(error, series.delta_variance_rad2)
             provenance = np.array([p.value for p in series.provenance])
             pair = np.arange(len(provenance))
@@ -143,7 +144,7 @@ def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None, glar
                     line = f"yaw pair {kind.value}{'' if gyro else ' (no imu)'}"
                     _add(out, line, 1, nees[chosen], name, pair[chosen])
             yaw = np.cumsum(series.delta_rad)
-            accumulated = wrap_angle_rad(yaw - true_yaw[1:])
+            accumulated = yaw_error_rad(yaw, true_yaw[1:])
             line = f"yaw accumulated {'gyro' if gyro else 'no imu'}"
             _add(out, line, 1, normalised_errors_squared(accumulated, series.yaw_variance_rad2), name, pair)
         logger.info("yaw seed %d %s done", seed, name)

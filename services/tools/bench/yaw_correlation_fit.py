@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from common.consistency import consistency
-from common.geometry import wrap_angle_rad
+from common.metrics import yaw_error_rad
 from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.types import FloatArray
@@ -54,9 +54,7 @@ def pair_runs(seed: int, frames: int, scenarios: list[str] | None = None) -> lis
             runs.append(
                 PairRun(
                     name=f"{name}{'' if gyro else ' (no imu)'}",
-                    errors_rad=np.asarray(
-                        wrap_angle_rad(np.asarray(series.delta_rad) - np.diff(flight.yaw_rad))
-                    ),
+                    errors_rad=yaw_error_rad(series.delta_rad, np.diff(flight.yaw_rad)),
                     variances_rad2=np.asarray(series.delta_variance_rad2, dtype=np.float64),
                     stop_s=np.asarray(flight.frame_stamps_s[1:], dtype=np.float64),
                     provenance=tuple(series.provenance),

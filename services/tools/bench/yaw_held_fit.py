@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from common.geometry import wrap_angle_rad
+from common.metrics import yaw_error_rad
 from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.types import FloatArray
@@ -63,7 +63,7 @@ def held_terms(
         # a pair held before any was measured has no rate to hold (the uninformative prior, not this model)
         measured_before = np.concatenate([[0], np.cumsum(~held)[:-1]]) > 0
         held &= measured_before
-        error = wrap_angle_rad(deltas - np.diff(flight.yaw_rad))
+        error = yaw_error_rad(deltas, np.diff(flight.yaw_rad))
         errors.append(np.asarray(error[held], dtype=np.float64))
         terms.append(variances[held])
         logger.info("yaw held fit: seed %d %s done", seed, name)

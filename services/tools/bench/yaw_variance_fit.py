@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from common.consistency import consistency, fit_variance_terms
-from common.geometry import wrap_angle_rad
+from common.metrics import yaw_error_rad
 from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight
@@ -63,7 +63,7 @@ def pair_terms(
         for gyro in (True, False):
             provenance, deltas, variances = unit_runs(flight, rendered, gyro, _coefficients, UNIT_TERMS)
             measured = np.array([p is Provenance.MEASURED for p in provenance])
-            error = wrap_angle_rad(deltas - np.diff(flight.yaw_rad))
+            error = yaw_error_rad(deltas, np.diff(flight.yaw_rad))
             residual, with_floor, with_shift = variances.T
             deg2 = math.radians(1.0) ** 2  # the floor term: rad^2 per deg^2 of floor on a warped pair, else 0
             floor = deg2 * np.round((with_floor - residual) / deg2)
