@@ -137,13 +137,15 @@ def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
     return ServiceCommand(f"foreman/{host.name}/0", args, host.cpus)
 
 
-def master_command(spec: ClusterSpec) -> ServiceCommand:
-    args = ["master", "--node", "master", "--uav", spec.uav, "--topology", spec.topology.value,
+def master_command(spec: ClusterSpec, node: str = "master", uav: str | None = None) -> ServiceCommand:
+    """The master of ``uav`` (default: the file's) on ``node`` (the load test runs one per UAV, standbys
+    too: every master takes the file's options, ``job_encoding`` and ``min_deadline_ms`` included)."""
+    args = ["master", "--node", node, "--uav", uav or spec.uav, "--topology", spec.topology.value,
             "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
             "--speed", spec.speed.value, *deadline_args(spec)]  # fmt: skip
     if spec.job_encoding != MasterSettings.model_fields["job_encoding"].default:
         args += ["--job-encoding", spec.job_encoding]
-    return ServiceCommand("master/master/0", tuple(args), spec.master_cpus)
+    return ServiceCommand(f"master/{node}/0", tuple(args), spec.master_cpus)
 
 
 def cluster_commands(spec: ClusterSpec) -> list[ServiceCommand]:

@@ -28,7 +28,7 @@ from common.wire.codec import encode
 from common.wire.messages import Frame, PatchJob, YawJobSettings
 from common.yaw import YawSettings
 from services.runtime.transport import open_session
-from services.tools.cluster_file import ClusterSpec, deadline_args
+from services.tools.cluster_file import ClusterSpec, master_command
 from services.tools.loadtest.plan import Fault, FaultAction
 from services.tools.netns import NetHarness
 from services.tools.netns_cluster import NetnsCluster
@@ -131,11 +131,8 @@ class LoadCluster:
         for i, uav in enumerate(self.uavs):
             for role in ("m", "s") if self.settings.standby_masters else ("m",):
                 node = f"{role}{i}"
-                args = ["master", *cluster.transport_args(), "--node", node, "--uav", uav, "--topology",
-                        spec.topology, "--balance", spec.balance, "--speed", spec.speed,
-                        "--compute" if spec.master_computes else "--no-compute",
-                        *deadline_args(spec)]  # fmt: skip
-                name = f"master/{node}/0"
+                command = master_command(spec, node, uav)
+                name, args = command.name, [command.args[0], *cluster.transport_args(), *command.args[1:]]
                 self._master_args[name] = args
                 self._master_uav[name] = uav
                 cluster.spawn(name, args, spec.master_cpus, common_name=f"master.{uav}")

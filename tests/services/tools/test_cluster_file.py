@@ -63,3 +63,14 @@ def test_a_min_deadline_out_of_its_bounds_is_refused() -> None:
     with pytest.raises(SystemExit):
         parser.parse_args(["--min-deadline-ms", "nan"])
     assert parser.parse_args(["--min-deadline-ms", "1000"]).min_deadline_ms == 1000.0
+
+
+def test_a_load_tests_masters_take_the_files_options_regression() -> None:
+    # the load test built its masters' command lines itself and left out the file's job_encoding
+    spec = ClusterSpec(name="thin", hosts=(HostSpec(name="h1", workers=1),), job_encoding="zstd", uav="uav0")
+    standby = master_command(spec, "s1", "uav1")
+    assert standby.name == "master/s1/0"
+    args = list(standby.args)
+    assert args[args.index("--node") + 1] == "s1" and args[args.index("--uav") + 1] == "uav1"
+    assert args[args.index("--job-encoding") + 1] == "zstd"
+    assert master_command(spec).name == "master/master/0" and "uav0" in master_command(spec).args
