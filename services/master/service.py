@@ -288,9 +288,8 @@ class MasterService(ConfiguredService[MasterSettings]):
         camera, R_body_camera, axis, offset = geometry
         self.gyro.axis_imu, self.gyro.time_offset_s = axis, offset
         tracker = YawTracker(prior.tracker_settings(self.yaw_settings, camera), grid, R_body_camera)
-        state = tracker.initial_state(
-            frame.pixels, False, frame.stamp_s, anchor.yaw_rad, anchor.yaw_variance_rad2
-        )
+        state = tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s,
+            yaw_rad=anchor.yaw_rad, yaw_variance_rad2=anchor.yaw_variance_rad2)  # fmt: skip
         dispatcher = Dispatcher(self.settings.dispatch, grid.n_patches)
         dispatcher.trust = self.guard.monitor()
         level = grid.level_image(frame.pixels)
