@@ -95,6 +95,13 @@ def _add(out: Samples, line: str, dof: int, nees: FloatArray, run: str, steps: n
     samples.steps.extend(f"{run}:{int(i)}" for i in k)
 
 
+def two_folds(seeds: list[int]) -> list[tuple[list[int], list[int]]]:
+    """A fit's two-fold check over ``seeds``: fit on the first half and score on the second, then the other
+    way round; none when a half would be empty."""
+    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
+    return [(halves[0], halves[1]), (halves[1], halves[0])] if all(halves) else []
+
+
 def world_error_angles(R_true: FloatArray, R_estimated: FloatArray) -> FloatArray:
     """``dtheta`` (N, 3) with ``R_true = Exp(dtheta) R_estimated``: world-frame error angles."""
     return rotation_vectors(np.einsum("nij,nkj->nik", R_true, R_estimated))

@@ -35,6 +35,7 @@ from services.tools.bench.consistency_runs import (
     attitude_errors,
     per_flight,
     published_messages,
+    two_folds,
 )
 
 #: the yaw floor's term is this many rad^2 per unit coefficient (so the coefficients are of like size)
@@ -127,15 +128,13 @@ def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) 
         np.array([model.tilt_variance_scale]),
         np.array([model.yaw_drift_per_rad**2, model.yaw_floor_rad2 / FLOOR_UNIT_RAD2]),
     )
-    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
     folds = []
-    if all(halves):
-        for train, test in (halves, halves[::-1]):
-            c_tilt, (_, c_yaw) = _fit(per_seed, train, "tilt", names), cautious_yaw_fit(per_seed, train)
-            folds.append({
-                "fit_seeds": train, "scored_seeds": test, **constants(c_tilt, c_yaw),
-                **_scores(per_seed, test, c_tilt, c_yaw),
-            })  # fmt: skip
+    for train, test in two_folds(seeds):
+        c_tilt, (_, c_yaw) = _fit(per_seed, train, "tilt", names), cautious_yaw_fit(per_seed, train)
+        folds.append({
+            "fit_seeds": train, "scored_seeds": test, **constants(c_tilt, c_yaw),
+            **_scores(per_seed, test, c_tilt, c_yaw),
+        })  # fmt: skip
     return {
         "seeds": seeds,
         "frames": frames,

@@ -29,6 +29,7 @@ from services.tools.bench.consistency_runs import (
     position_errors,
     published_messages,
     tracked_poses,
+    two_folds,
 )
 
 #: the floor's term is this many m^2 per unit coefficient (so the two coefficients are of like size)
@@ -92,14 +93,10 @@ def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) 
     in_use = np.array(
         [outputs.PublishedUncertainty().drift_per_pair ** 2, outputs.MIN_VAR_XY_M2 / FLOOR_UNIT_M2]
     )
-    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
     folds = []
-    if all(halves):
-        for train, test in (halves, halves[::-1]):
-            c = fit_variance_terms(*_stack(per_seed, train))
-            folds.append(
-                {"fit_seeds": train, "scored_seeds": test, **constants(c), **_score(per_seed, test, c)}
-            )
+    for train, test in two_folds(seeds):
+        c = fit_variance_terms(*_stack(per_seed, train))
+        folds.append({"fit_seeds": train, "scored_seeds": test, **constants(c), **_score(per_seed, test, c)})
     return {
         "seeds": seeds,
         "frames": frames,

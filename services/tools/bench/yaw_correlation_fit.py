@@ -24,6 +24,7 @@ from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.types import FloatArray
 from common.yaw import YawSettings, yaw_variance
+from services.tools.bench.consistency_runs import two_folds
 from services.tools.bench.yaw_field import run_core
 
 logger = logging.getLogger(__name__)
@@ -127,13 +128,11 @@ def fit_runs(per_seed: dict[int, list[PairRun]], frames: int) -> dict[str, Any]:
     """:func:`fit` of runs already made."""
     seeds = sorted(per_seed)
     runs = [run for seed in seeds for run in per_seed[seed]]
-    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
     folds = []
-    if all(halves):
-        for train, test in (halves, halves[::-1]):
-            model = best_model([r for s in train for r in per_seed[s]])
-            folds.append({"fit_seeds": train, "scored_seeds": test,
-                          **accumulated_score([r for s in test for r in per_seed[s]], model)})  # fmt: skip
+    for train, test in two_folds(seeds):
+        model = best_model([r for s in train for r in per_seed[s]])
+        folds.append({"fit_seeds": train, "scored_seeds": test,
+                      **accumulated_score([r for s in test for r in per_seed[s]], model)})  # fmt: skip
     return {
         "seeds": seeds,
         "frames": frames,

@@ -27,6 +27,7 @@ from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight
 from common.types import FloatArray, U8Array
 from common.yaw import YawSettings, honest
+from services.tools.bench.consistency_runs import two_folds
 from services.tools.bench.yaw_field import run_core
 
 logger = logging.getLogger(__name__)
@@ -136,17 +137,15 @@ def fit_terms(
     errors = np.concatenate([per_seed[s][0] for s in seeds])
     terms = np.vstack([per_seed[s][1] for s in seeds])
     fitted = fit_variance_terms(errors, terms)
-    halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
     folds = []
-    if all(halves):
-        for train, test in (halves, halves[::-1]):
-            c = fit_variance_terms(
-                np.concatenate([per_seed[s][0] for s in train]), np.vstack([per_seed[s][1] for s in train])
-            )
-            scored = _score(
-                np.concatenate([per_seed[s][0] for s in test]), np.vstack([per_seed[s][1] for s in test]), c
-            )
-            folds.append({"fit_seeds": train, "scored_seeds": test, **constants(c), **scored})
+    for train, test in two_folds(seeds):
+        c = fit_variance_terms(
+            np.concatenate([per_seed[s][0] for s in train]), np.vstack([per_seed[s][1] for s in train])
+        )
+        scored = _score(
+            np.concatenate([per_seed[s][0] for s in test]), np.vstack([per_seed[s][1] for s in test]), c
+        )
+        folds.append({"fit_seeds": train, "scored_seeds": test, **constants(c), **scored})
     return {
         "fitted": constants(fitted),
         "fitted_score": _score(errors, terms, fitted),

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from common.consistency import consistency as line_consistency
 from common.geometry import wrap_angle_rad
@@ -23,6 +25,7 @@ from services.tools.bench.consistency_runs import (
     estimator_lines,
     estimator_outputs,
     localizer_samples,
+    two_folds,
     with_glare,
     yaw_samples,
 )
@@ -196,3 +199,14 @@ def test_the_localizers_published_covariance_is_not_twice_too_cautious_on_a_held
     for block in ("position", "rotation"):
         nees = float(np.mean(samples[f"localizer office tracking {block}"].nees))
         assert 1.8 < nees < 4.0, (block, nees)
+
+
+@given(st.lists(st.integers(0, 99), unique=True, max_size=30))
+def test_a_fits_two_folds_swap_the_halves_of_its_seeds(seeds: list[int]) -> None:
+    folds = two_folds(seeds)
+    if len(seeds) < 2:  # a half would be empty: no check
+        assert folds == []
+        return
+    (train, test), (train_back, test_back) = folds
+    assert train + test == seeds and (train_back, test_back) == (test, train)
+    assert len(train) == len(seeds) // 2
