@@ -54,6 +54,8 @@ class Refinement:
     covariance: FloatArray
     #: the matched outline (px, :func:`match_measures`): what decides between refinements
     outline_px: float = 0.0
+    #: how much each edge's points agree in their offsets (:func:`edge_agreement`; NaN: not measured)
+    edge_agreement: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -147,8 +149,9 @@ def oriented_offsets(
 
 def _visible_projection(
     fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Pixels, unit normals and camera-frame points of the valid sample points of one pose."""
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, npt.NDArray[np.intp]]:
+    """Pixels, unit normals and camera-frame points of the valid sample points of one pose, and the model
+    edge each lies on (an index into the edges the projection kept)."""
     p_world_camera = -R_camera_world.T @ t_camera_world
     samples = fit.samples
     proj = project_pose_samples(
@@ -164,6 +167,7 @@ def _visible_projection(
         proj.normal_u[0][valid].astype(np.float64),
         proj.normal_v[0][valid].astype(np.float64),
         X,
+        np.nonzero(valid)[0],
     )
 
 
@@ -211,6 +215,31 @@ def match_measures(
     return float(hit.mean()), n, outline
 
 
+def edge_agreement(
+    J: FloatArray,
+    weighted_residuals: FloatArray,
+    edge: npt.NDArray[np.intp],
+    H_inv: FloatArray,
+    covariance: FloatArray,
+) -> float:
+    """How much the points of each model edge agree in their offsets: the trace of the twist's
+    cluster-robust (sandwich) covariance with an edge's points as one cluster, ``H^-1 (sum_e s_e s_e^T)
+    H^-1`` with ``s_e`` the sum of ``J_i w_i d_i`` over edge ``e``'s points (Liang and Zeger, *Biometrika*
+    73, 1986), over the trace of ``covariance``, the one that counts every point as independent.
+
+    Where the pose fits, an edge's offsets scatter about zero and cancel in ``s_e``: the ratio is small
+    (0.2 in the office flight, 0.45 on the object). Where a pose held by few edges along one direction is
+    locked off its true one, the offsets of each edge's points share a sign and add up: 1.2-3.2 there
+    (office frames 106-120 of every seed, 20-70 mm off). ``weighted_residuals`` are ``w_i d_i`` (P,),
+    ``edge`` each point's edge (P,), ``H_inv`` the inverse (damped) normal matrix."""
+    scores = J * weighted_residuals[:, None]
+    per_edge = np.zeros((int(edge.max()) + 1 if edge.size else 0, J.shape[1]))
+    np.add.at(per_edge, edge, scores)
+    clustered = H_inv @ (per_edge.T @ per_edge) @ H_inv
+    independent = float(np.trace(covariance))
+    return float(np.trace(clustered)) / independent if independent > 0.0 else float("nan")
+
+
 def refine_pose(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatArray) -> Refinement:
     """Gauss-Newton on oriented point-to-edge offsets from one pose (see the module docstring)."""
     R, t = R_camera_world.copy(), t_camera_world.copy()
@@ -218,15 +247,16 @@ def refine_pose(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatA
     cos_max = float(np.cos(np.radians(params.max_angle_deg)))
     radius = params.search_px
     covariance = np.full((6, 6), np.nan)
+    agreement = float("nan")
     for _ in range(params.iterations):
-        u, v, nu, nv, X = _visible_projection(fit, R, t)
+        u, v, nu, nv, X, edge = _visible_projection(fit, R, t)
         if u.size < params.min_points:
             break
         d = oriented_offsets(u, v, nu, nv, fit.edges, radius, cos_max)
         ok = np.isfinite(d)
         if ok.sum() < params.min_points:
             break
-        d, nu, nv, X = d[ok], nu[ok], nv[ok], X[ok]
+        d, nu, nv, X, edge = d[ok], nu[ok], nv[ok], X[ok], edge[ok]
         x, y, z = X[:, 0], X[:, 1], X[:, 2]
         inv_z = 1.0 / z
         # du/dX (2 x 3) folded with the normal: a = n^T du/dX
@@ -254,12 +284,14 @@ def refine_pose(fit: EdgeFit, R_camera_world: FloatArray, t_camera_world: FloatA
         t = dR @ t + step[:3]
         dof = max(float(w.sum()) - 6.0, 1.0)
         sigma2 = float(np.sum(w * d * d) / dof) + 0.25  # pixel quantisation floor (1/2 px)
-        covariance = sigma2 * np.linalg.inv(H_damped)
+        H_inv = np.linalg.inv(H_damped)
+        covariance = sigma2 * H_inv
+        agreement = edge_agreement(J, w * d, edge, H_inv, covariance)
         radius = max(params.search_px // 2, int(np.ceil(params.match_px)) + 1)
         if np.linalg.norm(step[:3]) < 1e-5 and np.linalg.norm(step[3:]) < 1e-5:
             break
     fraction, n_points, outline = match_measures(fit, R, t)
-    return Refinement(R, t, fraction, n_points, covariance, outline)
+    return Refinement(R, t, fraction, n_points, covariance, outline, agreement)
 
 
 def refine_best(
