@@ -4,6 +4,7 @@ search candidates, the 2D chamfer shift that centres a search, and the estimate'
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -189,6 +190,16 @@ def shrunk_covariance(covariance: FloatArray, shrinkage: float, scale: float = 1
     """A tracked pose's published covariance: shrunk towards its diagonal, scaled (``covariance_*``)."""
     s = shrinkage
     return np.asarray(scale * ((1.0 - s) * covariance + s * np.diag(np.diag(covariance))), dtype=np.float64)
+
+
+def agreement_inflation(agreement: float, reference: float, power: float) -> float:
+    """The factor on a tracked pose's published covariance from its refinement's
+    :func:`~common.localization.refine.edge_agreement` ``r``: ``max(1, r / reference) ** power``. A pose
+    whose edges' offsets add up (large ``r``: locked off its true one along a weak direction) is published as
+    that much less certain; an unmeasured ``r`` (NaN) counts as 1, the clustered covariance as large as the
+    independent one."""
+    r = agreement if math.isfinite(agreement) else 1.0
+    return float(max(1.0, r / reference) ** power)
 
 
 def twist_covariance_to_world(covariance_twist: FloatArray, pose: CameraPose) -> FloatArray:

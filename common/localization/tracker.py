@@ -84,6 +84,7 @@ from common.localization.process_noise import NoiseState, adapt, ceiling_px, res
 from common.localization.refine import EdgeFit, refine_best
 from common.localization.scoring import ImageEdges, with_oriented_distances
 from common.localization.search import (
+    agreement_inflation,
     anneal,
     cloud_covariance,
     shrunk_covariance,
@@ -275,7 +276,7 @@ class ModelTracker(TrackerViews):
             pose = motion.pose
             covariance = shrunk_covariance(
                 motion.covariance[_POSE_BLOCK], cfg.covariance_shrinkage, cfg.covariance_scale
-            )
+            ) * agreement_inflation(refined.edge_agreement, cfg.agreement_reference, cfg.agreement_power)
             positions[1], rotations[1] = pose.p_world_camera_m, pose.R_world_camera
         # what every frame records, tracked or not
         seen = replace(
@@ -287,6 +288,7 @@ class ModelTracker(TrackerViews):
             match=refined.match_fraction,
             matched_points=int(matched),
             frames=frames,
+            edge_agreement=refined.edge_agreement,
         )
         if motion is not None:
             return replace(

@@ -99,8 +99,21 @@ class TrackerSettings(ParticleSettings):
     #: within 2 sigma). The diagonal alone, times 0.32 (fit seeds 0-9, both scenes), keeps the 6-dof line
     #: (5.60 and 5.04, 0.903 and 0.912 within 2 sigma) and makes the blocks honest (2.47-2.90 of 3, 0.92-0.94
     #: within 2 sigma); seeds 0-4 and 5-9 alone give the same to within 0.6 of the NEES.
+    #: That covariance was the same size whether the pose fit or not: 7 % of the office's tracked frames
+    #: (106-120 of every seed, refined 20-70 mm off along the direction few edges hold) were beyond 3 sigma,
+    #: the rest twice too cautious (0.88 within 1 sigma). It is now also multiplied by
+    #: ``max(1, r / agreement_reference) ** agreement_power``, ``r`` the refinement's edge agreement
+    #: (:func:`~common.localization.refine.edge_agreement`: 0.2-0.45 where the pose fits, 1.2-3.2 there;
+    #: Spearman 0.7-0.8 with the frame's log NEES, where the match fraction, points, noise scale, distance
+    #: and speed gave +-0.2), and the scale refitted with it: maximum likelihood of the 6-dof errors of
+    #: seeds 0-9, both scenes (0.105 of the 0.32 before; seeds 0-4 and 5-9 alone: 0.105 and 0.104, reference
+    #: 0.136 and 0.133, power 1.29 and 1.28). Held out (seeds 10-19): 6-dof NEES 6.30 object, 6.11 office
+    #: (5.47 and 4.93 before), 0.68 within 1 sigma in both (0.82 and 0.88), 0.881 and 0.924 within 2 (0.907
+    #: and 0.908), 0.957 and 0.979 within 3 (0.946 and 0.935); the blocks 3.00-3.30 of 3.
     covariance_shrinkage: float = bounded(1.0, ge=0.0, le=1.0)
-    covariance_scale: float = bounded(0.32, gt=0.0, le=100.0)
+    covariance_scale: float = bounded(0.0336, gt=0.0, le=100.0)
+    agreement_reference: float = bounded(0.136, gt=0.0)
+    agreement_power: float = bounded(1.29, ge=0.0, le=4.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -147,6 +160,8 @@ class TrackerState:
     expected_match: float = 0.0
     #: seconds since the last good frame (the sum of the bad frames' intervals; 0 after a good one)
     since_good_s: float = 0.0
+    #: the last refinement's :func:`~common.localization.refine.edge_agreement` (NaN: none measured)
+    edge_agreement: float = float("nan")
 
 
 def next_spread(factor: float, config: TrackerSettings) -> float:
