@@ -104,10 +104,10 @@ class TrackerSettings(ParticleSettings):
     #: the rest twice too cautious (0.88 within 1 sigma). It is now also multiplied by
     #: ``max(1, r / agreement_reference) ** agreement_power``, ``r`` the refinement's edge agreement
     #: (:func:`~common.localization.refine.edge_agreement`: 0.2-0.45 where the pose fits, 1.2-3.2 there;
-    #: Spearman 0.7-0.8 with the frame's log NEES, where the match fraction, points, noise scale, distance
+    #: Spearman 0.69-0.79 with the frame's log NEES, where the match fraction, points, noise scale, distance
     #: and speed gave +-0.2), and the scale refitted with it: maximum likelihood of the 6-dof errors of
     #: seeds 0-9, both scenes (0.105 of the 0.32 before; seeds 0-4 and 5-9 alone: 0.105 and 0.104, reference
-    #: 0.136 and 0.133, power 1.29 and 1.28). Held out (seeds 10-19): 6-dof NEES 6.30 object, 6.11 office
+    #: 0.136 and 0.133, power 1.29 and 1.28). Held out (seeds 10-19): 6-dof NEES 6.30 object, 6.10 office
     #: (5.47 and 4.93 before), 0.68 within 1 sigma in both (0.82 and 0.88), 0.881 and 0.924 within 2 (0.907
     #: and 0.908), 0.957 and 0.979 within 3 (0.946 and 0.935); the blocks 3.00-3.30 of 3.
     covariance_shrinkage: float = bounded(1.0, ge=0.0, le=1.0)
