@@ -35,7 +35,7 @@ from common.estimation.replay import standard_estimators
 from common.geometry import matrix_from_quaternion
 from common.localization.pose import rotation_vectors
 from common.localization.tracker import ModelTracker
-from common.localization.tracker_state import TrackerSettings
+from common.localization.tracker_state import TrackerSettings, TrackerState
 from common.localization.tracking import track_model
 from common.metrics import yaw_error_rad
 from common.provenance import Provenance
@@ -48,7 +48,7 @@ from common.wire.schema import WireModel
 from common.yaw import YawSettings
 from services.estimator.outputs import Publication, PublishedUncertainty
 from services.estimator.settings import EstimatorSettings
-from services.tools.bench.localizer_field import _object_scene, _office_scene, _start
+from services.tools.bench.localizer_field import _object_scene, _office_scene, _Scene, _start
 from services.tools.bench.yaw_field import run_core
 
 logger = logging.getLogger(__name__)
@@ -274,23 +274,31 @@ def estimator_samples(seed: int, frames: int | None, flights: list[str] | None =
 
 
 # ------------------------------------------------------------------------------------------------ localizer
+def tracked_scene(
+    scene: _Scene, seed: int, settings: TrackerSettings | None = None
+) -> tuple[list[TrackerState], FloatArray]:
+    """The model tracker's state after each of ``scene``'s frames (``settings``; None: the defaults), from
+    the bench's start for ``seed``, and each state's error (N, 6) against the truth: camera centre (m) and
+    world-frame error angles (rad)."""
+    tracker = ModelTracker(scene.model, scene.camera, settings or TrackerSettings())
+    rng = np.random.default_rng(40_000 + seed)
+    start = tracker.start(_start(scene, seed))
+    states = list(track_model(tracker, scene.images, scene.flight.times_s, start, rng, scene.gyro))
+    n = len(states)
+    p = np.array([s.pose.p_world_camera_m for s in states])
+    R = np.array([s.pose.R_world_camera for s in states])
+    angles = world_error_angles(scene.flight.R_world_camera[:n], R)
+    return states, np.hstack([p - scene.flight.p_world_camera_m[:n], angles])
+
+
 def localizer_samples(seed: int, frames: int, scenes: list[str] | None = None) -> Samples:
     """The localizer lines of one seed: ``localizer <scene> <state>`` (6 dof: camera centre and world-frame
     error angles against the state's covariance), and the position and rotation parts of tracking frames."""
     out: Samples = {}
     builders = {"object": _object_scene, "office": _office_scene}
     for name in scenes or list(builders):
-        scene = builders[name](frames, seed)
-        tracker = ModelTracker(scene.model, scene.camera, TrackerSettings())
-        rng = np.random.default_rng(40_000 + seed)
-        start = tracker.start(_start(scene, seed))
-        states = list(track_model(tracker, scene.images, scene.flight.times_s, start, rng, scene.gyro))
+        states, error = tracked_scene(builders[name](frames, seed), seed)
         n = len(states)
-        p = np.array([s.pose.p_world_camera_m for s in states])
-        R = np.array([s.pose.R_world_camera for s in states])
-        error = np.hstack(
-            [p - scene.flight.p_world_camera_m[:n], world_error_angles(scene.flight.R_world_camera[:n], R)]
-        )
         P = np.array([s.covariance for s in states])
         status = np.array([s.status.value for s in states])
         frame = np.arange(n)

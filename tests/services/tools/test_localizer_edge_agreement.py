@@ -9,11 +9,9 @@ import numpy as np
 import pytest
 
 from common.consistency import normalised_errors_squared
-from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackingStatus
-from common.localization.tracking import track_model
-from services.tools.bench.consistency_runs import world_error_angles
-from services.tools.bench.localizer_field import _office_scene, _start
+from services.tools.bench.consistency_runs import tracked_scene
+from services.tools.bench.localizer_field import _office_scene
 
 pytestmark = [pytest.mark.slow]
 
@@ -22,20 +20,12 @@ BEFORE = replace(TrackerSettings(), covariance_scale=0.32, agreement_power=0.0)
 
 
 def _nees(settings: TrackerSettings) -> dict[str, np.ndarray]:
-    scene = _office_scene(122, 0)
-    tracker = ModelTracker(scene.model, scene.camera, settings)
-    rng = np.random.default_rng(40_000)
-    start = tracker.start(_start(scene, 0))
-    states = list(track_model(tracker, scene.images, scene.flight.times_s, start, rng, scene.gyro))
+    states, error = tracked_scene(_office_scene(122, 0), 0, settings)
     out = {}
     for name, frames in (("locked", range(106, 121)), ("before", range(30, 61))):
         kept = [i for i in frames if states[i].status is TrackingStatus.TRACKING]
         assert len(kept) >= 0.8 * len(frames)
-        p = np.array([states[i].pose.p_world_camera_m for i in kept])
-        R = np.array([states[i].pose.R_world_camera for i in kept])
-        angles = world_error_angles(scene.flight.R_world_camera[kept], R)
-        error = np.hstack([p - scene.flight.p_world_camera_m[kept], angles])
-        out[name] = normalised_errors_squared(error, [states[i].covariance for i in kept])
+        out[name] = normalised_errors_squared(error[kept], [states[i].covariance for i in kept])
         out[f"{name} agreement"] = np.array([states[i].edge_agreement for i in kept])
     return out
 
