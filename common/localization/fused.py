@@ -35,8 +35,8 @@ from common.localization.projection import (
     EdgeSamples,
     IntArray,
     frustum_tangents,
-    projection_matrices,
 )
+from common.localization.projection_matrices import projection_matrices
 from common.localization.scoring import (
     ImageEdges,
     ScoringMethod,

@@ -15,20 +15,13 @@ import numpy.typing as npt
 
 from common.errors import InputError
 from common.geometry import wrap_angle_rad
+from common.localization.odometry import Odometry
 from common.localization.particle_filter import ParticleFilter, ParticleState, PoseStatistics
 from common.localization.pose import rotation_angle_rad
 from common.localization.scoring import extract_image_edges
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerState
 from common.types import FloatArray
-
-
-@dataclass(frozen=True)
-class Odometry:
-    """Per-frame motion hints for the prediction: world velocity (T, 3) m/s and Euler rates (T, 3) rad/s."""
-
-    velocities_world_m_s: FloatArray
-    euler_rates_rad_s: FloatArray
 
 
 @dataclass(frozen=True)
@@ -51,21 +44,6 @@ class TrackAccuracy:
     first_frame: int
     position_errors_m: FloatArray
     yaw_errors_rad: FloatArray
-
-
-def noisy_odometry(
-    velocities_world_m_s: FloatArray,
-    euler_rates_rad_s: FloatArray,
-    rng: np.random.Generator,
-    velocity_sigma_m_s: float = 0.05,
-    rate_sigma_rad_s: float = 0.02,
-) -> Odometry:
-    """Ground-truth rates plus white noise: a stand-in for the estimator's odometry."""
-    return Odometry(
-        velocities_world_m_s=velocities_world_m_s
-        + rng.normal(0.0, velocity_sigma_m_s, velocities_world_m_s.shape),
-        euler_rates_rad_s=euler_rates_rad_s + rng.normal(0.0, rate_sigma_rad_s, euler_rates_rad_s.shape),
-    )
 
 
 def localizer_step(

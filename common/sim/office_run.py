@@ -12,9 +12,10 @@ import numpy as np
 
 from common.camera import CameraModel
 from common.localization.model import SceneModel
+from common.localization.odometry import Odometry, noisy_odometry
 from common.localization.office import default_scene, office_camera
 from common.localization.particle_filter import ParticleFilter, ParticleFilterSettings
-from common.localization.tracking import Odometry, TrackResult, noisy_odometry, track_flight
+from common.localization.tracking import TrackResult, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, SceneFlight, default_flight, render_flight
 from common.types import FloatArray, U8Array
 

@@ -13,8 +13,8 @@ from common.camera import DEFAULT_HFOV_DEG, CameraModel
 from common.datasets.calibration import opencv_yaml_text
 from common.errors import CapatazError
 from common.estimation.measurements import FrameMeasurement
+from common.localization.odometry import noisy_odometry
 from common.localization.office import OFFICE_HFOV_DEG, default_scene
-from common.localization.tracking import noisy_odometry
 from common.rig import Rig
 from common.sim.field import FIELD_SCENARIOS, field_flight
 from common.sim.flight import Flight, hover_flight, turns_flight

@@ -14,6 +14,7 @@ from common.errors import InputError
 from common.geometry import matrix_from_euler, quaternion_from_matrix, rotation_vector_from_quaternion
 from common.localization.baseline import weigh_per_particle
 from common.localization.model import SceneModel
+from common.localization.odometry import noisy_odometry
 from common.localization.particle_filter import (
     ParticleFilter,
     ParticleFilterSettings,
@@ -25,7 +26,7 @@ from common.localization.particle_filter import (
     pose_statistics,
 )
 from common.localization.scoring import ScoringMethod, ScoringSettings, extract_image_edges
-from common.localization.tracking import noisy_odometry, track_accuracy, track_flight
+from common.localization.tracking import track_accuracy, track_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight, render_scene
 
 

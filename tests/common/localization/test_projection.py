@@ -15,9 +15,9 @@ from common.localization.projection import (
     camera_poses,
     project_pose_samples,
     project_samples,
-    projection_matrices,
     sample_edges,
 )
+from common.localization.projection_matrices import projection_matrices
 
 CAMERA = CameraModel(width=320, height=240, fx=200.0, fy=210.0, cx=159.5, cy=119.5)
 

@@ -185,6 +185,27 @@ def test_a_service_process_imports_no_other_command() -> None:
     assert done.stdout.strip() == "[]"
 
 
+def test_the_camera_renders_its_default_flight_without_loading_numba() -> None:
+    """``capataz camera`` loaded numba (about 1.2 s of CPU at each start) through the localizer's particle
+    filter (for its simulated odometry) and the scene renderer's projection kernel, which it never runs on
+    the default flight."""
+    probe = (
+        "import sys; from services.tools.cli import build_parser\n"
+        "from services.camera import CameraSettings, simulated_flight\n"
+        "argv = ['camera', '--uav', 'uav0', '--frames', '3']\n"
+        "args = build_parser(('services.camera',)).parse_args(argv)\n"
+        "flight = simulated_flight(CameraSettings(frames=3))\n"
+        "assert flight.frame(2).ndim == 2\n"
+        "loaded = ('numba', 'common.localization.particle_filter')\n"
+        "print(sorted(m for m in sys.modules if m.startswith(loaded)))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
 @pytest.mark.parametrize(
     "argv",
     [
