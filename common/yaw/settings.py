@@ -74,6 +74,12 @@ class YawSettings(Bounded):
     #: Above this patch-fit rotation (deg) the patches are measured again on frame k turned back by it (the
     #: window's pull of the shifts towards zero then acts on tiny shifts only); 180 = never.
     refine_min_deg: float = bounded(0.25, ge=0.0, le=180.0)
+    #: The refinement measures at most this many patches: every k-th column and row of the grid, k the
+    #: smallest step that keeps within it. It corrects a bias of a few % of the turn, so a spread sub-grid
+    #: is enough; on a large grid a full second pass doubled a turning frame's cost, and on the distributed
+    #: path the master pays it alone (:func:`common.yaw.stages.refine_indices`). The default grid (40)
+    #: refines every patch.
+    refine_max_patches: int = bounded(48, ge=8, le=4096)
     #: Physical limit: a delta implying a faster yaw rate between two stamped frames is refused.
     max_yaw_rate_deg_s: float = bounded(
         300.0, gt=0.0, le=1e5, help="physical yaw-rate limit in deg/s: deltas implying more are refused"
