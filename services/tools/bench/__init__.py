@@ -35,6 +35,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.dispatch",
     "services.tools.bench.allocator",
     "services.tools.bench.fft",
+    "services.tools.bench.refine",
 )
 
 

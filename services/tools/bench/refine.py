@@ -1,0 +1,128 @@
+"""Refine: a turning frame's second patch pass on every patch against the sub-grid of ``refine_max_patches``.
+
+The core measures a pair again on frame k turned back by its first estimate when it turns more than
+``refine_min_deg`` (:func:`common.yaw.stages.prealigned_pair`). That pass once measured every patch: on the
+16x12 grid of a 1080p frame it doubled a turning frame's cost, and on the distributed path the master paid it
+alone, with no previous spectra cached (its members hold them). ``refine_max_patches`` was chosen here.
+
+Truth generator: nadir views of the simulator's ground texture, each pair turned by a known angle (0.5-2
+deg, both signs) at ``--resolution``. For each cap (``--caps``; 4096 = every patch, the baseline), in turns
+within each repeat: CPU ms of the in-process frame (``YawTracker.track``: both passes) and of the master's
+conclude (``YawTracker.conclude`` without previous spectra: the refinement alone, as the master runs it),
+and the pair's yaw error. The table gives each cap's median over the repeats, the p95 over every timed
+call, its time over the baseline's in the same repeats, and the RMS yaw error over the pairs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from common.camera import CameraModel
+from common.sim.ground import make_ground_texture, nadir_camera_pose, render_ground_view
+from common.types import U8Array
+from common.yaw import YawSettings, YawTracker
+from common.yaw.correlation import measure_patches, patch_spectra
+from common.yaw.grid import make_patch_grid
+from common.yaw.stages import EstimateMethod
+from services.runtime.cli import number_in, parse_size
+
+NAME = "refine"
+BASELINE_CAP = 4096
+ALTITUDE_M = 1.5
+HFOV_DEG = 70.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--resolution", default="1920x1080", help="frame WIDTHxHEIGHT")
+    parser.add_argument("--grid", default="16x12", help="patch grid COLSxROWS")
+    parser.add_argument("--patch-size", type=number_in(int, 8, 512), default=128, help="patch side (px)")
+    parser.add_argument("--pyramid-level", type=number_in(int, 0, 4), default=0, help="pyramid level")
+    parser.add_argument(
+        "--caps", type=number_in(int, 8, BASELINE_CAP), nargs="+", default=[BASELINE_CAP, 48],
+        help=f"refine_max_patches to compare ({BASELINE_CAP}: every patch, the baseline)",
+    )  # fmt: skip
+    parser.add_argument("--pairs", type=number_in(int, 1, 100), default=6, help="turned pairs")
+    parser.add_argument("--repeats", type=number_in(int, 1, 100), default=5, help="turns of the caps")
+
+
+def turned_pairs(camera: CameraModel, pairs: int) -> list[tuple[U8Array, U8Array, float]]:
+    """``pairs`` nadir view pairs (a, b, turn in rad) over the ground texture, b turned 0.5-2 deg, both
+    ways."""
+    texture = make_ground_texture(seed=0)
+    out = []
+    for i, turn_deg in enumerate(np.linspace(0.5, 2.0, pairs) * np.where(np.arange(pairs) % 2, -1.0, 1.0)):
+        x, y, yaw = 0.3 * i, -0.2 * i, math.radians(20.0 + 37.0 * i)
+        turned = yaw + math.radians(turn_deg)
+        a = render_ground_view(texture, camera, *nadir_camera_pose(x, y, ALTITUDE_M, yaw))
+        b = render_ground_view(texture, camera, *nadir_camera_pose(x, y, ALTITUDE_M, turned))
+        out.append((a, b, math.radians(float(turn_deg))))
+    return out
+
+
+def _one_pair(settings: YawSettings, a: U8Array, b: U8Array) -> tuple[float, float, float, bool]:
+    """(in-process ms, master's conclude ms, estimated delta rad, refined?) of one pair."""
+    tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
+    state = tracker.initial_state(a)
+    start = time.process_time()
+    _, estimate = tracker.track(state, b)
+    in_process_ms = (time.process_time() - start) * 1e3
+    measurement = measure_patches(
+        state.previous_spectra or patch_spectra(a, tracker.grid, None, settings),
+        patch_spectra(b, tracker.grid, None, settings),
+        settings,
+    )
+    bare = replace(state, previous_spectra=None)  # the master's: its members hold the spectra
+    start = time.process_time()
+    tracker.conclude(bare, b, measurement, None, None)
+    conclude_ms = (time.process_time() - start) * 1e3
+    return in_process_ms, conclude_ms, estimate.delta_yaw_rad, estimate.method is EstimateMethod.REFINED
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    cv2.setNumThreads(1)
+    width, height = parse_size(args.resolution, "--resolution", "1920x1080")
+    cols, rows = parse_size(args.grid, "--grid", "16x12")
+    camera = CameraModel.from_hfov(width, height, HFOV_DEG)
+    pairs = turned_pairs(camera, args.pairs)
+    base = YawSettings(
+        grid_cols=cols, grid_rows=rows, patch_size_px=args.patch_size, pyramid_level=args.pyramid_level
+    )
+    caps = list(dict.fromkeys([BASELINE_CAP, *args.caps]))
+    timed: dict[int, dict[str, list[list[float]]]] = {c: {"in_process": [], "conclude": []} for c in caps}
+    errors: dict[int, list[float]] = {c: [] for c in caps}
+    refined: dict[int, int] = dict.fromkeys(caps, 0)
+    for repeat in range(args.repeats):
+        for cap in caps:
+            settings = replace(base, refine_max_patches=cap)
+            runs = [_one_pair(settings, a, b) for a, b, _ in pairs]
+            timed[cap]["in_process"].append([r[0] for r in runs])
+            timed[cap]["conclude"].append([r[1] for r in runs])
+            if repeat == 0:
+                errors[cap] = [math.degrees(r[2] - turn) for r, (_, _, turn) in zip(runs, pairs, strict=True)]
+                refined[cap] = sum(r[3] for r in runs)
+    medians = {c: {k: float(np.median([np.median(r) for r in v])) for k, v in timed[c].items()} for c in caps}
+    table = []
+    for cap in caps:
+        row: dict[str, Any] = {"refine_max_patches": cap, "pairs": len(pairs), "refined": refined[cap]}
+        for kind in ("in_process", "conclude"):
+            row[f"{kind}_ms"] = medians[cap][kind]
+            row[f"{kind}_ms_p95"] = float(np.percentile(np.concatenate(timed[cap][kind]), 95))
+            row[f"{kind}_vs_all"] = medians[cap][kind] / medians[BASELINE_CAP][kind]
+        row["yaw_error_rms_deg"] = float(np.sqrt(np.mean(np.square(errors[cap]))))
+        row["yaw_error_max_deg"] = float(np.max(np.abs(errors[cap])))
+        table.append(row)
+    return {
+        "table": table,
+        "json": {
+            "resolution": [width, height], "grid": [cols, rows], "patch_size_px": args.patch_size,
+            "pyramid_level": args.pyramid_level, "repeats": args.repeats, "timed_ms": timed,
+            "yaw_errors_deg": errors,
+        },
+    }  # fmt: skip
