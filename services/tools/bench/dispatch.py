@@ -42,11 +42,13 @@ from typing import Any
 import numpy as np
 
 from common.dispatch import Balance
+from common.errors import CapatazError
 from common.members import Topology
 from common.wire.jobs import JobEncoding
 from common.wire.messages import YawEstimate
 from common.yaw import YawSettings, YawTracker, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
+from services.camera.settings import FlightName
 from services.master.settings import MasterSettings
 from services.runtime.cli import number_in, parse_size
 from services.runtime.transport import open_session
@@ -75,6 +77,8 @@ PATHS: tuple[tuple[str, Topology, tuple[int, ...]], ...] = (
     ("master-foreman-worker 2x2", Topology.MASTER_FOREMAN_WORKER, (2, 2)),
 )
 ROLES = ("master", "foreman", "worker", "router")
+#: paper C's turns fly straight for their first 218 frames: ``--flight turns`` starts near the first turn
+TURNS_FROM_FRAME = 200
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -110,6 +114,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     yaw = YawSettings()  # the workload's defaults are the yaw core's
     workload = parser.add_argument_group("workload (the same for the in-process run and the master)")
     workload.add_argument("--resolution", default="752x480", help="simulated camera WIDTHxHEIGHT")
+    workload.add_argument(
+        "--flight", choices=[FlightName.HOVER.value, FlightName.TURNS.value], default=FlightName.HOVER.value,
+        help="the simulated flight: paper A's hover (18 %% of its first 120 frames turn more than the yaw's "
+        f"refine_min_deg) or paper C's turns from frame {TURNS_FROM_FRAME} on (91 %% of the next 200 do: the "
+        "master refines those frames alone)",
+    )  # fmt: skip
     workload.add_argument("--grid", default=f"{yaw.grid_cols}x{yaw.grid_rows}", help="patch grid COLSxROWS")
     workload.add_argument(
         "--patch-size", type=number_in(int, 8, 256), default=yaw.patch_size_px, help="patch side at the level"
@@ -172,12 +182,18 @@ def host_cpus() -> tuple[str, list[str]]:
 
 
 def flight_frames(args: argparse.Namespace) -> list[np.ndarray]:
-    """The camera's hover at the workload's size (``--frames``), rendered once per ``args`` and written to
-    ``<out>/dispatch_frames`` for the camera to replay (``args.frame_dir``)."""
+    """The camera's ``--flight`` at the workload's size (``--frames``), rendered once per ``args`` and written
+    to ``<out>/dispatch_frames`` for the camera to replay (``args.frame_dir``)."""
     if getattr(args, "frame_images", None) is None:
         size = parse_size(args.resolution, "--resolution", "752x480")
-        flight = simulated_flight(CameraSettings(frames=args.frames, width=size[0], height=size[1]))
-        args.frame_images = [flight.frame(i) for i in range(args.frames)]
+        flight = simulated_flight(
+            CameraSettings(frames=args.frames, width=size[0], height=size[1], flight=FlightName(args.flight))
+        )
+        first = TURNS_FROM_FRAME if args.flight == FlightName.TURNS.value else 0
+        if first + args.frames > flight.n_frames:
+            left = flight.n_frames - first
+            raise CapatazError(f"--flight {args.flight} has {left} frames; --frames asks {args.frames}")
+        args.frame_images = [flight.frame(first + i) for i in range(args.frames)]
         args.frame_dir = Path(args.out) / "dispatch_frames"
         write_frame_folder(args.frame_dir, args.frame_images)
     images: list[np.ndarray] = args.frame_images

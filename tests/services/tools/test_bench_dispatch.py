@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -15,12 +16,16 @@ from common.dispatch import SELF
 from common.errors import CapatazError
 from common.members import Topology
 from common.yaw import YawSettings
+from services.camera import CameraSettings, simulated_flight
+from services.camera.settings import FlightName
 from services.tools.bench.dispatch import (
     PATHS,
     ROLES,
+    TURNS_FROM_FRAME,
     add_arguments,
     cluster_path,
     cpu_ms_per_frame,
+    flight_frames,
     host_cpus,
     path_spec,
     run,
@@ -101,6 +106,25 @@ def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
                            "--job-encoding", "zstd")  # fmt: skip
     with pytest.raises(CapatazError, match="--grid"):
         workload_of(parser.parse_args(["--grid", "16by12"]))
+
+
+def test_the_turns_flight_starts_near_its_first_turn_and_too_many_frames_is_one_error(tmp_path: Path) -> None:
+    """``--flight turns``: the hover's first 120 frames barely turn, so the master's refinement (frames
+    turning more than refine_min_deg, which it computes alone) was never measured by this bench."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--flight", "turns", "--frames", "10", "--resolution", "160x120"])
+    args.out = tmp_path
+    frames = flight_frames(args)
+    flight = simulated_flight(CameraSettings(frames=10, width=160, height=120, flight=FlightName.TURNS))
+    assert len(frames) == 10 and np.array_equal(frames[3], flight.frame(TURNS_FROM_FRAME + 3))
+    assert sorted(p.name for p in args.frame_dir.iterdir())[:1] == ["00000.pgm"]
+    turned = np.degrees(np.abs(np.diff(flight.yaw_rad[TURNS_FROM_FRAME : TURNS_FROM_FRAME + 60])))
+    assert np.mean(turned > YawSettings().refine_min_deg) > 0.5
+    too_long = parser.parse_args(["--flight", "turns", "--frames", str(flight.n_frames)])
+    too_long.out = tmp_path
+    with pytest.raises(CapatazError, match="--flight turns has"):
+        flight_frames(too_long)
 
 
 def test_roles_sum_their_processes_net_of_idle_per_frame() -> None:
