@@ -6,6 +6,7 @@ the sub-command."""
 from __future__ import annotations
 
 import argparse
+import ast
 import os
 import signal
 import socket
@@ -166,23 +167,27 @@ def test_a_command_line_needs_only_its_own_command_module(argv: list[str], modul
     assert requested_module(argv) == module
 
 
+def loaded_modules(probe: str, prefixes: tuple[str, ...]) -> list[str]:
+    """The modules starting with ``prefixes`` that a fresh interpreter has loaded after running ``probe``."""
+    script = f"import sys\n{probe}\nprint(sorted(m for m in sys.modules if m.startswith({prefixes!r})))"
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    return list(ast.literal_eval(done.stdout.strip()))
+
+
 def test_a_service_process_imports_no_other_command() -> None:
     """``capataz worker`` parses its command line without importing the bench, localizer or estimator code
     (each cluster process used to pay about 1.5 s of CPU for them at start-up)."""
     probe = (
-        "import sys; from services.tools import cli\n"
         "from services.tools.cli import build_parser, requested_module\n"
         "argv = ['worker', '--node', 'h1', '--index', '1']\n"
         "args = build_parser((requested_module(argv),)).parse_args(argv)\n"
-        "assert args.handler is not None\n"
-        "print(sorted(m for m in sys.modules if m.startswith(('services.tools.bench', 'services.localizer',"
-        " 'services.estimator', 'common.localization', 'numba'))))"
+        "assert args.handler is not None"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120
-    )
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "[]"
+    others = ("services.tools.bench", "services.localizer", "services.estimator", "common.localization")
+    assert loaded_modules(probe, (*others, "numba")) == []
 
 
 def test_the_camera_renders_its_default_flight_without_loading_numba() -> None:
@@ -190,20 +195,12 @@ def test_the_camera_renders_its_default_flight_without_loading_numba() -> None:
     filter (for its simulated odometry) and the scene renderer's projection kernel, which it never runs on
     the default flight."""
     probe = (
-        "import sys; from services.tools.cli import build_parser\n"
+        "from services.tools.cli import build_parser\n"
         "from services.camera import CameraSettings, simulated_flight\n"
-        "argv = ['camera', '--uav', 'uav0', '--frames', '3']\n"
-        "args = build_parser(('services.camera',)).parse_args(argv)\n"
-        "flight = simulated_flight(CameraSettings(frames=3))\n"
-        "assert flight.frame(2).ndim == 2\n"
-        "loaded = ('numba', 'common.localization.particle_filter')\n"
-        "print(sorted(m for m in sys.modules if m.startswith(loaded)))"
+        "args = build_parser(('services.camera',)).parse_args(['camera', '--uav', 'uav0', '--frames', '3'])\n"
+        "assert simulated_flight(CameraSettings(frames=3)).frame(2).ndim == 2"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=120
-    )
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "[]"
+    assert loaded_modules(probe, ("numba", "common.localization.particle_filter")) == []
 
 
 @pytest.mark.parametrize(
