@@ -73,11 +73,9 @@ def _one_pair(settings: YawSettings, a: U8Array, b: U8Array) -> tuple[float, flo
     start = time.process_time()
     _, estimate = tracker.track(state, b)
     in_process_ms = (time.process_time() - start) * 1e3
-    measurement = measure_patches(
-        state.previous_spectra or patch_spectra(a, tracker.grid, None, settings),
-        patch_spectra(b, tracker.grid, None, settings),
-        settings,
-    )
+    previous = state.previous_spectra
+    assert previous is not None  # initial_state caches frame a's spectra
+    measurement = measure_patches(previous, patch_spectra(b, tracker.grid, None, settings), settings)
     bare = replace(state, previous_spectra=None)  # the master's: its members hold the spectra
     start = time.process_time()
     tracker.conclude(bare, b, measurement, None, None)
