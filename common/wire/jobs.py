@@ -128,6 +128,10 @@ class PatchJob(WireModel):
     :mod:`common.wire.frame_codec`'s lossless codec; or ``jpeg``, lossy), its shape is ``band_shape`` and
     ``corners`` gives each index's crop corner ``[row, col]`` in it. Decoding cuts the crops from the band
     (bit-identical to the sender's but for ``jpeg``) and drops it: a decoded job always holds ``crops``.
+
+    A ``transient`` job is a turning pair's second pass (:data:`~common.yaw.stages.RefineMeasure`): its
+    crops are frame ``seq`` turned back, measured against the previous crops of the same indices (sent with
+    it, or, to a foreman, none: it holds them) and nothing of it is kept.
     """
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
@@ -152,6 +156,7 @@ class PatchJob(WireModel):
     band_shape: tuple[int, int] = (0, 0)
     band_encoding: JobEncoding = "mono8"
     corners: np.ndarray = Field(default_factory=lambda: np.zeros((0, 2), np.int32))
+    transient: bool = False
 
     @model_validator(mode="after")
     def _consistent(self) -> PatchJob:
@@ -183,6 +188,8 @@ class PatchJob(WireModel):
                 raise ValueError(f"{name}: must be distinct non-negative patch indices")
         if self.prev_indices.size and not np.isin(self.prev_indices, self.indices).all():
             raise ValueError("prev_indices: must be a subset of indices")
+        if self.transient and self.prev_indices.size and not np.array_equal(self.prev_indices, self.indices):
+            raise ValueError("prev_indices: a transient job's must be its indices, or none")
         return self
 
 

@@ -259,3 +259,18 @@ def measure_share(
         stream, seq, current
     )  # once measured: a share that fails to measure leaves the cache as it was
     return measurement
+
+
+def measure_crops(
+    settings: YawSettings, indices: npt.ArrayLike, crops_u8: np.ndarray, prev_crops_u8: np.ndarray
+) -> PatchMeasurement:
+    """Shifts of the crops ``crops_u8`` against ``prev_crops_u8`` (both (n, s, s), patches ``indices``), with
+    nothing cached: a turning pair's refinement (a transient :class:`~common.wire.jobs.PatchJob`), whose
+    crops are frame k turned back and must not replace frame k's spectra."""
+    idx = np.asarray(indices, dtype=np.intp)
+    if crops_u8.shape != prev_crops_u8.shape or crops_u8.shape[0] != idx.size:
+        raise PatchWorkError(
+            f"{idx.size} indices, crops {crops_u8.shape} and previous crops {prev_crops_u8.shape} differ"
+        )
+    previous = patch_spectra_from_crops(prev_crops_u8, idx, settings)
+    return measure_patches(previous, patch_spectra_from_crops(crops_u8, idx, settings), settings)

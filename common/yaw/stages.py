@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -168,6 +169,11 @@ def _result(
 
 _UNTRUSTED = (EstimateMethod.GLOBAL_ONLY, EstimateMethod.NONE)
 
+#: Measures the refinement's patches elsewhere (a master: on the members that measured them):
+#: ``(indices, frame k's level crops turned back)`` -> their shifts against frame k-1's crops at the same
+#: indices, computed as :func:`common.yaw.correlation.measure_patches` does (the results equal the local ones)
+RefineMeasure = Callable[[IntArray, U8Array], PatchMeasurement]
+
 
 def prealigned_pair(
     previous_frame: U8Array,
@@ -180,6 +186,7 @@ def prealigned_pair(
     previous_spectra: PatchSpectra | None,
     prior: Prior,
     fit_model: FitModel,
+    refine_measure: RefineMeasure | None = None,
 ) -> PairResult:
     """Patch stage on frame k warped back by ``matrix`` (frame k-1 px -> frame k px), fitted through it.
 
@@ -187,9 +194,14 @@ def prealigned_pair(
     (a quarter of the pixels at level 1; level pixel i is full-resolution pixel 2^L i, ``cv2.pyrDown``'s
     alignment) and measures the sub-grid of :func:`refine_indices`; the fallbacks (large turns, rare) warp
     the full frame and then reduce it, which keeps more detail (the dropped-frames hover drifts 0.05 deg less
-    over 120 pairs), and measure every patch.
+    over 120 pairs), and measure every patch. ``refine_measure`` measures the refinement's crops elsewhere
+    (the previous frame's spectra are then not needed here).
     """
     wanted = refine_indices(settings) if method is EstimateMethod.REFINED else None
+    if wanted is not None and refine_measure is not None:
+        turned = _turned_level(frame_u8, matrix, settings)
+        measurement = refine_measure(wanted, grid.crop_level(turned, wanted))
+        return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model)
     if previous_spectra is None:
         before = patch_spectra(previous_frame, grid, wanted, settings)
     elif wanted is None:
@@ -200,13 +212,32 @@ def prealigned_pair(
             previous_spectra.indices[keep], previous_spectra.spectra[keep], previous_spectra.texture_std[keep]
         )
     if method is EstimateMethod.REFINED:
-        to_full = np.diag([float(settings.scale), float(settings.scale), 1.0])
-        level = pyramid_image(frame_u8, settings.pyramid_level)
-        aligned = warp_into(level, np.linalg.inv(to_full) @ matrix @ to_full, level.shape)
+        aligned = _turned_level(frame_u8, matrix, settings)
     else:
         aligned = grid.level_image(warp_into(frame_u8, matrix, grid.frame_shape))
     current = patch_spectra_from_crops(grid.crop_level(aligned, before.indices), before.indices, settings)
     measurement = measure_patches(before, current, settings)
+    return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model)
+
+
+def _turned_level(frame_u8: U8Array, matrix: FloatArray, settings: YawSettings) -> U8Array:
+    """Frame k's pyramid level warped back by ``matrix`` (full-resolution px), the refinement's image."""
+    to_full = np.diag([float(settings.scale), float(settings.scale), 1.0])
+    level = pyramid_image(frame_u8, settings.pyramid_level)
+    return warp_into(level, np.linalg.inv(to_full) @ matrix @ to_full, level.shape)
+
+
+def _fitted(
+    grid: PatchGrid,
+    lens: Lens,
+    settings: YawSettings,
+    matrix: FloatArray,
+    method: EstimateMethod,
+    measurement: PatchMeasurement,
+    prior: Prior,
+    fit_model: FitModel,
+) -> PairResult:
+    """The pair result of shifts measured on frame k warped back by ``matrix``."""
     fit = fit_measurement(grid, lens, measurement, replace(settings, fit_model=fit_model), matrix)
     good = fit_is_good(fit, measurement, settings)
     return _result(fit.homography, method, fit, measurement, lens, settings, prior, good)
@@ -239,11 +270,13 @@ def conclude_pair(
     previous_spectra: PatchSpectra | None,
     prior: Prior,
     check_global: bool,
+    refine_measure: RefineMeasure | None = None,
 ) -> PairResult:
     """Raw patch fit; if untrusted, the patches on frame k turned back by an informative prior; if still
     untrusted and there is no gyro, the global stage's candidates r + k 90 deg, disambiguated by their
     responses and the prior, each verified by the patch stage. The cost is bounded by the gyro: with it the
-    global stage never runs (the gyro bridges what the patches cannot measure)."""
+    global stage never runs (the gyro bridges what the patches cannot measure). ``refine_measure`` measures
+    the refinement's patches elsewhere (:data:`RefineMeasure`; the fallbacks, rare, are measured here)."""
     fit = fit_measurement(grid, lens, measurement, settings)
     good = fit_is_good(fit, measurement, settings)
     patches = _result(fit.homography, EstimateMethod.PATCHES, fit, measurement, lens, settings, prior, good)
@@ -255,7 +288,7 @@ def conclude_pair(
         matrix = rotation_about(lens.centre_px, patches.delta_rad)
         refined = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, matrix,
-            EstimateMethod.REFINED, previous_spectra, prior, settings.fit_model,
+            EstimateMethod.REFINED, previous_spectra, prior, settings.fit_model, refine_measure,
         )  # fmt: skip
         return refined if refined.trusted else patches
     if frame_is_flat(previous_frame) or frame_is_flat(frame_u8):

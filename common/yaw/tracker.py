@@ -26,7 +26,7 @@ from common.yaw.honest import PriorSource, Provenance, make_prior
 from common.yaw.measurement import PatchMeasurement, merge_measurements
 from common.yaw.mount import yaw_per_image_turn
 from common.yaw.settings import YawSettings
-from common.yaw.stages import EstimateMethod, conclude_pair, lens_of
+from common.yaw.stages import EstimateMethod, RefineMeasure, conclude_pair, lens_of
 from common.yaw.yaw_variance import YawVariance, add_pair_variance
 
 logger = logging.getLogger(__name__)
@@ -154,6 +154,7 @@ class YawTracker:
         measurement: PatchMeasurement,
         stamp_s: float | None = None,
         gyro_delta_rad: float | None = None,
+        refine_measure: RefineMeasure | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """Central stage: fit the measured shifts of frame k, fall back if untrusted, integrate honestly.
 
@@ -161,10 +162,12 @@ class YawTracker:
         any order (it is put in ascending index order first, so the fit does not depend on the order).
         ``stamp_s`` (frame k's time) enables the physical rate limit; ``gyro_delta_rad`` (the gyro's
         rotation since frame k-1, :func:`~common.yaw.honest.gyro_delta_yaw_rad`) is the prior and the
-        bridge over untrusted pairs. The returned state has no spectra; ``track`` adds them.
+        bridge over untrusted pairs; ``refine_measure`` measures a turning pair's second pass elsewhere (a
+        master: on its members, :data:`~common.yaw.stages.RefineMeasure`). The returned state has no spectra;
+        ``track`` adds them.
         """
         frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
-        return self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
+        return self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False, refine_measure)
 
     def _conclude(
         self,
@@ -174,6 +177,7 @@ class YawTracker:
         stamp_s: float | None,
         gyro_delta_rad: float | None,
         check_global: bool,
+        refine_measure: RefineMeasure | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """:meth:`conclude` of a checked frame; ``check_global`` verifies even a trusted patch fit against the
         global stage (one pair of any rotation, :func:`estimate_pair`)."""
@@ -194,7 +198,7 @@ class YawTracker:
         prior = make_prior(self.settings, dt, gyro, held, state.since_measured_s)
         result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
-            state.previous_spectra, prior, check_global,
+            state.previous_spectra, prior, check_global, refine_measure,
         )  # fmt: skip
         step_s = dt if dt is not None else self.settings.frame_period_s
         # the pair's end on the stamps' clock, or on a nominal one (frame periods) for unstamped frames

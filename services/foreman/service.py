@@ -32,8 +32,8 @@ from common.members import Role
 from common.streams import StreamTable
 from common.wire import keys
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
-from common.yaw.measurement import merge_measurements
-from common.yaw.patchwork import CropStore, SpectrumCache, measure_share
+from common.yaw.measurement import PatchMeasurement, merge_measurements
+from common.yaw.patchwork import CropStore, SpectrumCache, measure_crops, measure_share
 from services.runtime.allocator import HeapTrim
 from services.runtime.cli import (
     IDLE_PROCESS_MB,
@@ -50,6 +50,7 @@ from services.runtime.results import result_from_measurement
 from services.runtime.round import FrameWork
 from services.runtime.scatter import Scatter
 from services.runtime.service import ConfiguredService
+from services.runtime.transient import TransientPart, gather, send_parts, transient_job
 
 #: Upper bound of patch indices a foreman accepts.
 MAX_PATCHES = 1 << 16
@@ -179,7 +180,10 @@ class ForemanService(ConfiguredService[ForemanSettings]):
     def _answer_block(self, query: zenoh.Query, job: BlockJob, received_perf_s: float) -> None:
         evicted_before = (self.cache.evicted, self.crops.evicted)  # this thread alone stores into both
         try:
-            result, plan = self._compute_block(job)
+            if job.transient:
+                result, plan = self._transient_block(job), None
+            else:
+                result, plan = self._compute_block(job)
             t_rep = time.perf_counter()
         except (CapatazError, ValueError) as exc:  # a raw ValueError is a bug: counted apart, traceback
             self.count_failure("rejected", f"block {job.stream}/{job.seq} rejected", exc)
@@ -188,9 +192,10 @@ class ForemanService(ConfiguredService[ForemanSettings]):
             return
         self.reply(query, result)
         # bookkeeping after the reply is on its way: none of it is needed to answer this block
-        self.crops.add(job.stream, job.seq, job.indices, job.crops)
-        self._last_shares = plan.shares()
-        self.counters.inc("blocks")
+        if plan is not None:  # a transient block's crops are frame k turned back: not frame k's
+            self.crops.add(job.stream, job.seq, job.indices, job.crops)
+            self._last_shares = plan.shares()
+        self.counters.inc("transient_blocks" if plan is None else "blocks")
         self.counters.inc("patches", int(job.indices.size))
         self._count_evictions(*evicted_before)
         self.counters.time_ms("block", result.compute_s * 1e3)
@@ -267,6 +272,46 @@ class ForemanService(ConfiguredService[ForemanSettings]):
         )
         assert isinstance(result, BlockResult)
         return result, plan
+
+    def _transient_block(self, job: BlockJob) -> BlockResult:
+        """A turning pair's second pass (``job.transient``): the block spread over the node's active workers
+        with the previous crops this foreman holds (a worker keeps no crops), each part a transient job; what
+        no worker takes (none alive, or the foreman computes too) or a worker failed, measured here."""
+        t0 = time.perf_counter()
+        assert self.session is not None
+        settings = job.settings.yaw_settings
+        if job.prev_indices.size:
+            prev_crops = job.prev_crops
+        else:
+            prev_crops = self.crops.get(job.stream, job.prev_seq, job.indices, tuple(job.crops.shape[1:]))
+        stream = self._stream(job.stream)
+        stream.live.update(stream.dispatcher)
+        members = stream.dispatcher.active(time.monotonic()) or [SELF]
+        rows = np.array_split(np.arange(job.indices.size), max(1, len(members)))
+        budget_s = max(0.05, 0.5 * job.budget_s)
+        parts = [
+            TransientPart(m, keys.work_key_of(m), transient_job(
+                PatchJob, job, job.indices[r], job.crops[r], prev_crops[r], budget_s))
+            for m, r in zip(members, rows, strict=True) if m != SELF and r.size
+        ]  # fmt: skip
+        sent = send_parts(self.session, parts, budget_s)
+        done = dict(zip([p.member for p in parts], gather(sent, PatchResult, self.counters), strict=True))
+        measured: list[PatchMeasurement] = []
+        counts: dict[str, int] = {}
+        for member, r in zip(members, rows, strict=True):
+            got = done.get(member)
+            if got is None and r.size:
+                got = measure_crops(settings, job.indices[r], job.crops[r], prev_crops[r])
+                member = SELF
+            if got is not None:
+                measured.append(got)
+                counts[member] = counts.get(member, 0) + int(r.size)
+        measurement = merge_measurements(measured, job.indices)
+        result = result_from_measurement(
+            BlockResult, job, self.name, measurement, time.perf_counter() - t0, counts, {}
+        )
+        assert isinstance(result, BlockResult)
+        return result
 
 
 def register(subparsers: Any) -> None:

@@ -15,6 +15,7 @@ authenticates the sender.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -23,6 +24,8 @@ from typing import TypeVar
 
 from common.provenance import Provenance
 from common.wire.messages import Frame, YawEstimate
+from common.yaw.tracker import FrameYaw
+from services.runtime.round import RoundReport
 
 _K = TypeVar("_K")
 #: the declared source of samples that declare none
@@ -166,4 +169,38 @@ def initial_estimate(
         provenance=Provenance.INITIAL,
         timings_ms={"total": (time.perf_counter() - t0_perf_s) * 1e3},
         dropped_frames=dropped,
+    )
+
+
+def measured_estimate(
+    uav: str,
+    frame: Frame,
+    core: FrameYaw,
+    timings_ms: dict[str, float],
+    members: dict[str, int],
+    report: RoundReport | None,
+    dropped: int,
+) -> YawEstimate:
+    """The estimate of a measured frame: the core's yaw (``core``), how it was measured and by whom
+    (``report``: the frame's round; None: computed here after the round failed)."""
+    return YawEstimate(
+        uav=uav,
+        seq=frame.seq,
+        stamp_s=frame.stamp_s,
+        delta_yaw_rad=float(core.delta_yaw_rad),
+        yaw_rad=float(core.yaw_rad),
+        inlier_count=int(core.inlier_count),
+        patch_count=int(core.patch_count),
+        confidence=float(core.confidence) if math.isfinite(core.confidence) else 0.0,
+        low_confidence=bool(core.low_confidence),
+        method=core.method.name.lower(),
+        timings_ms=timings_ms,
+        members=members,
+        speeds_patches_s=dict(report.speeds) if report else {},
+        dropped_frames=dropped,
+        redispatched=report.redispatched if report else 0,
+        provenance=core.provenance,
+        yaw_variance_rad2=core.yaw_variance_rad2,
+        delta_variance_rad2=core.delta_variance_rad2,
+        measured_delta_rad=core.measured_delta_rad if math.isfinite(core.measured_delta_rad) else None,
     )

@@ -57,9 +57,11 @@ from services.master.published import (
     PublishVerdict,
     YawAnchor,
     initial_estimate,
+    measured_estimate,
     session_of,
     take_over_anchor,
 )
+from services.master.refine import MemberRefine
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
@@ -363,7 +365,24 @@ class MasterService(ConfiguredService[MasterSettings]):
         if stamp is None:
             counts["stamps_not_increasing"] = counts.get("stamps_not_increasing", 0) + 1
         gyro = self.gyro.delta_rad(previous_s, stamp, counts) if stamp is not None else None
-        stream.state, core = stream.tracker.conclude(stream.state, frame.pixels, measurement, stamp, gyro)
+        # a turning frame's second pass on the members that measured its patches
+        refine = (
+            None
+            if report is None
+            else MemberRefine.of(
+                self.session,
+                grid,
+                prev_level,
+                work,
+                self._job_types,
+                report,
+                stream.dispatcher,
+                self.counters,
+            )
+        )
+        stream.state, core = stream.tracker.conclude(
+            stream.state, frame.pixels, measurement, stamp, gyro, refine
+        )
         stream.prev_level, stream.prev_seq = level, frame.seq
         t_end = time.perf_counter()
         self._last_shares = plan.shares()
@@ -376,24 +395,5 @@ class MasterService(ConfiguredService[MasterSettings]):
         }
         if report is not None:
             timings["self"] = report.self_s * 1e3
-        return YawEstimate(
-            uav=self.settings.uav,
-            seq=frame.seq,
-            stamp_s=frame.stamp_s,
-            delta_yaw_rad=float(core.delta_yaw_rad),
-            yaw_rad=float(core.yaw_rad),
-            inlier_count=int(core.inlier_count),
-            patch_count=int(core.patch_count),
-            confidence=float(core.confidence) if np.isfinite(core.confidence) else 0.0,
-            low_confidence=bool(core.low_confidence),
-            method=core.method.name.lower(),
-            timings_ms=timings,
-            members=members,
-            speeds_patches_s=dict(report.speeds) if report else {},
-            dropped_frames=self.slot.dropped + self.intake.inbox.dropped,
-            redispatched=report.redispatched if report else 0,
-            provenance=core.provenance,
-            yaw_variance_rad2=core.yaw_variance_rad2,
-            delta_variance_rad2=core.delta_variance_rad2,
-            measured_delta_rad=core.measured_delta_rad if np.isfinite(core.measured_delta_rad) else None,
-        )
+        dropped = self.slot.dropped + self.intake.inbox.dropped
+        return measured_estimate(self.settings.uav, frame, core, timings, members, report, dropped)

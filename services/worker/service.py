@@ -14,7 +14,7 @@ from common.errors import CapatazError
 from common.members import Role
 from common.wire import keys
 from common.wire.messages import PatchJob, PatchResult
-from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
+from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_crops, measure_share
 from services.runtime.allocator import HeapTrim
 from services.runtime.cli import (
     IDLE_PROCESS_MB,
@@ -188,17 +188,22 @@ class WorkerService(ConfiguredService[WorkerSettings]):
                     SpectrumCache(), settings, job.stream, job.seq, job.seq,
                     job.indices, job.crops, job.indices, job.crops,
                 )  # fmt: skip
-            measurement = measure_share(
-                self.cache,
-                settings,
-                job.stream,
-                job.seq,
-                job.prev_seq,
-                job.indices,
-                job.crops,
-                job.prev_indices,
-                job.prev_crops,
-            )
+            if job.transient:  # a turning pair's second pass: its previous crops came with it, nothing kept
+                if job.prev_indices.size != job.indices.size:
+                    raise PatchWorkError("a transient job brings the previous crops of all its patches")
+                measurement = measure_crops(settings, job.indices, job.crops, job.prev_crops)
+            else:
+                measurement = measure_share(
+                    self.cache,
+                    settings,
+                    job.stream,
+                    job.seq,
+                    job.prev_seq,
+                    job.indices,
+                    job.crops,
+                    job.prev_indices,
+                    job.prev_crops,
+                )
         except (PatchWorkError, CapatazError, ValueError) as exc:
             self.count_error("rejected", f"job {job.stream}/{job.seq} rejected", exc)
             self.reply_error(query, "rejected", f"{type(exc).__name__}: {exc}")

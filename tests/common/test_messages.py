@@ -276,6 +276,20 @@ def test_job_consistency_is_checked() -> None:
         patch_job(indices=np.array([1, 1]), crops=crops)
 
 
+def test_a_transient_job_brings_the_previous_crops_of_all_its_patches_or_none() -> None:
+    crops = np.zeros((2, 8, 8), np.uint8)
+    indices = np.array([1, 2], np.int32)
+    with pytest.raises(ValueError, match="transient"):
+        patch_job(
+            indices=indices, crops=crops, prev_indices=indices[:1], prev_crops=crops[:1], transient=True
+        )
+    for prev in (indices, indices[:0]):  # all of them (to a worker), none (a foreman holds them)
+        job = patch_job(indices=indices, crops=crops, prev_indices=prev, prev_crops=crops[: prev.size],
+                        transient=True)  # fmt: skip
+        assert decode(*encode(job), m.PatchJob).transient
+    assert not patch_job().transient  # a frame's first pass, the default
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=64), st.binary(max_size=64))
 def test_random_bytes_never_escape_as_anything_but_wire_error(payload: bytes, attachment: bytes) -> None:
