@@ -44,6 +44,8 @@ class MemberRefine:
     #: asked, when the refinement runs, which owners are still active (the guard vetted the frame)
     dispatcher: Dispatcher
     counters: Counters
+    #: a pass of fewer level pixels is measured here (``refine_on_members_pixels``)
+    min_px: int
 
     @classmethod
     def of(
@@ -56,9 +58,11 @@ class MemberRefine:
         report: RoundReport,
         dispatcher: Dispatcher,
         counters: Counters,
+        min_px: int,
     ) -> MemberRefine | None:
-        """The second pass of the frame ``work`` whose first pass ``report`` tells, or None when the master
-        measured every patch itself (it refines them here as in-process)."""
+        """The second pass of the frame ``work`` whose first pass ``report`` tells, or None (refined here as
+        in-process) when the master measured every patch itself. A pass of fewer than ``min_px`` level
+        pixels (``refine_on_members_pixels``) is measured here too."""
         owners = {
             index: owner
             for part, owner in zip(report.parts, report.owners, strict=True)
@@ -68,9 +72,14 @@ class MemberRefine:
         if not owners:
             return None
         settings = work.settings.yaw_settings
-        return cls(session, grid, prev_level, work, settings, *job_types, owners, dispatcher, counters)
+        return cls(
+            session, grid, prev_level, work, settings, *job_types, owners, dispatcher, counters, min_px
+        )
 
     def __call__(self, indices: IntArray, crops_u8: U8Array) -> PatchMeasurement:
+        if crops_u8.size < self.min_px:  # a round trip would cost more latency than the compute here
+            self.counters.inc("refine_patches_here", int(indices.size))
+            return self._here(indices, crops_u8, np.arange(indices.size))
         active = set(self.dispatcher.active(time.monotonic()))
         groups: dict[str, list[int]] = {}
         for row, index in enumerate(indices.tolist()):

@@ -365,21 +365,11 @@ class MasterService(ConfiguredService[MasterSettings]):
         if stamp is None:
             counts["stamps_not_increasing"] = counts.get("stamps_not_increasing", 0) + 1
         gyro = self.gyro.delta_rad(previous_s, stamp, counts) if stamp is not None else None
-        # a turning frame's second pass on the members that measured its patches
-        refine = (
-            None
-            if report is None
-            else MemberRefine.of(
-                self.session,
-                grid,
-                prev_level,
-                work,
-                self._job_types,
-                report,
-                stream.dispatcher,
-                self.counters,
-            )
-        )
+        # a turning frame's second pass on the members that measured its patches (None: here)
+        refine = None if report is None else MemberRefine.of(
+            self.session, grid, prev_level, work, self._job_types, report, stream.dispatcher, self.counters,
+            self.settings.refine_on_members_pixels,
+        )  # fmt: skip
         stream.state, core = stream.tracker.conclude(
             stream.state, frame.pixels, measurement, stamp, gyro, refine
         )

@@ -76,7 +76,8 @@ def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_a
     calibration.write_text(opencv_yaml_text(field_flight(name, n_frames=2).camera))
     expected_yaw, expected_provenance = _in_process(name, FRAMES)
     spec = two_by_two(topology=TOPOLOGY[name], workers=1)
-    master_args = ("--calibration", str(calibration), *MOUNT_ARGS[name])
+    # the refinement on the members at any size (by default only from 2**17 level pixels: 40960 here)
+    master_args = ("--calibration", str(calibration), "--refine-on-members-pixels", "0", *MOUNT_ARGS[name])
     with LocalCluster(spec, tmp_path / "logs", master_args=master_args) as cluster:
         cluster.start()
         cluster.wait_alive(cluster.expected_members())
