@@ -286,26 +286,27 @@ class ForemanService(ConfiguredService[ForemanSettings]):
             prev_crops = self.crops.get(job.stream, job.prev_seq, job.indices, tuple(job.crops.shape[1:]))
         stream = self._stream(job.stream)
         stream.live.update(stream.dispatcher)
-        members = stream.dispatcher.active(time.monotonic()) or [SELF]
-        rows = np.array_split(np.arange(job.indices.size), max(1, len(members)))
+        members = stream.dispatcher.active(time.monotonic())
+        shares = [(m, r) for m, r in zip(members, np.array_split(np.arange(job.indices.size), len(members)),
+                                         strict=True) if r.size]  # fmt: skip
+        away = [(m, r) for m, r in shares if m != SELF]
         budget_s = max(0.05, 0.5 * job.budget_s)
-        parts = [
+        sent = send_parts(self.session, [
             TransientPart(m, keys.work_key_of(m), transient_job(
                 PatchJob, job, job.indices[r], job.crops[r], prev_crops[r], budget_s))
-            for m, r in zip(members, rows, strict=True) if m != SELF and r.size
-        ]  # fmt: skip
-        sent = send_parts(self.session, parts, budget_s)
-        done = dict(zip([p.member for p in parts], gather(sent, PatchResult, self.counters), strict=True))
-        measured: list[PatchMeasurement] = []
+            for m, r in away
+        ], budget_s)  # fmt: skip
         counts: dict[str, int] = {}
-        for member, r in zip(members, rows, strict=True):
-            got = done.get(member)
-            if got is None and r.size:
-                got = measure_crops(settings, job.indices[r], job.crops[r], prev_crops[r])
-                member = SELF
+
+        def here(r: np.ndarray) -> PatchMeasurement:
+            counts[SELF] = counts.get(SELF, 0) + int(r.size)
+            return measure_crops(settings, job.indices[r], job.crops[r], prev_crops[r])
+
+        measured = [here(r) for m, r in shares if m == SELF]  # while the workers measure theirs
+        for (member, r), got in zip(away, gather(sent, PatchResult, self.counters), strict=True):
             if got is not None:
-                measured.append(got)
-                counts[member] = counts.get(member, 0) + int(r.size)
+                counts[member] = int(r.size)
+            measured.append(here(r) if got is None else got)
         measurement = merge_measurements(measured, job.indices)
         result = result_from_measurement(
             BlockResult, job, self.name, measurement, time.perf_counter() - t0, counts, {}

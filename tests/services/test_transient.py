@@ -11,6 +11,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
+from common.dispatch import SELF
 from common.wire import keys
 from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
@@ -114,3 +115,18 @@ def test_a_worker_refuses_a_transient_job_without_its_previous_crops() -> None:
             _shifts(_ask(endpoint, key, job, PatchResult)), expected.shift_px, equal_nan=True
         )
         assert workers[0].cache.held("s") == (-2, frozenset())  # nothing cached
+
+
+def test_a_foreman_without_workers_measures_a_transient_block_itself() -> None:
+    indices = np.arange(N, dtype=np.int32)
+    with hub() as endpoint, _node(endpoint, workers=0) as (foreman, _):
+        key = keys.foreman_key("h")
+        first = patch_job(N, SIDE, cls=BlockJob, seq=1, prev_seq=0, crops=_crops(1), prev_indices=indices,
+                          prev_crops=_crops(0))  # fmt: skip
+        assert isinstance(_ask(endpoint, key, first, BlockResult), BlockResult)
+        transient = patch_job(N, SIDE, cls=BlockJob, seq=1, prev_seq=0, crops=_crops(11), transient=True)
+        got = _ask(endpoint, key, transient, BlockResult)
+        expected = measure_crops(JOB_SETTINGS.yaw_settings, indices, _crops(11), _crops(0))
+        assert np.array_equal(_shifts(got), expected.shift_px, equal_nan=True)
+        assert isinstance(got, BlockResult) and got.members == {SELF: N}
+        assert foreman.counters.get("transient_blocks") == 1
