@@ -40,7 +40,7 @@ from services.runtime.round import (
     RoundEvent,
     RoundReport,
 )
-from services.runtime.transport import zbytes
+from services.runtime.transport import reply_channel, zbytes
 
 logger = logging.getLogger(__name__)
 
@@ -153,16 +153,7 @@ class Scatter:
             solo.cancel = zenoh.CancellationToken()
             with self._lock:
                 self._solo = solo
-            solo.replies = self.session.get(
-                key,
-                zenoh.handlers.FifoChannel(2),
-                payload=payload,
-                attachment=attachment,
-                timeout=budget_s,
-                consolidation=zenoh.ConsolidationMode.NONE,
-                congestion_control=zenoh.CongestionControl.BLOCK,
-                cancellation_token=solo.cancel,
-            )
+            solo.replies = reply_channel(self.session, key, payload, attachment, budget_s, solo.cancel)
         else:
             # indirect=False: the two callbacks only put into a queue, so they run on zenoh's own thread
             # instead of a Python thread per query (one thread hop less per reply; measured -0.3 ms per frame

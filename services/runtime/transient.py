@@ -25,7 +25,7 @@ from common.yaw.measurement import PatchMeasurement
 from services.runtime.counters import Counters
 from services.runtime.results import measurement_of
 from services.runtime.round import FrameWork
-from services.runtime.transport import zbytes
+from services.runtime.transport import reply_channel, zbytes
 
 logger = logging.getLogger(__name__)
 
@@ -39,33 +39,20 @@ class TransientPart:
     job: PatchJob
 
 
-@dataclass(frozen=True)
-class Sent:
-    """A part on its way: its reply channel (None: it could not be sent)."""
-
-    part: TransientPart
-    replies: Any
+#: a part on its way, with its reply channel (None: it could not be sent)
+Sent = tuple[TransientPart, Any]
 
 
 def send_parts(session: zenoh.Session, parts: Sequence[TransientPart], timeout_s: float) -> list[Sent]:
     """Send every part at once (each with its own bounded reply channel; zenoh ends it at ``timeout_s``)."""
     sent: list[Sent] = []
     for part in parts:
-        payload, attachment = encode(part.job)
         try:
-            replies = session.get(
-                part.key,
-                zenoh.handlers.FifoChannel(2),
-                payload=payload,
-                attachment=attachment,
-                timeout=timeout_s,
-                consolidation=zenoh.ConsolidationMode.NONE,
-                congestion_control=zenoh.CongestionControl.BLOCK,
-            )
+            replies = reply_channel(session, part.key, *encode(part.job), timeout_s)
         except zenoh.ZError as exc:  # the session is closing
             logger.warning("cannot send the refinement's part to %s: %s", part.member, exc)
             replies = None
-        sent.append(Sent(part, replies))
+        sent.append((part, replies))
     return sent
 
 
@@ -75,25 +62,27 @@ def gather(
     """Each part's measurement, or None where its member failed it (one warning line and
     ``refine_failures`` each); waits at most the parts' deadline (they run at once)."""
     out: list[PatchMeasurement | None] = []
-    for item in sent:
-        failure, measurement = _reply_of(item, result_type)
+    for part, replies in sent:
+        failure, measurement = _reply_of(part.job, replies, result_type)
         if measurement is None:
             counters.inc("refine_failures")
             logger.warning(
                 "frame %d: the refinement's part on %s failed (%s); measuring it here",
-                item.part.job.seq,
-                item.part.member,
+                part.job.seq,
+                part.member,
                 failure,
             )
         out.append(measurement)
     return out
 
 
-def _reply_of(item: Sent, result_type: type[PatchResult]) -> tuple[str, PatchMeasurement | None]:
-    if item.replies is None:
+def _reply_of(
+    job: PatchJob, replies: Any, result_type: type[PatchResult]
+) -> tuple[str, PatchMeasurement | None]:
+    if replies is None:
         return "not sent", None
     try:
-        reply = item.replies.recv()
+        reply = replies.recv()
     except zenoh.ZError:
         return "no reply", None
     if reply.err is not None:
@@ -104,7 +93,6 @@ def _reply_of(item: Sent, result_type: type[PatchResult]) -> tuple[str, PatchMea
         result = decode(zbytes(reply.ok.payload), zbytes(reply.ok.attachment), result_type)
     except WireError as exc:
         return f"malformed reply: {exc}", None
-    job = item.part.job
     if (
         result.seq != job.seq
         or result.stream != job.stream
@@ -127,18 +115,12 @@ def transient_job(
     validated data without re-validation: the receiver validates at its boundary."""
     idx = indices.astype(np.int32, copy=False)
     prev = prev_crops_u8 if prev_crops_u8 is not None else np.zeros((0, *crops_u8.shape[1:]), np.uint8)
+    frames = {name: getattr(of, name) for name in ("stream", "seq", "prev_seq", "settings")}
+    prev_idx = idx if prev_crops_u8 is not None else idx[:0]
     return job_type.model_construct(
-        stream=of.stream,
-        seq=of.seq,
-        prev_seq=of.prev_seq,
-        settings=of.settings,
-        indices=idx,
-        crops=crops_u8,
-        prev_indices=idx if prev_crops_u8 is not None else idx[:0],
-        prev_crops=prev,
-        budget_s=budget_s,
+        **frames, indices=idx, crops=crops_u8, prev_indices=prev_idx, prev_crops=prev, budget_s=budget_s,
         transient=True,
-    )
+    )  # fmt: skip
 
 
 __all__ = ["Sent", "TransientPart", "gather", "send_parts", "transient_job"]

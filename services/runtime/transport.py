@@ -237,3 +237,26 @@ def source_of(sample: zenoh.Sample) -> str | None:
     info = getattr(sample, "source_info", None)  # a sample object without it declares nothing
     source = None if info is None else info.source_id
     return None if source is None else f"{source.zid}/{source.eid}"
+
+
+def reply_channel(
+    session: zenoh.Session,
+    key: str | zenoh.KeyExpr,
+    payload: bytes,
+    attachment: bytes | None,
+    timeout_s: float,
+    cancellation_token: zenoh.CancellationToken | None = None,
+) -> Any:
+    """A query whose replies come through its own bounded FIFO channel (zenoh ends it at ``timeout_s`` with a
+    "Timeout" error reply, or when ``cancellation_token`` is cancelled); every reply kept, blocking when the
+    link is congested (a job must not be dropped)."""
+    return session.get(
+        key,
+        zenoh.handlers.FifoChannel(2),
+        payload=payload,
+        attachment=attachment,
+        timeout=timeout_s,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        cancellation_token=cancellation_token,
+    )

@@ -1,12 +1,15 @@
 """A turning frame's second pass on the members (:mod:`services.runtime.transient`): a foreman measures a
 transient block with the previous crops it holds, spread over its workers, and keeps nothing of it; a worker
-measures a transient job only with the previous crops of all its patches."""
+measures a transient job only with the previous crops of all its patches; a part whose member fails (error,
+a reply for another frame, no reply) comes back as None, counted, for its sender to measure."""
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,9 +20,12 @@ from common.wire.codec import decode, encode, read_error_reply
 from common.wire.messages import BlockJob, BlockResult, PatchJob, PatchResult
 from common.yaw.patchwork import measure_crops
 from services.foreman.service import ForemanService, ForemanSettings
+from services.runtime.counters import Counters
+from services.runtime.transient import TransientPart, gather, send_parts
 from services.runtime.transport import open_session, zbytes
 from services.worker.service import WorkerService, WorkerSettings
 from tests.builders import JOB_SETTINGS, patch_job
+from tests.services.fakes import FakeBytes, FakeChannel
 from tests.zenoh_helpers import WAIT_S, hub, matched, peer, wait_until
 
 pytestmark = pytest.mark.zenoh
@@ -130,3 +136,41 @@ def test_a_foreman_without_workers_measures_a_transient_block_itself() -> None:
         assert np.array_equal(_shifts(got), expected.shift_px, equal_nan=True)
         assert isinstance(got, BlockResult) and got.members == {SELF: N}
         assert foreman.counters.get("transient_blocks") == 1
+
+
+class _Failing:
+    """A stand-in session whose members answer each part with ``answers`` in turn (an error reply, a reply
+    for another frame, nothing at all)."""
+
+    def __init__(self, answers: list[Any]) -> None:
+        self.answers = answers
+
+    def get(self, key: Any, handler: Any, **_kw: Any) -> FakeChannel:
+        answer = self.answers.pop(0)
+        return FakeChannel([] if answer is None else [answer])
+
+
+def test_each_failed_part_comes_back_as_none_counted_and_the_others_measured() -> None:
+    indices = np.arange(N, dtype=np.int32)
+    jobs = [patch_job(N, SIDE, seq=3, prev_seq=2, crops=_crops(3), prev_indices=indices, prev_crops=_crops(2),
+                      transient=True) for _ in range(4)]  # fmt: skip
+    good = measure_crops(JOB_SETTINGS.yaw_settings, indices, _crops(3), _crops(2))
+    result = PatchResult(
+        stream="s", seq=3, prev_seq=2, member="w", indices=indices, shift_px=good.shift_px,
+        confidence=good.confidence, peak=good.peak, valid=good.valid, compute_s=0.0,
+    )  # fmt: skip
+    other_frame = result.model_copy(update={"seq": 4})
+    error = SimpleNamespace(err=SimpleNamespace(payload=FakeBytes(b"Timeout")), ok=None)
+
+    def ok(message: PatchResult) -> SimpleNamespace:
+        payload, attachment = encode(message)
+        return SimpleNamespace(err=None, ok=SimpleNamespace(payload=FakeBytes(payload),
+                                                            attachment=FakeBytes(attachment)))  # fmt: skip
+
+    session: Any = _Failing([ok(result), error, ok(other_frame), None])
+    parts = [TransientPart(f"w{i}", f"k{i}", job) for i, job in enumerate(jobs)]
+    counters = Counters()
+    got = gather(send_parts(session, parts, 1.0), PatchResult, counters)
+    assert got[0] is not None and np.array_equal(got[0].shift_px, good.shift_px, equal_nan=True)
+    assert got[1:] == [None, None, None]
+    assert counters.get("refine_failures") == 3
