@@ -117,8 +117,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     workload.add_argument(
         "--flight", choices=[FlightName.HOVER.value, FlightName.TURNS.value], default=FlightName.HOVER.value,
         help="the simulated flight: paper A's hover (18 %% of its first 120 frames turn more than the yaw's "
-        f"refine_min_deg) or paper C's turns from frame {TURNS_FROM_FRAME} on (91 %% of the next 200 do: the "
-        "master refines those frames alone)",
+        f"refine_min_deg) or paper C's turns from frame {TURNS_FROM_FRAME} on (91 %% of the next 200 do; "
+        "their second pass runs on the members from the master's --refine-on-members-pixels on)",
     )  # fmt: skip
     workload.add_argument("--grid", default=f"{yaw.grid_cols}x{yaw.grid_rows}", help="patch grid COLSxROWS")
     workload.add_argument(

@@ -8,7 +8,8 @@ alone, with no previous spectra cached (its members hold them). ``refine_max_pat
 Truth generator: nadir views of the simulator's ground texture, each pair turned by a known angle (0.5-2
 deg, both signs) at ``--resolution``. For each cap (``--caps``; 4096 = every patch, the baseline), in turns
 within each repeat: CPU ms of the in-process frame (``YawTracker.track``: both passes) and of the master's
-conclude (``YawTracker.conclude`` without previous spectra: the refinement alone, as the master runs it),
+conclude (``YawTracker.conclude`` without previous spectra: the refinement alone, as the master runs it
+below ``refine_on_members_pixels``; a larger pass goes to the members, ``services/master/refine.py``),
 and the pair's yaw error. The table gives each cap's median over the repeats, the p95 over every timed
 call, its time over the baseline's in the same repeats, and the RMS yaw error over the pairs.
 """
