@@ -160,22 +160,33 @@ def test_the_published_yaw_counts_its_pairs_correlated_errors_regression() -> No
 @pytest.mark.slow
 def test_the_estimators_published_covariances_are_honest_on_a_held_out_seed() -> None:
     """Seed 10 (held out: the published model was fit on seeds 0-9), 300 frames of each flight: the mean
-    NEES of the published attitude, its tilt and the position is within a factor ``spread`` of its dof (the
-    spread one seed's mean has: errors are correlated over a flight, so one seed is about one sample; on the
-    fit seeds the per-seed means of the position ranged over about that factor). The filter's covariances
-    as they are were too cautious on the agile flight by more than that (mean NEES 0.17 and 0.90)."""
+    NEES of the published tilt and position (both flights) and of the attitude and its heading (paper C's,
+    the flight the yaw's model is fitted on) is within a factor ``spread`` of its dof (the spread one seed's
+    mean has: errors are correlated over a flight, so one seed is about one sample; on the fit seeds the
+    per-seed means of the position ranged over about that factor). The filter's covariances as they are
+    were too cautious on the agile flight by more than that (mean NEES 0.17 and 0.90).
+
+    The agile flight's heading is published cautious (docs/methods.md, known limits: its yaw has paper C's
+    model, whose errors are about four times the agile flight's), so its 3-dof attitude is the tilt's NEES
+    and little more: judged against 3 it sat within 1 % of its bound (1.19 against 1.2 on this seed) and
+    crossed it with the floating-point path of another CPU (1.175-1.21 across OpenCV builds and SIMD
+    paths: regression). Its heading is asserted cautious, the limit as documented, and its attitude against
+    the tilt's dof."""
     spread = 2.5
     for name in ("paper_c", "agile"):
         flight = FLIGHTS[name](10)
         outputs = estimator_outputs(flight, 300)
         published = estimator_lines(name, flight, outputs)
         as_filtered = estimator_lines(name, flight, outputs, AS_FILTERED)
-        for part, dof in (("attitude", 3), ("tilt", 2), ("position", 3)):
+        judged = {"paper_c": (("attitude", 3), ("heading", 1)), "agile": (("attitude", 2),)}[name]
+        for part, dof in (*judged, ("tilt", 2), ("position", 3)):
             line = f"estimator {part} {name}"
             nees = float(np.mean(published[line].nees))
             assert dof / spread < nees < dof * spread, (line, nees)
             if name == "agile":
                 assert float(np.mean(as_filtered[line].nees)) < dof / spread, line
+        if name == "agile":  # the known limit: cautious, not overconfident
+            assert float(np.mean(published[f"estimator heading {name}"].nees)) < 1 / spread
         # the altitude (1 dof): the filter's variance was too cautious (mean NEES 0.64 and 0.67 here); the
         # fit seeds' per-seed means ranged 0.81-1.12
         line = f"estimator altitude {name}"
