@@ -5,22 +5,24 @@
 # pip installs uv into the venv, and uv installs the project: 3 s instead of pip's 26 s on 2 cores.
 # PyPI has no tf2_msgs wheel: services/ros2/tf2_msgs_build.py generates and compiles it into the venv with the
 # extra's rosidl generators and cc/c++ (for /tf_static; about 5 s, nothing when already built).
+# Every install is constrained to deploy/constraints.txt (the tested versions); `make lock` renews it.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-runtime
 DEV    := $(VENV)/.installed
-UV     := $(BIN)/uv pip install --python $(BIN)/python --quiet
+PINS   := deploy/constraints.txt
+UV     := $(BIN)/uv pip install --python $(BIN)/python --quiet --constraints $(PINS)
 
-.PHONY: run test test-long test-loaded test-docker bench results lint typecheck clean
+.PHONY: run test test-long test-loaded test-docker bench results lint typecheck clean lock
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(PINS)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --quiet 'uv>=0.5'
+	$(BIN)/python -m pip install --quiet --quiet --constraint $(PINS) 'uv>=0.5'
 	$(UV) -e .
 	touch $(STAMP)
 
-$(DEV): $(STAMP) services/ros2/tf2_msgs_build.py
+$(DEV): $(STAMP) $(PINS) services/ros2/tf2_msgs_build.py
 	$(UV) -e '.[dev,ros2]'
 	$(BIN)/python -m services.ros2.tf2_msgs_build
 	touch $(DEV)
@@ -66,6 +68,18 @@ lint: $(DEV)
 typecheck: $(DEV)
 	$(BIN)/mypy common services
 	$(BIN)/mypy --strict common
+
+# the newest releases pyproject.toml's ranges admit, resolved in a scratch venv, become the pins (keeps the
+# header); then `make test` before committing them
+LOCK_VENV := out/lock-venv
+lock:
+	rm -rf $(LOCK_VENV) && $(PYTHON) -m venv $(LOCK_VENV)
+	$(LOCK_VENV)/bin/python -m pip install --quiet --quiet 'uv>=0.5'
+	$(LOCK_VENV)/bin/uv pip install --python $(LOCK_VENV)/bin/python --quiet -e '.[dev,ros2]'
+	grep '^#' $(PINS) > $(PINS).new
+	$(LOCK_VENV)/bin/uv pip freeze --python $(LOCK_VENV)/bin/python --exclude-editable \
+		| grep -v -E '^(pip|setuptools)==' >> $(PINS).new
+	mv $(PINS).new $(PINS) && rm -rf $(LOCK_VENV)
 
 clean:
 	rm -rf out .pytest_cache .mypy_cache .ruff_cache
