@@ -52,10 +52,15 @@ def test_every_named_dependency_is_pinned_within_its_range() -> None:
 
 
 def test_the_tests_run_on_the_pinned_versions() -> None:
+    """Each named dependency that is installed has its pinned version (an extra left out, such as ros2 whose
+    tests then skip, is not a mismatch)."""
     pinned = pins()
     for requirement in named_requirements():
         name = canonicalize_name(requirement.name)
-        installed = Version(metadata.version(name))
+        try:
+            installed = Version(metadata.version(name))
+        except metadata.PackageNotFoundError:
+            continue
         assert installed == pinned[name], (
             f"{name} {installed} is installed, {pinned[name]} is pinned: `make test` installs the pins "
             f"(uv pip install -c {PINS.relative_to(ROOT)})"
