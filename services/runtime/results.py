@@ -1,12 +1,55 @@
-"""A share's measurement on the wire and back: :class:`~common.wire.messages.PatchResult` <->
-:class:`~common.yaw.measurement.PatchMeasurement` (members reply with it, the scatter reads it)."""
+"""A share on the wire and back: the :class:`~common.wire.messages.PatchJob` a sender builds for it, and
+:class:`~common.wire.messages.PatchResult` <-> :class:`~common.yaw.measurement.PatchMeasurement` (members
+reply with it, the scatter reads it)."""
 
 from __future__ import annotations
 
+from typing import Any, Protocol
+
 import numpy as np
 
-from common.wire.messages import BlockJob, PatchJob, PatchResult
+from common.wire.messages import BlockJob, PatchJob, PatchResult, YawJobSettings
 from common.yaw.measurement import PatchMeasurement
+
+
+class JobFrames(Protocol):
+    """The pair of frames a job is for (a scatter round's frame, or the job a foreman received)."""
+
+    @property
+    def stream(self) -> str: ...
+    @property
+    def seq(self) -> int: ...
+    @property
+    def prev_seq(self) -> int: ...
+    @property
+    def settings(self) -> YawJobSettings: ...
+
+
+def job_of(
+    job_type: type[PatchJob],
+    of: JobFrames,
+    indices: np.ndarray,
+    crops: np.ndarray,
+    prev_indices: np.ndarray,
+    prev_crops: np.ndarray,
+    budget_s: float,
+    **extra: Any,
+) -> PatchJob:
+    """The job for patches ``indices`` of the frames ``of`` names, with their crops and the previous crops of
+    ``prev_indices`` (``extra``: a band's fields, ``transient``); shared by the scatter and the refinement's
+    parts. Built from our own validated data without re-validation: the receiver validates at its boundary."""
+    return job_type.model_construct(
+        stream=of.stream,
+        seq=of.seq,
+        prev_seq=of.prev_seq,
+        settings=of.settings,
+        indices=indices.astype(np.int32, copy=False),
+        crops=crops,
+        prev_indices=prev_indices.astype(np.int32, copy=False),
+        prev_crops=prev_crops,
+        budget_s=budget_s,
+        **extra,
+    )
 
 
 def measurement_of(result: PatchResult) -> PatchMeasurement:

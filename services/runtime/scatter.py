@@ -28,6 +28,7 @@ from common.wire.jobs import band_decode_pixels
 from common.wire.messages import PatchJob, PatchResult
 from common.wire.schema import MAX_JOB_PIXELS, WireError
 from services.runtime.counters import Counters
+from services.runtime.results import job_of
 from services.runtime.round import (
     Failure,
     FailureReason,
@@ -118,19 +119,7 @@ class Scatter:
             self.counters.inc("bands_sent")
         # nothing moved (the usual, sticky case): no previous crops to cut
         prev_crops = work.prev_crops(moved) if moved.size else crops[:0]
-        # built from our own validated data: skip re-validation here, the receiver validates at its boundary
-        job = self.job_type.model_construct(
-            stream=work.stream,
-            seq=work.seq,
-            prev_seq=work.prev_seq,
-            settings=work.settings,
-            indices=indices.astype(np.int32, copy=False),
-            crops=crops,
-            prev_indices=moved.astype(np.int32, copy=False),
-            prev_crops=prev_crops,
-            budget_s=budget_s,
-            **pixels,
-        )
+        job = job_of(self.job_type, work, indices, crops, moved, prev_crops, budget_s, **pixels)
         payload, attachment = encode(job)
         events = self._events
         epoch = self._epoch

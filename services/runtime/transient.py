@@ -23,8 +23,7 @@ from common.wire.messages import PatchJob, PatchResult
 from common.wire.schema import WireError
 from common.yaw.measurement import PatchMeasurement
 from services.runtime.counters import Counters
-from services.runtime.results import measurement_of
-from services.runtime.round import FrameWork
+from services.runtime.results import JobFrames, job_of, measurement_of
 from services.runtime.transport import reply_channel, zbytes
 
 logger = logging.getLogger(__name__)
@@ -104,23 +103,18 @@ def _reply_of(
 
 def transient_job(
     job_type: type[PatchJob],
-    of: PatchJob | FrameWork,
+    of: JobFrames,
     indices: np.ndarray,
     crops_u8: np.ndarray,
     prev_crops_u8: np.ndarray | None,
     budget_s: float,
 ) -> PatchJob:
     """A transient job of patches ``indices`` of the frames ``of`` names (stream, frames, yaw settings): their
-    turned-back crops and their previous crops (None: the member holds them, a foreman). Built from
-    validated data without re-validation: the receiver validates at its boundary."""
-    idx = indices.astype(np.int32, copy=False)
-    prev = prev_crops_u8 if prev_crops_u8 is not None else np.zeros((0, *crops_u8.shape[1:]), np.uint8)
-    frames = {name: getattr(of, name) for name in ("stream", "seq", "prev_seq", "settings")}
-    prev_idx = idx if prev_crops_u8 is not None else idx[:0]
-    return job_type.model_construct(
-        **frames, indices=idx, crops=crops_u8, prev_indices=prev_idx, prev_crops=prev, budget_s=budget_s,
-        transient=True,
-    )  # fmt: skip
+    turned-back crops and their previous crops (None: the member holds them, a foreman)."""
+    prev_indices, prev = indices, prev_crops_u8
+    if prev is None:  # the member holds them: none go
+        prev_indices, prev = indices[:0], np.zeros((0, *crops_u8.shape[1:]), np.uint8)
+    return job_of(job_type, of, indices, crops_u8, prev_indices, prev, budget_s, transient=True)
 
 
 __all__ = ["Sent", "TransientPart", "gather", "send_parts", "transient_job"]
