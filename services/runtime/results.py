@@ -4,30 +4,20 @@ reply with it, the scatter reads it)."""
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from common.wire.messages import BlockJob, PatchJob, PatchResult, YawJobSettings
+from common.wire.messages import BlockJob, PatchJob, PatchResult
 from common.yaw.measurement import PatchMeasurement
 
-
-class JobFrames(Protocol):
-    """The pair of frames a job is for (a scatter round's frame, or the job a foreman received)."""
-
-    @property
-    def stream(self) -> str: ...
-    @property
-    def seq(self) -> int: ...
-    @property
-    def prev_seq(self) -> int: ...
-    @property
-    def settings(self) -> YawJobSettings: ...
+if TYPE_CHECKING:  # round.py imports this module
+    from services.runtime.round import FrameWork
 
 
 def job_of(
     job_type: type[PatchJob],
-    of: JobFrames,
+    of: PatchJob | FrameWork,
     indices: np.ndarray,
     crops: np.ndarray,
     prev_indices: np.ndarray,
@@ -35,9 +25,10 @@ def job_of(
     budget_s: float,
     **extra: Any,
 ) -> PatchJob:
-    """The job for patches ``indices`` of the frames ``of`` names, with their crops and the previous crops of
-    ``prev_indices`` (``extra``: a band's fields, ``transient``); shared by the scatter and the refinement's
-    parts. Built from our own validated data without re-validation: the receiver validates at its boundary."""
+    """The job for patches ``indices`` of the frames ``of`` names (a scatter round's frame, or the job a
+    foreman received), with their crops and the previous crops of ``prev_indices`` (``extra``: a band's
+    fields, ``transient``); shared by the scatter and the refinement's parts. Built from our own validated
+    data without re-validation: the receiver validates at its boundary."""
     return job_type.model_construct(
         stream=of.stream,
         seq=of.seq,

@@ -23,7 +23,8 @@ from common.wire.messages import PatchJob, PatchResult
 from common.wire.schema import WireError
 from common.yaw.measurement import PatchMeasurement
 from services.runtime.counters import Counters
-from services.runtime.results import JobFrames, job_of, measurement_of
+from services.runtime.results import job_of, measurement_of
+from services.runtime.round import FrameWork
 from services.runtime.transport import reply_channel, zbytes
 
 logger = logging.getLogger(__name__)
@@ -103,7 +104,7 @@ def _reply_of(
 
 def transient_job(
     job_type: type[PatchJob],
-    of: JobFrames,
+    of: PatchJob | FrameWork,
     indices: np.ndarray,
     crops_u8: np.ndarray,
     prev_crops_u8: np.ndarray | None,
