@@ -162,6 +162,23 @@ def rotation_vectors(R: npt.ArrayLike) -> FloatArray:
     return np.asarray(out)
 
 
+def world_error_angles(R_true: FloatArray, R_estimated: FloatArray) -> FloatArray:
+    """``dtheta`` (N, 3) with ``R_true = Exp(dtheta) R_estimated``: world-frame error angles."""
+    return rotation_vectors(np.einsum("nij,nkj->nik", R_true, R_estimated))
+
+
+def pose_errors(
+    p_true_m: FloatArray, R_true: FloatArray, p_estimated_m: FloatArray, R_estimated: FloatArray
+) -> FloatArray:
+    """(N, 6) errors of estimated poses in the sense of a ``PoseEstimate``'s covariance: the truth about the
+    estimate, ``p_true = p_estimated + dp`` and ``R_true = Exp(dtheta) R_estimated``, as ``(dp, dtheta)``.
+
+    Position and angles must be taken in one sense: the covariance's position-rotation correlations change
+    sign otherwise: ``bench consistency`` took the localizer's position the other way (``p_estimated -
+    p_true``) and so measured the fused covariance's correlations as wrong in sign (a regression test)."""
+    return np.hstack([p_true_m - p_estimated_m, world_error_angles(R_true, R_estimated)])
+
+
 def perturb(R_world_camera: FloatArray, rotvecs_world: FloatArray) -> FloatArray:
     """``Exp(dtheta) R`` for rotations (N, 3, 3) and world-frame rotation vectors (N, 3)."""
     return np.asarray(np.einsum("nij,njk->nik", rotation_matrices(rotvecs_world), R_world_camera))

@@ -136,7 +136,9 @@ class AttitudeEstimate(UavMessage):
 
 
 class PoseEstimate(UavMessage):
-    """Position and attitude of the body in the world with a 6x6 covariance [position, error angles]."""
+    """Position and attitude of the body in the world with a 6x6 covariance [position, error angles]: of
+    ``(dp, dtheta)`` with ``p_true = p_world_body_m + dp`` and ``R_true = Exp(dtheta) R_world_body``, both in
+    the world frame and in one sense (the position-rotation correlations change sign otherwise)."""
 
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "p_world_body_m": ArraySpec("<f8", (3,)),

@@ -37,6 +37,7 @@ from common.sim.field import FIELD_SCENARIOS
 from services.tools.bench import (
     estimator_attitude_fit,
     estimator_drift_fit,
+    localizer_covariance_fit,
     yaw_correlation_fit,
     yaw_held_fit,
     yaw_variance_fit,
@@ -158,18 +159,26 @@ def _fit_yaw_held(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, A
     return _terms_fit_output(yaw_held_fit.fit(fit_seeds, args.field_frames, glare, args.scenarios))
 
 
-def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
-    result = estimator_drift_fit.fit(fit_seeds, args.estimator_frames, args.flights)
+def _per_part_table(
+    result: dict[str, Any], constants: tuple[str, ...], part: str, names: list[str]
+) -> list[dict[str, Any]]:
+    """A fit's rows (fitted, in use, the two folds), one per flight or scene (``part``) of ``names``, each
+    with the row's ``constants`` and that part's scores."""
     rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
         (which, result[which], result[f"{which}_score"]) for which in ("fitted", "in_use")
     ]
     rows += [(_fold_label(f), f, f) for f in result["two_fold"]]
-    table = [
-        {"model": model, "drift_per_pair": c["drift_per_pair"], "MIN_VAR_XY_M2": c["MIN_VAR_XY_M2"],
-         "flight": name, **score[name]}
+    return [
+        {"model": model, **{k: c[k] for k in constants}, part: name, **score[name]}
         for model, c, score in rows
-        for name in (args.flights or list(FLIGHTS))
-    ]  # fmt: skip
+        for name in names
+    ]
+
+
+def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    result = estimator_drift_fit.fit(fit_seeds, args.estimator_frames, args.flights)
+    constants = ("drift_per_pair", "MIN_VAR_XY_M2")
+    table = _per_part_table(result, constants, "flight", args.flights or list(FLIGHTS))
     return {"json": result, "table": table}
 
 
@@ -189,6 +198,13 @@ def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, A
         for model, c, score in rows
         for name in (args.flights or list(FLIGHTS))
     ]  # fmt: skip
+    return {"json": result, "table": table}
+
+
+def _fit_localizer(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
+    result = localizer_covariance_fit.fit(fit_seeds, args.localizer_frames, args.scenes)
+    scenes = args.scenes or list(localizer_covariance_fit.SCENES)
+    table = _per_part_table(result, localizer_covariance_fit.CONSTANTS, "scene", scenes)
     return {"json": result, "table": table}
 
 
@@ -221,6 +237,12 @@ FITS: dict[str, tuple[str, Callable[[list[int], argparse.Namespace], dict[str, A
         "the estimator's published tilt scale and yaw floor and drift on the fit seeds' flights (maximum "
         "likelihood, a two-fold check; bench/estimator_attitude_fit.py)",
         _fit_attitude,
+    ),
+    "localizer": (
+        "the localizer's published covariance scale and edge-agreement reference and power on the fit "
+        "seeds' scenes (maximum likelihood of the 6-dof errors, a two-fold check; "
+        "bench/localizer_covariance_fit.py)",
+        _fit_localizer,
     ),
 }
 

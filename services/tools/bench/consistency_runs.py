@@ -33,7 +33,7 @@ from common.consistency import normalised_errors_squared
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.replay import standard_estimators
 from common.geometry import matrix_from_quaternion
-from common.localization.pose import rotation_vectors
+from common.localization.pose import pose_errors, world_error_angles
 from common.localization.tracker import ModelTracker
 from common.localization.tracker_state import TrackerSettings, TrackerState
 from common.localization.tracking import track_model
@@ -100,11 +100,6 @@ def two_folds(seeds: list[int]) -> list[tuple[list[int], list[int]]]:
     way round; none when a half would be empty."""
     halves = [seeds[: len(seeds) // 2], seeds[len(seeds) // 2 :]]
     return [(halves[0], halves[1]), (halves[1], halves[0])] if all(halves) else []
-
-
-def world_error_angles(R_true: FloatArray, R_estimated: FloatArray) -> FloatArray:
-    """``dtheta`` (N, 3) with ``R_true = Exp(dtheta) R_estimated``: world-frame error angles."""
-    return rotation_vectors(np.einsum("nij,nkj->nik", R_true, R_estimated))
 
 
 # ------------------------------------------------------------------------------------------------------ yaw
@@ -287,8 +282,7 @@ def tracked_scene(
     n = len(states)
     p = np.array([s.pose.p_world_camera_m for s in states])
     R = np.array([s.pose.R_world_camera for s in states])
-    angles = world_error_angles(scene.flight.R_world_camera[:n], R)
-    return states, np.hstack([p - scene.flight.p_world_camera_m[:n], angles])
+    return states, pose_errors(scene.flight.p_world_camera_m[:n], scene.flight.R_world_camera[:n], p, R)
 
 
 def localizer_samples(seed: int, frames: int, scenes: list[str] | None = None) -> Samples:

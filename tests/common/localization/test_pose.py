@@ -15,10 +15,12 @@ from common.localization.pose import (
     mean_rotation,
     parse_pose_numbers,
     perturb,
+    pose_errors,
     rotation_angle_rad,
     rotation_matrices,
     rotation_vectors,
 )
+from common.localization.search import cloud_covariance
 
 vectors = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
 
@@ -31,6 +33,31 @@ def test_exp_and_log_are_inverse_and_match_opencv(v: np.ndarray) -> None:
     back = rotation_vectors(R[None])[0]
     assert np.allclose(rotation_matrices(back[None])[0], R, atol=1e-9)
     assert np.linalg.norm(back) <= np.pi + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(vectors, vectors, st.integers(0, 2**31))
+def test_pose_errors_take_position_and_angles_in_the_covariances_sense_regression(
+    rvec: np.ndarray, p_m: np.ndarray, seed: int
+) -> None:
+    """Regression: the localizer's consistency lines took the position error as estimate minus truth and the
+    angles as truth about the estimate, so the position-rotation correlations of the covariance (the fused
+    one, or the cloud's: particle about centre) were measured against errors whose correlations had the
+    other sign; the full covariance read as wrong and was shrunk to its diagonal. The errors of truths
+    about an estimate now have the covariance the cloud of those truths about it has, cross terms too."""
+    rng = np.random.default_rng(seed)
+    R_est = rotation_matrices(rvec[None])[0]
+    n = 64
+    # correlated position and angle offsets: x with the rotation about y, as a locked-off pose's are
+    mix = np.eye(6)
+    mix[4, 0] = mix[0, 4] = 0.9
+    offsets = rng.normal(size=(n, 6)) @ mix * np.array([0.02, 0.02, 0.02, 0.01, 0.01, 0.01])
+    p_true = p_m + offsets[:, :3]
+    R_true = perturb(np.repeat(R_est[None], n, axis=0), offsets[:, 3:])
+    errors = pose_errors(p_true, R_true, np.repeat(p_m[None], n, axis=0), np.repeat(R_est[None], n, axis=0))
+    assert np.allclose(errors, offsets, atol=1e-9)
+    estimate = CameraPose(p_m, R_est)
+    assert np.allclose(cloud_covariance(p_true, R_true, estimate), errors.T @ errors / n, atol=1e-12)
 
 
 @settings(max_examples=60, deadline=None)

@@ -16,7 +16,7 @@ from services.tools.bench.localizer_field import _office_scene
 pytestmark = [pytest.mark.slow]
 
 #: the published covariance before the edge agreement: the fused one's diagonal times 0.32
-BEFORE = replace(TrackerSettings(), covariance_scale=0.32, agreement_power=0.0)
+BEFORE = replace(TrackerSettings(), covariance_shrinkage=1.0, covariance_scale=0.32, agreement_power=0.0)
 
 
 def _nees(settings: TrackerSettings) -> dict[str, np.ndarray]:
