@@ -61,7 +61,7 @@ from services.master.published import (
     session_of,
     take_over_anchor,
 )
-from services.master.refine import MemberRefine
+from services.master.refine import MemberRefine, RefineChooser
 from services.master.settings import MasterSettings
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
@@ -91,6 +91,8 @@ class _Stream:
     all_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
     #: the id of the stream's rig the stream was started with (None: the master's own options)
     rig_id: str | None = None
+    #: where its turning frames' second pass has cost less (the members or the master)
+    refine_chooser: RefineChooser = field(default_factory=RefineChooser)
 
 
 class MasterService(ConfiguredService[MasterSettings]):
@@ -368,7 +370,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         # a turning frame's second pass on the members that measured its patches (None: here)
         refine = None if report is None else MemberRefine.of(
             self.session, grid, prev_level, work, self._job_types, report, stream.dispatcher, self.counters,
-            self.settings.refine_on_members_pixels,
+            self.settings.refine_on_members_pixels, stream.refine_chooser,
         )  # fmt: skip
         stream.state, core = stream.tracker.conclude(
             stream.state, frame.pixels, measurement, stamp, gyro, refine
