@@ -5,10 +5,10 @@ The second pass's crops travel raw (frame k turned back), so whether sending the
 and the CPUs: at 1920x1080 (48 patches of 128 px) it saved one master about 40 ms of CPU a turning frame,
 and on a CPU three times faster, over 100 Mbit, it made the turning frames 26 % slower than one host alone
 (the members' raw crops are 0.4-0.5 MB a frame; docs/methods.md). A fixed size threshold cannot tell these
-apart, so each place's cost is measured as the wall time of a whole
-pass per refined patch (sent: until the last part is back, the master's own part measured meanwhile), kept
-as a running mean, and the cheaper place is taken. The other place is measured again every ``probe_every``
-passes, so that a link or a load that changes is noticed.
+apart, so each place's cost is measured as the wall time of a whole pass per refined patch (sent: until the
+last part is back, the master's own part measured meanwhile), kept as a running mean, and the cheaper place
+is taken. The other place is measured again every ``probe_every`` passes, so that a link or a load that
+changes is noticed.
 """
 
 from __future__ import annotations
@@ -47,9 +47,6 @@ class RefineCosts:
     members_s_per_patch: float = math.nan
     since_probe: int = 0
 
-    def cost_s_per_patch(self, place: RefinePlace) -> float:
-        return self.here_s_per_patch if place is RefinePlace.HERE else self.members_s_per_patch
-
     def cheaper(self) -> RefinePlace | None:
         """The place that has cost less so far (None: one of them not measured yet)."""
         here, members = self.here_s_per_patch, self.members_s_per_patch
@@ -85,8 +82,8 @@ def observe_pass(
     here_seconds: float = 0.0,
 ) -> RefineCosts:
     """``costs`` after a pass of ``patches`` at ``place`` that took ``seconds``; a pass sent to the members
-    whose ``here_patches`` the master measured itself in ``here_seconds`` (its part, or what a member failed)
-    tells what the master costs too."""
+    whose ``here_patches`` the master measured itself in ``here_seconds`` (its part) gives the master's cost
+    its first figure when it has none yet."""
     if patches < 1 or not (math.isfinite(seconds) and seconds >= 0.0):
         raise InputError(f"a pass needs >= 1 patch and a finite time >= 0, got {patches}, {seconds}")
     if here_patches < 0 or not (math.isfinite(here_seconds) and here_seconds >= 0.0):

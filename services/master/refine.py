@@ -116,8 +116,19 @@ class MemberRefine:
         if not owners:
             return None
         settings = work.settings.yaw_settings
-        return cls(session, grid, prev_level, work, settings, *job_types, owners, dispatcher, counters,
-                   min_px, chooser)  # fmt: skip
+        return cls(
+            session,
+            grid,
+            prev_level,
+            work,
+            settings,
+            *job_types,
+            owners,
+            dispatcher,
+            counters,
+            min_px,
+            chooser,
+        )
 
     def __call__(self, indices: IntArray, crops_u8: U8Array) -> PatchMeasurement:
         if crops_u8.size < self.min_px:  # a round trip would cost more latency than the compute here

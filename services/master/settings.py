@@ -62,10 +62,10 @@ class MasterSettings(BaseModel):
         description="a turning frame's second pass (the refinement) may go to the members that measured its "
         "patches when it covers at least this many level pixels, else the master measures it (a round trip "
         "then costs more latency than it saves: the defaults' 40 patches of 32 px, 41k px, took 4.8 ms "
-        "longer a frame for 1.5 ms less of the master's CPU); a larger pass goes where it has cost less, "
-        "measured "
-        "(common.dispatch.refine_place: 48 patches of 128 px, 786k px, saved one master 40 ms and cost "
-        "another, 3 times faster over 100 Mbit, more than that); 0: every pass may go",
+        "longer a frame for 1.5 ms less of the master's CPU); with --compute a larger pass goes where it has "
+        "cost less, measured (common.dispatch.refine_place: 48 patches of 128 px, 786k px, saved one master "
+        "40 ms and cost another, 3 times faster over 100 Mbit, more than that); without, to the members; 0: "
+        "every pass may go",
     )
     job_encoding: JobEncoding = Field(
         default="mono8",
