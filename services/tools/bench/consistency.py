@@ -45,6 +45,7 @@ from services.tools.bench import (
 from services.tools.bench.consistency_runs import (
     DOF,
     FLIGHTS,
+    LOCALIZER_SCENES,
     MAX_GLARE,
     LineSamples,
     Samples,
@@ -79,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--estimator-frames", type=int, default=None, help="frames per flight (all)")
     parser.add_argument("--flights", nargs="+", choices=list(FLIGHTS), help="estimator flights (both)")
     parser.add_argument("--localizer-frames", type=int, default=150, help="frames per localizer run")
-    parser.add_argument("--scenes", nargs="+", choices=["object", "office"], help="localizer scenes (both)")
+    parser.add_argument("--scenes", nargs="+", choices=list(LOCALIZER_SCENES), help="localizer scenes (both)")
     parser.add_argument(
         "--quick", action="store_true", help="2 seeds, one scenario/flight/scene each, few frames"
     )
@@ -203,7 +204,7 @@ def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, A
 
 def _fit_localizer(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     result = localizer_covariance_fit.fit(fit_seeds, args.localizer_frames, args.scenes)
-    scenes = args.scenes or list(localizer_covariance_fit.SCENES)
+    scenes = args.scenes or list(LOCALIZER_SCENES)
     table = _per_part_table(result, localizer_covariance_fit.CONSTANTS, "scene", scenes)
     return {"json": result, "table": table}
 
@@ -322,7 +323,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "estimator_frames": args.estimator_frames,
             "flights": args.flights or list(FLIGHTS),
             "localizer_frames": args.localizer_frames,
-            "scenes": args.scenes or ["object", "office"],
+            "scenes": args.scenes or list(LOCALIZER_SCENES),
             "quick": bool(args.quick),
             "held_out_only": bool(args.held_out_only),
         },

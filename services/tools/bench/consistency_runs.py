@@ -285,13 +285,16 @@ def tracked_scene(
     return states, pose_errors(scene.flight.p_world_camera_m[:n], scene.flight.R_world_camera[:n], p, R)
 
 
+#: the localizer suite's scenes, each built from ``(frames, seed)``
+LOCALIZER_SCENES: dict[str, Callable[[int, int], _Scene]] = {"object": _object_scene, "office": _office_scene}
+
+
 def localizer_samples(seed: int, frames: int, scenes: list[str] | None = None) -> Samples:
     """The localizer lines of one seed: ``localizer <scene> <state>`` (6 dof: camera centre and world-frame
     error angles against the state's covariance), and the position and rotation parts of tracking frames."""
     out: Samples = {}
-    builders = {"object": _object_scene, "office": _office_scene}
-    for name in scenes or list(builders):
-        states, error = tracked_scene(builders[name](frames, seed), seed)
+    for name in scenes or list(LOCALIZER_SCENES):
+        states, error = tracked_scene(LOCALIZER_SCENES[name](frames, seed), seed)
         n = len(states)
         P = np.array([s.covariance for s in states])
         status = np.array([s.status.value for s in states])

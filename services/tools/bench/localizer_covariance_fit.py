@@ -25,12 +25,10 @@ from scipy.optimize import minimize
 from common.consistency import consistency, normalised_errors_squared
 from common.localization.tracker_state import TrackerSettings, TrackingStatus
 from common.types import FloatArray
-from services.tools.bench.consistency_runs import tracked_scene, two_folds
-from services.tools.bench.localizer_field import _object_scene, _office_scene
+from services.tools.bench.consistency_runs import LOCALIZER_SCENES, tracked_scene, two_folds
 
 #: the fitted constants' names (fields of :class:`~common.localization.tracker_state.TrackerSettings`)
 CONSTANTS = ("covariance_scale", "agreement_reference", "agreement_power")
-SCENES = {"object": _object_scene, "office": _office_scene}
 #: the reference's search range (the edge agreement of a well-fitting pose is 0.2-0.45)
 LOG_REFERENCE_RANGE = (math.log(0.01), math.log(10.0))
 
@@ -41,7 +39,7 @@ def scene_frames(name: str, seed: int, frames: int) -> Frames:
     """One run's tracked frames: ``errors`` (N, 6), ``covariances`` (N, 6, 6: scale 1, no agreement term)
     and ``agreement`` (N,; NaN counts as 1, as the tracker takes it)."""
     unit = replace(TrackerSettings(), covariance_scale=1.0, agreement_power=0.0)
-    states, errors = tracked_scene(SCENES[name](frames, seed), seed, unit)
+    states, errors = tracked_scene(LOCALIZER_SCENES[name](frames, seed), seed, unit)
     kept = [i for i, s in enumerate(states) if s.status is TrackingStatus.TRACKING]
     agreement = np.array([states[i].edge_agreement for i in kept], dtype=np.float64)
     return {
@@ -120,7 +118,7 @@ def _score(per_seed: PerSeed, seeds: list[int], constants: dict[str, float]) -> 
 
 def fit(seeds: list[int], frames: int, scenes: list[str] | None = None) -> dict[str, Any]:
     """Fit on ``seeds``; score the fit, the constants in use and a two-fold split."""
-    names = scenes or list(SCENES)
+    names = scenes or list(LOCALIZER_SCENES)
     per_seed: PerSeed = {seed: {n: scene_frames(n, seed, frames) for n in names} for seed in seeds}
     settings = TrackerSettings()
     in_use = {name: float(getattr(settings, name)) for name in CONSTANTS}
