@@ -335,6 +335,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             grid, level, prev_level, stream.cache, settings, self.settings.uav, frame.seq, prev_seq
         )
 
+        encoding, quality = self.settings.job_encoding, self.settings.job_quality
         work = FrameWork(
             stream=self.settings.uav,
             seq=frame.seq,
@@ -344,7 +345,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             crops=partial(grid.crop_level, level),
             prev_crops=partial(grid.crop_level, prev_level),
             compute_self=own_share,
-            band=partial(job_band, grid, level, self.settings.job_encoding),
+            band=partial(job_band, grid, level, encoding, quality=quality),
         )
         plan = stream.dispatcher.plan(frame.seq, prev_seq, time.monotonic())
         try:

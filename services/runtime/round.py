@@ -87,13 +87,20 @@ class JobBand(NamedTuple):
     corners: np.ndarray
 
 
-def job_band(grid: PatchGrid, level_u8: np.ndarray, encoding: str, indices: np.ndarray) -> JobBand | None:
+def job_band(
+    grid: PatchGrid,
+    level_u8: np.ndarray,
+    encoding: str,
+    indices: np.ndarray,
+    quality: int = frame_codec.DEFAULT_JPEG_QUALITY,
+) -> JobBand | None:
     """The pixels of patches ``indices`` of a frame's level image as one image (bound with
     ``functools.partial`` it is :attr:`FrameWork.band`) in ``encoding`` (:mod:`common.wire.frame_codec`).
     ``mono8``: the band bounding them (:meth:`PatchGrid.band_level`), or None where their crops are fewer
     pixels (they travel as they are). A compressing encoding: their strips packed (the zeros between cost
     next to nothing; :meth:`PatchGrid.packed_level`), or their crops side by side
-    (:func:`~common.yaw.grid.crop_mosaic`) where the strips hold more pixels than the crops."""
+    (:func:`~common.yaw.grid.crop_mosaic`) where the strips hold more pixels than the crops. ``quality``:
+    JPEG's (``jpeg`` alone; bound by keyword with the encoding)."""
     if not len(indices) or (encoding == "mono8" and not grid.patches_overlap):
         return None  # patches apart (the defaults): their crops are always the fewer bytes
     if encoding == "mono8":
@@ -105,7 +112,7 @@ def job_band(grid: PatchGrid, level_u8: np.ndarray, encoding: str, indices: np.n
         image, corners, pixels = grid.packed_level(level_u8, indices)
         if pixels >= len(indices) * grid.patch_size_px**2:
             image, corners = crop_mosaic(grid.crop_level(level_u8, indices))
-    data = np.frombuffer(frame_codec.encode(image, encoding), np.uint8)
+    data = np.frombuffer(frame_codec.encode(image, encoding, quality), np.uint8)
     return JobBand(data, (int(image.shape[0]), int(image.shape[1])), encoding, corners)
 
 

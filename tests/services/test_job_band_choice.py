@@ -52,3 +52,16 @@ def test_patches_apart_send_crops_in_mono8_without_cutting_a_band() -> None:
     assert job_band(default, level, "mono8", default.all_indices) is None
     mosaic = job_band(default, level, "zstd", default.all_indices)
     assert mosaic is not None and mosaic.corners.shape == (default.n_patches, 2)
+
+
+def test_a_lower_jpeg_quality_sends_fewer_bytes_and_the_same_corners() -> None:
+    """``--job-quality``: the master's JPEG quality reaches the share's band (75: fewer bytes than the
+    default 90), which decodes to crops within the codec's error of the sender's."""
+    grid = make_patch_grid((1080, 1920), HEAVY)
+    level = np.asarray(np.add.outer(np.arange(1080), np.arange(1920)) * 37 // 5 % 251, np.uint8)
+    indices = np.arange(40, 88)
+    default = job_band(grid, level, "jpeg", indices)
+    lower = job_band(grid, level, "jpeg", indices, quality=75)
+    assert default is not None and lower is not None
+    assert lower.data.size < default.data.size
+    assert np.array_equal(lower.corners, default.corners) and lower.shape == default.shape

@@ -35,25 +35,27 @@ import time
 import typing
 from collections.abc import Mapping
 from contextlib import ExitStack
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from common.dispatch import Balance
-from common.errors import CapatazError
 from common.members import Topology
 from common.wire.jobs import JobEncoding
 from common.wire.messages import YawEstimate
-from common.yaw import YawSettings, YawTracker, make_patch_grid
-from services.camera import CameraSettings, simulated_flight
+from common.yaw import YawSettings
 from services.camera.settings import FlightName
 from services.master.settings import MasterSettings
-from services.runtime.cli import number_in, parse_size
+from services.runtime.cli import number_in
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
-from services.tools.bench.cluster_workload import write_frame_folder
+from services.tools.bench.dispatch_workload import (
+    TURNS_FROM_FRAME,
+    flight_frames,
+    in_process_cpu_ms,
+    workload_of,
+)
 from services.tools.cluster_file import ClusterSpec, HostSpec, add_deadline_argument, with_deadline
 from services.tools.loadtest.harness import processes_cpu_seconds
 from services.tools.netns import (
@@ -77,8 +79,6 @@ PATHS: tuple[tuple[str, Topology, tuple[int, ...]], ...] = (
     ("master-foreman-worker 2x2", Topology.MASTER_FOREMAN_WORKER, (2, 2)),
 )
 ROLES = ("master", "foreman", "worker", "router")
-#: paper C's turns fly straight for their first 218 frames: ``--flight turns`` starts near the first turn
-TURNS_FROM_FRAME = 200
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -135,6 +135,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--job-encoding", choices=typing.get_args(JobEncoding), default=MasterSettings().job_encoding,
         help="the master's --job-encoding (how a share's pixels travel to the members)",
     )  # fmt: skip
+    parser.add_argument(
+        "--job-quality", type=number_in(int, 1, 100), default=MasterSettings().job_quality,
+        help="the master's --job-quality (JPEG quality of a share with --job-encoding jpeg)",
+    )  # fmt: skip
 
 
 def role_of(member: str) -> str:
@@ -160,65 +164,11 @@ def cpu_ms_per_frame(
     return {role: 1e3 * seconds / frames for role, seconds in per_role.items()}
 
 
-def workload_of(args: argparse.Namespace) -> tuple[tuple[int, int], YawSettings, tuple[str, ...]]:
-    """The workload's frame size, yaw settings (in-process) and the same settings as master options."""
-    size = parse_size(args.resolution, "--resolution", "752x480")
-    cols, rows = parse_size(args.grid, "--grid", "8x5")
-    patch, level = args.patch_size, args.pyramid_level
-    settings = replace(
-        YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level
-    )
-    encoding = getattr(args, "job_encoding", MasterSettings().job_encoding)
-    master_args = ("--grid", args.grid, "--patch-size", str(patch), "--pyramid-level", str(level),
-                   "--job-encoding", encoding)  # fmt: skip
-    return size, settings, master_args
-
-
 def host_cpus() -> tuple[str, list[str]]:
     """``--pin``'s CPU sets: the ground host's (the first CPU) and the member hosts' (the others, or the
     first again on a machine of one CPU)."""
     cores = sorted(os.sched_getaffinity(0))
     return str(cores[0]), [str(c) for c in (cores[1:] or cores)]
-
-
-def flight_frames(args: argparse.Namespace) -> list[np.ndarray]:
-    """The camera's ``--flight`` at the workload's size (``--frames``), rendered once per ``args`` and written
-    to ``<out>/dispatch_frames`` for the camera to replay (``args.frame_dir``)."""
-    if getattr(args, "frame_images", None) is None:
-        size = parse_size(args.resolution, "--resolution", "752x480")
-        flight = simulated_flight(
-            CameraSettings(frames=args.frames, width=size[0], height=size[1], flight=FlightName(args.flight))
-        )
-        first = TURNS_FROM_FRAME if args.flight == FlightName.TURNS.value else 0
-        if first + args.frames > flight.n_frames:
-            left = flight.n_frames - first
-            raise CapatazError(f"--flight {args.flight} has {left} frames; --frames asks {args.frames}")
-        args.frame_images = [flight.frame(first + i) for i in range(args.frames)]
-        args.frame_dir = Path(args.out) / "dispatch_frames"
-        write_frame_folder(args.frame_dir, args.frame_images)
-    images: list[np.ndarray] = args.frame_images
-    return images
-
-
-def in_process_cpu_ms(
-    frames: list[np.ndarray], settings: YawSettings | None = None, cpu: str | None = None
-) -> float:
-    """CPU ms per frame of the in-process tracker on ``frames``, on ``cpu`` alone when given (one thread:
-    its wall time per frame too)."""
-    if cpu is not None:
-        before = os.sched_getaffinity(0)
-        os.sched_setaffinity(0, {int(cpu)})
-        try:
-            return in_process_cpu_ms(frames, settings)
-        finally:
-            os.sched_setaffinity(0, before)
-    settings = settings or YawSettings()
-    tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
-    state = tracker.initial_state(frames[0])
-    c0 = time.process_time()
-    for image in frames[1:]:
-        state, _ = tracker.track(state, image)
-    return 1e3 * (time.process_time() - c0) / (len(frames) - 1)
 
 
 def path_spec(
@@ -384,6 +334,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "link_mbit": args.link_mbit,
             "master_computes": args.master_computes,
             "job_encoding": args.job_encoding,
+            "job_quality": args.job_quality,
             "pinned": args.pin,
             "frames": args.frames,
             "fps": args.fps,

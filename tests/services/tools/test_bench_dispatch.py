@@ -21,17 +21,15 @@ from services.camera.settings import FlightName
 from services.tools.bench.dispatch import (
     PATHS,
     ROLES,
-    TURNS_FROM_FRAME,
     add_arguments,
     cluster_path,
     cpu_ms_per_frame,
-    flight_frames,
     host_cpus,
     path_spec,
     run,
     summary_table,
-    workload_of,
 )
+from services.tools.bench.dispatch_workload import TURNS_FROM_FRAME, flight_frames, workload_of
 from services.tools.netns import unavailable_reason
 from tests.zenoh_helpers import members_outweigh_master
 
@@ -91,9 +89,10 @@ def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
     default_size, default, default_args = workload_of(parser.parse_args([]))
     assert default_size == (752, 480) and default == YawSettings()
     assert default_args == ("--grid", "8x5", "--patch-size", "32", "--pyramid-level", "1",
-                            "--job-encoding", "mono8")  # fmt: skip
+                            "--job-encoding", "mono8", "--job-quality", "90")  # fmt: skip
     args = parser.parse_args(["--resolution", "1920x1080", "--grid", "16x12", "--patch-size", "128",
-                              "--pyramid-level", "0", "--job-encoding", "zstd"])  # fmt: skip
+                              "--pyramid-level", "0", "--job-encoding", "jpeg",
+                              "--job-quality", "75"])  # fmt: skip
     size, settings, master_args = workload_of(args)
     assert size == (1920, 1080)
     assert (settings.grid_cols, settings.grid_rows, settings.patch_size_px, settings.pyramid_level) == (
@@ -103,7 +102,7 @@ def test_the_workload_is_the_same_in_process_and_on_the_master() -> None:
         0,
     )
     assert master_args == ("--grid", "16x12", "--patch-size", "128", "--pyramid-level", "0",
-                           "--job-encoding", "zstd")  # fmt: skip
+                           "--job-encoding", "jpeg", "--job-quality", "75")  # fmt: skip
     with pytest.raises(CapatazError, match="--grid"):
         workload_of(parser.parse_args(["--grid", "16by12"]))
 
