@@ -10,6 +10,7 @@ A YAML mapping, every key checked (an unknown key is refused with the file's nam
     speed: round_trip               # what "speed" means for time balancing: round_trip or reported
     master_computes: false          # the master computes a share as well as dispatching
     job_encoding: mono8             # how a share's pixels travel to the members: mono8, zstd or jpeg
+    job_quality: 90                 # JPEG quality of a share with job_encoding jpeg (1-100)
     min_deadline_ms: 300            # the dispatchers' smallest member deadline (optional; their default)
     master_cpus: "0"                # taskset CPU list of the master (optional)
     aux_cpus: "0"                   # taskset CPU list of the router and the camera (optional)
@@ -76,6 +77,8 @@ class ClusterSpec(BaseModel):
     master_computes: bool = False
     #: the master's ``--job-encoding`` (zstd: members across a thin link)
     job_encoding: JobEncoding = MasterSettings.model_fields["job_encoding"].default
+    #: the master's ``--job-quality`` (JPEG's, with ``job_encoding: jpeg``)
+    job_quality: int = Field(default=MasterSettings.model_fields["job_quality"].default, ge=1, le=100)
     #: the master's and the foremen's ``--min-deadline-ms`` (a member's smallest deadline before its share
     #: is computed elsewhere and it is paused); None = their default. A load test or bench on a busy host
     #: raises it to measure the balanced path rather than the fault path
@@ -139,12 +142,15 @@ def foreman_command(spec: ClusterSpec, host: HostSpec) -> ServiceCommand:
 
 def master_command(spec: ClusterSpec, node: str = "master", uav: str | None = None) -> ServiceCommand:
     """The master of ``uav`` (default: the file's) on ``node`` (the load test runs one per UAV, standbys
-    too: every master takes the file's options, ``job_encoding`` and ``min_deadline_ms`` included)."""
+    too: every master takes the file's options, ``job_encoding``, ``job_quality`` and ``min_deadline_ms``
+    included)."""
     args = ["master", "--node", node, "--uav", uav or spec.uav, "--topology", spec.topology.value,
             "--balance", spec.balance.value, "--compute" if spec.master_computes else "--no-compute",
             "--speed", spec.speed.value, *deadline_args(spec)]  # fmt: skip
     if spec.job_encoding != MasterSettings.model_fields["job_encoding"].default:
         args += ["--job-encoding", spec.job_encoding]
+    if spec.job_quality != MasterSettings.model_fields["job_quality"].default:
+        args += ["--job-quality", str(spec.job_quality)]
     return ServiceCommand(f"master/{node}/0", tuple(args), spec.master_cpus)
 
 

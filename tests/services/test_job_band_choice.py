@@ -56,7 +56,7 @@ def test_patches_apart_send_crops_in_mono8_without_cutting_a_band() -> None:
 
 def test_a_lower_jpeg_quality_sends_fewer_bytes_and_the_same_corners() -> None:
     """``--job-quality``: the master's JPEG quality reaches the share's band (75: fewer bytes than the
-    default 90), which decodes to crops within the codec's error of the sender's."""
+    default 90), cut the same way."""
     grid = make_patch_grid((1080, 1920), HEAVY)
     level = np.asarray(np.add.outer(np.arange(1080), np.arange(1920)) * 37 // 5 % 251, np.uint8)
     indices = np.arange(40, 88)

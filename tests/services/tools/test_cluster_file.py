@@ -32,6 +32,13 @@ def test_a_cluster_files_job_encoding_reaches_the_masters_command_line() -> None
     default = master_command(ClusterSpec(name="plain", hosts=hosts)).args  # the default is left unsaid
     assert "--job-encoding" not in default
     assert master_settings_from_args(parser.parse_known_args(list(default[1:]))[0]).job_encoding == "mono8"
+    jpeg = master_command(ClusterSpec(name="radio", hosts=hosts, job_encoding="jpeg", job_quality=75)).args
+    assert jpeg[-4:] == ("--job-encoding", "jpeg", "--job-quality", "75")
+    settings = master_settings_from_args(parser.parse_known_args(list(jpeg[1:]))[0])
+    assert (settings.job_encoding, settings.job_quality) == ("jpeg", 75)
+    assert "--job-quality" not in default
+    with pytest.raises(ValidationError):
+        ClusterSpec(name="radio", hosts=hosts, job_quality=0)
 
 
 def test_a_clusters_min_deadline_reaches_the_master_and_the_foremen() -> None:
