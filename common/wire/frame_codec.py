@@ -38,6 +38,8 @@ FRAME_ENCODINGS: tuple[str, ...] = typing.get_args(FrameEncoding)
 LOSSLESS: frozenset[str] = frozenset({"mono8", "png", "zstd"})
 #: JPEG quality (libjpeg's 1-100 scale) when none is given
 DEFAULT_JPEG_QUALITY = 90
+#: libjpeg's quality scale
+MIN_JPEG_QUALITY, MAX_JPEG_QUALITY = 1, 100
 #: PNG's zlib level (0-9): 1 is libpng's fastest that still compresses (a camera compresses every frame)
 PNG_LEVEL = 1
 #: PNG's zlib strategy: Huffman coding only (``bench transport``: faster and smaller on camera images)
@@ -74,8 +76,14 @@ def encode(pixels: npt.NDArray[np.uint8], codec: str, quality: int = DEFAULT_JPE
     if codec == "png":
         params = [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL, cv2.IMWRITE_PNG_STRATEGY, PNG_STRATEGY]
     elif codec == "jpeg":
-        if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
-            raise WireError(f"jpeg quality must be an integer in 1..100, got {quality!r}")
+        if (
+            isinstance(quality, bool)
+            or not isinstance(quality, int)
+            or not MIN_JPEG_QUALITY <= quality <= MAX_JPEG_QUALITY
+        ):
+            raise WireError(
+                f"jpeg quality must be an integer in {MIN_JPEG_QUALITY}..{MAX_JPEG_QUALITY}, got {quality!r}"
+            )
         params = [cv2.IMWRITE_JPEG_QUALITY, quality]
     else:
         raise WireError(f"unknown frame encoding {codec!r}; known: {', '.join(FRAME_ENCODINGS)}")

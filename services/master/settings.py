@@ -11,7 +11,7 @@ from common.dispatch import DispatchSettings
 from common.errors import InputError
 from common.members import Topology
 from common.streams import FrameGateSettings
-from common.wire.frame_codec import DEFAULT_JPEG_QUALITY
+from common.wire.frame_codec import DEFAULT_JPEG_QUALITY, MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 from common.wire.jobs import JobEncoding
 from common.wire.schema import MAX_BUDGET_S
 from common.yaw import YawSettings
@@ -78,8 +78,8 @@ class MasterSettings(BaseModel):
     )
     job_quality: int = Field(
         default=DEFAULT_JPEG_QUALITY,
-        ge=1,
-        le=100,
+        ge=MIN_JPEG_QUALITY,
+        le=MAX_JPEG_QUALITY,
         description="JPEG quality of a share with --job-encoding jpeg (1-100): 75 sends 0.59-0.74 of 90's "
         "bytes (a rendered 1080p hover; the dispatch bench's frames) and its shifts are the lossless ones "
         "within 0.056 px (median 0.012; 90: 0.016 and 0.004): for a link whose time is a frame's bound",

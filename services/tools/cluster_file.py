@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -63,6 +64,9 @@ class HostSpec(BaseModel):
     cpu_factor: int = Field(default=1, ge=1)
 
 
+_JOB_QUALITY = MasterSettings.model_fields["job_quality"]
+
+
 class ClusterSpec(BaseModel):
     """A cluster description (``deploy/clusters/*.yml``)."""
 
@@ -77,8 +81,8 @@ class ClusterSpec(BaseModel):
     master_computes: bool = False
     #: the master's ``--job-encoding`` (zstd: members across a thin link)
     job_encoding: JobEncoding = MasterSettings.model_fields["job_encoding"].default
-    #: the master's ``--job-quality`` (JPEG's, with ``job_encoding: jpeg``)
-    job_quality: int = Field(default=MasterSettings.model_fields["job_quality"].default, ge=1, le=100)
+    #: the master's ``--job-quality`` (JPEG's, with ``job_encoding: jpeg``): its field, bounds included
+    job_quality: Annotated[int, _JOB_QUALITY] = _JOB_QUALITY.default
     #: the master's and the foremen's ``--min-deadline-ms`` (a member's smallest deadline before its share
     #: is computed elsewhere and it is paused); None = their default. A load test or bench on a busy host
     #: raises it to measure the balanced path rather than the fault path
@@ -149,7 +153,7 @@ def master_command(spec: ClusterSpec, node: str = "master", uav: str | None = No
             "--speed", spec.speed.value, *deadline_args(spec)]  # fmt: skip
     if spec.job_encoding != MasterSettings.model_fields["job_encoding"].default:
         args += ["--job-encoding", spec.job_encoding]
-    if spec.job_quality != MasterSettings.model_fields["job_quality"].default:
+    if spec.job_quality != _JOB_QUALITY.default:
         args += ["--job-quality", str(spec.job_quality)]
     return ServiceCommand(f"master/{node}/0", tuple(args), spec.master_cpus)
 

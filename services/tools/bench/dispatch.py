@@ -42,6 +42,7 @@ import numpy as np
 
 from common.dispatch import Balance
 from common.members import Topology
+from common.wire.frame_codec import MAX_JPEG_QUALITY, MIN_JPEG_QUALITY
 from common.wire.jobs import JobEncoding
 from common.wire.messages import YawEstimate
 from common.yaw import YawSettings
@@ -136,7 +137,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the master's --job-encoding (how a share's pixels travel to the members)",
     )  # fmt: skip
     parser.add_argument(
-        "--job-quality", type=number_in(int, 1, 100), default=MasterSettings().job_quality,
+        "--job-quality", type=number_in(int, MIN_JPEG_QUALITY, MAX_JPEG_QUALITY),
+        default=MasterSettings().job_quality,
         help="the master's --job-quality (JPEG quality of a share with --job-encoding jpeg)",
     )  # fmt: skip
 

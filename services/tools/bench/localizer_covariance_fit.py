@@ -3,7 +3,7 @@
 A tracked frame's covariance is the fused one (shrunk towards its diagonal by ``covariance_shrinkage``) times
 ``covariance_scale``, times ``max(1, r / agreement_reference) ** agreement_power`` with ``r`` the
 refinement's edge agreement (:class:`~common.localization.tracker_state.TrackerSettings`). Each tracked
-frame's error (:func:`~services.tools.bench.consistency_runs.pose_errors`), its covariance with the scale 1
+frame's error (:func:`~common.localization.pose.pose_errors`), its covariance with the scale 1
 and no agreement term, and its ``r`` are read from one run of the tracker per scene and seed; the scale,
 reference and power are then the Gaussian maximum-likelihood fit of the 6-dof errors of both scenes (the
 shrinkage stays as set: it shapes the covariance, the three scale it).
