@@ -1,25 +1,27 @@
 """CPU time per frame of each role (master, foreman, worker, router) on every dispatch path.
 
 Issue 29's first measure: what dispatching costs, in CPU time (host-independent, unlike latency), for the same
-simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), master-worker (1 worker) and
-master-foreman-worker (1 foreman x 1 worker, and 2 x 2), each flown ``--repeats`` times, interleaved: the
-table gives every role's median over the repeats, the master's p95 and its median frame time (frame in to yaw
-out, wall ms: ``frame_ms``). For a cluster path each process's user + system CPU time is read from /proc
-before the camera starts and once the last yaw arrived; its idle rate (keep-alives, stats), measured over a
-short window before the flight, is taken off. A role's figure is the sum over its processes divided by the
-frames. The camera is left out: it starts with the flight, and its interpreter's start-up cannot be told apart
-from its per-frame work. Its frames are rendered once, before any run, and replayed from memory
-(``--images --preload``): the in-process run measures the same frames, and a camera rendering 1080p on the
-ground host's CPU (about 70 ms of CPU a frame) would take that CPU from the master, where a UAV's camera is
-not. The master's share of the in-process cost is the issue's "dispatch cheaper than
+simulated hover: in-process (``YawTracker.track`` under ``time.process_time``), the master alone,
+master-worker (1 worker) and master-foreman-worker (1 foreman x 1 worker, and 2 x 2), each flown ``--repeats``
+times, interleaved: the table gives every role's median over the repeats, the master's p95 and its median
+frame time (frame in to yaw out, wall ms: ``frame_ms``). For a cluster path each process's user + system CPU
+time is read from /proc before the camera starts and once the last yaw arrived; its idle rate (keep-alives,
+stats), measured over a short window before the flight, is taken off. A role's figure is the sum over its
+processes divided by the frames. The camera is left out: it starts with the flight, and its interpreter's
+start-up cannot be told apart from its per-frame work. Its frames are rendered once, before any run, and
+replayed from memory (``--images --preload``): the in-process run measures the same frames, and a camera
+rendering 1080p on the ground host's CPU (about 70 ms of CPU a frame) would take that CPU from the master,
+where a UAV's camera is not. The master's share of the in-process cost is the issue's "dispatch cheaper than
 compute" figure (target <= 25 %). Shared memory is off (the figures stand for separate hosts). CPU seconds are
 not wall time, but a busy host still inflates them (cache, steal) and /proc counts in 10 ms ticks: run it
 alone, with enough frames.
 
 Latency against one host: ``--netns --pin`` gives each emulated host one CPU (the ground host, with the
 master, the camera and its router, the first; the in-process run the same one) and the table's
-``latency_ratio`` is the master's median frame time over the in-process time per frame;
-``--master-computes`` lets the master compute a share too, as in the paper.
+``latency_ratio`` is the master's median frame time over the in-process time per frame; ``--master-computes``
+lets the master compute a share too, as in the paper. The in-process run is the bare tracker on frames in
+memory; path ``0``, the master alone (computing every patch, no members, the camera and its router beside it),
+is the one-host deployment as it runs, and each cluster path's ``vs_alone`` its frame time against that one's.
 
 The workload (``--resolution``, ``--grid``, ``--patch-size``, ``--pyramid-level``; unless given, the yaw
 core's defaults at 752x480) is the same in-process and on the master. Distributing pays on a heavy frame: the
@@ -73,8 +75,11 @@ from services.tools.up import LocalCluster
 NAME = "dispatch"
 logger = logging.getLogger(__name__)
 
-#: (label, topology, workers per host)
+#: the master computing every patch, no members: the one-host deployment a cluster must beat
+ALONE = "master alone 0"
+#: (label, topology, workers per host); the master alone first: the others' ``vs_alone`` is against it
 PATHS: tuple[tuple[str, Topology, tuple[int, ...]], ...] = (
+    (ALONE, Topology.MASTER_WORKER, ()),
     ("master-worker 1", Topology.MASTER_WORKER, (1,)),
     ("master-foreman-worker 1x1", Topology.MASTER_FOREMAN_WORKER, (1,)),
     ("master-foreman-worker 2x2", Topology.MASTER_FOREMAN_WORKER, (2, 2)),
@@ -130,7 +135,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--paths", nargs="+", choices=[label.split()[-1] for label, _, _ in PATHS], metavar="PATH",
-        help="only these paths, by their last word: 1 (master-worker), 1x1, 2x2 (default: all)",
+        help="only these paths, by their last word: 0 (the master alone, computing every patch: the "
+        "one-host deployment), 1 (master-worker), 1x1, 2x2 (default: all)",
     )  # fmt: skip
     parser.add_argument(
         "--job-encoding", choices=typing.get_args(JobEncoding), default=MasterSettings().job_encoding,
@@ -176,12 +182,13 @@ def host_cpus() -> tuple[str, list[str]]:
 def path_spec(
     label: str, topology: Topology, workers: tuple[int, ...], master_computes: bool = False, pin: bool = False
 ) -> ClusterSpec:
+    """One path's cluster; with no member hosts (:data:`ALONE`) the master computes whatever the option."""
     ground, members = host_cpus() if pin else (None, [None])
     return ClusterSpec(
         name=label.replace(" ", "-"),
         topology=topology,
         balance=Balance.TIME,
-        master_computes=master_computes,
+        master_computes=master_computes or not workers,
         master_cpus=ground,
         aux_cpus=ground,
         hosts=tuple(
@@ -272,12 +279,20 @@ def median_p95(values: list[float]) -> tuple[float, float]:
     return float(np.median(array)), float(np.percentile(array, 95))
 
 
+def _frame_ms(path_runs: list[dict[str, Any]]) -> list[float]:
+    """Each repeat's median frame time of the master (frame in to yaw out), where it reported one."""
+    return [r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})]
+
+
 def summary_table(
     in_process_runs: list[float], in_process_frames: int, runs: Mapping[str, list[dict[str, Any]]]
 ) -> list[dict[str, Any]]:
     """The table: in-process, then each path with every role's median CPU ms per frame over the repeats, the
-    master's p95, its share of the in-process median (median and p95) and each host's link kB per frame."""
+    master's p95, its share of the in-process median (median and p95), each host's link kB per frame and,
+    where the master alone flew too, ``vs_alone``: the median over the repeats of the path's frame time over
+    the master alone's in the same repeat."""
     repeats = len(in_process_runs)
+    alone_ms = _frame_ms(runs.get(ALONE, []))
     in_process, in_process_p95 = median_p95(in_process_runs)
     table: list[dict[str, Any]] = [{"path": "in-process", "frames": in_process_frames, "lost": 0,
                                     "in_process_ms": in_process, "master_ms": in_process,
@@ -290,14 +305,14 @@ def summary_table(
             for host, link in r["links"].items():
                 links.setdefault(f"{host}_tx_kB", 0.0)
                 links[f"{host}_tx_kB"] += link["tx_bytes_per_frame"] / 1e3 / repeats
-        frame_ms = [
-            r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})
-        ]
+        frame_ms = _frame_ms(path_runs)
         # the master's frame time (frame in to yaw out) against the in-process tracker's time per frame: the
         # medians' ratio, and the median of each repeat's ratio to the in-process run just before it
         paired = [t / in_process_runs[i] for i, t in enumerate(frame_ms)] if len(frame_ms) == repeats else []
         latency = {"frame_ms": median_p95(frame_ms)[0], "latency_ratio": median_p95(frame_ms)[0] / in_process}
         latency = {**latency, "paired_ratio": median_p95(paired)[0]} if paired else latency
+        if len(alone_ms) == len(frame_ms) == repeats and label != ALONE:
+            latency["vs_alone"] = median_p95([t / a for t, a in zip(frame_ms, alone_ms, strict=True)])[0]
         latency = latency if frame_ms else {}
         table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),
                       "lost": sum(r["lost"] for r in path_runs),

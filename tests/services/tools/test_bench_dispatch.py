@@ -19,6 +19,7 @@ from common.yaw import YawSettings
 from services.camera import CameraSettings, simulated_flight
 from services.camera.settings import FlightName
 from services.tools.bench.dispatch import (
+    ALONE,
     PATHS,
     ROLES,
     add_arguments,
@@ -72,6 +73,33 @@ def test_the_table_gives_medians_over_the_repeats_and_the_master_s_share_of_the_
     assert row["latency_ratio"] == pytest.approx(5.0)  # against the in-process median, 10 ms
     # each repeat against its own in-process run (4, 7.5, 6.25): a drift of the shared host cancels out
     assert row["paired_ratio"] == pytest.approx(6.25)
+    assert "vs_alone" not in row  # the master alone did not fly
+
+
+def test_a_path_against_the_master_alone_is_the_median_of_each_repeat_s_ratio() -> None:
+    def flight(frame_ms: float) -> dict[str, Any]:
+        cpu = dict.fromkeys(ROLES, 1.0)
+        return {"frames": 10, "lost": 0, "cpu_ms_per_frame": cpu, "links": {},
+                "median_timings_ms": {"total": frame_ms}}  # fmt: skip
+
+    # repeat by repeat: 0.5, 2.0 and 1.1; the medians' ratio (40 / 30) would hide the pairing
+    runs = {ALONE: [flight(40.0), flight(20.0), flight(30.0)],
+            "master-worker 1": [flight(20.0), flight(40.0), flight(33.0)]}  # fmt: skip
+    table = summary_table([10.0, 10.0, 10.0], 27, runs)
+    alone, path = table[1], table[2]
+    assert alone["path"] == ALONE and "vs_alone" not in alone
+    assert path["vs_alone"] == pytest.approx(1.1)
+    # a repeat without a frame time leaves the pairing out rather than pairing the wrong repeats
+    del runs[ALONE][1]["median_timings_ms"]["total"]
+    assert "vs_alone" not in summary_table([10.0, 10.0, 10.0], 27, runs)[2]
+
+
+def test_the_master_alone_computes_whatever_the_option_and_has_no_member_hosts() -> None:
+    label, topology, workers = PATHS[0]
+    assert label == ALONE
+    spec = path_spec(label, topology, workers, master_computes=False, pin=True)
+    assert spec.master_computes and spec.hosts == () and spec.master_cpus == host_cpus()[0]
+    assert not path_spec(*PATHS[1]).master_computes  # the members' paths keep the option
 
 
 def test_pinned_hosts_take_one_cpu_each_the_ground_the_first() -> None:
@@ -165,11 +193,17 @@ def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path)
     result = run(args)
     paths = result["json"]["paths"]
     assert [p["path"] for p in paths] == [
+        ALONE,
         "master-worker 1",
         "master-foreman-worker 1x1",
         "master-foreman-worker 2x2",
     ]
     assert result["json"]["in_process_cpu_ms_per_frame"] > 0
+    alone, paths = paths[0], paths[1:]
+    # the master alone measured every patch of every pair itself (the yaw core's grid, 29 pairs)
+    patches = YawSettings().grid_cols * YawSettings().grid_rows
+    assert alone["lost"] == 0 and alone["patches_by_member"] == {SELF: 29 * patches}
+    assert all(alone["gross_cpu_ms_per_frame"][role] == 0 for role in ("foreman", "worker"))
     for path in paths:
         assert path["lost"] == 0 and path["frames"] == 30
         # CPU is read from /proc in 10 ms ticks; less each process's idle rate, a role's frames can read 0
@@ -183,7 +217,7 @@ def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path)
         # patches (with more than 4x asserted, that failed once); a master that computed alone gives 0 here
         members = path["patches_by_member"]
         assert members_outweigh_master(members), members
-    assert len(result["table"]) == 4
+    assert len(result["table"]) == 5 and all("vs_alone" in row for row in result["table"][2:])
 
 
 @pytest.mark.zenoh
@@ -197,7 +231,7 @@ def test_across_emulated_hosts_the_frames_cross_the_ground_link(tmp_path: Path) 
         tmp_path, "--frames", "30", "--fps", "10", "--idle-s", "0.5", "--netns", "--link-mbit", "100",
         *GENEROUS_DEADLINE,
     )  # fmt: skip
-    label, topology, workers = PATHS[1]  # master-foreman-worker 1x1
+    label, topology, workers = PATHS[2]  # master-foreman-worker 1x1
     path = cluster_path(label, topology, workers, args)
     # less each process's idle rate a role's CPU over 10 frames can read 0 on a loaded host (CI did for the
     # worker): gross CPU is read; the patches were computed on h1 (the master's fallback share aside)
