@@ -115,7 +115,7 @@ class ForemanService(ConfiguredService[ForemanSettings]):
 
     def setup(self) -> None:
         # within its relay memory: past its crops and idle size, freed heap pages leave after a block
-        self.heap = HeapTrim(relay_memory_mb(self.settings) - LARGEST_BLOCK_MB)
+        self.heap = HeapTrim.for_service(relay_memory_mb(self.settings) - LARGEST_BLOCK_MB)
         self.dispatch_settings = self.settings.dispatch
         self.queue_capacity = self.settings.queue
         self._queryable: Any = None

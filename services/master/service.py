@@ -63,6 +63,8 @@ from services.master.published import (
 )
 from services.master.refine import MemberRefine, RefineChooser
 from services.master.settings import MasterSettings
+from services.runtime.allocator import HeapTrim
+from services.runtime.cli import IDLE_PROCESS_MB, LARGEST_SHARE_MB
 from services.runtime.guard import DispatchGuard
 from services.runtime.membership import LiveMembers
 from services.runtime.rig_follow import follow_stream_rig
@@ -100,6 +102,9 @@ class MasterService(ConfiguredService[MasterSettings]):
 
     def setup(self) -> None:
         settings = self.settings
+        # a frame's arrays reuse the pages the last one freed; past an idle process and one largest share
+        # (its own share is at most a whole frame) they go back after a frame (services.runtime.allocator)
+        self.heap = HeapTrim.for_service(IDLE_PROCESS_MB + LARGEST_SHARE_MB)
         self.yaw_settings = settings.yaw
         self.wire_settings = YawJobSettings.of(self.yaw_settings)
         #: the guard first: the intake's source lock is part of it
@@ -251,6 +256,8 @@ class MasterService(ConfiguredService[MasterSettings]):
                 self.trajectory_tap.write(estimate)
             counts["yaw_out"] = 1
             timings["frame"] = estimate.timings_ms["total"]
+        if self.heap.after_job():
+            counts["heap_trims"] = 1
         if counts or timings:
             self.counters.update(counts, timings)  # the frame's counts, once
 

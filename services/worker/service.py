@@ -77,7 +77,7 @@ class WorkerService(ConfiguredService[WorkerSettings]):
 
     def setup(self) -> None:
         # within its memory budget: past its cache and idle size, freed heap pages leave after a job
-        self.heap = HeapTrim(heap_mark_mb(self.settings))
+        self.heap = HeapTrim.for_service(heap_mark_mb(self.settings))
         self.handoff = self.settings.handoff
         self.queue_capacity = self.settings.queue
         self.cpu_factor = self.settings.cpu_factor

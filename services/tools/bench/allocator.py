@@ -10,7 +10,9 @@ time, minor page faults and the process's peak resident memory are read. Policie
 - ``mmap_1mb``: the threshold fixed at 1 MB (the policy before: every array of 1 MB or more is a fresh
   mapping, faulted in and zeroed on first touch);
 - ``heap_trim``: glibc as it comes, and the freed heap pages handed back after a job when resident memory
-  exceeds the worker's mark (:class:`~services.runtime.allocator.HeapTrim`; the services' policy);
+  exceeds the worker's mark (:class:`~services.runtime.allocator.HeapTrim`; the services' policy before);
+- ``warm_heap``: the same, with glibc no longer trimming its heap's top by itself
+  (:data:`~services.runtime.allocator.HeapPolicy.WARM`, the services' policy);
 - ``trim_every_job``: the same with a mark below any process, so every job trims (its cost where a process
   is over its mark).
 
@@ -37,9 +39,7 @@ import numpy as np
 from services.runtime.cli import number_in, parse_size
 
 NAME = "allocator"
-POLICIES = ("glibc", "mmap_1mb", "heap_trim", "trim_every_job")
-#: glibc's ``mallopt`` parameter of the mmap threshold (malloc.h)
-M_MMAP_THRESHOLD = -3
+POLICIES = ("glibc", "mmap_1mb", "heap_trim", "warm_heap", "trim_every_job")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,12 +54,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def after_job_hook(policy: str) -> Callable[[], object]:
     """Set this process's allocator to ``policy``; what to call after each job."""
-    from services.runtime.allocator import HeapTrim
+    from services.runtime.allocator import M_MMAP_THRESHOLD, HeapPolicy, HeapTrim, apply_heap_policy
     from services.worker.service import WorkerSettings, heap_mark_mb
 
     if policy == "mmap_1mb":
         ctypes.CDLL(ctypes.util.find_library("c")).mallopt(M_MMAP_THRESHOLD, 1 << 20)
     if policy == "heap_trim":
+        return HeapTrim(heap_mark_mb(WorkerSettings())).after_job
+    if policy == "warm_heap":
+        apply_heap_policy(HeapPolicy.WARM)
         return HeapTrim(heap_mark_mb(WorkerSettings())).after_job
     if policy == "trim_every_job":
         return HeapTrim(1e-6).after_job

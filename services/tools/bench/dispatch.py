@@ -50,6 +50,7 @@ from common.wire.messages import YawEstimate
 from common.yaw import YawSettings
 from services.camera.settings import FlightName
 from services.master.settings import MasterSettings
+from services.runtime.allocator import HeapPolicy, apply_heap_policy, children_heap_policy
 from services.runtime.cli import number_in
 from services.runtime.transport import open_session
 from services.tools.bench.cluster import at_least
@@ -139,6 +140,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "one-host deployment), 1 (master-worker), 1x1, 2x2 (default: all)",
     )  # fmt: skip
     parser.add_argument(
+        "--heap-policies", nargs="+", choices=[h.value for h in HeapPolicy], metavar="POLICY",
+        help="fly every path under each of these C heap policies of the cluster's processes (warm: the "
+        "services' default; glibc: glibc trimming its heap itself), interleaved (default: warm)",
+    )  # fmt: skip
+    parser.add_argument(
         "--job-encoding", choices=typing.get_args(JobEncoding), default=MasterSettings().job_encoding,
         help="the master's --job-encoding (how a share's pixels travel to the members)",
     )  # fmt: skip
@@ -198,23 +204,40 @@ def path_spec(
     )
 
 
+def heap_label(label: str, heap: HeapPolicy) -> str:
+    """A path's row: its label, and the heap policy where it is not the services' default."""
+    return label if heap is HeapPolicy.WARM else f"{label} ({heap.value} heap)"
+
+
 def cluster_path(
-    label: str, topology: Topology, workers: tuple[int, ...], args: argparse.Namespace
+    label: str,
+    topology: Topology,
+    workers: tuple[int, ...],
+    args: argparse.Namespace,
+    heap: HeapPolicy = HeapPolicy.WARM,
 ) -> dict[str, Any]:
-    """One path's flight: on loopback, or (``--netns``) across emulated hosts with per-link bytes."""
+    """One path's flight (its processes under ``heap``): on loopback, or (``--netns``) across emulated hosts
+    with per-link bytes."""
     spec = with_deadline(
         path_spec(label, topology, workers, args.master_computes, args.pin), args.min_deadline_ms
     )
+    if heap is not HeapPolicy.WARM:
+        spec = spec.model_copy(update={"name": f"{spec.name}-{heap.value}-heap"})
+    with children_heap_policy(heap):
+        return {**_cluster_flight(spec, args), "path": heap_label(label, heap)}
+
+
+def _cluster_flight(spec: ClusterSpec, args: argparse.Namespace) -> dict[str, Any]:
     flight_frames(args)
     log_dir = Path(args.out) / "dispatch_logs" / spec.name
     _, _, master_args = workload_of(args)
     if not args.netns:
         with LocalCluster(spec, log_dir, master_args=master_args) as cluster:
-            return {"path": label, **_flight(cluster, args, None)}
+            return _flight(cluster, args, None)
     rate = None if args.link_mbit is None else round(args.link_mbit * 1e6)
     plan = plan_for_cluster(spec, new_prefix(), dict.fromkeys([GROUND, *(h.name for h in spec.hosts)], rate))
     with NetHarness(plan) as net, NetnsCluster(spec, log_dir, net, master_args=master_args) as cluster:
-        return {"path": label, **_flight(cluster, args, net)}
+        return _flight(cluster, args, net)
 
 
 def _members(estimates: Mapping[int, YawEstimate]) -> dict[str, int]:
@@ -279,6 +302,12 @@ def median_p95(values: list[float]) -> tuple[float, float]:
     return float(np.median(array)), float(np.percentile(array, 95))
 
 
+def _alone_of(label: str) -> str:
+    """The master alone's row under the same heap policy as ``label``'s."""
+    policy = label[label.find(" (") :] if label.endswith(" heap)") else ""
+    return ALONE + policy
+
+
 def _frame_ms(path_runs: list[dict[str, Any]]) -> list[float]:
     """Each repeat's median frame time of the master (frame in to yaw out), where it reported one."""
     return [r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})]
@@ -292,7 +321,6 @@ def summary_table(
     where the master alone flew too, ``vs_alone``: the median over the repeats of the path's frame time over
     the master alone's in the same repeat."""
     repeats = len(in_process_runs)
-    alone_ms = _frame_ms(runs.get(ALONE, []))
     in_process, in_process_p95 = median_p95(in_process_runs)
     table: list[dict[str, Any]] = [{"path": "in-process", "frames": in_process_frames, "lost": 0,
                                     "in_process_ms": in_process, "master_ms": in_process,
@@ -311,7 +339,8 @@ def summary_table(
         paired = [t / in_process_runs[i] for i, t in enumerate(frame_ms)] if len(frame_ms) == repeats else []
         latency = {"frame_ms": median_p95(frame_ms)[0], "latency_ratio": median_p95(frame_ms)[0] / in_process}
         latency = {**latency, "paired_ratio": median_p95(paired)[0]} if paired else latency
-        if len(alone_ms) == len(frame_ms) == repeats and label != ALONE:
+        alone_ms = _frame_ms(runs.get(_alone_of(label), []))
+        if len(alone_ms) == len(frame_ms) == repeats and label != _alone_of(label):
             latency["vs_alone"] = median_p95([t / a for t, a in zip(frame_ms, alone_ms, strict=True)])[0]
         latency = latency if frame_ms else {}
         table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),
@@ -332,12 +361,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     repeats = args.repeats
     in_process_runs: list[float] = []
     chosen = [p for p in PATHS if not getattr(args, "paths", None) or p[0].split()[-1] in args.paths]
-    runs: dict[str, list[dict[str, Any]]] = {label: [] for label, _, _ in chosen}
+    heaps = [HeapPolicy(h) for h in getattr(args, "heap_policies", None) or [HeapPolicy.WARM]]
+    runs: dict[str, list[dict[str, Any]]] = {heap_label(p[0], h): [] for h in heaps for p in chosen}
+    # the in-process run with the services' heap policy (this process's: set once, process-wide)
+    apply_heap_policy(HeapPolicy.WARM)
     # repeats interleave the paths, so that a change of the (shared) host's load hits them alike
     for _ in range(repeats):
         in_process_runs.append(in_process_cpu_ms(frames, settings, ground_cpu))
-        for label, topology, workers in chosen:
-            runs[label].append(cluster_path(label, topology, workers, args))
+        for heap in heaps:
+            for label, topology, workers in chosen:
+                runs[heap_label(label, heap)].append(cluster_path(label, topology, workers, args, heap))
     table = summary_table(in_process_runs, repeats * (args.frames - 1), runs)
     in_process = table[0]["in_process_ms"]
     return {

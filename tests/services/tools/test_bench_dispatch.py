@@ -18,6 +18,7 @@ from common.members import Topology
 from common.yaw import YawSettings
 from services.camera import CameraSettings, simulated_flight
 from services.camera.settings import FlightName
+from services.runtime.allocator import HeapPolicy
 from services.tools.bench.dispatch import (
     ALONE,
     PATHS,
@@ -25,6 +26,7 @@ from services.tools.bench.dispatch import (
     add_arguments,
     cluster_path,
     cpu_ms_per_frame,
+    heap_label,
     host_cpus,
     path_spec,
     run,
@@ -89,6 +91,12 @@ def test_a_path_against_the_master_alone_is_the_median_of_each_repeat_s_ratio() 
     alone, path = table[1], table[2]
     assert alone["path"] == ALONE and "vs_alone" not in alone
     assert path["vs_alone"] == pytest.approx(1.1)
+    # under another heap policy a path is paired with the master alone under that policy
+    glibc = {heap_label(label, HeapPolicy.GLIBC): [flight(2 * f["median_timings_ms"]["total"]) for f in got]
+             for label, got in runs.items()}  # fmt: skip
+    rows = {row["path"]: row for row in summary_table([10.0, 10.0, 10.0], 27, {**runs, **glibc})}
+    assert rows["master-worker 1 (glibc heap)"]["vs_alone"] == pytest.approx(1.1)
+    assert "vs_alone" not in rows[f"{ALONE} (glibc heap)"]
     # a repeat without a frame time leaves the pairing out rather than pairing the wrong repeats
     del runs[ALONE][1]["median_timings_ms"]["total"]
     assert "vs_alone" not in summary_table([10.0, 10.0, 10.0], 27, runs)[2]
