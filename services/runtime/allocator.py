@@ -22,6 +22,13 @@ frame (5.7 MB) against 150 computing alone, and its own patches cost 0.19-0.22 m
 0.15. :data:`HeapPolicy.WARM`, the services' policy, leaves the trimming to :class:`HeapTrim` alone: the
 mmap threshold is fixed at glibc's own ceiling of it (32 MB, where it would raise itself to) and the top is
 never trimmed by glibc (``capataz bench dispatch --heap-policies warm glibc`` measures both in one run).
+
+A thread's own arena (glibc gives each thread one, up to 8 a core) is a chain of 64 MB heaps, and one whose
+blocks are all freed is unmapped whatever the thresholds: the master's frames thread still faulted 1,175
+pages a frame in with the thresholds alone, 51 with one arena (``MALLOC_ARENA_MAX=1``). glibc reads that
+limit once, before a second thread allocates, so it comes from the environment the process starts with:
+:func:`process_environment` is what ``capataz up``, the load test and the benches start every process with,
+and the image sets it.
 """
 
 from __future__ import annotations
@@ -71,6 +78,18 @@ def heap_policy_from(environ: Mapping[str, str]) -> HeapPolicy:
     except ValueError:
         choices = ", ".join(p.value for p in HeapPolicy)
         raise AllocatorError(f"{HEAP_POLICY_ENV}={value!r} is not a heap policy: one of {choices}") from None
+
+
+#: glibc's environment variable of the arena limit (read once, at the process's start)
+ARENA_ENV = "MALLOC_ARENA_MAX"
+
+
+def process_environment(environ: Mapping[str, str]) -> dict[str, str]:
+    """What a compute process must start with for the heap policy ``environ`` names: one malloc arena for
+    :data:`HeapPolicy.WARM` (unless ``environ`` sets the limit itself), nothing for glibc's own policy."""
+    if heap_policy_from(environ) is not HeapPolicy.WARM or ARENA_ENV in environ:
+        return {}
+    return {ARENA_ENV: "1"}
 
 
 @contextmanager
@@ -158,6 +177,11 @@ class HeapTrim:
         logger.info(
             "heap policy %s%s, trim past %.0f MB", policy.value, "" if applied else " (not set)", mark_mb
         )
+        if process_environment(environ):  # started without the arena limit its policy wants
+            logger.info(
+                "%s is not set: each thread's arena hands its pages back when emptied (start with %s=1, as "
+                "capataz up and the image do)", ARENA_ENV, ARENA_ENV,
+            )  # fmt: skip
         return cls(mark_mb)
 
     def after_job(self) -> bool:

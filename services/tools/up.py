@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Self
 
+from services.runtime.allocator import process_environment
 from services.runtime.transport import TransportSettings, open_session
 from services.tools.cluster_file import (
     ClusterError,
@@ -135,6 +136,7 @@ class LocalCluster:
         env = dict(
             os.environ, PYTHONUNBUFFERED="1", **participant_environment(self.secure, self.zenoh_config, cn)
         )
+        env.update(process_environment(env))  # the compute services' heap policy (one malloc arena)
         process = subprocess.Popen(
             command, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
         )
