@@ -385,6 +385,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "master_computes": args.master_computes,
             "job_encoding": args.job_encoding,
             "job_quality": args.job_quality,
+            "heap_policies": [h.value for h in heaps],
             "pinned": args.pin,
             "frames": args.frames,
             "fps": args.fps,

@@ -206,7 +206,7 @@ def test_every_path_computes_every_frame_with_cpu_on_the_members(tmp_path: Path)
         "master-foreman-worker 1x1",
         "master-foreman-worker 2x2",
     ]
-    assert result["json"]["in_process_cpu_ms_per_frame"] > 0
+    assert result["json"]["in_process_cpu_ms_per_frame"] > 0 and result["json"]["heap_policies"] == ["warm"]
     alone, paths = paths[0], paths[1:]
     # the master alone measured every patch of every pair itself (the yaw core's grid, 29 pairs)
     patches = YawSettings().grid_cols * YawSettings().grid_rows
