@@ -224,7 +224,7 @@ def cluster_path(
     if heap is not HeapPolicy.WARM:
         spec = spec.model_copy(update={"name": f"{spec.name}-{heap.value}-heap"})
     with children_heap_policy(heap):
-        return {**_cluster_flight(spec, args), "path": heap_label(label, heap)}
+        return {**_cluster_flight(spec, args), "path": heap_label(label, heap), "heap": heap.value}
 
 
 def _cluster_flight(spec: ClusterSpec, args: argparse.Namespace) -> dict[str, Any]:
@@ -302,12 +302,6 @@ def median_p95(values: list[float]) -> tuple[float, float]:
     return float(np.median(array)), float(np.percentile(array, 95))
 
 
-def _alone_of(label: str) -> str:
-    """The master alone's row under the same heap policy as ``label``'s."""
-    policy = label[label.find(" (") :] if label.endswith(" heap)") else ""
-    return ALONE + policy
-
-
 def _frame_ms(path_runs: list[dict[str, Any]]) -> list[float]:
     """Each repeat's median frame time of the master (frame in to yaw out), where it reported one."""
     return [r["median_timings_ms"]["total"] for r in path_runs if "total" in r.get("median_timings_ms", {})]
@@ -339,8 +333,10 @@ def summary_table(
         paired = [t / in_process_runs[i] for i, t in enumerate(frame_ms)] if len(frame_ms) == repeats else []
         latency = {"frame_ms": median_p95(frame_ms)[0], "latency_ratio": median_p95(frame_ms)[0] / in_process}
         latency = {**latency, "paired_ratio": median_p95(paired)[0]} if paired else latency
-        alone_ms = _frame_ms(runs.get(_alone_of(label), []))
-        if len(alone_ms) == len(frame_ms) == repeats and label != _alone_of(label):
+        # the master alone flown under the same heap policy (a flight without one: the services' default)
+        alone = heap_label(ALONE, HeapPolicy(path_runs[0].get("heap", HeapPolicy.WARM.value)))
+        alone_ms = _frame_ms(runs.get(alone, []))
+        if len(alone_ms) == len(frame_ms) == repeats and label != alone:
             latency["vs_alone"] = median_p95([t / a for t, a in zip(frame_ms, alone_ms, strict=True)])[0]
         latency = latency if frame_ms else {}
         table.append({"path": label, "frames": sum(r["frames"] for r in path_runs),

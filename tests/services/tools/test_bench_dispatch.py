@@ -92,7 +92,8 @@ def test_a_path_against_the_master_alone_is_the_median_of_each_repeat_s_ratio() 
     assert alone["path"] == ALONE and "vs_alone" not in alone
     assert path["vs_alone"] == pytest.approx(1.1)
     # under another heap policy a path is paired with the master alone under that policy
-    glibc = {heap_label(label, HeapPolicy.GLIBC): [flight(2 * f["median_timings_ms"]["total"]) for f in got]
+    glibc = {heap_label(label, HeapPolicy.GLIBC):
+             [{**flight(2 * f["median_timings_ms"]["total"]), "heap": "glibc"} for f in got]
              for label, got in runs.items()}  # fmt: skip
     rows = {row["path"]: row for row in summary_table([10.0, 10.0, 10.0], 27, {**runs, **glibc})}
     assert rows["master-worker 1 (glibc heap)"]["vs_alone"] == pytest.approx(1.1)
