@@ -3,8 +3,8 @@
 A pure value object (no ``ip`` calls here): :func:`make_plan` names one Linux network namespace per host
 (``<prefix>-<host>``) plus a hub namespace (``<prefix>-hub``) holding the bridge every host's link joins,
 gives each host a private address ``10.231.0.<i>`` that exists only inside its namespace, and an optional
-link rate (bit/s, a token bucket on both ends of the link). The harness that carries it out is
-:mod:`services.tools.netns`.
+link rate (bit/s, a token bucket for each direction of the link, both inside the hub). The harness that
+carries it out is :mod:`services.tools.netns`.
 """
 
 from __future__ import annotations
@@ -53,6 +53,18 @@ class NetHost:
     def hub_interface(self) -> str:
         """The hub's end of the host's link (inside the hub namespace)."""
         return f"czp{self.index}"
+
+    @property
+    def uplink_interface(self) -> str:
+        """Inside the hub, where a rated link's uplink is shaped: what the host sends is redirected from
+        :attr:`hub_interface` to this interface's token bucket, whose peer (:attr:`bridge_port`) joins the
+        bridge. The bucket runs on the hub's CPUs, as a NIC's does in its own silicon, not on the host's."""
+        return f"czu{self.index}"
+
+    @property
+    def bridge_port(self) -> str:
+        """The bridge's port for a rated link (the peer of :attr:`uplink_interface`)."""
+        return f"czb{self.index}"
 
     @property
     def router_endpoint(self) -> str:

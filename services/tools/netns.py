@@ -2,9 +2,10 @@
 
 :class:`NetHarness` (a context manager) makes the hub namespace with a bridge, one namespace per host, a veth
 link from each host to the bridge (created directly inside the namespaces: the root namespace's interfaces
-are never touched), the host's private address on its end, and a token bucket (``tc ... tbf``) on both ends
-of a link that has a rate. On exit, an exception or SIGTERM it kills what still runs inside its namespaces
-and deletes them (which deletes their links): nothing it made is left behind. :func:`cleanup_stale` removes
+are never touched), the host's private address on its end, and for a link that has a rate a token bucket
+(``tc ... tbf``) for each direction, both in the hub (:meth:`NetHarness._shaped_port`). On exit, an
+exception or SIGTERM it kills what still runs inside its namespaces and deletes them (which deletes their
+links): nothing it made is left behind. :func:`cleanup_stale` removes
 the namespaces of harnesses whose process is gone. :func:`unavailable_reason` says why the harness cannot
 run here (not root, no ``ip``, ``ip netns`` refused), for tests to skip with.
 """
@@ -227,21 +228,50 @@ class NetHarness:
         # both ends are born inside their namespaces: nothing appears in the root namespace
         _run(["ip", "link", "add", HOST_INTERFACE, "netns", host.namespace, "type", "veth", "peer", "name",
               host.hub_interface, "netns", hub])  # fmt: skip
-        self._in(hub, "link", "set", host.hub_interface, "master", BRIDGE)
-        self._in(hub, "link", "set", host.hub_interface, "up")
         self._in(host.namespace, "link", "set", "lo", "up")
         self._in(host.namespace, "addr", "add", f"{host.address}/24", "dev", HOST_INTERFACE)
         self._in(host.namespace, "link", "set", HOST_INTERFACE, "up")
-        if host.rate_bit_s is not None:
-            self._tbf(host.namespace, HOST_INTERFACE, host.rate_bit_s)  # host -> hub
-            self._tbf(hub, host.hub_interface, host.rate_bit_s)  # hub -> host
+        if host.rate_bit_s is None:
+            self._in(hub, "link", "set", host.hub_interface, "master", BRIDGE)
+        else:
+            self._shaped_port(host, host.rate_bit_s)
+        self._in(hub, "link", "set", host.hub_interface, "up")
         if host.cpus:  # what arrives on a pinned host's link is processed on its CPUs
             self._steer_receive(host.namespace, HOST_INTERFACE, cpu_mask(host.cpus))
 
+    def _shaped_port(self, host: NetHost, rate_bit_s: int) -> None:
+        """A rated link's two token buckets, both in the hub: what the host sends is redirected from its
+        link's hub end to the uplink's bucket (:attr:`~common.netplan.NetHost.uplink_interface`), whose peer
+        joins the bridge; what the bridge sends it comes back the same way to the downlink's bucket, on the
+        link's hub end.
+
+        A bucket on the host's own end (the harness before) ran on the host's CPU: the kernel cut each 64 kB
+        segment to the bucket's size there and woke a timer for every release, about 100 timer interrupts
+        and as many cross-CPU hand-overs for a 1080p frame's job, in the middle of the master's own share.
+        A NIC shapes its wire in its own silicon; here the hub's CPUs (:meth:`_steer_links`) do it."""
+        hub = self.plan.hub_namespace
+        _run(["ip", "link", "add", host.uplink_interface, "netns", hub, "type", "veth", "peer", "name",
+              host.bridge_port, "netns", hub])  # fmt: skip
+        self._in(hub, "link", "set", host.bridge_port, "master", BRIDGE)
+        for interface in (host.uplink_interface, host.bridge_port):
+            self._in(hub, "link", "set", interface, "up")
+        self._redirect(hub, host.hub_interface, host.uplink_interface)  # host -> hub
+        self._redirect(hub, host.uplink_interface, host.hub_interface)  # hub -> host
+        self._tbf(hub, host.uplink_interface, rate_bit_s)
+        self._tbf(hub, host.hub_interface, rate_bit_s)
+
+    def _redirect(self, namespace: str, source: str, target: str) -> None:
+        """Everything arriving on ``source`` leaves by ``target`` (through ``target``'s queue discipline)."""
+        _run(["tc", "-n", namespace, "qdisc", "add", "dev", source, "ingress"])
+        _run(["tc", "-n", namespace, "filter", "add", "dev", source, "parent", "ffff:", "protocol", "all",
+              "u32", "match", "u32", "0", "0",  # every packet
+              "action", "mirred", "egress", "redirect", "dev", target])  # fmt: skip
+
     def _steer_links(self) -> None:
         """Where the kernel processes each link's packets (receive packet steering): a pinned host's on its
-        own CPUs (:meth:`_link`), and what a host sends into the hub (the bridge, the hub's token bucket, the
-        hand-over to the receiver) on the other pinned hosts' CPUs.
+        own CPUs (:meth:`_link`), and what a host sends into the hub (the bridge, the token buckets, the
+        hand-over to the receiver) on the other pinned hosts' CPUs. Inside the hub a packet stays on the CPU
+        it entered on (the shaped ports' pairs are not steered).
 
         A veth hands a packet to its peer on the sending CPU, so without it everything a 500 kB job crossing
         the link costs the kernel (the bridge, two token buckets, hundreds of segments, the receiver's TCP)

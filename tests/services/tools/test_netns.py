@@ -124,6 +124,34 @@ def test_a_job_after_an_idle_link_takes_its_wire_time_regression(
     assert seconds >= 0.85 * size * 8 / rate, seconds
 
 
+def _shown(*argv: str) -> str:
+    return subprocess.run(list(argv), capture_output=True, text=True, timeout=30, check=True).stdout
+
+
+def test_a_rated_link_is_shaped_inside_the_hub_not_on_the_host_s_own_end_regression(
+    netns: None, untouched_root: None
+) -> None:
+    # a bucket on the host's end ran on the host's CPU: about 100 timer interrupts and hand-overs for a 1080p
+    # frame's job, inside the master's own share (its patches 8-50 % slower than alone); a NIC shapes its
+    # wire in its own silicon, so both buckets sit in the hub, whose CPUs are the other hosts'
+    plan = make_plan(new_prefix(), ["a", "b"], {"a": 5_000_000})
+    a, b, hub = plan.host("a"), plan.host("b"), plan.hub_namespace
+    with NetHarness(plan):
+        own_end = _shown("tc", "-n", a.namespace, "qdisc", "show", "dev", HOST_INTERFACE)
+        uplink = _shown("tc", "-n", hub, "qdisc", "show", "dev", a.uplink_interface)
+        downlink = _shown("tc", "-n", hub, "qdisc", "show", "dev", a.hub_interface)
+        up = _shown("tc", "-n", hub, "filter", "show", "dev", a.hub_interface, "ingress")
+        down = _shown("tc", "-n", hub, "filter", "show", "dev", a.uplink_interface, "ingress")
+        ports = _shown("ip", "-n", hub, "-o", "link", "show", "master", "czbr")
+    assert "tbf" not in own_end, own_end
+    assert "tbf" in uplink and "rate 5Mbit" in uplink, uplink
+    assert "tbf" in downlink and "rate 5Mbit" in downlink, downlink
+    assert f"Redirect to device {a.uplink_interface}" in up, up
+    assert f"Redirect to device {a.hub_interface}" in down, down
+    bridged = {line.split(":")[1].strip().split("@")[0] for line in ports.splitlines()}
+    assert bridged == {a.bridge_port, b.hub_interface}  # the unrated link joins the bridge directly
+
+
 def test_an_exception_inside_removes_everything(netns: None, untouched_root: None) -> None:
     plan = make_plan(new_prefix(), ["a", "b"], {"b": 1_000_000})
     with pytest.raises(RuntimeError, match="boom"), NetHarness(plan):
