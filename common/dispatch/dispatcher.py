@@ -150,7 +150,7 @@ class Dispatcher:
         planned = run_plan(
             seq, prev_seq, todo, remote, self._members, trust, self.settings.balance is Balance.TIME,
             self.settings.self_compute, self._memo, len(joined), SELF,
-            self.settings.overflow_slack,
+            self.settings.overflow_slack, self.settings.move_deadband,
         )  # fmt: skip
         self._memo, self._frame, self.last_plan = planned.memo, planned.frame, planned.plan
         return planned.plan

@@ -91,7 +91,8 @@ class TrustView(Protocol):
 
 #: the last plan's (members, targets, indices) and assignment: the steady state repeats it exactly (same
 #: members, same shares), so it is reused until one of them changes
-Memo = tuple[tuple[object, ...], dict[str, IndexArray]]
+MemoKey = tuple[tuple[str, ...], tuple[int, ...], tuple[int, ...]]
+Memo = tuple[MemoKey, dict[str, IndexArray]]
 
 
 @dataclass(frozen=True)
@@ -181,6 +182,18 @@ def missing(state: MemberState, indices: IndexArray, prev_seq: int) -> IndexArra
     return np.array([i for i in wanted if i not in held], dtype=np.int32)
 
 
+def within_deadband(previous: MemoKey, new: MemoKey, deadband: float) -> bool:
+    """Whether plan ``new`` (members, counts, patches) is ``previous`` but for counts that each differ by at
+    most ``deadband`` of the patches (rounded, at least one patch; ``deadband`` 0: never). A member given
+    its first patches, or none, always changes the plan (a member on trial gets one or two)."""
+    (members0, counts0, todo0), (members1, counts1, todo1) = previous, new
+    if deadband <= 0.0 or members0 != members1 or todo0 != todo1:
+        return False
+    limit = max(1, round(deadband * len(todo1)))
+    pairs = list(zip(counts0, counts1, strict=True))
+    return all(abs(a - b) <= limit and (a == 0) == (b == 0) for a, b in pairs)
+
+
 def run_plan(
     seq: int,
     prev_seq: int,
@@ -194,6 +207,7 @@ def run_plan(
     joined: int,
     own: str,
     slack: float,
+    deadband: float = 0.0,
 ) -> Planned:
     """Frame ``seq``'s plan (vs ``prev_seq``) of the patches ``todo``: the ``remote`` members the trust
     monitor keeps (plus ``own`` when ``self_compute`` or alone) get counts by :func:`capped_counts`, each as
@@ -204,13 +218,16 @@ def run_plan(
     hold, the plan repeats exactly (the memo). When a count changes, only indices at the runs' ends move: a
     member is sent the previous patches of those (:attr:`Plan.moved`). Assigning moved indices lowest first
     instead kept every unchanged index with its member but scattered a share over the frame within a few
-    frames, so that it always travelled as crops."""
+    frames, so that it always travelled as crops. Counts within ``deadband`` of the previous plan's
+    (:func:`within_deadband`) keep the previous plan."""
     kept = remote if trust is None else list(trust.kept)
     members = [*kept, own] if self_compute or not kept else kept
     members, counts = capped_counts(
         members, states, by_time, len(todo), trust, len(todo), {}, joined, own, slack
     )
     key = (tuple(members), tuple(counts), tuple(todo))
+    if memo is not None and memo[0] != key and within_deadband(memo[0], key, deadband):
+        key = memo[0]  # the previous counts: a change this small is not worth the patches it would move
     if memo is not None and memo[0] == key:
         repeated = dict(memo[1])
         lacking = {m: missing(states[m], owned, prev_seq) for m, owned in repeated.items()}

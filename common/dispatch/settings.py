@@ -55,3 +55,9 @@ class DispatchSettings(Bounded):
     #: overflow_slack`` times its own balanced count; the dispatcher computes the rest
     #: (:func:`~common.dispatch.plan.capped_counts`)
     overflow_slack: float = bounded(0.5, ge=0.0, le=10.0)
+    #: a plan keeps the previous frame's counts while no member's new count differs from its previous one
+    #: by more than this share of the frame's patches (at least one patch; 0: every change moves). A moved
+    #: patch costs its previous crop on the member's link (16 kB at 128 px: 1.3 ms of 100 Mbit) and its
+    #: previous spectrum at the receiver, which the measured speeds then read as the member being slower:
+    #: without it, their jitter moved 3-4 patches of 192 every frame (``capataz bench dispatch``).
+    move_deadband: float = bounded(0.02, ge=0.0, le=0.5)
