@@ -5,9 +5,9 @@ link from each host to the bridge (created directly inside the namespaces: the r
 are never touched), the host's private address on its end, and for a link that has a rate a token bucket
 (``tc ... tbf``) for each direction, both in the hub (:meth:`NetHarness._shaped_port`). On exit, an
 exception or SIGTERM it kills what still runs inside its namespaces and deletes them (which deletes their
-links): nothing it made is left behind. :func:`cleanup_stale` removes
-the namespaces of harnesses whose process is gone. :func:`unavailable_reason` says why the harness cannot
-run here (not root, no ``ip``, ``ip netns`` refused), for tests to skip with.
+links): nothing it made is left behind. :func:`cleanup_stale` removes the namespaces of harnesses whose
+process is gone. :func:`unavailable_reason` says why the harness cannot run here (not root, no ``ip``,
+``ip netns`` refused), for tests to skip with.
 """
 
 from __future__ import annotations
