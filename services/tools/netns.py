@@ -62,8 +62,9 @@ def list_namespaces() -> list[str]:
 
 
 def unavailable_reason() -> str | None:
-    """Why the harness cannot run on this machine, or None when it can (root, ``ip`` and ``tc`` present,
-    and a probe namespace can be made and deleted)."""
+    """Why the harness cannot run on this machine, or None when it can (root, ``ip`` and ``tc`` present, a
+    probe namespace can be made and deleted, and a link shaped in it as the hub shapes one: a token bucket,
+    and a redirect from an interface's ingress, :meth:`NetHarness._shaped_port`)."""
     if os.geteuid() != 0:
         return "network namespaces need root"
     for tool in ("ip", "tc"):
@@ -72,9 +73,18 @@ def unavailable_reason() -> str | None:
     probe = f"{new_prefix()}-probe"
     try:
         _run(["ip", "netns", "add", probe])
-        _run(["ip", "netns", "del", probe])
     except NetnsError as exc:
         return f"ip netns does not work here: {exc}"
+    try:
+        _run(["ip", "-n", probe, "link", "add", "name", "czq0", "type", "veth", "peer", "name", "czq1"])
+        _run(["tc", "-n", probe, "qdisc", "add", "dev", "czq1", "root", "tbf", "rate", "1mbit", "burst",
+              "16384", "latency", "100ms"])  # fmt: skip
+        NetHarness._redirect(probe, "czq0", "czq1")
+    except NetnsError as exc:
+        return f"tc cannot shape a link here (tbf, ingress redirect): {exc}"
+    finally:
+        with contextlib.suppress(NetnsError):
+            _run(["ip", "netns", "del", probe])
     return None
 
 
@@ -260,7 +270,8 @@ class NetHarness:
         self._tbf(hub, host.uplink_interface, rate_bit_s)
         self._tbf(hub, host.hub_interface, rate_bit_s)
 
-    def _redirect(self, namespace: str, source: str, target: str) -> None:
+    @staticmethod
+    def _redirect(namespace: str, source: str, target: str) -> None:
         """Everything arriving on ``source`` leaves by ``target`` (through ``target``'s queue discipline)."""
         _run(["tc", "-n", namespace, "qdisc", "add", "dev", source, "ingress"])
         _run(["tc", "-n", namespace, "filter", "add", "dev", source, "parent", "ffff:", "protocol", "all",

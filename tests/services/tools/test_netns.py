@@ -246,3 +246,28 @@ def test_bytes_per_frame_are_each_links_counter_changes_over_the_frames() -> Non
         "h1": {"rx_bytes_per_frame": 2_000.0, "tx_bytes_per_frame": 100.0},
     }
     assert link_bytes_per_frame(before, after, 0)["h1"]["rx_bytes_per_frame"] == 40_000.0  # no frame: one
+
+
+def test_a_machine_whose_tc_cannot_redirect_is_a_reason_to_skip_and_the_probe_is_removed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A kernel without ``tc``'s ingress redirect cannot shape a link in the hub: the harness says so in one
+    line (tests skip with it) instead of failing halfway through making a plan's links."""
+    import services.tools.netns as netns_module
+
+    calls: list[list[str]] = []
+
+    def fake_run(argv: list[str]) -> str:
+        calls.append(list(argv))
+        if "mirred" in argv:
+            raise netns_module.NetnsError("tc filter add ...: Error: TC action not found")
+        return ""
+
+    monkeypatch.setattr(netns_module.os, "geteuid", lambda: 0)
+    monkeypatch.setattr(netns_module.shutil, "which", lambda tool: f"/usr/sbin/{tool}")
+    monkeypatch.setattr(netns_module, "_run", fake_run)
+    reason = unavailable_reason()
+    assert reason is not None and reason.startswith("tc cannot shape a link here"), reason
+    added = [c[-1] for c in calls if c[:3] == ["ip", "netns", "add"]]
+    deleted = [c[-1] for c in calls if c[:3] == ["ip", "netns", "del"]]
+    assert len(added) == 1 and deleted == added
