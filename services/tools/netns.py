@@ -7,7 +7,7 @@ are never touched), the host's private address on its end, and for a link that h
 exception or SIGTERM it kills what still runs inside its namespaces and deletes them (which deletes their
 links): nothing it made is left behind. :func:`cleanup_stale` removes the namespaces of harnesses whose
 process is gone. :func:`unavailable_reason` says why the harness cannot run here (not root, no ``ip``,
-``ip netns`` refused), for tests to skip with.
+``ip netns`` refused, ``tc`` unable to shape a link in the hub), for tests to skip with.
 """
 
 from __future__ import annotations
