@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from common.netplan import HOST_INTERFACE, make_plan
+from common.netplan import BRIDGE, HOST_INTERFACE, make_plan
 from services.tools.cluster_file import ClusterError, ClusterSpec, HostSpec
 from services.tools.netns import (
     NetHarness,
@@ -142,7 +142,7 @@ def test_a_rated_link_is_shaped_inside_the_hub_not_on_the_host_s_own_end_regress
         downlink = _shown("tc", "-n", hub, "qdisc", "show", "dev", a.hub_interface)
         up = _shown("tc", "-n", hub, "filter", "show", "dev", a.hub_interface, "ingress")
         down = _shown("tc", "-n", hub, "filter", "show", "dev", a.uplink_interface, "ingress")
-        ports = _shown("ip", "-n", hub, "-o", "link", "show", "master", "czbr")
+        ports = _shown("ip", "-n", hub, "-o", "link", "show", "master", BRIDGE)
     assert "tbf" not in own_end, own_end
     assert "tbf" in uplink and "rate 5Mbit" in uplink, uplink
     assert "tbf" in downlink and "rate 5Mbit" in downlink, downlink
