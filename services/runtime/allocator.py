@@ -40,6 +40,7 @@ import logging
 import os
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from typing import Any
 
 from common.errors import CapatazError
 
@@ -107,20 +108,34 @@ def children_heap_policy(policy: HeapPolicy) -> Iterator[None]:
             os.environ[HEAP_POLICY_ENV] = before
 
 
+def _libc_function(name: str) -> Any | None:
+    """The C library's function ``name`` (ctypes), or None where it has none (not glibc)."""
+    try:
+        return getattr(ctypes.CDLL(ctypes.util.find_library("c")), name)
+    except (OSError, AttributeError, TypeError):
+        return None
+
+
+def mallopt(param: int, value: int) -> bool:
+    """glibc's ``mallopt(param, value)`` (process-wide); False where the C library has none or refused it."""
+    function = _libc_function("mallopt")
+    if function is None:
+        return False
+    function.argtypes, function.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return bool(function(param, value))
+
+
 def apply_heap_policy(policy: HeapPolicy) -> bool:
     """Set this process's C allocator to ``policy`` (process-wide: a service does it once, at its start);
     True when the C library took it (glibc), False where there is nothing to set."""
     if policy is HeapPolicy.GLIBC:
         return True
-    try:
-        mallopt = ctypes.CDLL(ctypes.util.find_library("c")).mallopt
-    except (OSError, AttributeError, TypeError):
+    if _libc_function("mallopt") is None:
         logger.info("heap policy %s: no glibc mallopt, the C library's own policy stays", policy.value)
         return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     # the threshold first: setting either fixes both (glibc stops raising the threshold itself)
-    return bool(mallopt(M_MMAP_THRESHOLD, WARM_MMAP_THRESHOLD_BYTES)) and bool(
-        mallopt(M_TRIM_THRESHOLD, WARM_TRIM_THRESHOLD_BYTES)
+    return mallopt(M_MMAP_THRESHOLD, WARM_MMAP_THRESHOLD_BYTES) and mallopt(
+        M_TRIM_THRESHOLD, WARM_TRIM_THRESHOLD_BYTES
     )
 
 
@@ -136,9 +151,8 @@ def resident_bytes() -> int:
 
 def _malloc_trim() -> Callable[[], bool] | None:
     """glibc's ``malloc_trim(0)`` as a call, or None where the C library has none."""
-    try:
-        trim = ctypes.CDLL(ctypes.util.find_library("c")).malloc_trim
-    except (OSError, AttributeError, TypeError):
+    trim = _libc_function("malloc_trim")
+    if trim is None:
         return None
     trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
     return lambda: bool(trim(0))

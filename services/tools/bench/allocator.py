@@ -23,9 +23,8 @@ median page faults per job, its peak resident MB and its time over ``glibc``'s i
 from __future__ import annotations
 
 import argparse
-import ctypes
-import ctypes.util
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -54,16 +53,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def after_job_hook(policy: str) -> Callable[[], object]:
     """Set this process's allocator to ``policy``; what to call after each job."""
-    from services.runtime.allocator import M_MMAP_THRESHOLD, HeapPolicy, HeapTrim, apply_heap_policy
+    from services.runtime.allocator import HEAP_POLICY_ENV, M_MMAP_THRESHOLD, HeapPolicy, HeapTrim, mallopt
     from services.worker.service import WorkerSettings, heap_mark_mb
 
     if policy == "mmap_1mb":
-        ctypes.CDLL(ctypes.util.find_library("c")).mallopt(M_MMAP_THRESHOLD, 1 << 20)
+        mallopt(M_MMAP_THRESHOLD, 1 << 20)
     if policy == "heap_trim":
         return HeapTrim(heap_mark_mb(WorkerSettings())).after_job
-    if policy == "warm_heap":
-        apply_heap_policy(HeapPolicy.WARM)
-        return HeapTrim(heap_mark_mb(WorkerSettings())).after_job
+    if policy == "warm_heap":  # what a worker does at its start
+        environ = {**os.environ, HEAP_POLICY_ENV: HeapPolicy.WARM.value}
+        return HeapTrim.for_service(heap_mark_mb(WorkerSettings()), environ).after_job
     if policy == "trim_every_job":
         return HeapTrim(1e-6).after_job
     if policy not in POLICIES:
