@@ -36,6 +36,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "services.tools.bench.allocator",
     "services.tools.bench.fft",
     "services.tools.bench.refine",
+    "services.tools.bench.flow",
 )
 
 
