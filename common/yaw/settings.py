@@ -16,10 +16,12 @@ class YawError(CapatazError):
 
 
 class FftBackend(Enum):
-    """Who computes the patch transforms; chosen by measurement (``capataz bench yaw`` times both)."""
+    """Who computes the patch transforms; chosen by measurement (``capataz bench fft`` and ``capataz bench
+    yaw`` time each)."""
 
     OPENCV = "opencv"  # a loop of cv2.dft over the patches (full complex spectrum)
-    NUMPY = "numpy"  # one batched numpy.fft.rfft2 over all patches (half spectrum)
+    NUMPY = "numpy"  # one batched numpy.fft.rfft2 over all patches (half spectrum; forward in double)
+    SCIPY = "scipy"  # one batched scipy.fft.rfft2 over all patches (half spectrum, single precision)
 
 
 class FitModel(Enum):
@@ -46,7 +48,7 @@ class YawSettings(Bounded):
     grid_rows: int = bounded(5, ge=1, le=64, help="patch grid rows")
     margin_px: int = bounded(0, ge=0, le=4096)  # border left free at full resolution
     pyramid_level: int = bounded(1, ge=0, le=4, help="pyramid level of the patches")
-    fft_backend: FftBackend = FftBackend.NUMPY
+    fft_backend: FftBackend = FftBackend.SCIPY
     #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
     #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
     peak_sigma_px: float = bounded(1.0, ge=1e-3, le=64.0)

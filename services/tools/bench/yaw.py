@@ -171,14 +171,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     core_grid = f"{layout} x {settings.patch_size_px}px @ level {settings.pyramid_level}"
     rows: list[dict[str, Any]] = []
 
-    other_backend = next(b for b in FftBackend if b is not settings.fft_backend)
+    others = [b for b in FftBackend if b is not settings.fft_backend]
     grids = BASELINE_GRIDS[:1] if args.quick else BASELINE_GRIDS
-    labels = [f"core ({settings.fft_backend.value} fft)", f"core ({other_backend.value} fft)"]
+    labels = [f"core ({b.value} fft)" for b in [settings.fft_backend, *others]]
     makers: list[Callable[[npt.NDArray[np.uint8]], Runner]] = [
-        lambda f: _CoreRunner(f, settings),
-        lambda f: _CoreRunner(f, replace(settings, fft_backend=other_backend)),
+        functools.partial(_CoreRunner, settings=replace(settings, fft_backend=b))
+        for b in [settings.fft_backend, *others]
     ]
-    grid_labels = [core_grid, core_grid]
+    grid_labels = [core_grid] * len(makers)
     for patch_px, cols, rows_n in grids:
         labels.append("baseline cv2.phaseCorrelate")
         grid_labels.append(f"{cols}x{rows_n} x {patch_px}px @ level 0")
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     yaw, ms = _interleaved(frames, makers)
     for m in range(len(makers)):
         rows.append(_row(labels[m], grid_labels[m], ms[m], yaw[m], truth))
-    core_index, baseline_index = 0, 2
+    core_index, baseline_index = 0, 1 + len(others)
     rows[baseline_index]["method"] = "baseline on the core's grid"
     on_core_grid = rows[baseline_index]
     best = min(rows[baseline_index:], key=lambda r: r["max_ame_deg"])
@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         rows.append(
             _row(
                 "baseline, dropped frames",
-                f"{grid_labels[2]}, every {step}th frame",
+                f"{grid_labels[baseline_index]}, every {step}th frame",
                 ms_d[1],
                 yaw_d[1],
                 kept_truth,

@@ -65,7 +65,7 @@ def test_the_job_settings_bounds_are_the_core_settings_bounds() -> None:
     assert checked > 40
 
 
-@pytest.mark.parametrize("backend", [FftBackend.OPENCV, FftBackend.NUMPY])
+@pytest.mark.parametrize("backend", list(FftBackend))
 def test_sticky_shares_through_members_equal_the_in_process_tracker_bit_for_bit(
     frames: list[np.ndarray], backend: FftBackend
 ) -> None:

@@ -27,5 +27,7 @@ def test_bench_yaw_reports_the_required_fields_on_a_short_run() -> None:
     assert abs(result["core_final_yaw_error_deg"]) < 0.5
     methods = [row["method"] for row in result["table"]]
     assert methods[0].startswith("core") and "baseline on the core's grid" in methods
-    assert {"numpy_forward_us", "opencv_forward_us"} <= set(result["fft_microbench_us"])
+    cores = [m for m in methods if m.startswith("core (")]
+    assert cores == ["core (scipy fft)", "core (opencv fft)", "core (numpy fft)"]  # the default first
+    assert {"numpy_forward_us", "scipy_forward_us", "opencv_forward_us"} <= set(result["fft_microbench_us"])
     assert "core, dropped frames" in methods and result["dropped_frames_step"] == 4
