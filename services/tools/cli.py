@@ -72,6 +72,7 @@ EXAMPLES: dict[str, str] = {
     "bench allocator": "capataz bench allocator --repeats 3 --jobs 30 --patches 30",
     "bench fft": "capataz bench fft --sizes 32 128 --repeats 15",
     "bench refine": "capataz bench refine --caps 4096 48 24 --repeats 5",
+    "bench flow": "capataz bench flow --shifts 0.05 0.2 1 --presmooth 1",
     "bench transport": "capataz bench transport --seeds 2 --frames 150 --scenarios field,hover",
     "record": "capataz record --connect tcp/127.0.0.1:7447 --out out/run.mcap --duration 60",
     "view": "capataz view --connect tcp/127.0.0.1:7447",
