@@ -28,7 +28,7 @@ from common.estimation.homography import VoError
 from common.estimation.measurements import FrameMeasurement
 from common.estimation.rectify import RectificationError
 from common.estimation.tilt import ManoeuvreTrack, VisionTilt, VoOrigin, level_share, residual_tilt_offset
-from common.estimation.vo import MotionModel, PreparedFrame, VoPose, VoSettings
+from common.estimation.vo import MotionModel, PreparedFrame, VoPose, VoSettings, median_flow_px
 from common.estimation.vo_chain import (
     VoChainSettings,
     VoChainState,
@@ -73,13 +73,15 @@ class FilterView:
 @dataclass(frozen=True)
 class VoFrame:
     """One frame's VO result: whether the pair worked, the VO yaw (unwrapped), the output position (None
-    before the origin), the inliers and the level chain's share in the position."""
+    before the origin), the inliers, the level chain's share in the position and the pair's median flow
+    (px; nan without a pair)."""
 
     ok: bool
     vo_yaw_rad: float
     p_xy_m: FloatArray | None
     n_inliers: int
     rectification_weight: float
+    flow_px: float = math.nan
 
 
 class CoupledVo:
@@ -130,7 +132,7 @@ class CoupledVo:
             logger.warning("frame at %.4f s not rectified: %s", m.stamp_s, exc)
             return None
         ok = False
-        n_inliers = 0
+        n_inliers, flow_px = 0, math.nan
         if self.chain is None:
             self._chain_start_s = self._keyframe_stamp_s = m.stamp_s
             self.chain = start_vo_chain(frame, self._initial_pose(view), view.altitude_m)
@@ -140,7 +142,7 @@ class CoupledVo:
             ok = True
         else:
             try:
-                n_inliers = self._advance(m, frame, view)
+                n_inliers, flow_px = self._advance(m, frame, view)
                 ok = True
                 self.counters["vo_pairs"] += 1
             except VoError as exc:
@@ -157,16 +159,17 @@ class CoupledVo:
         yaw_wrapped = yaw_of_camera(pose.R_n_camera, self._vo_camera_mount())
         self._vo_yaw_unwrapped += math.remainder(yaw_wrapped - self._vo_yaw_unwrapped, 2.0 * math.pi)
         if self._origin is None:
-            return VoFrame(ok, self._vo_yaw_unwrapped, None, n_inliers, math.nan)
+            return VoFrame(ok, self._vo_yaw_unwrapped, None, n_inliers, math.nan, flow_px)
         p_xy = pose.p_n_camera_m[:2] + self._tilt_offset_correction(pose.R_n_camera, view)
         p_free = self._free_position[:2] + self._free_offset
         weight = self._level_share(view, float(np.sum((p_xy - p_free) ** 2))) if s.rectify else math.nan
         if s.rectify and weight < 1.0:
             # uncertainty-aware: toward the free decomposition's chain while the tilt is uncertain
             p_xy = weight * p_xy + (1.0 - weight) * p_free
-        return VoFrame(ok, self._vo_yaw_unwrapped, p_xy, n_inliers, weight)
+        return VoFrame(ok, self._vo_yaw_unwrapped, p_xy, n_inliers, weight, flow_px)
 
-    def _advance(self, m: FrameMeasurement, frame: PreparedFrame, view: FilterView) -> int:
+    def _advance(self, m: FrameMeasurement, frame: PreparedFrame, view: FilterView) -> tuple[int, float]:
+        """Advance the chain by ``frame``: the pair's inliers and median flow (px)."""
         s = self.settings
         assert self.chain is not None
         model = s.rectified_motion_model if s.rectify else MotionModel.FREE
@@ -206,7 +209,7 @@ class CoupledVo:
                 m.stamp_s, step.motion.t_over_d_free, step.motion.normal_km1_free,
                 s.vision_tilt_window_s, s.vision_tilt_min_information,
             )  # fmt: skip
-        return step.motion.n_inliers
+        return step.motion.n_inliers, median_flow_px(step.motion.H_k_km1, step.keyframe_frame.features_px)
 
     def _bias_corrects_origin(self, view: FilterView) -> bool:
         origin = self._origin

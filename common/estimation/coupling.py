@@ -189,6 +189,7 @@ class DoubleCouplingEstimator:
             n_inliers=result.n_inliers,
             rectification_weight=result.rectification_weight,
             ok=result.ok,
+            vo_flow_px=result.flow_px,
         )
 
     @property

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -190,7 +191,8 @@ class PoseOutput:
     """Visual-odometry pose after one frame: body position (x, y from VO, z from the filter) and attitude.
 
     ``rectification_weight`` is the share of the level (rectified) model in the frame's translation
-    (0: the free decomposition, the traditional path; nan for raw frames)."""
+    (0: the free decomposition, the traditional path; nan for raw frames); ``vo_flow_px`` the median image
+    flow of the pair the pose was measured with (px; nan without a pair)."""
 
     stamp_s: float
     p_world_body_m: FloatArray
@@ -201,6 +203,7 @@ class PoseOutput:
     n_inliers: int
     rectification_weight: float
     ok: bool
+    vo_flow_px: float = math.nan
 
 
 Output = AttitudeOutput | PoseOutput

@@ -226,6 +226,32 @@ def track_features(
     return p0[ok], p1[ok]
 
 
+#: How far :func:`track_features` over-reads a sub-pixel shift, as a share of the shift, by its size (px):
+#: the tracker's reading over the true shift, minus 1, on the simulator's noise-free renders of paper C's
+#: ground at 3.8 m (``capataz bench flow``, its ``rendered`` rows). A bilinear Lucas-Kanade reads fine
+#: detail's sub-pixel motion long (``docs/methods.md``); from about half a pixel it reads true.
+SUBPIXEL_FLOW_PX = (0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 1.0)
+SUBPIXEL_OVER_READ = (0.136, 0.124, 0.106, 0.076, 0.050, 0.012, 0.0)
+
+
+def subpixel_over_read(flow_px: float) -> float:
+    """The share of a pair's motion the tracker over-reads at a median flow of ``flow_px`` (interpolated in
+    :data:`SUBPIXEL_OVER_READ`; below its first shift its first share, from 1 px on 0); 0 for a flow that is
+    not known (not finite)."""
+    if not math.isfinite(flow_px):
+        return 0.0
+    return float(np.interp(max(flow_px, 0.0), SUBPIXEL_FLOW_PX, SUBPIXEL_OVER_READ, right=0.0))
+
+
+def median_flow_px(H_px: FloatArray, features_px: npt.NDArray[np.float32]) -> float:
+    """The median distance (px) the homography ``H_px`` moves ``features_px`` (0 without features)."""
+    pts = features_px.reshape(-1, 2).astype(np.float64)
+    if len(pts) == 0:
+        return 0.0
+    mapped = np.c_[pts, np.ones(len(pts))] @ np.asarray(H_px, dtype=np.float64).T
+    return float(np.median(np.linalg.norm(mapped[:, :2] / mapped[:, 2:3] - pts, axis=1)))
+
+
 def estimate_relative_motion(
     prev: PreparedFrame,
     curr: PreparedFrame,

@@ -15,7 +15,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from common.bounds import Bounded, bounded
 from common.estimation.homography import VoError
@@ -28,6 +27,7 @@ from common.estimation.vo import (
     VoSettings,
     compose_pose,
     estimate_relative_motion,
+    median_flow_px,
     metric_translation,
     prepare_frame,
 )
@@ -100,14 +100,6 @@ def prepare_view(
     return prepare_frame(rect.image, rect.valid_mask, settings)
 
 
-def _median_flow_px(H: FloatArray, features_px: npt.NDArray[np.float32]) -> float:
-    pts = features_px.reshape(-1, 2).astype(np.float64)
-    if len(pts) == 0:
-        return 0.0
-    mapped = np.c_[pts, np.ones(len(pts))] @ H.T
-    return float(np.median(np.linalg.norm(mapped[:, :2] / mapped[:, 2:3] - pts, axis=1)))
-
-
 def advance_vo_chain(
     chain: VoChainState,
     frame: PreparedFrame,
@@ -143,7 +135,7 @@ def advance_vo_chain(
     displacement_free = -pose.R_n_camera @ t_free
     moved_on = (
         cs.max_flow_px <= 0.0
-        or _median_flow_px(motion.H_k_km1, kf.frame.features_px) > cs.max_flow_px
+        or median_flow_px(motion.H_k_km1, kf.frame.features_px) > cs.max_flow_px
         or motion.n_inliers < cs.min_inlier_share * max(motion.n_features, 1)
     )
     altitude = float(altitude_m)

@@ -12,10 +12,14 @@ output's estimate is left as it is:
   settings' ratio to the IMU's alone gives about 0.03, the rest is what the model leaves out, such as the
   manoeuvre the accelerometer is compensated for).
 - Yaw: the filter takes the VO yaw as independent measurements, but it is a chain with an offset of its
-  own: paper C's flight gains 0.1-0.2 deg where its manoeuvre starts and stops (0.05 deg claimed), and the
-  errors grow a little with the angle turned. The published yaw variance adds a floor and
-  ``(yaw_drift_per_rad * turned)^2``, fitted on the flight with the larger yaw errors (paper C's: the agile
-  flight's are about a quarter of them, so its yaw is published cautious, never overconfident).
+  own: paper C's flight gains 0.1-0.2 deg where its manoeuvre starts and stops (0.05 deg claimed). There
+  the ground moves a fraction of a pixel between frames, and the VO's tracker over-reads such motion by up
+  to 14 % (:data:`common.estimation.vo.SUBPIXEL_OVER_READ`, ``capataz bench flow``); from half a pixel it
+  reads true, so a fast turn adds nothing. The published yaw variance adds
+  ``(yaw_subpixel_scale * sum over the pairs of over_read(flow) |turn|)^2``, the over-reads adding up
+  along the chain (they share a sign), plus a floor and ``(yaw_drift_per_rad * turned)^2`` (both fit to 0
+  beside it). One fit over both flights: the agile flight, which turns ten radians at speed, is no longer
+  published with paper C's drift per radian.
 - Position: each VO pair adds a small error in proportion to the camera height it was measured at (a pixel
   is ``h / f`` metres), and the pairs' errors add up along the chain: the horizontal std grows as
   ``drift_per_pair * sum of h``. The errors of paper C's and the agile flight follow it, not the distance
@@ -41,6 +45,7 @@ import numpy as np
 
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.estimation.filters import tilt_std_rad
+from common.estimation.vo import subpixel_over_read
 from common.geometry import wrap_angle_rad
 from common.types import FloatArray
 from common.wire.messages import AttitudeEstimate, PoseEstimate
@@ -69,12 +74,18 @@ class PublishedUncertainty:
     #: likelihood on both whole flights, seeds 0-9: 0.0882, a std 0.30 times the filter's; the noise
     #: settings' ratio to the simulated IMU's alone gives about 0.03; it was 0.06, fit on 400 frames)
     tilt_variance_scale: float = 0.0882
-    #: 1-sigma error of the VO yaw chain per radian turned (fit: 2.35e-4; it was 0.008, fit on the first 400
-    #: frames, which published paper C's yaw at 5.8 deg std after its two turns where its error was 0.1-0.4)
-    yaw_drift_per_rad: float = 2.35e-4
-    #: the yaw variance's floor above the filter's (rad^2; fit: 2.24e-6, a std of 0.086 deg): the chain's
-    #: offset gained where a manoeuvre starts or stops
-    yaw_floor_rad2: float = 2.24e-6
+    #: 1-sigma error of the VO yaw chain per radian turned (fit: 0 beside ``yaw_subpixel_scale``; it was
+    #: 2.35e-4 without it, fit on paper C's flight alone, which published the agile flight's yaw cautious,
+    #: mean NEES 0.12 on seeds 10-19)
+    yaw_drift_per_rad: float = 0.0
+    #: the yaw variance's floor above the filter's (rad^2; fit: 0 beside ``yaw_subpixel_scale``; it was
+    #: 2.24e-6, a std of 0.086 deg)
+    yaw_floor_rad2: float = 0.0
+    #: the published yaw std per radian of the over-read turn ``sum over pairs of over_read(flow) |turn|``
+    #: (:func:`common.estimation.vo.subpixel_over_read`): the share of the tracker's over-read that reaches
+    #: the filter's yaw (fit by maximum likelihood on both whole flights of seeds 0-9 together: 0.6, with
+    #: the drift and the floor 0; seeds 0-4 alone 0.52, seeds 5-9 0.67)
+    yaw_subpixel_scale: float = 0.6
     #: the published altitude variance is the filter's times this (fit: 0.55, the fit seeds' altitude
     #: mean NEES; its altitude random walk is tuned above what the rangefinder's noise leaves)
     altitude_variance_scale: float = 0.55
@@ -92,6 +103,7 @@ AS_FILTERED = PublishedUncertainty(
     tilt_variance_scale=1.0,
     yaw_drift_per_rad=0.0,
     yaw_floor_rad2=0.0,
+    yaw_subpixel_scale=0.0,
     altitude_variance_scale=1.0,
     level_tilt_factor=0.0,
 )
@@ -106,8 +118,8 @@ WIDE_PAIR_FRACTION = 0.2
 class VoPath:
     """What the service knows of the VO path for its uncertainty: the last pose, the distance travelled
     (the nominal drift grows with it), the speed of the last good pair, the variance of the motion the
-    VO did not see (pairs that failed: the chain restarted at the previous pose), and the VO yaw's last value
-    and the angle turned (the yaw chain's drift grows with it)."""
+    VO did not see (pairs that failed: the chain restarted at the previous pose), and the VO yaw's last value,
+    the angle turned and the part of it the tracker over-read (the yaw chain's error grows with them)."""
 
     last_xy_m: FloatArray | None = None
     last_stamp_s: float = math.nan
@@ -116,18 +128,23 @@ class VoPath:
     unseen_var_m2: float = 0.0
     last_vo_yaw_rad: float = math.nan
     turned_rad: float = 0.0
+    #: ``sum over the pairs of over_read(flow) |turn|`` (rad; :func:`common.estimation.vo.subpixel_over_read`)
+    over_read_rad: float = 0.0
     #: the camera heights of the measured pairs, summed (m; the per-pair drift grows with it)
     height_sum_m: float = 0.0
 
 
-def _turned(path: VoPath, out: PoseOutput) -> tuple[float, float]:
-    """The VO yaw after ``out`` and the angle turned up to it (a non-finite yaw keeps both)."""
+def _turned(path: VoPath, out: PoseOutput) -> tuple[float, float, float]:
+    """The VO yaw after ``out``, the angle turned up to it and the part of it over-read (a non-finite yaw
+    keeps all three)."""
     yaw = float(out.vo_yaw_rad)
     if not math.isfinite(yaw):
-        return path.last_vo_yaw_rad, path.turned_rad
+        return path.last_vo_yaw_rad, path.turned_rad, path.over_read_rad
     if not math.isfinite(path.last_vo_yaw_rad):
-        return yaw, path.turned_rad
-    return yaw, path.turned_rad + abs(float(wrap_angle_rad(yaw - path.last_vo_yaw_rad)))
+        return yaw, path.turned_rad, path.over_read_rad
+    turn = abs(float(wrap_angle_rad(yaw - path.last_vo_yaw_rad)))
+    over_read = subpixel_over_read(float(out.vo_flow_px)) * turn
+    return yaw, path.turned_rad + turn, path.over_read_rad + over_read
 
 
 def advance_path(path: VoPath, out: PoseOutput, max_pair_s: float = math.inf) -> VoPath:
@@ -135,13 +152,13 @@ def advance_path(path: VoPath, out: PoseOutput, max_pair_s: float = math.inf) ->
     missed, ``(v dt)^2`` with ``v`` the speed of the last good pair and ``dt`` since the previous frame; a
     pair wider than ``max_pair_s`` adds ``(WIDE_PAIR_FRACTION * step)^2``."""
     xy = np.asarray(out.p_world_body_m[:2], dtype=np.float64)
-    yaw, turned = _turned(path, out)
+    yaw, turned, over_read = _turned(path, out)
     if path.last_xy_m is None:
-        return VoPath(xy, out.stamp_s, last_vo_yaw_rad=yaw, turned_rad=turned)
+        return VoPath(xy, out.stamp_s, last_vo_yaw_rad=yaw, turned_rad=turned, over_read_rad=over_read)
     dt_s = out.stamp_s - path.last_stamp_s
     step_m = float(np.linalg.norm(xy - path.last_xy_m))
     moved = replace(path, last_xy_m=xy, last_stamp_s=out.stamp_s, travelled_m=path.travelled_m + step_m,
-                    last_vo_yaw_rad=yaw, turned_rad=turned)  # fmt: skip
+                    last_vo_yaw_rad=yaw, turned_rad=turned, over_read_rad=over_read)  # fmt: skip
     if not out.ok:
         return replace(moved, unseen_var_m2=path.unseen_var_m2 + (path.speed_m_s * dt_s) ** 2)
     return replace(
@@ -161,15 +178,19 @@ def horizontal_variance(path: VoPath, model: PublishedUncertainty) -> float:
 
 
 def published_attitude_covariance(
-    covariance_world: FloatArray, turned_rad: float, model: PublishedUncertainty
+    covariance_world: FloatArray, turned_rad: float, model: PublishedUncertainty, over_read_rad: float = 0.0
 ) -> FloatArray:
     """The published world-frame attitude covariance: the filter's with its tilt block (and the tilt's
-    correlations) scaled by ``tilt_variance_scale``, and the yaw chain's floor and drift over ``turned_rad``
-    added."""
+    correlations) scaled by ``tilt_variance_scale``, and the yaw chain's floor, drift over ``turned_rad`` and
+    over-read turn ``over_read_rad`` added."""
     root = math.sqrt(model.tilt_variance_scale)
     D = np.diag([root, root, 1.0])
     published = D @ np.asarray(covariance_world, dtype=np.float64) @ D
-    published[2, 2] += model.yaw_floor_rad2 + (model.yaw_drift_per_rad * turned_rad) ** 2
+    published[2, 2] += (
+        model.yaw_floor_rad2
+        + (model.yaw_drift_per_rad * turned_rad) ** 2
+        + (model.yaw_subpixel_scale * over_read_rad) ** 2
+    )
     return published
 
 
@@ -195,13 +216,14 @@ def pose_message(
     var_xy: float,
     model: PublishedUncertainty | None = None,
     turned_rad: float = 0.0,
+    over_read_rad: float = 0.0,
 ) -> PoseEstimate:
     """The ``pose/vo`` message of one frame: ``var_xy`` (the VO path's, :func:`horizontal_variance`) plus
     the level chain's tilt offset, the filter's altitude and attitude covariance at that frame, each as
     ``model`` publishes them (None: :class:`PublishedUncertainty`'s defaults). A frame whose pair failed
     is ``lost``: its position is the previous one, not a measurement."""
     m = model or PublishedUncertainty()
-    attitude = published_attitude_covariance(out.attitude_covariance_world, turned_rad, m)
+    attitude = published_attitude_covariance(out.attitude_covariance_world, turned_rad, m, over_read_rad)
     height_m = abs(float(out.p_world_body_m[2]))
     level_var = m.level_tilt_factor * (height_m * tilt_std_rad(attitude)) ** 2
     cov = np.zeros((6, 6))
@@ -248,7 +270,7 @@ class Publication:
             if isinstance(out, AttitudeOutput):
                 # each output with its own uncertainty, not the batch's last state's (issue 9 section 5)
                 covariance = published_attitude_covariance(
-                    out.attitude_covariance_world, self.path.turned_rad, self.model
+                    out.attitude_covariance_world, self.path.turned_rad, self.model, self.path.over_read_rad
                 )
                 msg = attitude_message(self.uav, self.attitude_seq, out, covariance)
                 self.attitude_seq += 1
@@ -256,7 +278,15 @@ class Publication:
             else:
                 self.path = advance_path(self.path, out, self.max_pair_s)
                 var_xy = horizontal_variance(self.path, self.model)
-                msg = pose_message(self.uav, self.pose_seq, out, var_xy, self.model, self.path.turned_rad)
+                msg = pose_message(
+                    self.uav,
+                    self.pose_seq,
+                    out,
+                    var_xy,
+                    self.model,
+                    self.path.turned_rad,
+                    self.path.over_read_rad,
+                )
                 self.pose_seq += 1
                 publisher, counter = pose_pub, "poses_out"
             if not put(publisher, msg):

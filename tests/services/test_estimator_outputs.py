@@ -121,25 +121,41 @@ def test_the_angle_turned_adds_each_pairs_wrapped_yaw_change() -> None:
 
 def test_the_published_attitude_scales_the_tilt_and_adds_the_yaw_chains_drift() -> None:
     P = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 0.2], [0.5, 0.2, 1.0]]) * 1e-6
-    model = PublishedUncertainty(tilt_variance_scale=0.25, yaw_drift_per_rad=0.01, yaw_floor_rad2=3e-6)
-    published = published_attitude_covariance(P, 2.0, model)
+    model = PublishedUncertainty(
+        tilt_variance_scale=0.25, yaw_drift_per_rad=0.01, yaw_floor_rad2=3e-6, yaw_subpixel_scale=0.5
+    )
+    published = published_attitude_covariance(P, 2.0, model, over_read_rad=0.02)
     assert np.allclose(published[:2, :2], 0.25 * P[:2, :2])
     assert np.allclose(published[:2, 2], 0.5 * P[:2, 2])  # the correlations keep the correlation coefficient
-    assert published[2, 2] == pytest.approx(P[2, 2] + 3e-6 + (0.01 * 2.0) ** 2)
-    assert np.array_equal(published_attitude_covariance(P, 2.0, AS_FILTERED), P)
+    assert published[2, 2] == pytest.approx(P[2, 2] + 3e-6 + (0.01 * 2.0) ** 2 + (0.5 * 0.02) ** 2)
+    assert np.array_equal(published_attitude_covariance(P, 2.0, AS_FILTERED, 0.02), P)
 
 
 def test_the_published_yaw_after_two_turns_stays_near_the_chains_error_regression() -> None:
     """The yaw drift was 0.008 rad per radian turned (fit on paper C's first 400 frames): after the flight's
     two turns (12.6 rad) its yaw was published at a std of 5.8 deg where its error was 0.1-0.4 deg, and the
     attitude's mean 3-dof NEES looked right only because this cautious yaw hid an overconfident tilt. Now
-    the whole flights fit it: a floor and a drift that keep the std within a few tenths of a degree."""
+    the yaw grows with the part of the turn the tracker over-read (slow, sub-pixel pairs), not with every
+    radian: two fast turns leave the filter's std, and the over-read of paper C's starts and stops (some 5
+    mrad) a std of a few tenths of a degree."""
     filter_yaw_var = math.radians(0.053) ** 2  # what the filter claims after the turns
     P = np.diag([1e-6, 1e-6, filter_yaw_var])
-    published = published_attitude_covariance(P, 4.0 * math.pi, PublishedUncertainty())
-    yaw_std_deg = math.degrees(math.sqrt(published[2, 2]))
-    assert 0.1 < yaw_std_deg < 0.5
-    assert published[2, 2] > filter_yaw_var  # the chain's offset is on top of what the filter claims
+    fast = published_attitude_covariance(P, 4.0 * math.pi, PublishedUncertainty())
+    assert math.degrees(math.sqrt(fast[2, 2])) < 0.1
+    slow = published_attitude_covariance(P, 4.0 * math.pi, PublishedUncertainty(), over_read_rad=0.005)
+    assert 0.1 < math.degrees(math.sqrt(slow[2, 2])) < 0.5
+    assert slow[2, 2] > filter_yaw_var  # the chain's offset is on top of what the filter claims
+
+
+def test_the_over_read_turn_adds_each_pairs_turn_times_the_trackers_over_read_at_its_flow() -> None:
+    path = VoPath()
+    turns = [(0.0, math.nan), (0.01, 0.1), (0.03, 2.0), (0.05, 0.02), (0.06, math.nan)]
+    for k, (yaw, flow) in enumerate(turns):
+        path = advance_path(path, replace(_yawed(0.05 * k, yaw), vo_flow_px=flow))
+    # 0.01 rad at 0.1 px (10.6 % over-read), 0.02 rad at 2 px (none), 0.02 rad at 0.02 px (13.6 %), 0.01 rad
+    # with no known flow (none)
+    assert path.over_read_rad == pytest.approx(0.01 * 0.106 + 0.02 * 0.136)
+    assert path.turned_rad == pytest.approx(0.06)
 
 
 @given(
@@ -160,6 +176,8 @@ def test_the_published_attitude_is_a_covariance_and_grows_with_the_angle_turned(
     assert np.linalg.eigvalsh(published)[0] > 0.0
     later = published_attitude_covariance(P, turned + more, model)
     assert later[2, 2] >= published[2, 2]
+    over_read = published_attitude_covariance(P, turned, model, over_read_rad=0.01 * more)
+    assert over_read[2, 2] >= published[2, 2]
 
 
 def test_the_pose_message_adds_the_level_chains_tilt_offset_and_scales_the_altitude() -> None:

@@ -186,8 +186,12 @@ def _fit_drift(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]
 def _fit_attitude(fit_seeds: list[int], args: argparse.Namespace) -> dict[str, Any]:
     result = estimator_attitude_fit.fit(fit_seeds, args.estimator_frames, args.flights)
     rows: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
-        (f"fitted (yaw on {result['yaw_fitted_on']})", result["fitted"], result["fitted_score"]),
-        ("pooled yaw", result["pooled_yaw"], result["pooled_yaw_score"]),
+        ("fitted (both flights)", result["fitted"], result["fitted_score"]),
+        (
+            f"yaw on {result['cautious_yaw_flight']} alone",
+            result["cautious_yaw"],
+            result["cautious_yaw_score"],
+        ),
         ("in use", result["in_use"], result["in_use_score"]),
     ]
     rows += [(_fold_label(f), f, f) for f in result["two_fold"]]

@@ -1,17 +1,18 @@
 """The fit behind the estimator's published tilt and yaw (``capataz bench consistency --fit-attitude``).
 
 An ``attitude`` message's covariance is the filter's, with the tilt block (world x, y) times
-``tilt_variance_scale`` and the yaw variance plus ``yaw_floor_rad2 + (yaw_drift_per_rad * turned)^2``
-(:func:`services.estimator.outputs.published_attitude_covariance`). Each attitude's terms are read from two
-publications of the same outputs: with the tilt scale 1, no floor and the yaw drift 1 and 0 (the difference
-of their yaw variances is ``turned^2``). :func:`common.consistency.fit_variance_terms` then fits, by maximum
+``tilt_variance_scale`` and the yaw variance plus ``yaw_floor_rad2 + (yaw_drift_per_rad * turned)^2 +
+(yaw_subpixel_scale * over_read)^2`` (:func:`services.estimator.outputs.published_attitude_covariance`).
+Each attitude's terms are read from three publications of the same outputs: with the tilt scale 1, no floor,
+and the yaw drift and over-read scales (1, 0), (0, 0) and (0, 1) (the differences of their yaw variances are
+``turned^2`` and ``over_read^2``). :func:`common.consistency.fit_variance_terms` then fits, by maximum
 likelihood on the fit seeds' whole flights:
 
 - the tilt scale on the x and y errors of both flights together (one term: the filter's tilt variance);
-- the yaw's floor and drift on each flight alone, the filter's yaw variance a known part. The constants in
-  use are the fit of the flight that needs the larger variance (summed over every flight's samples): one
-  flight's yaw errors can be several times another's, and a pooled fit would publish the first's yaw
-  overconfident; the pooled fit is reported beside it.
+- the yaw's floor, drift and over-read scale on both flights together, the filter's yaw variance a known
+  part. Before the over-read term the yaw's constants were the fit of the flight that needed the larger
+  variance (paper C's), which published the agile flight's yaw several times too cautious; that
+  per-flight choice is reported beside the pooled fit.
 
 A two-fold split of the fit seeds says how well each carries to seeds it was not fitted on. The held-out
 seeds stay for ``bench consistency`` itself.
@@ -41,27 +42,29 @@ from services.tools.bench.consistency_runs import (
 #: the yaw floor's term is this many rad^2 per unit coefficient (so the coefficients are of like size)
 FLOOR_UNIT_RAD2 = 1e-6
 #: the fitted constants' names (fields of :class:`~services.estimator.outputs.PublishedUncertainty`)
-CONSTANTS = ("tilt_variance_scale", "yaw_drift_per_rad", "yaw_floor_rad2")
+CONSTANTS = ("tilt_variance_scale", "yaw_drift_per_rad", "yaw_floor_rad2", "yaw_subpixel_scale")
 
 
 def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) -> dict[str, FloatArray]:
     """One flight's attitude errors and terms: ``tilt_errors`` (2N,: x then y) with ``tilt_terms`` (2N, 1,
-    the filter's variances), ``yaw_errors`` (N,) with ``yaw_terms`` (N, 2: ``turned^2`` in rad^2 and the
-    floor's unit) and ``yaw_offset`` (N,: the filter's yaw variance)."""
+    the filter's variances), ``yaw_errors`` (N,) with ``yaw_terms`` (N, 3: ``turned^2`` in rad^2, the
+    floor's unit and ``over_read^2`` in rad^2) and ``yaw_offset`` (N,: the filter's yaw variance)."""
     settings = EstimatorSettings()
     unit = replace(
-        settings.published_uncertainty(), tilt_variance_scale=1.0, yaw_floor_rad2=0.0, yaw_drift_per_rad=1.0
-    )
-    (angles, P1), (_, P0) = (
+        settings.published_uncertainty(),
+        tilt_variance_scale=1.0, yaw_floor_rad2=0.0, yaw_drift_per_rad=0.0, yaw_subpixel_scale=0.0,
+    )  # fmt: skip
+    (angles, P0), (_, P_turned), (_, P_over) = (
         attitude_errors(flight, published_messages(produced, settings.max_pair_s, model))
-        for model in (unit, replace(unit, yaw_drift_per_rad=0.0))
+        for model in (unit, replace(unit, yaw_drift_per_rad=1.0), replace(unit, yaw_subpixel_scale=1.0))
     )
-    turned2 = np.maximum(P1[:, 2, 2] - P0[:, 2, 2], 0.0)
+    turned2 = np.maximum(P_turned[:, 2, 2] - P0[:, 2, 2], 0.0)
+    over2 = np.maximum(P_over[:, 2, 2] - P0[:, 2, 2], 0.0)
     return {
         "tilt_errors": np.concatenate([angles[:, 0], angles[:, 1]]),
         "tilt_terms": np.concatenate([P0[:, 0, 0], P0[:, 1, 1]])[:, None],
         "yaw_errors": angles[:, 2],
-        "yaw_terms": np.column_stack([turned2, np.full(turned2.size, FLOOR_UNIT_RAD2)]),
+        "yaw_terms": np.column_stack([turned2, np.full(turned2.size, FLOOR_UNIT_RAD2), over2]),
         "yaw_offset": P0[:, 2, 2],
     }
 
@@ -93,8 +96,13 @@ def _score(per_seed: PerSeed, seeds: list[int], part: str, c: FloatArray) -> dic
 
 
 def _fit(per_seed: PerSeed, seeds: list[int], part: str, flights: list[str]) -> FloatArray:
+    """The terms' coefficients; a term the samples never reach (a short hover turns no measurable part of
+    a radian at sub-pixel flow) gets 0."""
     stacked = _stack(per_seed, seeds, flights, part)
-    return fit_variance_terms(stacked[0], stacked[1], stacked[2] if part == "yaw" else None)
+    present = np.any(stacked[1] > 0.0, axis=0)
+    c = np.zeros(stacked[1].shape[1])
+    c[present] = fit_variance_terms(stacked[0], stacked[1][:, present], stacked[2] if part == "yaw" else None)
+    return c
 
 
 def cautious_yaw_fit(per_seed: PerSeed, seeds: list[int]) -> tuple[str, FloatArray]:
@@ -108,7 +116,7 @@ def cautious_yaw_fit(per_seed: PerSeed, seeds: list[int]) -> tuple[str, FloatArr
 
 def constants(tilt: FloatArray, yaw: FloatArray) -> dict[str, float]:
     """Fitted coefficients in ``services/estimator/outputs.py``'s units."""
-    values = (tilt[0], math.sqrt(float(yaw[0])), yaw[1] * FLOOR_UNIT_RAD2)
+    values = (tilt[0], math.sqrt(float(yaw[0])), yaw[1] * FLOOR_UNIT_RAD2, math.sqrt(float(yaw[2])))
     return {name: float(f"{value:.3g}") for name, value in zip(CONSTANTS, values, strict=True)}
 
 
@@ -117,20 +125,23 @@ def _scores(per_seed: PerSeed, seeds: list[int], tilt: FloatArray, yaw: FloatArr
 
 
 def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) -> dict[str, Any]:
-    """Fit on ``seeds``; score the fit, the constants in use, the pooled yaw fit and a two-fold split."""
+    """Fit on ``seeds``; score the fit, the constants in use, the per-flight (cautious) yaw fit and a
+    two-fold split."""
     per_seed: PerSeed = {seed: per_flight(seed, frames, flights, flight_terms) for seed in seeds}
     names = list(next(iter(per_seed.values())))
     tilt = _fit(per_seed, seeds, "tilt", names)
-    yaw_flight, yaw = cautious_yaw_fit(per_seed, seeds)
-    pooled = _fit(per_seed, seeds, "yaw", names)
+    yaw = _fit(per_seed, seeds, "yaw", names)
+    cautious_flight, cautious = cautious_yaw_fit(per_seed, seeds)
     model = PublishedUncertainty()
     in_use = (
         np.array([model.tilt_variance_scale]),
-        np.array([model.yaw_drift_per_rad**2, model.yaw_floor_rad2 / FLOOR_UNIT_RAD2]),
-    )
+        np.array([
+            model.yaw_drift_per_rad**2, model.yaw_floor_rad2 / FLOOR_UNIT_RAD2, model.yaw_subpixel_scale**2
+        ]),
+    )  # fmt: skip
     folds = []
     for train, test in two_folds(seeds):
-        c_tilt, (_, c_yaw) = _fit(per_seed, train, "tilt", names), cautious_yaw_fit(per_seed, train)
+        c_tilt, c_yaw = _fit(per_seed, train, "tilt", names), _fit(per_seed, train, "yaw", names)
         folds.append({
             "fit_seeds": train, "scored_seeds": test, **constants(c_tilt, c_yaw),
             **_scores(per_seed, test, c_tilt, c_yaw),
@@ -138,11 +149,11 @@ def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) 
     return {
         "seeds": seeds,
         "frames": frames,
-        "yaw_fitted_on": yaw_flight,
         "fitted": constants(tilt, yaw),
         "fitted_score": _scores(per_seed, seeds, tilt, yaw),
-        "pooled_yaw": constants(tilt, pooled),
-        "pooled_yaw_score": _scores(per_seed, seeds, tilt, pooled),
+        "cautious_yaw_flight": cautious_flight,
+        "cautious_yaw": constants(tilt, cautious),
+        "cautious_yaw_score": _scores(per_seed, seeds, tilt, cautious),
         "in_use": constants(*in_use),
         "in_use_score": _scores(per_seed, seeds, *in_use),
         "two_fold": folds,

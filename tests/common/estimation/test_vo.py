@@ -20,13 +20,17 @@ from common.estimation.homography import (
     rotation_about_optical_axis,
 )
 from common.estimation.vo import (
+    SUBPIXEL_FLOW_PX,
+    SUBPIXEL_OVER_READ,
     MotionModel,
     VoPose,
     VoSettings,
     compose_pose,
     estimate_relative_motion,
+    median_flow_px,
     metric_translation,
     prepare_frame,
+    subpixel_over_read,
 )
 from common.geometry import (
     R_BODY_CAMERA_DOWN,
@@ -199,3 +203,28 @@ def test_level_free_yaw_model_takes_the_free_rotation_and_the_similarity_transla
     assert np.allclose(hybrid.R_k_km1, rotation_about_optical_axis(free.R_k_km1))
     assert np.allclose(hybrid.normal_km1_free, free.normal_km1)
     assert np.linalg.norm(metric_translation(hybrid.t_over_d, 4.0) - R1.T @ (c0 - c1)) < 5e-4
+
+
+@given(st.floats(0.0, 10.0), st.floats(0.0, 10.0))
+def test_the_over_read_share_falls_with_the_flow_and_is_zero_from_a_pixel(a: float, b: float) -> None:
+    """The tracker over-reads sub-pixel motion (``capataz bench flow``): the share never grows with the
+    flow, is the measured one at each measured shift, and is 0 from 1 px on and for an unknown flow."""
+    low, high = sorted((a, b))
+    assert subpixel_over_read(low) >= subpixel_over_read(high) >= 0.0
+    if high >= 1.0:
+        assert subpixel_over_read(high) == 0.0
+    for flow, share in zip(SUBPIXEL_FLOW_PX, SUBPIXEL_OVER_READ, strict=True):
+        assert subpixel_over_read(flow) == pytest.approx(share)
+    assert subpixel_over_read(math.nan) == 0.0 and subpixel_over_read(-1.0) == SUBPIXEL_OVER_READ[0]
+
+
+def test_the_median_flow_is_how_far_the_homography_moves_the_features() -> None:
+    features = np.array([[[10.0, 20.0]], [[300.0, 40.0]], [[500.0, 400.0]]], dtype=np.float32)
+    shift = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]])
+    assert median_flow_px(shift, features) == pytest.approx(5.0)
+    turn = np.array(
+        [[math.cos(0.01), -math.sin(0.01), 0.0], [math.sin(0.01), math.cos(0.01), 0.0], [0, 0, 1]]
+    )
+    radii = np.linalg.norm(features.reshape(-1, 2), axis=1)
+    assert median_flow_px(turn, features) == pytest.approx(np.median(2.0 * radii * math.sin(0.005)))
+    assert median_flow_px(shift, np.zeros((0, 1, 2), dtype=np.float32)) == 0.0
