@@ -16,8 +16,8 @@ output's estimate is left as it is:
   the ground moves a fraction of a pixel between frames, and the VO's tracker over-reads such motion by up
   to 14 % (:data:`common.estimation.vo.SUBPIXEL_OVER_READ`, ``capataz bench flow``); from half a pixel it
   reads true, so a fast turn adds nothing. The published yaw variance adds
-  ``(yaw_subpixel_scale * sum over the pairs of over_read(flow) |turn|)^2``, the over-reads adding up
-  along the chain (they share a sign), plus a floor and ``(yaw_drift_per_rad * turned)^2`` (both fit to 0
+  ``(over_read_scale * sum over the pairs of over_read(flow) |turn|)^2``, the over-reads adding up
+  along the chain (they share a sign), plus a floor and ``(drift_per_rad * turned)^2`` (both fit to 0
   beside it). One fit over both flights: the agile flight, which turns ten radians at speed, is no longer
   published with paper C's drift per radian.
 - Position: each VO pair adds a small error in proportion to the camera height it was measured at (a pixel
@@ -53,6 +53,24 @@ from common.wire.schema import WireModel
 
 
 @dataclass(frozen=True)
+class YawChainUncertainty:
+    """What the VO yaw chain adds to the filter's yaw variance (the module's text): ``floor_rad2 +
+    (drift_per_rad * turned)^2 + (over_read_scale * over_read)^2``. Fit by maximum likelihood on both whole
+    flights of seeds 0-9 together (``capataz bench consistency --fit-attitude --seeds 20``)."""
+
+    #: 1-sigma error per radian turned (fit: 0 beside ``over_read_scale``; it was 2.35e-4 without it, fit on
+    #: paper C's flight alone, which published the agile flight's yaw cautious, mean NEES 0.12 on seeds
+    #: 10-19)
+    drift_per_rad: float = 0.0
+    #: the floor (rad^2; fit: 0 beside ``over_read_scale``; it was 2.24e-6, a std of 0.086 deg)
+    floor_rad2: float = 0.0
+    #: the std per radian of the over-read turn ``sum over pairs of over_read(flow) |turn|``
+    #: (:func:`common.estimation.vo.subpixel_over_read`): the share of the tracker's over-read that reaches
+    #: the filter's yaw (fit: 0.6, with the drift and the floor 0; seeds 0-4 alone 0.52, seeds 5-9 0.67)
+    over_read_scale: float = 0.6
+
+
+@dataclass(frozen=True)
 class PublishedUncertainty:
     """How the filter's and the VO path's uncertainties become the published ones (see the module's text).
     Fit on seeds 0-9 (the altitude: ``capataz bench consistency --suites estimator --seeds 20
@@ -74,18 +92,8 @@ class PublishedUncertainty:
     #: likelihood on both whole flights, seeds 0-9: 0.0882, a std 0.30 times the filter's; the noise
     #: settings' ratio to the simulated IMU's alone gives about 0.03; it was 0.06, fit on 400 frames)
     tilt_variance_scale: float = 0.0882
-    #: 1-sigma error of the VO yaw chain per radian turned (fit: 0 beside ``yaw_subpixel_scale``; it was
-    #: 2.35e-4 without it, fit on paper C's flight alone, which published the agile flight's yaw cautious,
-    #: mean NEES 0.12 on seeds 10-19)
-    yaw_drift_per_rad: float = 0.0
-    #: the yaw variance's floor above the filter's (rad^2; fit: 0 beside ``yaw_subpixel_scale``; it was
-    #: 2.24e-6, a std of 0.086 deg)
-    yaw_floor_rad2: float = 0.0
-    #: the published yaw std per radian of the over-read turn ``sum over pairs of over_read(flow) |turn|``
-    #: (:func:`common.estimation.vo.subpixel_over_read`): the share of the tracker's over-read that reaches
-    #: the filter's yaw (fit by maximum likelihood on both whole flights of seeds 0-9 together: 0.6, with
-    #: the drift and the floor 0; seeds 0-4 alone 0.52, seeds 5-9 0.67)
-    yaw_subpixel_scale: float = 0.6
+    #: the yaw chain's terms (:class:`YawChainUncertainty`)
+    yaw: YawChainUncertainty = YawChainUncertainty()
     #: the published altitude variance is the filter's times this (fit: 0.55, the fit seeds' altitude
     #: mean NEES; its altitude random walk is tuned above what the rangefinder's noise leaves)
     altitude_variance_scale: float = 0.55
@@ -101,9 +109,7 @@ AS_FILTERED = PublishedUncertainty(
     drift_fraction=0.001,
     drift_per_pair=0.0,
     tilt_variance_scale=1.0,
-    yaw_drift_per_rad=0.0,
-    yaw_floor_rad2=0.0,
-    yaw_subpixel_scale=0.0,
+    yaw=YawChainUncertainty(drift_per_rad=0.0, floor_rad2=0.0, over_read_scale=0.0),
     altitude_variance_scale=1.0,
     level_tilt_factor=0.0,
 )
@@ -187,9 +193,9 @@ def published_attitude_covariance(
     D = np.diag([root, root, 1.0])
     published = D @ np.asarray(covariance_world, dtype=np.float64) @ D
     published[2, 2] += (
-        model.yaw_floor_rad2
-        + (model.yaw_drift_per_rad * turned_rad) ** 2
-        + (model.yaw_subpixel_scale * over_read_rad) ** 2
+        model.yaw.floor_rad2
+        + (model.yaw.drift_per_rad * turned_rad) ** 2
+        + (model.yaw.over_read_scale * over_read_rad) ** 2
     )
     return published
 

@@ -20,6 +20,7 @@ from services.estimator.outputs import (
     WIDE_PAIR_FRACTION,
     PublishedUncertainty,
     VoPath,
+    YawChainUncertainty,
     advance_path,
     horizontal_variance,
     pose_message,
@@ -122,7 +123,8 @@ def test_the_angle_turned_adds_each_pairs_wrapped_yaw_change() -> None:
 def test_the_published_attitude_scales_the_tilt_and_adds_the_yaw_chains_drift() -> None:
     P = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 0.2], [0.5, 0.2, 1.0]]) * 1e-6
     model = PublishedUncertainty(
-        tilt_variance_scale=0.25, yaw_drift_per_rad=0.01, yaw_floor_rad2=3e-6, yaw_subpixel_scale=0.5
+        tilt_variance_scale=0.25,
+        yaw=YawChainUncertainty(drift_per_rad=0.01, floor_rad2=3e-6, over_read_scale=0.5),
     )
     published = published_attitude_covariance(P, 2.0, model, over_read_rad=0.02)
     assert np.allclose(published[:2, :2], 0.25 * P[:2, :2])
@@ -170,7 +172,7 @@ def test_the_published_attitude_is_a_covariance_and_grows_with_the_angle_turned(
 ) -> None:
     A = np.array(entries).reshape(3, 3)
     P = A @ A.T + 1e-9 * np.eye(3)
-    model = PublishedUncertainty(tilt_variance_scale=scale, yaw_drift_per_rad=drift)
+    model = PublishedUncertainty(tilt_variance_scale=scale, yaw=YawChainUncertainty(drift_per_rad=drift))
     published = published_attitude_covariance(P, turned, model)
     assert np.allclose(published, published.T)
     assert np.linalg.eigvalsh(published)[0] > 0.0

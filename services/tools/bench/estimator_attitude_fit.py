@@ -1,8 +1,9 @@
 """The fit behind the estimator's published tilt and yaw (``capataz bench consistency --fit-attitude``).
 
 An ``attitude`` message's covariance is the filter's, with the tilt block (world x, y) times
-``tilt_variance_scale`` and the yaw variance plus ``yaw_floor_rad2 + (yaw_drift_per_rad * turned)^2 +
-(yaw_subpixel_scale * over_read)^2`` (:func:`services.estimator.outputs.published_attitude_covariance`).
+``tilt_variance_scale`` and the yaw variance plus ``floor_rad2 + (drift_per_rad * turned)^2 +
+(over_read_scale * over_read)^2`` (``PublishedUncertainty.yaw``,
+:func:`services.estimator.outputs.published_attitude_covariance`).
 Each attitude's terms are read from three publications of the same outputs: with the tilt scale 1, no floor,
 and the yaw drift and over-read scales (1, 0), (0, 0) and (0, 1) (the differences of their yaw variances are
 ``turned^2`` and ``over_read^2``). :func:`common.consistency.fit_variance_terms` then fits, by maximum
@@ -30,7 +31,7 @@ from common.consistency import consistency, fit_variance_terms
 from common.estimation.coupling_types import AttitudeOutput, PoseOutput
 from common.sim.flight import Flight
 from common.types import FloatArray
-from services.estimator.outputs import PublishedUncertainty
+from services.estimator.outputs import PublishedUncertainty, YawChainUncertainty
 from services.estimator.settings import EstimatorSettings
 from services.tools.bench.consistency_runs import (
     attitude_errors,
@@ -41,8 +42,9 @@ from services.tools.bench.consistency_runs import (
 
 #: the yaw floor's term is this many rad^2 per unit coefficient (so the coefficients are of like size)
 FLOOR_UNIT_RAD2 = 1e-6
-#: the fitted constants' names (fields of :class:`~services.estimator.outputs.PublishedUncertainty`)
-CONSTANTS = ("tilt_variance_scale", "yaw_drift_per_rad", "yaw_floor_rad2", "yaw_subpixel_scale")
+#: the fitted constants' names (:class:`~services.estimator.outputs.PublishedUncertainty`'s tilt scale and its
+#: ``yaw``'s drift, floor and over-read scale)
+CONSTANTS = ("tilt_variance_scale", "yaw_drift_per_rad", "yaw_floor_rad2", "yaw_over_read_scale")
 
 
 def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) -> dict[str, FloatArray]:
@@ -50,13 +52,15 @@ def flight_terms(flight: Flight, produced: list[AttitudeOutput | PoseOutput]) ->
     the filter's variances), ``yaw_errors`` (N,) with ``yaw_terms`` (N, 3: ``turned^2`` in rad^2, the
     floor's unit and ``over_read^2`` in rad^2) and ``yaw_offset`` (N,: the filter's yaw variance)."""
     settings = EstimatorSettings()
-    unit = replace(
-        settings.published_uncertainty(),
-        tilt_variance_scale=1.0, yaw_floor_rad2=0.0, yaw_drift_per_rad=0.0, yaw_subpixel_scale=0.0,
-    )  # fmt: skip
+    none = YawChainUncertainty(drift_per_rad=0.0, floor_rad2=0.0, over_read_scale=0.0)
+    unit = replace(settings.published_uncertainty(), tilt_variance_scale=1.0, yaw=none)
     (angles, P0), (_, P_turned), (_, P_over) = (
         attitude_errors(flight, published_messages(produced, settings.max_pair_s, model))
-        for model in (unit, replace(unit, yaw_drift_per_rad=1.0), replace(unit, yaw_subpixel_scale=1.0))
+        for model in (
+            unit,
+            replace(unit, yaw=replace(unit.yaw, drift_per_rad=1.0)),
+            replace(unit, yaw=replace(unit.yaw, over_read_scale=1.0)),
+        )
     )
     turned2 = np.maximum(P_turned[:, 2, 2] - P0[:, 2, 2], 0.0)
     over2 = np.maximum(P_over[:, 2, 2] - P0[:, 2, 2], 0.0)
@@ -136,7 +140,7 @@ def fit(seeds: list[int], frames: int | None, flights: list[str] | None = None) 
     in_use = (
         np.array([model.tilt_variance_scale]),
         np.array([
-            model.yaw_drift_per_rad**2, model.yaw_floor_rad2 / FLOOR_UNIT_RAD2, model.yaw_subpixel_scale**2
+            model.yaw.drift_per_rad**2, model.yaw.floor_rad2 / FLOOR_UNIT_RAD2, model.yaw.over_read_scale**2
         ]),
     )  # fmt: skip
     folds = []

@@ -37,7 +37,7 @@ def test_the_terms_read_per_attitude_rebuild_the_published_tilt_and_yaw_variance
     tilt = model.tilt_variance_scale * read["tilt_terms"][:, 0]
     assert tilt == pytest.approx(np.concatenate([P[:, 0, 0], P[:, 1, 1]]), rel=1e-9)
     in_use = np.array(
-        [model.yaw_drift_per_rad**2, model.yaw_floor_rad2 / FLOOR_UNIT_RAD2, model.yaw_subpixel_scale**2]
+        [model.yaw.drift_per_rad**2, model.yaw.floor_rad2 / FLOOR_UNIT_RAD2, model.yaw.over_read_scale**2]
     )
     assert read["yaw_offset"] + read["yaw_terms"] @ in_use == pytest.approx(P[:, 2, 2], rel=1e-9)
     for column in (0, 2):  # the angle turned and the part of it over-read only grow
@@ -57,7 +57,7 @@ def test_the_attitude_fit_writes_its_constants_and_a_two_fold_check(tmp_path: Pa
     assert result["seeds"] == [0, 1] and len(result["two_fold"]) == 2
     assert result["cautious_yaw_flight"] in FLIGHTS
     assert set(result["fitted"]) == {"tilt_variance_scale", "yaw_drift_per_rad", "yaw_floor_rad2",
-                                     "yaw_subpixel_scale"}  # fmt: skip
+                                     "yaw_over_read_scale"}  # fmt: skip
     assert result["fitted"]["tilt_variance_scale"] > 0.0
     assert result["in_use"]["tilt_variance_scale"] == pytest.approx(
         PublishedUncertainty().tilt_variance_scale
