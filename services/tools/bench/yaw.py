@@ -1,12 +1,14 @@
 """Yaw core vs the paper's cv2.phaseCorrelate per patch pair: ms/frame on one core and accuracy, same frames.
 
-Both run single-threaded: ``cv2.setNumThreads(1)``; numpy's FFT (pocketfft) never spawns threads. The
+Both run single-threaded: ``cv2.setNumThreads(1)``; numpy's FFT never spawns threads, scipy's is called with
+``workers=1``. The
 frames of the simulated hover are rendered once beforehand; only the per-frame yaw work is timed, with all
 methods taking turns on blocks of 32 frames so that they share the (shared, noisy) machine's load alike. The
 baseline runs on the core's grid (same 8x5 patch centres, 64 px full-resolution patches, which the core
 covers with 32 px patches at pyramid level 1) and on candidate grids of its own, the most accurate of
-which is reported too. A micro-benchmark of the patch transforms (numpy batched rfft2 vs a loop of
-cv2.dft) shows which FFT backend is faster; the core's default is the measured winner.
+which is reported too. The core runs with each FFT backend (its default first), and a micro-benchmark of
+the patch transforms (scipy's and numpy's batched rfft2, a loop of cv2.dft) shows which is faster; the
+core's default is the measured winner.
 """
 
 from __future__ import annotations
@@ -223,7 +225,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     micro = fft_microbench(frames[0], settings)
     result: dict[str, Any] = {
         "frames": flight.n_frames,
-        "threads": "1 (cv2.setNumThreads(1); numpy.fft is single-threaded)",
+        "threads": "1 (cv2.setNumThreads(1); numpy.fft single-threaded; scipy.fft workers=1)",
         "core_settings": core_grid,
         "core_ms_median": core_row["ms_median"],
         "baseline_ms_median": on_core_grid["ms_median"],
