@@ -1,10 +1,11 @@
-"""Flow: how far the VO's tracker reads a known sub-pixel shift (the estimator's heading bias at slow turns).
+"""Flow: how far the VO's tracker (and the yaw core) read a known sub-pixel shift (the VO's heading bias).
 
 Paper C's flight gains its heading error where it starts and stops turning, when the ground moves 0.05-0.2 px
 between frames (``docs/methods.md``). This bench measures the tracker alone on pairs whose shift is known,
 with the VO's own :func:`common.estimation.vo.track_features` and settings (``--presmooth``: its
-``presmooth_sigma_px``). Two truth generators, each pair shifted by ``s`` px along a direction that turns
-with the pair:
+``presmooth_sigma_px``), and with the yaw core's phase correlation (its default settings; the mean shift
+of its valid patches), on the same pairs. Two truth generators, each pair shifted by ``s`` px along a
+direction that turns with the pair:
 
 - ``band_limited``: a 1/f random texture shifted in the Fourier domain (an exact band-limited shift), then
   quantised to 8 bits as a camera does.
@@ -12,7 +13,7 @@ with the pair:
   and ground at paper C's 3.8 m), the camera moved by ``s`` pixels' worth of ground; noise-free, so the
   shift is all that differs.
 
-Per generator and shift: the mean tracked displacement along the true shift over the true shift
+Per tracker, generator and shift: the mean tracked displacement along the true shift over the true shift
 (``ratio``; 1 is unbiased), its spread over the pairs, and the mean displacement across it. A ratio above 1
 over-reads the motion: a slow turn then turns more in the VO than in truth.
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from typing import Any
 
 import cv2
@@ -30,10 +32,14 @@ from common.camera import CameraModel
 from common.estimation.vo import VoSettings, prepare_frame, track_features
 from common.sim.ground import make_ground_texture, nadir_camera_pose, render_ground_view
 from common.types import FloatArray, U8Array
+from common.yaw import YawSettings
+from common.yaw.correlation import measure_patches, patch_spectra
+from common.yaw.grid import make_patch_grid
 from services.runtime.cli import number_in
 
 NAME = "flow"
 GENERATORS = ("band_limited", "rendered")
+TRACKERS = ("vo", "yaw")
 SIZE_PX = 384
 SHIFTS_PX = (0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 1.0)
 ALTITUDE_M = 3.8
@@ -70,14 +76,31 @@ def rendered_pair(seed: int, shift_px: FloatArray) -> tuple[U8Array, U8Array]:
     return a, b
 
 
+def _along_across(mean_px: FloatArray, shift_px: FloatArray) -> tuple[float, float]:
+    along_unit = shift_px / np.linalg.norm(shift_px)
+    return float(mean_px @ along_unit), float(mean_px @ np.array([-along_unit[1], along_unit[0]]))
+
+
 def measure(a: U8Array, b: U8Array, shift_px: FloatArray, settings: VoSettings) -> tuple[float, float]:
     """Mean tracked displacement (px) along and across the true shift, by the VO's tracker."""
     p0, p1 = track_features(prepare_frame(a, None, settings), prepare_frame(b, None, settings), settings)
     if len(p0) == 0:
         return math.nan, math.nan
-    along_unit = shift_px / np.linalg.norm(shift_px)
-    mean = np.mean(p1 - p0, axis=0)
-    return float(mean @ along_unit), float(mean @ np.array([-along_unit[1], along_unit[0]]))
+    return _along_across(np.mean(p1 - p0, axis=0), shift_px)
+
+
+def measure_yaw_core(
+    a: U8Array, b: U8Array, shift_px: FloatArray, settings: YawSettings
+) -> tuple[float, float]:
+    """Mean patch shift (full-resolution px) along and across the true shift, by the yaw core's phase
+    correlation (its valid patches)."""
+    grid = make_patch_grid(a.shape, settings)
+    m = measure_patches(
+        patch_spectra(a, grid, None, settings), patch_spectra(b, grid, None, settings), settings
+    )
+    if not np.any(m.valid):
+        return math.nan, math.nan
+    return _along_across(np.mean(m.shift_px[m.valid], axis=0), shift_px)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -88,31 +111,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pairs", type=number_in(int, 1, 100), default=6, help="pairs per shift")
     parser.add_argument("--generators", nargs="+", choices=GENERATORS, default=list(GENERATORS), help="(all)")
     parser.add_argument(
+        "--trackers", nargs="+", choices=TRACKERS, default=list(TRACKERS),
+        help="vo: the VO's Lucas-Kanade; yaw: the yaw core's phase correlation (both)",
+    )  # fmt: skip
+    parser.add_argument(
         "--presmooth", type=number_in(float, 0.0, 5.0), default=0.0, help="VoSettings.presmooth_sigma_px"
     )
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
-    settings = VoSettings(presmooth_sigma_px=args.presmooth)
+    vo_settings, yaw_settings = VoSettings(presmooth_sigma_px=args.presmooth), YawSettings()
+    trackers: dict[str, Callable[[U8Array, U8Array, FloatArray], tuple[float, float]]] = {
+        "vo": lambda a, b, d: measure(a, b, d, vo_settings),
+        "yaw": lambda a, b, d: measure_yaw_core(a, b, d, yaw_settings),
+    }
     table = []
     raw: dict[str, dict[str, list[list[float]]]] = {}
     for generator in args.generators:
         make = band_limited_pair if generator == "band_limited" else rendered_pair
-        raw[generator] = {}
         for shift in args.shifts:
-            ratios, across = [], []
+            pairs = []
             for pair in range(args.pairs):
                 angle = 2.0 * math.pi * (pair + 0.5) / args.pairs
                 shift_px = shift * np.array([math.cos(angle), math.sin(angle)])
-                a, b = make(pair, shift_px)
-                along_px, across_px = measure(a, b, shift_px, settings)
-                ratios.append(along_px / shift)
-                across.append(across_px)
-            raw[generator][f"{shift:g}"] = [ratios, across]
-            table.append({
-                "generator": generator, "shift_px": shift, "pairs": args.pairs,
-                "ratio": float(np.nanmean(ratios)), "ratio_std": float(np.nanstd(ratios)),
-                "across_px": float(np.nanmean(across)),
-            })  # fmt: skip
+                pairs.append((*make(pair, shift_px), shift_px))
+            for tracker in args.trackers:
+                read = [trackers[tracker](a, b, d) for a, b, d in pairs]
+                ratios, across = [r[0] / shift for r in read], [r[1] for r in read]
+                raw.setdefault(f"{tracker} {generator}", {})[f"{shift:g}"] = [ratios, across]
+                table.append({
+                    "tracker": tracker, "generator": generator, "shift_px": shift, "pairs": args.pairs,
+                    "ratio": float(np.nanmean(ratios)), "ratio_std": float(np.nanstd(ratios)),
+                    "across_px": float(np.nanmean(across)),
+                })  # fmt: skip
     return {"table": table, "json": {"presmooth_sigma_px": args.presmooth, "pairs": raw}}
