@@ -77,8 +77,7 @@ def unavailable_reason() -> str | None:
         return f"ip netns does not work here: {exc}"
     try:
         _run(["ip", "-n", probe, "link", "add", "name", "czq0", "type", "veth", "peer", "name", "czq1"])
-        _run(["tc", "-n", probe, "qdisc", "add", "dev", "czq1", "root", "tbf", "rate", "1mbit", "burst",
-              "16384", "latency", "100ms"])  # fmt: skip
+        NetHarness._tbf(probe, "czq1", 1_000_000)
         NetHarness._redirect(probe, "czq0", "czq1")
     except NetnsError as exc:
         return f"tc cannot shape a link here (tbf, ingress redirect): {exc}"
@@ -227,7 +226,8 @@ class NetHarness:
     def _in(self, namespace: str, *argv: str) -> None:
         _run(["ip", "-n", namespace, *argv])
 
-    def _tbf(self, namespace: str, interface: str, rate_bit_s: int) -> None:
+    @staticmethod
+    def _tbf(namespace: str, interface: str, rate_bit_s: int) -> None:
         burst = tbf_burst_bytes(rate_bit_s)
         _run(["tc", "-n", namespace, "qdisc", "add", "dev", interface, "root", "tbf",
               "rate", f"{rate_bit_s}bit", "burst", str(burst), "latency", "100ms"])  # fmt: skip

@@ -21,6 +21,7 @@ over-reads the motion: a slow turn then turns more in the VO than in truth.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 from collections.abc import Callable
 from typing import Any
@@ -30,7 +31,7 @@ import numpy as np
 
 from common.camera import CameraModel
 from common.estimation.vo import VoSettings, prepare_frame, track_features
-from common.sim.ground import make_ground_texture, nadir_camera_pose, render_ground_view
+from common.sim.ground import GroundTexture, make_ground_texture, nadir_camera_pose, render_ground_view
 from common.types import FloatArray, U8Array
 from common.yaw import YawSettings
 from common.yaw.correlation import measure_patches, patch_spectra
@@ -61,10 +62,16 @@ def band_limited_pair(seed: int, shift_px: FloatArray, size_px: int = SIZE_PX) -
     return to_u8(a), to_u8(b)
 
 
+@functools.lru_cache(maxsize=1)
+def _ground() -> GroundTexture:
+    """The simulated flights' default ground (made once: 0.3-1 s a texture)."""
+    return make_ground_texture(seed=0)
+
+
 def rendered_pair(seed: int, shift_px: FloatArray) -> tuple[U8Array, U8Array]:
     """Two noise-free nadir views of paper C's ground, the second's camera moved so that the ground moves
     by ``shift_px`` (x right, y down) in the image."""
-    camera, texture = CameraModel.default(), make_ground_texture(seed=0)
+    camera, texture = CameraModel.default(), _ground()
     rng = np.random.default_rng(seed)
     x_m, y_m = rng.uniform(-3.0, 3.0, size=2)
     metres_per_px = ALTITUDE_M / camera.fx
