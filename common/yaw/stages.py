@@ -59,6 +59,8 @@ class Lens:
     src_px: FloatArray  # (P, 2) patch centres, undistorted (and in the nadir view)
     lever_px: float
     to_nadir: FloatArray | None = None
+    #: the focal length (px; the geometric mean of ``fx`` and ``fy``), None without intrinsics
+    focal_px: float | None = None
 
 
 def _mapped(homography: FloatArray, points_px: FloatArray) -> FloatArray:
@@ -94,7 +96,8 @@ def lens_of(grid: PatchGrid, settings: YawSettings, R_nadir_camera: FloatArray |
         to_nadir = camera.K @ R_nadir_camera @ camera.K_inv
         src = _mapped(to_nadir, src)
     lever = float(np.median(np.hypot(src[:, 0] - centre[0], src[:, 1] - centre[1])))
-    return Lens(camera, centre, src, lever, to_nadir)
+    focal = None if camera is None else math.sqrt(camera.fx * camera.fy)
+    return Lens(camera, centre, src, lever, to_nadir, focal)
 
 
 def frame_is_flat(frame_u8: U8Array) -> bool:
@@ -162,7 +165,9 @@ def _result(
         shift_px = shift_of_homography_px(homography, lens.centre_px)
     low = not good or fit.residual_px > settings.max_residual_px or method in _UNTRUSTED
     warped = method is not EstimateMethod.PATCHES
-    variance = measured_variance_rad2(fit.residual_px, fit.inlier_count, lens.lever_px, warped, shift_px)
+    variance = measured_variance_rad2(
+        fit.residual_px, fit.inlier_count, lens.lever_px, warped, shift_px, lens.focal_px
+    )
     trusted = not low and plausible(delta, prior, settings)
     return PairResult(homography, method, fit, measurement, low, delta, trusted, variance)
 

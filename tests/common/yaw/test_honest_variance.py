@@ -4,17 +4,27 @@ that it is honest on field flights the model was not fitted on (seed 13; fitted 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from common.camera import CameraModel
 from common.consistency import error_consistency
 from common.geometry import wrap_angle_rad
 from common.sim.field import field_flight, field_trajectory
 from common.sim.sensors import ImuNoise, simulate_imu
-from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, honest, make_patch_grid
+from common.yaw import (
+    Provenance,
+    YawSettings,
+    YawTracker,
+    gyro_delta_yaw_rad,
+    honest,
+    make_patch_grid,
+    tracker,
+)
 from common.yaw.fit import shift_of_homography_px
 from common.yaw.held import HeldRate
 from common.yaw.honest import (
@@ -24,6 +34,7 @@ from common.yaw.honest import (
     make_prior,
     measured_variance_rad2,
 )
+from common.yaw.stages import lens_of
 
 
 @settings(max_examples=50, deadline=None)
@@ -86,13 +97,51 @@ def test_measured_pairs_are_honest_on_held_out_field_flights_regression(
 
 
 @settings(max_examples=50, deadline=None)
-@given(shift=st.floats(0.0, 50.0), lever=st.floats(20.0, 2000.0))
-def test_variance_grows_with_the_image_shift(shift: float, lever: float) -> None:
-    still = measured_variance_rad2(0.3, 40, lever)
-    moved = measured_variance_rad2(0.3, 40, lever, shift_px=shift)
-    assert moved == pytest.approx(still + (honest.SHIFT_SHARE * shift / lever) ** 2)
-    assert measured_variance_rad2(0.3, 40, lever, shift_px=shift + 1.0) > moved
-    assert measured_variance_rad2(0.3, 40, lever, shift_px=math.nan) == still
+@given(shift=st.floats(0.0, 50.0), lever=st.floats(20.0, 2000.0), focal=st.floats(20.0, 4000.0))
+def test_variance_grows_with_the_angle_the_view_moved(shift: float, lever: float, focal: float) -> None:
+    """The shift's term is the angle the view moved, ``shift / focal``; without intrinsics the lever arm
+    stands in for the focal length."""
+    still = measured_variance_rad2(0.3, 40, lever, focal_px=focal)
+    moved = measured_variance_rad2(0.3, 40, lever, shift_px=shift, focal_px=focal)
+    assert moved == pytest.approx(still + (honest.SHIFT_SHARE * shift / focal) ** 2)
+    assert measured_variance_rad2(0.3, 40, lever, shift_px=shift + 1.0, focal_px=focal) > moved
+    assert measured_variance_rad2(0.3, 40, lever, shift_px=math.nan, focal_px=focal) == still
+    assert measured_variance_rad2(0.3, 40, lever) == still  # the focal length does not enter the fit's term
+    no_lens = measured_variance_rad2(0.3, 40, lever, shift_px=shift)
+    assert no_lens == pytest.approx(still + (honest.SHIFT_SHARE * shift / lever) ** 2)
+    assert measured_variance_rad2(0.3, 40, lever, shift_px=shift, focal_px=math.nan) == no_lens
+
+
+def test_the_lens_focal_length_is_the_scaled_cameras() -> None:
+    """The central stage's lens gives the variance the focal length of the frames' own size (a calibration
+    of another resolution is scaled), and none without intrinsics."""
+    camera = CameraModel.from_hfov(640, 480, 90.0)
+    settings = YawSettings(camera=camera)
+    grid = make_patch_grid((240, 320), settings)
+    assert lens_of(grid, settings).focal_px == pytest.approx(camera.fx / 2.0)
+    assert lens_of(grid, YawSettings()).focal_px is None
+
+
+@pytest.mark.slow
+def test_wide_and_narrow_lenses_are_alike_honest_regression(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Regression (issue 26): the shift's term was ``shift / lever``, so a wide lens (120 deg, lever 1.24
+    focal lengths) was published overconfident and a narrow one (90 deg, lever 0.64 focal lengths)
+    cautious: on held-out seeds 10-19 the combined field flight's mean NEES was 1.39 and the low
+    altitude's 0.37. As the angle the view moved (``shift / focal``) they read 1.04 and 0.68. On seed 13
+    (not fitted) the two flights' mean NEES are now within a factor of 1.6 of each other; with the old
+    term and constants they were 2.6 apart."""
+
+    def ratio() -> float:
+        wide, narrow = (_measured_pairs(name, 13, 100) for name in ("field", "low_altitude"))
+        return error_consistency(*wide).nees_mean / error_consistency(*narrow).nees_mean
+
+    now = ratio()
+    assert 1 / 1.6 < now < 1.6, now
+    monkeypatch.setattr(tracker, "lens_of", lambda *a: replace(lens_of(*a), focal_px=None))  # no intrinsics
+    monkeypatch.setattr(honest, "RESIDUAL_SHARE", 0.1357)
+    monkeypatch.setattr(honest, "WARPED_FLOOR_DEG", 0.01804)
+    monkeypatch.setattr(honest, "SHIFT_SHARE", 0.01702)
+    assert ratio() > 2.2
 
 
 def test_bridged_pairs_are_honest_against_the_simulated_gyro() -> None:
