@@ -28,7 +28,7 @@ from common.estimation.homography import VoError
 from common.estimation.measurements import FrameMeasurement
 from common.estimation.rectify import RectificationError
 from common.estimation.tilt import ManoeuvreTrack, VisionTilt, VoOrigin, level_share, residual_tilt_offset
-from common.estimation.vo import MotionModel, PreparedFrame, VoPose, VoSettings, median_flow_px
+from common.estimation.vo import MotionModel, PreparedFrame, VoPose, VoSettings
 from common.estimation.vo_chain import (
     VoChainSettings,
     VoChainState,
@@ -209,7 +209,7 @@ class CoupledVo:
                 m.stamp_s, step.motion.t_over_d_free, step.motion.normal_km1_free,
                 s.vision_tilt_window_s, s.vision_tilt_min_information,
             )  # fmt: skip
-        return step.motion.n_inliers, median_flow_px(step.motion.H_k_km1, step.keyframe_frame.features_px)
+        return step.motion.n_inliers, step.flow_px
 
     def _bias_corrects_origin(self, view: FilterView) -> bool:
         origin = self._origin

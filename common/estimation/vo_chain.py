@@ -72,8 +72,9 @@ def start_vo_chain(frame: PreparedFrame, pose: VoPose, altitude_m: float) -> VoC
 
 @dataclass(frozen=True)
 class VoStep:
-    """One step: the new chain state, the motion from the keyframe it was measured from, and the
-    displacement since that keyframe of the motion model's pose and of the free decomposition."""
+    """One step: the new chain state, the motion from the keyframe it was measured from, the
+    displacement since that keyframe of the motion model's pose and of the free decomposition, and the
+    pair's median flow (px: how far the motion moves the keyframe's features)."""
 
     state: VoChainState
     motion: RelativeMotion
@@ -81,6 +82,7 @@ class VoStep:
     keyframe_pose: VoPose
     displacement_m: FloatArray
     displacement_free_m: FloatArray
+    flow_px: float
 
 
 def prepare_view(
@@ -133,9 +135,10 @@ def advance_vo_chain(
     pose = compose_pose(kf.pose, motion.R_k_km1, metric_translation(motion.t_over_d, kf.altitude_m))
     t_free = metric_translation(motion.t_over_d_free, kf.altitude_m)
     displacement_free = -pose.R_n_camera @ t_free
+    flow_px = median_flow_px(motion.H_k_km1, kf.frame.features_px)
     moved_on = (
         cs.max_flow_px <= 0.0
-        or median_flow_px(motion.H_k_km1, kf.frame.features_px) > cs.max_flow_px
+        or flow_px > cs.max_flow_px
         or motion.n_inliers < cs.min_inlier_share * max(motion.n_features, 1)
     )
     altitude = float(altitude_m)
@@ -151,6 +154,7 @@ def advance_vo_chain(
         kf.pose,
         pose.p_n_camera_m - kf.pose.p_n_camera_m,
         displacement_free,
+        flow_px,
     )
 
 
