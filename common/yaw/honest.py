@@ -44,22 +44,29 @@ MIN_HOLD_TOLERANCE_DEG = 5.0
 HELD_SPREAD_SHARE = 10.78
 HELD_ACCEL_DEG_S2 = 12.38
 HELD_RATE_DEG_S = 0.0
-#: Variance of a measured pair's delta: ``RESIDUAL_SHARE * (residual / lever)^2 * 2 / inliers`` (residual
-#: at least ``MIN_RESIDUAL_PX``), plus ``WARPED_FLOOR_DEG^2`` when the patches were measured on frame k warped
+#: Variance of a measured pair's delta, per patch: ``RESIDUAL_SHARE * (residual / lever)^2 * 2`` (residual at
+#: least ``MIN_RESIDUAL_PX``), plus ``WARPED_FLOOR_DEG^2`` when the patches were measured on frame k warped
 #: back (refined or pre-aligned: the warp's interpolation), plus ``(SHIFT_SHARE * shift / focal)^2`` for the
-#: angle the view moved, the image's shift at the rotation centre over the focal length (the residual does
-#: not see what a translation of the view turns into rotation: perspective, parallax, blur along the motion).
-#: Fitted (Gaussian maximum likelihood) on the field suite's measured pairs of seeds 0-9 over the suite's
-#: whole 600-frame flights (59,000 pairs; a 100-frame flight is a shorter, calmer trajectory, and constants
-#: fitted there published the whole flights' pairs with a mean NEES of 1.34). The shift was over the lever
-#: arm until the per-scenario NEES showed the lens in it: the 120 deg lens (a lever of 1.24 focal lengths)
-#: was published overconfident, the 90 deg one (0.64) cautious. Held out (seeds 10-19, 600 frames): mean
-#: NEES 1.28 (0.908 within 2 sigma) before, 1.05 (0.935) now. ``bench consistency --fit-yaw --seeds 20``
-#: refits them; ``bench consistency`` reports held-out seeds.
+#: angle the view moved, the image's shift at the rotation centre over the focal length (the residual does not
+#: see what a translation of the view turns into rotation: perspective, parallax, blur along the motion), plus
+#: ``(AMBIGUITY_DEG / ratio)^2`` with ``ratio`` the median over the valid patches of their correlation's first
+#: peak over its second (a periodic floor, blur or weak texture raise the second peak, and a patch's sub-pixel
+#: shift is pulled towards it; the residual does not see it when every patch is pulled alike). The pair's
+#: variance is that over the inliers (their average), times the measured patches over the inliers (how hard
+#: the pair was: the patches that did not agree failed for blur, weak texture or parallax, which the inliers
+#: share in part). Fitted (Gaussian maximum likelihood) on the field suite's measured pairs of seeds 0-9 over
+#: the suite's whole 600-frame flights (59,000 pairs; a 100-frame flight is a shorter, calmer trajectory, and
+#: constants fitted there published the whole flights' pairs with a mean NEES of 1.34). Held out (seeds
+#: 10-19), the model before (the residual's term alone averaged over the inliers, no peak ratio) published the
+#: pairs with fewer inliers and the periodic or blurred floors overconfident: mean NEES 4.98 below 20 inliers
+#: of 40, 1.57 at 20-29, 0.88 at 36-40 (now 0.90, 0.94, 1.13), and by scenario from 0.67 (fast yaw) to 1.61
+#: (field nuisances), now 0.89 to 1.31 (docs/methods.md). ``bench consistency --fit-yaw --seeds 20`` refits
+#: them; ``bench consistency`` reports held-out seeds.
 MIN_RESIDUAL_PX = 0.1
-RESIDUAL_SHARE = 0.1959
-WARPED_FLOOR_DEG = 0.01974
-SHIFT_SHARE = 0.01731
+RESIDUAL_SHARE = 0.0366
+WARPED_FLOOR_DEG = 0.1207
+SHIFT_SHARE = 0.0935
+AMBIGUITY_DEG = 0.602
 
 
 class PriorSource(Enum):
@@ -209,21 +216,28 @@ def choose_rotation(candidates: list[tuple[float, float]], prior: Prior, setting
 def measured_variance_rad2(
     residual_px: float,
     inliers: int,
+    patches: int,
     lever_px: float,
     warped: bool = False,
     shift_px: float = 0.0,
     focal_px: float | None = None,
+    peak_ratio: float = math.inf,
 ) -> float:
-    """Variance of a measured delta: an angle error of ``residual / lever`` averaged over the inliers (scaled
-    by :data:`RESIDUAL_SHARE`), plus the warp's floor :data:`WARPED_FLOOR_DEG` when frame k was warped back
-    before the patches were measured (``warped``), plus ``(SHIFT_SHARE * shift / focal)^2`` for the image's
-    shift at the rotation centre between the two frames (``shift_px``), as the angle the view moved
-    (``focal_px``: the lens's focal length; None, a camera without intrinsics: the lever arm stands in, a
-    cautious choice, as the patches' lever arm is shorter than a pinhole's focal length up to about 110 deg
-    of view)."""
+    """Variance of a measured delta from ``inliers`` of the ``patches`` measured: per patch, an angle error of
+    ``residual / lever`` (scaled by :data:`RESIDUAL_SHARE`), plus the warp's floor :data:`WARPED_FLOOR_DEG`
+    when frame k was warped back before the patches were measured (``warped``), plus ``(SHIFT_SHARE * shift /
+    focal)^2`` for the image's shift at the rotation centre between the two frames (``shift_px``), as the
+    angle the view moved (``focal_px``: the lens's focal length; None, a camera without intrinsics: the lever
+    arm stands in, a cautious choice, as the patches' lever arm is shorter than a pinhole's focal length up to
+    about 110 deg of view), plus ``(AMBIGUITY_DEG / peak_ratio)^2`` for the patches' median ratio of their
+    correlation's first peak to its second (inf: unambiguous; NaN counts as 1, the most ambiguous). That is
+    averaged over the inliers and scaled by ``patches / inliers``, the pair's difficulty."""
     residual = max(residual_px if math.isfinite(residual_px) else 1.0, MIN_RESIDUAL_PX)
     lever = max(lever_px, 1.0)
     focal = lever if focal_px is None or not math.isfinite(focal_px) else max(focal_px, 1.0)
-    fit = RESIDUAL_SHARE * (residual / lever) ** 2 * 2.0 / max(inliers, 1)
+    agreed = max(inliers, 1)
     shift = SHIFT_SHARE * (shift_px if math.isfinite(shift_px) else 0.0) / focal
-    return float(fit + (math.radians(WARPED_FLOOR_DEG) ** 2 if warped else 0.0) + shift**2)
+    ambiguity = math.radians(AMBIGUITY_DEG) / max(peak_ratio if not math.isnan(peak_ratio) else 1.0, 1.0)
+    per_patch = RESIDUAL_SHARE * (residual / lever) ** 2 * 2.0 + shift**2 + ambiguity**2
+    per_patch += math.radians(WARPED_FLOOR_DEG) ** 2 if warped else 0.0
+    return float(per_patch * max(patches, agreed) / agreed**2)

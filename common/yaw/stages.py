@@ -165,8 +165,17 @@ def _result(
         shift_px = shift_of_homography_px(homography, lens.centre_px)
     low = not good or fit.residual_px > settings.max_residual_px or method in _UNTRUSTED
     warped = method is not EstimateMethod.PATCHES
+    valid = measurement.confidence[measurement.valid]  # the patches' first-to-second peak ratios
+    peak_ratio = float(np.median(valid)) if valid.size else 1.0
     variance = measured_variance_rad2(
-        fit.residual_px, fit.inlier_count, lens.lever_px, warped, shift_px, lens.focal_px
+        fit.residual_px,
+        fit.inlier_count,
+        measurement.indices.size,
+        lens.lever_px,
+        warped,
+        shift_px,
+        lens.focal_px,
+        peak_ratio,
     )
     trusted = not low and plausible(delta, prior, settings)
     return PairResult(homography, method, fit, measurement, low, delta, trusted, variance)

@@ -1,9 +1,10 @@
 """The fit behind a measured yaw pair's variance (``capataz bench consistency --fit-yaw``).
 
-A measured pair's variance is ``RESIDUAL_SHARE * r + WARPED_FLOOR_DEG^2 * w + SHIFT_SHARE^2 * s``
-(:func:`common.yaw.honest.measured_variance_rad2`). Each pair's terms ``r``, ``w``, ``s`` are read from three
-runs of the core with unit coefficients (:data:`UNIT_TERMS`; the coefficients only scale the published
-variance: the pairs, their provenance and their deltas are the same in the three runs, which is checked).
+A measured pair's variance is ``RESIDUAL_SHARE * r + WARPED_FLOOR_DEG^2 * w + SHIFT_SHARE^2 * s +
+AMBIGUITY_DEG^2 * a`` (:func:`common.yaw.honest.measured_variance_rad2`; each term per patch, times ``patches
+/ inliers^2``). Each pair's terms ``r``, ``w``, ``s``, ``a`` are read from four runs of the core with unit
+coefficients (:data:`UNIT_TERMS`; the coefficients only scale the published variance: the pairs, their
+provenance and their deltas are the same in the four runs, which is checked).
 :func:`common.consistency.fit_variance_terms` then fits the coefficients by maximum likelihood on the
 measured pairs of the fit seeds, and a two-fold split of those seeds (fit on one half, score the other)
 says how well the model carries to seeds it was not fitted on. The held-out seeds stay for ``bench
@@ -32,28 +33,32 @@ from services.tools.bench.yaw_field import run_core
 
 logger = logging.getLogger(__name__)
 
-#: (residual share, warp floor in deg, shift share) of the three runs: the residual's term alone, then with
-#: the floor's, then with the shift's (the residual's stays on, so that no published variance is 0)
-UNIT_TERMS = ((1.0, 0.0, 0.0), (1.0, 1.0, 0.0), (1.0, 0.0, 1.0))
+#: (residual share, warp floor in deg, shift share, ambiguity in deg) of the four runs: the residual's term
+#: alone, then with the floor's, the shift's, the ambiguity's (the residual's stays on, so that no published
+#: variance is 0)
+UNIT_TERMS = ((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 0.0, 0.0), (1.0, 0.0, 1.0, 0.0), (1.0, 0.0, 0.0, 1.0))
+_CONSTANTS = ("RESIDUAL_SHARE", "WARPED_FLOOR_DEG", "SHIFT_SHARE", "AMBIGUITY_DEG")
 
 
 @contextmanager
-def _coefficients(residual_share: float, floor_deg: float, shift_share: float) -> Iterator[None]:
-    """The variance model's coefficients set for the block, then restored (this tool's runs only)."""
-    saved = (honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG, honest.SHIFT_SHARE)
-    honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG = residual_share, floor_deg
-    honest.SHIFT_SHARE = shift_share
+def _coefficients(*values: float) -> Iterator[None]:
+    """The variance model's coefficients (in :data:`_CONSTANTS`' order) set for the block, then restored (this
+    tool's runs only)."""
+    saved = [getattr(honest, name) for name in _CONSTANTS]
+    for name, value in zip(_CONSTANTS, values, strict=True):
+        setattr(honest, name, value)
     try:
         yield
     finally:
-        honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG, honest.SHIFT_SHARE = saved
+        for name, value in zip(_CONSTANTS, saved, strict=True):
+            setattr(honest, name, value)
 
 
 def pair_terms(
     seed: int, frames: int, scenarios: list[str] | None = None
 ) -> tuple[FloatArray, FloatArray, list[str]]:
     """The measured pairs of one seed over the field scenarios, with and without the gyro: errors (N,),
-    terms (N, 3) in rad^2 per unit coefficient (the floor's coefficient is in deg^2), and each pair's
+    terms (N, 4) in rad^2 per unit coefficient (the floor's and the ambiguity's are in deg^2), and each pair's
     scenario."""
     errors: list[FloatArray] = []
     terms: list[FloatArray] = []
@@ -65,10 +70,10 @@ def pair_terms(
             provenance, deltas, variances = unit_runs(flight, rendered, gyro, _coefficients, UNIT_TERMS)
             measured = np.array([p is Provenance.MEASURED for p in provenance])
             error = yaw_error_rad(deltas, np.diff(flight.yaw_rad))
-            residual, with_floor, with_shift = variances.T
-            deg2 = math.radians(1.0) ** 2  # the floor term: rad^2 per deg^2 of floor on a warped pair, else 0
-            floor = deg2 * np.round((with_floor - residual) / deg2)
-            unit_terms = np.column_stack([residual, floor, np.maximum(with_shift - residual, 0.0)])
+            # each term beside the residual's: the run with its unit coefficient less the residual's run
+            unit_terms = np.column_stack(
+                [variances[:, 0], np.maximum(variances[:, 1:] - variances[:, :1], 0.0)]
+            )
             errors.append(np.asarray(error[measured], dtype=np.float64))
             terms.append(unit_terms[measured])
             names += [name] * int(np.count_nonzero(measured))
@@ -94,13 +99,16 @@ def constants(c: FloatArray) -> dict[str, float]:
         "RESIDUAL_SHARE": round(float(c[0]), 4),
         "WARPED_FLOOR_DEG": round(math.sqrt(float(c[1])), 5),
         "SHIFT_SHARE": round(math.sqrt(float(c[2])), 5),
+        "AMBIGUITY_DEG": round(math.sqrt(float(c[3])), 5),
     }
 
 
 def fit(seeds: list[int], frames: int, scenarios: list[str] | None = None) -> dict[str, Any]:
     """Fit on ``seeds``; score the fit, the constants in use, and a two-fold split of the seeds."""
     per_seed = {seed: pair_terms(seed, frames, scenarios)[:2] for seed in seeds}
-    in_use = np.array([honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG**2, honest.SHIFT_SHARE**2])
+    in_use = np.array(
+        [honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG**2, honest.SHIFT_SHARE**2, honest.AMBIGUITY_DEG**2]
+    )
     return {"seeds": seeds, "frames": frames, **fit_terms(per_seed, in_use, constants)}
 
 
