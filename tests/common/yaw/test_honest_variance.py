@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,14 +37,12 @@ from common.yaw.honest import (
 )
 from common.yaw.stages import lens_of
 
+#: a pair's inliers and the patches measured beside them that did not agree
+_AGREEMENT = {"inliers": st.integers(1, 400), "failed": st.integers(0, 400)}
+
 
 @settings(max_examples=50, deadline=None)
-@given(
-    residual=st.floats(0.0, 5.0),
-    inliers=st.integers(1, 400),
-    failed=st.integers(0, 400),
-    lever=st.floats(20.0, 2000.0),
-)
+@given(residual=st.floats(0.0, 5.0), lever=st.floats(20.0, 2000.0), **_AGREEMENT)
 def test_variance_grows_with_the_residual_and_the_warp_adds_its_floor(
     residual: float, inliers: int, failed: int, lever: float
 ) -> None:
@@ -56,13 +55,7 @@ def test_variance_grows_with_the_residual_and_the_warp_adds_its_floor(
 
 
 @settings(max_examples=50, deadline=None)
-@given(
-    residual=st.floats(0.0, 5.0),
-    shift=st.floats(0.0, 50.0),
-    inliers=st.integers(1, 400),
-    failed=st.integers(0, 400),
-    warped=st.booleans(),
-)
+@given(residual=st.floats(0.0, 5.0), shift=st.floats(0.0, 50.0), warped=st.booleans(), **_AGREEMENT)
 def test_a_pair_is_averaged_over_its_inliers_and_scaled_by_the_patches_that_failed(
     residual: float, shift: float, inliers: int, failed: int, warped: bool
 ) -> None:
@@ -83,7 +76,7 @@ def test_a_pair_is_averaged_over_its_inliers_and_scaled_by_the_patches_that_fail
 
 
 @settings(max_examples=50, deadline=None)
-@given(ratio=st.floats(1.0, 1e6), inliers=st.integers(1, 400), failed=st.integers(0, 400))
+@given(ratio=st.floats(1.0, 1e6), **_AGREEMENT)
 def test_a_pair_whose_correlations_are_ambiguous_is_less_certain(
     ratio: float, inliers: int, failed: int
 ) -> None:
@@ -128,16 +121,10 @@ def _per_inlier_model(
     averaged over the inliers, the floor and the shift's term not (``over_focal`` False: the shift over the
     lever arm), with the constants of that time."""
 
-    def variance(
-        residual_px: float,
-        inliers: int,
-        patches: int,
-        lever_px: float,
-        warped: bool = False,
-        shift_px: float = 0.0,
-        focal_px: float | None = None,
-        peak_ratio: float = math.inf,
-    ) -> float:
+    def variance(*args: Any) -> float:
+        """``measured_variance_rad2``'s arguments, all given (as the central stage gives them); the patches
+        and the peak ratio are not used."""
+        residual_px, inliers, _, lever_px, warped, shift_px, focal_px = args[:7]
         residual = max(residual_px if math.isfinite(residual_px) else 1.0, honest.MIN_RESIDUAL_PX)
         lever = max(lever_px, 1.0)
         focal = focal_px if over_focal and focal_px is not None and math.isfinite(focal_px) else lever
