@@ -80,13 +80,18 @@ def test_a_trim_hands_freed_heap_pages_back() -> None:
 
 def test_a_workers_jobs_reuse_warm_pages_instead_of_fresh_mappings_regression() -> None:
     """Regression: the members fixed glibc's mmap threshold at 1 MB, so every array of a job of 30 patches of
-    128 px was a fresh mapping, faulted in and zeroed (about 8,000 page faults a job, 3.5 times the compute,
-    ``capataz bench allocator``). The services' policy faults in (almost) nothing once warm."""
+    128 px was a fresh mapping, faulted in and zeroed (``capataz bench allocator``). The services' policy
+    faults in (almost) nothing once warm.
+
+    The old policy's count is not one number: over runs of the same job on this host it came in modes of
+    1,450, 2,354, 2,582 and 2,937 faults a job (their cause not looked into), and the services' 0.
+    The bound was 2,000, set when the job faulted about 8,000 times; in the middle of those modes it failed 3
+    of 16 runs here and once in CI: it is 1,000 now."""
     args = argparse.Namespace(jobs=6, patches=30, resolution="752x480", patch_size=128)
     services = run_policy("heap_trim", args)
     before = run_policy("mmap_1mb", args)
     assert max(services["faults_per_job"]) < 200, services["faults_per_job"]
-    assert min(before["faults_per_job"]) > 2000, before["faults_per_job"]
+    assert min(before["faults_per_job"]) > 1000, before["faults_per_job"]
 
 
 def test_the_heap_policy_comes_from_the_environment_and_a_wrong_one_is_one_error() -> None:
