@@ -14,7 +14,6 @@ consistency`` itself.
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from typing import Any
@@ -37,7 +36,9 @@ logger = logging.getLogger(__name__)
 #: alone, then with the floor's, the shift's, the ambiguity's (the residual's stays on, so that no published
 #: variance is 0)
 UNIT_TERMS = ((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 0.0, 0.0), (1.0, 0.0, 1.0, 0.0), (1.0, 0.0, 0.0, 1.0))
-_CONSTANTS = ("RESIDUAL_SHARE", "WARPED_FLOOR_DEG", "SHIFT_SHARE", "AMBIGUITY_DEG")
+#: the model's constants in its terms' order, each with the power its term scales with (the floor and the
+#: ambiguity are angles, their terms per deg^2; the shift's share enters squared, the residual's as it is)
+_CONSTANTS = {"RESIDUAL_SHARE": 1, "WARPED_FLOOR_DEG": 2, "SHIFT_SHARE": 2, "AMBIGUITY_DEG": 2}
 
 
 @contextmanager
@@ -96,20 +97,20 @@ def _score(errors: FloatArray, terms: FloatArray, c: FloatArray) -> dict[str, fl
 def constants(c: FloatArray) -> dict[str, float]:
     """Fitted coefficients in ``common/yaw/honest.py``'s units."""
     return {
-        "RESIDUAL_SHARE": round(float(c[0]), 4),
-        "WARPED_FLOOR_DEG": round(math.sqrt(float(c[1])), 5),
-        "SHIFT_SHARE": round(math.sqrt(float(c[2])), 5),
-        "AMBIGUITY_DEG": round(math.sqrt(float(c[3])), 5),
+        name: round(float(value) ** (1.0 / power), 4 if power == 1 else 5)
+        for (name, power), value in zip(_CONSTANTS.items(), c, strict=True)
     }
+
+
+def coefficients_in_use() -> FloatArray:
+    """The constants in ``common/yaw/honest.py`` as the terms' coefficients."""
+    return np.array([getattr(honest, name) ** power for name, power in _CONSTANTS.items()], dtype=np.float64)
 
 
 def fit(seeds: list[int], frames: int, scenarios: list[str] | None = None) -> dict[str, Any]:
     """Fit on ``seeds``; score the fit, the constants in use, and a two-fold split of the seeds."""
     per_seed = {seed: pair_terms(seed, frames, scenarios)[:2] for seed in seeds}
-    in_use = np.array(
-        [honest.RESIDUAL_SHARE, honest.WARPED_FLOOR_DEG**2, honest.SHIFT_SHARE**2, honest.AMBIGUITY_DEG**2]
-    )
-    return {"seeds": seeds, "frames": frames, **fit_terms(per_seed, in_use, constants)}
+    return {"seeds": seeds, "frames": frames, **fit_terms(per_seed, coefficients_in_use(), constants)}
 
 
 def unit_runs(
