@@ -5,6 +5,7 @@ defaults' 40 patches of 32 px: a round trip costs more latency than it saves).""
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ from common.dispatch.refine_place import RefineCosts, RefinePlace
 from common.wire.messages import BlockJob, BlockResult, YawJobSettings
 from common.yaw import YawSettings, make_patch_grid
 from common.yaw.measurement import PatchMeasurement
+from services.master import refine as refine_module
 from services.master.refine import MemberRefine, RefineChooser
 from services.master.settings import MasterSettings
 from services.runtime.counters import Counters
@@ -87,10 +89,28 @@ def test_a_frame_the_master_measured_alone_is_refined_on_the_master() -> None:
     assert refine is not None and set(refine.owners.values()) == {"worker/h1/0"}
 
 
-def test_a_large_pass_stays_on_a_computing_master_where_the_members_have_cost_more() -> None:
+class _SteppingClock:
+    """``perf_counter`` that reads ``step_s`` later at each call (``monotonic`` is the real one): the pass's
+    measured time is then known exactly, however busy the host is."""
+
+    def __init__(self, step_s: float) -> None:
+        self.step_s = step_s
+        self.now_s = 0.0
+        self.monotonic = time.monotonic
+
+    def perf_counter(self) -> float:
+        self.now_s += self.step_s
+        return self.now_s
+
+
+def test_a_large_pass_stays_on_a_computing_master_where_the_members_have_cost_more(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """On a fast CPU over 100 Mbit the members' raw crops cost more than the master's compute (1080p turns:
     1.26 times one host's latency with the pass sent): a master that computes shares keeps the pass, and the
     decision is counted. (One that only dispatches sends it regardless: its CPU is the dispatch's.)"""
+    clock = _SteppingClock(0.024)  # the kept pass reads the clock twice: 0.024 s for its 48 patches
+    monkeypatch.setattr(refine_module, "time", clock)
     large = YawSettings(grid_cols=16, grid_rows=12, patch_size_px=128, pyramid_level=0)
     members = ["foreman/h1/0", "foreman/h2/0"]
     chooser = RefineChooser(costs=RefineCosts(here_s_per_patch=2e-4, members_s_per_patch=9e-4))
@@ -102,7 +122,9 @@ def test_a_large_pass_stays_on_a_computing_master_where_the_members_have_cost_mo
     assert refine(indices, crops).indices.size == indices.size  # a session asked anything fails the test
     assert refine.counters.get("refine_passes_kept_here") == 1
     assert refine.counters.get("refine_patches_here") == indices.size
-    assert chooser.costs.since_probe == 1 and chooser.costs.here_s_per_patch < 9e-4
+    # the pass's own time (0.5 ms a patch) enters the master's running cost with the chooser's memory (0.3)
+    assert chooser.costs.since_probe == 1
+    assert chooser.costs.here_s_per_patch == pytest.approx(0.7 * 2e-4 + 0.3 * 0.024 / 48)
 
 
 def test_a_master_that_only_dispatches_sends_the_pass_whatever_it_has_cost() -> None:
