@@ -1,8 +1,8 @@
 """A recording replayed with ``capataz camera`` alone gives the consumers its rig (issue 26), per format: a
 ROS 2 bag (its ``CameraInfo``, mounted looking down) and a EuRoC folder (``sensor.yaml`` with ``T_BS``: a
 tilted camera with a lever arm). The camera publishes the rig, every frame names it, the master measures
-every frame with it and the estimator adopts it. (The image folder with a calibration file, a changed rig
-and a frame naming an unknown rig: ``test_rig_stream.py``.)"""
+every frame with it, and the estimator and a localizer given no camera adopt it. (The image folder with a
+calibration file, a changed rig and a frame naming an unknown rig: ``test_rig_stream.py``.)"""
 
 from __future__ import annotations
 
@@ -28,6 +28,8 @@ from common.wire.messages import YawEstimate
 from common.wire.rig import RigMessage, rig_from_message
 from services.camera import CameraService, CameraSettings
 from services.estimator import EstimatorService, EstimatorSettings
+from services.localizer.service import LocalizerService
+from services.localizer.settings import LocalizerSettings
 from services.master import MasterService, MasterSettings
 from services.runtime.service import ServiceRuntime
 from services.runtime.transport import open_session, zbytes
@@ -66,7 +68,9 @@ def _run(service: ServiceRuntime) -> threading.Thread:
 
 
 @pytest.mark.parametrize("kind", ["bag", "euroc"])
-def test_a_recording_alone_gives_the_master_and_the_estimator_its_rig(kind: str, tmp_path: Path) -> None:
+def test_a_recording_alone_gives_the_master_the_estimator_and_the_localizer_its_rig(
+    kind: str, tmp_path: Path
+) -> None:
     camera_settings, expected = _recording(kind, tmp_path)
     yaws: list[YawEstimate] = []
     published: list[Rig] = []
@@ -82,21 +86,24 @@ def test_a_recording_alone_gives_the_master_and_the_estimator_its_rig(kind: str,
     with hub() as endpoint:
         master = MasterService("m", 0, peer(endpoint), MasterSettings(election=False))
         estimator = EstimatorService("e", 0, peer(endpoint), EstimatorSettings())
+        localizer = LocalizerService("l", 0, peer(endpoint), LocalizerSettings())  # all defaults: no camera
+        assert localizer.camera != expected.camera
         camera = CameraService("c", 0, peer(endpoint), camera_settings)
-        threads = [_run(master), _run(estimator)]
+        threads = [_run(master), _run(estimator), _run(localizer)]
         with open_session(peer(endpoint)) as session:
             subscribers = [
                 session.declare_subscriber(keys.yaw_key("uav0"), on_yaw),
                 session.declare_subscriber(keys.rig_key("uav0"), on_rig),
             ]
-            assert master.started.wait(WAIT_S) and estimator.started.wait(WAIT_S)
+            assert all(s.started.wait(WAIT_S) for s in (master, estimator, localizer))
             threads.append(_run(camera))
             wanted = set(range(1, N_FRAMES))
             assert wait_until(lambda: wanted <= {e.seq for e in yaws}, 60.0), len(yaws)
             assert wait_until(lambda: estimator.counters.get("rigs_adopted") == 1, 30.0), estimator.counters
+            assert wait_until(lambda: localizer.counters.get("rigs_adopted") == 1, 30.0), localizer.counters
             for subscriber in subscribers:
                 subscriber.undeclare()
-        for service in (camera, master, estimator):
+        for service in (camera, master, estimator, localizer):
             service.request_stop()
         for thread in threads:
             thread.join(10.0)
@@ -104,6 +111,8 @@ def test_a_recording_alone_gives_the_master_and_the_estimator_its_rig(kind: str,
     assert master.counters.get("rigs_received") == 1 and not master.counters.get("refused_camera_unknown_rig")
     assert not estimator.counters.get("refused_camera_unknown_rig")
     assert np.allclose(estimator.estimator.R_body_camera, expected.R_body_camera, atol=1e-12)
+    # (a frame that reaches the localizer before the rig is refused and counted: test_rig_stream.py)
+    assert localizer.camera == expected.camera and localizer.counters.get("rigs_adopted") == 1
     by_seq = {e.seq: e for e in yaws}
     assert all(by_seq[k].provenance is not Provenance.INITIAL for k in wanted)
 
@@ -114,8 +123,6 @@ def test_an_image_folder_with_its_calibration_gives_the_localizer_its_camera(
     """The real cube video and its calibration through the camera alone: a localizer given only the model and
     the start pose (no camera options) adopts the stream's camera and tracks the cube."""
     from common.datasets.calibration import ros_yaml_text
-    from services.localizer.service import LocalizerService
-    from services.localizer.settings import LocalizerSettings
     from services.tools.bench.localizer_cube import load_cube
 
     cube_dir = shared_data / "visp_cube"
