@@ -53,6 +53,13 @@ from common.types import FloatArray
 logger = logging.getLogger(__name__)
 
 
+def external_yaw_noise_rad(settings: CouplingSettings, measurement: YawMeasurement) -> float:
+    """The noise an external yaw is fused with: the variance its source published (the yaw cluster's grows
+    with the turns it accumulated) where it is larger than ``settings.external_yaw_noise_rad``'s, that floor
+    otherwise: a yaw its source holds uncertain is not fused as if it were sure."""
+    return math.sqrt(max(settings.external_yaw_noise_rad**2, measurement.variance_rad2))
+
+
 class DoubleCouplingEstimator:
     """Filter + visual odometry with double coupling, fed sample by sample (single-threaded)."""
 
@@ -147,7 +154,7 @@ class DoubleCouplingEstimator:
                 self.filter.on_range(m.range_m)
             elif isinstance(m, YawMeasurement):
                 if self.settings.external_yaw:
-                    self.filter.on_yaw(m.yaw_rad, self.settings.external_yaw_noise_rad, "external_yaw")
+                    self.filter.on_yaw(m.yaw_rad, external_yaw_noise_rad(self.settings, m), "external_yaw")
                 else:
                     self.counters["external_yaw_ignored"] += 1
             elif m.stamp_s < latest_frame:

@@ -115,8 +115,14 @@ class CouplingSettings(Bounded):
     #: Feed the VO yaw to the EKF (eq. 19). False leaves yaw to the gyro alone.
     visual_yaw: bool = setting(True, help="feed the VO yaw to the filter")
     #: Apply yaw samples pushed as ``Sensor.YAW`` (e.g. the yaw cluster) as a second yaw source.
-    external_yaw: bool = setting(False, help="also use the yaw samples on capataz/uav/{uav}/yaw")
+    external_yaw: bool = setting(
+        False,
+        help="also use the measured yaw samples on capataz/uav/{uav}/yaw, each fused with the variance "
+        "published with it (never below external_yaw_noise_rad)",
+    )
     vo_yaw_noise_rad: float = bounded(0.005, gt=0.0)
+    #: The external yaw's noise where its source published a smaller variance (or none): the floor of
+    #: :func:`common.estimation.coupling.external_yaw_noise_rad`.
     external_yaw_noise_rad: float = bounded(0.02, gt=0.0)
     #: Samples are held until this much older than the newest stamp, then applied in order.
     max_lag_s: float = bounded(0.02, ge=0.0, le=1.0, help="reordering lag of the input (s)")

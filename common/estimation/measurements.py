@@ -47,10 +47,12 @@ class RangeMeasurement:
 
 @dataclass(frozen=True)
 class YawMeasurement:
-    """An external yaw (e.g. from the yaw cluster), any unwrapping."""
+    """An external yaw (e.g. from the yaw cluster), any unwrapping, and the variance its source published
+    with it (rad^2; 0 where the source gave none)."""
 
     stamp_s: float
     yaw_rad: float
+    variance_rad2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -82,11 +84,13 @@ def check_range(stamp_s: float, range_m: float) -> RangeMeasurement:
     return RangeMeasurement(stamp_s=float(stamp_s), range_m=float(range_m))
 
 
-def check_yaw(stamp_s: float, yaw_rad: float) -> YawMeasurement:
-    """Validated yaw sample or InputError."""
+def check_yaw(stamp_s: float, yaw_rad: float, variance_rad2: float = 0.0) -> YawMeasurement:
+    """Validated yaw sample (finite stamp and yaw, a finite variance >= 0) or InputError."""
     if not (math.isfinite(stamp_s) and math.isfinite(yaw_rad)):
         raise InputError(f"yaw sample must be finite, got stamp {stamp_s}, yaw {yaw_rad}")
-    return YawMeasurement(stamp_s=float(stamp_s), yaw_rad=float(yaw_rad))
+    if not (math.isfinite(variance_rad2) and variance_rad2 >= 0.0):
+        raise InputError(f"yaw sample's variance must be finite and >= 0, got {variance_rad2}")
+    return YawMeasurement(stamp_s=float(stamp_s), yaw_rad=float(yaw_rad), variance_rad2=float(variance_rad2))
 
 
 def check_frame(stamp_s: float, image: npt.ArrayLike, shape: tuple[int, int]) -> FrameMeasurement:

@@ -20,5 +20,5 @@ def measurement_of(message: Input, shape: tuple[int, int]) -> Measurement:
     if isinstance(message, RangeSample):
         return check_range(message.stamp_s, message.range_m)
     if isinstance(message, YawEstimate):
-        return check_yaw(message.stamp_s, message.yaw_rad)
+        return check_yaw(message.stamp_s, message.yaw_rad, message.yaw_variance_rad2)
     return check_frame(message.stamp_s, message.pixels, shape)

@@ -10,7 +10,7 @@ import pytest
 
 from common.errors import InputError
 from common.estimation.buffer import Refusal
-from common.estimation.coupling import DoubleCouplingEstimator
+from common.estimation.coupling import DoubleCouplingEstimator, external_yaw_noise_rad
 from common.estimation.coupling_types import AttitudeOutput, CouplingSettings, EkfKind, PoseOutput
 from common.estimation.measurements import (
     FrameMeasurement,
@@ -20,6 +20,7 @@ from common.estimation.measurements import (
     check_frame,
     check_imu,
     check_range,
+    check_yaw,
 )
 from common.estimation.replay import (
     camera_model_of,
@@ -156,6 +157,43 @@ def test_external_yaw_is_a_second_yaw_source(flight_b: Flight) -> None:
     assert estimator.state is not None
     yaw = float(euler_from_quaternion(estimator.state.q_world_body)[2])
     assert 0.01 < float(wrap_angle_rad(yaw - yaw0)) <= 0.05
+
+
+def _yaw_after_external_yaw(flight: Flight, variance_rad2: float) -> float:
+    """The filter's yaw change from one external yaw 0.05 rad off, published with ``variance_rad2``."""
+    estimator = DoubleCouplingEstimator(
+        camera_model_of(flight), settings=_settings(flight, external_yaw=True, visual_yaw=False)
+    )
+    yaw0 = float(flight.yaw_rad[START])
+    estimator.push(RangeMeasurement(0.0, 3.5))
+    for k in range(40):
+        estimator.push(ImuMeasurement(0.0025 * k, np.zeros(3), np.array([0.0, 0.0, 9.80665])))
+    estimator.push(YawMeasurement(0.05, yaw0 + 0.05, variance_rad2))
+    estimator.drain()
+    assert estimator.counters["external_yaw_applied"] == 1 and estimator.state is not None
+    return float(wrap_angle_rad(float(euler_from_quaternion(estimator.state.q_world_body)[2]) - yaw0))
+
+
+def test_an_external_yaw_published_uncertain_moves_the_filter_less(flight_b: Flight) -> None:
+    """The yaw cluster's published variance reaches the filter: a yaw sent with a variance below the floor
+    (``external_yaw_noise_rad``) is fused at the floor, one sent with a larger variance pulls the filter less
+    (before, every external yaw was fused at the floor, however uncertain its source said it was)."""
+    floor_rad = CouplingSettings().external_yaw_noise_rad
+    unknown = _yaw_after_external_yaw(flight_b, 0.0)
+    below_floor = _yaw_after_external_yaw(flight_b, (0.5 * floor_rad) ** 2)
+    uncertain = _yaw_after_external_yaw(flight_b, (5.0 * floor_rad) ** 2)
+    assert below_floor == pytest.approx(unknown, abs=1e-12)
+    assert 0.0 < uncertain < 0.5 * unknown, (uncertain, unknown)
+    settings = CouplingSettings()
+    assert external_yaw_noise_rad(settings, YawMeasurement(0.0, 0.0, 0.0)) == floor_rad
+    assert external_yaw_noise_rad(settings, YawMeasurement(0.0, 0.0, 0.09**2)) == pytest.approx(0.09)
+
+
+@pytest.mark.parametrize("variance_rad2", [math.nan, math.inf, -1e-6])
+def test_a_yaw_sample_with_a_variance_that_is_not_one_is_refused(variance_rad2: float) -> None:
+    with pytest.raises(InputError, match="variance"):
+        check_yaw(0.0, 0.1, variance_rad2)
+    assert check_yaw(0.0, 0.1, 2e-4).variance_rad2 == 2e-4
 
 
 def test_vo_on_truth_rectified_frames_is_submillimetre_and_beats_raw_frames(flight_b: Flight) -> None:
