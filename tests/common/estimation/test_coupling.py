@@ -142,23 +142,6 @@ def test_motion_acceleration_of_a_parabola() -> None:
     assert np.all(motion_acceleration(t[:3], p[:3]) == 0.0)
 
 
-def test_external_yaw_is_a_second_yaw_source(flight_b: Flight) -> None:
-    """With ``external_yaw`` on, yaw samples (e.g. the yaw cluster's) correct the EKF's yaw."""
-    estimator = DoubleCouplingEstimator(
-        camera_model_of(flight_b), settings=_settings(flight_b, external_yaw=True, visual_yaw=False)
-    )
-    yaw0 = float(flight_b.yaw_rad[START])
-    estimator.push(RangeMeasurement(0.0, 3.5))
-    for k in range(40):
-        estimator.push(ImuMeasurement(0.0025 * k, np.zeros(3), np.array([0.0, 0.0, 9.80665])))
-    estimator.push(YawMeasurement(0.05, yaw0 + 0.05))
-    estimator.drain()
-    assert estimator.counters["external_yaw_applied"] == 1
-    assert estimator.state is not None
-    yaw = float(euler_from_quaternion(estimator.state.q_world_body)[2])
-    assert 0.01 < float(wrap_angle_rad(yaw - yaw0)) <= 0.05
-
-
 def _yaw_after_external_yaw(flight: Flight, variance_rad2: float) -> float:
     """The filter's yaw change from one external yaw 0.05 rad off, published with ``variance_rad2``."""
     estimator = DoubleCouplingEstimator(
@@ -172,6 +155,11 @@ def _yaw_after_external_yaw(flight: Flight, variance_rad2: float) -> float:
     estimator.drain()
     assert estimator.counters["external_yaw_applied"] == 1 and estimator.state is not None
     return float(wrap_angle_rad(float(euler_from_quaternion(estimator.state.q_world_body)[2]) - yaw0))
+
+
+def test_external_yaw_is_a_second_yaw_source(flight_b: Flight) -> None:
+    """With ``external_yaw`` on, yaw samples (e.g. the yaw cluster's) correct the EKF's yaw."""
+    assert 0.01 < _yaw_after_external_yaw(flight_b, 0.0) <= 0.05
 
 
 def test_an_external_yaw_published_uncertain_moves_the_filter_less(flight_b: Flight) -> None:
