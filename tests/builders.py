@@ -7,10 +7,10 @@ from typing import Any, TypeVar
 import numpy as np
 
 from common.wire.messages import PatchJob, YawEstimate, YawJobSettings
-from common.yaw import YawSettings
+from common.yaw import YawSettings, for_frame
 
-#: the default yaw settings as every job carries them
-JOB_SETTINGS = YawJobSettings.of(YawSettings())
+#: the default yaw settings as every job of a 320x240 stream carries them
+JOB_SETTINGS = YawJobSettings.of(for_frame(YawSettings(), (240, 320)))
 
 J = TypeVar("J", bound=PatchJob)
 

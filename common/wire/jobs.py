@@ -67,7 +67,12 @@ class _YawJobBase(BaseModel):
 
     @classmethod
     def of(cls, settings: YawSettings) -> Self:
-        """The wire form of ``settings`` (its lens model stays behind: :data:`LOCAL_YAW_SETTINGS`)."""
+        """The wire form of ``settings`` (its lens model stays behind: :data:`LOCAL_YAW_SETTINGS`), resolved
+        for the stream's frames (:func:`~common.yaw.grid.for_frame`): a job states its pyramid level."""
+        if settings.pyramid_level is None:
+            raise InputError(
+                "a job's yaw settings state their pyramid level: resolve them for the frames first"
+            )
         values = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings)}
         return cls.model_validate({k: v for k, v in values.items() if k not in LOCAL_YAW_SETTINGS})
 
@@ -78,7 +83,10 @@ class _YawJobBase(BaseModel):
 
 
 def _wire_fields() -> dict[str, Any]:
-    """The wire fields of :class:`YawSettings`: its types, its bounds; required (a job states them all)."""
+    """The wire fields of :class:`YawSettings`: its types, its bounds; required (a job states them all).
+    A value the core may leave to be resolved (an optional bound: the pyramid level that follows the frame's
+    size) is stated resolved: the master resolves its settings for the stream's frames
+    (:func:`~common.yaw.grid.for_frame`), so a job's type is the value's without None."""
     hints = typing.get_type_hints(YawSettings)
     bounds = field_bounds(YawSettings)
     fields: dict[str, Any] = {}
@@ -89,6 +97,8 @@ def _wire_fields() -> dict[str, Any]:
             keywords = {
                 k: getattr(limits, k) for k in ("gt", "ge", "lt", "le") if getattr(limits, k) is not None
             }
+            if limits.optional:
+                hints[name] = next(t for t in typing.get_args(hints[name]) if t is not type(None))
         if isinstance(hints[name], type) and issubclass(hints[name], enum.Enum):
             keywords["strict"] = False
         fields[name] = (hints[name], Field(**keywords))

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -31,6 +32,60 @@ def level_shape(frame_shape: tuple[int, int], level: int) -> tuple[int, int]:
     for _ in range(level):
         height, width = (height + 1) // 2, (width + 1) // 2
     return height, width
+
+
+#: The largest working size the defaults were measured at (paper A's 752x480 hover at level 1; the field
+#: suite's 320x240 at level 1 is the smallest): a geometric-mean side (px) the default level keeps within.
+AUTO_LEVEL_SIDE_PX = 320.0
+#: The level the defaults (and their full-resolution pixel thresholds) were measured at; the default level
+#: is never finer.
+AUTO_REFERENCE_LEVEL = 1
+MAX_PYRAMID_LEVEL = 4
+
+
+def auto_pyramid_level(frame_shape: tuple[int, int], settings: YawSettings) -> int:
+    """The default pyramid level of frames of ``frame_shape`` (H, W): level 1, where the defaults were
+    measured (320x240 to 752x480 frames), or the first coarser one at which the frame's geometric-mean side
+    is at most :data:`AUTO_LEVEL_SIDE_PX` (1280x720 at 2, 1920x1080 at 3, 3840x2160 at 4); no coarser than
+    leaves room for a patch inside the margins (a tiny frame: 0).
+
+    Why (``capataz bench yaw --suite field --field-size 1280x720``): at level 1 a 1280x720 wide-angle flight
+    moves four times as many pixels a frame as at 320x240; the patch fit kept under half of its patches and a
+    quarter of the pairs were not measured (:func:`for_frame` also scales the pixel thresholds).
+    """
+    side = math.sqrt(frame_shape[0] * frame_shape[1]) / 2**AUTO_REFERENCE_LEVEL
+    level = AUTO_REFERENCE_LEVEL + max(0, math.ceil(math.log2(side / AUTO_LEVEL_SIDE_PX) - 1e-9))
+    level = min(level, MAX_PYRAMID_LEVEL)
+    while level > 0 and min(_free_span(frame_shape, level, settings)) < 0:
+        level -= 1
+    return int(level)
+
+
+def for_frame(settings: YawSettings, frame_shape: tuple[int, int]) -> YawSettings:
+    """``settings`` resolved for frames of ``frame_shape``: unchanged when they give a pyramid level; else at
+    :func:`auto_pyramid_level`, with the full-resolution pixel thresholds (``ransac_threshold_px``,
+    ``max_residual_px``, stated for 320x240 frames at level 1) scaled by ``2**(level - 1)``, so that they stay
+    the same in working-level pixels: a fit's residuals (the patches' shift noise, the perspective a
+    similarity leaves out) grow with the frame's size, and a fixed 1 px at 1280x720 refused half the inliers
+    of a wide-angle flight that 4 px keeps. Resolving resolved settings changes nothing."""
+    if settings.pyramid_level is not None:
+        return settings
+    level = auto_pyramid_level(frame_shape, settings)
+    stretch = 2.0 ** (level - AUTO_REFERENCE_LEVEL)
+    return replace(
+        settings,
+        pyramid_level=level,
+        ransac_threshold_px=settings.ransac_threshold_px * stretch,
+        max_residual_px=settings.max_residual_px * stretch,
+    )
+
+
+def _free_span(frame_shape: tuple[int, int], level: int, settings: YawSettings) -> tuple[int, int]:
+    """Room (H, W) left at ``level`` for the patches' origins inside the margins (negative: none)."""
+    level_h, level_w = level_shape(frame_shape, level)
+    margin = int(np.ceil(settings.margin_px / 2**level))
+    n = settings.patch_size_px
+    return level_h - n - 2 * margin, level_w - n - 2 * margin
 
 
 def crops_at(image_u8: U8Array, rows: npt.ArrayLike, cols: npt.ArrayLike, side_px: int) -> U8Array:
@@ -200,14 +255,14 @@ def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> Patc
     if len(frame_shape) != 2 or min(frame_shape) <= 0:
         raise InputError(f"frame_shape must be (H, W) positive, got {frame_shape}")
     height, width = (int(v) for v in frame_shape)
-    level_h, level_w = level_shape((height, width), settings.pyramid_level)
+    settings = for_frame(settings, (height, width))
     n = settings.patch_size_px
     margin = int(np.ceil(settings.margin_px / settings.scale))
-    span_w = level_w - n - 2 * margin
-    span_h = level_h - n - 2 * margin
+    span_h, span_w = _free_span((height, width), settings.level, settings)
     if span_w < 0 or span_h < 0:
+        level_h, level_w = level_shape((height, width), settings.level)
         raise InputError(
-            f"frame {frame_shape} at pyramid level {settings.pyramid_level} ({level_h}x{level_w}) "
+            f"frame {frame_shape} at pyramid level {settings.level} ({level_h}x{level_w}) "
             f"is too small for {n} px patches with a {settings.margin_px} px margin"
         )
     xs = np.rint(np.linspace(margin, margin + span_w, settings.grid_cols)).astype(np.intp)
@@ -218,7 +273,7 @@ def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> Patc
     centres = (origins.astype(np.float64) + (n - 1) / 2.0) * settings.scale
     return PatchGrid(
         frame_shape=(height, width),
-        pyramid_level=settings.pyramid_level,
+        pyramid_level=settings.level,
         patch_size_px=n,
         origins_level_px=origins,
         centres_px=centres,

@@ -40,14 +40,19 @@ class YawSettings(Bounded):
 
     The patch grid is laid out on the frame at pyramid level ``pyramid_level`` (each level halves
     the frame with ``cv2.pyrDown``); ``patch_size_px`` is the side of a patch at that level, so a
-    patch covers ``patch_size_px * 2**pyramid_level`` full-resolution pixels.
+    patch covers ``patch_size_px * 2**pyramid_level`` full-resolution pixels. By default (None) the level
+    follows the frame's size (:func:`~common.yaw.grid.auto_pyramid_level`: 320x240 at level 1, 640x480 at 2,
+    1280x720 at 3), so a patch sees about the same share of the view at any resolution; the grid and the
+    tracker work with the level resolved for their frames (:func:`~common.yaw.grid.for_frame`).
     """
 
     patch_size_px: int = bounded(32, ge=8, le=256, help="patch side at the pyramid level")
     grid_cols: int = bounded(8, ge=1, le=64, help="patch grid columns")
     grid_rows: int = bounded(5, ge=1, le=64, help="patch grid rows")
     margin_px: int = bounded(0, ge=0, le=4096)  # border left free at full resolution
-    pyramid_level: int = bounded(1, ge=0, le=4, help="pyramid level of the patches")
+    pyramid_level: int | None = bounded(
+        None, ge=0, le=4, optional=True, help="pyramid level of the patches (default: by the frame's size)"
+    )
     fft_backend: FftBackend = FftBackend.SCIPY
     #: Width (level pixels) of the Gaussian weighting of the cross-power spectrum; the correlation
     #: peak becomes a smooth Gaussian whose 3-point log-parabola fit is the sub-pixel estimate.
@@ -117,4 +122,12 @@ class YawSettings(Bounded):
     @functools.cached_property
     def scale(self) -> int:
         """Full-resolution pixels per pixel at the working pyramid level (computed once per settings)."""
-        return int(2**self.pyramid_level)
+        return int(2**self.level)
+
+    @property
+    def level(self) -> int:
+        """The working pyramid level; settings whose level follows the frame's size must be resolved for a
+        frame first (:func:`~common.yaw.grid.for_frame`)."""
+        if self.pyramid_level is None:
+            raise InputError("pyramid_level follows the frame's size: resolve the settings for a frame first")
+        return self.pyramid_level

@@ -237,7 +237,7 @@ def prealigned_pair(
 def _turned_level(frame_u8: U8Array, matrix: FloatArray, settings: YawSettings) -> U8Array:
     """Frame k's pyramid level warped back by ``matrix`` (full-resolution px), the refinement's image."""
     to_full = np.diag([float(settings.scale), float(settings.scale), 1.0])
-    level = pyramid_image(frame_u8, settings.pyramid_level)
+    level = pyramid_image(frame_u8, settings.level)
     return warp_into(level, np.linalg.inv(to_full) @ matrix @ to_full, level.shape)
 
 

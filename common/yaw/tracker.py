@@ -20,7 +20,7 @@ from common.images import check_grey_image
 from common.types import FloatArray, U8Array
 from common.yaw.correlation import PatchSpectra, measure_patches, patch_spectra
 from common.yaw.fit import rotation_of_homography_rad
-from common.yaw.grid import PatchGrid, make_patch_grid
+from common.yaw.grid import PatchGrid, for_frame, make_patch_grid
 from common.yaw.held import MeasuredPair, held_rate, with_measured_pair
 from common.yaw.honest import PriorSource, Provenance, make_prior
 from common.yaw.measurement import PatchMeasurement, merge_measurements
@@ -112,7 +112,8 @@ class YawTracker:
     def __init__(
         self, settings: YawSettings, grid: PatchGrid, R_body_camera: npt.ArrayLike = R_BODY_CAMERA_DOWN
     ) -> None:
-        if grid.pyramid_level != settings.pyramid_level or grid.patch_size_px != settings.patch_size_px:
+        settings = for_frame(settings, grid.frame_shape)
+        if grid.pyramid_level != settings.level or grid.patch_size_px != settings.patch_size_px:
             raise InputError("grid was made with other settings (pyramid level / patch size differ)")
         R_bc = check_rotation_matrix(R_body_camera, "R_body_camera")
         #: the vehicle's yaw per radian the image turns about minus the optical axis (1: the down mount)
@@ -291,6 +292,7 @@ def estimate_pair(
     b = check_grey_image(frame_b, "frame_b")
     if a.shape != b.shape:
         raise InputError(f"frame_a and frame_b must have the same shape, got {a.shape} and {b.shape}")
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     tracker = YawTracker(settings, grid)
     before = patch_spectra(a, grid, None, settings)

@@ -20,11 +20,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from common.dispatch import SELF, Dispatcher
@@ -41,10 +39,8 @@ from common.wire.messages import (
     YawEstimate,
     YawJobSettings,
 )
-from common.yaw import PatchGrid, TrackerState, YawTracker, make_patch_grid
-from common.yaw.grid import U8Array
+from common.yaw import YawTracker, for_frame, make_patch_grid
 from common.yaw.measurement import merge_measurements
-from common.yaw.patchwork import SpectrumCache
 from services.master.election import Election, LeaderSessions
 from services.master.frames import FrameIntake
 from services.master.gyro import GyroPrior
@@ -61,8 +57,9 @@ from services.master.published import (
     session_of,
     take_over_anchor,
 )
-from services.master.refine import MemberRefine, RefineChooser
+from services.master.refine import MemberRefine
 from services.master.settings import MasterSettings
+from services.master.stream import YawStream
 from services.runtime.allocator import HeapTrim
 from services.runtime.cli import IDLE_PROCESS_MB, LARGEST_SHARE_MB
 from services.runtime.guard import DispatchGuard
@@ -79,24 +76,6 @@ logger = logging.getLogger(__name__)
 STANDBY_POLL_S = 0.02
 
 
-@dataclass
-class _Stream:
-    grid: PatchGrid
-    tracker: YawTracker
-    state: TrackerState
-    prev_seq: int
-    prev_level: U8Array
-    dispatcher: Dispatcher
-    epoch: int = 0
-    cache: SpectrumCache = field(default_factory=SpectrumCache)
-    #: every patch index of the grid (the round's expected cover)
-    all_indices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
-    #: the id of the stream's rig the stream was started with (None: the master's own options)
-    rig_id: str | None = None
-    #: where its turning frames' second pass has cost less (the members or the master)
-    refine_chooser: RefineChooser = field(default_factory=RefineChooser)
-
-
 class MasterService(ConfiguredService[MasterSettings]):
     role = Role.MASTER
 
@@ -106,7 +85,6 @@ class MasterService(ConfiguredService[MasterSettings]):
         # (its own share is at most a whole frame) they go back after a frame (services.runtime.allocator)
         self.heap = HeapTrim.for_service(IDLE_PROCESS_MB + LARGEST_SHARE_MB)
         self.yaw_settings = settings.yaw
-        self.wire_settings = YawJobSettings.of(self.yaw_settings)
         #: the guard first: the intake's source lock is part of it
         self.guard = DispatchGuard(self.name, self.counters, settings.trust)
         self.intake = FrameIntake(self, self.guard, settings)
@@ -121,7 +99,7 @@ class MasterService(ConfiguredService[MasterSettings]):
         self._leaders_resolved = False
         self.election: Election | None = None
         self._job_types: tuple[type[PatchJob], type[PatchResult]] = (BlockJob, BlockResult)
-        self.stream: _Stream | None = None
+        self.stream: YawStream | None = None
         self.scatter: Scatter | None = None
         self.live = LiveMembers(self.member_role)
         self._entities: list[Any] = []
@@ -285,11 +263,12 @@ class MasterService(ConfiguredService[MasterSettings]):
             newest = self.published.newest_trusted()
         return YawAnchor() if newest is None else newest.anchor
 
-    def _start_stream(self, frame: Frame, epoch: int, anchor: YawAnchor, rig: Rig | None = None) -> _Stream:
+    def _start_stream(self, frame: Frame, epoch: int, anchor: YawAnchor, rig: Rig | None = None) -> YawStream:
         """A stream from ``frame`` on, continuing ``anchor``: the lens and mount of the stream's ``rig`` when
         it has one (and the master was given neither), else the master's options; the gyro prior follows."""
         assert self.session is not None
-        grid = make_patch_grid((frame.height, frame.width), self.yaw_settings)
+        yaw_settings = for_frame(self.yaw_settings, (frame.height, frame.width))
+        grid = make_patch_grid((frame.height, frame.width), yaw_settings)
         prior = self.settings.prior
         if rig is None and frame.rig_id is not None and self.intake.rigs is None:
             logger.warning(
@@ -298,15 +277,15 @@ class MasterService(ConfiguredService[MasterSettings]):
         geometry = stream_geometry(prior, self.lens, frame.width, frame.height, rig, self.name)
         camera, R_body_camera, axis, offset = geometry
         self.gyro.axis_imu, self.gyro.time_offset_s = axis, offset
-        tracker = YawTracker(prior.tracker_settings(self.yaw_settings, camera), grid, R_body_camera)
+        tracker = YawTracker(prior.tracker_settings(yaw_settings, camera), grid, R_body_camera)
         state = tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s,
             yaw_rad=anchor.yaw_rad, yaw_variance_rad2=anchor.yaw_variance_rad2)  # fmt: skip
         dispatcher = Dispatcher(self.settings.dispatch, grid.n_patches)
         dispatcher.trust = self.guard.monitor()
         level = grid.level_image(frame.pixels)
-        stream = _Stream(
-            grid, tracker, state, frame.seq, level, dispatcher, epoch, all_indices=grid.all_indices,
-            rig_id=None if rig is None else rig.rig_id,
+        stream = YawStream(
+            yaw_settings, YawJobSettings.of(yaw_settings), grid, tracker, state, frame.seq, level, dispatcher,
+            epoch, all_indices=grid.all_indices, rig_id=None if rig is None else rig.rig_id,
         )  # fmt: skip
         job_type, result_type = self._job_types
         self.scatter = Scatter(
@@ -333,7 +312,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             return None
         assert self.scatter is not None
         self._apply_membership(stream.dispatcher)
-        grid, settings = stream.grid, self.yaw_settings
+        grid, settings = stream.grid, stream.settings
         level = grid.level_image(frame.pixels)
         prev_level, prev_seq = stream.prev_level, stream.prev_seq
         t_level = time.perf_counter()
@@ -347,7 +326,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             stream=self.settings.uav,
             seq=frame.seq,
             prev_seq=prev_seq,
-            settings=self.wire_settings,
+            settings=stream.wire_settings,
             budget_s=self.settings.budget_s,
             crops=partial(grid.crop_level, level),
             prev_crops=partial(grid.crop_level, prev_level),

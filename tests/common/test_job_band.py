@@ -75,9 +75,9 @@ def test_a_band_is_sent_only_where_it_is_fewer_pixels_than_the_crops() -> None:
     heavy = make_patch_grid((1080, 1920), HEAVY)
     band, _ = heavy.band_level(_level(heavy, 0), heavy.all_indices) or (np.zeros(0), None)
     assert band.size == 1920 * 1080 < 0.7 * heavy.n_patches * 128 * 128  # the crops repeat the overlap
-    default = make_patch_grid((480, 752), YawSettings())  # 32 px patches apart at level 1
-    assert default.band_level(_level(default, 0), default.all_indices) is None
-    assert heavy.patches_overlap and not default.patches_overlap
+    apart = make_patch_grid((480, 752), YawSettings(pyramid_level=1))  # 32 px patches apart at level 1
+    assert apart.band_level(_level(apart, 0), apart.all_indices) is None
+    assert heavy.patches_overlap and not apart.patches_overlap
 
 
 @settings(max_examples=40, deadline=None)

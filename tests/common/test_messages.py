@@ -51,7 +51,9 @@ def jobs(cls: type[m.PatchJob]) -> st.SearchStrategy[m.PatchJob]:
             stream=data.draw(names),
             seq=data.draw(st.integers(0, 10**6)),
             prev_seq=data.draw(st.integers(-1, 10**6)),
-            settings=m.YawJobSettings.of(YawSettings(patch_size_px=32, fft_backend=FftBackend.OPENCV)),
+            settings=m.YawJobSettings.of(
+                YawSettings(patch_size_px=32, fft_backend=FftBackend.OPENCV, pyramid_level=1)
+            ),
             indices=indices,
             crops=data.draw(hnp.arrays(np.uint8, (n, s, s))),
             prev_indices=prev,

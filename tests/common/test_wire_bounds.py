@@ -9,7 +9,7 @@ from common.streams import StreamTable
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob
 from common.wire.schema import MAX_BUDGET_S, MAX_JOB_PATCHES, WireError
-from common.yaw import YawSettings
+from common.yaw import YawSettings, for_frame
 from common.yaw.correlation import patch_spectra_from_crops
 from common.yaw.patchwork import SpectrumCache
 from tests.builders import JOB_SETTINGS, patch_job
@@ -25,7 +25,8 @@ def test_oversized_yaw_settings_in_a_job_are_refused_before_any_allocation(name:
     payload, header = encode(patch_job(validate=False, settings=settings))
     with pytest.raises(WireError, match=f"settings.{name}"):
         decode(payload, header, PatchJob)
-    assert decode(*encode(patch_job()), PatchJob).settings.yaw_settings == YawSettings()
+    default = for_frame(YawSettings(), (240, 320))
+    assert decode(*encode(patch_job()), PatchJob).settings.yaw_settings == default
 
 
 def _job(n: int, side: int = 32, stream: str = "uav0") -> PatchJob:

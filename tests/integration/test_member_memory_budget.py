@@ -45,7 +45,9 @@ PATCH_PX = 256  # the largest patch (YawSettings.patch_size_px)
 N_PATCHES = MAX_JOB_PIXELS // (2 * PATCH_PX**2)  # new and previous crops of a new stream name: 128 + 128
 #: the largest job's settings: full OpenCV spectra (the larger kind: 512 KB a 256 px patch)
 SETTINGS = YawJobSettings.of(
-    YawSettings(patch_size_px=PATCH_PX, grid_cols=16, grid_rows=16, fft_backend=FftBackend.OPENCV)
+    YawSettings(
+        patch_size_px=PATCH_PX, grid_cols=16, grid_rows=16, fft_backend=FftBackend.OPENCV, pyramid_level=1
+    )
 )
 SPECTRA_PER_NAME = N_PATCHES * PATCH_PX * PATCH_PX * 8  # complex64
 CROPS_PER_NAME = 2 * N_PATCHES * PATCH_PX * PATCH_PX  # the two frames a foreman keeps

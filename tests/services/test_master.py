@@ -5,12 +5,14 @@ from __future__ import annotations
 import time
 from typing import Any, cast
 
+import cv2
 import numpy as np
 import pytest
 
 from common.sim.flight import hover_flight
 from common.wire.codec import encode
 from common.wire.messages import Frame
+from common.yaw import YawSettings
 from services.master import MasterService, MasterSettings
 from services.runtime.transport import TransportSettings
 from tests.services.fakes import FakeBytes
@@ -114,3 +116,32 @@ def test_a_bug_in_the_round_is_an_internal_error_with_its_traceback_not_a_routin
     assert master.counters.get("internal_errors") == 1 and master.counters.get("local_fallback") == 1
     bug = [r for r in caplog.records if "internal error" in r.getMessage()]
     assert len(bug) == 1 and bug[0].exc_info is not None
+
+
+@pytest.mark.parametrize(("given_level", "level", "stretch"), [(None, 2, 2.0), (1, 1, 1.0)])
+def test_a_stream_works_at_the_level_of_its_frames_size_and_its_jobs_state_it(
+    given_level: int | None, level: int, stretch: float
+) -> None:
+    """The default pyramid level follows the frame's size (1280x720: level 2, its pixel thresholds doubled),
+    resolved once per stream: the tracker, the grid and the settings every job carries agree, so no member
+    guesses it. A level given on the command line stays."""
+    flight = hover_flight(seed=0, n_frames=2)
+    pixels = [cv2.resize(flight.frame(k), (1280, 720), interpolation=cv2.INTER_LINEAR) for k in range(2)]
+    master = MasterService(
+        "m", 0, TransportSettings(),
+        MasterSettings(election=False, yaw=YawSettings(pyramid_level=given_level)),
+    )  # fmt: skip
+    master.session = cast(Any, object())
+    for k in range(2):
+        frame = Frame(uav="uav0", seq=k, stamp_s=k / 20, width=1280, height=720, pixels=pixels[k])
+        master._on_frame(_Sample(frame))  # type: ignore[arg-type]
+        master.intake.gate_received(leading=True)
+        item = master.slot.take(0.0)
+        assert item is not None and master._estimate(*item, time.perf_counter()) is not None
+    stream = master.stream
+    assert stream is not None
+    assert stream.grid.pyramid_level == stream.tracker.settings.pyramid_level == level
+    assert stream.settings.pyramid_level == stream.wire_settings.pyramid_level == level
+    default = YawSettings()
+    assert stream.wire_settings.ransac_threshold_px == pytest.approx(stretch * default.ransac_threshold_px)
+    assert stream.tracker.settings.max_residual_px == pytest.approx(stretch * default.max_residual_px)

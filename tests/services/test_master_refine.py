@@ -15,7 +15,7 @@ import zenoh
 from common.dispatch import SELF, Dispatcher, DispatchSettings
 from common.dispatch.refine_place import RefineCosts, RefinePlace
 from common.wire.messages import BlockJob, BlockResult, YawJobSettings
-from common.yaw import YawSettings, make_patch_grid
+from common.yaw import YawSettings, for_frame, make_patch_grid
 from common.yaw.measurement import PatchMeasurement
 from services.master import refine as refine_module
 from services.master.refine import MemberRefine, RefineChooser
@@ -47,6 +47,7 @@ def _of(
     chooser: RefineChooser | None = None,
     computes: bool = False,
 ) -> MemberRefine | None:
+    settings = for_frame(settings, (480, 752))
     grid = make_patch_grid((480, 752), settings)
     halves = np.array_split(grid.all_indices, len(owners))
     report = RoundReport(parts=[_part(h) for h in halves], owners=owners)
@@ -56,7 +57,7 @@ def _of(
         compute_self=lambda i, m: pytest.fail("not computed here"),
     )  # fmt: skip
     session: Any = _Unreachable()  # a query fails as on a closing session: its part is measured here
-    level = np.zeros((480 >> settings.pyramid_level, 752 >> settings.pyramid_level), np.uint8)
+    level = np.zeros((480 >> settings.level, 752 >> settings.level), np.uint8)
     dispatcher = Dispatcher(DispatchSettings(self_compute=computes), grid.n_patches)
     for member in owners:
         if member != SELF:

@@ -15,7 +15,7 @@ from common.members import Topology
 from common.wire import keys
 from common.wire.codec import decode, encode
 from common.wire.messages import PatchJob, PatchResult, YawJobSettings
-from common.yaw import YawSettings, make_patch_grid
+from common.yaw import YawSettings, for_frame, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
 from services.runtime.transport import open_session, zbytes
 from services.tools.bench.cluster_workload import in_process_ms, write_frame_folder
@@ -129,8 +129,8 @@ def reply_handoff(out_dir: Path, shm: bool, requests: int = 240, blocks: int = 6
     process, its reply handed over by a callback on zenoh's thread and a queue (how replies arrive when
     several requests are in flight) or received from the query's own FIFO channel (a request alone in
     flight). Alternating blocks of each; the requester pauses 2 ms between requests, as between frames."""
-    settings = YawSettings()
     flight = simulated_flight(CameraSettings(frames=3))
+    settings = for_frame(YawSettings(), flight.frame(0).shape)
     grid = make_patch_grid(flight.frame(0).shape, settings)
     idx = grid.all_indices.astype(np.int32)
     crops = [grid.crop(flight.frame(i), idx) for i in range(3)]

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from common.errors import CapatazError
-from common.yaw import YawSettings, YawTracker, make_patch_grid
+from common.yaw import YawSettings, YawTracker, for_frame, make_patch_grid
 from services.camera import CameraSettings, simulated_flight
 from services.camera.settings import FlightName
 from services.master.settings import MasterSettings
@@ -28,12 +28,13 @@ def workload_of(args: argparse.Namespace) -> tuple[tuple[int, int], YawSettings,
     size = parse_size(args.resolution, "--resolution", "752x480")
     cols, rows = parse_size(args.grid, "--grid", "8x5")
     patch, level = args.patch_size, args.pyramid_level
-    settings = replace(
-        YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level
-    )
+    # no level given: the master resolves it for the frames' size as the core does here (for_frame)
+    given = replace(YawSettings(), grid_cols=cols, grid_rows=rows, patch_size_px=patch, pyramid_level=level)
+    settings = for_frame(given, (size[1], size[0]))
     encoding = getattr(args, "job_encoding", MasterSettings().job_encoding)
     quality = getattr(args, "job_quality", MasterSettings().job_quality)
-    master_args = ("--grid", args.grid, "--patch-size", str(patch), "--pyramid-level", str(level),
+    level_args = () if level is None else ("--pyramid-level", str(level))
+    master_args = ("--grid", args.grid, "--patch-size", str(patch), *level_args,
                    "--job-encoding", encoding, "--job-quality", str(quality))  # fmt: skip
     return size, settings, master_args
 

@@ -33,7 +33,7 @@ from common.camera import CameraModel
 from common.estimation.vo import VoSettings, prepare_frame, track_features
 from common.sim.ground import GroundTexture, make_ground_texture, nadir_camera_pose, render_ground_view
 from common.types import FloatArray, U8Array
-from common.yaw import YawSettings
+from common.yaw import YawSettings, for_frame
 from common.yaw.correlation import measure_patches, patch_spectra
 from common.yaw.grid import make_patch_grid
 from services.runtime.cli import number_in
@@ -101,6 +101,7 @@ def measure_yaw_core(
 ) -> tuple[float, float]:
     """Mean patch shift (full-resolution px) along and across the true shift, by the yaw core's phase
     correlation (its valid patches)."""
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     m = measure_patches(
         patch_spectra(a, grid, None, settings), patch_spectra(b, grid, None, settings), settings

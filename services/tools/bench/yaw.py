@@ -28,7 +28,7 @@ import numpy.typing as npt
 from common.errors import CapatazError
 from common.metrics import yaw_error_stats
 from common.sim.flight import hover_flight
-from common.yaw import FftBackend, YawSettings, YawTracker, make_patch_grid
+from common.yaw import FftBackend, YawSettings, YawTracker, for_frame, make_patch_grid
 from common.yaw.correlation import forward_transform, inverse_transform, windowed_patches
 from common.yaw.reference import reference_pair, reference_settings
 from services.tools.bench.yaw_field import add_field_arguments, run_field
@@ -170,7 +170,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     truth = flight.yaw_rad
     settings = YawSettings()
     layout = f"{settings.grid_cols}x{settings.grid_rows}"
-    core_grid = f"{layout} x {settings.patch_size_px}px @ level {settings.pyramid_level}"
+    level = for_frame(settings, frames[0].shape).pyramid_level
+    core_grid = f"{layout} x {settings.patch_size_px}px @ level {level}"
     rows: list[dict[str, Any]] = []
 
     others = [b for b in FftBackend if b is not settings.fft_backend]

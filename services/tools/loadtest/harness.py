@@ -26,7 +26,7 @@ import zenoh
 from common.wire import keys
 from common.wire.codec import encode
 from common.wire.messages import Frame, PatchJob, YawJobSettings
-from common.yaw import YawSettings
+from common.yaw import YawSettings, for_frame
 from services.runtime.transport import open_session
 from services.tools.cluster_file import ClusterSpec, master_command
 from services.tools.loadtest.plan import Fault, FaultAction
@@ -308,7 +308,9 @@ class Hostile:
 
     def _jobs(self, kind: str) -> None:
         host = self.spec.hosts[0].name
-        wire = YawJobSettings.of(YawSettings()).model_dump(mode="json")  # a hostile copy is sent unchecked
+        wire = YawJobSettings.of(for_frame(YawSettings(), (self.height, self.width))).model_dump(
+            mode="json"
+        )  # a hostile copy is sent unchecked
         n = 1 if kind == "settings" else 2000
         for i in range(n):
             settings = dict(wire, patch_size_px=100_000) if kind == "settings" else wire

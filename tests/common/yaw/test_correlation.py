@@ -13,6 +13,7 @@ from common.yaw import (
     YawError,
     YawSettings,
     correlation,
+    for_frame,
     make_patch_grid,
     measure_patches,
     merge_measurements,
@@ -27,6 +28,7 @@ from .conftest import ALTITUDE_M
 def _measure(
     a: np.ndarray, b: np.ndarray, settings: YawSettings, indices: list[int] | None = None
 ) -> PatchMeasurement:
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     return measure_patches(
         patch_spectra(a, grid, indices, settings), patch_spectra(b, grid, indices, settings), settings
@@ -48,7 +50,7 @@ def test_shifts_match_the_true_motion_at_every_patch(
     texture: GroundTexture, camera: CameraModel, backend: FftBackend
 ) -> None:
     a, b, H_b_a = _translated_pair(texture, camera, (0.0123, -0.0087))  # about 3 and 2 px
-    settings = YawSettings(fft_backend=backend)
+    settings = YawSettings(fft_backend=backend, pyramid_level=1)
     grid = make_patch_grid(a.shape, settings)
     m = _measure(a, b, settings)
     assert m.valid.all()
@@ -63,6 +65,7 @@ def test_crops_give_the_same_spectra_bit_for_bit_for_any_subset(
 ) -> None:
     a, b, _ = _translated_pair(texture, camera, (0.01, 0.004))
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     full_a = patch_spectra(a, grid, None, settings)
     full_b = patch_spectra(b, grid, None, settings)
@@ -87,6 +90,7 @@ def test_textureless_patches_are_rejected(texture: GroundTexture, camera: Camera
     a[:, :200] = 128  # a flat strip: the left columns of patches see nothing
     b[:, :200] = 128
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     m = _measure(a, b, settings)
     inside_flat = grid.centres_px[:, 0] + settings.patch_size_px * settings.scale / 2 < 200
@@ -101,6 +105,7 @@ def test_backends_agree(texture: GroundTexture, camera: CameraModel) -> None:
     shifts = []
     for backend in FftBackend:
         settings = YawSettings(fft_backend=backend)
+        settings = for_frame(settings, a.shape)
         grid = make_patch_grid(a.shape, settings)
         sa, sb = patch_spectra(a, grid, None, settings), patch_spectra(b, grid, None, settings)
         shifts.append(measure_patches(sa, sb, settings).shift_px)
@@ -111,6 +116,7 @@ def test_backends_agree(texture: GroundTexture, camera: CameraModel) -> None:
 def test_mismatched_spectra_raise_yaw_error(texture: GroundTexture, camera: CameraModel) -> None:
     a, b, _ = _translated_pair(texture, camera, (0.0, 0.0))
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     with pytest.raises(YawError, match="same patch indices"):
         measure_patches(
@@ -142,7 +148,7 @@ def test_patches_in_runs_give_the_bits_of_one_batch(
     in."""
     rng = np.random.default_rng(seed)
     crops = rng.integers(0, 256, (2, n, size, size), dtype=np.uint8)
-    yaw_settings = YawSettings(patch_size_px=size, fft_backend=backend)
+    yaw_settings = YawSettings(patch_size_px=size, fft_backend=backend, pyramid_level=1)
     indices = np.arange(n)
 
     def spectra_and_shifts() -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from common.errors import InputError
 from common.images import check_grey_image
-from common.yaw import YawSettings, make_patch_grid
+from common.yaw import YawSettings, for_frame, make_patch_grid
 from common.yaw.grid import level_shape, pyramid_image
 
 
@@ -30,6 +30,7 @@ def test_crop_is_the_patch_slice_of_the_level_image() -> None:
     rng = np.random.default_rng(0)
     frame = rng.integers(0, 256, (480, 752), dtype=np.uint8)
     settings = YawSettings()
+    settings = for_frame(settings, frame.shape)
     grid = make_patch_grid(frame.shape, settings)
     level = pyramid_image(frame, settings.pyramid_level)
     indices = np.array([3, 0, 17])
@@ -57,7 +58,7 @@ def test_check_grey_image_rejects_garbage(frame: object) -> None:
 
 
 def test_grid_rejects_small_frames_bad_indices_and_wrong_shapes() -> None:
-    settings = YawSettings()
+    settings = YawSettings(pyramid_level=1)
     with pytest.raises(InputError, match="too small"):
         make_patch_grid((40, 40), settings)
     grid = make_patch_grid((480, 752), settings)
@@ -82,7 +83,7 @@ def test_settings_reject_nonsense() -> None:
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.integers(0, 39), min_size=0, max_size=40, unique=True), st.booleans())
 def test_crop_level_equals_slicing_for_any_distinct_indices(indices: list[int], ascending: bool) -> None:
-    grid = make_patch_grid((480, 752), YawSettings())
+    grid = make_patch_grid((480, 752), YawSettings(pyramid_level=1))
     level = np.random.default_rng(len(indices)).integers(0, 256, level_shape((480, 752), 1), dtype=np.uint8)
     idx = np.array(sorted(indices) if ascending else indices, dtype=np.int64)
     crops = grid.crop_level(level, idx)

@@ -14,7 +14,7 @@ from common.dispatch import Dispatcher, DispatchSettings, SpeedSource
 from common.errors import InputError
 from common.sim.flight import hover_flight
 from common.wire.messages import LOCAL_YAW_SETTINGS, YawJobSettings
-from common.yaw import FftBackend, YawError, YawSettings, YawTracker, make_patch_grid
+from common.yaw import FftBackend, YawError, YawSettings, YawTracker, for_frame, make_patch_grid
 from common.yaw.measurement import merge_measurements
 from common.yaw.patchwork import PatchWorkError, SpectrumCache, measure_share
 
@@ -26,7 +26,7 @@ def frames() -> list[np.ndarray]:
 
 
 def test_settings_round_trip_and_rejects_unknown_or_wrong_types() -> None:
-    settings = YawSettings(grid_cols=10, fft_backend=FftBackend.NUMPY, peak_sigma_px=1.5)
+    settings = YawSettings(grid_cols=10, fft_backend=FftBackend.NUMPY, peak_sigma_px=1.5, pyramid_level=2)
     wire = YawJobSettings.of(settings)
     assert YawJobSettings.model_validate(wire.model_dump(mode="json")).yaw_settings == settings
     for name, value in [("colour", 1), ("grid_cols", "ten"), ("grid_cols", True), ("fft_backend", "cuda"),
@@ -40,12 +40,24 @@ def test_settings_round_trip_and_rejects_unknown_or_wrong_types() -> None:
 def test_the_job_settings_carry_every_yaw_setting_but_the_lens() -> None:
     core = {f.name for f in dataclasses.fields(YawSettings)}
     assert set(YawJobSettings.model_fields) == core - LOCAL_YAW_SETTINGS
-    assert YawJobSettings.of(YawSettings(camera=CameraModel.default())).yaw_settings == YawSettings()
+    lens = YawSettings(camera=CameraModel.default(), pyramid_level=1)
+    assert YawJobSettings.of(lens).yaw_settings == YawSettings(pyramid_level=1)
+
+
+def test_a_job_states_the_pyramid_level_resolved_for_its_frames() -> None:
+    """The default level follows the frame's size; the master resolves it per stream, so a job that left it
+    open would leave the members to guess: refused, on both sides."""
+    with pytest.raises(InputError, match="resolve"):
+        YawJobSettings.of(YawSettings())
+    wire = YawJobSettings.of(for_frame(YawSettings(), (720, 1280))).model_dump(mode="json")
+    assert wire["pyramid_level"] == 2
+    with pytest.raises(ValidationError, match="pyramid_level"):
+        YawJobSettings.model_validate({**wire, "pyramid_level": None})
 
 
 def test_the_job_settings_bounds_are_the_core_settings_bounds() -> None:
     """One home: the wire's limits are YawSettings' (generated), so the two refuse the same values."""
-    wire = YawJobSettings.of(YawSettings()).model_dump(mode="json")
+    wire = YawJobSettings.of(YawSettings(pyramid_level=1)).model_dump(mode="json")
     checked = 0
     for name, limits in field_bounds(YawSettings).items():
         integer = isinstance(wire[name], int)
@@ -70,6 +82,7 @@ def test_sticky_shares_through_members_equal_the_in_process_tracker_bit_for_bit(
     frames: list[np.ndarray], backend: FftBackend
 ) -> None:
     settings = YawSettings(fft_backend=backend)
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     tracker = YawTracker(settings, grid)
     reference = tracker.initial_state(frames[0])
@@ -103,6 +116,7 @@ def test_sticky_shares_through_members_equal_the_in_process_tracker_bit_for_bit(
 
 def test_missing_previous_spectra_is_an_error_naming_the_patches(frames: list[np.ndarray]) -> None:
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     idx = np.array([0, 1, 2])
     crops = grid.crop(frames[1], idx)
@@ -112,6 +126,7 @@ def test_missing_previous_spectra_is_an_error_naming_the_patches(frames: list[np
 
 def test_merge_rejects_gaps_and_overlaps(frames: list[np.ndarray]) -> None:
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     cache = SpectrumCache()
     idx = np.array([0, 1])
@@ -125,7 +140,7 @@ def test_merge_rejects_gaps_and_overlaps(frames: list[np.ndarray]) -> None:
 
 
 def test_cache_keeps_only_the_newest_frame_and_bounded_streams() -> None:
-    settings = YawSettings()
+    settings = YawSettings(pyramid_level=1)
     cache = SpectrumCache(max_streams=2)
     grid = make_patch_grid((480, 752), settings)
     rng = np.random.default_rng(0)
@@ -141,6 +156,7 @@ def test_cache_hands_back_the_previous_share_whole_only_for_the_same_indices(
     frames: list[np.ndarray],
 ) -> None:
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     cache = SpectrumCache()
     share = np.array([3, 4, 5])
@@ -166,6 +182,7 @@ def test_cache_hands_back_the_previous_share_whole_only_for_the_same_indices(
 
 def test_single_part_merge_is_sorted_and_checked(frames: list[np.ndarray]) -> None:
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     idx = np.array([2, 0, 1])
     part = measure_share(

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.yaw import YawSettings, YawTracker
+from common.yaw import YawSettings, YawTracker, for_frame
 from common.yaw.correlation import measure_patches, patch_spectra
 from common.yaw.grid import IntArray, U8Array, make_patch_grid
 from common.yaw.measurement import PatchMeasurement
@@ -33,6 +33,7 @@ def test_the_refinement_measured_from_crops_equals_the_in_process_pair(
 ) -> None:
     a, b = nadir_pair(delta_deg)
     settings = YawSettings(grid_cols=grid[0], grid_rows=grid[1])
+    settings = for_frame(settings, a.shape)
     tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
     _, local = tracker.track(tracker.initial_state(a), b)
     assert local.method is EstimateMethod.REFINED

@@ -16,6 +16,7 @@ from common.yaw import (
     YawSettings,
     YawTracker,
     estimate_pair,
+    for_frame,
     make_patch_grid,
     measure_patches,
     merge_measurements,
@@ -46,6 +47,7 @@ def test_tracker_survives_a_spin_by_global_prealignment(nadir_pair: PairMaker, d
     """A fast spin or dropped frames: far beyond what per-patch shifts can follow."""
     a, b = nadir_pair(delta_yaw_deg, (6.0, -4.0))
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
     state, estimate = tracker.track(tracker.initial_state(a), b)
     assert estimate.method is EstimateMethod.GLOBAL_PREALIGNED
@@ -71,6 +73,7 @@ def test_hover_yaw_follows_the_simulator_truth(hover_frames: tuple[list[np.ndarr
     """Sign and size of the vehicle's yaw from the downward camera, against the simulator's truth."""
     frames, true_yaw = hover_frames
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
     state = tracker.initial_state(frames[0])
     estimated = [0.0]
@@ -92,6 +95,7 @@ def test_cluster_split_equals_in_process_tracking(hover_frames: tuple[list[np.nd
     """Workers on index subsets (crops only, sticky previous spectra) + conclude == track, to 1e-9 deg."""
     frames = hover_frames[0][:25]
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     tracker = YawTracker(settings, grid)
     shares = [np.arange(0, 13), np.arange(13, 27), np.arange(27, grid.n_patches)]
@@ -118,6 +122,7 @@ def test_conclude_with_a_missing_worker_still_estimates(
 ) -> None:
     frames, true_yaw = hover_frames
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     grid = make_patch_grid(frames[0].shape, settings)
     tracker = YawTracker(settings, grid)
     idx = np.arange(0, grid.n_patches, 2)  # half of the patches
@@ -132,6 +137,7 @@ def test_conclude_with_a_missing_worker_still_estimates(
 def test_garbage_frames_raise_clear_errors(nadir_pair: PairMaker) -> None:
     a, b = nadir_pair(1.0)
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
     state = tracker.initial_state(a)
     cases: list[tuple[Any, str]] = [
@@ -154,6 +160,7 @@ def test_black_or_saturated_frame_is_flagged_not_guessed(nadir_pair: PairMaker, 
     a, b = nadir_pair(2.0)
     flat = np.full_like(b, level)
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
     state = tracker.initial_state(a)
     state, estimate = tracker.track(state, flat)
@@ -172,6 +179,7 @@ def test_unrelated_noise_frames_are_low_confidence() -> None:
     estimate = estimate_pair(a, b, YawSettings())
     assert estimate.low_confidence
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     tracker = YawTracker(settings, make_patch_grid(a.shape, settings))
     _, tracked = tracker.track(tracker.initial_state(a), b)
     assert tracked.low_confidence
@@ -190,6 +198,7 @@ def test_dropped_frames_hover_stays_accurate_through_the_fallback() -> None:
     frames = [flight.frame(i) for i in kept]
     true_yaw = flight.yaw_rad[kept]
     settings = YawSettings()
+    settings = for_frame(settings, frames[0].shape)
     tracker = YawTracker(settings, make_patch_grid(frames[0].shape, settings))
     state = tracker.initial_state(frames[0])
     methods = set()
@@ -207,6 +216,7 @@ def test_master_alone_concludes_from_an_empty_measurement(nadir_pair: PairMaker)
     """No worker answered: the central stage still estimates from the two frames (flagged by its method)."""
     a, b = nadir_pair(3.0, (5.0, 2.0))
     settings = YawSettings()
+    settings = for_frame(settings, a.shape)
     grid = make_patch_grid(a.shape, settings)
     tracker = YawTracker(settings, grid)
     empty = merge_measurements([])

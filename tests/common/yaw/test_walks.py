@@ -4,13 +4,14 @@ the frame checked once (measured with :func:`tests.walks.walk`)."""
 from __future__ import annotations
 
 from common.sim.flight import hover_flight
-from common.yaw import YawSettings, YawTracker, make_patch_grid
+from common.yaw import YawSettings, YawTracker, for_frame, make_patch_grid
 from tests.walks import entries_per_module, walk
 
 
 def test_a_tracked_frame_enters_no_module_more_than_twice_and_is_checked_once() -> None:
     flight = hover_flight(seed=0, n_frames=3)
     settings = YawSettings()
+    settings = for_frame(settings, flight.frame(0).shape)
     tracker = YawTracker(settings, make_patch_grid(flight.frame(0).shape, settings))
     state = tracker.initial_state(flight.frame(0), stamp_s=0.0)
     state, _ = tracker.track(state, flight.frame(1), stamp_s=0.05)  # the steady state: spectra cached
@@ -29,7 +30,7 @@ def test_the_walk_counts_entries_from_another_module_not_calls_within_one() -> N
     settings = YawSettings()
     grid = make_patch_grid((480, 752), settings)
     assert walk(lambda: (grid.n_patches, grid.all_indices, grid.n_patches)) == ["common/yaw/grid.py"]
-    fresh = YawSettings()  # its scale not computed yet
+    fresh = YawSettings(pyramid_level=1)  # its scale not computed yet
     entries = walk(lambda: (grid.n_patches, fresh.scale, grid.n_patches))
     assert entries == ["common/yaw/grid.py", "common/yaw/settings.py", "common/yaw/grid.py"]
     assert entries_per_module(entries) == {"common/yaw/grid.py": 2, "common/yaw/settings.py": 1}
