@@ -25,14 +25,17 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.camera import CameraModel
 from common.errors import CapatazError
 from common.metrics import accumulated_mean_error, yaw_error_rad
-from common.sim.field import FIELD_SCENARIOS, field_flight
+from common.sim.field import FIELD_SCENARIOS, NARROW_HFOV_DEG, FieldScenario, field_flight, wide_angle_camera
 from common.sim.flight import Flight, hover_flight
 from common.types import FloatArray
-from common.yaw import Provenance, YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
+from common.yaw import Provenance, YawSettings, YawTracker, for_frame, gyro_delta_yaw_rad, make_patch_grid
 from common.yaw.mount import image_turn_axis_imu, imu_stamp_s
 from common.yaw.reference import reference_pair, reference_settings
+from services.runtime.cli import parse_size
+from services.runtime.usage import number_in
 
 logger = logging.getLogger(__name__)
 
@@ -195,11 +198,31 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--field-frames", type=int, default=600, help="frames per field scenario (>= 102)")
     group.add_argument("--hover-frames", type=int, default=2041, help="hover frames of the field suite")
     group.add_argument("--field-scenarios", default="", help=SCENARIOS_HELP)
+    group.add_argument(
+        "--field-size",
+        default="320x240",
+        help="frame size of the field scenarios (WxH; default 320x240): each lens keeps its field of view",
+    )
+    group.add_argument(
+        "--field-pyramid-level",
+        type=number_in(int, 0, 4),
+        default=None,
+        help="the core's pyramid level (default: by the frame's size, as a master does)",
+    )
+
+
+def field_camera(scenario: FieldScenario, size: tuple[int, int]) -> CameraModel:
+    """The scenario's lens at ``size`` (W, H): the wide-angle lens or the narrow pinhole, same view."""
+    width, height = size
+    if scenario.wide_angle:
+        return wide_angle_camera(width, height)
+    return CameraModel.from_hfov(width, height, NARROW_HFOV_DEG)
 
 
 def run_field(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
-    settings = YawSettings()
+    size = parse_size(args.field_size, "--field-size", "640x480")
+    settings = YawSettings(pyramid_level=args.field_pyramid_level)
     scenarios: dict[str, Any] = {}
     baseline: dict[str, Any] = {}
     rows: list[dict[str, Any]] = []
@@ -212,9 +235,12 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
                 seed=args.seed, n_frames=max(int(args.hover_frames), AME_WINDOW + 2)
             )
         else:
-            flight = field_flight(FIELD_SCENARIOS[name], seed=args.seed, n_frames=args.field_frames)
-            use_imu = FIELD_SCENARIOS[name].use_imu
+            scenario = FIELD_SCENARIOS[name]
+            camera = field_camera(scenario, size)
+            flight = field_flight(scenario, seed=args.seed, n_frames=args.field_frames, camera=camera)
+            use_imu = scenario.use_imu
         core, base = run_flight(flight, settings, use_imu)
+        core["pyramid_level"] = for_frame(settings, flight.camera.shape).pyramid_level
         scenarios[name], baseline[name] = core, base
         for method, stats in (("core", core), ("baseline", base)):
             rows.append({"scenario": name, "method": method, **stats})
@@ -222,6 +248,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
         rows[-2]["speedup"] = 1.0
     field_names = [n for n in names if n != "hover"] or ["hover"]
     payload = {
+        "field_size": "{}x{}".format(*size),
         "scenarios": scenarios,
         "baseline": baseline,
         "worst_max_ame_deg": max(scenarios[n]["max_ame_deg"] for n in field_names),

@@ -73,6 +73,7 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     assert _runner(yaw)(args) == 0
     payload = json.loads((tmp_path / "yaw_field.json").read_text())
     assert set(payload) == {
+        "field_size",
         "scenarios",
         "baseline",
         "worst_max_ame_deg",
@@ -84,6 +85,26 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     assert {"command", "git_commit", "time_utc"} <= set(payload["metadata"]), payload["metadata"]
     names = {*subset, "hover"}
     assert set(payload["scenarios"]) == set(payload["baseline"]) == names
-    for block in (payload["scenarios"], payload["baseline"]):
-        assert all(set(stats) == FIELDS for stats in block.values())
+    assert all(set(stats) == FIELDS for stats in payload["baseline"].values())
+    assert all(set(stats) == FIELDS | {"pyramid_level"} for stats in payload["scenarios"].values())
+    # the core at the level a master resolves for the frames: 320x240 at 1, the hover's 752x480 at 2
+    assert payload["field_size"] == "320x240"
+    assert payload["scenarios"]["checkerboard"]["pyramid_level"] == 1
+    assert payload["scenarios"]["hover"]["pyramid_level"] == 2
     assert payload["total_pairs_over_5deg"] == 0
+
+
+@pytest.mark.parametrize("size", ["640", "640x", "wide"])
+def test_bench_yaw_field_suite_refuses_a_size_that_is_not_wxh(size: str) -> None:
+    parser = argparse.ArgumentParser()
+    yaw.add_arguments(parser)
+    with pytest.raises(yaw.CapatazError, match="--field-size"):
+        yaw.run(parser.parse_args(["--suite", "field", "--field-size", size, "--field-frames", "102"]))
+
+
+def test_the_field_camera_keeps_each_lens_view_at_another_size() -> None:
+    wide = yaw_field.field_camera(FIELD_SCENARIOS["field"], (1280, 720))
+    assert wide.shape == (720, 1280) and wide.distortion.model.value == "radtan"
+    narrow = yaw_field.field_camera(FIELD_SCENARIOS["checkerboard"], (640, 480))
+    small = yaw_field.field_camera(FIELD_SCENARIOS["checkerboard"], (320, 240))
+    assert narrow.fx == pytest.approx(2 * small.fx, rel=1e-2)  # the same 90 deg view, twice the pixels
