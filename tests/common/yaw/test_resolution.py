@@ -44,8 +44,9 @@ def test_the_default_pyramid_level_follows_the_frame_size(frame_shape: tuple[int
 @given(st.integers(32, 4000), st.integers(32, 4000))
 def test_the_default_level_works_within_the_measured_size_and_always_fits(height: int, width: int) -> None:
     """The default level is 1 or the first coarser one at which the frame is no larger than the largest
-    working size the defaults were measured at (up to the pyramid's rounding up); 0 only for a frame too
-    small for a patch at level 1; the grid always fits."""
+    working size the defaults were measured at (up to the pyramid's rounding up), unless a patch would not
+    fit there (a long thin frame); 0 only for a frame too small for a patch at level 1; the grid always
+    fits."""
     chosen = auto_pyramid_level((height, width), YawSettings())
 
     def side(level: int) -> float:
@@ -55,10 +56,15 @@ def test_the_default_level_works_within_the_measured_size_and_always_fits(height
         assert min(level_shape((height, width), 1)) < 32
     elif chosen > 1:
         assert side(chosen - 1) > AUTO_LEVEL_SIDE_PX  # a finer level would be larger than measured
-    if 0 < chosen < MAX_PYRAMID_LEVEL:
+    if 0 < chosen < MAX_PYRAMID_LEVEL and min(level_shape((height, width), chosen + 1)) >= 32:
         assert side(chosen) <= AUTO_LEVEL_SIDE_PX * 1.02
     if min(height, width) >= 32:
         make_patch_grid((height, width), YawSettings())  # never too small at the level chosen
+
+
+def test_a_long_thin_frame_stays_at_the_coarsest_level_a_patch_fits() -> None:
+    """4000x120 is larger than 752x480 at level 1 (346 px against 320) but only 30 px high at level 2."""
+    assert auto_pyramid_level((120, 4000), YawSettings()) == 1
 
 
 def test_resolving_scales_the_pixel_thresholds_with_the_level_once_and_keeps_a_given_level() -> None:
