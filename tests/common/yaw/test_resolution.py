@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from common.sim.field import FieldFlight, field_flight, wide_angle_camera
@@ -42,6 +42,7 @@ def test_the_default_pyramid_level_follows_the_frame_size(frame_shape: tuple[int
 
 @settings(max_examples=200, deadline=None)
 @given(st.integers(32, 4000), st.integers(32, 4000))
+@example(121, 3493)  # 325 px at level 1, but 31 px high at level 2: stays at 1
 def test_the_default_level_works_within_the_measured_size_and_always_fits(height: int, width: int) -> None:
     """The default level is 1 or the first coarser one at which the frame is no larger than the largest
     working size the defaults were measured at (up to the pyramid's rounding up), unless a patch would not
