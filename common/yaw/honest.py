@@ -199,9 +199,14 @@ def choose_rotation(candidates: list[tuple[float, float]], prior: Prior, setting
 
     Candidates that break the rate limit or the prior's tolerance are out; of those left, the ones whose
     response reaches ``ambiguity_ratio`` of the best look alike (a periodic floor): an informative prior
-    picks the nearest, otherwise only a single look-alike is accepted.
+    picks the nearest, otherwise only a single look-alike is accepted. A response that is not a positive
+    number is no peak: such candidates are out (none left: None).
     """
-    kept = [i for i, (rotation, _) in enumerate(candidates) if plausible(rotation, prior, settings)]
+    kept = [
+        i
+        for i, (rotation, response) in enumerate(candidates)
+        if response > 0.0 and math.isfinite(response) and plausible(rotation, prior, settings)
+    ]
     if not kept:
         return None
     best = max(candidates[i][1] for i in kept)

@@ -99,6 +99,24 @@ def test_choose_rotation_needs_an_informative_prior_among_look_alikes() -> None:
     assert choose_rotation([(0.1, 0.5), (1.67, 0.1)], vague, settings) == 0
 
 
+@pytest.mark.parametrize(
+    "responses", [(-0.2, -0.3), (math.nan, math.nan), (0.0, -1.0), (math.nan, -0.1), (math.inf, 0.2)]
+)
+def test_choose_rotation_without_a_positive_peak_is_none_not_a_crash_regression(
+    responses: tuple[float, float],
+) -> None:
+    """Regression: the global stage's candidates all with negative (or NaN) responses left no look-alike
+    (``r >= 0.8 * best`` fails for a negative best) and ``min()`` of nothing raised ValueError (found at
+    1280x720 at level 1 without a gyro, ``capataz bench yaw --suite field --field-size 1280x720
+    --field-pyramid-level 1``). A response that is not a positive number is no peak: no rotation."""
+    settings = YawSettings()
+    candidates = [(math.radians(-1.0), responses[0]), (math.radians(89.0), responses[1])]
+    for prior in (make_prior(settings, 0.05, None, None, 0.0), make_prior(settings, 0.05, 0.0, None, 0.0)):
+        assert choose_rotation(candidates, prior, settings) is None
+    held = make_prior(settings, 0.05, None, None, 0.0)
+    assert choose_rotation([(0.0, -0.2), (0.01, 0.3)], held, settings) == 1  # the one positive peak
+
+
 @settings(deadline=None, max_examples=50)
 @given(
     rate=st.floats(-5.0, 5.0),
