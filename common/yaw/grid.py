@@ -66,8 +66,8 @@ def for_frame(settings: YawSettings, frame_shape: tuple[int, int]) -> YawSetting
     :func:`auto_pyramid_level`, with the full-resolution pixel thresholds (``ransac_threshold_px``,
     ``max_residual_px``, stated for 320x240 frames at level 1) scaled by ``2**(level - 1)``, so that they stay
     the same in working-level pixels: a fit's residuals (the patches' shift noise, the perspective a
-    similarity leaves out) grow with the frame's size, and a fixed 1 px at 1280x720 refused half the inliers
-    of a wide-angle flight that 4 px keeps. Resolving resolved settings changes nothing."""
+    similarity leaves out) grow with the frame's size: a fixed 1 px at 1280x720 refused over half the
+    inliers of a wide-angle flight that 2 px at level 2 keeps. Resolving resolved settings changes nothing."""
     if settings.pyramid_level is not None:
         return settings
     level = auto_pyramid_level(frame_shape, settings)

@@ -41,9 +41,9 @@ class YawSettings(Bounded):
     The patch grid is laid out on the frame at pyramid level ``pyramid_level`` (each level halves
     the frame with ``cv2.pyrDown``); ``patch_size_px`` is the side of a patch at that level, so a
     patch covers ``patch_size_px * 2**pyramid_level`` full-resolution pixels. By default (None) the level
-    follows the frame's size (:func:`~common.yaw.grid.auto_pyramid_level`: 320x240 at level 1, 640x480 at 2,
-    1280x720 at 3), so a patch sees about the same share of the view at any resolution; the grid and the
-    tracker work with the level resolved for their frames (:func:`~common.yaw.grid.for_frame`).
+    follows the frame's size (:func:`~common.yaw.grid.auto_pyramid_level`: level 1 up to 752x480, where the
+    defaults were measured; 1280x720 at 2, 1920x1080 at 3), the pixel thresholds with it; the grid and the
+    tracker work with the settings resolved for their frames (:func:`~common.yaw.grid.for_frame`).
     """
 
     patch_size_px: int = bounded(32, ge=8, le=256, help="patch side at the pyramid level")
