@@ -506,6 +506,14 @@ def floor_texture(floor: Floor, seed: int) -> GroundTexture:
     return make_ground_texture(seed, size_px=FLOOR_SIZE_PX, texel_m=0.0025)
 
 
+def scenario_camera(scenario: FieldScenario, width: int = 320, height: int = 240) -> CameraModel:
+    """The scenario's lens at ``width`` x ``height``: the wide-angle lens or the narrow pinhole, the same view
+    at any size (``capataz bench yaw --suite field --field-size``)."""
+    if scenario.wide_angle:
+        return wide_angle_camera(width, height)
+    return CameraModel.from_hfov(width, height, NARROW_HFOV_DEG)
+
+
 def field_flight(
     scenario: FieldScenario | str,
     seed: int = 0,
@@ -533,9 +541,7 @@ def field_flight(
         name=scenario.name,
     )
     if camera is None:
-        camera = (
-            wide_angle_camera() if scenario.wide_angle else CameraModel.from_hfov(320, 240, NARROW_HFOV_DEG)
-        )
+        camera = scenario_camera(scenario)
     base = simulate_flight(
         trajectory,
         seed=seed,

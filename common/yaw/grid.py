@@ -80,10 +80,15 @@ def for_frame(settings: YawSettings, frame_shape: tuple[int, int]) -> YawSetting
     )
 
 
+def _level_margin(settings: YawSettings, level: int) -> int:
+    """``margin_px`` (full resolution) in pixels at ``level``, rounded up."""
+    return int(np.ceil(settings.margin_px / 2**level))
+
+
 def _free_span(frame_shape: tuple[int, int], level: int, settings: YawSettings) -> tuple[int, int]:
     """Room (H, W) left at ``level`` for the patches' origins inside the margins (negative: none)."""
     level_h, level_w = level_shape(frame_shape, level)
-    margin = int(np.ceil(settings.margin_px / 2**level))
+    margin = _level_margin(settings, level)
     n = settings.patch_size_px
     return level_h - n - 2 * margin, level_w - n - 2 * margin
 
@@ -257,7 +262,7 @@ def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> Patc
     height, width = (int(v) for v in frame_shape)
     settings = for_frame(settings, (height, width))
     n = settings.patch_size_px
-    margin = int(np.ceil(settings.margin_px / settings.scale))
+    margin = _level_margin(settings, settings.level)
     span_h, span_w = _free_span((height, width), settings.level, settings)
     if span_w < 0 or span_h < 0:
         level_h, level_w = level_shape((height, width), settings.level)

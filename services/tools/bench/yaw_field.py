@@ -25,10 +25,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from common.camera import CameraModel
 from common.errors import CapatazError
 from common.metrics import accumulated_mean_error, yaw_error_rad
-from common.sim.field import FIELD_SCENARIOS, NARROW_HFOV_DEG, FieldScenario, field_flight, wide_angle_camera
+from common.sim.field import FIELD_SCENARIOS, field_flight, scenario_camera
 from common.sim.flight import Flight, hover_flight
 from common.types import FloatArray
 from common.yaw import Provenance, YawSettings, YawTracker, for_frame, gyro_delta_yaw_rad, make_patch_grid
@@ -211,14 +210,6 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def field_camera(scenario: FieldScenario, size: tuple[int, int]) -> CameraModel:
-    """The scenario's lens at ``size`` (W, H): the wide-angle lens or the narrow pinhole, same view."""
-    width, height = size
-    if scenario.wide_angle:
-        return wide_angle_camera(width, height)
-    return CameraModel.from_hfov(width, height, NARROW_HFOV_DEG)
-
-
 def run_field(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
     size = parse_size(args.field_size, "--field-size", "640x480")
@@ -236,7 +227,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
             )
         else:
             scenario = FIELD_SCENARIOS[name]
-            camera = field_camera(scenario, size)
+            camera = scenario_camera(scenario, *size)
             flight = field_flight(scenario, seed=args.seed, n_frames=args.field_frames, camera=camera)
             use_imu = scenario.use_imu
         core, base = run_flight(flight, settings, use_imu)

@@ -18,6 +18,7 @@ from common.sim.field import (
     field_trajectory,
     pixel_rays,
     render_lens_view,
+    scenario_camera,
     tiled_texture,
     wide_angle_camera,
 )
@@ -109,3 +110,11 @@ def test_every_named_scenario_builds() -> None:
         assert flight.frame(2).dtype == np.uint8
     with pytest.raises(FieldError):
         field_flight("moon")
+
+
+def test_the_field_camera_keeps_each_lens_view_at_another_size() -> None:
+    wide = scenario_camera(FIELD_SCENARIOS["field"], 1280, 720)
+    assert wide.shape == (720, 1280) and wide.distortion.model.value == "radtan"
+    narrow = scenario_camera(FIELD_SCENARIOS["checkerboard"], 640, 480)
+    small = scenario_camera(FIELD_SCENARIOS["checkerboard"], 320, 240)
+    assert narrow.fx == pytest.approx(2 * small.fx, rel=1e-2)  # the same 90 deg view, twice the pixels

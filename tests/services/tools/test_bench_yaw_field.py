@@ -100,11 +100,3 @@ def test_bench_yaw_field_suite_refuses_a_size_that_is_not_wxh(size: str) -> None
     yaw.add_arguments(parser)
     with pytest.raises(yaw.CapatazError, match="--field-size"):
         yaw.run(parser.parse_args(["--suite", "field", "--field-size", size, "--field-frames", "102"]))
-
-
-def test_the_field_camera_keeps_each_lens_view_at_another_size() -> None:
-    wide = yaw_field.field_camera(FIELD_SCENARIOS["field"], (1280, 720))
-    assert wide.shape == (720, 1280) and wide.distortion.model.value == "radtan"
-    narrow = yaw_field.field_camera(FIELD_SCENARIOS["checkerboard"], (640, 480))
-    small = yaw_field.field_camera(FIELD_SCENARIOS["checkerboard"], (320, 240))
-    assert narrow.fx == pytest.approx(2 * small.fx, rel=1e-2)  # the same 90 deg view, twice the pixels
