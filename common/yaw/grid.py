@@ -43,6 +43,17 @@ AUTO_REFERENCE_LEVEL = 1
 MAX_PYRAMID_LEVEL = 4
 
 
+def check_frame_shape(frame_shape: tuple[int, int]) -> tuple[int, int]:
+    """``frame_shape`` as ``(H, W)`` positive integers, or InputError."""
+    if (
+        len(frame_shape) != 2
+        or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in frame_shape)
+        or min(frame_shape) <= 0
+    ):
+        raise InputError(f"frame_shape must be (H, W) positive integers, got {frame_shape}")
+    return int(frame_shape[0]), int(frame_shape[1])
+
+
 def auto_pyramid_level(frame_shape: tuple[int, int], settings: YawSettings) -> int:
     """The default pyramid level of frames of ``frame_shape`` (H, W): level 1, where the defaults were
     measured (320x240 to 752x480 frames), or the first coarser one at which the frame's geometric-mean side
@@ -53,6 +64,7 @@ def auto_pyramid_level(frame_shape: tuple[int, int], settings: YawSettings) -> i
     moves four times as many pixels a frame as at 320x240; the patch fit kept under half of its patches and a
     quarter of the pairs were not measured (:func:`for_frame` also scales the pixel thresholds).
     """
+    frame_shape = check_frame_shape(frame_shape)
     side = math.sqrt(frame_shape[0] * frame_shape[1]) / 2**AUTO_REFERENCE_LEVEL
     level = AUTO_REFERENCE_LEVEL + max(0, math.ceil(math.log2(side / AUTO_LEVEL_SIDE_PX) - 1e-9))
     level = min(level, MAX_PYRAMID_LEVEL)
@@ -257,9 +269,7 @@ def make_patch_grid(frame_shape: tuple[int, int], settings: YawSettings) -> Patc
     Patches are laid out at the working pyramid level, leaving ``margin_px`` (full resolution) free
     on each side; neighbours may overlap when the grid is denser than the frame allows.
     """
-    if len(frame_shape) != 2 or min(frame_shape) <= 0:
-        raise InputError(f"frame_shape must be (H, W) positive, got {frame_shape}")
-    height, width = (int(v) for v in frame_shape)
+    height, width = check_frame_shape(frame_shape)
     settings = for_frame(settings, (height, width))
     n = settings.patch_size_px
     margin = _level_margin(settings, settings.level)

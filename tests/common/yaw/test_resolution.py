@@ -11,6 +11,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from common.errors import InputError
 from common.sim.field import FieldFlight, field_flight, wide_angle_camera
 from common.types import U8Array
 from common.yaw import (
@@ -61,6 +62,19 @@ def test_the_default_level_works_within_the_measured_size_and_always_fits(height
         assert side(chosen) <= AUTO_LEVEL_SIDE_PX * 1.02
     if min(height, width) >= 32:
         make_patch_grid((height, width), YawSettings())  # never too small at the level chosen
+
+
+@pytest.mark.parametrize("frame_shape", [(0, 0), (-5, 10), (math.nan, 3), (240.5, 320), (240,), (True, 320)])
+def test_a_frame_shape_that_is_not_two_positive_integers_is_one_clear_error(
+    frame_shape: tuple[int, int],
+) -> None:
+    """Regression: ``for_frame`` and ``auto_pyramid_level`` took the log of any shape (math domain error)."""
+    for call in (
+        lambda: for_frame(YawSettings(), frame_shape),
+        lambda: make_patch_grid(frame_shape, YawSettings()),
+    ):
+        with pytest.raises(InputError, match="frame_shape"):
+            call()
 
 
 def test_a_long_thin_frame_stays_at_the_coarsest_level_a_patch_fits() -> None:
