@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 
 import cv2
@@ -506,12 +507,36 @@ def floor_texture(floor: Floor, seed: int) -> GroundTexture:
     return make_ground_texture(seed, size_px=FLOOR_SIZE_PX, texel_m=0.0025)
 
 
-def scenario_camera(scenario: FieldScenario, width: int = 320, height: int = 240) -> CameraModel:
+def fisheye_camera(width: int = 320, height: int = 240, hfov_deg: float = 120.0) -> CameraModel:
+    """An equidistant fisheye (OpenCV's ``cv::fisheye`` with zero coefficients: a ray ``theta`` off-axis
+    lands ``f theta`` from the centre) whose image spans ``hfov_deg`` horizontally."""
+    f = (width / 2.0) / (math.radians(hfov_deg) / 2.0)
+    distortion = Distortion(DistortionModel.FISHEYE, (0.0, 0.0, 0.0, 0.0))
+    return CameraModel(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, distortion)
+
+
+#: Lenses a field scenario can fly instead of its own (``capataz bench yaw --suite field --field-lens``):
+#: name -> the lens at a frame size, each keeping its field of view at any size
+FIELD_LENSES: dict[str, Callable[[int, int], CameraModel]] = {
+    "pinhole60": lambda w, h: CameraModel.from_hfov(w, h, 60.0),
+    "pinhole90": lambda w, h: CameraModel.from_hfov(w, h, NARROW_HFOV_DEG),
+    "radtan120": lambda w, h: wide_angle_camera(w, h),
+    "fisheye100": lambda w, h: fisheye_camera(w, h, 100.0),
+    "fisheye120": lambda w, h: fisheye_camera(w, h, 120.0),
+}
+
+
+def scenario_camera(
+    scenario: FieldScenario, width: int = 320, height: int = 240, lens: str | None = None
+) -> CameraModel:
     """The scenario's lens at ``width`` x ``height``: the wide-angle lens or the narrow pinhole, the same view
-    at any size (``capataz bench yaw --suite field --field-size``)."""
-    if scenario.wide_angle:
-        return wide_angle_camera(width, height)
-    return CameraModel.from_hfov(width, height, NARROW_HFOV_DEG)
+    at any size (``capataz bench yaw --suite field --field-size``); ``lens`` names one of
+    :data:`FIELD_LENSES` instead (an unknown name is a :class:`FieldError`)."""
+    if lens is not None:
+        if lens not in FIELD_LENSES:
+            raise FieldError(f"unknown lens {lens!r}; known: {', '.join(FIELD_LENSES)}")
+        return FIELD_LENSES[lens](width, height)
+    return FIELD_LENSES["radtan120" if scenario.wide_angle else "pinhole90"](width, height)
 
 
 def field_flight(

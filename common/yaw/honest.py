@@ -67,6 +67,16 @@ RESIDUAL_SHARE = 0.0366
 WARPED_FLOOR_DEG = 0.1207
 SHIFT_SHARE = 0.0935
 AMBIGUITY_DEG = 0.602
+#: A pair measured on the raw frames (not refined: it turned less than ``refine_min_deg``) adds
+#: ``(UNREFINED_PULL * turn)^2``, once for the pair: the window pulls every patch's shift towards zero alike
+#: (the refinement's reason), so the turn reads short by a share the residual does not see, which depends on
+#: the lens and the texture. Regressed on the true turn over such pairs (300-frame field and checkerboard
+#: flights, seed 0): 2-6 % on the suite's 120 deg lens, 2-8 % on a 90 deg pinhole, 12-13 % on an equidistant
+#: fisheye of 120 deg (without this term its pairs had a mean NEES of 2.6, 0.83 within 2 sigma). The smallest
+#: value that puts each of those three lenses' flights at 0.90 or more within 2 sigma (maximum likelihood over
+#: their pooled pairs gives 0.0975 and leaves the fisheye's field flight at 0.896; the fisheye alone fits
+#: 0.18-0.20); held out on seed 1 and two lenses it was not chosen on: docs/methods.md, "Lenses".
+UNREFINED_PULL = 0.11
 
 
 class PriorSource(Enum):
@@ -227,6 +237,7 @@ def measured_variance_rad2(
     shift_px: float = 0.0,
     focal_px: float | None = None,
     peak_ratio: float = math.inf,
+    unrefined_turn_rad: float = 0.0,
 ) -> float:
     """Variance of a measured delta from ``inliers`` of the ``patches`` measured: per patch, an angle error of
     ``residual / lever`` (scaled by :data:`RESIDUAL_SHARE`), plus the warp's floor :data:`WARPED_FLOOR_DEG`
@@ -236,7 +247,9 @@ def measured_variance_rad2(
     arm stands in, a cautious choice, as the patches' lever arm is shorter than a pinhole's focal length up to
     about 110 deg of view), plus ``(AMBIGUITY_DEG / peak_ratio)^2`` for the patches' median ratio of their
     correlation's first peak to its second (inf: unambiguous; NaN counts as 1, the most ambiguous). That is
-    averaged over the inliers and scaled by ``patches / inliers``, the pair's difficulty."""
+    averaged over the inliers and scaled by ``patches / inliers``, the pair's difficulty. A pair measured on
+    the raw frames adds ``(UNREFINED_PULL * unrefined_turn_rad)^2`` for the whole pair (the window's pull,
+    common to its patches; 0 for a refined or pre-aligned pair)."""
     residual = max(residual_px if math.isfinite(residual_px) else 1.0, MIN_RESIDUAL_PX)
     lever = max(lever_px, 1.0)
     focal = lever if focal_px is None or not math.isfinite(focal_px) else max(focal_px, 1.0)
@@ -245,4 +258,5 @@ def measured_variance_rad2(
     ambiguity = math.radians(AMBIGUITY_DEG) / max(peak_ratio if not math.isnan(peak_ratio) else 1.0, 1.0)
     per_patch = RESIDUAL_SHARE * (residual / lever) ** 2 * 2.0 + shift**2 + ambiguity**2
     per_patch += math.radians(WARPED_FLOOR_DEG) ** 2 if warped else 0.0
-    return float(per_patch * max(patches, agreed) / agreed**2)
+    turn = unrefined_turn_rad if math.isfinite(unrefined_turn_rad) else 0.0
+    return float(per_patch * max(patches, agreed) / agreed**2 + (UNREFINED_PULL * turn) ** 2)

@@ -176,6 +176,7 @@ def _result(
         shift_px,
         lens.focal_px,
         peak_ratio,
+        0.0 if warped else delta,
     )
     trusted = not low and plausible(delta, prior, settings)
     return PairResult(homography, method, fit, measurement, low, delta, trusted, variance)

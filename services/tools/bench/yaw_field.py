@@ -25,9 +25,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from common.consistency import error_consistency
 from common.errors import CapatazError
 from common.metrics import accumulated_mean_error, yaw_error_rad
-from common.sim.field import FIELD_SCENARIOS, field_flight, scenario_camera
+from common.sim.field import FIELD_LENSES, FIELD_SCENARIOS, field_flight, scenario_camera
 from common.sim.flight import Flight, hover_flight
 from common.types import FloatArray
 from common.yaw import Provenance, YawSettings, YawTracker, for_frame, gyro_delta_yaw_rad, make_patch_grid
@@ -132,7 +133,25 @@ def pair_stats(series: _Series, true_yaw_rad: FloatArray) -> dict[str, Any]:
         "held_pairs": int(np.count_nonzero(held)),
         "unmeasured_over_2deg": int(np.count_nonzero(unmeasured & (pair_err > 2.0))),
         "unmeasured_max_err_deg": float(np.max(pair_err[unmeasured])) if unmeasured.any() else 0.0,
+        **_measured_consistency(series, deltas, true_yaw_rad, provenance),
     }
+
+
+def _measured_consistency(
+    series: _Series, deltas: FloatArray, true_yaw_rad: FloatArray, provenance: list[Provenance]
+) -> dict[str, float]:
+    """The measured pairs' errors against the variance published with them (the core's; the baseline
+    publishes none): the share within 2 sigma and the mean NEES (``bench consistency`` splits them by
+    seed)."""
+    if not series.delta_variance_rad2:
+        return {}
+    measured = np.array([p is Provenance.MEASURED for p in provenance], dtype=bool)
+    error = yaw_error_rad(deltas, np.diff(true_yaw_rad))[measured]
+    variance = np.asarray(series.delta_variance_rad2, dtype=np.float64)[measured]
+    if not error.size:
+        return {"measured_within_2_sigma": math.nan, "measured_mean_nees": math.nan}
+    scored = error_consistency(error, variance)
+    return {"measured_within_2_sigma": scored.within_2_sigma, "measured_mean_nees": scored.nees_mean}
 
 
 def run_flight(
@@ -203,6 +222,12 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
         help="frame size of the field scenarios (WxH; default 320x240): each lens keeps its field of view",
     )
     group.add_argument(
+        "--field-lens",
+        choices=list(FIELD_LENSES),
+        default=None,
+        help="fly every field scenario with this lens instead of its own (default: each scenario's)",
+    )
+    group.add_argument(
         "--field-pyramid-level",
         type=number_in(int, 0, 4),
         default=None,
@@ -227,7 +252,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
             )
         else:
             scenario = FIELD_SCENARIOS[name]
-            camera = scenario_camera(scenario, *size)
+            camera = scenario_camera(scenario, *size, lens=args.field_lens)
             flight = field_flight(scenario, seed=args.seed, n_frames=args.field_frames, camera=camera)
             use_imu = scenario.use_imu
         core, base = run_flight(flight, settings, use_imu)
@@ -240,6 +265,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
     field_names = [n for n in names if n != "hover"] or ["hover"]
     payload = {
         "field_size": "{}x{}".format(*size),
+        "field_lens": args.field_lens,
         "scenarios": scenarios,
         "baseline": baseline,
         "worst_max_ame_deg": max(scenarios[n]["max_ame_deg"] for n in field_names),

@@ -1,8 +1,9 @@
 """The fit behind a measured yaw pair's variance (``capataz bench consistency --fit-yaw``).
 
 A measured pair's variance is ``RESIDUAL_SHARE * r + WARPED_FLOOR_DEG^2 * w + SHIFT_SHARE^2 * s +
-AMBIGUITY_DEG^2 * a`` (:func:`common.yaw.honest.measured_variance_rad2`; each term per patch, times ``patches
-/ inliers^2``). Each pair's terms ``r``, ``w``, ``s``, ``a`` are read from four runs of the core with unit
+AMBIGUITY_DEG^2 * a + UNREFINED_PULL^2 * u`` (:func:`common.yaw.honest.measured_variance_rad2`; each term but
+``u`` per patch, times ``patches / inliers^2``; ``u`` the squared turn of a pair measured on the raw frames).
+Each pair's terms ``r``, ``w``, ``s``, ``a``, ``u`` are read from five runs of the core with unit
 coefficients (:data:`UNIT_TERMS`; the coefficients only scale the published variance: the pairs, their
 provenance and their deltas are the same in the four runs, which is checked).
 :func:`common.consistency.fit_variance_terms` then fits the coefficients by maximum likelihood on the
@@ -32,13 +33,26 @@ from services.tools.bench.yaw_field import run_core
 
 logger = logging.getLogger(__name__)
 
-#: (residual share, warp floor in deg, shift share, ambiguity in deg) of the four runs: the residual's term
-#: alone, then with the floor's, the shift's, the ambiguity's (the residual's stays on, so that no published
-#: variance is 0)
-UNIT_TERMS = ((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 0.0, 0.0), (1.0, 0.0, 1.0, 0.0), (1.0, 0.0, 0.0, 1.0))
+#: (residual share, warp floor in deg, shift share, ambiguity in deg, unrefined pull) of the five runs: the
+#: residual's term alone, then with the floor's, the shift's, the ambiguity's, the pull's (the residual's
+#: stays on, so that no published variance is 0)
+UNIT_TERMS = (
+    (1.0, 0.0, 0.0, 0.0, 0.0),
+    (1.0, 1.0, 0.0, 0.0, 0.0),
+    (1.0, 0.0, 1.0, 0.0, 0.0),
+    (1.0, 0.0, 0.0, 1.0, 0.0),
+    (1.0, 0.0, 0.0, 0.0, 1.0),
+)
 #: the model's constants in its terms' order, each with the power its term scales with (the floor and the
-#: ambiguity are angles, their terms per deg^2; the shift's share enters squared, the residual's as it is)
-_CONSTANTS = {"RESIDUAL_SHARE": 1, "WARPED_FLOOR_DEG": 2, "SHIFT_SHARE": 2, "AMBIGUITY_DEG": 2}
+#: ambiguity are angles, their terms per deg^2; the shift's share and the pull enter squared, the residual's
+#: as it is)
+_CONSTANTS = {
+    "RESIDUAL_SHARE": 1,
+    "WARPED_FLOOR_DEG": 2,
+    "SHIFT_SHARE": 2,
+    "AMBIGUITY_DEG": 2,
+    "UNREFINED_PULL": 2,
+}
 
 
 @contextmanager
@@ -59,7 +73,7 @@ def pair_terms(
     seed: int, frames: int, scenarios: list[str] | None = None
 ) -> tuple[FloatArray, FloatArray, list[str]]:
     """The measured pairs of one seed over the field scenarios, with and without the gyro: errors (N,),
-    terms (N, 4) in rad^2 per unit coefficient (the floor's and the ambiguity's are in deg^2), and each pair's
+    terms (N, 5) in rad^2 per unit coefficient (the floor's and the ambiguity's are in deg^2), and each pair's
     scenario."""
     errors: list[FloatArray] = []
     terms: list[FloatArray] = []
@@ -135,6 +149,15 @@ def unit_runs(
     return provenance[0], deltas[0], variances
 
 
+def _fit_present(errors: FloatArray, terms: FloatArray, in_use: FloatArray) -> FloatArray:
+    """:func:`~common.consistency.fit_variance_terms` of the terms some pair exercised; a term no pair
+    exercised (no unrefined pair in a short flight) cannot be fitted and keeps its ``in_use`` coefficient."""
+    present = np.any(terms > 0.0, axis=0)
+    coefficients = np.array(in_use, dtype=np.float64)
+    coefficients[present] = fit_variance_terms(errors, terms[:, present])
+    return coefficients
+
+
 def fit_terms(
     per_seed: dict[int, tuple[FloatArray, FloatArray]],
     in_use: FloatArray,
@@ -145,17 +168,23 @@ def fit_terms(
     seeds = sorted(per_seed)
     errors = np.concatenate([per_seed[s][0] for s in seeds])
     terms = np.vstack([per_seed[s][1] for s in seeds])
-    fitted = fit_variance_terms(errors, terms)
+    fitted = _fit_present(errors, terms, in_use)
     folds = []
     for train, test in two_folds(seeds):
-        c = fit_variance_terms(
-            np.concatenate([per_seed[s][0] for s in train]), np.vstack([per_seed[s][1] for s in train])
+        c = _fit_present(
+            np.concatenate([per_seed[s][0] for s in train]),
+            np.vstack([per_seed[s][1] for s in train]),
+            in_use,
         )
         scored = _score(
             np.concatenate([per_seed[s][0] for s in test]), np.vstack([per_seed[s][1] for s in test]), c
         )
         folds.append({"fit_seeds": train, "scored_seeds": test, **constants(c), **scored})
+    absent = [i for i in range(terms.shape[1]) if not np.any(terms[:, i] > 0.0)]
+    if absent:
+        logger.warning("no pair exercised term(s) %s: they keep the value in use", absent)
     return {
+        "unexercised_terms": absent,
         "fitted": constants(fitted),
         "fitted_score": _score(errors, terms, fitted),
         "in_use": constants(in_use),

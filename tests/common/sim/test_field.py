@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from common.camera import CameraModel
+from common.camera import CameraModel, DistortionModel
 from common.sim.field import (
+    FIELD_LENSES,
     FIELD_SCENARIOS,
     ExposureSteps,
     FieldError,
@@ -118,3 +119,23 @@ def test_the_field_camera_keeps_each_lens_view_at_another_size() -> None:
     narrow = scenario_camera(FIELD_SCENARIOS["checkerboard"], 640, 480)
     small = scenario_camera(FIELD_SCENARIOS["checkerboard"], 320, 240)
     assert narrow.fx == pytest.approx(2 * small.fx, rel=1e-2)  # the same 90 deg view, twice the pixels
+
+
+@pytest.mark.parametrize("lens", list(FIELD_LENSES))
+def test_a_named_lens_spans_its_field_of_view_at_any_size(lens: str) -> None:
+    """``--field-lens``: each named lens's edge pixel (of the middle row) is half its horizontal field of
+    view off-axis, at 320x240 and at 1280x960; the fisheyes are equidistant (OpenCV's fisheye model)."""
+    hfov_deg = float(lens.removeprefix("pinhole").removeprefix("radtan").removeprefix("fisheye"))
+    for width, height in ((320, 240), (1280, 960)):
+        camera = scenario_camera(FIELD_SCENARIOS["field"], width, height, lens=lens)
+        assert camera.shape == (height, width)
+        ray = camera.rays(np.array([[width / 2.0 - 0.5 + width / 2.0, camera.cy]]))[0]
+        assert math.degrees(math.atan2(math.hypot(ray[0], ray[1]), ray[2])) == pytest.approx(
+            hfov_deg / 2, abs=0.5
+        )
+    assert (camera.distortion.model is DistortionModel.FISHEYE) == lens.startswith("fisheye")
+
+
+def test_an_unknown_lens_is_one_field_error() -> None:
+    with pytest.raises(FieldError, match="fisheye120"):
+        scenario_camera(FIELD_SCENARIOS["field"], lens="tele400")

@@ -94,6 +94,29 @@ def test_a_pair_whose_correlations_are_ambiguous_is_less_certain(
     assert variance(math.nan) == variance(0.5) == variance(1.0) > variance(math.inf)
 
 
+@settings(max_examples=50, deadline=None)
+@given(turn_deg=st.floats(-5.0, 5.0), **_AGREEMENT)
+def test_a_pair_measured_on_the_raw_frames_adds_the_windows_pull_once(
+    turn_deg: float, inliers: int, failed: int
+) -> None:
+    """The window pulls every patch's shift towards zero alike, so an unrefined turn adds
+    ``(UNREFINED_PULL * turn)^2`` once for the pair, however many patches agreed; either sign; NaN adds
+    nothing."""
+    patches = inliers + failed
+    turn = math.radians(turn_deg)
+
+    def variance(agreed: int, unrefined_turn_rad: float) -> float:
+        return measured_variance_rad2(0.3, agreed, patches, 100.0, False, 2.0, 150.0, 8.0, unrefined_turn_rad)
+
+    added = (honest.UNREFINED_PULL * turn) ** 2
+    assert variance(inliers, turn) == pytest.approx(variance(inliers, 0.0) + added)
+    assert variance(inliers, -turn) == variance(inliers, turn)
+    assert variance(inliers, turn) - variance(inliers, 0.0) == pytest.approx(
+        variance(patches, turn) - variance(patches, 0.0), abs=1e-15
+    )
+    assert variance(inliers, math.nan) == variance(inliers, 0.0)
+
+
 def _measured_pairs(name: str, seed: int, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """Errors and published variances of the measured pairs of a field flight (camera on the down mount),
     the gyro prior on."""

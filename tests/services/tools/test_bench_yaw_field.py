@@ -45,6 +45,22 @@ def test_pair_stats_counts_errors_of_the_published_deltas() -> None:
     assert stats["unmeasured_max_err_deg"] == pytest.approx(90.0)
 
 
+def test_pair_stats_score_the_measured_pairs_against_their_published_variance() -> None:
+    """The core publishes a variance with each delta: the measured pairs' share within 2 sigma and mean
+    NEES (the held and bridged pairs are not measurements); the baseline publishes none and has no such
+    fields."""
+    truth = np.zeros(101)
+    errors = np.tile([0.001, -0.003], 50)  # published sigma 0.001: NEES 1 and 9 in turn
+    provenance = [Provenance.MEASURED] * 100
+    provenance[1] = Provenance.BRIDGED  # a pair at NEES 9 that is not a measurement
+    series = _Series(list(errors), [1.0] * 100, 1, provenance, [1e-6] * 100, [1e-6] * 100)
+    stats = pair_stats(series, truth)
+    assert set(stats) == FIELDS | {"measured_within_2_sigma", "measured_mean_nees"}
+    assert stats["measured_within_2_sigma"] == pytest.approx(50 / 99)
+    assert stats["measured_mean_nees"] == pytest.approx((50 * 1.0 + 49 * 9.0) / 99)
+    assert set(pair_stats(_Series(list(errors), [1.0] * 100), truth)) == FIELDS
+
+
 def test_bench_yaw_field_suite_refuses_an_unknown_scenario() -> None:
     parser = argparse.ArgumentParser()
     yaw.add_arguments(parser)
@@ -74,6 +90,7 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     payload = json.loads((tmp_path / "yaw_field.json").read_text())
     assert set(payload) == {
         "field_size",
+        "field_lens",
         "scenarios",
         "baseline",
         "worst_max_ame_deg",
@@ -86,12 +103,22 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     names = {*subset, "hover"}
     assert set(payload["scenarios"]) == set(payload["baseline"]) == names
     assert all(set(stats) == FIELDS for stats in payload["baseline"].values())
-    assert all(set(stats) == FIELDS | {"pyramid_level"} for stats in payload["scenarios"].values())
+    scored = {"pyramid_level", "measured_within_2_sigma", "measured_mean_nees"}
+    assert all(set(stats) == FIELDS | scored for stats in payload["scenarios"].values())
+    assert payload["field_lens"] is None  # each scenario's own lens
     # the core at the level a master resolves for the frames: 320x240 and the hover's 752x480 at 1
     assert payload["field_size"] == "320x240"
     assert payload["scenarios"]["checkerboard"]["pyramid_level"] == 1
     assert payload["scenarios"]["hover"]["pyramid_level"] == 1
     assert payload["total_pairs_over_5deg"] == 0
+
+
+def test_bench_yaw_field_suite_refuses_an_unknown_lens(capsys: pytest.CaptureFixture[str]) -> None:
+    parser = argparse.ArgumentParser()
+    yaw.add_arguments(parser)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--suite", "field", "--field-lens", "tele400"])
+    assert "fisheye120" in capsys.readouterr().err  # the choices are named
 
 
 @pytest.mark.parametrize("size", ["640", "640x", "wide"])
