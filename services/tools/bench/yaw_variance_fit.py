@@ -5,7 +5,7 @@ AMBIGUITY_DEG^2 * a + UNREFINED_PULL^2 * u`` (:func:`common.yaw.honest.measured_
 ``u`` per patch, times ``patches / inliers^2``; ``u`` the squared turn of a pair measured on the raw frames).
 Each pair's terms ``r``, ``w``, ``s``, ``a``, ``u`` are read from five runs of the core with unit
 coefficients (:data:`UNIT_TERMS`; the coefficients only scale the published variance: the pairs, their
-provenance and their deltas are the same in the four runs, which is checked).
+provenance and their deltas are the same in the five runs, which is checked).
 :func:`common.consistency.fit_variance_terms` then fits the coefficients by maximum likelihood on the
 measured pairs of the fit seeds, and a two-fold split of those seeds (fit on one half, score the other)
 says how well the model carries to seeds it was not fitted on. The held-out seeds stay for ``bench
