@@ -250,8 +250,15 @@ def render_ground_view(
 
     ``R_world_camera`` rotates OpenCV-camera vectors into the ENU world; ``p_world_camera_m`` is the centre of
     projection. ``lod_bias`` > 0 blurs more (sharper aliasing-free margin), < 0 sharper. Noise-free: apply an
-    :class:`~common.sim.sensors.ImageDegradation` for sensor effects.
+    :class:`~common.sim.sensors.ImageDegradation` for sensor effects. A distorted ``camera`` is a
+    :class:`GroundViewError` (a homography draws a pinhole only; :mod:`common.sim.field` draws any lens).
     """
+    if camera.is_distorted:
+        # a homography draws a pinhole only: a distorted lens's frames would not be what its model says
+        raise GroundViewError(
+            f"the ground view draws pinhole cameras only, got a {camera.distortion.model.value} lens: "
+            "render it through common.sim.field (field_flight, render_lens_view)"
+        )
     H_pixel_ground = ground_homography(camera, R_world_camera, p_world_camera_m)
     H_ground_pixel = np.linalg.inv(H_pixel_ground)
     points = np.vstack([camera.corners_px(), [[camera.cx, camera.cy]]])

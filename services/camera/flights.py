@@ -16,7 +16,7 @@ from common.estimation.measurements import FrameMeasurement
 from common.localization.odometry import noisy_odometry
 from common.localization.office import OFFICE_HFOV_DEG, default_scene
 from common.rig import Rig
-from common.sim.field import FIELD_SCENARIOS, field_flight
+from common.sim.field import FIELD_SCENARIOS, field_flight, scenario_camera
 from common.sim.flight import Flight, hover_flight, turns_flight
 from common.sim.scene import DEFAULT_FLIGHT_RENDER, default_flight, render_flight
 from common.sim.stream import flight_measurements
@@ -29,18 +29,17 @@ OFFICE_SIZE = (320, 240)
 
 
 def simulated_flight(settings: CameraSettings) -> Flight:
-    """The ground flight the camera replays (the in-process reference builds the same one)."""
-    camera = (
-        None
-        if settings.width is None or settings.height is None
-        else CameraModel.from_hfov(settings.width, settings.height, DEFAULT_HFOV_DEG)
-    )
+    """The ground flight the camera replays (the in-process reference builds the same one); at another
+    ``--width`` x ``--height`` each flight keeps its own lens's view (a field scenario its wide angle or its
+    pinhole, :func:`~common.sim.field.scenario_camera`)."""
+    size = None if settings.width is None or settings.height is None else (settings.width, settings.height)
+    if settings.flight.value in FIELD_SCENARIOS:
+        scenario = FIELD_SCENARIOS[settings.flight.value]
+        lens = None if size is None else scenario_camera(scenario, *size)
+        return field_flight(scenario, seed=settings.seed, n_frames=settings.frames, camera=lens)
+    camera = None if size is None else CameraModel.from_hfov(*size, DEFAULT_HFOV_DEG)
     if settings.flight is FlightName.TURNS:
         return turns_flight(seed=settings.seed, camera=camera)
-    if settings.flight.value in FIELD_SCENARIOS:
-        return field_flight(
-            settings.flight.value, seed=settings.seed, n_frames=settings.frames, camera=camera
-        )
     return hover_flight(seed=settings.seed, n_frames=settings.frames, camera=camera)
 
 

@@ -8,8 +8,11 @@ import threading
 from typing import Any
 
 import numpy as np
+import pytest
 
+from common.camera import DistortionModel
 from common.estimation.measurements import FrameMeasurement, ImuMeasurement, RangeMeasurement
+from common.sim.field import FIELD_SCENARIOS, scenario_camera
 from services.camera.replay import replay_source
 from services.camera.settings import CameraSettings, FlightName
 from services.camera.sources import CameraSource, Sample
@@ -139,3 +142,21 @@ def test_looped_office_flight_keeps_odometry_seq_and_stamps_increasing() -> None
     assert [m.stamp_s for m in odometry] == [m.stamp_s for m in frames]
     assert np.all(np.diff([m.stamp_s for m in frames]) > 0)
     assert {m.source for m in odometry} == {"sim-odometry"}
+
+
+@pytest.mark.parametrize(
+    ("flight", "model"), [(FlightName.FIELD, DistortionModel.RADTAN), (FlightName.CHECKERBOARD, None)]
+)
+def test_a_field_flight_at_another_size_keeps_its_lens_regression(
+    flight: FlightName, model: DistortionModel | None
+) -> None:
+    """Regression: ``--width``/``--height`` gave every flight a 90 deg pinhole, so the ``field`` scenario's
+    120 deg wide angle became another lens (and its calibration with it). A field scenario keeps its own
+    lens's view at any size, as ``bench yaw --field-size`` flies it."""
+    from services.camera.flights import simulated_flight
+
+    settings = CameraSettings(flight=flight, frames=2, width=640, height=480)
+    camera = simulated_flight(settings).camera
+    expected = scenario_camera(FIELD_SCENARIOS[flight.value], 640, 480)
+    assert camera.shape == (480, 640) and camera.fx == pytest.approx(expected.fx)
+    assert (camera.distortion.model if camera.is_distorted else None) == model

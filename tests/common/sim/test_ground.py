@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 from common.camera import CameraModel
 from common.errors import InputError
 from common.geometry import R_BODY_CAMERA_DOWN, matrix_from_euler
+from common.sim.field import fisheye_camera
+from common.sim.flight import hover_flight
 from common.sim.ground import (
     GroundTexture,
     GroundViewError,
@@ -201,3 +203,15 @@ def test_periodic_crop_matches_modular_indexing(x0: int, y0: int, width: int, he
     image = (np.arange(64)[:, None] * 7 + np.arange(128)[None, :] * 3).astype(np.uint8)
     expected = image[np.ix_(np.arange(y0, y0 + height) % 64, np.arange(x0, x0 + width) % 128)]
     assert np.array_equal(_crop_periodic(image, x0, y0, width, height), expected)
+
+
+def test_the_ground_view_refuses_a_lens_it_cannot_draw_regression() -> None:
+    """Regression: the homography renderer drew a distorted camera as its pinhole, so a flight given a
+    fisheye (``turns_flight(camera=...)``) published pinhole frames with a fisheye's calibration. It is one
+    clear error now, naming the renderer that draws any lens."""
+    texture = make_ground_texture(0)
+    fisheye = fisheye_camera(320, 240, 120.0)
+    with pytest.raises(GroundViewError, match=r"common\.sim\.field"):
+        render_ground_view(texture, fisheye, *nadir_camera_pose(0.0, 0.0, 1.5))
+    with pytest.raises(GroundViewError, match="fisheye"):
+        hover_flight(n_frames=3, camera=fisheye).frame(1)
