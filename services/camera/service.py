@@ -208,7 +208,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--loop", action="store_true", help="replay forever")
     parser.add_argument("--preload", action="store_true", help="read a whole recording before publishing")
     parser.add_argument(
-        "--resolution", help="simulated camera WIDTHxHEIGHT (default: 752x480 ground, 320x240 office)"
+        "--resolution",
+        help="simulated camera WIDTHxHEIGHT, the flight's view kept (default: 752x480 hover and turns, "
+        "320x240 field scenarios and office)",
     )
     parser.add_argument("--no-sensors", action="store_true", help="frames only (no IMU / rangefinder)")
     parser.add_argument(

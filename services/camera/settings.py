@@ -63,7 +63,8 @@ class CameraSettings(BaseModel):
     mcap: Path | None = None
     #: a recording's replay speed (1 = recorded rate; 0 = as fast as consumed; ``fps = 0`` also unpaces)
     rate: float = Field(default=1.0, ge=0.0)
-    #: image size; None = the flight's own camera (752x480 over the ground, 320x240 in the office)
+    #: image size; None = the flight's own camera (752x480 over the ground, 320x240 in the office); another
+    #: size keeps the flight's field of view (a field scenario's own lens, else a 90 deg pinhole)
     width: int | None = None
     height: int | None = None
     sensors: bool = True
