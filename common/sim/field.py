@@ -520,7 +520,7 @@ def fisheye_camera(width: int = 320, height: int = 240, hfov_deg: float = 120.0)
 FIELD_LENSES: dict[str, Callable[[int, int], CameraModel]] = {
     "pinhole60": lambda w, h: CameraModel.from_hfov(w, h, 60.0),
     "pinhole90": lambda w, h: CameraModel.from_hfov(w, h, NARROW_HFOV_DEG),
-    "radtan120": lambda w, h: wide_angle_camera(w, h),
+    "radtan120": wide_angle_camera,
     "fisheye100": lambda w, h: fisheye_camera(w, h, 100.0),
     "fisheye120": lambda w, h: fisheye_camera(w, h, 120.0),
 }

@@ -112,7 +112,8 @@ class _Baseline:
 def pair_stats(series: _Series, true_yaw_rad: FloatArray) -> dict[str, Any]:
     """The issue's fields for one method on one flight."""
     deltas = np.asarray(series.delta_rad)
-    pair_err = np.abs(np.degrees(yaw_error_rad(deltas, np.diff(true_yaw_rad))))
+    error_rad = yaw_error_rad(deltas, np.diff(true_yaw_rad))
+    pair_err = np.abs(np.degrees(error_rad))
     yaw = np.concatenate([[0.0], np.cumsum(deltas)])
     err_deg = np.degrees(yaw_error_rad(yaw, true_yaw_rad - true_yaw_rad[0]))
     ame = accumulated_mean_error(err_deg, AME_WINDOW) if err_deg.size > AME_WINDOW else np.array([math.nan])
@@ -133,21 +134,20 @@ def pair_stats(series: _Series, true_yaw_rad: FloatArray) -> dict[str, Any]:
         "held_pairs": int(np.count_nonzero(held)),
         "unmeasured_over_2deg": int(np.count_nonzero(unmeasured & (pair_err > 2.0))),
         "unmeasured_max_err_deg": float(np.max(pair_err[unmeasured])) if unmeasured.any() else 0.0,
-        **_measured_consistency(series, deltas, true_yaw_rad, provenance),
+        **_measured_consistency(series.delta_variance_rad2, error_rad, ~unmeasured),
     }
 
 
 def _measured_consistency(
-    series: _Series, deltas: FloatArray, true_yaw_rad: FloatArray, provenance: list[Provenance]
+    delta_variance_rad2: list[float], error_rad: FloatArray, measured: npt.NDArray[np.bool_]
 ) -> dict[str, float]:
     """The measured pairs' errors against the variance published with them (the core's; the baseline
     publishes none): the share within 2 sigma and the mean NEES (``bench consistency`` splits them by
     seed)."""
-    if not series.delta_variance_rad2:
+    if not delta_variance_rad2:
         return {}
-    measured = np.array([p is Provenance.MEASURED for p in provenance], dtype=bool)
-    error = yaw_error_rad(deltas, np.diff(true_yaw_rad))[measured]
-    variance = np.asarray(series.delta_variance_rad2, dtype=np.float64)[measured]
+    error = error_rad[measured]
+    variance = np.asarray(delta_variance_rad2, dtype=np.float64)[measured]
     if not error.size:
         return {"measured_within_2_sigma": math.nan, "measured_mean_nees": math.nan}
     scored = error_consistency(error, variance)
