@@ -546,9 +546,12 @@ def field_flight(
     camera: CameraModel | None = None,
     texture: GroundTexture | None = None,
     degradation: ImageDegradation | None = None,
+    camera_rate_hz: float = CAMERA_RATE_HZ,
 ) -> FieldFlight:
     """The flight of a field scenario (by name or value); ``camera`` overrides the scenario's lens (e.g. the
-    pinhole twin of the wide-angle lens, for comparisons on the same trajectory)."""
+    pinhole twin of the wide-angle lens, for comparisons on the same trajectory). ``camera_rate_hz`` is the
+    frame rate (``n_frames`` frames span ``(n_frames - 1) / camera_rate_hz``); the shutter time of a blurred
+    scenario is at most the frame interval."""
     if isinstance(scenario, str):
         if scenario not in FIELD_SCENARIOS:
             raise FieldError(f"unknown field scenario {scenario!r}; known: {sorted(FIELD_SCENARIOS)}")
@@ -556,7 +559,9 @@ def field_flight(
     frames = scenario.n_frames if n_frames is None else int(n_frames)
     if frames < 2:
         raise FieldError(f"n_frames must be >= 2, got {frames}")
-    duration_s = max((frames - 1) / CAMERA_RATE_HZ, 1.0)
+    if not (math.isfinite(camera_rate_hz) and 0.5 <= camera_rate_hz <= 1000.0):
+        raise FieldError(f"camera_rate_hz must be in [0.5, 1000], got {camera_rate_hz}")
+    duration_s = max((frames - 1) / camera_rate_hz, 1.0)
     trajectory = field_trajectory(
         seed,
         duration_s=duration_s,
@@ -579,10 +584,11 @@ def field_flight(
         imu_time_offset_s=scenario.imu_time_offset_s,
         frame_jitter_s=scenario.frame_jitter_s,
         frame_drop_share=scenario.frame_drop_share,
+        camera_rate_hz=camera_rate_hz,
     )
     values = {f.name: getattr(base, f.name) for f in fields(base)}
     return FieldFlight(
         **values,
         rays_camera=pixel_rays(camera),
-        exposure=ExposureSteps(scenario.exposure_s, scenario.exposure_factor),
+        exposure=ExposureSteps(min(scenario.exposure_s, 1.0 / camera_rate_hz), scenario.exposure_factor),
     )

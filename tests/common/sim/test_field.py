@@ -139,3 +139,16 @@ def test_a_named_lens_spans_its_field_of_view_at_any_size(lens: str) -> None:
 def test_an_unknown_lens_is_one_field_error() -> None:
     with pytest.raises(FieldError, match="fisheye120"):
         scenario_camera(FIELD_SCENARIOS["field"], lens="tele400")
+
+
+@pytest.mark.parametrize("rate_hz", [5.0, 60.0])
+def test_a_field_flight_at_another_frame_rate_spans_its_time_at_that_rate(rate_hz: float) -> None:
+    """``--field-fps``: frames ``1 / rate`` apart, the IMU covering the same span at its own rate, and a
+    shutter no longer than the frame interval."""
+    flight = field_flight("field", seed=4, n_frames=31, camera_rate_hz=rate_hz)
+    assert np.allclose(np.diff(flight.frame_stamps_s), 1.0 / rate_hz)
+    assert flight.imu.stamps_s[-1] >= flight.frame_stamps_s[-1] - 0.011
+    assert flight.exposure.exposure_s == pytest.approx(min(0.02, 1.0 / rate_hz))
+    for bad in (0.0, -20.0, math.nan, 5000.0):
+        with pytest.raises(FieldError, match="camera_rate_hz"):
+            field_flight("field", n_frames=3, camera_rate_hz=bad)

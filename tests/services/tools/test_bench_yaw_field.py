@@ -27,6 +27,8 @@ FIELDS = {
     "unmeasured_over_2deg",
     "unmeasured_max_err_deg",
 }
+#: what the core adds (it publishes variances): its measured pairs' and its integrated yaw's consistency
+CORE_SCORES = {"measured_within_2_sigma", "measured_mean_nees", "yaw_within_2_sigma", "yaw_mean_nees"}
 
 
 def test_pair_stats_counts_errors_of_the_published_deltas() -> None:
@@ -47,17 +49,23 @@ def test_pair_stats_counts_errors_of_the_published_deltas() -> None:
 
 def test_pair_stats_score_the_measured_pairs_against_their_published_variance() -> None:
     """The core publishes a variance with each delta: the measured pairs' share within 2 sigma and mean
-    NEES (the held and bridged pairs are not measurements); the baseline publishes none and has no such
-    fields."""
+    NEES (the held and bridged pairs are not measurements), and with the integrated yaw: its error at every
+    frame against it; the baseline publishes none and has no such fields."""
     truth = np.zeros(101)
     errors = np.tile([0.001, -0.003], 50)  # published sigma 0.001: NEES 1 and 9 in turn
     provenance = [Provenance.MEASURED] * 100
     provenance[1] = Provenance.BRIDGED  # a pair at NEES 9 that is not a measurement
-    series = _Series(list(errors), [1.0] * 100, 1, provenance, [1e-6] * 100, [1e-6] * 100)
+    # the integrated yaw's error walks off by -0.002 rad every two pairs: 0.001, -0.002, -0.001, -0.004, ...
+    yaw_variance = [4.41e-6] * 50 + [1e-6] * 50  # sigma 0.0021, then 0.001
+    series = _Series(list(errors), [1.0] * 100, 1, provenance, [1e-6] * 100, yaw_variance)
     stats = pair_stats(series, truth)
-    assert set(stats) == FIELDS | {"measured_within_2_sigma", "measured_mean_nees"}
+    assert set(stats) == FIELDS | CORE_SCORES
     assert stats["measured_within_2_sigma"] == pytest.approx(50 / 99)
     assert stats["measured_mean_nees"] == pytest.approx((50 * 1.0 + 49 * 9.0) / 99)
+    yaw_error = np.cumsum(errors)
+    expected = yaw_error**2 / np.asarray(yaw_variance)
+    assert stats["yaw_mean_nees"] == pytest.approx(float(np.mean(expected)))
+    assert stats["yaw_within_2_sigma"] == pytest.approx(0.05)  # the first five, within 0.0042
     assert set(pair_stats(_Series(list(errors), [1.0] * 100), truth)) == FIELDS
 
 
@@ -91,6 +99,7 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     assert set(payload) == {
         "field_size",
         "field_lens",
+        "field_fps",
         "scenarios",
         "baseline",
         "worst_max_ame_deg",
@@ -103,9 +112,10 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     names = {*subset, "hover"}
     assert set(payload["scenarios"]) == set(payload["baseline"]) == names
     assert all(set(stats) == FIELDS for stats in payload["baseline"].values())
-    scored = {"pyramid_level", "measured_within_2_sigma", "measured_mean_nees"}
+    scored = {"pyramid_level", *CORE_SCORES}
     assert all(set(stats) == FIELDS | scored for stats in payload["scenarios"].values())
     assert payload["field_lens"] is None  # each scenario's own lens
+    assert payload["field_fps"] == 20.0  # the suite's frame rate
     # the core at the level a master resolves for the frames: 320x240 and the hover's 752x480 at 1
     assert payload["field_size"] == "320x240"
     assert payload["scenarios"]["checkerboard"]["pyramid_level"] == 1
@@ -127,3 +137,14 @@ def test_bench_yaw_field_suite_refuses_a_size_that_is_not_wxh(size: str) -> None
     yaw.add_arguments(parser)
     with pytest.raises(yaw.CapatazError, match="--field-size"):
         yaw.run(parser.parse_args(["--suite", "field", "--field-size", size, "--field-frames", "102"]))
+
+
+@pytest.mark.parametrize("fps", ["0", "-5", "nan", "5000", "fast"])
+def test_bench_yaw_field_suite_refuses_a_frame_rate_out_of_range(
+    fps: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    parser = argparse.ArgumentParser()
+    yaw.add_arguments(parser)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--suite", "field", "--field-fps", fps])
+    assert "--field-fps" in capsys.readouterr().err
