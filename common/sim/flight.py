@@ -213,6 +213,8 @@ class FlightOptions(TypedDict, total=False):
     R_body_camera: npt.ArrayLike
     R_body_imu: npt.ArrayLike | None
     imu_time_offset_s: float
+    camera_rate_hz: float
+    imu_rate_hz: float
 
 
 def hover_flight(

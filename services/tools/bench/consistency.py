@@ -34,6 +34,8 @@ import numpy as np
 
 from common.consistency import consistency, ensemble_consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
+from common.sim.flight import CAMERA_RATE_HZ, IMU_RATE_HZ, FlightOptions
+from services.runtime.usage import number_in
 from services.tools.bench import (
     estimator_attitude_fit,
     estimator_drift_fit,
@@ -79,6 +81,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--estimator-frames", type=int, default=None, help="frames per flight (all)")
     parser.add_argument("--flights", nargs="+", choices=list(FLIGHTS), help="estimator flights (both)")
+    parser.add_argument(
+        "--imu-hz", type=number_in(float, 20.0, 4000.0), default=IMU_RATE_HZ,
+        help=f"IMU rate of the estimator's flights (default {IMU_RATE_HZ:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--camera-hz", type=number_in(float, 2.0, 200.0), default=CAMERA_RATE_HZ,
+        help=f"frame rate of the estimator's flights (default {CAMERA_RATE_HZ:g})",
+    )  # fmt: skip
     parser.add_argument("--localizer-frames", type=int, default=150, help="frames per localizer run")
     parser.add_argument("--scenes", nargs="+", choices=list(LOCALIZER_SCENES), help="localizer scenes (both)")
     parser.add_argument(
@@ -275,7 +285,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if "yaw" in args.suites:
             merge_samples(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios, args.glare))
         if "estimator" in args.suites:
-            merge_samples(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights))
+            rates = FlightOptions(imu_rate_hz=args.imu_hz, camera_rate_hz=args.camera_hz)
+            merge_samples(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights, rates))
         if "localizer" in args.suites:
             merge_samples(seed_samples, localizer_samples(seed, args.localizer_frames, args.scenes))
         merge_samples(groups[name], seed_samples)
@@ -326,6 +337,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "glare": args.glare,
             "estimator_frames": args.estimator_frames,
             "flights": args.flights or list(FLIGHTS),
+            "imu_hz": args.imu_hz,
+            "camera_hz": args.camera_hz,
             "localizer_frames": args.localizer_frames,
             "scenes": args.scenes or list(LOCALIZER_SCENES),
             "quick": bool(args.quick),

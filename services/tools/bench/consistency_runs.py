@@ -40,7 +40,7 @@ from common.localization.tracking import track_model
 from common.metrics import yaw_error_rad
 from common.provenance import Provenance
 from common.sim.field import FIELD_SCENARIOS, field_flight
-from common.sim.flight import Flight, agile_flight, turns_flight
+from common.sim.flight import Flight, FlightOptions, agile_flight, turns_flight
 from common.sim.stream import flight_measurements
 from common.types import FloatArray
 from common.wire.messages import AttitudeEstimate, PoseEstimate
@@ -154,10 +154,8 @@ def yaw_samples(seed: int, frames: int, scenarios: list[str] | None = None, glar
 
 
 # ------------------------------------------------------------------------------------------------ estimator
-FLIGHTS: dict[str, Callable[[int], Flight]] = {
-    "paper_c": lambda seed: turns_flight(seed=seed),
-    "agile": lambda seed: agile_flight(seed=seed),
-}
+#: each takes the seed and the flight's options (e.g. its camera and IMU rates)
+FLIGHTS: dict[str, Callable[..., Flight]] = {"paper_c": turns_flight, "agile": agile_flight}
 
 
 def published_messages(
@@ -204,12 +202,13 @@ def per_flight(
     frames: int | None,
     flights: list[str] | None,
     read: Callable[[Flight, list[AttitudeOutput | PoseOutput]], T],
+    options: FlightOptions | None = None,
 ) -> dict[str, T]:
     """``read(flight, outputs)`` of each flight of one seed (the proposal's outputs over its first ``frames``
-    frames; None: all)."""
+    frames; None: all), flown with ``options`` (e.g. other sensor rates; None: the flight's own)."""
     out: dict[str, T] = {}
     for name in flights or list(FLIGHTS):
-        flight = FLIGHTS[name](seed)
+        flight = FLIGHTS[name](seed, **(options or {}))
         out[name] = read(flight, estimator_outputs(flight, frames))
         logger.info("estimator seed %d %s read", seed, name)
     return out
@@ -257,14 +256,17 @@ def estimator_lines(
     return out
 
 
-def estimator_samples(seed: int, frames: int | None, flights: list[str] | None = None) -> Samples:
+def estimator_samples(
+    seed: int, frames: int | None, flights: list[str] | None = None, options: FlightOptions | None = None
+) -> Samples:
     """The estimator lines of one seed, per flight: ``estimator attitude`` (3 dof), its ``tilt`` (world x
     and y) and its ``heading`` (world z) apart, ``estimator position`` (3 dof, tracking frames), ``estimator
     horizontal`` (x, y) and ``estimator altitude`` (z), each against the covariance of the message the
-    service publishes (:class:`~services.estimator.outputs.Publication` with the default settings)."""
+    service publishes (:class:`~services.estimator.outputs.Publication` with the default settings); the
+    flights flown with ``options`` (None: their own camera and IMU rates)."""
     out: Samples = {}
     for name in flights or list(FLIGHTS):
-        merge_samples(out, per_flight(seed, frames, [name], partial(estimator_lines, name))[name])
+        merge_samples(out, per_flight(seed, frames, [name], partial(estimator_lines, name), options)[name])
     return out
 
 

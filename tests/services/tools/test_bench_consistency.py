@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from common.consistency import consistency as line_consistency
 from common.geometry import wrap_angle_rad
 from common.sim.field import field_flight
+from common.sim.flight import FlightOptions
 from common.yaw import YawSettings
 from services.estimator.outputs import AS_FILTERED
 from services.tools.bench import _runner, consistency
@@ -25,6 +26,7 @@ from services.tools.bench.consistency_runs import (
     estimator_lines,
     estimator_outputs,
     localizer_samples,
+    per_flight,
     two_folds,
     with_glare,
     yaw_samples,
@@ -43,6 +45,7 @@ def test_bench_consistency_quick_writes_every_suites_lines(
     assert _runner(consistency)(args) == 0
     payload = json.loads((tmp_path / "consistency.json").read_text())
     assert payload["fit_seeds"] == [0] and payload["held_out_seeds"] == [1]
+    assert payload["settings"]["imu_hz"] == 400.0 and payload["settings"]["camera_hz"] == 20.0
     held = payload["lines"]["held_out"]
     for line in ("yaw pair measured", "yaw accumulated gyro", "estimator attitude paper_c",
                  "estimator tilt paper_c", "estimator heading paper_c", "estimator position paper_c",
@@ -74,6 +77,26 @@ def test_bench_consistency_quick_writes_every_suites_lines(
         payload["lines"]["fit"]["yaw pair measured"]["samples"] + held["yaw pair measured"]["samples"]
     )
     assert "yaw pair measured" in capsys.readouterr().out
+
+
+def test_the_estimators_flights_fly_at_the_rates_asked() -> None:
+    """``--imu-hz`` / ``--camera-hz``: the estimator's flights are sampled at those rates."""
+    read = per_flight(
+        3, 12, ["paper_c"], lambda flight, outputs: (flight, len(outputs)),
+        FlightOptions(imu_rate_hz=100.0, camera_rate_hz=10.0),
+    )  # fmt: skip
+    flight, outputs = read["paper_c"]
+    assert np.allclose(np.diff(flight.frame_stamps_s), 0.1)
+    assert np.allclose(np.diff(flight.imu.stamps_s), 0.01)
+    assert outputs > 0
+
+
+@pytest.mark.parametrize("option", [["--imu-hz", "0"], ["--imu-hz", "nan"], ["--camera-hz", "1000"]])
+def test_bench_consistency_refuses_a_rate_out_of_range(option: list[str]) -> None:
+    parser = argparse.ArgumentParser()
+    consistency.add_arguments(parser)
+    with pytest.raises(SystemExit):
+        parser.parse_args(option)
 
 
 def test_bench_consistency_needs_two_seeds() -> None:
