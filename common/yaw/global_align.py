@@ -86,14 +86,17 @@ def _similarity_about(centre_xy: tuple[float, float], rotation_rad: float, scale
     return np.array([[c, -s, cx - c * cx + s * cy], [s, c, cy - s * cx - c * cy], [0.0, 0.0, 1.0]])
 
 
-def warp_into(frame_b: U8Array, matrix_a_b: FloatArray, shape: tuple[int, int]) -> U8Array:
-    """Frame b resampled into frame a's pixels: out(x) = b(matrix_a_b @ x), size ``shape`` (H, W)."""
+def warp_into(
+    frame_b: U8Array, matrix_a_b: FloatArray, shape: tuple[int, int], interpolation: int = cv2.INTER_LINEAR
+) -> U8Array:
+    """Frame b resampled into frame a's pixels: out(x) = b(matrix_a_b @ x), size ``shape`` (H, W), with
+    OpenCV's ``interpolation`` (bilinear by default)."""
     return np.asarray(
         cv2.warpPerspective(
             frame_b,
             matrix_a_b,
             (shape[1], shape[0]),
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            flags=interpolation | cv2.WARP_INVERSE_MAP,
             borderMode=cv2.BORDER_REFLECT,
         ),
         dtype=np.uint8,

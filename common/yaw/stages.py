@@ -9,6 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import Enum
 
+import cv2
 import numpy as np
 
 from common.camera import CameraModel
@@ -34,6 +35,14 @@ logger = logging.getLogger(__name__)
 _MIN_FRAME_STD = 2.0
 #: The global alignment is trusted alone (flagged low-confidence) above this correlation response.
 _MIN_GLOBAL_RESPONSE = 0.05
+#: How the refinement turns frame k's pyramid level back: bilinear, measured against bicubic and Lanczos by
+#: ``capataz bench refine --suite warp``. Bilinear interpolation shifts fine texture by other than the
+#: fractional shift asked for, so on pure turns the refined turn reads up to 0.04 deg long at 0.3 deg (short
+#: at 0.8 deg); through Lanczos, under 0.01 deg. But on the field suite's flights that error offsets part of
+#: the window's pull (which reads turns short) and Lanczos made the integrated yaw drift more at 20 fps (max
+#: AME 0.54 -> 0.84 deg on ``field``, seed 0), less at 60 fps (1.0 -> 0.34 deg on ``checkerboard``):
+#: bilinear stays until the pull is removed too (docs/methods.md, "Frame rates").
+REFINE_INTERPOLATION = cv2.INTER_LINEAR
 
 
 class EstimateMethod(Enum):
@@ -239,7 +248,7 @@ def _turned_level(frame_u8: U8Array, matrix: FloatArray, settings: YawSettings) 
     """Frame k's pyramid level warped back by ``matrix`` (full-resolution px), the refinement's image."""
     to_full = np.diag([float(settings.scale), float(settings.scale), 1.0])
     level = pyramid_image(frame_u8, settings.level)
-    return warp_into(level, np.linalg.inv(to_full) @ matrix @ to_full, level.shape)
+    return warp_into(level, np.linalg.inv(to_full) @ matrix @ to_full, level.shape, REFINE_INTERPOLATION)
 
 
 def _fitted(
