@@ -169,9 +169,9 @@ def run_warp(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    cv2.setNumThreads(1)
     if args.suite == "warp":
         return run_warp(args)
-    cv2.setNumThreads(1)
     width, height = parse_size(args.resolution, "--resolution", "1920x1080")
     cols, rows = parse_size(args.grid, "--grid", "16x12")
     camera = CameraModel.from_hfov(width, height, HFOV_DEG)
