@@ -539,6 +539,10 @@ def scenario_camera(
     return FIELD_LENSES["radtan120" if scenario.wide_angle else "pinhole90"](width, height)
 
 
+#: The frame rates a field flight may be flown at (Hz, :func:`field_flight`'s ``camera_rate_hz``).
+FIELD_RATES_HZ = (0.5, 1000.0)
+
+
 def field_flight(
     scenario: FieldScenario | str,
     seed: int = 0,
@@ -559,8 +563,9 @@ def field_flight(
     frames = scenario.n_frames if n_frames is None else int(n_frames)
     if frames < 2:
         raise FieldError(f"n_frames must be >= 2, got {frames}")
-    if not (math.isfinite(camera_rate_hz) and 0.5 <= camera_rate_hz <= 1000.0):
-        raise FieldError(f"camera_rate_hz must be in [0.5, 1000], got {camera_rate_hz}")
+    low, high = FIELD_RATES_HZ
+    if not (math.isfinite(camera_rate_hz) and low <= camera_rate_hz <= high):
+        raise FieldError(f"camera_rate_hz must be in [{low:g}, {high:g}], got {camera_rate_hz}")
     duration_s = max((frames - 1) / camera_rate_hz, 1.0)
     trajectory = field_trajectory(
         seed,

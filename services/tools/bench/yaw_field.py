@@ -28,7 +28,7 @@ import numpy.typing as npt
 from common.consistency import error_consistency
 from common.errors import CapatazError
 from common.metrics import accumulated_mean_error, yaw_error_rad
-from common.sim.field import FIELD_LENSES, FIELD_SCENARIOS, field_flight, scenario_camera
+from common.sim.field import FIELD_LENSES, FIELD_RATES_HZ, FIELD_SCENARIOS, field_flight, scenario_camera
 from common.sim.flight import CAMERA_RATE_HZ, Flight, hover_flight
 from common.types import FloatArray
 from common.yaw import Provenance, YawSettings, YawTracker, for_frame, gyro_delta_yaw_rad, make_patch_grid
@@ -115,7 +115,8 @@ def pair_stats(series: _Series, true_yaw_rad: FloatArray) -> dict[str, Any]:
     error_rad = yaw_error_rad(deltas, np.diff(true_yaw_rad))
     pair_err = np.abs(np.degrees(error_rad))
     yaw = np.concatenate([[0.0], np.cumsum(deltas)])
-    err_deg = np.degrees(yaw_error_rad(yaw, true_yaw_rad - true_yaw_rad[0]))
+    yaw_err_rad = yaw_error_rad(yaw, true_yaw_rad - true_yaw_rad[0])
+    err_deg = np.degrees(yaw_err_rad)
     ame = accumulated_mean_error(err_deg, AME_WINDOW) if err_deg.size > AME_WINDOW else np.array([math.nan])
     ms = np.asarray(series.ms)
     provenance = series.provenance or [Provenance.MEASURED] * deltas.size
@@ -135,7 +136,7 @@ def pair_stats(series: _Series, true_yaw_rad: FloatArray) -> dict[str, Any]:
         "unmeasured_over_2deg": int(np.count_nonzero(unmeasured & (pair_err > 2.0))),
         "unmeasured_max_err_deg": float(np.max(pair_err[unmeasured])) if unmeasured.any() else 0.0,
         **_measured_consistency(series.delta_variance_rad2, error_rad, ~unmeasured),
-        **_yaw_consistency(series.yaw_variance_rad2, np.radians(err_deg[1:])),
+        **_yaw_consistency(series.yaw_variance_rad2, yaw_err_rad[1:]),
     }
 
 
@@ -240,7 +241,7 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--field-fps",
-        type=number_in(float, 0.5, 1000.0),
+        type=number_in(float, *FIELD_RATES_HZ),
         default=CAMERA_RATE_HZ,
         help=f"frame rate of the field scenarios (default {CAMERA_RATE_HZ:g}); --field-frames frames at it",
     )
