@@ -215,6 +215,8 @@ class FlightOptions(TypedDict, total=False):
     imu_time_offset_s: float
     camera_rate_hz: float
     imu_rate_hz: float
+    range_rate_hz: float
+    frame_jitter_s: float
 
 
 def hover_flight(

@@ -34,7 +34,7 @@ import numpy as np
 
 from common.consistency import consistency, ensemble_consistency, seed_bounds
 from common.sim.field import FIELD_SCENARIOS
-from common.sim.flight import CAMERA_RATE_HZ, IMU_RATE_HZ, FlightOptions
+from common.sim.flight import CAMERA_RATE_HZ, IMU_RATE_HZ, RANGE_RATE_HZ, FlightOptions
 from services.runtime.usage import number_in
 from services.tools.bench import (
     estimator_attitude_fit,
@@ -88,6 +88,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--camera-hz", type=number_in(float, 2.0, 200.0), default=CAMERA_RATE_HZ,
         help=f"frame rate of the estimator's flights (default {CAMERA_RATE_HZ:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--range-hz", type=number_in(float, 2.0, 1000.0), default=RANGE_RATE_HZ,
+        help=f"rangefinder rate of the estimator's flights (default {RANGE_RATE_HZ:g}; 33 puts its samples "
+        "between the IMU's, as a real rig's)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--frame-jitter-ms", type=number_in(float, 0.0, 20.0), default=0.0,
+        help="each frame's stamp moved by up to this (ms, uniform): frames between the IMU's samples, as a "
+        "real rig's (default 0: on the IMU's)",
     )  # fmt: skip
     parser.add_argument("--localizer-frames", type=int, default=150, help="frames per localizer run")
     parser.add_argument("--scenes", nargs="+", choices=list(LOCALIZER_SCENES), help="localizer scenes (both)")
@@ -285,7 +295,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if "yaw" in args.suites:
             merge_samples(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios, args.glare))
         if "estimator" in args.suites:
-            rates = FlightOptions(imu_rate_hz=args.imu_hz, camera_rate_hz=args.camera_hz)
+            rates = FlightOptions(
+                imu_rate_hz=args.imu_hz, camera_rate_hz=args.camera_hz, range_rate_hz=args.range_hz,
+                frame_jitter_s=args.frame_jitter_ms / 1000.0,
+            )  # fmt: skip
             merge_samples(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights, rates))
         if "localizer" in args.suites:
             merge_samples(seed_samples, localizer_samples(seed, args.localizer_frames, args.scenes))
@@ -339,6 +352,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "flights": args.flights or list(FLIGHTS),
             "imu_hz": args.imu_hz,
             "camera_hz": args.camera_hz,
+            "range_hz": args.range_hz,
+            "frame_jitter_ms": args.frame_jitter_ms,
             "localizer_frames": args.localizer_frames,
             "scenes": args.scenes or list(LOCALIZER_SCENES),
             "quick": bool(args.quick),

@@ -46,6 +46,7 @@ def test_bench_consistency_quick_writes_every_suites_lines(
     payload = json.loads((tmp_path / "consistency.json").read_text())
     assert payload["fit_seeds"] == [0] and payload["held_out_seeds"] == [1]
     assert payload["settings"]["imu_hz"] == 400.0 and payload["settings"]["camera_hz"] == 20.0
+    assert payload["settings"]["range_hz"] == 50.0 and payload["settings"]["frame_jitter_ms"] == 0.0
     held = payload["lines"]["held_out"]
     for line in ("yaw pair measured", "yaw accumulated gyro", "estimator attitude paper_c",
                  "estimator tilt paper_c", "estimator heading paper_c", "estimator position paper_c",
@@ -80,18 +81,27 @@ def test_bench_consistency_quick_writes_every_suites_lines(
 
 
 def test_the_estimators_flights_fly_at_the_rates_asked() -> None:
-    """``--imu-hz`` / ``--camera-hz``: the estimator's flights are sampled at those rates."""
+    """``--imu-hz`` / ``--camera-hz`` / ``--range-hz``: the estimator's flights are sampled at those rates;
+    ``--frame-jitter-ms`` moves the frames off the IMU's samples."""
     read = per_flight(
         3, 12, ["paper_c"], lambda flight, outputs: (flight, len(outputs)),
-        FlightOptions(imu_rate_hz=100.0, camera_rate_hz=10.0),
+        FlightOptions(imu_rate_hz=100.0, camera_rate_hz=10.0, range_rate_hz=33.0, frame_jitter_s=0.004),
     )  # fmt: skip
     flight, outputs = read["paper_c"]
-    assert np.allclose(np.diff(flight.frame_stamps_s), 0.1)
+    moved = flight.frame_stamps_s - 0.1 * np.arange(flight.n_frames)
+    assert np.all(np.abs(moved) <= 0.004 + 1e-9) and np.any(np.abs(moved) > 1e-3)
     assert np.allclose(np.diff(flight.imu.stamps_s), 0.01)
+    assert np.allclose(np.diff(flight.range.stamps_s), 1.0 / 33.0)
     assert outputs > 0
 
 
-@pytest.mark.parametrize("option", [["--imu-hz", "0"], ["--imu-hz", "nan"], ["--camera-hz", "1000"]])
+BAD_RATES = [
+    ["--imu-hz", "0"], ["--imu-hz", "nan"], ["--camera-hz", "1000"], ["--range-hz", "0"],
+    ["--frame-jitter-ms", "-1"],
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("option", BAD_RATES)
 def test_bench_consistency_refuses_a_rate_out_of_range(option: list[str]) -> None:
     parser = argparse.ArgumentParser()
     consistency.add_arguments(parser)
