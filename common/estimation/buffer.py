@@ -81,6 +81,11 @@ class TimeOrderedBuffer(Generic[T]):
         self._newest_s = max(self._newest_s, stamp_s)
         return None
 
+    def first_pending(self, sensor: str) -> T | None:
+        """The earliest pending sample of ``sensor`` (None: none pending), left in the buffer."""
+        found = min((entry for entry in self._heap if entry[3] == sensor), default=None)
+        return None if found is None else found[4]
+
     def pop_due(self) -> list[Timed[T]]:
         """Release, in stamp order, every sample at least ``max_lag_s`` older than the newest stamp."""
         return self._release(self._newest_s - self.max_lag_s)

@@ -144,8 +144,20 @@ class DoubleCouplingEstimator:
         for t in released:
             if isinstance(t.item, FrameMeasurement):
                 latest_frame = max(latest_frame, t.stamp_s)
-        for t in released:
+        # the IMU sample after each released sample (released or still pending): what a range, yaw or frame
+        # between two IMU samples is carried to its stamp with
+        pending = self.buffer.first_pending(Sensor.IMU.value)
+        upcoming = pending if isinstance(pending, ImuMeasurement) else None
+        next_imu: list[ImuMeasurement | None] = [None] * len(released)
+        for i in range(len(released) - 1, -1, -1):
+            next_imu[i] = upcoming
+            item = released[i].item
+            if isinstance(item, ImuMeasurement):
+                upcoming = item
+        for i, t in enumerate(released):
             m = t.item
+            if not isinstance(m, ImuMeasurement):
+                self.filter.carry_to(m.stamp_s, next_imu[i])
             if isinstance(m, ImuMeasurement):
                 out = self.filter.on_imu(m, self.vo.track)
                 if out is not None:

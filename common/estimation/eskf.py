@@ -164,9 +164,9 @@ class BiasAwareEkf:
     ) -> BiasEkfState:
         """Bias-corrected gyro over ``dt_s``: nominal by eq. 12, covariance ``F P F^T + Q`` with
         ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``. With ``accel_m_s2`` the velocity and the
-        position (altitude included) integrate ``a = R (f - b_a) - g e_z``
-        (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a
-        constant velocity."""
+        position (altitude included) integrate ``a = R (f - b_a) - g e_z``, ``R`` at the interval's middle
+        attitude (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they
+        keep a constant velocity."""
         gyro = _vector3(gyro_rad_s, "gyro_rad_s")
         use_accel = accel_m_s2 is not None
         accel = _vector3(accel_m_s2, "accel_m_s2") if accel_m_s2 is not None else _ZERO3

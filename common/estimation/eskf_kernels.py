@@ -94,7 +94,13 @@ def predict_step(
     nx, ny, nz = vx, vy, vz
     if use_accel:
         fx, fy, fz = accel[0] - x[8], accel[1] - x[9], accel[2] - x[10]
-        a0, a1, a2, a3 = qo
+        # the specific force turned into the world at the interval's middle attitude (the mean of the old
+        # and the propagated quaternion, unflipped, so the two are on the same side): at the old one the
+        # world acceleration lags by half the turn of the interval, an error of g * w * dt / 2 that reads as
+        # a tilt error (0.06 m/s^2 at 100 Hz and 67 deg/s)
+        m0, m1, m2, m3 = x[0] + q0 / norm, x[1] + q1 / norm, x[2] + q2 / norm, x[3] + q3 / norm
+        mn = 1.0 / math.sqrt(m0 * m0 + m1 * m1 + m2 * m2 + m3 * m3)
+        a0, a1, a2, a3 = m0 * mn, m1 * mn, m2 * mn, m3 * mn
         r00 = 1.0 - 2.0 * (a2 * a2 + a3 * a3)
         r01 = 2.0 * (a1 * a2 - a0 * a3)
         r02 = 2.0 * (a1 * a3 + a0 * a2)

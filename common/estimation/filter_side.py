@@ -17,6 +17,7 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,15 @@ from common.types import FloatArray
 logger = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class Carried:
+    """The rates integrated over the part of an IMU interval the state was carried through (body axes):
+    the angle (rad) and the specific force's velocity (m/s)."""
+
+    gyro_rad: FloatArray
+    velocity_m_s: FloatArray
+
+
 class FilterSide:
     """The filter and its state, fed sample by sample in stamp order (single-threaded)."""
 
@@ -61,6 +71,10 @@ class FilterSide:
         self._range_gated_run = 0
         self._accel_window = AccelWindow()
         self._last_imu: ImuMeasurement | None = None
+        #: the interval between the last two IMU samples: how far :meth:`carry_to` may carry the state
+        self._imu_interval_s = 0.0
+        #: what :meth:`carry_to` integrated since the last IMU sample (None: nothing)
+        self._carried: Carried | None = None
 
     # ---- state ----------------------------------------------------------------------------------------
 
@@ -111,10 +125,20 @@ class FilterSide:
         )
         dt_s = m.stamp_s - self.state.stamp_s
         gyro, accel = m.gyro_rad_s, m.accel_m_s2
-        if s.imu_midpoint and self._last_imu is not None:
+        last = self._last_imu
+        if s.imu_midpoint and last is not None:
             # rates at the stamps: the interval's mean (trapezoid); the newer alone leads by half a sample
-            gyro, accel = 0.5 * (gyro + self._last_imu.gyro_rad_s), 0.5 * (accel + self._last_imu.accel_m_s2)
+            gyro, accel = 0.5 * (gyro + last.gyro_rad_s), 0.5 * (accel + last.accel_m_s2)
+            if self._carried is not None and dt_s > 0.0:
+                # the state was carried into the interval (:meth:`carry_to`): the rest of it takes what makes
+                # the whole interval's integral the trapezoid's
+                interval_s = m.stamp_s - last.stamp_s
+                gyro = (gyro * interval_s - self._carried.gyro_rad) / dt_s
+                accel = (accel * interval_s - self._carried.velocity_m_s) / dt_s
+        if last is not None:
+            self._imu_interval_s = m.stamp_s - last.stamp_s
         self._last_imu = m
+        self._carried = None
         try:
             # predict (the inertial navigation of the bias filter integrates the accelerometer too, the
             # 5-state one ignores it), the accelerometer update and the read-outs: one call
@@ -167,6 +191,43 @@ class FilterSide:
             self._count(accepted, "thrust_axis")
             return accepted is True
         return False
+
+    def carry_to(self, stamp_s: float, next_imu: ImuMeasurement | None) -> None:
+        """Predict the state from its stamp to ``stamp_s``, between the last IMU sample and ``next_imu``, so
+        that a range, yaw or frame stamped between two IMU samples meets the state at its own time (applied
+        to the state of the last sample, a frame at 100 Hz and 45 deg/s is rectified with a tilt up to 0.45
+        deg old). The rates are interpolated between the two samples (the trapezoid's, on the part of the
+        interval), held at the last sample's where the next has not come (a live stream); the next IMU
+        sample integrates the rest of its interval (:meth:`on_imu`). Not past one IMU interval: beyond it the
+        IMU has stalled, and the state stays at its stamp (counted as ``carry_beyond_imu``)."""
+        last = self._last_imu
+        if self.state is None or last is None:
+            return
+        start_s = self.state.stamp_s
+        dt_s = stamp_s - start_s
+        if dt_s <= 0.0:
+            return
+        if next_imu is None and stamp_s - last.stamp_s > self._imu_interval_s:
+            self.counters["carry_beyond_imu"] += 1
+            return
+        gyro, accel = last.gyro_rad_s, last.accel_m_s2
+        if next_imu is not None:
+            if not self.settings.imu_midpoint:
+                gyro, accel = next_imu.gyro_rad_s, next_imu.accel_m_s2  # eq. 12 as written: the newer's
+            else:
+                interval_s = next_imu.stamp_s - last.stamp_s
+                # the mean of the rates at the two ends of the piece, each interpolated between the samples
+                share = 0.5 * ((start_s - last.stamp_s) + (stamp_s - last.stamp_s)) / interval_s
+                gyro = last.gyro_rad_s + share * (next_imu.gyro_rad_s - last.gyro_rad_s)
+                accel = last.accel_m_s2 + share * (next_imu.accel_m_s2 - last.accel_m_s2)
+        try:
+            self.state = self.ekf.predict(self.state, gyro, dt_s, accel)
+        except EkfError as exc:
+            self.counters["ekf_errors"] += 1
+            logger.warning("state not carried to %.4f s: %s", stamp_s, exc)
+            return
+        carried = self._carried or Carried(np.zeros(3), np.zeros(3))
+        self._carried = Carried(carried.gyro_rad + gyro * dt_s, carried.velocity_m_s + accel * dt_s)
 
     # ---- updates --------------------------------------------------------------------------------------
 

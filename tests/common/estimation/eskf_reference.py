@@ -115,8 +115,9 @@ class ReferenceEskf:
     ) -> ReferenceState:
         """Bias-corrected gyro over ``dt_s``: nominal by eq. 12, covariance ``F P F^T + Q`` with
         ``F_theta_theta = I - [w dt]x``, ``F_theta_bg = -I dt``. With ``accel_m_s2`` the horizontal velocity
-        and position integrate ``a = R (f - b_a)`` (``F_v_theta = -(R [f - b_a]x) dt``,
-        ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a constant velocity."""
+        and position integrate ``a = R (f - b_a)``, ``R`` at the interval's middle attitude
+        (``F_v_theta = -(R [f - b_a]x) dt``, ``F_v_ba = -R dt``, ``F_p_v = I dt``); without it they keep a
+        constant velocity."""
         if not (dt_s >= 0.0 and math.isfinite(dt_s)):
             raise InputError(f"dt_s must be finite and >= 0, got {dt_s}")
         gx, gy, gz = three_floats(gyro_rad_s)
@@ -143,7 +144,11 @@ class ReferenceEskf:
             fx, fy, fz = three_floats(accel_m_s2)
             cbx, cby, cbz = state.accel_bias_m_s2.tolist()
             fx, fy, fz = fx - cbx, fy - cby, fz - cbz
-            r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_rows(qt)
+            # R at the interval's middle attitude: the old and the propagated quaternion's mean
+            norm = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+            mid = np.array(qt) + np.array((q0, q1, q2, q3)) / norm
+            m0, m1, m2, m3 = (mid / np.linalg.norm(mid)).tolist()
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation_rows((m0, m1, m2, m3))
             a_x = r00 * fx + r01 * fy + r02 * fz
             a_y = r10 * fx + r11 * fy + r12 * fz
             a_z = r20 * fx + r21 * fy + r22 * fz - self.settings.gravity_m_s2

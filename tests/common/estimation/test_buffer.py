@@ -57,6 +57,17 @@ def test_lag_holds_samples_back() -> None:
     assert [t.item for t in buffer.pop_due()] == [0]
 
 
+def test_the_first_pending_sample_of_a_sensor_is_seen_and_left_in_place() -> None:
+    buffer: TimeOrderedBuffer[str] = TimeOrderedBuffer(max_lag_s=0.05)
+    assert buffer.first_pending("imu") is None
+    for stamp_s, sensor, item in ((0.03, "imu", "i3"), (0.01, "range", "r1"), (0.02, "imu", "i2")):
+        buffer.push(stamp_s, sensor, item)
+    assert buffer.first_pending("imu") == "i2"
+    assert buffer.first_pending("camera") is None
+    assert len(buffer) == 3
+    assert [t.item for t in buffer.drain()] == ["r1", "i2", "i3"]
+
+
 def test_invalid_arguments() -> None:
     with pytest.raises(InputError):
         TimeOrderedBuffer(max_lag_s=-1.0)
