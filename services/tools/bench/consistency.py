@@ -68,6 +68,23 @@ TARGET_2_SIGMA = (0.90, 0.98)
 TARGET_STEPS_WITHIN = 0.90
 
 
+#: the estimator flights' sensors: option, bounds, default, help
+FLIGHT_SENSOR_OPTIONS = (
+    ("--imu-hz", 20.0, 4000.0, IMU_RATE_HZ, f"IMU rate of the estimator's flights (default {IMU_RATE_HZ:g})"),
+    ("--camera-hz", 2.0, 200.0, CAMERA_RATE_HZ, f"their frame rate (fps, default {CAMERA_RATE_HZ:g})"),
+    (
+        "--range-hz", 2.0, 1000.0, RANGE_RATE_HZ,
+        f"their rangefinder rate (default {RANGE_RATE_HZ:g}; 33 puts its samples between the IMU's, as a "
+        "real rig's)",
+    ),
+    (
+        "--frame-jitter-ms", 0.0, 20.0, 0.0,
+        "each of their frames' stamps moved by up to this (ms, uniform): frames between the IMU's samples, "
+        "as a real rig's (default 0: on the IMU's)",
+    ),
+)  # fmt: skip
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=20, help="seeds 0..N-1: first half fit, second held out")
     parser.add_argument("--suites", nargs="+", choices=SUITES, default=list(SUITES), help="suites (all)")
@@ -81,24 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--estimator-frames", type=int, default=None, help="frames per flight (all)")
     parser.add_argument("--flights", nargs="+", choices=list(FLIGHTS), help="estimator flights (both)")
-    parser.add_argument(
-        "--imu-hz", type=number_in(float, 20.0, 4000.0), default=IMU_RATE_HZ,
-        help=f"IMU rate of the estimator's flights (default {IMU_RATE_HZ:g})",
-    )  # fmt: skip
-    parser.add_argument(
-        "--camera-hz", type=number_in(float, 2.0, 200.0), default=CAMERA_RATE_HZ,
-        help=f"frame rate of the estimator's flights (default {CAMERA_RATE_HZ:g})",
-    )  # fmt: skip
-    parser.add_argument(
-        "--range-hz", type=number_in(float, 2.0, 1000.0), default=RANGE_RATE_HZ,
-        help=f"rangefinder rate of the estimator's flights (default {RANGE_RATE_HZ:g}; 33 puts its samples "
-        "between the IMU's, as a real rig's)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--frame-jitter-ms", type=number_in(float, 0.0, 20.0), default=0.0,
-        help="each frame's stamp moved by up to this (ms, uniform): frames between the IMU's samples, as a "
-        "real rig's (default 0: on the IMU's)",
-    )  # fmt: skip
+    for flag, low, high, default, text in FLIGHT_SENSOR_OPTIONS:
+        parser.add_argument(flag, type=number_in(float, low, high), default=default, help=text)
     parser.add_argument("--localizer-frames", type=int, default=150, help="frames per localizer run")
     parser.add_argument("--scenes", nargs="+", choices=list(LOCALIZER_SCENES), help="localizer scenes (both)")
     parser.add_argument(
