@@ -3,7 +3,9 @@
 
 :class:`DoubleCouplingEstimator` takes timestamped samples from several sensors (IMU, rangefinder, camera,
 optionally an external yaw such as the yaw cluster's), reorders them in a :class:`TimeOrderedBuffer` with a
-bounded lag and applies them in stamp order: IMU, range and yaw samples to the filter's side
+bounded lag and applies them in stamp order (a range, yaw or frame between two IMU samples meets the state
+carried to its own stamp, :meth:`~common.estimation.filter_side.FilterSide.carry_to`): IMU, range and yaw
+samples to the filter's side
 (:class:`~common.estimation.filter_side.FilterSide`: predict, accelerometer, range and yaw updates), frames
 to the visual-odometry side (:class:`~common.estimation.coupled_vo.CoupledVo`: rectified with the filter's
 roll and pitch (section III-C), the VO against the previous frame with the filter's altitude as scale

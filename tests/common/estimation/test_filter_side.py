@@ -117,7 +117,7 @@ def test_carrying_into_an_interval_leaves_the_next_samples_velocity_as_it_was(
     force: list[tuple[float, float, float]], stops: list[float], next_known: bool
 ) -> None:
     """Without turning, the specific force integrated over the pieces and the rest is the interval's
-    trapezoid: the velocity after the next sample is the same; the altitude and the covariance differ
+    trapezoid: the velocity after the next sample is the same; the position and the covariance differ
     only by the finer steps (the trapezoid of the velocity, the ``dt^2`` noise terms)."""
     gravity = np.array([0.0, 0.0, GRAVITY_M_S2])
     samples = [
