@@ -146,38 +146,52 @@ class DoubleCouplingEstimator:
         for t in released:
             if isinstance(t.item, FrameMeasurement):
                 latest_frame = max(latest_frame, t.stamp_s)
-        # the IMU sample after each released sample (released or still pending): what a range, yaw or frame
-        # between two IMU samples is carried to its stamp with
-        pending = self.buffer.first_pending(Sensor.IMU.value)
-        upcoming = pending if isinstance(pending, ImuMeasurement) else None
-        next_imu: list[ImuMeasurement | None] = [None] * len(released)
-        for i in range(len(released) - 1, -1, -1):
-            next_imu[i] = upcoming
-            item = released[i].item
-            if isinstance(item, ImuMeasurement):
-                upcoming = item
+        next_imu = self._next_imu(released)
         for i, t in enumerate(released):
             m = t.item
-            if not isinstance(m, ImuMeasurement):
-                self.filter.carry_to(m.stamp_s, next_imu[i])
             if isinstance(m, ImuMeasurement):
                 out = self.filter.on_imu(m, self.vo.track)
                 if out is not None:
                     outputs.append(out)
-            elif isinstance(m, RangeMeasurement):
+                continue
+            if isinstance(m, YawMeasurement) and not self.settings.external_yaw:
+                self.counters["external_yaw_ignored"] += 1
+                continue
+            if isinstance(m, FrameMeasurement) and m.stamp_s < latest_frame:
+                self.counters["frames_superseded"] += 1
+                continue
+            # a measurement between two IMU samples meets the state at its own stamp
+            self.filter.carry_to(m.stamp_s, next_imu[i])
+            if isinstance(m, RangeMeasurement):
                 self.filter.on_range(m.range_m)
             elif isinstance(m, YawMeasurement):
-                if self.settings.external_yaw:
-                    self.filter.on_yaw(m.yaw_rad, external_yaw_noise_rad(self.settings, m), "external_yaw")
-                else:
-                    self.counters["external_yaw_ignored"] += 1
-            elif m.stamp_s < latest_frame:
-                self.counters["frames_superseded"] += 1
+                self.filter.on_yaw(m.yaw_rad, external_yaw_noise_rad(self.settings, m), "external_yaw")
             else:
                 pose = self._on_frame(m)
                 if pose is not None:
                     outputs.append(pose)
         return outputs
+
+    def _next_imu(self, released: list[Timed[Measurement]]) -> list[ImuMeasurement | None]:
+        """The IMU sample after each of ``released`` (a later released one, else the first still pending,
+        looked up only when a sample after the last released IMU sample needs it; None: none has come)."""
+        next_imu: list[ImuMeasurement | None] = [None] * len(released)
+        upcoming: ImuMeasurement | None = None
+        for i in range(len(released) - 1, -1, -1):
+            next_imu[i] = upcoming
+            item = released[i].item
+            if isinstance(item, ImuMeasurement):
+                upcoming = item
+        tail = [
+            i
+            for i, t in enumerate(released)
+            if next_imu[i] is None and not isinstance(t.item, ImuMeasurement)
+        ]
+        if tail:
+            pending = self.buffer.first_pending(Sensor.IMU.value)
+            for i in tail:
+                next_imu[i] = pending if isinstance(pending, ImuMeasurement) else None
+        return next_imu
 
     # ---- frames: rectification, VO, yaw coupling --------------------------------------------------
 

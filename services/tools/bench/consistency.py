@@ -290,16 +290,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     groups: dict[str, Samples] = {"fit": {}, "held_out": {}}
     #: per group and line, each seed's samples (for the bounds over seeds)
     runs: dict[str, dict[str, list[list[float]]]] = {"fit": {}, "held_out": {}, "all": {}}
+    rates = FlightOptions(
+        imu_rate_hz=args.imu_hz, camera_rate_hz=args.camera_hz, range_rate_hz=args.range_hz,
+        frame_jitter_s=args.frame_jitter_ms / 1000.0,
+    )  # fmt: skip
     for seed in held_seeds if args.held_out_only else range(args.seeds):
         name = "fit" if seed in fit_seeds else "held_out"
         seed_samples: Samples = {}
         if "yaw" in args.suites:
             merge_samples(seed_samples, yaw_samples(seed, args.field_frames, args.scenarios, args.glare))
         if "estimator" in args.suites:
-            rates = FlightOptions(
-                imu_rate_hz=args.imu_hz, camera_rate_hz=args.camera_hz, range_rate_hz=args.range_hz,
-                frame_jitter_s=args.frame_jitter_ms / 1000.0,
-            )  # fmt: skip
             merge_samples(seed_samples, estimator_samples(seed, args.estimator_frames, args.flights, rates))
         if "localizer" in args.suites:
             merge_samples(seed_samples, localizer_samples(seed, args.localizer_frames, args.scenes))
