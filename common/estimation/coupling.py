@@ -146,7 +146,22 @@ class DoubleCouplingEstimator:
         for t in released:
             if isinstance(t.item, FrameMeasurement):
                 latest_frame = max(latest_frame, t.stamp_s)
-        next_imu = self._next_imu(released)
+        # the IMU sample after each (a later released one, else the first still pending, looked up only when
+        # a sample after the last released IMU sample needs it; None: none has come). Inline: an IMU sample's
+        # walk enters this module no more than twice (test_walks.py; a comprehension is a frame)
+        next_imu: list[ImuMeasurement | None] = [None] * len(released)
+        upcoming: ImuMeasurement | None = None
+        for i in range(len(released) - 1, -1, -1):
+            next_imu[i] = upcoming
+            item = released[i].item
+            if isinstance(item, ImuMeasurement):
+                upcoming = item
+        if released and not isinstance(released[-1].item, ImuMeasurement):
+            pending = self.buffer.first_pending(Sensor.IMU.value)
+            for i in range(len(released) - 1, -1, -1):
+                if isinstance(released[i].item, ImuMeasurement):
+                    break
+                next_imu[i] = pending if isinstance(pending, ImuMeasurement) else None
         for i, t in enumerate(released):
             m = t.item
             if isinstance(m, ImuMeasurement):
@@ -171,27 +186,6 @@ class DoubleCouplingEstimator:
                 if pose is not None:
                     outputs.append(pose)
         return outputs
-
-    def _next_imu(self, released: list[Timed[Measurement]]) -> list[ImuMeasurement | None]:
-        """The IMU sample after each of ``released`` (a later released one, else the first still pending,
-        looked up only when a sample after the last released IMU sample needs it; None: none has come)."""
-        next_imu: list[ImuMeasurement | None] = [None] * len(released)
-        upcoming: ImuMeasurement | None = None
-        for i in range(len(released) - 1, -1, -1):
-            next_imu[i] = upcoming
-            item = released[i].item
-            if isinstance(item, ImuMeasurement):
-                upcoming = item
-        tail = [
-            i
-            for i, t in enumerate(released)
-            if next_imu[i] is None and not isinstance(t.item, ImuMeasurement)
-        ]
-        if tail:
-            pending = self.buffer.first_pending(Sensor.IMU.value)
-            for i in tail:
-                next_imu[i] = pending if isinstance(pending, ImuMeasurement) else None
-        return next_imu
 
     # ---- frames: rectification, VO, yaw coupling --------------------------------------------------
 
