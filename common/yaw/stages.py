@@ -25,6 +25,7 @@ from common.yaw.fit import (
 from common.yaw.global_align import estimate_global_alignment, warp_into
 from common.yaw.grid import IntArray, PatchGrid, pyramid_image
 from common.yaw.honest import Prior, PriorSource, choose_rotation, measured_variance_rad2, plausible
+from common.yaw.level import Levelling
 from common.yaw.measurement import PatchMeasurement
 from common.yaw.settings import FitModel, YawSettings
 
@@ -70,6 +71,8 @@ class Lens:
     to_nadir: FloatArray | None = None
     #: the focal length (px; the geometric mean of ``fx`` and ``fy``), None without intrinsics
     focal_px: float | None = None
+    #: (P, 2) patch centres undistorted, before the nadir view (what a per-frame levelling maps)
+    undistorted_px: FloatArray | None = None
 
 
 def _mapped(homography: FloatArray, points_px: FloatArray) -> FloatArray:
@@ -96,6 +99,7 @@ def lens_of(grid: PatchGrid, settings: YawSettings, R_nadir_camera: FloatArray |
             camera = camera.scaled(width / camera.width)
         centre = (camera.cx, camera.cy)
         src = camera.undistort_px(grid.centres_px)
+    undistorted = src
     to_nadir = None
     if R_nadir_camera is not None:
         if camera is None:
@@ -106,7 +110,7 @@ def lens_of(grid: PatchGrid, settings: YawSettings, R_nadir_camera: FloatArray |
         src = _mapped(to_nadir, src)
     lever = float(np.median(np.hypot(src[:, 0] - centre[0], src[:, 1] - centre[1])))
     focal = None if camera is None else math.sqrt(camera.fx * camera.fy)
-    return Lens(camera, centre, src, lever, to_nadir, focal)
+    return Lens(camera, centre, src, lever, to_nadir, focal, undistorted)
 
 
 def frame_is_flat(frame_u8: U8Array) -> bool:
@@ -120,20 +124,27 @@ def fit_measurement(
     measurement: PatchMeasurement,
     settings: YawSettings,
     matrix: FloatArray | None = None,
+    levelling: Levelling | None = None,
 ) -> ModelFit:
     """Fit patch centre -> centre + shift (mapped by the pre-alignment ``matrix`` when given: the shift was
-    measured against frame k warped back by it), both undistorted through the lens model first."""
+    measured against frame k warped back by it), both undistorted through the lens model first, then moved
+    into the fixed nadir view or, with ``levelling``, into each frame's level view
+    (:mod:`common.yaw.level`)."""
     valid = measurement.valid
     index = measurement.indices[valid]
     dst = grid.centres_px[index] + measurement.shift_px[valid]
     if matrix is not None:
         mapped = np.hstack([dst, np.ones((dst.shape[0], 1))]) @ matrix.T
         dst = mapped[:, :2] / mapped[:, 2:3]
-    src = lens.src_px[index]
+    src, to_view = lens.src_px[index], lens.to_nadir
+    if levelling is not None and lens.camera is not None and lens.undistorted_px is not None:
+        src, to_view = _mapped(levelling.before, lens.undistorted_px[index]), levelling.after
     if lens.camera is not None and dst.size:
         dst = lens.camera.undistort_px(dst) if np.all(np.isfinite(dst)) else np.full_like(dst, np.nan)
-        if lens.to_nadir is not None:
-            dst = _mapped(lens.to_nadir, dst)
+        if to_view is not None:  # inline: a frame's walk enters this module once more per call back into it
+            viewed = np.hstack([dst, np.ones((dst.shape[0], 1))]) @ to_view.T
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dst = viewed[:, :2] / viewed[:, 2:3]
         keep = np.all(np.isfinite(dst), axis=1)
         src, dst = src[keep], dst[keep]
     return fit_correspondences(src, dst, settings)
@@ -211,6 +222,7 @@ def prealigned_pair(
     prior: Prior,
     fit_model: FitModel,
     refine_measure: RefineMeasure | None = None,
+    levelling: Levelling | None = None,
 ) -> PairResult:
     """Patch stage on frame k warped back by ``matrix`` (frame k-1 px -> frame k px), fitted through it.
 
@@ -225,7 +237,7 @@ def prealigned_pair(
     if wanted is not None and refine_measure is not None:
         turned = _turned_level(frame_u8, matrix, settings)
         measurement = refine_measure(wanted, grid.crop_level(turned, wanted))
-        return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model)
+        return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model, levelling)
     if previous_spectra is None:
         before = patch_spectra(previous_frame, grid, wanted, settings)
     elif wanted is None:
@@ -241,7 +253,7 @@ def prealigned_pair(
         aligned = grid.level_image(warp_into(frame_u8, matrix, grid.frame_shape))
     current = patch_spectra_from_crops(grid.crop_level(aligned, before.indices), before.indices, settings)
     measurement = measure_patches(before, current, settings)
-    return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model)
+    return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model, levelling)
 
 
 def _turned_level(frame_u8: U8Array, matrix: FloatArray, settings: YawSettings) -> U8Array:
@@ -260,9 +272,11 @@ def _fitted(
     measurement: PatchMeasurement,
     prior: Prior,
     fit_model: FitModel,
+    levelling: Levelling | None = None,
 ) -> PairResult:
-    """The pair result of shifts measured on frame k warped back by ``matrix``."""
-    fit = fit_measurement(grid, lens, measurement, replace(settings, fit_model=fit_model), matrix)
+    """The pair result of shifts measured on frame k warped back by ``matrix`` (in the frames' level views
+    with ``levelling``)."""
+    fit = fit_measurement(grid, lens, measurement, replace(settings, fit_model=fit_model), matrix, levelling)
     good = fit_is_good(fit, measurement, settings)
     return _result(fit.homography, method, fit, measurement, lens, settings, prior, good)
 
@@ -295,13 +309,15 @@ def conclude_pair(
     prior: Prior,
     check_global: bool,
     refine_measure: RefineMeasure | None = None,
+    levelling: Levelling | None = None,
 ) -> PairResult:
-    """Raw patch fit; if untrusted, the patches on frame k turned back by an informative prior; if still
-    untrusted and there is no gyro, the global stage's candidates r + k 90 deg, disambiguated by their
-    responses and the prior, each verified by the patch stage. The cost is bounded by the gyro: with it the
-    global stage never runs (the gyro bridges what the patches cannot measure). ``refine_measure`` measures
-    the refinement's patches elsewhere (:data:`RefineMeasure`; the fallbacks, rare, are measured here)."""
-    fit = fit_measurement(grid, lens, measurement, settings)
+    """Raw patch fit (in the frames' level views with ``levelling``, :mod:`common.yaw.level`); if untrusted,
+    the patches on frame k turned back by an informative prior; if still untrusted and there is no gyro, the
+    global stage's candidates r + k 90 deg, disambiguated by their responses and the prior, each verified by
+    the patch stage. The cost is bounded by the gyro: with it the global stage never runs (the gyro bridges
+    what the patches cannot measure). ``refine_measure`` measures the refinement's patches elsewhere
+    (:data:`RefineMeasure`; the fallbacks, rare, are measured here)."""
+    fit = fit_measurement(grid, lens, measurement, settings, None, levelling)
     good = fit_is_good(fit, measurement, settings)
     patches = _result(fit.homography, EstimateMethod.PATCHES, fit, measurement, lens, settings, prior, good)
     if patches.trusted and not check_global:
@@ -312,7 +328,7 @@ def conclude_pair(
         matrix = rotation_about(lens.centre_px, patches.delta_rad)
         refined = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, matrix,
-            EstimateMethod.REFINED, previous_spectra, prior, settings.fit_model, refine_measure,
+            EstimateMethod.REFINED, previous_spectra, prior, settings.fit_model, refine_measure, levelling,
         )  # fmt: skip
         return refined if refined.trusted else patches
     if frame_is_flat(previous_frame) or frame_is_flat(frame_u8):
@@ -322,7 +338,8 @@ def conclude_pair(
         matrix = rotation_about(lens.centre_px, prior.delta_rad)
         turned = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, matrix,
-            EstimateMethod.PRIOR_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model,
+            EstimateMethod.PRIOR_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model, None,
+            levelling,
         )  # fmt: skip
         if turned.trusted or prior.source is PriorSource.GYRO:
             return turned
@@ -335,7 +352,8 @@ def conclude_pair(
     if chosen is not None and alignment.candidates[chosen][2] >= _MIN_GLOBAL_RESPONSE:
         prealigned = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, alignment.candidates[chosen][0],
-            EstimateMethod.GLOBAL_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model,
+            EstimateMethod.GLOBAL_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model, None,
+            levelling,
         )  # fmt: skip
         if prealigned.trusted or (not patches.trusted and prealigned.fit.ok):
             return prealigned

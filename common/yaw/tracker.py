@@ -23,6 +23,7 @@ from common.yaw.fit import rotation_of_homography_rad
 from common.yaw.grid import PatchGrid, for_frame, make_patch_grid
 from common.yaw.held import MeasuredPair, held_rate, with_measured_pair
 from common.yaw.honest import PriorSource, Provenance, make_prior
+from common.yaw.level import Levelling, LevelViews
 from common.yaw.measurement import PatchMeasurement, merge_measurements
 from common.yaw.mount import yaw_per_image_turn
 from common.yaw.settings import YawSettings
@@ -85,6 +86,8 @@ class TrackerState:
     measured_pairs: tuple[MeasuredPair, ...] = ()
     since_measured_s: float = 0.0
     yaw_variance: YawVariance = field(default_factory=YawVariance)
+    #: the previous frame's tilt (``R_level_body``, :mod:`common.yaw.level`), None when not known
+    R_level_body: FloatArray | None = None
 
     @property
     def yaw_variance_rad2(self) -> float:
@@ -126,6 +129,9 @@ class YawTracker:
         self.settings = settings
         self.grid = grid
         self.lens = lens_of(grid, settings, R_nadir_camera)
+        camera = self.lens.camera
+        #: the level views of frames whose tilt is given (a lens with intrinsics only)
+        self._level_views = None if camera is None else LevelViews(camera.K, R_bc)
         self._n_patches = grid.n_patches
 
     def initial_state(
@@ -135,10 +141,11 @@ class YawTracker:
         stamp_s: float | None = None,
         yaw_rad: float = 0.0,
         yaw_variance_rad2: float = 0.0,
+        R_level_body: npt.ArrayLike | None = None,
     ) -> TrackerState:
         """State at frame 0; ``with_spectra`` caches its patch spectra for in-process ``track``. A stream
         that continues a yaw (a new rig, a take-over) starts from it and its variance (the memories of the
-        pairs before start over)."""
+        pairs before start over); ``R_level_body`` is frame 0's tilt (:meth:`conclude`)."""
         frame = check_grey_image(frame0_u8, "frame0_u8", shape=self.grid.frame_shape)
         if not math.isfinite(yaw_rad):
             raise InputError(f"need a finite yaw, got {yaw_rad}")
@@ -146,6 +153,7 @@ class YawTracker:
         return TrackerState(
             seq=0, yaw_rad=yaw_rad, previous_frame=frame, previous_spectra=spectra,
             stamp_s=_check_stamp(stamp_s), yaw_variance=YawVariance(yaw_variance_rad2),
+            R_level_body=_check_tilt(R_level_body),
         )  # fmt: skip
 
     def conclude(
@@ -156,6 +164,7 @@ class YawTracker:
         stamp_s: float | None = None,
         gyro_delta_rad: float | None = None,
         refine_measure: RefineMeasure | None = None,
+        R_level_body: npt.ArrayLike | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """Central stage: fit the measured shifts of frame k, fall back if untrusted, integrate honestly.
 
@@ -164,11 +173,14 @@ class YawTracker:
         ``stamp_s`` (frame k's time) enables the physical rate limit; ``gyro_delta_rad`` (the gyro's
         rotation since frame k-1, :func:`~common.yaw.honest.gyro_delta_yaw_rad`) is the prior and the
         bridge over untrusted pairs; ``refine_measure`` measures a turning pair's second pass elsewhere (a
-        master: on its members, :data:`~common.yaw.stages.RefineMeasure`). The returned state has no spectra;
-        ``track`` adds them.
+        master: on its members, :data:`~common.yaw.stages.RefineMeasure`). ``R_level_body`` is frame k's
+        tilt (:func:`~common.yaw.level.R_level_body_of_up`): when the previous frame's is known too (and the
+        lens's intrinsics), the pair is fitted in the two frames' level views and measures the heading's
+        change (:mod:`common.yaw.level`). The returned state has no spectra; ``track`` adds them.
         """
+        tilt = _check_tilt(R_level_body)
         frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
-        return self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False, refine_measure)
+        return self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False, refine_measure, tilt)
 
     def _conclude(
         self,
@@ -179,10 +191,12 @@ class YawTracker:
         gyro_delta_rad: float | None,
         check_global: bool,
         refine_measure: RefineMeasure | None = None,
+        R_level_body: FloatArray | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """:meth:`conclude` of a checked frame; ``check_global`` verifies even a trusted patch fit against the
         global stage (one pair of any rotation, :func:`estimate_pair`)."""
         stamp = _check_stamp(stamp_s)
+        levelling = self._levelling(state.R_level_body, R_level_body)
         if gyro_delta_rad is not None and not math.isfinite(gyro_delta_rad):
             raise InputError(f"gyro_delta_rad must be finite, got {gyro_delta_rad}")
         if measurement.indices.size and np.any(np.diff(measurement.indices) <= 0):
@@ -193,13 +207,15 @@ class YawTracker:
         if dt is not None and dt <= 0.0:
             raise InputError(f"frame stamps must increase, got {state.stamp_s} then {stamp}")
         held = held_rate(state.measured_pairs)
+        # the measured view's turn is the yaw's in a nadir or level view, else the image's turn
+        yaw_view = self.nadir_view or levelling is not None
         # the gyro's turn about minus the optical axis, in the measured view's units (the nadir view: yaw)
-        k_in = self.yaw_per_turn if self.nadir_view else 1.0
+        k_in = self.yaw_per_turn if yaw_view else 1.0
         gyro = None if gyro_delta_rad is None else k_in * gyro_delta_rad
         prior = make_prior(self.settings, dt, gyro, held, state.since_measured_s)
         result = conclude_pair(
             state.previous_frame, frame, measurement, self.grid, self.lens, self.settings,
-            state.previous_spectra, prior, check_global, refine_measure,
+            state.previous_spectra, prior, check_global, refine_measure, levelling,
         )  # fmt: skip
         step_s = dt if dt is not None else self.settings.frame_period_s
         # the pair's end on the stamps' clock, or on a nominal one (frame periods) for unstamped frames
@@ -222,7 +238,7 @@ class YawTracker:
             restart = bool(pairs) and pair.stop_s <= pairs[-1].stop_s
             pairs = (pair,) if restart else with_measured_pair(pairs, pair)
         # the measured view's turn (measured, or the gyro's about the same axis) as the vehicle's yaw
-        k = 1.0 if self.nadir_view else self.yaw_per_turn
+        k = 1.0 if yaw_view else self.yaw_per_turn
         delta, variance = k * delta, k * k * variance
         yaw = state.yaw_rad + delta
         yaw_variance = add_pair_variance(state.yaw_variance, variance, step_s, provenance)
@@ -255,7 +271,14 @@ class YawTracker:
             measured_pairs=pairs,
             since_measured_s=since,
             yaw_variance=yaw_variance,
+            R_level_body=R_level_body,
         ), estimate
+
+    def _levelling(self, before: FloatArray | None, after: FloatArray | None) -> Levelling | None:
+        """The pair's level views when both frames' tilts and the lens's intrinsics are known."""
+        if before is None or after is None or self._level_views is None:
+            return None
+        return self._level_views.pair(before, after)
 
     def track(
         self,
@@ -263,8 +286,10 @@ class YawTracker:
         frame_u8: U8Array,
         stamp_s: float | None = None,
         gyro_delta_rad: float | None = None,
+        R_level_body: npt.ArrayLike | None = None,
     ) -> tuple[TrackerState, FrameYaw]:
         """In-process: spectra of all patches, ``measure_patches`` vs the cached ones, ``conclude``."""
+        tilt = _check_tilt(R_level_body)
         frame = check_grey_image(frame_u8, "frame_u8", shape=self.grid.frame_shape)
         previous = state.previous_spectra
         if previous is None:
@@ -272,8 +297,14 @@ class YawTracker:
             state = replace(state, previous_spectra=previous)
         current = patch_spectra(frame, self.grid, previous.indices, self.settings)
         measurement = measure_patches(previous, current, self.settings)
-        state, estimate = self._conclude(state, frame, measurement, stamp_s, gyro_delta_rad, False)
+        state, estimate = self._conclude(
+            state, frame, measurement, stamp_s, gyro_delta_rad, False, None, tilt
+        )
         return replace(state, previous_spectra=current), estimate
+
+
+def _check_tilt(R_level_body: npt.ArrayLike | None) -> FloatArray | None:
+    return None if R_level_body is None else check_rotation_matrix(R_level_body, "R_level_body")
 
 
 def _check_stamp(stamp_s: float | None) -> float | None:
