@@ -1,5 +1,6 @@
-"""The master's gyro prior: IMU samples of the stream (``capataz/uav/{uav}/imu``) in a bounded buffer, and the
-gyro's rotation between two frame stamps for the yaw core's honest integration.
+"""The master's gyro prior: IMU samples of the stream (``capataz/uav/{uav}/imu``) in a bounded buffer, the
+gyro's rotation between two frame stamps for the yaw core's honest integration, and the body's tilt at a
+frame for its level views (:func:`common.yaw.level.R_level_body_from_imu`, the same bits as in-process).
 
 The delta is :func:`common.yaw.gyro_delta_yaw_rad` on the buffered samples: it uses only the samples from
 the last one at or before the earlier stamp to the last one at or before the later stamp, so when the buffer
@@ -20,8 +21,10 @@ import numpy as np
 import numpy.typing as npt
 
 from common.streams import GateVerdict
+from common.types import FloatArray
 from common.wire.messages import ImuSample
 from common.yaw import gyro_delta_yaw_rad
+from common.yaw.level import DEFAULT_UP_WINDOW_S, R_level_body_from_imu
 from common.yaw.mount import imu_stamp_s
 from services.master.lens import YawPriorSettings
 from services.runtime.counters import Counters
@@ -39,6 +42,7 @@ class GyroBuffer:
     def __init__(self, capacity: int = DEFAULT_CAPACITY, sample_period_tolerance_s: float = 0.01) -> None:
         self._stamps: list[float] = []
         self._gyro: list[np.ndarray] = []
+        self._accel: list[np.ndarray] = []
         self._capacity = capacity
         self._cond = threading.Condition()
         self._tolerance_s = sample_period_tolerance_s
@@ -49,6 +53,7 @@ class GyroBuffer:
         with self._cond:
             self._stamps.clear()
             self._gyro.clear()
+            self._accel.clear()
 
     def add(self, sample: ImuSample) -> bool:
         """Append a sample; False (and counted) when it is not newer than the newest held. A sample older
@@ -63,11 +68,14 @@ class GyroBuffer:
                     return False
                 self._stamps.clear()
                 self._gyro.clear()
+                self._accel.clear()
             self._stamps.append(float(sample.stamp_s))
             self._gyro.append(gyro)
+            self._accel.append(np.asarray(sample.accel_m_s2, dtype=np.float64))
             if len(self._stamps) > 2 * self._capacity:  # trim in chunks: amortised O(1) per sample
                 del self._stamps[: -self._capacity]
                 del self._gyro[: -self._capacity]
+                del self._accel[: -self._capacity]
             self._cond.notify_all()
         return True
 
@@ -96,6 +104,18 @@ class GyroBuffer:
             gyro = np.stack(self._gyro[first : last + 1])
         return gyro_delta_yaw_rad(stamps, gyro, start_s, stop_s, axis_imu)
 
+    def tilt(self, stamp_s: float, R_body_imu: npt.ArrayLike) -> FloatArray | None:
+        """The body's tilt at ``stamp_s`` (the IMU's clock) from the samples of the window before it (None
+        without enough of them): call after :meth:`delta_rad` has waited for the samples reaching it."""
+        with self._cond:
+            first = bisect.bisect_right(self._stamps, stamp_s - DEFAULT_UP_WINDOW_S)
+            last = bisect.bisect_right(self._stamps, stamp_s)
+            if last - first < 2:
+                return None
+            stamps = np.array(self._stamps[first:last], dtype=np.float64)
+            gyro, accel = np.stack(self._gyro[first:last]), np.stack(self._accel[first:last])
+        return R_level_body_from_imu(stamps, gyro, accel, stamp_s, R_body_imu)
+
 
 class GyroPrior:
     """The master's side of the yaw prior: IMU samples in (through the master's input gate), the gyro's delta
@@ -117,8 +137,13 @@ class GyroPrior:
         gate: InputGate,
         axis_imu: npt.ArrayLike = (0.0, 0.0, 1.0),
         time_offset_s: float = 0.0,
+        level: bool = False,
+        R_body_imu: npt.ArrayLike | None = None,
     ) -> None:
         self.enabled = enabled
+        #: level each pair's views by the IMU's tilt (needs the lens's intrinsics, the core's side)
+        self.level = level
+        self.R_body_imu = np.eye(3) if R_body_imu is None else np.asarray(R_body_imu, dtype=np.float64)
         self.wait_s = wait_s
         self.buffer = GyroBuffer()
         self._counters = counters
@@ -130,11 +155,16 @@ class GyroPrior:
     def of(cls, prior: YawPriorSettings, counters: Counters, gate: InputGate, name: str) -> GyroPrior:
         """The prior the master's settings describe (logged in one line)."""
         axis, mount = prior.gyro_axis_imu(), prior.rig_mount
+        level = prior.gyro_prior and prior.level_views
         logger.info(
-            "%s: gyro prior %s, the IMU's weights %s (%s)", name, "on" if prior.gyro_prior else "off",
-            np.round(axis, 4).tolist(), mount.describe(),
+            "%s: gyro prior %s, level views %s, the IMU's weights %s (%s)", name,
+            "on" if prior.gyro_prior else "off", "on" if level else "off", np.round(axis, 4).tolist(),
+            mount.describe(),
         )  # fmt: skip
-        return cls(prior.gyro_prior, prior.gyro_wait_s, counters, gate, axis, mount.imu_time_offset_s)
+        return cls(
+            prior.gyro_prior, prior.gyro_wait_s, counters, gate, axis, mount.imu_time_offset_s, level,
+            mount.R_body_imu,
+        )  # fmt: skip
 
     def on_sample(self, imu: ImuSample | None, source: str | None = None) -> None:
         """A decoded IMU sample from ``source`` (None: it failed to decode, counted by the runtime)."""
@@ -162,3 +192,13 @@ class GyroPrior:
         name = "gyro_prior" if delta is not None else "no_gyro_prior"
         counts[name] = counts.get(name, 0) + 1
         return delta
+
+    def tilt(self, stamp_s: float | None, counts: dict[str, int]) -> FloatArray | None:
+        """The body's tilt at a frame (:meth:`GyroBuffer.tilt`; None when levelling is off, the frame
+        unstamped or the window's samples missing), counted as ``tilt`` or ``no_tilt`` in ``counts``."""
+        if not (self.enabled and self.level) or stamp_s is None:
+            return None
+        tilt = self.buffer.tilt(imu_stamp_s(stamp_s, self.time_offset_s), self.R_body_imu)
+        name = "tilt" if tilt is not None else "no_tilt"
+        counts[name] = counts.get(name, 0) + 1
+        return tilt

@@ -46,6 +46,13 @@ class YawPriorSettings(BaseModel):
     )
     #: how long a frame may wait for IMU samples reaching its stamp (s)
     gyro_wait_s: float = Field(default=0.05, ge=0.0, le=1.0)
+    #: off by default until the window's pull is removed too: alone it leaves that bias uncovered on
+    #: wide-angle low flights (docs/methods.md, "Tilt")
+    level_views: bool = Field(
+        default=False,
+        description="fit each pair in level views by the IMU's tilt (needs a calibrated lens and the IMU): "
+        "a tilted body's translation no longer reads as a turn, and the turn is the heading's",
+    )
     max_yaw_rate_deg_s: float = from_core(YawSettings, "max_yaw_rate_deg_s")
     #: the camera's mount, the IMU's axes and clock offset (the shared mount option group)
     rig_mount: MountOptions = MountOptions()
@@ -76,7 +83,7 @@ class CameraSource:
 def add_yaw_prior_arguments(parser: argparse.ArgumentParser) -> None:
     """The master's camera options (the shared group) and its yaw prior's (gyro, physical rate limit, the
     camera's mount, the IMU's axes and clock offset)."""
-    add_options(parser, YawPriorSettings, ("gyro_prior", "max_yaw_rate_deg_s"))
+    add_options(parser, YawPriorSettings, ("gyro_prior", "level_views", "max_yaw_rate_deg_s"))
     add_rig_options(parser, None)
 
 
@@ -86,7 +93,11 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
     lens, mount = rig_options_from_args(args)
     try:
         prior = YawPriorSettings(
-            lens=lens, gyro_prior=args.gyro_prior, max_yaw_rate_deg_s=args.max_yaw_rate_deg_s, rig_mount=mount
+            lens=lens,
+            gyro_prior=args.gyro_prior,
+            level_views=args.level_views,
+            max_yaw_rate_deg_s=args.max_yaw_rate_deg_s,
+            rig_mount=mount,
         )
     except ValidationError as exc:
         raise UsageError(condense_validation_error(exc, flag_of)) from None
@@ -100,14 +111,14 @@ def yaw_prior_settings_from_args(args: argparse.Namespace) -> YawPriorSettings:
 
 def stream_geometry(
     prior: YawPriorSettings, lens: CameraSource, width: int, height: int, rig: Rig | None, name: str = ""
-) -> tuple[CameraModel | None, FloatArray, FloatArray, float]:
-    """``(camera, R_body_camera, gyro weights in the IMU's axes, IMU clock offset)`` of a stream of frames of
-    ``width`` x ``height``: the stream's ``rig`` when it has one (logged for master ``name``), else the
-    master's own options."""
+) -> tuple[CameraModel | None, FloatArray, FloatArray, float, FloatArray]:
+    """``(camera, R_body_camera, gyro weights in the IMU's axes, IMU clock offset, R_body_imu)`` of a stream
+    of frames of ``width`` x ``height``: the stream's ``rig`` when it has one (logged for master ``name``),
+    else the master's own options."""
     if rig is None:
         mount = prior.rig_mount
         camera = lens.at(width, height)
-        return camera, mount.R_body_camera, prior.gyro_axis_imu(), mount.imu_time_offset_s
+        return camera, mount.R_body_camera, prior.gyro_axis_imu(), mount.imu_time_offset_s, mount.R_body_imu
     logger.info("%s: measuring with the stream's %s", name, describe_rig(rig))
     axis = image_turn_axis_imu(rig.R_body_camera, rig.R_body_imu)
-    return rig.camera, rig.R_body_camera, axis, rig.time_offset_s
+    return rig.camera, rig.R_body_camera, axis, rig.time_offset_s, rig.R_body_imu

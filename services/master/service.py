@@ -275,11 +275,12 @@ class MasterService(ConfiguredService[MasterSettings]):
                 "%s: the stream's rig %s is overridden by the master's options", self.name, frame.rig_id
             )
         geometry = stream_geometry(prior, self.lens, frame.width, frame.height, rig, self.name)
-        camera, R_body_camera, axis, offset = geometry
-        self.gyro.axis_imu, self.gyro.time_offset_s = axis, offset
+        camera, R_body_camera, axis, offset, R_body_imu = geometry
+        self.gyro.axis_imu, self.gyro.time_offset_s, self.gyro.R_body_imu = axis, offset, R_body_imu
         tracker = YawTracker(prior.tracker_settings(yaw_settings, camera), grid, R_body_camera)
         state = tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s,
-            yaw_rad=anchor.yaw_rad, yaw_variance_rad2=anchor.yaw_variance_rad2)  # fmt: skip
+            yaw_rad=anchor.yaw_rad, yaw_variance_rad2=anchor.yaw_variance_rad2,
+            R_level_body=self.gyro.tilt(frame.stamp_s, self._frame_counts))  # fmt: skip
         dispatcher = Dispatcher(self.settings.dispatch, grid.n_patches)
         dispatcher.trust = self.guard.monitor()
         level = grid.level_image(frame.pixels)
@@ -354,13 +355,14 @@ class MasterService(ConfiguredService[MasterSettings]):
         if stamp is None:
             counts["stamps_not_increasing"] = counts.get("stamps_not_increasing", 0) + 1
         gyro = self.gyro.delta_rad(previous_s, stamp, counts) if stamp is not None else None
+        tilt = self.gyro.tilt(stamp, counts)  # after the gyro's wait: the window's samples are in
         # a turning frame's second pass on the members that measured its patches (None: here)
         refine = None if report is None else MemberRefine.of(
             self.session, grid, prev_level, work, self._job_types, report, stream.dispatcher, self.counters,
             self.settings.refine_on_members_pixels, stream.refine_chooser,
         )  # fmt: skip
         stream.state, core = stream.tracker.conclude(
-            stream.state, frame.pixels, measurement, stamp, gyro, refine
+            stream.state, frame.pixels, measurement, stamp, gyro, refine, tilt
         )
         stream.prev_level, stream.prev_seq = level, frame.seq
         t_end = time.perf_counter()

@@ -24,9 +24,9 @@ from common.yaw import (
     Provenance,
     YawSettings,
     YawTracker,
-    gyro_delta_yaw_rad,
     make_patch_grid,
 )
+from services.tools.flight_prior import FlightPrior
 from services.tools.report import write_json
 
 logger = logging.getLogger(__name__)
@@ -51,14 +51,23 @@ def track_frames(
 ) -> TrackedRun:
     """Run ``YawTracker.track`` over frames; only the tracking calls are timed (not rendering).
 
-    With ``flight`` (whose frames these are) the tracker gets the frame stamps and the gyro prior from the
-    flight's IMU, as the master does from the camera's IMU samples.
+    With ``flight`` (whose frames these are) the tracker is the one a master builds for the flight's rig,
+    with the frame stamps, the gyro prior and the level views from the flight's IMU, as the master gets
+    them from the camera's stream (:class:`~services.tools.flight_prior.FlightPrior`).
     """
     iterator = iter(frames)
     first = next(iterator)
-    tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
+    prior = None if flight is None else FlightPrior(flight)
+    if prior is None:
+        tracker = YawTracker(settings, make_patch_grid(first.shape, settings))
+    else:
+        tracker = prior.tracker(settings)
     stamps = flight.frame_stamps_s if flight is not None else None
-    state = tracker.initial_state(first, stamp_s=float(stamps[0]) if stamps is not None else None)
+    state = tracker.initial_state(
+        first,
+        stamp_s=float(stamps[0]) if stamps is not None else None,
+        R_level_body=None if prior is None else prior.tilt(0),
+    )
     yaw = [0.0]
     ms: list[float] = []
     low = [False]
@@ -66,11 +75,11 @@ def track_frames(
     provenance = {p.value: 0 for p in Provenance}
     for k, frame in enumerate(iterator, start=1):
         start = time.perf_counter()
-        stamp, gyro = None, None
-        if flight is not None and stamps is not None:
-            stamp = float(stamps[k])
-            gyro = gyro_delta_yaw_rad(flight.imu.stamps_s, flight.imu.gyro_rad_s, stamps[k - 1], stamp)
-        state, estimate = tracker.track(state, frame, stamp, gyro)
+        if prior is None or stamps is None:
+            state, estimate = tracker.track(state, frame)
+        else:
+            stamp, gyro, tilt = float(stamps[k]), prior.gyro_delta_rad(k), prior.tilt(k)
+            state, estimate = tracker.track(state, frame, stamp, gyro, tilt)
         ms.append((time.perf_counter() - start) * 1e3)
         yaw.append(estimate.yaw_rad)
         low.append(estimate.low_confidence)

@@ -15,9 +15,9 @@ from common.sim.field import MOUNTED_RIG, field_flight
 from common.wire import keys
 from common.wire.codec import decode
 from common.wire.messages import Stats
-from common.yaw import YawSettings, YawTracker, gyro_delta_yaw_rad, make_patch_grid
-from common.yaw.mount import image_turn_axis_imu, imu_stamp_s
+from common.yaw import YawSettings
 from services.runtime.transport import open_session, zbytes
+from services.tools.flight_prior import FlightPrior, Level
 from services.tools.observe import YawCollector
 from services.tools.up import LocalCluster
 from tests.integration.cluster_helpers import two_by_two
@@ -38,23 +38,22 @@ MOUNT_ARGS = {
         f"--mount={_numbers(MOUNTED_RIG.R_body_camera)}",
         f"--imu-axes={_numbers(MOUNTED_RIG.R_body_imu)}",
         f"--imu-time-offset={MOUNTED_RIG.imu_time_offset_s:.17g}",
+        "--level-views",  # and each pair in level views by the IMU's tilt
     ),
 }
 
 
 def _in_process(name: str, n: int) -> tuple[np.ndarray, list[Provenance]]:
+    """The flight as its master measures it (:class:`~services.tools.flight_prior.FlightPrior`)."""
     flight = field_flight(name, seed=0, n_frames=n)
-    settings = YawSettings(camera=flight.camera)
-    tracker = YawTracker(settings, make_patch_grid(flight.camera.shape, settings), flight.R_body_camera)
-    axis = image_turn_axis_imu(flight.R_body_camera, flight.imu.R_body_imu)
-    offset = flight.imu.time_offset_s
+    prior = FlightPrior(flight, level=Level.IMU if "--level-views" in MOUNT_ARGS[name] else Level.NONE)
+    tracker = prior.tracker(YawSettings())
     stamps = flight.frame_stamps_s
-    state = tracker.initial_state(flight.frame(0), stamp_s=float(stamps[0]))
+    state = tracker.initial_state(flight.frame(0), stamp_s=float(stamps[0]), R_level_body=prior.tilt(0))
     yaw, provenance = [0.0], [Provenance.INITIAL]
     for k in range(1, n):
-        start, stop = imu_stamp_s(float(stamps[k - 1]), offset), imu_stamp_s(float(stamps[k]), offset)
-        gyro = gyro_delta_yaw_rad(flight.imu.stamps_s, flight.imu.gyro_rad_s, start, stop, axis)
-        state, estimate = tracker.track(state, flight.frame(k), float(stamps[k]), gyro)
+        gyro, tilt = prior.gyro_delta_rad(k), prior.tilt(k)
+        state, estimate = tracker.track(state, flight.frame(k), float(stamps[k]), gyro, tilt)
         yaw.append(estimate.yaw_rad)
         provenance.append(estimate.provenance)
     return np.array(yaw), provenance
@@ -70,8 +69,9 @@ def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_a
     tmp_path: Path, name: str
 ) -> None:
     """``mounted_rig``: the camera tilted and turned, the IMU in other axes and 12 ms ahead; the master told
-    them by its mount options. Two thirds of the field flights' pairs turn enough to be measured twice: that
-    second pass runs on the members that measured the patches, and the yaw still equals the core's."""
+    them by its mount options, and fitting in level views. Two thirds of the field flights' pairs turn
+    enough to be measured twice: that second pass runs on the members that measured the patches, and the
+    yaw still equals the core's."""
     calibration = tmp_path / "field.yaml"
     calibration.write_text(opencv_yaml_text(field_flight(name, n_frames=2).camera))
     expected_yaw, expected_provenance = _in_process(name, FRAMES)
@@ -104,6 +104,9 @@ def test_field_flight_through_the_cluster_equals_the_in_process_core_with_gyro_a
             master_stats.undeclare()
         cluster.stop()
     assert stats and stats[-1].counters.get("gyro_prior", 0) == FRAMES - 1  # every pair had the gyro prior
+    # levelled: every frame after the first 1.5 s of IMU samples (half the tilt's window), else none
+    tilts = stats[-1].counters.get("tilt", 0)
+    assert tilts >= FRAMES // 3 if "--level-views" in MOUNT_ARGS[name] else tilts == 0, stats[-1].counters
     refined = sum(estimates[k].method == "refined" for k in range(FRAMES))
     assert refined >= FRAMES // 3
     # each refined frame's 40 patches measured again: by the members that measured them, but for what the

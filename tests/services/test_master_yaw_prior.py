@@ -15,6 +15,7 @@ from common.errors import InputError
 from common.sim.field import wide_angle_camera
 from common.wire.messages import ImuSample
 from common.yaw import YawSettings, gyro_delta_yaw_rad
+from common.yaw.level import R_level_body_from_imu
 from services.master.gyro import GyroBuffer, GyroPrior
 from services.master.lens import CameraSource, add_yaw_prior_arguments, yaw_prior_settings_from_args
 from services.runtime.counters import Counters
@@ -102,6 +103,24 @@ def test_gyro_buffer_gives_the_in_process_bits_and_refuses_disorder() -> None:
     assert buffer.out_of_order == 1
     assert buffer.add(_imu(0.0, 0.5))  # older than everything: the stream restarted
     assert len(buffer) == 1
+
+
+def test_gyro_buffer_gives_the_in_process_tilt_bits_regression() -> None:
+    """The master's tilt for its level views is the in-process one on the same samples (to the bit); a
+    window less than half covered by samples gives none, in both."""
+    stamps = np.arange(0.0, 5.0, 0.0025)
+    roll = 0.05 * np.sin(stamps)
+    gyro = np.stack([0.05 * np.cos(stamps), np.zeros_like(stamps), 0.3 * np.ones_like(stamps)], axis=1)
+    accel = np.stack([np.zeros_like(stamps), 9.81 * np.sin(roll), 9.81 * np.cos(roll)], axis=1)
+    R_body_imu = np.diag([1.0, -1.0, -1.0])
+    buffer = GyroBuffer(capacity=1000)
+    for t, w, a in zip(stamps, gyro, accel, strict=True):
+        assert buffer.add(ImuSample(uav="uav0", stamp_s=float(t), gyro_rad_s=w, accel_m_s2=a))
+    tilt = buffer.tilt(4.9, R_body_imu)
+    assert tilt is not None
+    assert np.array_equal(tilt, R_level_body_from_imu(stamps, gyro, accel, 4.9, R_body_imu))
+    assert buffer.tilt(1.0, R_body_imu) is None  # 1 s of a 3 s window
+    assert R_level_body_from_imu(stamps, gyro, accel, 1.0, R_body_imu) is None
 
 
 class _Service:

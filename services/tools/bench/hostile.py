@@ -234,12 +234,13 @@ def max_yaw_error_deg_of(yaw: dict[int, float], reference_rad: np.ndarray) -> fl
 
 
 def reference_yaw_rad(frames: int) -> np.ndarray:
-    """In-process yaw of every frame of the camera's simulated flight (what the cluster must publish)."""
+    """In-process yaw of every frame of the camera's simulated flight (what the cluster must publish: its
+    master gets the flight's rig and IMU stream, :func:`~services.tools.demo_yaw.track_frames`)."""
     from services.camera import CameraSettings, simulated_flight
     from services.tools.demo_yaw import track_frames
 
     flight = simulated_flight(CameraSettings(frames=frames))
-    return track_frames((flight.frame(k) for k in range(frames)), YawSettings()).yaw_rad
+    return track_frames((flight.frame(k) for k in range(frames)), YawSettings(), flight).yaw_rad
 
 
 @contextmanager

@@ -18,7 +18,7 @@ import argparse
 import logging
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -31,11 +31,11 @@ from common.metrics import accumulated_mean_error, yaw_error_rad
 from common.sim.field import FIELD_LENSES, FIELD_RATES_HZ, FIELD_SCENARIOS, field_flight, scenario_camera
 from common.sim.flight import CAMERA_RATE_HZ, Flight, hover_flight
 from common.types import FloatArray
-from common.yaw import Provenance, YawSettings, YawTracker, for_frame, gyro_delta_yaw_rad, make_patch_grid
-from common.yaw.mount import image_turn_axis_imu, imu_stamp_s
+from common.yaw import Provenance, YawSettings, for_frame, make_patch_grid
 from common.yaw.reference import reference_pair, reference_settings
 from services.runtime.cli import parse_size
 from services.runtime.usage import number_in
+from services.tools.flight_prior import FlightPrior, Level
 
 logger = logging.getLogger(__name__)
 
@@ -58,9 +58,8 @@ class _Series:
 
 
 class _Core:
-    """The core as a user wires the rig: the gyro weighed by the image's turn in the IMU's axes
-    (:func:`~common.yaw.mount.image_turn_axis_imu` of the flight's mount and IMU axes), between the frame
-    stamps moved onto the IMU's clock; no gyro prior at all when ``use_imu`` is False."""
+    """The core as a user's master runs it on the flight's rig (:class:`FlightPrior`: the gyro prior, and
+    the level views as ``level`` says)."""
 
     def __init__(
         self,
@@ -68,25 +67,20 @@ class _Core:
         frames: list[npt.NDArray[np.uint8]],
         settings: YawSettings,
         use_imu: bool = True,
+        level: Level = Level.NONE,
     ) -> None:
         self.flight = flight
-        grid = make_patch_grid(frames[0].shape, settings)
-        self.tracker = YawTracker(settings, grid, flight.R_body_camera)
-        self.state = self.tracker.initial_state(frames[0], stamp_s=float(flight.frame_stamps_s[0]))
-        self.use_imu = use_imu
-        self.axis_imu = image_turn_axis_imu(flight.R_body_camera, flight.imu.R_body_imu)
+        self.prior = FlightPrior(flight, use_imu, level)
+        self.tracker = self.prior.tracker(settings)
+        self.state = self.tracker.initial_state(
+            frames[0], stamp_s=float(flight.frame_stamps_s[0]), R_level_body=self.prior.tilt(0)
+        )
 
     def step(self, k: int, frame: npt.NDArray[np.uint8], series: _Series) -> None:
-        imu = self.flight.imu
-        t0, t1 = float(self.flight.frame_stamps_s[k - 1]), float(self.flight.frame_stamps_s[k])
+        t1 = float(self.flight.frame_stamps_s[k])
         start = time.thread_time()
-        gyro = None
-        if self.use_imu:
-            offset = imu.time_offset_s
-            gyro = gyro_delta_yaw_rad(
-                imu.stamps_s, imu.gyro_rad_s, imu_stamp_s(t0, offset), imu_stamp_s(t1, offset), self.axis_imu
-            )
-        self.state, estimate = self.tracker.track(self.state, frame, t1, gyro)
+        gyro, tilt = self.prior.gyro_delta_rad(k), self.prior.tilt(k)
+        self.state, estimate = self.tracker.track(self.state, frame, t1, gyro, tilt)
         series.ms.append((time.thread_time() - start) * 1e3)
         series.delta_rad.append(estimate.delta_yaw_rad)
         series.bridged += int(estimate.provenance is not Provenance.MEASURED)
@@ -167,12 +161,11 @@ def _yaw_consistency(yaw_variance_rad2: list[float], error_rad: FloatArray) -> d
 
 
 def run_flight(
-    flight: Flight, settings: YawSettings, use_imu: bool = True
+    flight: Flight, settings: YawSettings, use_imu: bool = True, level: Level = Level.NONE
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Core and baseline on the same (pre-rendered) frames, in turns of ``BLOCK_FRAMES``."""
     frames = list(flight.frames())
-    core_settings = replace(settings, camera=flight.camera)
-    core, base = _Core(flight, frames, core_settings, use_imu), _Baseline(frames)
+    core, base = _Core(flight, frames, settings, use_imu, level), _Baseline(frames)
     core_series, base_series = _Series(), _Series()
     for first in range(1, len(frames), BLOCK_FRAMES):
         block = range(first, min(first + BLOCK_FRAMES, len(frames)))
@@ -188,11 +181,12 @@ def run_core(
     settings: YawSettings,
     frames: list[npt.NDArray[np.uint8]] | None = None,
     gyro: bool = True,
+    level: Level = Level.NONE,
 ) -> _Series:
     """The core alone on a flight (frames given: already rendered), as :func:`run_flight` runs it: the
     flight's calibration and the gyro prior (``gyro`` False: no IMU, untrusted pairs are held)."""
     frames = list(flight.frames()) if frames is None else frames
-    core = _Core(flight, frames, replace(settings, camera=flight.camera), gyro)
+    core = _Core(flight, frames, settings, gyro, level)
     series = _Series()
     for k in range(1, len(frames)):
         core.step(k, frames[k], series)
@@ -246,6 +240,14 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"frame rate of the field scenarios (default {CAMERA_RATE_HZ:g}); --field-frames frames at it",
     )
     group.add_argument(
+        "--field-level",
+        choices=[m.value for m in Level],
+        default=Level.NONE.value,
+        help="each frame's tilt for the core's level views: none (default, as a master's default), imu (as "
+        "a master with --level-views: the IMU's specific force over 3 s, flights with an IMU) or truth (the "
+        "flight's attitude)",
+    )
+    group.add_argument(
         "--field-pyramid-level",
         type=number_in(int, 0, 4),
         default=None,
@@ -279,7 +281,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
                 camera_rate_hz=args.field_fps,
             )
             use_imu = scenario.use_imu
-        core, base = run_flight(flight, settings, use_imu)
+        core, base = run_flight(flight, settings, use_imu, Level(args.field_level))
         core["pyramid_level"] = for_frame(settings, flight.camera.shape).pyramid_level
         scenarios[name], baseline[name] = core, base
         for method, stats in (("core", core), ("baseline", base)):
@@ -291,6 +293,7 @@ def run_field(args: argparse.Namespace) -> dict[str, Any]:
         "field_size": "{}x{}".format(*size),
         "field_lens": args.field_lens,
         "field_fps": args.field_fps,
+        "field_level": args.field_level,
         "scenarios": scenarios,
         "baseline": baseline,
         "worst_max_ame_deg": max(scenarios[n]["max_ame_deg"] for n in field_names),

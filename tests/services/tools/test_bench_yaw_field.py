@@ -100,6 +100,7 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
         "field_size",
         "field_lens",
         "field_fps",
+        "field_level",
         "scenarios",
         "baseline",
         "worst_max_ame_deg",
@@ -116,6 +117,7 @@ def test_bench_yaw_field_suite_writes_exactly_the_issues_fields(
     assert all(set(stats) == FIELDS | scored for stats in payload["scenarios"].values())
     assert payload["field_lens"] is None  # each scenario's own lens
     assert payload["field_fps"] == 20.0  # the suite's frame rate
+    assert payload["field_level"] == "none"  # a master's default: the mount's fixed view
     # the core at the level a master resolves for the frames: 320x240 and the hover's 752x480 at 1
     assert payload["field_size"] == "320x240"
     assert payload["scenarios"]["checkerboard"]["pyramid_level"] == 1
