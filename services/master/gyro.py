@@ -141,7 +141,9 @@ class GyroPrior:
         R_body_imu: npt.ArrayLike | None = None,
     ) -> None:
         self.enabled = enabled
-        #: level each pair's views by the IMU's tilt (needs the lens's intrinsics, the core's side)
+        #: level each pair's views by the IMU's tilt (asked for); :meth:`for_stream` keeps it for a stream
+        #: whose lens the master knows (the level views need the intrinsics)
+        self.level_views = level
         self.level = level
         self.R_body_imu = np.eye(3) if R_body_imu is None else np.asarray(R_body_imu, dtype=np.float64)
         self.wait_s = wait_s
@@ -165,6 +167,17 @@ class GyroPrior:
             prior.gyro_prior, prior.gyro_wait_s, counters, gate, axis, mount.imu_time_offset_s, level,
             mount.R_body_imu,
         )  # fmt: skip
+
+    def for_stream(
+        self, axis_imu: FloatArray, time_offset_s: float, R_body_imu: FloatArray, lensed: bool, name: str
+    ) -> None:
+        """A new stream's IMU axes and clock offset; the level views only with its lens (else said once)."""
+        self.axis_imu, self.time_offset_s, self.R_body_imu = axis_imu, time_offset_s, R_body_imu
+        self.level = self.level_views and lensed
+        if self.level_views and not lensed:
+            logger.warning(
+                "%s: --level-views needs the camera's intrinsics: the fixed view for this stream", name
+            )
 
     def on_sample(self, imu: ImuSample | None, source: str | None = None) -> None:
         """A decoded IMU sample from ``source`` (None: it failed to decode, counted by the runtime)."""

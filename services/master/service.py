@@ -276,7 +276,7 @@ class MasterService(ConfiguredService[MasterSettings]):
             )
         geometry = stream_geometry(prior, self.lens, frame.width, frame.height, rig, self.name)
         camera, R_body_camera, axis, offset, R_body_imu = geometry
-        self.gyro.axis_imu, self.gyro.time_offset_s, self.gyro.R_body_imu = axis, offset, R_body_imu
+        self.gyro.for_stream(axis, offset, R_body_imu, camera is not None, self.name)
         tracker = YawTracker(prior.tracker_settings(yaw_settings, camera), grid, R_body_camera)
         state = tracker.initial_state(frame.pixels, with_spectra=False, stamp_s=frame.stamp_s,
             yaw_rad=anchor.yaw_rad, yaw_variance_rad2=anchor.yaw_variance_rad2,

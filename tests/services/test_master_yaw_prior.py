@@ -184,3 +184,27 @@ def test_bad_mount_options_are_one_line_errors(argv: tuple[str, ...]) -> None:
     with pytest.raises(InputError) as info:
         yaw_prior_settings_from_args(_parse(*argv))
     assert "\n" not in str(info.value)
+
+
+def test_level_views_are_asked_for_and_kept_only_for_a_stream_with_a_lens() -> None:
+    """``--level-views`` (off by default) levels a stream's pairs only when its lens is known; the tilt is
+    counted at each frame (none before the IMU's window has half filled)."""
+    assert not yaw_prior_settings_from_args(_parse()).level_views
+    prior = yaw_prior_settings_from_args(_parse("--level-views"))
+    service = _Service()
+    gyro = GyroPrior.of(prior, service.counters, InputGate("uav0", service), "master")
+    axis, R_body_imu = prior.gyro_axis_imu(), prior.rig_mount.R_body_imu
+    gyro.for_stream(axis, 0.0, R_body_imu, False, "master")  # no intrinsics: no level views
+    counts: dict[str, int] = {}
+    assert not gyro.level and gyro.tilt(1.0, counts) is None and counts == {}
+    gyro.for_stream(axis, 0.0, R_body_imu, True, "master")
+    assert gyro.level
+    for t in np.arange(0.0, 2.0, 0.0025):
+        gyro.on_sample(
+            ImuSample(
+                uav="uav0", stamp_s=float(t), gyro_rad_s=np.zeros(3), accel_m_s2=np.array([0.0, 0.0, 9.81])
+            )
+        )
+    assert gyro.tilt(1.0, counts) is None and counts == {"no_tilt": 1}
+    tilt = gyro.tilt(1.99, counts)
+    assert tilt is not None and np.allclose(tilt, np.eye(3)) and counts == {"no_tilt": 1, "tilt": 1}
