@@ -73,6 +73,8 @@ class Lens:
     focal_px: float | None = None
     #: (P, 2) patch centres undistorted, before the nadir view (what a per-frame levelling maps)
     undistorted_px: FloatArray | None = None
+    #: one pair's level views (:func:`conclude_pair`'s copy of the lens), instead of the fixed nadir view
+    levelling: Levelling | None = None
 
 
 def _mapped(homography: FloatArray, points_px: FloatArray) -> FloatArray:
@@ -124,11 +126,10 @@ def fit_measurement(
     measurement: PatchMeasurement,
     settings: YawSettings,
     matrix: FloatArray | None = None,
-    levelling: Levelling | None = None,
 ) -> ModelFit:
     """Fit patch centre -> centre + shift (mapped by the pre-alignment ``matrix`` when given: the shift was
     measured against frame k warped back by it), both undistorted through the lens model first, then moved
-    into the fixed nadir view or, with ``levelling``, into each frame's level view
+    into the fixed nadir view or, with the lens's ``levelling``, into each frame's level view
     (:mod:`common.yaw.level`)."""
     valid = measurement.valid
     index = measurement.indices[valid]
@@ -137,6 +138,7 @@ def fit_measurement(
         mapped = np.hstack([dst, np.ones((dst.shape[0], 1))]) @ matrix.T
         dst = mapped[:, :2] / mapped[:, 2:3]
     src, to_view = lens.src_px[index], lens.to_nadir
+    levelling = lens.levelling
     if levelling is not None and lens.camera is not None and lens.undistorted_px is not None:
         src, to_view = _mapped(levelling.before, lens.undistorted_px[index]), levelling.after
     if lens.camera is not None and dst.size:
@@ -222,7 +224,6 @@ def prealigned_pair(
     prior: Prior,
     fit_model: FitModel,
     refine_measure: RefineMeasure | None = None,
-    levelling: Levelling | None = None,
 ) -> PairResult:
     """Patch stage on frame k warped back by ``matrix`` (frame k-1 px -> frame k px), fitted through it.
 
@@ -237,7 +238,7 @@ def prealigned_pair(
     if wanted is not None and refine_measure is not None:
         turned = _turned_level(frame_u8, matrix, settings)
         measurement = refine_measure(wanted, grid.crop_level(turned, wanted))
-        return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model, levelling)
+        return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model)
     if previous_spectra is None:
         before = patch_spectra(previous_frame, grid, wanted, settings)
     elif wanted is None:
@@ -253,7 +254,7 @@ def prealigned_pair(
         aligned = grid.level_image(warp_into(frame_u8, matrix, grid.frame_shape))
     current = patch_spectra_from_crops(grid.crop_level(aligned, before.indices), before.indices, settings)
     measurement = measure_patches(before, current, settings)
-    return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model, levelling)
+    return _fitted(grid, lens, settings, matrix, method, measurement, prior, fit_model)
 
 
 def _turned_level(frame_u8: U8Array, matrix: FloatArray, settings: YawSettings) -> U8Array:
@@ -272,11 +273,9 @@ def _fitted(
     measurement: PatchMeasurement,
     prior: Prior,
     fit_model: FitModel,
-    levelling: Levelling | None = None,
 ) -> PairResult:
-    """The pair result of shifts measured on frame k warped back by ``matrix`` (in the frames' level views
-    with ``levelling``)."""
-    fit = fit_measurement(grid, lens, measurement, replace(settings, fit_model=fit_model), matrix, levelling)
+    """The pair result of shifts measured on frame k warped back by ``matrix``."""
+    fit = fit_measurement(grid, lens, measurement, replace(settings, fit_model=fit_model), matrix)
     good = fit_is_good(fit, measurement, settings)
     return _result(fit.homography, method, fit, measurement, lens, settings, prior, good)
 
@@ -317,7 +316,9 @@ def conclude_pair(
     the patch stage. The cost is bounded by the gyro: with it the global stage never runs (the gyro bridges
     what the patches cannot measure). ``refine_measure`` measures the refinement's patches elsewhere
     (:data:`RefineMeasure`; the fallbacks, rare, are measured here)."""
-    fit = fit_measurement(grid, lens, measurement, settings, None, levelling)
+    if levelling is not None:
+        lens = replace(lens, levelling=levelling)
+    fit = fit_measurement(grid, lens, measurement, settings)
     good = fit_is_good(fit, measurement, settings)
     patches = _result(fit.homography, EstimateMethod.PATCHES, fit, measurement, lens, settings, prior, good)
     if patches.trusted and not check_global:
@@ -328,7 +329,7 @@ def conclude_pair(
         matrix = rotation_about(lens.centre_px, patches.delta_rad)
         refined = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, matrix,
-            EstimateMethod.REFINED, previous_spectra, prior, settings.fit_model, refine_measure, levelling,
+            EstimateMethod.REFINED, previous_spectra, prior, settings.fit_model, refine_measure,
         )  # fmt: skip
         return refined if refined.trusted else patches
     if frame_is_flat(previous_frame) or frame_is_flat(frame_u8):
@@ -338,8 +339,7 @@ def conclude_pair(
         matrix = rotation_about(lens.centre_px, prior.delta_rad)
         turned = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, matrix,
-            EstimateMethod.PRIOR_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model, None,
-            levelling,
+            EstimateMethod.PRIOR_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model,
         )  # fmt: skip
         if turned.trusted or prior.source is PriorSource.GYRO:
             return turned
@@ -352,8 +352,7 @@ def conclude_pair(
     if chosen is not None and alignment.candidates[chosen][2] >= _MIN_GLOBAL_RESPONSE:
         prealigned = prealigned_pair(
             previous_frame, frame_u8, grid, lens, settings, alignment.candidates[chosen][0],
-            EstimateMethod.GLOBAL_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model, None,
-            levelling,
+            EstimateMethod.GLOBAL_PREALIGNED, previous_spectra, prior, settings.prealigned_fit_model,
         )  # fmt: skip
         if prealigned.trusted or (not patches.trusted and prealigned.fit.ok):
             return prealigned
