@@ -4,7 +4,7 @@ A camera tilted with the vehicle (roll, pitch) sees the floor obliquely, and the
 then reads two things that are not the vehicle's yaw (heading) change:
 
 - a translation over the floor shears the image (the near side moves faster than the far side), and a
-  shear's antisymmetric half is a turn: ``tilt x translation / 2`` per pair, of either sign;
+  shear's antisymmetric half is a turn: ``tilt x translation / height / 2`` per pair, of either sign;
 - a turn about the body's z axis is not the heading's turn when the body is tilted (the ZYX yaw's rate is
   ``(q sin(roll) + r cos(roll)) / cos(pitch)``), so the integrated turns drift from the heading.
 
