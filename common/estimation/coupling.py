@@ -151,17 +151,14 @@ class DoubleCouplingEstimator:
         # walk enters this module no more than twice (test_walks.py; a comprehension is a frame)
         next_imu: list[ImuMeasurement | None] = [None] * len(released)
         upcoming: ImuMeasurement | None = None
+        if released and not isinstance(released[-1].item, ImuMeasurement):
+            pending = self.buffer.first_pending(Sensor.IMU.value)
+            upcoming = pending if isinstance(pending, ImuMeasurement) else None
         for i in range(len(released) - 1, -1, -1):
             next_imu[i] = upcoming
             item = released[i].item
             if isinstance(item, ImuMeasurement):
                 upcoming = item
-        if released and not isinstance(released[-1].item, ImuMeasurement):
-            pending = self.buffer.first_pending(Sensor.IMU.value)
-            for i in range(len(released) - 1, -1, -1):
-                if isinstance(released[i].item, ImuMeasurement):
-                    break
-                next_imu[i] = pending if isinstance(pending, ImuMeasurement) else None
         for i, t in enumerate(released):
             m = t.item
             if isinstance(m, ImuMeasurement):
