@@ -68,11 +68,11 @@ class Lens:
     centre_px: tuple[float, float]
     src_px: FloatArray  # (P, 2) patch centres, undistorted (and in the nadir view)
     lever_px: float
+    #: (P, 2) patch centres undistorted, before the nadir view (what a pair's level views map)
+    undistorted_px: FloatArray
     to_nadir: FloatArray | None = None
     #: the focal length (px; the geometric mean of ``fx`` and ``fy``), None without intrinsics
     focal_px: float | None = None
-    #: (P, 2) patch centres undistorted, before the nadir view (what a per-frame levelling maps)
-    undistorted_px: FloatArray | None = None
     #: one pair's level views (:func:`conclude_pair`'s copy of the lens), instead of the fixed nadir view
     levelling: Levelling | None = None
 
@@ -112,7 +112,7 @@ def lens_of(grid: PatchGrid, settings: YawSettings, R_nadir_camera: FloatArray |
         src = _mapped(to_nadir, src)
     lever = float(np.median(np.hypot(src[:, 0] - centre[0], src[:, 1] - centre[1])))
     focal = None if camera is None else math.sqrt(camera.fx * camera.fy)
-    return Lens(camera, centre, src, lever, to_nadir, focal, undistorted)
+    return Lens(camera, centre, src, lever, undistorted, to_nadir, focal)
 
 
 def frame_is_flat(frame_u8: U8Array) -> bool:
@@ -139,7 +139,7 @@ def fit_measurement(
         dst = mapped[:, :2] / mapped[:, 2:3]
     src, to_view = lens.src_px[index], lens.to_nadir
     levelling = lens.levelling
-    if levelling is not None and lens.camera is not None and lens.undistorted_px is not None:
+    if levelling is not None and lens.camera is not None:
         src, to_view = _mapped(levelling.before, lens.undistorted_px[index]), levelling.after
     if lens.camera is not None and dst.size:
         dst = lens.camera.undistort_px(dst) if np.all(np.isfinite(dst)) else np.full_like(dst, np.nan)
